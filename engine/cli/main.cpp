@@ -1,0 +1,58 @@
+// terramap: command-line front end. Each subcommand is in cmd_<name>.cpp.
+#include "command.hpp"
+
+#include <terramap/core/error.hpp>
+
+#include <algorithm>
+#include <iostream>
+
+namespace terramap::cli {
+std::vector<Command>& registry() {
+  static std::vector<Command> r;
+  return r;
+}
+}  // namespace terramap::cli
+
+int main(int argc, char** argv) {
+  using namespace terramap;
+  using namespace terramap::cli;
+  CLI::App app{"terramap: parallel layered grid maps for machines that move soil.\n"
+               "Exit codes: 0 ok, 1 internal error, 2 usage, 3 config, 4 input, 5 plugin, 6 layer,\n"
+               "7 output, 8 validation failed / invalid result."};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", std::string("terramap ") + "0.1.0");
+  std::function<int()> run;
+  auto& cmds = registry();
+  std::sort(cmds.begin(), cmds.end(), [](const Command& a, const Command& b) { return a.name < b.name; });
+  for (auto& c : cmds) c.setup(app, run);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int rc = app.exit(e);
+    return rc == 0 ? kOk : kUsage;
+  }
+  try {
+    return run ? run() : kUsage;
+  } catch (const ConfigError& e) {
+    std::cerr << "terramap: configuration error: " << e.what() << "\n";
+    return kConfig;
+  } catch (const InputError& e) {
+    std::cerr << "terramap: input error: " << e.what() << "\n";
+    return kInput;
+  } catch (const PluginError& e) {
+    std::cerr << "terramap: plugin error: " << e.what() << "\n";
+    return kPlugin;
+  } catch (const LayerError& e) {
+    std::cerr << "terramap: layer error: " << e.what() << "\n";
+    return kLayer;
+  } catch (const OutputError& e) {
+    std::cerr << "terramap: output error: " << e.what() << "\n";
+    return kOutput;
+  } catch (const Error& e) {
+    std::cerr << "terramap: error: " << e.what() << "\n";
+    return kInternal;
+  } catch (const std::exception& e) {
+    std::cerr << "terramap: internal error: " << e.what() << "\n";
+    return kInternal;
+  }
+}

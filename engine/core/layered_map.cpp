@@ -1,0 +1,256 @@
+#include <terramap/core/error.hpp>
+#include <terramap/core/layered_map.hpp>
+#include <terramap/core/text.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+namespace terramap {
+
+namespace {
+int floorMod(int a, int n) {
+  const int r = a % n;
+  return r < 0 ? r + n : r;
+}
+}  // namespace
+
+LayeredMap::LayeredMap(const Geometry& geometry, MapOptions options)
+    : geometry_(geometry), options_(options) {
+  if (options_.tile_size < 8 || options_.tile_size > 1024) {
+    std::ostringstream os;
+    os << "map tile size must be in [8, 1024] (got " << options_.tile_size << ")";
+    throw ConfigError(os.str());
+  }
+  if (geometry_.size().x() <= 0 || geometry_.size().y() <= 0)
+    throw ConfigError("map geometry has no cells");
+  const int T = options_.tile_size;
+  tile_rows_ = (geometry_.size().x() + T - 1) / T;
+  tile_cols_ = (geometry_.size().y() + T - 1) / T;
+}
+
+LayeredMap::TilePtr LayeredMap::newTile(float fill) const {
+  const size_t n = static_cast<size_t>(options_.tile_size) * options_.tile_size;
+  TilePtr t(new float[n]);
+  std::fill(t.get(), t.get() + n, fill);
+  return t;
+}
+
+LayerId LayeredMap::addLayer(const std::string& name, const std::string& unit, float fill) {
+  if (name.empty()) throw LayerError("layer name must not be empty");
+  if (hasLayer(name)) throw LayerError("layer '" + name + "' already exists");
+  layers_.push_back(LayerInfo{name, unit, fill});
+  std::vector<TilePtr> tiles(static_cast<size_t>(tileCount()));
+  if (!options_.sparse)
+    for (auto& t : tiles) t = newTile(fill);
+  tiles_.push_back(std::move(tiles));
+  return static_cast<LayerId>(layers_.size() - 1);
+}
+
+bool LayeredMap::hasLayer(const std::string& name) const {
+  return std::any_of(layers_.begin(), layers_.end(), [&](const LayerInfo& l) { return l.name == name; });
+}
+
+LayerId LayeredMap::layerId(const std::string& name) const {
+  for (size_t i = 0; i < layers_.size(); ++i)
+    if (layers_[i].name == name) return static_cast<LayerId>(i);
+  const auto names = layerNames();
+  throw LayerError("no layer '" + name + "' in the map" + didYouMean(name, names) + "; layers: [" +
+                   joinStrings(names) + "]");
+}
+
+const LayerInfo& LayeredMap::layerInfo(LayerId id) const {
+  if (id < 0 || id >= layerCount()) throw LayerError("bad layer id " + std::to_string(id));
+  return layers_[static_cast<size_t>(id)];
+}
+
+std::vector<std::string> LayeredMap::layerNames() const {
+  std::vector<std::string> out;
+  out.reserve(layers_.size());
+  for (const auto& l : layers_) out.push_back(l.name);
+  return out;
+}
+
+CellRect LayeredMap::tileRect(int t) const {
+  const int T = options_.tile_size;
+  const int tr = t / tile_cols_, tc = t % tile_cols_;
+  CellRect r;
+  r.r0 = tr * T;
+  r.c0 = tc * T;
+  r.rows = std::min(T, geometry_.size().x() - r.r0);
+  r.cols = std::min(T, geometry_.size().y() - r.c0);
+  return r;
+}
+
+const float* LayeredMap::tileData(LayerId id, int t) const {
+  return tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)].get();
+}
+
+float* LayeredMap::mutableTileData(LayerId id, int t) {
+  TilePtr& tile = tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)];
+  if (!tile) {
+    tile = newTile(layers_[static_cast<size_t>(id)].fill);
+  } else if (tile.use_count() > 1) {
+    // Shared with a snapshot: copy before writing. use_count can only *drop* concurrently
+    // (snapshots are taken while the owner is not writing), so a stale count costs at most a
+    // needless copy, never a write into a shared tile.
+    const size_t n = static_cast<size_t>(options_.tile_size) * options_.tile_size;
+    TilePtr copy(new float[n]);
+    std::copy(tile.get(), tile.get() + n, copy.get());
+    tile = std::move(copy);
+  }
+  return tile.get();
+}
+
+long LayeredMap::allocatedTiles() const {
+  long n = 0;
+  for (const auto& layer : tiles_)
+    for (const auto& t : layer) n += t ? 1 : 0;
+  return n;
+}
+
+Index LayeredMap::bufferIndex(const Index& logical) const {
+  return Index(floorMod(logical.x() + start_.x(), geometry_.size().x()),
+               floorMod(logical.y() + start_.y(), geometry_.size().y()));
+}
+
+Index LayeredMap::logicalIndex(const Index& buffer) const {
+  return Index(floorMod(buffer.x() - start_.x(), geometry_.size().x()),
+               floorMod(buffer.y() - start_.y(), geometry_.size().y()));
+}
+
+namespace {
+void checkIndex(const Geometry& g, const Index& idx) {
+  if (!g.contains(idx)) {
+    std::ostringstream os;
+    os << "cell index (" << idx.x() << ", " << idx.y() << ") is outside the map of size ["
+       << g.size().x() << ", " << g.size().y() << "]";
+    throw std::out_of_range(os.str());
+  }
+}
+}  // namespace
+
+float LayeredMap::at(LayerId id, const Index& logical) const {
+  layerInfo(id);
+  checkIndex(geometry_, logical);
+  const Index b = bufferIndex(logical);
+  const int t = tileOfBuffer(b.x(), b.y());
+  const float* d = tileData(id, t);
+  if (!d) return layers_[static_cast<size_t>(id)].fill;
+  const CellRect r = tileRect(t);
+  return d[(b.x() - r.r0) * options_.tile_size + (b.y() - r.c0)];
+}
+
+void LayeredMap::set(LayerId id, const Index& logical, float value) {
+  layerInfo(id);
+  checkIndex(geometry_, logical);
+  const Index b = bufferIndex(logical);
+  const int t = tileOfBuffer(b.x(), b.y());
+  float* d = mutableTileData(id, t);
+  const CellRect r = tileRect(t);
+  d[(b.x() - r.r0) * options_.tile_size + (b.y() - r.c0)] = value;
+}
+
+void LayeredMap::fill(LayerId id, float value) {
+  layerInfo(id);
+  for (int t = 0; t < tileCount(); ++t) {
+    if (options_.sparse && value == layers_[static_cast<size_t>(id)].fill) {
+      tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)].reset();
+      continue;
+    }
+    float* d = mutableTileData(id, t);
+    std::fill(d, d + static_cast<size_t>(options_.tile_size) * options_.tile_size, value);
+  }
+}
+
+Eigen::MatrixXf LayeredMap::toMatrix(LayerId id) const {
+  layerInfo(id);
+  const int R = geometry_.size().x(), C = geometry_.size().y(), T = options_.tile_size;
+  Eigen::MatrixXf m(R, C);
+  const float fill = layers_[static_cast<size_t>(id)].fill;
+  for (int t = 0; t < tileCount(); ++t) {
+    const CellRect r = tileRect(t);
+    const float* d = tileData(id, t);
+    for (int br = r.r0; br < r.r0 + r.rows; ++br) {
+      const int li = floorMod(br - start_.x(), R);
+      for (int bc = r.c0; bc < r.c0 + r.cols; ++bc) {
+        const int lj = floorMod(bc - start_.y(), C);
+        m(li, lj) = d ? d[(br - r.r0) * T + (bc - r.c0)] : fill;
+      }
+    }
+  }
+  return m;
+}
+
+void LayeredMap::fromMatrix(LayerId id, const Eigen::MatrixXf& m) {
+  layerInfo(id);
+  const int R = geometry_.size().x(), C = geometry_.size().y(), T = options_.tile_size;
+  if (m.rows() != R || m.cols() != C) {
+    std::ostringstream os;
+    os << "matrix of " << m.rows() << "x" << m.cols() << " does not fit layer '"
+       << layers_[static_cast<size_t>(id)].name << "' of " << R << "x" << C;
+    throw LayerError(os.str());
+  }
+  for (int t = 0; t < tileCount(); ++t) {
+    const CellRect r = tileRect(t);
+    float* d = mutableTileData(id, t);
+    for (int br = r.r0; br < r.r0 + r.rows; ++br) {
+      const int li = floorMod(br - start_.x(), R);
+      for (int bc = r.c0; bc < r.c0 + r.cols; ++bc)
+        d[(br - r.r0) * T + (bc - r.c0)] = m(li, floorMod(bc - start_.y(), C));
+    }
+  }
+}
+
+void LayeredMap::resetLogicalRect(const CellRect& logical) {
+  const int T = options_.tile_size;
+  for (int li = logical.r0; li < logical.r0 + logical.rows; ++li) {
+    for (int lj = logical.c0; lj < logical.c0 + logical.cols; ++lj) {
+      const Index b = bufferIndex(Index(li, lj));
+      const int t = tileOfBuffer(b.x(), b.y());
+      const CellRect r = tileRect(t);
+      const size_t off = static_cast<size_t>((b.x() - r.r0) * T + (b.y() - r.c0));
+      for (size_t l = 0; l < layers_.size(); ++l) {
+        // Unallocated sparse tiles already read as the fill: do not allocate them.
+        if (!tiles_[l][static_cast<size_t>(t)]) continue;
+        mutableTileData(static_cast<LayerId>(l), t)[off] = layers_[l].fill;
+      }
+    }
+  }
+}
+
+MoveResult LayeredMap::move(const Position& new_center) {
+  if (!new_center.allFinite()) throw ConfigError("LayeredMap::move: target centre is not finite");
+  MoveResult res;
+  const double res_m = geometry_.resolution();
+  const Eigen::Vector2d d = (new_center - geometry_.center()) / res_m;
+  const Index s(static_cast<int>(std::lround(d.x())), static_cast<int>(std::lround(d.y())));
+  res.shift_cells = s;
+  if ((s == 0).all()) return res;
+  const int R = geometry_.size().x(), C = geometry_.size().y();
+  // Physical cell at old logical i now has logical i + s (index grows towards -x), so the
+  // buffer start moves by -s and logical rows [0, s) (s > 0) or [R + s, R) (s < 0) are new.
+  CellRect rows_in, cols_in;
+  if (std::abs(s.x()) >= R || std::abs(s.y()) >= C) {
+    rows_in = CellRect{0, 0, R, C};
+  } else {
+    if (s.x() > 0) rows_in = CellRect{0, 0, s.x(), C};
+    if (s.x() < 0) rows_in = CellRect{R + s.x(), 0, -s.x(), C};
+    // Columns band, minus the rows already reported.
+    const int r_lo = s.x() > 0 ? s.x() : 0;
+    const int r_hi = s.x() < 0 ? R + s.x() : R;
+    if (s.y() > 0) cols_in = CellRect{r_lo, 0, r_hi - r_lo, s.y()};
+    if (s.y() < 0) cols_in = CellRect{r_lo, C + s.y(), r_hi - r_lo, -s.y()};
+  }
+  start_ = Index(floorMod(start_.x() - s.x(), R), floorMod(start_.y() - s.y(), C));
+  geometry_.shiftCenterByCells(s);
+  for (const CellRect& r : {rows_in, cols_in}) {
+    if (r.empty()) continue;
+    resetLogicalRect(r);
+    res.new_regions.push_back(r);
+  }
+  return res;
+}
+
+}  // namespace terramap

@@ -1,0 +1,134 @@
+#pragma once
+/// \file
+/// LayeredMap: named float32 layers over one Geometry, stored in square tiles.
+///
+/// - NaN means "unknown" in every layer unless the layer's fill value says otherwise.
+/// - Storage is tile-major in *buffer* space: the map is a ring buffer, so a logical index
+///   (see geometry.hpp) maps to buffer index (logical + start) mod size. A tile is a square
+///   of `tileSize()` x `tileSize()` buffer cells (edge tiles are partial: see tileRect()).
+///   Kernels run one task per tile (parallel.hpp) and so never share a cache line of output.
+/// - Tiles are reference counted. `snapshot()` copies only the references; the first write to
+///   a shared tile copies it (copy-on-write), so a snapshot stays consistent while the owner
+///   keeps writing, and costs memory only for the tiles that change.
+/// - Sparse mode: tiles are allocated on first write; an unallocated tile reads as the fill.
+///
+/// Threading: const member functions may run concurrently with each other. Mutations of
+/// *different* tiles (mutableTileData, set on cells of different tiles) may run concurrently;
+/// everything else that mutates (addLayer, move, fill, ...) needs exclusive access.
+/// A snapshot shares no mutable state with its source and may live on another thread.
+#include <terramap/core/geometry.hpp>
+
+#include <Eigen/Core>
+#include <limits>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace terramap {
+
+using LayerId = int;
+
+struct LayerInfo {
+  std::string name;
+  std::string unit;   ///< SI unit, e.g. "m", "m^2", "s", "1" (dimensionless), "count"
+  float fill = std::numeric_limits<float>::quiet_NaN();  ///< value of cells never written
+};
+
+/// A rectangle of buffer cells [r0, r0+rows) x [c0, c0+cols) (no wrap-around).
+struct CellRect {
+  int r0 = 0, c0 = 0, rows = 0, cols = 0;
+  long cells() const { return static_cast<long>(rows) * cols; }
+  bool empty() const { return rows <= 0 || cols <= 0; }
+};
+
+struct MapOptions {
+  int tile_size = 64;    ///< cells per tile edge, in [8, 1024]
+  bool sparse = false;   ///< allocate tiles on first write
+};
+
+/// What LayeredMap::move() did.
+struct MoveResult {
+  Index shift_cells{0, 0};           ///< logical shift applied (cells, + = towards +x/+y)
+  std::vector<CellRect> new_regions;  ///< *logical* index rectangles that came in (reset to fill)
+};
+
+class LayeredMap {
+ public:
+  /// \throws ConfigError on a tile size out of [8, 1024].
+  explicit LayeredMap(const Geometry& geometry, MapOptions options = {});
+
+  const Geometry& geometry() const { return geometry_; }
+  const MapOptions& options() const { return options_; }
+  int tileSize() const { return options_.tile_size; }
+
+  // ---- layers ------------------------------------------------------------------------------
+  /// Adds a layer filled with `fill`. \throws LayerError if the name exists or is empty.
+  LayerId addLayer(const std::string& name, const std::string& unit,
+                   float fill = std::numeric_limits<float>::quiet_NaN());
+  bool hasLayer(const std::string& name) const;
+  /// \throws LayerError naming the missing layer and the closest existing names.
+  LayerId layerId(const std::string& name) const;
+  const LayerInfo& layerInfo(LayerId id) const;
+  int layerCount() const { return static_cast<int>(layers_.size()); }
+  std::vector<std::string> layerNames() const;
+
+  // ---- tiles (buffer space) ----------------------------------------------------------------
+  int tileRows() const { return tile_rows_; }
+  int tileCols() const { return tile_cols_; }
+  int tileCount() const { return tile_rows_ * tile_cols_; }
+  /// Buffer-space rectangle of tile `t` (row-major tile numbering).
+  CellRect tileRect(int t) const;
+  /// Tile that holds buffer cell (r, c).
+  int tileOfBuffer(int r, int c) const {
+    return (r / options_.tile_size) * tile_cols_ + c / options_.tile_size;
+  }
+  /// Read-only tile data, row-major with stride tileSize(); nullptr if not allocated (sparse),
+  /// in which case every cell reads as the layer's fill.
+  const float* tileData(LayerId id, int t) const;
+  /// Writable tile data; allocates (sparse) or un-shares (copy-on-write) as needed.
+  float* mutableTileData(LayerId id, int t);
+  bool tileAllocated(LayerId id, int t) const { return tileData(id, t) != nullptr; }
+  /// Number of allocated tiles over all layers (memory = this * tileSize^2 * 4 bytes).
+  long allocatedTiles() const;
+
+  // ---- index mapping -----------------------------------------------------------------------
+  const Index& startIndex() const { return start_; }
+  Index bufferIndex(const Index& logical) const;
+  Index logicalIndex(const Index& buffer) const;
+
+  // ---- cells (logical indices; bounds-checked, for tests and light use) ---------------------
+  /// \throws LayerError on a bad layer id, std::out_of_range on an index outside the map.
+  float at(LayerId id, const Index& logical) const;
+  void set(LayerId id, const Index& logical, float value);
+
+  // ---- whole layers ------------------------------------------------------------------------
+  void fill(LayerId id, float value);
+  /// Layer as a rows x cols matrix in logical order (row i, column j).
+  Eigen::MatrixXf toMatrix(LayerId id) const;
+  /// \throws LayerError if the matrix size differs from the geometry.
+  void fromMatrix(LayerId id, const Eigen::MatrixXf& m);
+
+  // ---- motion ------------------------------------------------------------------------------
+  /// Re-centres the map on the cell-aligned position nearest `new_center` by shifting the ring
+  /// buffer (no data copy). Cells that leave are forgotten; cells that come in are reset to
+  /// each layer's fill and reported as logical rectangles.
+  MoveResult move(const Position& new_center);
+
+  // ---- snapshots ---------------------------------------------------------------------------
+  /// A consistent copy sharing tiles copy-on-write; O(layers x tiles) pointer copies.
+  LayeredMap snapshot() const { return *this; }
+
+ private:
+  using TilePtr = std::shared_ptr<float[]>;
+  TilePtr newTile(float fill) const;
+  void resetLogicalRect(const CellRect& logical);
+
+  Geometry geometry_;
+  MapOptions options_;
+  int tile_rows_ = 0, tile_cols_ = 0;
+  Index start_{0, 0};
+  std::vector<LayerInfo> layers_;
+  std::vector<std::vector<TilePtr>> tiles_;  // [layer][tile]
+};
+
+}  // namespace terramap

@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages terramap builds against, only those missing,
+# so a second `make test` costs nothing. Needs root (or sudo) only when something is missing.
+set -euo pipefail
+PKGS=(build-essential cmake ninja-build pkg-config
+  libtbb-dev libeigen3-dev liboctomap-dev libyaml-cpp-dev libboost-dev libboost-filesystem-dev
+  libbenchmark-dev libgtest-dev googletest libpcl-dev libgdal-dev gdal-bin libhdf5-dev
+  libtorch-dev libopenblas0-openmp nlohmann-json3-dev libcli11-dev)
+missing=()
+for p in "${PKGS[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install_deps: all ${#PKGS[@]} packages present"
+  exit 0
+fi
+echo "install_deps: installing ${missing[*]}"
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+$SUDO apt-get update
+DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y --no-install-recommends \
+  -o DPkg::Lock::Timeout=600 "${missing[@]}"
