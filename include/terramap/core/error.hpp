@@ -5,61 +5,72 @@
 #include <stdexcept>
 #include <string>
 
+/// Marks types and functions that cross shared-library boundaries (plugins are built with
+/// hidden visibility; these must still resolve to one definition in the terramap libraries).
+#define TERRAMAP_API __attribute__((visibility("default")))
+
 namespace terramap {
 
 /// Base of every error terramap throws for user-caused conditions.
 /// `kind()` names the class for the CLI's exit-code mapping.
-class Error : public std::runtime_error {
+class TERRAMAP_API Error : public std::runtime_error {
  public:
   explicit Error(const std::string& what) : std::runtime_error(what) {}
-  virtual const char* kind() const noexcept { return "error"; }
+  ~Error() override;
+  virtual const char* kind() const noexcept;
 };
 
 /// Bad configuration: YAML syntax, unknown/mistyped/out-of-range keys, pipeline inconsistencies.
 /// The message carries file:line:col and the key path where known.
-class ConfigError : public Error {
+class TERRAMAP_API ConfigError : public Error {
  public:
   using Error::Error;
-  const char* kind() const noexcept override { return "config"; }
+  ~ConfigError() override;
+  const char* kind() const noexcept override;
 };
 
 /// Bad input data: a malformed point-cloud file, trajectory, snapshot or episode.
 /// The message names the file and the byte offset or line.
-class InputError : public Error {
+class TERRAMAP_API InputError : public Error {
  public:
   using Error::Error;
-  const char* kind() const noexcept override { return "input"; }
+  ~InputError() override;
+  const char* kind() const noexcept override;
 };
 
 /// A plugin library that cannot be loaded, has the wrong ABI, or threw while running.
-class PluginError : public Error {
+class TERRAMAP_API PluginError : public Error {
  public:
   using Error::Error;
-  const char* kind() const noexcept override { return "plugin"; }
+  ~PluginError() override;
+  const char* kind() const noexcept override;
 };
 
 /// A layer that does not exist, exists twice, or is used against its declaration.
-class LayerError : public Error {
+class TERRAMAP_API LayerError : public Error {
  public:
   using Error::Error;
-  const char* kind() const noexcept override { return "layer"; }
+  ~LayerError() override;
+  const char* kind() const noexcept override;
 };
 
 /// Writing an output failed (disk full, permissions, GDAL driver error).
-class OutputError : public Error {
+class TERRAMAP_API OutputError : public Error {
  public:
   using Error::Error;
-  const char* kind() const noexcept override { return "output"; }
+  ~OutputError() override;
+  const char* kind() const noexcept override;
 };
 
 /// Thrown by TERRAMAP_CHECK: a bug in terramap or a plugin, not a user error.
-class InternalError : public std::logic_error {
+class TERRAMAP_API InternalError : public std::logic_error {
  public:
   using std::logic_error::logic_error;
+  ~InternalError() override;
 };
 
 namespace detail {
-[[noreturn]] void checkFailed(const char* expr, const char* file, int line, const std::string& msg);
+[[noreturn]] TERRAMAP_API void checkFailed(const char* expr, const char* file, int line, const std::string& msg);
 }  // namespace detail
 
 }  // namespace terramap

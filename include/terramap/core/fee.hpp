@@ -1,15 +1,35 @@
 #pragma once
 /// \file
 /// The fundamental equation of earthmoving (FEE), paper Eq. 1, 2, 9; ALGORITHMS.md §E.
-/// Pure functions, no torch, no state: safe to call from any thread.
+/// Pure functions, no torch, no state, no allocation: safe to call from any thread at once.
+/// Nothing here throws: a bad input is reported through `Validity`, never by exception,
+/// because the estimator evaluates the FEE inside training loops where an invalid sample is
+/// an ordinary event (it masks the loss) rather than an error.
 ///
 /// Units: Pa, rad, N/m^3, m, N. Frame of the force: x along the direction of travel
-/// (horizontal), z up; the force is that of the blade on the soil.
+/// (horizontal), z up; the force is that of the blade on the soil (the soil pushes the blade
+/// with the opposite force).
 ///
 /// Symbols: c cohesion, phi internal friction angle, gamma unit weight, ca adhesion,
 /// delta soil-tool friction angle, alpha surface slope (positive = terrain rises ahead of the
 /// blade), rho rake angle (blade to horizontal, measured through the soil), d cutting depth,
 /// w blade width in contact, Q surcharge weight, beta failure-plane angle.
+///
+/// Geometry convention (the one under which the paper's N-factors are exact; re-derived from
+/// the force balance of the soil wedge): rho and beta are measured from the soil *surface*
+/// line (which rises at alpha ahead of the blade), not from the horizontal, and d is the
+/// depth of the cutting edge measured normal to the surface. rho < pi/2 means the top of the
+/// blade leans back over the edge, so the wedge lies above the blade face. With that, the
+/// wedge is the triangle (edge, blade top, failure-plane exit) of area d^2 (cot rho + cot beta)/2,
+/// gravity makes the angle alpha with the surface normal, and rotating the blade reaction
+/// back to the world frame gives the paper's direction [sin(rho+delta-alpha), cos(rho+delta-alpha)].
+/// On level ground (alpha = 0) every angle is simply measured from the horizontal.
+///
+/// Which force to use:
+///  - The soil estimator (PINN, Bayesian layers, fee_index) uses the paper's F: it is what the
+///    paper's network was trained against, and the estimator's residual force absorbs the rest.
+///  - The simulator uses F_total = F + adhesion along the blade face, with beta = beta*, because
+///    it is the ground truth and must be the complete force of the wedge model.
 #include <Eigen/Core>
 #include <string>
 
@@ -34,19 +54,27 @@ struct Geometry {
 };
 
 /// The N-factors (dimensionless) and eta = delta + rho + phi + beta.
+/// N_gamma = (cot rho + cot beta) sin(alpha+phi+beta) / (2 sin eta)
+/// N_c     = cos phi / (sin beta sin eta)
+/// N_Q     = sin(alpha+phi+beta) / sin eta
+/// N_ca    = -cos(rho+phi+beta) / (sin rho sin eta)
 struct Factors {
   double eta_rad = 0, N_gamma = 0, N_c = 0, N_Q = 0, N_ca = 0;
 };
 
-/// Which validity rule failed, or Valid.
+/// Which validity rule failed, or Valid. Rules are checked in the order of this enum except
+/// NotFinite, which is checked first (a NaN would otherwise be misreported as a range rule).
+/// NoAdmissibleBeta is only produced by evaluateAtBetaMin().
 enum class Validity {
   Valid, DepthNotPositive, WidthNotPositive, NegativeCohesion, NegativeAdhesion,
   NegativeUnitWeight, NegativeSurcharge, PhiOutOfRange, DeltaOutOfRange, AlphaOutOfRange,
   RhoOutOfRange, BetaOutOfRange, RhoPlusBetaTooLarge, EtaOutOfRange, AlphaPhiBetaOutOfRange,
-  NotFinite
+  NotFinite, NoAdmissibleBeta
 };
-/// Human-readable rule, e.g. "0 < beta < pi/2".
+/// Human-readable rule, e.g. "0 < beta < pi/2" ("valid" for Valid). Static storage.
 const char* validityRule(Validity v);
+/// The enumerator's name, e.g. "BetaOutOfRange" (for logs and JSON). Static storage.
+const char* validityName(Validity v);
 
 struct Result {
   double beta_rad = 0;
@@ -58,23 +86,60 @@ struct Result {
   bool valid() const { return validity == Validity::Valid; }
 };
 
-/// Nominal (Rankine) failure angle beta = pi/4 - phi/2.
+/// Nominal (Rankine) failure angle beta = pi/4 - phi/2 (paper Eq. 9). The estimator adds a
+/// learned residual to it. NaN if phi is not finite.
 double betaNominal(const Soil& s);
-/// Failure angle beta* minimising N_gamma (closed form, ALGORITHMS.md §E); NaN if no admissible root.
+
+/// Failure angle beta* minimising N_gamma (closed form, ALGORITHMS.md §E):
+/// with K1 = sin(delta+rho-alpha), K2 = sin rho, E = alpha+delta+rho+2 phi,
+/// a = K1 cos rho - K2 cos E, b = -K1 sin rho + K2 sin E, the stationary points of N_gamma are
+/// 2 beta = atan2(b, a) +- acos(sin(delta-alpha) / sqrt(a^2+b^2)) (+ 2 pi k).
+/// A root is admissible when it satisfies every beta-dependent validity rule
+/// (0 < beta < pi/2, rho+beta < pi, 0 < eta < pi, 0 < alpha+phi+beta < pi); of the admissible
+/// roots the one with the smaller N_gamma is returned. Only local minima are candidates (the
+/// "+" branch; the "-" branch is a maximum): they coincide with "smaller N_gamma" whenever
+/// alpha + phi >= 0, and when the ground falls away faster than phi (alpha + phi < 0) the
+/// only admissible stationary point can be a maximum, which must not be returned as a minimum.
+/// Depends only on phi, delta, alpha, rho (not on c, gamma, ca, d, w, Q).
+/// NaN when no admissible minimum exists, when those angles are non-finite or outside their
+/// own validity ranges, or when N_gamma decreases all the way to the edge of the admissible
+/// interval (then the minimum is a boundary, not a failure plane).
 double betaMin(const Soil& s, const Geometry& g);
+
 /// Checks every validity rule for (soil, geometry, beta); returns the first that fails.
 Validity check(const Soil& s, const Geometry& g, double beta_rad);
+/// The N-factors at beta. Computed even when invalid (may be infinite or NaN there).
 Factors factors(const Soil& s, const Geometry& g, double beta_rad);
 /// Full evaluation at a given beta. Never throws; an invalid input is reported in `validity`
 /// and the numbers are still computed where finite.
 Result evaluate(const Soil& s, const Geometry& g, double beta_rad);
+/// evaluate() at betaNominal(s).
+Result evaluateAtBetaNominal(const Soil& s, const Geometry& g);
+/// evaluate() at betaMin(s, g). If the other rules hold but no admissible beta* exists,
+/// validity is NoAdmissibleBeta and beta_rad and all forces are NaN.
+Result evaluateAtBetaMin(const Soil& s, const Geometry& g);
+
+/// dN_gamma/dbeta at beta (zero at beta*; the paper's loss drives it to zero, Eq. 8).
+double dNgammaDbeta(const Soil& s, const Geometry& g, double beta_rad);
 
 /// Parameter vector order for Jacobians: [c, phi, gamma, ca, delta, alpha, rho, d, w, Q, beta].
 constexpr int kParamCount = 11;
+/// Indices into the parameter vector, in the order above.
+enum Param : int { kC = 0, kPhi, kGamma, kCa, kDelta, kAlpha, kRho, kD, kW, kQ, kBeta };
 using Jacobian = Eigen::Matrix<double, 2, kParamCount>;
+using ParamVector = Eigen::Matrix<double, kParamCount, 1>;
+/// Packs (soil, geometry, beta) in the Jacobian's parameter order.
+ParamVector pack(const Soil& s, const Geometry& g, double beta_rad);
+/// Inverse of pack().
+void unpack(const ParamVector& p, Soil& s, Geometry& g, double& beta_rad);
+
 /// Analytic dF/dTheta of the paper's F (not F_total), beta held as an independent parameter.
+/// Rows: [Fx, Fz]; columns: parameter order above; units N per parameter unit (N/rad for
+/// angles). Derived by hand (no finite differences); meaningful where check() is Valid, and
+/// computed by the same formulas elsewhere (may be infinite/NaN at the singular edges).
+/// For uncertainty propagation Sigma_F = J Sigma_Theta J^T (paper Eq. 5).
 Jacobian jacobianF(const Soil& s, const Geometry& g, double beta_rad);
-/// Analytic dF_total/dTheta.
+/// Analytic dF_total/dTheta (same conventions as jacobianF).
 Jacobian jacobianFTotal(const Soil& s, const Geometry& g, double beta_rad);
 
 }  // namespace terramap::fee

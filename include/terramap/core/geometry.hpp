@@ -18,13 +18,15 @@
 #include <Eigen/Core>
 #include <optional>
 
+#include <terramap/core/error.hpp>
+
 namespace terramap {
 
 using Index = Eigen::Array2i;    ///< (row i, column j), logical
 using Size = Eigen::Array2i;     ///< (rows, columns)
 using Position = Eigen::Vector2d;  ///< (x, y) metres in the map frame
 
-class Geometry {
+class TERRAMAP_API Geometry {
  public:
   Geometry() = default;
   /// \param resolution cell edge in metres, > 0.

@@ -16,6 +16,7 @@
 /// *different* tiles (mutableTileData, set on cells of different tiles) may run concurrently;
 /// everything else that mutates (addLayer, move, fill, ...) needs exclusive access.
 /// A snapshot shares no mutable state with its source and may live on another thread.
+#include <terramap/core/error.hpp>
 #include <terramap/core/geometry.hpp>
 
 #include <Eigen/Core>
@@ -52,7 +53,7 @@ struct MoveResult {
   std::vector<CellRect> new_regions;  ///< *logical* index rectangles that came in (reset to fill)
 };
 
-class LayeredMap {
+class TERRAMAP_API LayeredMap {
  public:
   /// \throws ConfigError on a tile size out of [8, 1024].
   explicit LayeredMap(const Geometry& geometry, MapOptions options = {});
