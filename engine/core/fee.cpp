@@ -39,6 +39,18 @@ Validity checkBeta(const Soil& s, const Geometry& g, double beta) {
   return Validity::Valid;
 }
 
+/// Every rule that does not involve beta, in check() order (NotFinite first).
+Validity checkWithoutBeta(const Soil& s, const Geometry& g) {
+  if (!allFinite(s, g)) return Validity::NotFinite;
+  if (!(g.d_m > 0)) return Validity::DepthNotPositive;
+  if (!(g.w_m > 0)) return Validity::WidthNotPositive;
+  if (!(s.c_pa >= 0)) return Validity::NegativeCohesion;
+  if (!(s.ca_pa >= 0)) return Validity::NegativeAdhesion;
+  if (!(s.gamma_n_m3 >= 0)) return Validity::NegativeUnitWeight;
+  if (!(g.q_n >= 0)) return Validity::NegativeSurcharge;
+  return checkAngles(s, g);
+}
+
 double nGamma(double phi, double delta, double alpha, double rho, double beta) {
   const double eta = delta + rho + phi + beta;
   return (1.0 / std::tan(rho) + 1.0 / std::tan(beta)) * std::sin(alpha + phi + beta) / (2.0 * std::sin(eta));
@@ -60,7 +72,7 @@ FactorGrad factorGrad(const Soil& s, const Geometry& g, double beta) {
   const double sB = std::sin(B), cB = std::cos(B);
   const double sr = std::sin(rho), cr = std::cos(rho);
   const double sb = std::sin(beta), cb = std::cos(beta);
-  const double sphi = std::sin(phi), cphi = std::cos(phi);
+  const double cphi = std::cos(phi);
   const double T = cr / sr + cb / sb;           // cot rho + cot beta
   const double sK1 = std::sin(delta + rho - alpha);  // = sin(eta - A)
   const double csc2r = 1.0 / (sr * sr), csc2b = 1.0 / (sb * sb);
@@ -84,7 +96,6 @@ FactorGrad factorGrad(const Soil& s, const Geometry& g, double beta) {
   d.c[2] = 0;
   d.c[3] = -cphi * Ce / (sb * S2);
   d.c[4] = -cphi * std::sin(beta + eta) * csc2b / S2;
-  (void)sphi;
   // N_ca = -cos B / (sin rho S); sin B S + cos B cos eta = cos(eta - B) = cos delta;
   // d(sin rho S)/drho = cos rho S + sin rho cos eta = sin(rho + eta)
   d.ca[0] = std::cos(delta) / (sr * S2);
@@ -177,16 +188,9 @@ double betaMin(const Soil& s, const Geometry& g) {
 }
 
 Validity check(const Soil& s, const Geometry& g, double beta) {
-  if (!allFinite(s, g) || !std::isfinite(beta)) return Validity::NotFinite;
-  if (!(g.d_m > 0)) return Validity::DepthNotPositive;
-  if (!(g.w_m > 0)) return Validity::WidthNotPositive;
-  if (!(s.c_pa >= 0)) return Validity::NegativeCohesion;
-  if (!(s.ca_pa >= 0)) return Validity::NegativeAdhesion;
-  if (!(s.gamma_n_m3 >= 0)) return Validity::NegativeUnitWeight;
-  if (!(g.q_n >= 0)) return Validity::NegativeSurcharge;
-  const Validity a = checkAngles(s, g);
-  if (a != Validity::Valid) return a;
-  return checkBeta(s, g, beta);
+  if (!std::isfinite(beta)) return Validity::NotFinite;
+  const Validity v = checkWithoutBeta(s, g);
+  return v != Validity::Valid ? v : checkBeta(s, g, beta);
 }
 
 Factors factors(const Soil& s, const Geometry& g, double beta) {
@@ -227,11 +231,8 @@ Result evaluateAtBetaMin(const Soil& s, const Geometry& g) {
   if (std::isnan(beta)) {
     // Report the real cause when a beta-independent rule already fails; otherwise the FEE
     // is well posed but has no failure plane of minimum resistance.
-    const Validity other = check(s, g, kPi / 4);
-    const bool betaRule = other == Validity::Valid || other == Validity::BetaOutOfRange ||
-                          other == Validity::RhoPlusBetaTooLarge || other == Validity::EtaOutOfRange ||
-                          other == Validity::AlphaPhiBetaOutOfRange;
-    r.validity = betaRule ? Validity::NoAdmissibleBeta : other;
+    const Validity other = checkWithoutBeta(s, g);
+    r.validity = other == Validity::Valid ? Validity::NoAdmissibleBeta : other;
   }
   return r;
 }
