@@ -12,6 +12,8 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kHalfPi = kPi / 2;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+/// Below this, a, b and sin(delta - alpha) are rounding noise of terms of order 1.
+constexpr double kFlatTol = 1e-12;
 
 bool allFinite(const Soil& s, const Geometry& g) {
   return std::isfinite(s.c_pa) && std::isfinite(s.phi_rad) && std::isfinite(s.gamma_n_m3) &&
@@ -170,8 +172,15 @@ double betaMin(const Soil& s, const Geometry& g) {
   const double a = K1 * std::cos(rho) - K2 * std::cos(E);
   const double b = -K1 * std::sin(rho) + K2 * std::sin(E);
   const double R = std::hypot(a, b);
+  const double rhs = std::sin(delta - alpha);
+  if (R < kFlatTol && std::abs(rhs) < kFlatTol) {
+    // dN_gamma/dbeta vanishes identically (e.g. phi = 0 against a smooth vertical blade on
+    // level ground): every beta is a minimiser. Rankine's plane is the natural choice.
+    const double nominal = betaNominal(s);
+    return checkBeta(s, g, nominal) == Validity::Valid ? nominal : kNaN;
+  }
   if (!(R > 0)) return kNaN;
-  const double ratio = std::sin(delta - alpha) / R;
+  const double ratio = rhs / R;
   if (!(std::abs(ratio) <= 1)) return kNaN;
   const double t0 = std::atan2(b, a), half = std::acos(ratio);
   double best = kNaN, bestN = std::numeric_limits<double>::infinity();

@@ -100,6 +100,9 @@ double betaNominal(const Soil& s);
 /// "+" branch; the "-" branch is a maximum): they coincide with "smaller N_gamma" whenever
 /// alpha + phi >= 0, and when the ground falls away faster than phi (alpha + phi < 0) the
 /// only admissible stationary point can be a maximum, which must not be returned as a minimum.
+/// When N_gamma does not depend on beta at all (a = b = sin(delta-alpha) = 0, e.g. phi = 0
+/// against a smooth vertical blade on level ground), every beta is a minimiser and the
+/// nominal pi/4 - phi/2 is returned.
 /// Depends only on phi, delta, alpha, rho (not on c, gamma, ca, d, w, Q).
 /// NaN when no admissible minimum exists, when those angles are non-finite or outside their
 /// own validity ranges, or when N_gamma decreases all the way to the edge of the admissible
