@@ -1,0 +1,212 @@
+#include <terramap/core/error.hpp>
+#include <terramap/io/atomic_file.hpp>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <random>
+#include <sstream>
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+namespace terramap::io {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr std::size_t kBufferBytes = std::size_t{1} << 20;
+
+std::string errnoText(int err) { return std::strerror(err); }
+
+std::string describe(const fs::path& target, const std::string& what, int err) {
+  std::ostringstream os;
+  os << "cannot write '" << target.string() << "': " << what;
+  if (err != 0) os << ": " << errnoText(err);
+  return os.str();
+}
+
+fs::path parentOf(const fs::path& p) {
+  const fs::path parent = p.parent_path();
+  return parent.empty() ? fs::path(".") : parent;
+}
+
+/// fsync on the folder makes the rename durable; some file systems refuse it (EINVAL), which is
+/// harmless, so this is best effort.
+void syncFolder(const fs::path& folder) {
+  const int dfd = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dfd < 0) return;
+  (void)::fsync(dfd);
+  ::close(dfd);
+}
+
+int createExclusive(const fs::path& target, fs::path& temp) {
+  // A collision needs the same pid and 64 random bits; retry a few times anyway.
+  for (int attempt = 0; attempt < 16; ++attempt) {
+    temp = temporaryPathFor(target);
+    const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+    if (fd >= 0) return fd;
+    if (errno != EEXIST) {
+      const int err = errno;
+      throw OutputError(describe(target, "cannot create temporary file '" + temp.string() + "'", err));
+    }
+  }
+  throw OutputError(describe(target, "no free temporary name after 16 attempts", 0));
+}
+
+void fsyncPath(const fs::path& target, const fs::path& temp) {
+  const int fd = ::open(temp.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) {
+    const int err = errno;
+    throw OutputError(describe(target, "cannot reopen temporary file '" + temp.string() + "'", err));
+  }
+  if (::fsync(fd) != 0) {
+    const int err = errno;
+    ::close(fd);
+    throw OutputError(describe(target, "fsync of '" + temp.string() + "' failed", err));
+  }
+  ::close(fd);
+}
+
+void renameOver(const fs::path& target, const fs::path& temp) {
+  if (::rename(temp.c_str(), target.c_str()) != 0) {
+    const int err = errno;
+    throw OutputError(describe(target, "cannot rename '" + temp.string() + "' over it", err));
+  }
+  syncFolder(parentOf(target));
+}
+
+void removeQuietly(const fs::path& p) {
+  std::error_code ec;
+  fs::remove(p, ec);
+}
+
+}  // namespace
+
+fs::path temporaryPathFor(const fs::path& target) {
+  // random_device is seeded per call: names must differ across processes and threads, not be
+  // reproducible.
+  static thread_local std::mt19937_64 rng([] {
+    std::random_device rd;
+    return (static_cast<std::uint64_t>(rd()) << 32) ^ rd();
+  }());
+  char suffix[64];
+  std::snprintf(suffix, sizeof suffix, ".tmp.%ld.%016llx", static_cast<long>(::getpid()),
+                static_cast<unsigned long long>(rng()));
+  fs::path p = target;
+  p += suffix;
+  return p;
+}
+
+AtomicFile::AtomicFile(fs::path target) : target_(std::move(target)) {
+  if (target_.empty()) throw OutputError("cannot write '': empty output path");
+  fd_ = createExclusive(target_, temp_);
+  buffer_.reserve(kBufferBytes);
+}
+
+AtomicFile::~AtomicFile() { abort(); }
+
+void AtomicFile::fail(const std::string& what, int err) {
+  abort();
+  throw OutputError(describe(target_, what, err));
+}
+
+void AtomicFile::flushBuffer() {
+  const unsigned char* p = buffer_.data();
+  std::size_t left = buffer_.size();
+  while (left > 0) {
+    const ssize_t n = ::write(fd_, p, left);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      const int err = errno;
+      buffer_.clear();
+      fail("write to '" + temp_.string() + "' failed", err);
+    }
+    p += n;
+    left -= static_cast<std::size_t>(n);
+  }
+  buffer_.clear();
+}
+
+void AtomicFile::write(const void* data, std::size_t n) {
+  if (done_) throw OutputError(describe(target_, "write after commit or abort", 0));
+  const auto* p = static_cast<const unsigned char*>(data);
+  while (n > 0) {
+    const std::size_t room = kBufferBytes - buffer_.size();
+    const std::size_t take = n < room ? n : room;
+    buffer_.insert(buffer_.end(), p, p + take);
+    p += take;
+    n -= take;
+    written_ += take;
+    if (buffer_.size() == kBufferBytes) flushBuffer();
+  }
+}
+
+void AtomicFile::commit() {
+  if (done_) throw OutputError(describe(target_, "commit after commit or abort", 0));
+  flushBuffer();
+  if (::fsync(fd_) != 0) {
+    const int err = errno;
+    fail("fsync of '" + temp_.string() + "' failed", err);
+  }
+  const int fd = fd_;
+  fd_ = -1;
+  if (::close(fd) != 0) {
+    const int err = errno;
+    fail("close of '" + temp_.string() + "' failed", err);
+  }
+  if (::rename(temp_.c_str(), target_.c_str()) != 0) {
+    const int err = errno;
+    fail("cannot rename '" + temp_.string() + "' over it", err);
+  }
+  done_ = true;
+  syncFolder(parentOf(target_));
+}
+
+void AtomicFile::abort() noexcept {
+  if (done_) return;
+  done_ = true;
+  if (fd_ >= 0) {
+    ::close(fd_);
+    fd_ = -1;
+  }
+  ::unlink(temp_.c_str());
+}
+
+void writeFileAtomically(const fs::path& target, const void* bytes, std::size_t n) {
+  AtomicFile f(target);
+  f.write(bytes, n);
+  f.commit();
+}
+
+void writeFileAtomically(const fs::path& target, const std::string& bytes) {
+  writeFileAtomically(target, bytes.data(), bytes.size());
+}
+
+void replaceFileAtomically(const fs::path& target, const std::function<void(const fs::path&)>& produce) {
+  if (target.empty()) throw OutputError("cannot write '': empty output path");
+  fs::path temp;
+  const int fd = createExclusive(target, temp);
+  ::close(fd);
+  fs::path side_car = temp;
+  side_car += ".aux.xml";
+  try {
+    produce(temp);
+    removeQuietly(side_car);  // a driver's PAM side-car would describe the temp name only
+    struct stat st {};
+    if (::stat(temp.c_str(), &st) != 0) {
+      const int err = errno;
+      throw OutputError(describe(target, "the writer left no file at '" + temp.string() + "'", err));
+    }
+    fsyncPath(target, temp);
+    renameOver(target, temp);
+  } catch (...) {
+    removeQuietly(temp);
+    removeQuietly(side_car);
+    throw;
+  }
+}
+
+}  // namespace terramap::io
