@@ -1,0 +1,324 @@
+// Truth soil-tool force (FEE per slice) and truth terrain deformation (cut, push, relax).
+#include <terramap/core/fee.hpp>
+#include <terramap/sim/blade_physics.hpp>
+
+#include <algorithm>
+#include <cmath>
+
+namespace terramap::sim {
+namespace {
+
+constexpr double kG = 9.80665;
+
+Eigen::Vector3d horizontal(const Eigen::Vector3d& v) { return {v.x(), v.y(), 0.0}; }
+
+/// Terzaghi strip-footing bearing capacity factors (N_c, N_q) for friction angle phi.
+void bearingFactors(double phi, double& nc, double& nq) {
+  if (phi < 1e-6) {
+    nq = 1.0;
+    nc = M_PI + 2.0;  // Prandtl, phi = 0
+    return;
+  }
+  const double t = std::tan(M_PI / 4 + phi / 2);
+  nq = std::exp(M_PI * std::tan(phi)) * t * t;
+  nc = (nq - 1.0) / std::tan(phi);
+}
+
+struct BladeFrame {
+  Eigen::Vector3d c, xb, yb, zb, n_h, e_h;  // edge centre, axes, horizontal push dir, horizontal edge dir
+  double half_lat = 0;                      // horizontal half-length of the edge
+  bool ok = true;
+};
+
+BladeFrame frameOf(const Eigen::Isometry3d& T, const BladeGeometry& g) {
+  BladeFrame f;
+  f.c = T.translation();
+  f.xb = T.linear().col(0);
+  f.yb = T.linear().col(1);
+  f.zb = T.linear().col(2);
+  Eigen::Vector3d n = horizontal(f.xb);
+  if (n.norm() < 1e-6) n = -horizontal(f.zb);
+  if (n.norm() < 1e-9) {
+    f.ok = false;
+    n = Eigen::Vector3d::UnitX();
+  }
+  f.n_h = n.normalized();
+  Eigen::Vector3d e = horizontal(f.yb);
+  const double el = e.norm();
+  f.e_h = el > 1e-9 ? Eigen::Vector3d(e / el) : Eigen::Vector3d(-f.n_h.y(), f.n_h.x(), 0.0);
+  f.half_lat = 0.5 * g.width_m * el;
+  return f;
+}
+
+}  // namespace
+
+BladeForce bladeSoilForce(const TruthTerrain& terrain, const SoilField& soil, const Eigen::Isometry3d& T_map_blade,
+                          const BladeGeometry& blade, double edge_thickness_m, int slices, double normal_speed_mps,
+                          double edge_vz_mps, double accel_mps2) {
+  BladeForce out;
+  const BladeFrame f = frameOf(T_map_blade, blade);
+  out.push_dir = f.n_h;
+  if (!f.ok || slices < 1) return out;
+  const double rho = std::atan2(f.zb.z(), -f.zb.dot(f.n_h));
+  const double ds = blade.width_m / slices;
+  const double res = terrain.resolution();
+  const double q_step = std::max(res, 0.04);
+  FeeTruth& tr = out.truth;
+  double wsum = 0, a_alpha = 0, a_rho = 0, a_d = 0, a_c = 0, a_phi = 0, a_g = 0, a_ca = 0, a_delta = 0, a_beta = 0;
+  for (int k = 0; k < slices; ++k) {
+    const double ys = -0.5 * blade.width_m + (k + 0.5) * ds;
+    const Eigen::Vector3d pe = f.c + f.yb * ys;
+    const double ue = terrain.undisturbedAt(pe.x(), pe.y());
+    if (std::isnan(ue)) continue;
+    // Surcharge: loose soil (bank-equivalent thickness) ahead of the slice within 1 m.
+    double lc_sum = 0.0;
+    for (double l = 0.5 * q_step; l < 1.0; l += q_step) {
+      const double lc = terrain.looseBankAt(pe.x() + f.n_h.x() * l, pe.y() + f.n_h.y() * l);
+      if (!std::isnan(lc)) lc_sum += lc;
+    }
+    const double depth_v = ue - pe.z();
+    const double h0 = terrain.initialHeightAt(pe.x(), pe.y());
+    const double mid_depth = h0 - (pe.z() + std::max(0.0, depth_v) * 0.5);
+    const SoilProperties& sp = soil.at(pe.x(), pe.y(), mid_depth);
+    const double q = sp.fee.gamma_n_m3 * lc_sum * q_step * ds;
+    if (depth_v <= 1e-4) {
+      // Not cutting: pushing a loose pile only if the edge is below the pile surface.
+      const double hf = terrain.heightAt(pe.x() + f.n_h.x() * res, pe.y() + f.n_h.y() * res);
+      if (q > 0 && !std::isnan(hf) && hf > pe.z()) out.fee_map -= f.n_h * (q * std::tan(sp.repose_rad));
+      continue;
+    }
+    // Slope of the undisturbed surface ahead (least squares over 0.05..0.5 m).
+    double sx = 0, sz = 0, sxx = 0, sxz = 0;
+    int n = 0;
+    for (int m = 0; m < 7; ++m) {
+      const double l = 0.05 + 0.075 * m;
+      const double z = terrain.undisturbedAt(pe.x() + f.n_h.x() * l, pe.y() + f.n_h.y() * l);
+      if (std::isnan(z)) continue;
+      sx += l; sz += z; sxx += l * l; sxz += l * z; ++n;
+    }
+    double slope = 0.0;
+    if (n >= 2) {
+      const double den = n * sxx - sx * sx;
+      if (den > 1e-12) slope = (n * sxz - sx * sz) / den;
+    }
+    const double alpha = std::atan(slope);
+    const double d = depth_v * std::cos(alpha);
+    fee::Geometry g;
+    g.alpha_rad = alpha;
+    g.rho_rad = rho;
+    g.d_m = d;
+    g.w_m = ds;
+    g.q_n = q;
+    double beta = fee::betaMin(sp.fee, g);
+    if (!std::isfinite(beta)) beta = fee::betaNominal(sp.fee);
+    const fee::Result r = fee::evaluate(sp.fee, g, beta);
+    ++tr.cutting_slices;
+    if (!r.valid()) {
+      ++tr.invalid_slices;
+    } else {
+      // F_total is the blade's force on the soil in (push, up); the soil pushes back.
+      out.fee_map -= f.n_h * r.F_total_N.x() + Eigen::Vector3d::UnitZ() * r.F_total_N.y();
+    }
+    if (normal_speed_mps > 0) {
+      const double mass_flux = sp.fee.gamma_n_m3 / kG * d * ds * normal_speed_mps;  // kg/s entering the wedge
+      const double f_in = mass_flux * normal_speed_mps + q / kG * std::max(0.0, accel_mps2);
+      out.inertia_map -= f.n_h * f_in;
+    }
+    if (edge_vz_mps < 0) {
+      double nc = 0, nq = 0;
+      bearingFactors(sp.fee.phi_rad, nc, nq);
+      const double qb = sp.fee.c_pa * nc + sp.fee.gamma_n_m3 * depth_v * nq;
+      out.penetration_map.z() += qb * edge_thickness_m * ds;
+    }
+    const double w = d;  // depth-weighted summaries
+    wsum += w;
+    a_alpha += w * alpha; a_rho += w * rho; a_d += w * d; a_beta += w * beta;
+    a_c += w * sp.fee.c_pa; a_phi += w * sp.fee.phi_rad; a_g += w * sp.fee.gamma_n_m3;
+    a_ca += w * sp.fee.ca_pa; a_delta += w * sp.fee.delta_rad;
+    tr.width_m += ds;
+    tr.q_n += q;
+  }
+  if (wsum > 0) {
+    tr.alpha_rad = a_alpha / wsum; tr.rho_rad = a_rho / wsum; tr.depth_m = a_d / wsum; tr.beta_rad = a_beta / wsum;
+    tr.c_pa = a_c / wsum; tr.phi_rad = a_phi / wsum; tr.gamma_n_m3 = a_g / wsum; tr.ca_pa = a_ca / wsum;
+    tr.delta_rad = a_delta / wsum;
+  }
+  return out;
+}
+
+CutResult cutAndPush(TruthTerrain& terrain, const SoilField& soil, const Eigen::Isometry3d& T_old,
+                     const Eigen::Isometry3d& T_new, const BladeGeometry& blade, int slices) {
+  CutResult out;
+  const BladeFrame f0 = frameOf(T_old, blade), f1 = frameOf(T_new, blade);
+  if (!f1.ok || slices < 1) return out;
+  const double forward = (f1.c - f0.c).dot(f1.n_h);
+  if (forward < 0.0) return out;  // reversing: no backdrag model
+  const double res = terrain.resolution();
+  // Node box around the old and new edges.
+  double xmin = 1e300, xmax = -1e300, ymin = 1e300, ymax = -1e300;
+  for (const BladeFrame* f : {&f0, &f1})
+    for (double s : {-1.0, 1.0}) {
+      const Eigen::Vector3d p = f->c + f->yb * (0.5 * s * blade.width_m);
+      xmin = std::min(xmin, p.x()); xmax = std::max(xmax, p.x());
+      ymin = std::min(ymin, p.y()); ymax = std::max(ymax, p.y());
+    }
+  const int i0 = std::max(0, static_cast<int>(std::floor((xmin - terrain.originX()) / res)) - 2);
+  const int j0 = std::max(0, static_cast<int>(std::floor((ymin - terrain.originY()) / res)) - 2);
+  const int i1 = std::min(terrain.nx() - 1, static_cast<int>(std::ceil((xmax - terrain.originX()) / res)) + 2);
+  const int j1 = std::min(terrain.ny() - 1, static_cast<int>(std::ceil((ymax - terrain.originY()) / res)) + 2);
+  if (i0 > i1 || j0 > j1) return out;
+  std::vector<double> acc_v(slices, 0.0), acc_c(slices, 0.0);
+  const double yb_h = std::hypot(f1.yb.x(), f1.yb.y());
+  const double top = f1.zb.z() * blade.height_m;
+  bool any = false;
+  for (int j = j0; j <= j1; ++j) {
+    for (int i = i0; i <= i1; ++i) {
+      const Eigen::Vector2d p = terrain.nodePosition(i, j);
+      const double dx1 = p.x() - f1.c.x(), dy1 = p.y() - f1.c.y();
+      const double lat = dx1 * f1.e_h.x() + dy1 * f1.e_h.y();
+      if (std::abs(lat) > f1.half_lat) continue;
+      const double s1 = dx1 * f1.n_h.x() + dy1 * f1.n_h.y();
+      if (s1 > 0.0) continue;
+      const double s0 = (p.x() - f0.c.x()) * f0.n_h.x() + (p.y() - f0.c.y()) * f0.n_h.y();
+      if (!(s0 > 0.0 || s1 > -res)) continue;
+      const double t = yb_h > 1e-9 ? lat / yb_h : 0.0;  // position along the edge (m)
+      const double ze = f1.c.z() + f1.yb.z() * t;
+      if (terrain.height(i, j) <= ze) continue;
+      double depth0 = terrain.initialHeight(i, j) - 0.5 * (ze + terrain.undisturbed(i, j));
+      const TruthTerrain::Removed rm = terrain.removeBetween(i, j, ze, ze + top);
+      if (rm.bank_u <= 0 && rm.loose_v <= 0) continue;
+      const SoilProperties& sp = soil.at(p.x(), p.y(), depth0);
+      int k = static_cast<int>(std::floor((lat + f1.half_lat) / (2 * f1.half_lat) * slices));
+      k = std::clamp(k, 0, slices - 1);
+      acc_v[k] += rm.bank_u * sp.swell + rm.loose_v;
+      acc_c[k] += rm.bank_u + rm.loose_c;
+      out.cut_bank_m3 += rm.bank_u * res * res;
+      out.moved_loose_m3 += rm.loose_c * res * res;
+      any = true;
+    }
+  }
+  if (!any) return out;
+  out.i0 = i0; out.j0 = j0; out.i1 = i1; out.j1 = j1;
+  for (int k = 0; k < slices; ++k) {
+    if (acc_c[k] <= 0.0 && acc_v[k] <= 0.0) continue;
+    const double lat = -f1.half_lat + (k + 0.5) * (2 * f1.half_lat / slices);
+    int di = 0, dj = 0;
+    bool placed = false;
+    for (double ahead = 1.5 * res; ahead < 4.0 * res; ahead += 0.5 * res) {
+      const Eigen::Vector3d q = f1.c + f1.e_h * lat + f1.n_h * ahead;
+      terrain.nearestNode(q.x(), q.y(), di, dj);
+      const Eigen::Vector2d pn(terrain.originX() + di * res, terrain.originY() + dj * res);
+      const double s1 = (pn.x() - f1.c.x()) * f1.n_h.x() + (pn.y() - f1.c.y()) * f1.n_h.y();
+      if (s1 > 0.5 * res) {
+        placed = true;
+        break;
+      }
+    }
+    if (!placed || !terrain.inside(di, dj)) {
+      const double lost = acc_c[k] * res * res;
+      terrain.addLost(lost);
+      out.lost_m3 += lost;
+      continue;
+    }
+    terrain.addLoose(di, dj, acc_v[k], acc_c[k]);
+    out.deposited_m3 += acc_c[k] * res * res;
+    out.i0 = std::min(out.i0, di); out.j0 = std::min(out.j0, dj);
+    out.i1 = std::max(out.i1, di); out.j1 = std::max(out.j1, dj);
+  }
+  return out;
+}
+
+CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::Isometry3d& T_map_blade,
+                     const BladeGeometry& blade, double ahead_m, double side_m, int iterations) {
+  CutResult out;
+  const BladeFrame f = frameOf(T_map_blade, blade);
+  if (!f.ok) return out;
+  const double res = terrain.resolution();
+  const double back_band = std::max(res, blade.height_m * std::abs(horizontal(f.zb).norm())) + res;
+  double xmin = 1e300, xmax = -1e300, ymin = 1e300, ymax = -1e300;
+  for (double s : {-1.0, 1.0})
+    for (double a : {-back_band - side_m, ahead_m}) {
+      const Eigen::Vector3d p = f.c + f.e_h * (s * (f.half_lat + side_m)) + f.n_h * a;
+      xmin = std::min(xmin, p.x()); xmax = std::max(xmax, p.x());
+      ymin = std::min(ymin, p.y()); ymax = std::max(ymax, p.y());
+    }
+  const int i0 = std::max(0, static_cast<int>(std::floor((xmin - terrain.originX()) / res)));
+  const int j0 = std::max(0, static_cast<int>(std::floor((ymin - terrain.originY()) / res)));
+  const int i1 = std::min(terrain.nx() - 1, static_cast<int>(std::ceil((xmax - terrain.originX()) / res)));
+  const int j1 = std::min(terrain.ny() - 1, static_cast<int>(std::ceil((ymax - terrain.originY()) / res)));
+  if (i1 - i0 < 1 || j1 - j0 < 1) return out;
+  const int w = i1 - i0 + 1, h = j1 - j0 + 1;
+  std::vector<unsigned char> mask(static_cast<std::size_t>(w) * h, 0);
+  for (int j = 0; j < h; ++j)
+    for (int i = 0; i < w; ++i) {
+      const Eigen::Vector2d p = terrain.nodePosition(i0 + i, j0 + j);
+      const double dx = p.x() - f.c.x(), dy = p.y() - f.c.y();
+      const double lat = dx * f.e_h.x() + dy * f.e_h.y();
+      const double s = dx * f.n_h.x() + dy * f.n_h.y();
+      if (std::abs(lat) <= f.half_lat + 0.5 * res && s <= 0.0 && s > -back_band) mask[static_cast<std::size_t>(j) * w + i] = 1;
+    }
+  // Repose of the loose soil around the blade: that of the soil at the edge centre.
+  const double h0 = terrain.initialHeightAt(f.c.x(), f.c.y());
+  const double tanr = std::tan(soil.at(f.c.x(), f.c.y(), std::isnan(h0) ? 0.0 : h0 - f.c.z()).repose_rad);
+  const double max_step = res * tanr;
+  std::vector<double> H(static_cast<std::size_t>(w) * h), fx(static_cast<std::size_t>(w) * h), fy(fx.size()),
+      outsum(fx.size());
+  auto idx = [w](int i, int j) { return static_cast<std::size_t>(j) * w + i; };
+  for (int it = 0; it < iterations; ++it) {
+    for (int j = 0; j < h; ++j)
+      for (int i = 0; i < w; ++i) H[idx(i, j)] = terrain.height(i0 + i, j0 + j);
+    std::fill(fx.begin(), fx.end(), 0.0);
+    std::fill(fy.begin(), fy.end(), 0.0);
+    std::fill(outsum.begin(), outsum.end(), 0.0);
+    bool moved = false;
+    // Edge fluxes (positive = from (i, j) to the +x / +y neighbour).
+    for (int j = 0; j < h; ++j) {
+      for (int i = 0; i < w; ++i) {
+        if (mask[idx(i, j)]) continue;
+        const double ha = H[idx(i, j)];
+        if (i + 1 < w && !mask[idx(i + 1, j)]) {
+          const double dh = ha - H[idx(i + 1, j)];
+          const double ex = std::abs(dh) - max_step;
+          if (ex > 0) {
+            const double a = 0.25 * ex;
+            fx[idx(i, j)] = dh > 0 ? a : -a;
+            outsum[dh > 0 ? idx(i, j) : idx(i + 1, j)] += a;
+            moved = true;
+          }
+        }
+        if (j + 1 < h && !mask[idx(i, j + 1)]) {
+          const double dh = ha - H[idx(i, j + 1)];
+          const double ex = std::abs(dh) - max_step;
+          if (ex > 0) {
+            const double a = 0.25 * ex;
+            fy[idx(i, j)] = dh > 0 ? a : -a;
+            outsum[dh > 0 ? idx(i, j) : idx(i, j + 1)] += a;
+            moved = true;
+          }
+        }
+      }
+    }
+    if (!moved) break;
+    // Scale: a node gives at most the loose soil it has (bank soil does not slide).
+    for (int j = 0; j < h; ++j)
+      for (int i = 0; i < w; ++i) {
+        const double o = outsum[idx(i, j)];
+        const double lv = terrain.loose(i0 + i, j0 + j);
+        outsum[idx(i, j)] = o > lv ? (o > 0 ? lv / o : 0.0) : 1.0;  // reuse as scale
+      }
+    for (int j = 0; j < h; ++j) {
+      for (int i = 0; i < w; ++i) {
+        const double ax = fx[idx(i, j)];
+        if (ax > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i + 1, j0 + j, ax * outsum[idx(i, j)]);
+        else if (ax < 0) terrain.moveLoose(i0 + i + 1, j0 + j, i0 + i, j0 + j, -ax * outsum[idx(i + 1, j)]);
+        const double ay = fy[idx(i, j)];
+        if (ay > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i, j0 + j + 1, ay * outsum[idx(i, j)]);
+        else if (ay < 0) terrain.moveLoose(i0 + i, j0 + j + 1, i0 + i, j0 + j, -ay * outsum[idx(i, j + 1)]);
+      }
+    }
+    out.i0 = i0; out.j0 = j0; out.i1 = i1; out.j1 = j1;
+  }
+  return out;
+}
+
+}  // namespace terramap::sim

@@ -1,0 +1,461 @@
+// Scenario YAML loading and validation (schema in docs/sim.md).
+#include "yaml_reader.hpp"
+
+#include <terramap/core/error.hpp>
+#include <terramap/core/text.hpp>
+#include <terramap/sim/scenario.hpp>
+#include <terramap/sim/truth_terrain.hpp>
+
+#include <Eigen/Geometry>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <set>
+#include <sstream>
+
+namespace terramap::sim {
+namespace {
+
+using detail::MapReader;
+namespace fs = std::filesystem;
+
+constexpr double kDeg = M_PI / 180.0;
+
+struct Ctx {
+  std::string file;
+  std::string base_dir;
+};
+
+SoilProperties readSoil(MapReader& r) {
+  const std::string fam = r.strRequired("family");
+  SoilFamily f{};
+  if (!parseSoilFamily(fam, f))
+    r.fail(r.node("family"), "family", "unknown soil family '" + fam + "'" + didYouMean(fam, soilFamilyNames()) +
+                                           " (known: " + joinStrings(soilFamilyNames()) + ")");
+  const bool has_frac = r.has("relative_density"), has_pct = r.has("relative_density_pct");
+  if (has_frac && has_pct)
+    r.fail(r.node("relative_density"), "relative_density", "give relative_density (0..1) or relative_density_pct, not both");
+  double id = 0.5;
+  if (has_frac) id = r.num("relative_density", 0.5, 0.0, 1.0);
+  else if (has_pct) id = r.num("relative_density_pct", 50.0, 0.0, 100.0) / 100.0;
+  else r.fail(r.self(), "relative_density", "missing (relative density I_d in [0, 1], or relative_density_pct)");
+  return soilProperties(f, id);
+}
+
+void readRange(MapReader& r, const std::string& key, double& lo, double& hi, double min_allowed, double max_allowed,
+               double scale = 1.0) {
+  if (!r.has(key)) return;
+  const YAML::Node n = r.node(key);
+  auto v = r.numList(n, key, 2);
+  lo = v[0] * scale;
+  hi = v[1] * scale;
+  if (!(lo <= hi)) r.fail(n, key, "expected [min, max] with min <= max");
+  if (lo < min_allowed || hi > max_allowed) {
+    std::ostringstream os;
+    os << "range must lie within [" << min_allowed / scale << ", " << max_allowed / scale << "]";
+    r.fail(n, key, os.str());
+  }
+}
+
+RandomWalk readWalk(MapReader& parent, const std::string& key, RandomWalk def, double scale, double lo, double hi) {
+  if (!parent.has(key)) return def;
+  MapReader r = parent.child(key);
+  RandomWalk w = def;
+  readRange(r, "range", w.min, w.max, lo, hi, scale);
+  w.initial = r.num("initial", def.initial / scale, lo / scale, hi / scale) * scale;
+  w.sigma = r.num("sigma", def.sigma / scale, 0.0, 1e6) * scale;
+  if (w.initial < w.min || w.initial > w.max) r.fail(r.self(), "initial", "initial value outside range");
+  r.finish();
+  return w;
+}
+
+Eigen::Isometry3d readMount(MapReader& r) {
+  const auto off = r.vec("offset_m", {0, 0, 0}, 3);
+  const auto rot = r.vec("rotation_deg", {0, 0, 0}, 3);
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = Eigen::Vector3d(off[0], off[1], off[2]);
+  T.linear() = (Eigen::AngleAxisd(rot[2] * kDeg, Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(rot[1] * kDeg, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(rot[0] * kDeg, Eigen::Vector3d::UnitX()))
+                   .toRotationMatrix();
+  return T;
+}
+
+SensorSpec readSensor(MapReader& r) {
+  SensorSpec s;
+  s.id = r.strRequired("id");
+  const std::string type = r.strRequired("type");
+  const std::vector<std::string> types{"lidar", "pose", "force"};
+  if (type == "lidar") s.type = SensorSpec::Type::Lidar;
+  else if (type == "pose") s.type = SensorSpec::Type::Pose;
+  else if (type == "force") s.type = SensorSpec::Type::Force;
+  else r.fail(r.node("type"), "type", "unknown sensor type '" + type + "'" + didYouMean(type, types));
+  s.T_base_sensor = readMount(r);
+  if (s.type == SensorSpec::Type::Lidar) {
+    if (r.has("preset")) {
+      const std::string p = r.strRequired("preset");
+      if (!applyLidarPreset(p, s))
+        r.fail(r.node("preset"), "preset", "unknown LiDAR preset '" + p + "'" + didYouMean(p, lidarPresetNames()) +
+                                               " (known: " + joinStrings(lidarPresetNames()) + ")");
+    }
+    s.beams = r.integer("beams", s.beams, 1, 512);
+    s.columns = r.integer("columns", s.columns, 1, 8192);
+    double lo = s.vfov_min_rad, hi = s.vfov_max_rad;
+    readRange(r, "vertical_fov_deg", lo, hi, -M_PI / 2, M_PI / 2, kDeg);
+    s.vfov_min_rad = lo;
+    s.vfov_max_rad = hi;
+    s.hfov_rad = r.num("horizontal_fov_deg", s.hfov_rad / kDeg, 0.0, 360.0) * kDeg;
+    s.rate_hz = r.num("rate_hz", s.rate_hz, 0.1, 1000.0);
+    double rmin = s.min_range_m, rmax = s.max_range_m;
+    readRange(r, "range_m", rmin, rmax, 0.0, 1e4);
+    s.min_range_m = rmin;
+    s.max_range_m = rmax;
+    s.range_noise_m = r.num("range_noise_m", s.range_noise_m, 0.0, 10.0);
+    s.dropout = r.num("dropout", s.dropout, 0.0, 1.0);
+    s.keep_dropouts = r.boolean("keep_dropouts", s.keep_dropouts);
+  } else if (s.type == SensorSpec::Type::Pose) {
+    s.position_noise_m = r.num("position_noise_m", s.position_noise_m, 0.0, 100.0);
+    s.yaw_noise_rad = r.angle("yaw_noise", s.yaw_noise_rad, 0.0, M_PI);
+    s.tilt_noise_rad = r.angle("tilt_noise", s.tilt_noise_rad, 0.0, M_PI);
+  } else {
+    s.force_noise_abs_n = r.num("noise_abs_n", s.force_noise_abs_n, 0.0, 1e7);
+    s.force_noise_rel = r.num("noise_rel", s.force_noise_rel, 0.0, 10.0);
+  }
+  r.finish();
+  return s;
+}
+
+ControllerSpec readController(MapReader& r) {
+  ControllerSpec c;
+  const std::string type = r.str("type", "random_walk");
+  if (type == "random_walk") {
+    c.type = ControllerSpec::Type::RandomWalk;
+    c.speed_mps = readWalk(r, "speed_mps", c.speed_mps, 1.0, 0.0, 5.0);
+    c.depth_m = readWalk(r, "depth_m", c.depth_m, 1.0, -1.0, 1.0);
+    c.roll_rad = readWalk(r, "roll_deg", c.roll_rad, kDeg, -45 * kDeg, 45 * kDeg);
+    c.yaw_rad = readWalk(r, "yaw_deg", c.yaw_rad, kDeg, -60 * kDeg, 60 * kDeg);
+    c.heading_rad = readWalk(r, "heading_deg", c.heading_rad, kDeg, -M_PI, M_PI);
+  } else if (type == "route") {
+    c.type = ControllerSpec::Type::Route;
+    const auto st = r.vec("start_m", {0, 0}, 2);
+    c.route_start = {st[0], st[1]};
+    c.route_heading_rad = r.angle("heading", 0.0, -2 * M_PI, 2 * M_PI);
+    c.route_length_m = r.num("length_m", c.route_length_m, 0.5, 1e4);
+    c.route_spacing_m = r.num("spacing_m", c.route_spacing_m, -100.0, 100.0);
+    c.route_passes = r.integer("passes", c.route_passes, 1, 1000);
+    c.route_depth_m = r.num("depth_m", c.route_depth_m, -1.0, 1.0);
+    c.route_speed_mps = r.num("speed_mps", c.route_speed_mps, 0.05, 5.0);
+    c.route_return_speed_mps = r.num("return_speed_mps", c.route_return_speed_mps, 0.05, 5.0);
+  } else {
+    r.fail(r.node("type"), "type", "unknown controller type '" + type + "'" + didYouMean(type, {"random_walk", "route"}));
+  }
+  if (r.has("stall")) {
+    MapReader s = r.child("stall");
+    c.stall_ratio = s.num("ratio", c.stall_ratio, 0.0, 1.0);
+    c.stall_time_s = s.num("time_s", c.stall_time_s, 0.0, 100.0);
+    c.raise_rate_mps = s.num("raise_rate_mps", c.raise_rate_mps, 0.0, 5.0);
+    s.finish();
+  }
+  r.finish();
+  return c;
+}
+
+MachineSpec readMachine(MapReader& r) {
+  MachineSpec m;
+  m.id = r.strRequired("id");
+  const std::string type = r.str("type", "ctl");
+  if (type != "ctl") r.fail(r.node("type"), "type", "unknown machine type '" + type + "' (known: ctl)" + didYouMean(type, {"ctl"}));
+  if (r.has("pose")) {
+    MapReader p = r.child("pose");
+    m.x_m = p.num("x_m", 0.0);
+    m.y_m = p.num("y_m", 0.0);
+    m.yaw_rad = p.angle("yaw", 0.0, -2 * M_PI, 2 * M_PI);
+    p.finish();
+  }
+  if (r.has("blade")) {
+    MapReader b = r.child("blade");
+    m.blade.width_m = b.num("width_m", m.blade.width_m, 0.1, 10.0);
+    m.blade.height_m = b.num("height_m", m.blade.height_m, 0.05, 5.0);
+    m.rake_rad = b.angle("rake", m.rake_rad, 30 * kDeg, 120 * kDeg);
+    m.blade_mount_x_m = b.num("mount_x_m", m.blade_mount_x_m, 0.5, 10.0);
+    m.blade_slices = b.integer("slices", m.blade_slices, 1, 1000);
+    m.edge_thickness_m = b.num("edge_thickness_m", m.edge_thickness_m, 0.0, 0.5);
+    b.finish();
+  }
+  if (r.has("vehicle")) {
+    MapReader v = r.child("vehicle");
+    m.mass_kg = v.num("mass_kg", m.mass_kg, 100.0, 1e6);
+    m.track_gauge_m = v.num("track_gauge_m", m.track_gauge_m, 0.3, 10.0);
+    m.track_length_m = v.num("track_length_m", m.track_length_m, 0.3, 10.0);
+    m.traction_coefficient = v.num("traction_coefficient", m.traction_coefficient, 0.0, 2.0);
+    m.max_drive_force_n = v.num("max_drive_force_n", m.max_drive_force_n, 0.0, 1e7);
+    m.rolling_resistance = v.num("rolling_resistance", m.rolling_resistance, 0.0, 1.0);
+    m.max_speed_mps = v.num("max_speed_mps", m.max_speed_mps, 0.1, 20.0);
+    m.drive_time_constant_s = v.num("drive_time_constant_s", m.drive_time_constant_s, 0.0, 10.0);
+    m.yaw_time_constant_s = v.num("yaw_time_constant_s", m.yaw_time_constant_s, 0.0, 10.0);
+    m.engine_rated_rpm = v.num("engine_rated_rpm", m.engine_rated_rpm, 100.0, 1e4);
+    m.engine_droop_rpm = v.num("engine_droop_rpm", m.engine_droop_rpm, 0.0, 1e4);
+    v.finish();
+  }
+  if (r.has("joints")) {
+    MapReader j = r.child("joints");
+    readRange(j, "lift_m", m.joint_min[0], m.joint_max[0], -2.0, 3.0);
+    readRange(j, "tilt_deg", m.joint_min[1], m.joint_max[1], -M_PI / 3, M_PI / 3, kDeg);
+    readRange(j, "angle_deg", m.joint_min[2], m.joint_max[2], -M_PI / 3, M_PI / 3, kDeg);
+    if (j.has("max_rate")) {
+      const auto v = j.vec("max_rate", {}, 3);
+      for (int k = 0; k < 3; ++k) {
+        if (!(v[k] > 0)) j.fail(j.node("max_rate"), "max_rate", "rates must be > 0 ([m/s, rad/s, rad/s])");
+        m.joint_max_rate[k] = v[k];
+      }
+    }
+    m.joint_eta = j.num("eta", m.joint_eta, 0.0, 1000.0);
+    m.joint_beta = j.num("beta", m.joint_beta, 0.0, 1000.0);
+    m.joint_tau_s = j.num("tau_s", m.joint_tau_s, 1e-3, 10.0);
+    m.lift_down_force_n = j.num("lift_down_force_n", m.lift_down_force_n, 0.0, 1e7);
+    j.finish();
+  }
+  if (r.has("force_noise")) {
+    MapReader f = r.child("force_noise");
+    m.force_noise_abs_n = f.num("abs_n", m.force_noise_abs_n, 0.0, 1e7);
+    m.force_noise_rel = f.num("rel", m.force_noise_rel, 0.0, 10.0);
+    m.force_noise_tau_s = f.num("tau_s", m.force_noise_tau_s, 1e-3, 100.0);
+    f.finish();
+  }
+  if (r.has("controller")) {
+    MapReader c = r.child("controller");
+    m.controller = readController(c);
+  }
+  if (r.has("sensors")) {
+    const YAML::Node ss = r.node("sensors");
+    if (!ss.IsSequence()) r.fail(ss, "sensors", "expected a list of sensors");
+    std::set<std::string> ids;
+    for (std::size_t k = 0; k < ss.size(); ++k) {
+      MapReader sr(ss[k], r.file(), r.join("sensors[" + std::to_string(k) + "]"));
+      SensorSpec s = readSensor(sr);
+      if (!ids.insert(s.id).second) sr.fail(ss[k]["id"], "id", "duplicate sensor id '" + s.id + "'");
+      m.sensors.push_back(std::move(s));
+    }
+  }
+  r.finish();
+  return m;
+}
+
+void readTerrain(MapReader& r, Scenario& sc, const Ctx& ctx) {
+  TerrainSpec& t = sc.terrain;
+  t.resolution_m = r.num("resolution_m", t.resolution_m, 1e-3, 0.02);
+  t.base_height_m = r.num("base_height_m", t.base_height_m);
+  const auto slope = r.vec("slope", {0, 0}, 2);
+  t.slope_x = slope[0];
+  t.slope_y = slope[1];
+  t.snapshot_interval_s = r.num("snapshot_interval_s", t.snapshot_interval_s, 1e-3, 1e6);
+  bool have_extent = false;
+  if (r.has("dem")) {
+    MapReader d = r.child("dem");
+    const std::string file = d.strRequired("file");
+    const std::string fmt = d.str("format", "esri_ascii");
+    if (fmt != "esri_ascii")
+      d.fail(d.node("format"), "format", "unsupported DEM format '" + fmt + "' (supported: esri_ascii)" +
+                                             didYouMean(fmt, {"esri_ascii"}));
+    fs::path p(file);
+    if (p.is_relative()) p = fs::path(ctx.base_dir) / p;
+    t.dem_path = p.lexically_normal().string();
+    d.finish();
+    const DemGrid g = readEsriAscii(t.dem_path);  // InputError names the file
+    t.origin_x_m = g.x0_m;
+    t.origin_y_m = g.y0_m;
+    t.size_x_m = (g.nx - 1) * g.cell_m;
+    t.size_y_m = (g.ny - 1) * g.cell_m;
+    have_extent = true;
+  }
+  if (r.has("size_m")) {
+    const auto s = r.vec("size_m", {}, 2);
+    if (!(s[0] > 0 && s[1] > 0)) r.fail(r.node("size_m"), "size_m", "sizes must be > 0");
+    t.size_x_m = s[0];
+    t.size_y_m = s[1];
+  } else if (!have_extent) {
+    r.fail(r.self(), "size_m", "missing (terrain extent [x, y] in metres, or a dem)");
+  }
+  if (r.has("origin_m")) {
+    const auto o = r.vec("origin_m", {}, 2);
+    t.origin_x_m = o[0];
+    t.origin_y_m = o[1];
+  } else if (!have_extent) {
+    t.origin_x_m = -t.size_x_m / 2;
+    t.origin_y_m = -t.size_y_m / 2;
+  }
+  const double nodes = (t.size_x_m / t.resolution_m + 1) * (t.size_y_m / t.resolution_m + 1);
+  if (nodes > 4e8) r.fail(r.self(), "size_m", "terrain too large: " + std::to_string(static_cast<long long>(nodes)) + " nodes");
+  if (r.has("hills")) {
+    MapReader h = r.child("hills");
+    const int count = h.integer("count", 0, 0, 100000);
+    double alo = -0.2, ahi = 0.3, slo = 1.0, shi = 4.0;
+    readRange(h, "amplitude_m", alo, ahi, -100.0, 100.0);
+    readRange(h, "sigma_m", slo, shi, 1e-3, 1e4);
+    if (slo <= 0) h.fail(h.node("sigma_m"), "sigma_m", "sigma must be > 0");
+    const unsigned long long seed = h.unsignedInt("seed", sc.seed);
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> U(0.0, 1.0);
+    for (int k = 0; k < count; ++k) {
+      GaussianBump b;
+      b.x_m = t.origin_x_m + U(rng) * t.size_x_m;
+      b.y_m = t.origin_y_m + U(rng) * t.size_y_m;
+      b.amplitude_m = alo + U(rng) * (ahi - alo);
+      b.sigma_m = slo + U(rng) * (shi - slo);
+      t.bumps.push_back(b);
+    }
+    if (h.has("list")) {
+      const YAML::Node l = h.node("list");
+      if (!l.IsSequence()) h.fail(l, "list", "expected a list of {x_m, y_m, amplitude_m, sigma_m}");
+      for (std::size_t k = 0; k < l.size(); ++k) {
+        MapReader b(l[k], ctx.file, h.join("list[" + std::to_string(k) + "]"));
+        GaussianBump g;
+        g.x_m = b.numRequired("x_m");
+        g.y_m = b.numRequired("y_m");
+        g.amplitude_m = b.numRequired("amplitude_m");
+        g.sigma_m = b.numRequired("sigma_m", 1e-6, 1e6);
+        b.finish();
+        t.bumps.push_back(g);
+      }
+    }
+    h.finish();
+  }
+  r.finish();
+}
+
+void readSoilSection(MapReader& r, Scenario& sc) {
+  if (r.has("default")) {
+    MapReader d = r.child("default");
+    sc.default_soil = readSoil(d);
+    d.finish();
+  }
+  if (r.has("zones")) {
+    const YAML::Node zs = r.node("zones");
+    if (!zs.IsSequence()) r.fail(zs, "zones", "expected a list of zones");
+    for (std::size_t k = 0; k < zs.size(); ++k) {
+      MapReader z(zs[k], r.file(), r.join("zones[" + std::to_string(k) + "]"));
+      SoilZone zone;
+      zone.name = z.str("name", "zone" + std::to_string(k));
+      zone.soil = readSoil(z);
+      int regions = 0;
+      if (z.has("strip")) {
+        ++regions;
+        MapReader s = z.child("strip");
+        const std::string axis = s.strRequired("axis");
+        if (axis == "x") zone.region = SoilZone::Region::StripX;
+        else if (axis == "y") zone.region = SoilZone::Region::StripY;
+        else s.fail(s.node("axis"), "axis", "expected 'x' or 'y'");
+        double lo = 0, hi = 0;
+        if (!s.has("range_m")) s.fail(s.self(), "range_m", "missing [min, max]");
+        readRange(s, "range_m", lo, hi, -1e9, 1e9);
+        zone.lo_m = lo;
+        zone.hi_m = hi;
+        s.finish();
+      }
+      if (z.has("polygon")) {
+        ++regions;
+        const YAML::Node p = z.node("polygon");
+        if (!p.IsSequence() || p.size() < 3) z.fail(p, "polygon", "expected a list of at least 3 [x, y] points");
+        for (std::size_t q = 0; q < p.size(); ++q) {
+          const auto v = z.numList(p[q], "polygon[" + std::to_string(q) + "]", 2);
+          zone.polygon.emplace_back(v[0], v[1]);
+        }
+        zone.region = SoilZone::Region::Polygon;
+      }
+      if (regions > 1) z.fail(z.self(), "polygon", "give one region (strip or polygon), not both");
+      readRange(z, "depth_m", zone.depth_min_m, zone.depth_max_m, 0.0, INFINITY);
+      z.finish();
+      sc.zones.push_back(std::move(zone));
+    }
+  }
+  r.finish();
+}
+
+Scenario parseImpl(const std::string& text, const Ctx& ctx) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::ParserException& e) {
+    throw ConfigError(ctx.file + ":" + std::to_string(e.mark.line + 1) + ":" + std::to_string(e.mark.column + 1) +
+                      ": YAML syntax error: " + e.msg);
+  }
+  if (!root.IsMap()) throw ConfigError(ctx.file + ": a scenario must be a YAML mapping");
+  MapReader r(root, ctx.file, "");
+  Scenario sc;
+  sc.yaml_text = text;
+  const int version = r.integer("version", 1, 1, 1);
+  (void)version;
+  sc.name = r.str("name", fs::path(ctx.file).stem().string());
+  sc.seed = r.unsignedInt("seed", 1);
+  sc.duration_s = r.num("duration_s", sc.duration_s, 1e-3, 1e6);
+  sc.observation_hz = r.num("observation_hz", sc.observation_hz, 1.0, 1000.0);
+  sc.physics_hz = r.num("physics_hz", sc.physics_hz, 1.0, 10000.0);
+  const double ratio = sc.physics_hz / sc.observation_hz;
+  if (std::abs(ratio - std::round(ratio)) > 1e-9 || ratio < 1)
+    r.fail(r.node("physics_hz"), "physics_hz", "must be a whole multiple of observation_hz");
+  sc.threads = r.integer("threads", sc.threads, 1, 256);
+  {
+    MapReader t = r.child("terrain");
+    readTerrain(t, sc, ctx);
+  }
+  if (r.has("soil")) {
+    MapReader s = r.child("soil");
+    readSoilSection(s, sc);
+  }
+  const YAML::Node ms = r.node("machines");
+  if (!ms.IsDefined() || ms.IsNull()) r.fail(root, "machines", "missing (a list of at least one machine)");
+  if (!ms.IsSequence() || ms.size() == 0) r.fail(ms, "machines", "expected a list of at least one machine");
+  std::set<std::string> ids;
+  for (std::size_t k = 0; k < ms.size(); ++k) {
+    MapReader mr(ms[k], ctx.file, "machines[" + std::to_string(k) + "]");
+    MachineSpec m = readMachine(mr);
+    if (!ids.insert(m.id).second) mr.fail(ms[k]["id"], "id", "duplicate machine id '" + m.id + "'");
+    const TerrainSpec& t = sc.terrain;
+    if (m.x_m < t.origin_x_m || m.x_m > t.origin_x_m + t.size_x_m || m.y_m < t.origin_y_m ||
+        m.y_m > t.origin_y_m + t.size_y_m)
+      mr.fail(ms[k]["pose"].IsDefined() ? ms[k]["pose"] : ms[k], "pose", "machine starts outside the terrain");
+    sc.machines.push_back(std::move(m));
+  }
+  r.finish();
+  return sc;
+}
+
+}  // namespace
+
+Scenario parseScenario(const std::string& yaml_text, const std::string& name_for_errors, const std::string& base_dir) {
+  return parseImpl(yaml_text, Ctx{name_for_errors, base_dir});
+}
+
+Scenario loadScenario(const std::string& yaml_path) {
+  std::ifstream in(yaml_path, std::ios::binary);
+  if (!in) throw ConfigError(yaml_path + ": cannot open scenario file");
+  std::ostringstream os;
+  os << in.rdbuf();
+  fs::path p(yaml_path);
+  Scenario sc = parseImpl(os.str(), Ctx{yaml_path, p.has_parent_path() ? p.parent_path().string() : "."});
+  sc.source_path = yaml_path;
+  return sc;
+}
+
+bool applyLidarPreset(const std::string& name, SensorSpec& s) {
+  if (name == "vlp32") {  // Velodyne VLP-32C-like: 32 beams, -25..+15 deg, 0.2 deg at 10 Hz
+    s.beams = 32; s.columns = 1800; s.vfov_min_rad = -25 * kDeg; s.vfov_max_rad = 15 * kDeg;
+    s.hfov_rad = 2 * M_PI; s.rate_hz = 10; s.max_range_m = 100; s.range_noise_m = 0.03;
+  } else if (name == "os1_64") {  // Ouster OS1-64-like: 64 beams, +-22.5 deg, 1024 columns
+    s.beams = 64; s.columns = 1024; s.vfov_min_rad = -22.5 * kDeg; s.vfov_max_rad = 22.5 * kDeg;
+    s.hfov_rad = 2 * M_PI; s.rate_hz = 10; s.max_range_m = 90; s.range_noise_m = 0.02;
+  } else if (name == "os1_128") {
+    s.beams = 128; s.columns = 1024; s.vfov_min_rad = -22.5 * kDeg; s.vfov_max_rad = 22.5 * kDeg;
+    s.hfov_rad = 2 * M_PI; s.rate_hz = 10; s.max_range_m = 90; s.range_noise_m = 0.02;
+  } else if (name == "single_line") {  // SICK-style 2D scanner: 270 deg, 0.5 deg, 25 Hz
+    s.beams = 1; s.columns = 541; s.vfov_min_rad = 0; s.vfov_max_rad = 0;
+    s.hfov_rad = 270 * kDeg; s.rate_hz = 25; s.max_range_m = 30; s.range_noise_m = 0.01;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+std::vector<std::string> lidarPresetNames() { return {"vlp32", "os1_64", "os1_128", "single_line"}; }
+
+}  // namespace terramap::sim

@@ -1,0 +1,389 @@
+// Truth terrain: node grid, bilinear queries, mass-moving primitives, pyramid ray casting.
+#include <terramap/core/error.hpp>
+#include <terramap/sim/truth_terrain.hpp>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+#include <stdexcept>
+
+namespace terramap::sim {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+/// Rounds a double up to the next float so a float bound is never below the double value.
+float upperFloat(double v) {
+  float f = static_cast<float>(v);
+  if (static_cast<double>(f) < v) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  return f;
+}
+
+/// Ray-box slab test in xy; returns false if [t0, t1] ∩ box is empty.
+bool slabXY(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double x0, double x1, double y0,
+            double y1, double& t0, double& t1) {
+  for (int a = 0; a < 2; ++a) {
+    const double lo = a == 0 ? x0 : y0, hi = a == 0 ? x1 : y1;
+    if (d[a] == 0.0) {
+      if (o[a] < lo || o[a] > hi) return false;
+      continue;
+    }
+    const double inv = 1.0 / d[a];
+    double ta = (lo - o[a]) * inv, tb = (hi - o[a]) * inv;
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+    if (t0 > t1) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+// ---- DEM ------------------------------------------------------------------------------------
+
+double DemGrid::heightAt(double x, double y) const {
+  const double fx = (x - x0_m) / cell_m, fy = (y - y0_m) / cell_m;
+  if (!(fx >= 0 && fy >= 0 && fx <= nx - 1 && fy <= ny - 1)) return kNaN;
+  int i = std::min(static_cast<int>(fx), nx - 2), j = std::min(static_cast<int>(fy), ny - 2);
+  if (nx == 1) i = 0;
+  if (ny == 1) j = 0;
+  const double u = fx - i, v = fy - j;
+  auto at = [&](int a, int b) { return z[static_cast<std::size_t>(std::min(b, ny - 1)) * nx + std::min(a, nx - 1)]; };
+  return (1 - u) * (1 - v) * at(i, j) + u * (1 - v) * at(i + 1, j) + (1 - u) * v * at(i, j + 1) +
+         u * v * at(i + 1, j + 1);
+}
+
+DemGrid readEsriAscii(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw InputError(path + ": cannot open DEM file");
+  DemGrid g;
+  bool corner_x = false, corner_y = false, have_x = false, have_y = false, have_cell = false;
+  double nodata = -9999.0, xll = 0, yll = 0;
+  bool have_nodata = false;
+  std::string line;
+  int line_no = 0;
+  std::streampos data_start = 0;
+  // Header: keyword value pairs until the first line starting with a number.
+  while (true) {
+    data_start = in.tellg();
+    if (!std::getline(in, line)) throw InputError(path + ": unexpected end of file in the header");
+    ++line_no;
+    std::istringstream ls(line);
+    std::string key;
+    if (!(ls >> key)) continue;
+    if (std::isdigit(static_cast<unsigned char>(key[0])) || key[0] == '-' || key[0] == '.' || key[0] == '+') {
+      --line_no;
+      break;
+    }
+    std::string k = key;
+    std::transform(k.begin(), k.end(), k.begin(), [](unsigned char c) { return std::tolower(c); });
+    double v = 0;
+    if (!(ls >> v)) throw InputError(path + ":" + std::to_string(line_no) + ": header '" + key + "' has no numeric value");
+    if (k == "ncols") g.nx = static_cast<int>(v);
+    else if (k == "nrows") g.ny = static_cast<int>(v);
+    else if (k == "xllcorner") { xll = v; corner_x = true; have_x = true; }
+    else if (k == "xllcenter") { xll = v; have_x = true; }
+    else if (k == "yllcorner") { yll = v; corner_y = true; have_y = true; }
+    else if (k == "yllcenter") { yll = v; have_y = true; }
+    else if (k == "cellsize") { g.cell_m = v; have_cell = true; }
+    else if (k == "nodata_value") { nodata = v; have_nodata = true; }
+    else throw InputError(path + ":" + std::to_string(line_no) + ": unknown ESRI ASCII header '" + key + "'");
+  }
+  if (g.nx < 2 || g.ny < 2 || !have_x || !have_y || !have_cell || !(g.cell_m > 0))
+    throw InputError(path + ": ESRI ASCII header needs ncols >= 2, nrows >= 2, xll*, yll*, cellsize > 0");
+  g.x0_m = xll + (corner_x ? 0.5 * g.cell_m : 0.0);
+  g.y0_m = yll + (corner_y ? 0.5 * g.cell_m : 0.0);
+  in.clear();
+  in.seekg(data_start);
+  g.z.assign(static_cast<std::size_t>(g.nx) * g.ny, kNaN);
+  for (int r = 0; r < g.ny; ++r) {
+    const int j = g.ny - 1 - r;  // first row is the northern one
+    for (int i = 0; i < g.nx; ++i) {
+      std::string tok;
+      if (!(in >> tok))
+        throw InputError(path + ": expected " + std::to_string(g.nx * g.ny) + " values, file ends in row " +
+                         std::to_string(r + 1));
+      double v = 0;
+      try {
+        size_t used = 0;
+        v = std::stod(tok, &used);
+        if (used != tok.size()) throw std::invalid_argument(tok);
+      } catch (const std::exception&) {
+        throw InputError(path + ": row " + std::to_string(r + 1) + ", column " + std::to_string(i + 1) +
+                         ": not a number: '" + tok + "'");
+      }
+      g.z[static_cast<std::size_t>(j) * g.nx + i] = (have_nodata && v == nodata) ? kNaN : v;
+    }
+  }
+  return g;
+}
+
+// ---- grid -----------------------------------------------------------------------------------
+
+TruthTerrain::TruthTerrain(double origin_x_m, double origin_y_m, double resolution_m, int nx, int ny,
+                           double height_m)
+    : ox_(origin_x_m), oy_(origin_y_m), res_(resolution_m), nx_(nx), ny_(ny) {
+  if (!(resolution_m > 0) || nx < 2 || ny < 2)
+    throw std::invalid_argument("TruthTerrain: resolution must be > 0 and the grid at least 2x2 nodes");
+  const std::size_t n = static_cast<std::size_t>(nx) * ny;
+  u_.assign(n, height_m);
+  lv_.assign(n, 0.0);
+  lc_.assign(n, 0.0);
+  h0_.assign(n, static_cast<float>(height_m));
+  // Pyramid levels over cells.
+  int w = nx - 1, h = ny - 1;
+  while (true) {
+    Level L;
+    L.w = w;
+    L.h = h;
+    L.zmax.assign(static_cast<std::size_t>(w) * h, upperFloat(height_m));
+    levels_.push_back(std::move(L));
+    if (w == 1 && h == 1) break;
+    w = (w + 1) / 2;
+    h = (h + 1) / 2;
+  }
+}
+
+void TruthTerrain::setUndisturbed(int i, int j, double h) {
+  const auto k = index(i, j);
+  u_[k] = h;
+  lv_[k] = 0.0;
+  lc_[k] = 0.0;
+}
+
+void TruthTerrain::captureInitial() {
+  for (std::size_t k = 0; k < u_.size(); ++k) h0_[k] = static_cast<float>(u_[k] + lv_[k]);
+}
+
+TruthTerrain::Removed TruthTerrain::removeBetween(int i, int j, double z_lo, double z_hi) {
+  Removed r;
+  const auto k = index(i, j);
+  const double H = u_[k] + lv_[k];
+  const double top = std::min(H, z_hi);
+  if (!(top > z_lo)) return r;
+  // Loose soil occupies [U, H]; undisturbed below U.
+  const double U = u_[k];
+  const double loose_part = std::max(0.0, top - std::max(z_lo, U));
+  const double bank_part = std::max(0.0, std::min(top, U) - z_lo);
+  if (loose_part > 0.0 && lv_[k] > 0.0) {
+    const double ratio = lc_[k] / lv_[k];
+    const double dv = std::min(loose_part, lv_[k]);
+    const double dc = (dv == lv_[k]) ? lc_[k] : dv * ratio;
+    lv_[k] -= dv;
+    lc_[k] -= dc;
+    r.loose_v = dv;
+    r.loose_c = dc;
+  }
+  if (bank_part > 0.0) {
+    // Removing bank soil under a loose cover lets the cover drop: U decreases, Lv stays.
+    u_[k] -= bank_part;
+    r.bank_u = bank_part;
+  }
+  return r;
+}
+
+void TruthTerrain::addLoose(int i, int j, double v, double c) {
+  const auto k = index(i, j);
+  lv_[k] += v;
+  lc_[k] += c;
+}
+
+void TruthTerrain::moveLoose(int ia, int ja, int ib, int jb, double dv) {
+  const auto a = index(ia, ja), b = index(ib, jb);
+  if (!(dv > 0.0) || lv_[a] <= 0.0) return;
+  dv = std::min(dv, lv_[a]);
+  const double dc = (dv == lv_[a]) ? lc_[a] : dv * (lc_[a] / lv_[a]);
+  lv_[a] -= dv;
+  lc_[a] -= dc;
+  lv_[b] += dv;
+  lc_[b] += dc;
+}
+
+double TruthTerrain::bilinear(const std::vector<double>& a, double x, double y) const {
+  const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
+  if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return kNaN;
+  const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
+  const double u = fx - i, v = fy - j;
+  const std::size_t k = index(i, j);
+  return (1 - u) * (1 - v) * a[k] + u * (1 - v) * a[k + 1] + (1 - u) * v * a[k + nx_] + u * v * a[k + nx_ + 1];
+}
+
+double TruthTerrain::heightAt(double x, double y) const {
+  const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
+  if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return kNaN;
+  const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
+  const double u = fx - i, v = fy - j;
+  const std::size_t k = index(i, j);
+  auto H = [&](std::size_t m) { return u_[m] + lv_[m]; };
+  return (1 - u) * (1 - v) * H(k) + u * (1 - v) * H(k + 1) + (1 - u) * v * H(k + nx_) + u * v * H(k + nx_ + 1);
+}
+
+double TruthTerrain::undisturbedAt(double x, double y) const { return bilinear(u_, x, y); }
+
+double TruthTerrain::initialHeightAt(double x, double y) const {
+  const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
+  if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return kNaN;
+  const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
+  const double u = fx - i, v = fy - j;
+  const std::size_t k = index(i, j);
+  return (1 - u) * (1 - v) * h0_[k] + u * (1 - v) * h0_[k + 1] + (1 - u) * v * h0_[k + nx_] +
+         u * v * h0_[k + nx_ + 1];
+}
+
+Eigen::Vector2d TruthTerrain::gradientAt(double x, double y) const {
+  const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
+  if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return {kNaN, kNaN};
+  const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
+  const double u = fx - i, v = fy - j;
+  const double z00 = height(i, j), z10 = height(i + 1, j), z01 = height(i, j + 1), z11 = height(i + 1, j + 1);
+  const double c = z00 - z10 - z01 + z11;
+  return {((z10 - z00) + c * v) / res_, ((z01 - z00) + c * u) / res_};
+}
+
+double TruthTerrain::bankVolume(double datum) const {
+  // Kahan-free but order-fixed sum: deterministic.
+  double s = 0.0;
+  for (std::size_t k = 0; k < u_.size(); ++k) s += (u_[k] - datum) + lc_[k];
+  return s * res_ * res_;
+}
+
+// ---- pyramid --------------------------------------------------------------------------------
+
+double TruthTerrain::nodeMaxCell(int ci, int cj) const {
+  return std::max(std::max(height(ci, cj), height(ci + 1, cj)), std::max(height(ci, cj + 1), height(ci + 1, cj + 1)));
+}
+
+void TruthTerrain::refreshPyramid(int i0, int j0, int i1, int j1) {
+  // Cells touching the node box.
+  int c0 = std::max(0, std::min(i0, i1) - 1), c1 = std::min(nx_ - 2, std::max(i0, i1));
+  int r0 = std::max(0, std::min(j0, j1) - 1), r1 = std::min(ny_ - 2, std::max(j0, j1));
+  if (c0 > c1 || r0 > r1) return;
+  Level& L0 = levels_[0];
+  for (int cj = r0; cj <= r1; ++cj)
+    for (int ci = c0; ci <= c1; ++ci) L0.zmax[static_cast<std::size_t>(cj) * L0.w + ci] = upperFloat(nodeMaxCell(ci, cj));
+  for (std::size_t l = 1; l < levels_.size(); ++l) {
+    c0 /= 2; c1 /= 2; r0 /= 2; r1 /= 2;
+    const Level& P = levels_[l - 1];
+    Level& L = levels_[l];
+    for (int by = r0; by <= r1; ++by) {
+      for (int bx = c0; bx <= c1; ++bx) {
+        float m = -std::numeric_limits<float>::infinity();
+        for (int dy = 0; dy < 2; ++dy)
+          for (int dx = 0; dx < 2; ++dx) {
+            const int px = 2 * bx + dx, py = 2 * by + dy;
+            if (px < P.w && py < P.h) m = std::max(m, P.zmax[static_cast<std::size_t>(py) * P.w + px]);
+          }
+        L.zmax[static_cast<std::size_t>(by) * L.w + bx] = m;
+      }
+    }
+  }
+}
+
+// ---- ray casting ----------------------------------------------------------------------------
+
+double TruthTerrain::cellHit(int ci, int cj, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double ta,
+                             double tb) const {
+  const double z00 = height(ci, cj), z10 = height(ci + 1, cj), z01 = height(ci, cj + 1), z11 = height(ci + 1, cj + 1);
+  const double a = z10 - z00, b = z01 - z00, c = z00 - z10 - z01 + z11;
+  // Local coordinates at the interval start (s = t - ta).
+  const double u0 = (o.x() + d.x() * ta - (ox_ + ci * res_)) / res_;
+  const double v0 = (o.y() + d.y() * ta - (oy_ + cj * res_)) / res_;
+  const double du = d.x() / res_, dv = d.y() / res_;
+  const double h0 = z00 + a * u0 + b * v0 + c * u0 * v0;
+  const double h1 = a * du + b * dv + c * (u0 * dv + v0 * du);
+  const double h2 = c * du * dv;
+  // f(s) = ray z - surface = C + B s + A s^2
+  const double C = (o.z() + d.z() * ta) - h0;
+  const double B = d.z() - h1;
+  const double A = -h2;
+  if (C <= 0.0) return ta;  // entered the cell at or below the surface
+  const double len = tb - ta;
+  double best = kNaN;
+  if (std::abs(A) * len < 1e-12 * (std::abs(B) + 1e-300)) {
+    if (B < 0.0) {
+      const double s = -C / B;
+      if (s <= len) best = s;
+    }
+  } else {
+    const double disc = B * B - 4.0 * A * C;
+    if (disc >= 0.0) {
+      const double sq = std::sqrt(disc);
+      const double q = -0.5 * (B + (B >= 0 ? sq : -sq));
+      double r1 = q / A, r2 = (q != 0.0) ? C / q : kNaN;
+      if (r1 > r2) std::swap(r1, r2);
+      if (r1 >= 0.0 && r1 <= len) best = r1;
+      else if (r2 >= 0.0 && r2 <= len) best = r2;
+    }
+  }
+  return std::isnan(best) ? kNaN : ta + best;
+}
+
+double TruthTerrain::raycast(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min, double t_max) const {
+  double t0 = t_min, t1 = t_max;
+  if (!slabXY(o, d, ox_, maxX(), oy_, maxY(), t0, t1)) return kNaN;
+  struct Item { int level, bx, by; double ta, tb; };
+  std::array<Item, 128> stack;
+  int sp = 0;
+  const int top = static_cast<int>(levels_.size()) - 1;
+  stack[sp++] = {top, 0, 0, t0, t1};
+  const int w0 = levels_[0].w, h0 = levels_[0].h;
+  constexpr double kEps = 1e-9;
+  while (sp > 0) {
+    const Item it = stack[--sp];
+    const double za = o.z() + d.z() * it.ta, zb = o.z() + d.z() * it.tb;
+    const Level& L = levels_[it.level];
+    if (std::min(za, zb) > L.zmax[static_cast<std::size_t>(it.by) * L.w + it.bx]) continue;
+    if (it.level == 0) {
+      const double t = cellHit(it.bx, it.by, o, d, it.ta, it.tb);
+      if (!std::isnan(t)) return t;
+      continue;
+    }
+    // Children in ray order.
+    const int cl = it.level - 1;
+    const Level& C = levels_[cl];
+    Item kids[4];
+    int nk = 0;
+    for (int dy = 0; dy < 2; ++dy) {
+      for (int dx = 0; dx < 2; ++dx) {
+        const int cx = 2 * it.bx + dx, cy = 2 * it.by + dy;
+        if (cx >= C.w || cy >= C.h) continue;
+        const int ci0 = cx << cl, cj0 = cy << cl;
+        const int ci1 = std::min((cx + 1) << cl, w0), cj1 = std::min((cy + 1) << cl, h0);
+        double a = it.ta - kEps, b = it.tb + kEps;
+        if (!slabXY(o, d, ox_ + ci0 * res_, ox_ + ci1 * res_, oy_ + cj0 * res_, oy_ + cj1 * res_, a, b)) continue;
+        kids[nk++] = {cl, cx, cy, std::max(a, t0), std::min(b, t1)};
+      }
+    }
+    for (int a = 1; a < nk; ++a)  // insertion sort of <= 4 children by entry t
+      for (int b = a; b > 0 && kids[b].ta < kids[b - 1].ta; --b) std::swap(kids[b], kids[b - 1]);
+    for (int k = nk - 1; k >= 0; --k) stack[sp++] = kids[k];
+  }
+  return kNaN;
+}
+
+double TruthTerrain::raycastReference(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,
+                                      double t_max) const {
+  double t0 = t_min, t1 = t_max;
+  if (!slabXY(o, d, ox_, maxX(), oy_, maxY(), t0, t1)) return kNaN;
+  // Test every cell whose box the ray crosses, in order of entry (slow; tests only).
+  struct Hit { double ta; int ci, cj; double tb; };
+  std::vector<Hit> cells;
+  for (int cj = 0; cj < ny_ - 1; ++cj) {
+    for (int ci = 0; ci < nx_ - 1; ++ci) {
+      double a = t0, b = t1;
+      if (slabXY(o, d, ox_ + ci * res_, ox_ + (ci + 1) * res_, oy_ + cj * res_, oy_ + (cj + 1) * res_, a, b))
+        cells.push_back({a, ci, cj, b});
+    }
+  }
+  std::sort(cells.begin(), cells.end(), [](const Hit& p, const Hit& q) { return p.ta < q.ta; });
+  for (const Hit& h : cells) {
+    const double t = cellHit(h.ci, h.cj, o, d, h.ta, h.tb);
+    if (!std::isnan(t)) return t;
+  }
+  return kNaN;
+}
+
+}  // namespace terramap::sim

@@ -1,0 +1,164 @@
+#pragma once
+/// \file
+/// A simulator scenario (TERA-style YAML): truth terrain, soil zones, machines with their
+/// sensors, duration and seed. `loadScenario` validates everything before a simulation starts:
+/// every error is a ConfigError "file:line:col: key.path: message", unknown keys come with a
+/// did-you-mean. The YAML schema is documented in docs/sim.md; configs/scenarios/ has examples.
+/// Units: metres, seconds, radians in the structs (YAML takes *_deg keys for angles).
+#include <terramap/core/events.hpp>
+#include <terramap/sim/soil_table.hpp>
+
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+namespace terramap::sim {
+
+/// One Gaussian bump of the truth terrain: h += amplitude * exp(-|p - c|^2 / (2 sigma^2)).
+struct GaussianBump {
+  double x_m = 0, y_m = 0, amplitude_m = 0, sigma_m = 1;
+};
+
+/// Truth terrain: a regular grid of height nodes (node (i, j) at origin + (i, j) * resolution)
+/// with bilinear interpolation between nodes.
+struct TerrainSpec {
+  double origin_x_m = 0, origin_y_m = 0;  ///< map position of node (0, 0)
+  double size_x_m = 20, size_y_m = 20;    ///< extent; nodes = round(size / resolution) + 1
+  double resolution_m = 0.02;             ///< node spacing, <= 0.02 m per ALGORITHMS.md §J
+  double base_height_m = 0;
+  double slope_x = 0, slope_y = 0;        ///< plane term dh/dx, dh/dy added to the base
+  /// Explicit bumps (from YAML `hills.list`) plus `hills.count` random ones drawn from the
+  /// ranges below with `hills.seed` (already expanded by loadScenario, so `bumps` is complete).
+  std::vector<GaussianBump> bumps;
+  /// DEM file instead of/added to the analytic surface: ESRI ASCII grid (.asc). Empty = none.
+  /// The DEM is resampled bilinearly onto the node grid; nodes outside the DEM are an error.
+  std::string dem_path;
+  double snapshot_interval_s = 1.0;  ///< truth heightmaps written every this many seconds
+};
+
+/// Where a soil zone applies. A zone with no region applies everywhere (in its depth range).
+struct SoilZone {
+  std::string name;
+  SoilProperties soil;
+  enum class Region { Everywhere, StripX, StripY, Polygon } region = Region::Everywhere;
+  double lo_m = 0, hi_m = 0;                 ///< strip bounds (x or y) for StripX/StripY
+  std::vector<Eigen::Vector2d> polygon;      ///< map xy, any orientation, not self-intersecting
+  /// Depth range below the *initial* surface (m, positive down) where the zone applies.
+  double depth_min_m = 0, depth_max_m = std::numeric_limits<double>::infinity();
+};
+
+/// A scalar set-point that drifts as a reflected random walk (paper §3.1):
+/// x += sigma * sqrt(dt) * N(0, 1), reflected into [min, max]; sigma = 0 keeps it constant.
+struct RandomWalk {
+  double initial = 0, min = 0, max = 0, sigma = 0;  ///< sigma in units per sqrt(second)
+};
+
+/// Controller of a machine.
+struct ControllerSpec {
+  enum class Type { RandomWalk, Route } type = Type::RandomWalk;
+  // Random-walk set-points (type RandomWalk).
+  RandomWalk speed_mps{0.8, 0.3, 1.4, 0.15};
+  RandomWalk depth_m{0.08, 0.0, 0.2, 0.03};       ///< blade edge below the track contact plane
+  RandomWalk roll_rad{0, -0.08, 0.08, 0.03};      ///< blade roll relative to the chassis
+  RandomWalk yaw_rad{0, -0.2, 0.2, 0.05};         ///< blade angle relative to the chassis
+  RandomWalk heading_rad{0, -0.5, 0.5, 0.1};      ///< chassis heading relative to the start
+  // Route (type Route): parallel passes; each pass drives forward from its start along
+  // `heading` for `length` with the blade at `depth`, then reverses with the blade raised and
+  // shifts by `spacing` (to the left of the heading) for the next pass.
+  Eigen::Vector2d route_start{0, 0};
+  double route_heading_rad = 0, route_length_m = 10, route_spacing_m = 1.6;
+  int route_passes = 3;
+  double route_depth_m = 0.1, route_speed_mps = 0.8, route_return_speed_mps = 1.2;
+  /// Raise the blade when the measured speed stays below `stall_ratio` * set-point for
+  /// `stall_time_s` (speed tracking failed): rate of the raise, m/s.
+  double stall_ratio = 0.5, stall_time_s = 0.3, raise_rate_mps = 0.15;
+};
+
+/// A sensor mounted on a machine. Pose offset T_base_sensor from `offset` (m) and
+/// `rotation_deg` (roll, pitch, yaw applied as Rz(yaw) * Ry(pitch) * Rx(roll)).
+struct SensorSpec {
+  std::string id;
+  enum class Type { Lidar, Pose, Force } type = Type::Lidar;
+  Eigen::Isometry3d T_base_sensor = Eigen::Isometry3d::Identity();
+  // LiDAR: `beams` rows at elevations spread evenly over [vfov_min, vfov_max] (one beam: the
+  // mean), `columns` azimuths over hfov (centred on the sensor x axis), one scan per 1/rate.
+  int beams = 64, columns = 1024;
+  double vfov_min_rad = -22.5 * M_PI / 180, vfov_max_rad = 22.5 * M_PI / 180;
+  double hfov_rad = 2 * M_PI;
+  double rate_hz = 10;
+  double min_range_m = 0.3, max_range_m = 60;
+  double range_noise_m = 0.02;  ///< 1-sigma Gaussian range noise
+  double dropout = 0.0;         ///< probability a return is lost (returned as NaN point)
+  bool keep_dropouts = false;   ///< emit NaN points for misses/dropouts (organized cloud)
+  // Pose sensor noise (1 sigma).
+  double position_noise_m = 0.02, yaw_noise_rad = 0.003, tilt_noise_rad = 0.002;
+  // Force sensor noise: sigma = abs + rel * |F|.
+  double force_noise_abs_n = 100, force_noise_rel = 0.02;
+};
+
+/// A compact track loader (CAT 299-class defaults: ALGORITHMS.md §L; docs/sim.md).
+struct MachineSpec {
+  std::string id;
+  double x_m = 0, y_m = 0, yaw_rad = 0;  ///< initial pose of the base frame
+  BladeGeometry blade;                   ///< 1.85 m x 0.76 m
+  double rake_rad = 80 * M_PI / 180;     ///< blade face to horizontal through the soil
+  double blade_mount_x_m = 1.9;          ///< cutting-edge centre ahead of the base origin
+  double mass_kg = 5200;
+  double track_gauge_m = 1.6, track_length_m = 1.9;
+  double traction_coefficient = 0.75;    ///< max tractive force = coeff * weight * cos(pitch)
+  double max_drive_force_n = 42000;      ///< hydrostatic drive limit
+  double rolling_resistance = 0.04;      ///< fraction of weight
+  double max_speed_mps = 2.5;
+  double drive_time_constant_s = 0.2;    ///< track speed response to its command
+  double yaw_time_constant_s = 0.25;
+  // Blade joints: [lift (m, edge height above the contact plane), tilt (rad, roll), angle (rad, yaw)].
+  std::array<double, 3> joint_min{-0.35, -0.26, -0.52}, joint_max{0.9, 0.26, 0.52};
+  std::array<double, 3> joint_max_rate{0.5, 0.5, 0.6};
+  /// Joint velocity response (TERA Eq. 1 with phi = -pi/2): each joint's rate follows its
+  /// command as a damped second-order system whose step response is
+  /// 1 - exp(-beta t) cos(eta t) scaled; beta = 0 selects a first-order lag with time
+  /// constant `joint_tau_s`.
+  double joint_eta = 20, joint_beta = 6, joint_tau_s = 0.08;
+  /// Downward force the lift can apply before the blade is pushed up (N).
+  double lift_down_force_n = 26000;
+  double edge_thickness_m = 0.025;  ///< bearing area of the cutting edge (penetration resistance)
+  int blade_slices = 37;            ///< FEE slices across the blade width
+  /// Coloured (Ornstein-Uhlenbeck) force noise of the truth physics: sigma = abs + rel |F|.
+  double force_noise_abs_n = 150, force_noise_rel = 0.05, force_noise_tau_s = 0.15;
+  double engine_rated_rpm = 2500, engine_droop_rpm = 450;
+  ControllerSpec controller;
+  std::vector<SensorSpec> sensors;
+};
+
+struct Scenario {
+  std::string name;
+  std::string source_path;  ///< file it was loaded from ("" if from a string)
+  std::string yaml_text;    ///< the verbatim YAML (stored in the episode)
+  std::uint64_t seed = 1;
+  double duration_s = 10;
+  double physics_hz = 240;      ///< internal step (multiple of observation_hz)
+  double observation_hz = 60;   ///< Observation/Pose/BladePose events and next() step
+  int threads = 2;              ///< LiDAR ray-casting threads (results independent of it)
+  TerrainSpec terrain;
+  SoilProperties default_soil = soilProperties(SoilFamily::Loam, 0.5);
+  std::vector<SoilZone> zones;  ///< later zones override earlier ones
+  std::vector<MachineSpec> machines;
+};
+
+/// Loads and validates a scenario file. Relative paths inside (DEM) resolve against the
+/// file's folder. \throws ConfigError (file:line:col: key path: message) or InputError (DEM).
+Scenario loadScenario(const std::string& yaml_path);
+/// Same from a YAML string; `name_for_errors` stands in for the file name in messages and
+/// relative paths resolve against `base_dir`.
+Scenario parseScenario(const std::string& yaml_text, const std::string& name_for_errors,
+                       const std::string& base_dir = ".");
+
+/// LiDAR presets by name ("vlp32", "os1_64", "os1_128", "single_line"): beams, fov, columns.
+/// Returns false for an unknown name. Used by loadScenario for `preset:`.
+bool applyLidarPreset(const std::string& name, SensorSpec& s);
+std::vector<std::string> lidarPresetNames();
+
+}  // namespace terramap::sim

@@ -1,0 +1,138 @@
+#pragma once
+/// \file
+/// The simulator's ground-truth terrain: a fine regular grid of height *nodes* (node (i, j) at
+/// map position origin + (i, j) * resolution, i along x, j along y) with bilinear interpolation
+/// between nodes. Independent of the mapper's LayeredMap on purpose: it is the reference the
+/// mapper is measured against.
+///
+/// Each node stores three thicknesses (metres, double):
+///  - U: height of the undisturbed (bank) soil surface,
+///  - Lv: thickness of loose soil lying on top (surface H = U + Lv),
+///  - Lc: the bank-equivalent thickness of that loose soil (Lc = Lv / swell of its origin).
+/// Soil mass is proportional to sum(U + Lc) * res^2 (relative to any datum) and every change the
+/// simulator makes moves (U, Lv, Lc) so that sum is conserved (tested).
+///
+/// Ray casting uses a max-height pyramid (quadtree of 2x2 node blocks) so rays skip empty
+/// space; `raycast` is const and thread-safe; mutators are not (the simulator mutates between
+/// scans, then calls `refreshPyramid`).
+#include <Eigen/Core>
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+namespace terramap::sim {
+
+/// A raster DEM read from disk: heights at cell centres, NaN = no data, row 0 = south (y min).
+struct DemGrid {
+  double x0_m = 0, y0_m = 0;  ///< centre of cell (0, 0) (south-west)
+  double cell_m = 1;
+  int nx = 0, ny = 0;
+  std::vector<double> z;      ///< z[j * nx + i]
+  /// Bilinear height at (x, y); NaN outside the cell-centre hull or next to a no-data cell.
+  double heightAt(double x, double y) const;
+};
+
+/// Reads an ESRI ASCII grid (.asc: ncols, nrows, xllcorner|xllcenter, yllcorner|yllcenter,
+/// cellsize, optional NODATA_value, then rows north to south).
+/// \throws InputError naming the file and line on any malformed header or value.
+DemGrid readEsriAscii(const std::string& path);
+
+class TruthTerrain {
+ public:
+  /// \throws std::invalid_argument for non-positive resolution or fewer than 2x2 nodes.
+  TruthTerrain(double origin_x_m, double origin_y_m, double resolution_m, int nx, int ny,
+               double height_m = 0.0);
+
+  int nx() const { return nx_; }
+  int ny() const { return ny_; }
+  double resolution() const { return res_; }
+  double originX() const { return ox_; }
+  double originY() const { return oy_; }
+  double maxX() const { return ox_ + (nx_ - 1) * res_; }
+  double maxY() const { return oy_ + (ny_ - 1) * res_; }
+  std::size_t index(int i, int j) const { return static_cast<std::size_t>(j) * nx_ + i; }
+  bool inside(int i, int j) const { return i >= 0 && j >= 0 && i < nx_ && j < ny_; }
+  Eigen::Vector2d nodePosition(int i, int j) const { return {ox_ + i * res_, oy_ + j * res_}; }
+
+  /// Surface height H = U + Lv of a node.
+  double height(int i, int j) const { const auto k = index(i, j); return u_[k] + lv_[k]; }
+  double undisturbed(int i, int j) const { return u_[index(i, j)]; }
+  double loose(int i, int j) const { return lv_[index(i, j)]; }
+  double looseBank(int i, int j) const { return lc_[index(i, j)]; }
+  /// Initial surface height (soil layers by depth are measured from it).
+  double initialHeight(int i, int j) const { return h0_[index(i, j)]; }
+
+  /// Sets the undisturbed height and clears loose soil (terrain construction only).
+  void setUndisturbed(int i, int j, double h);
+  /// Records the current surface as the initial surface (call once after construction).
+  void captureInitial();
+
+  // Mass-moving primitives used by the deformation model (no pyramid refresh).
+  /// Removes the layer [z_lo, z_hi] ∩ column from node (i, j). Returns the removed bank-equivalent
+  /// thickness split into (undisturbed part, loose part's Lv, loose part's Lc).
+  struct Removed { double bank_u = 0, loose_v = 0, loose_c = 0; };
+  Removed removeBetween(int i, int j, double z_lo, double z_hi);
+  /// Adds loose soil: Lv += v, Lc += c.
+  void addLoose(int i, int j, double v, double c);
+  /// Moves a loose thickness dv (<= Lv) from a to b keeping a's Lc/Lv ratio.
+  void moveLoose(int ia, int ja, int ib, int jb, double dv);
+
+  /// Bilinear surface height at a map position; NaN outside the grid.
+  double heightAt(double x, double y) const;
+  double undisturbedAt(double x, double y) const;
+  /// Bilinear loose thickness Lv and its bank equivalent Lc; NaN outside.
+  double looseAt(double x, double y) const { return bilinear(lv_, x, y); }
+  double looseBankAt(double x, double y) const { return bilinear(lc_, x, y); }
+  /// Nearest node to a map position (may be outside the grid: check inside()).
+  void nearestNode(double x, double y, int& i, int& j) const {
+    i = static_cast<int>(std::floor((x - ox_) / res_ + 0.5));
+    j = static_cast<int>(std::floor((y - oy_) / res_ + 0.5));
+  }
+  double initialHeightAt(double x, double y) const;
+  /// Surface gradient (dH/dx, dH/dy) of the bilinear surface; NaN outside.
+  Eigen::Vector2d gradientAt(double x, double y) const;
+
+  /// First intersection of the ray o + t d (|d| = 1) with the bilinear surface for
+  /// t in [t_min, t_max]; NaN when it misses or leaves the grid. Exact for the bilinear
+  /// surface (per-cell quadratic), so a plane is hit exactly. Thread-safe.
+  double raycast(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min, double t_max) const;
+  /// Brute-force reference (marches every cell along the ray, no pyramid): tests only.
+  double raycastReference(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,
+                          double t_max) const;
+
+  /// Rebuilds the max pyramid over the node box [i0, i1] x [j0, j1] (clamped), or all.
+  void refreshPyramid(int i0, int j0, int i1, int j1);
+  void refreshPyramid() { refreshPyramid(0, 0, nx_ - 1, ny_ - 1); }
+
+  /// Sum over nodes of (U + Lc) * res^2, relative to `datum` (m^3 of bank soil).
+  double bankVolume(double datum = 0.0) const;
+  /// Bank volume that left the grid (deposits that would land outside), m^3.
+  double lostVolume() const { return lost_m3_; }
+  void addLost(double m3) { lost_m3_ += m3; }
+
+  const std::vector<double>& undisturbedData() const { return u_; }
+  const std::vector<double>& looseData() const { return lv_; }
+  const std::vector<double>& looseBankData() const { return lc_; }
+
+ private:
+  double cellHit(int ci, int cj, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t0,
+                 double t1) const;
+  double bilinear(const std::vector<double>& a, double x, double y) const;
+  double nodeMaxCell(int ci, int cj) const;
+
+  double ox_, oy_, res_;
+  int nx_, ny_;
+  std::vector<double> u_, lv_, lc_;
+  std::vector<float> h0_;
+  // Pyramid of max surface heights over *cells* (cell (ci, cj) spans nodes ci..ci+1).
+  // Level 0 = cells (nx-1) x (ny-1); level l covers 2^l x 2^l cells. Stored conservatively
+  // (rounded up to float).
+  struct Level { int w = 0, h = 0; std::vector<float> zmax; };
+  std::vector<Level> levels_;
+  double lost_m3_ = 0.0;
+};
+
+}  // namespace terramap::sim
