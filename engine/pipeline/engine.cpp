@@ -1,0 +1,322 @@
+#include <terramap/pipeline/engine.hpp>
+#include <terramap/core/text.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <set>
+
+namespace terramap {
+
+namespace {
+
+std::string joinLines(const std::vector<std::string>& v) {
+  std::string all;
+  for (const auto& e : v) all += (all.empty() ? "" : "\n") + e;
+  return all;
+}
+
+/// Converts what YAML gave into the type the schema declares, or explains why not.
+bool coerce(const ParamSpec& spec, const RawParam& raw, ParamValue& out, std::string& why) {
+  const ParamValue& v = raw.value;
+  switch (spec.type) {
+    case ParamType::Bool:
+      if (std::holds_alternative<bool>(v)) { out = v; return true; }
+      break;
+    case ParamType::Int:
+      if (std::holds_alternative<long>(v)) { out = v; return true; }
+      break;
+    case ParamType::Double:
+      if (std::holds_alternative<double>(v)) { out = v; return true; }
+      if (std::holds_alternative<long>(v)) { out = static_cast<double>(std::get<long>(v)); return true; }
+      break;
+    case ParamType::String:
+      if (std::holds_alternative<std::string>(v)) { out = v; return true; }
+      break;
+    case ParamType::DoubleList:
+      if (std::holds_alternative<std::vector<double>>(v)) { out = v; return true; }
+      if (auto s = std::get_if<std::vector<std::string>>(&v); s && s->empty()) {
+        out = std::vector<double>{};
+        return true;
+      }
+      break;
+    case ParamType::StringList:
+      if (std::holds_alternative<std::vector<std::string>>(v)) { out = v; return true; }
+      if (auto s = std::get_if<std::string>(&v)) { out = std::vector<std::string>{*s}; return true; }
+      break;
+  }
+  why = std::string("must be a ") + paramTypeName(spec.type);
+  return false;
+}
+
+const char* kindKey(const Event& e) { return kindName(kindOf(e)); }
+
+}  // namespace
+
+Engine::Engine(const EngineOptions& options)
+    : map_(options.geometry, options.map), executor_(options.threads) {
+  report_.threads = options.threads;
+  for (const auto& l : options.layers) map_.addLayer(l.name, l.unit, l.fill);
+}
+
+Engine::~Engine() = default;
+
+PreparedStage Engine::prepare(const std::string& name, PluginHandle plugin,
+                              const std::map<std::string, RawParam>& raw, const std::string& where) {
+  const std::string owner = where.empty() ? name : where;
+  ParamSchema schema;
+  try {
+    schema = plugin->schema();
+  } catch (const std::exception& e) {
+    throw PluginError(owner + ": plugin '" + plugin.type() + "' threw in schema(): " + e.what());
+  }
+  std::vector<std::string> names;
+  for (const auto& s : schema) names.push_back(s.name);
+  Params params(owner, schema);
+  std::vector<std::string> errors;
+  for (const auto& [key, r] : raw) {
+    const auto it = std::find_if(schema.begin(), schema.end(), [&](const ParamSpec& s) { return s.name == key; });
+    const std::string at = r.where.empty() ? owner + ".params." + key : r.where;
+    if (it == schema.end()) {
+      errors.push_back(at + ": unknown parameter '" + key + "' for plugin '" + plugin.type() + "'" +
+                       didYouMean(key, names) + "; known: [" + joinStrings(names) + "]");
+      continue;
+    }
+    if (r.is_map) {
+      errors.push_back(at + ": must be a " + std::string(paramTypeName(it->type)) + ", not a nested mapping");
+      continue;
+    }
+    ParamValue v;
+    std::string why;
+    if (!coerce(*it, r, v, why)) {
+      errors.push_back(at + ": " + why);
+      continue;
+    }
+    const std::string m = checkParamValue(*it, v);
+    if (!m.empty()) {
+      errors.push_back(at + ": " + m + (it->unit.empty() || it->unit == "1" ? "" : " [" + it->unit + "]"));
+      continue;
+    }
+    params.set(key, v, at);
+  }
+  for (const auto& s : schema) {
+    if (raw.count(s.name)) continue;
+    if (s.default_value) params.set(s.name, *s.default_value);
+    else errors.push_back(owner + ".params: required parameter '" + s.name + "' is missing (" + s.doc + ")");
+  }
+  if (!errors.empty()) throw ConfigError(joinLines(errors));
+  try {
+    plugin->configure(params);
+  } catch (const ConfigError&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw PluginError(owner + ": plugin '" + plugin.type() + "' threw in configure(): " + e.what());
+  }
+  PreparedStage st;
+  st.name = name;
+  try {
+    st.layers = plugin->layers();
+    st.events = plugin->events();
+  } catch (const std::exception& e) {
+    throw PluginError(owner + ": plugin '" + plugin.type() + "' threw while declaring layers/events: " + e.what());
+  }
+  st.params = std::move(params);
+  st.plugin = std::move(plugin);
+  return st;
+}
+
+void Engine::checkLayers(const std::vector<std::string>& existing, const std::string& stage_name,
+                         const std::vector<LayerSpec>& layers, std::vector<std::string>& errors,
+                         std::vector<std::string>* out_new) {
+  std::vector<std::string> have = existing;
+  std::vector<std::string> created;
+  for (const auto& l : layers)
+    if (l.access == LayerAccess::Create) {
+      if (std::find(have.begin(), have.end(), l.name) != have.end())
+        errors.push_back("stage '" + stage_name + "' creates layer '" + l.name +
+                         "', which already exists (created by the map config or an earlier stage)");
+      else {
+        have.push_back(l.name);
+        created.push_back(l.name);
+      }
+    }
+  for (const auto& l : layers) {
+    if (l.access == LayerAccess::Create) continue;
+    if (std::find(have.begin(), have.end(), l.name) == have.end())
+      errors.push_back("stage '" + stage_name + "' " + layerAccessName(l.access) + "s layer '" + l.name +
+                       "' before any stage creates it" + didYouMean(l.name, have) +
+                       " (add a stage that creates it earlier, or declare it under map.layers)");
+  }
+  if (out_new) *out_new = created;
+}
+
+std::vector<std::string> Engine::validate(const PipelineSpec& spec, const PluginRegistry& registry) {
+  std::vector<std::string> errors;
+  std::vector<std::string> layers;
+  for (const auto& l : spec.layers) {
+    if (std::find(layers.begin(), layers.end(), l.name) != layers.end())
+      errors.push_back(l.where + ": layer '" + l.name + "' declared twice");
+    layers.push_back(l.name);
+  }
+  try {
+    (void)spec.geometry();
+    LayeredMap probe(Geometry(spec.resolution, Size(1, 1)), spec.map_options);
+  } catch (const Error& e) {
+    errors.push_back(spec.file + ": map: " + e.what());
+  }
+  for (size_t i = 0; i < spec.stages.size(); ++i) {
+    const StageSpec& s = spec.stages[i];
+    const std::string owner = "pipeline[" + std::to_string(i) + "] '" + s.name + "'";
+    PluginHandle h;
+    try {
+      h = registry.create(s.type);
+    } catch (const PluginError& e) {
+      errors.push_back(s.type_where + ": " + e.what());
+      continue;
+    }
+    try {
+      PreparedStage p = prepare(s.name, std::move(h), s.params, s.where);
+      std::vector<std::string> created;
+      std::vector<std::string> layer_errors;
+      checkLayers(layers, s.name, p.layers, layer_errors, &created);
+      for (auto& e : layer_errors) errors.push_back(s.where + ": " + e);
+      layers.insert(layers.end(), created.begin(), created.end());
+    } catch (const Error& e) {
+      errors.push_back(e.what());
+    }
+  }
+  for (const auto& l : spec.outputs.geotiff)
+    if (std::find(layers.begin(), layers.end(), l) == layers.end())
+      errors.push_back(spec.outputs.where + ": outputs.geotiff: no stage creates layer '" + l + "'" +
+                       didYouMean(l, layers));
+  for (const auto& l : spec.outputs.png)
+    if (std::find(layers.begin(), layers.end(), l) == layers.end())
+      errors.push_back(spec.outputs.where + ": outputs.png: no stage creates layer '" + l + "'" +
+                       didYouMean(l, layers));
+  return errors;
+}
+
+std::unique_ptr<Engine> Engine::fromSpec(const PipelineSpec& spec, const PluginRegistry& registry) {
+  const auto errors = validate(spec, registry);
+  if (!errors.empty()) throw ConfigError(joinLines(errors));
+  EngineOptions o;
+  o.geometry = spec.geometry();
+  o.map = spec.map_options;
+  o.threads = spec.threads;
+  o.layers = spec.layers;
+  auto engine = std::make_unique<Engine>(o);
+  for (const auto& s : spec.stages)
+    engine->addStage(prepare(s.name, registry.create(s.type), s.params, s.where));
+  return engine;
+}
+
+void Engine::addStage(PreparedStage stage) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<std::string> errors;
+  for (const auto& s : stages_)
+    if (s->prepared.name == stage.name) errors.push_back("duplicate stage name '" + stage.name + "'");
+  std::vector<std::string> created;
+  checkLayers(map_.layerNames(), stage.name, stage.layers, errors, &created);
+  if (!errors.empty()) throw ConfigError(joinLines(errors));
+  // From here on nothing may fail half-way: layers are added, and removed again if start() throws.
+  LayeredMap before = map_.snapshot();
+  for (const auto& l : stage.layers)
+    if (l.access == LayerAccess::Create) map_.addLayer(l.name, l.unit, l.fill);
+  auto st = std::make_unique<Stage>();
+  st->prepared = std::move(stage);
+  ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
+  try {
+    st->prepared.plugin->start(ctx);
+  } catch (const std::exception& e) {
+    map_ = std::move(before);
+    if (dynamic_cast<const Error*>(&e))
+      throw PluginError("stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() +
+                        ") failed in start(): " + e.what());
+    throw PluginError("stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() + ") threw in start(): " +
+                      e.what());
+  }
+  st->started = true;
+  stages_.push_back(std::move(st));
+}
+
+void Engine::addStage(const std::string& name, PluginHandle plugin, const std::map<std::string, ParamValue>& params) {
+  std::map<std::string, RawParam> raw;
+  for (const auto& [k, v] : params) raw[k] = RawParam{v, name + ".params." + k, false};
+  addStage(prepare(name, std::move(plugin), raw));
+}
+
+void Engine::push(const Event& event) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (finished_) throw ConfigError("Engine::push after finish()");
+  const auto t0 = std::chrono::steady_clock::now();
+  const EventKind kind = kindOf(event);
+  const double stamp = stampOf(event);
+  if (!any_event_) report_.first_stamp = stamp;
+  any_event_ = true;
+  report_.last_stamp = stamp;
+  report_.events[kindKey(event)] += 1;
+  for (auto& st : stages_) {
+    if (!(st->prepared.events & static_cast<EventMask>(kind))) continue;
+    ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
+    ctx.setStamp(stamp);
+    const auto s0 = std::chrono::steady_clock::now();
+    const std::string who = "stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() + ")";
+    const std::string when = std::string(" on ") + kindName(kind) + " at t=" + std::to_string(stamp);
+    try {
+      st->prepared.plugin->process(ctx, event);
+    } catch (const ConfigError& e) {
+      throw ConfigError(who + when + ": " + e.what());
+    } catch (const InputError& e) {
+      throw InputError(who + when + ": " + e.what());
+    } catch (const LayerError& e) {
+      throw LayerError(who + when + ": " + e.what());
+    } catch (const std::exception& e) {
+      throw PluginError(who + " threw" + when + ": " + e.what());
+    }
+    st->stats.wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - s0).count();
+    st->stats.events[kindName(kind)] += 1;
+  }
+  report_.wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void Engine::finish() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (finished_) return;
+  finished_ = true;
+  for (auto& st : stages_) {
+    ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
+    ctx.setStamp(report_.last_stamp);
+    try {
+      st->prepared.plugin->finish(ctx);
+    } catch (const std::exception& e) {
+      throw PluginError("stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() +
+                        ") threw in finish(): " + e.what());
+    }
+  }
+}
+
+std::shared_ptr<const LayeredMap> Engine::snapshot() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return std::make_shared<const LayeredMap>(map_.snapshot());
+}
+
+std::vector<std::string> Engine::stageNames() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<std::string> out;
+  for (const auto& s : stages_) out.push_back(s->prepared.name);
+  return out;
+}
+
+RunReport Engine::report() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  RunReport r = report_;
+  for (const auto& s : stages_)
+    r.stages.push_back(StageReport{s->prepared.name, s->prepared.plugin.type(), s->prepared.plugin.version(), s->stats});
+  return r;
+}
+
+void Engine::countSourceDrop(const std::string& reason, long n) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  report_.source_dropped[reason] += n;
+}
+
+}  // namespace terramap

@@ -1,0 +1,198 @@
+#include <terramap/pipeline/pipeline_spec.hpp>
+
+#include "yaml_util.hpp"
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+namespace terramap {
+
+namespace fs = std::filesystem;
+
+std::string PipelineSpec::resolvePath(const std::string& p) const {
+  if (p.empty()) return p;
+  fs::path path(p);
+  if (path.is_absolute()) return path.lexically_normal().string();
+  return (fs::path(base_dir) / path).lexically_normal().string();
+}
+
+namespace {
+
+void parseMap(yaml::Diagnostics& d, const YAML::Node& m, PipelineSpec& spec) {
+  if (!m) return;
+  if (!m.IsMap()) {
+    d.error(m, "map", "must be a mapping {resolution, size, center, tile, sparse, layers}");
+    return;
+  }
+  yaml::checkKeys(d, m, "map", {"resolution", "size", "center", "tile", "sparse", "layers", "frame"});
+  yaml::getDouble(d, m, "resolution", "map", spec.resolution, 1e-4, 1e3);
+  std::vector<double> v;
+  if (yaml::getDoubles(d, m, "size", "map", v, 2)) {
+    if (v[0] < 1 || v[1] < 1 || v[0] > 100000 || v[1] > 100000 || v[0] != static_cast<int>(v[0]) ||
+        v[1] != static_cast<int>(v[1]))
+      d.error(m["size"], "map.size", "must be two whole numbers of cells in [1, 100000]");
+    else
+      spec.size = Size(static_cast<int>(v[0]), static_cast<int>(v[1]));
+  }
+  if (yaml::getDoubles(d, m, "center", "map", v, 2)) spec.center = Position(v[0], v[1]);
+  yaml::getInt(d, m, "tile", "map", spec.map_options.tile_size, 8, 1024);
+  yaml::getBool(d, m, "sparse", "map", spec.map_options.sparse);
+  std::string frame;
+  yaml::getString(d, m, "frame", "map", frame);
+  if (const YAML::Node ls = m["layers"]) {
+    if (!ls.IsSequence()) {
+      d.error(ls, "map.layers", "must be a list of {name, unit, fill}");
+      return;
+    }
+    for (size_t i = 0; i < ls.size(); ++i) {
+      const std::string p = "map.layers[" + std::to_string(i) + "]";
+      LayerDecl l;
+      l.where = d.at(ls[i], p);
+      if (ls[i].IsScalar()) {
+        l.name = ls[i].Scalar();
+      } else if (ls[i].IsMap()) {
+        yaml::checkKeys(d, ls[i], p, {"name", "unit", "fill"});
+        if (!yaml::getString(d, ls[i], "name", p, l.name)) d.error(ls[i], p, "needs a name");
+        yaml::getString(d, ls[i], "unit", p, l.unit);
+        double f;
+        if (ls[i]["fill"]) {
+          if (ls[i]["fill"].IsScalar() && (ls[i]["fill"].Scalar() == ".nan" || ls[i]["fill"].Scalar() == "nan"))
+            l.fill = std::numeric_limits<float>::quiet_NaN();
+          else if (yaml::getDouble(d, ls[i], "fill", p, f, -1e30, 1e30))
+            l.fill = static_cast<float>(f);
+        }
+      } else {
+        d.error(ls[i], p, "must be a layer name or {name, unit, fill}");
+        continue;
+      }
+      spec.layers.push_back(l);
+    }
+  }
+}
+
+void parseOutputs(yaml::Diagnostics& d, const YAML::Node& o, PipelineSpec& spec) {
+  if (!o) return;
+  OutputSpec& out = spec.outputs;
+  out.where = d.at(o, "outputs");
+  if (!o.IsMap()) {
+    d.error(o, "outputs", "must be a mapping {dir, geotiff, png, snapshot, report, epsg, origin}");
+    return;
+  }
+  yaml::checkKeys(d, o, "outputs", {"dir", "geotiff", "png", "snapshot", "report", "epsg", "origin"});
+  if (yaml::getString(d, o, "dir", "outputs", out.dir)) out.dir = spec.resolvePath(out.dir);
+  yaml::getStrings(d, o, "geotiff", "outputs", out.geotiff);
+  if (yaml::getStrings(d, o, "png", "outputs", out.png)) {
+    if (out.png.size() == 1 && out.png[0] == "all") {
+      out.png_all = true;
+      out.png.clear();
+    }
+  }
+  yaml::getBool(d, o, "snapshot", "outputs", out.snapshot);
+  yaml::getBool(d, o, "report", "outputs", out.report);
+  yaml::getInt(d, o, "epsg", "outputs", out.epsg, 1024, 999999);
+  yaml::getDoubles(d, o, "origin", "outputs", out.origin, 2);
+  if (!out.origin.empty() && out.epsg == 0)
+    d.error(o["origin"], "outputs.origin", "is only meaningful with outputs.epsg");
+}
+
+PipelineSpec parseRoot(yaml::Diagnostics& d, const YAML::Node& root, PipelineSpec spec) {
+  if (!root.IsMap()) {
+    d.error(root, "", "the pipeline file must be a YAML mapping with version, map, pipeline, ...");
+    d.throwIfAny();
+  }
+  yaml::checkKeys(d, root, "",
+                  {"version", "map", "threads", "source", "pipeline", "outputs", "plugin_paths", "name",
+                   "description"});
+  if (!root["version"]) d.error(root, "version", "is required (version: 1)");
+  else if (yaml::getInt(d, root, "version", "", spec.version, 0, 1000) && spec.version != 1)
+    d.error(root["version"], "version", "unsupported pipeline version " + std::to_string(spec.version) +
+                                            " (this terramap reads version 1)");
+  parseMap(d, root["map"], spec);
+  yaml::getInt(d, root, "threads", "", spec.threads, 1, 256);
+  if (yaml::getStrings(d, root, "plugin_paths", "", spec.plugin_paths))
+    for (auto& p : spec.plugin_paths) p = spec.resolvePath(p);
+
+  if (const YAML::Node s = root["source"]) {
+    spec.source.where = d.at(s, "source");
+    if (!s.IsMap()) {
+      d.error(s, "source", "must be a mapping with a `type`");
+    } else {
+      if (!yaml::getString(d, s, "type", "source", spec.source.type)) d.error(s, "source.type", "is required");
+      for (const auto& kv : s) {
+        const std::string k = kv.first.as<std::string>();
+        if (k == "type") continue;
+        RawParam r = yaml::toRaw(d, kv.second, "source." + k);
+        spec.source.settings[k] = r;
+      }
+    }
+  }
+
+  const YAML::Node p = root["pipeline"];
+  if (!p) {
+    d.error(root, "pipeline", "is required (a list of {name, type, params})");
+  } else if (!p.IsSequence()) {
+    d.error(p, "pipeline", "must be a list of {name, type, params}");
+  } else {
+    std::map<std::string, std::string> seen;
+    for (size_t i = 0; i < p.size(); ++i) {
+      const std::string path = "pipeline[" + std::to_string(i) + "]";
+      const YAML::Node st = p[i];
+      if (!st.IsMap()) {
+        d.error(st, path, "must be a mapping {name, type, params}");
+        continue;
+      }
+      yaml::checkKeys(d, st, path, {"name", "type", "params"});
+      StageSpec stage;
+      stage.where = d.at(st, path);
+      if (!yaml::getString(d, st, "type", path, stage.type)) d.error(st, path + ".type", "is required");
+      stage.type_where = d.at(st["type"], path + ".type");
+      if (!yaml::getString(d, st, "name", path, stage.name)) stage.name = stage.type;
+      if (auto it = seen.find(stage.name); it != seen.end())
+        d.error(st["name"] ? st["name"] : st, path + ".name",
+                "duplicate stage name '" + stage.name + "' (first used at " + it->second + ")");
+      else
+        seen[stage.name] = stage.where;
+      stage.params = yaml::toRawMap(d, st["params"], path + ".params");
+      spec.stages.push_back(std::move(stage));
+    }
+  }
+  parseOutputs(d, root["outputs"], spec);
+  d.throwIfAny();
+  return spec;
+}
+
+PipelineSpec parseText(const std::string& text, const std::string& name, const std::string& base_dir) {
+  yaml::Diagnostics d;
+  d.file = name;
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::ParserException& e) {
+    std::ostringstream os;
+    os << name << ":" << e.mark.line + 1 << ":" << e.mark.column + 1 << ": YAML syntax error: " << e.msg;
+    throw ConfigError(os.str());
+  }
+  PipelineSpec spec;
+  spec.file = name;
+  spec.base_dir = base_dir;
+  return parseRoot(d, root, spec);
+}
+
+}  // namespace
+
+PipelineSpec parsePipelineFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw ConfigError(path + ": cannot open pipeline file");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const fs::path abs = fs::absolute(path);
+  return parseText(ss.str(), path, abs.parent_path().string());
+}
+
+PipelineSpec parsePipelineString(const std::string& yaml, const std::string& name, const std::string& base_dir) {
+  return parseText(yaml, name, base_dir);
+}
+
+}  // namespace terramap

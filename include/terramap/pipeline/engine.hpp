@@ -1,0 +1,123 @@
+#pragma once
+/// \file
+/// Engine: one LayeredMap, one TBB arena (Executor) and an ordered list of plugin stages.
+///
+/// Threading: push(), addStage() and finish() must come from one thread at a time (the
+/// engine's). snapshot() may be called from any thread at any time: it waits for the event
+/// being processed to finish and returns a consistent copy-on-write copy of the map that the
+/// caller may keep and read while the engine goes on writing.
+///
+/// Failure atomicity: addStage()/fromSpec() validate before they change anything; when they
+/// throw, the engine is exactly as it was (same stages, same layers, same data).
+#include <terramap/core/events.hpp>
+#include <terramap/core/layered_map.hpp>
+#include <terramap/core/parallel.hpp>
+#include <terramap/pipeline/pipeline_spec.hpp>
+#include <terramap/pipeline/plugin_loader.hpp>
+#include <terramap/plugin/plugin.hpp>
+
+#include <chrono>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+namespace terramap {
+
+struct EngineOptions {
+  Geometry geometry{0.05, Size(400, 400)};
+  MapOptions map;
+  int threads = 1;
+  std::vector<LayerDecl> layers;  ///< layers that exist before any plugin
+};
+
+/// A stage ready to be added: an instantiated, configured plugin.
+struct PreparedStage {
+  std::string name;
+  PluginHandle plugin;
+  Params params;
+  std::vector<LayerSpec> layers;
+  EventMask events = 0;
+};
+
+/// Everything the run report carries (written as JSON by writeReport in report.hpp).
+struct StageReport {
+  std::string name, type, version;
+  PluginStats stats;
+};
+struct RunReport {
+  std::vector<StageReport> stages;
+  std::map<std::string, long> events;     ///< events pushed, by kind
+  std::map<std::string, long> source_dropped;  ///< dropped by the source, by reason
+  double wall_s = 0.0;                    ///< total time in push()
+  double first_stamp = 0.0, last_stamp = 0.0;
+  int threads = 1;
+};
+
+class TERRAMAP_API Engine {
+ public:
+  explicit Engine(const EngineOptions& options);
+  ~Engine();
+  Engine(const Engine&) = delete;
+  Engine& operator=(const Engine&) = delete;
+
+  /// Validates a whole pipeline and builds the engine. Every problem (unknown plugin types,
+  /// refused libraries, unknown/mistyped/out-of-range params, configure() errors, duplicate
+  /// names, a layer read before anyone writes it, a layer created twice) is collected and
+  /// thrown as one ConfigError, one line each.
+  static std::unique_ptr<Engine> fromSpec(const PipelineSpec& spec, const PluginRegistry& registry);
+
+  /// Checks a pipeline without building an engine; returns every problem (empty = valid).
+  static std::vector<std::string> validate(const PipelineSpec& spec, const PluginRegistry& registry);
+
+  /// Checks `params` against the plugin's schema and configures it. Does not touch the engine.
+  /// \throws ConfigError with every parameter problem.
+  static PreparedStage prepare(const std::string& name, PluginHandle plugin,
+                               const std::map<std::string, RawParam>& params, const std::string& where = {});
+
+  /// Appends a stage: checks its layers against the current map, creates its layers, calls
+  /// start(). \throws ConfigError / LayerError / PluginError; on throw nothing changed.
+  void addStage(PreparedStage stage);
+  /// Convenience: prepare + addStage with params given as values.
+  void addStage(const std::string& name, PluginHandle plugin, const std::map<std::string, ParamValue>& params = {});
+
+  /// Runs, in pipeline order, every stage that takes this event's kind.
+  /// \throws PluginError (or the Error the plugin threw, re-thrown with the stage named).
+  void push(const Event& event);
+  /// Calls finish() on every stage (once).
+  void finish();
+
+  /// A consistent copy of the map (copy-on-write), safe to read on any thread.
+  std::shared_ptr<const LayeredMap> snapshot() const;
+  /// Direct access for the engine's own thread (not while push() runs elsewhere).
+  const LayeredMap& map() const { return map_; }
+  LayeredMap& mutableMap() { return map_; }
+  const Executor& executor() const { return executor_; }
+  RecordBus& records() { return bus_; }
+
+  std::vector<std::string> stageNames() const;
+  RunReport report() const;
+  /// For sources that drop input themselves (e.g. unreadable frames they skip by design).
+  void countSourceDrop(const std::string& reason, long n);
+
+ private:
+  struct Stage {
+    PreparedStage prepared;
+    PluginStats stats;
+    bool started = false;
+  };
+  static void checkLayers(const std::vector<std::string>& existing, const std::string& stage_name,
+                          const std::vector<LayerSpec>& layers, std::vector<std::string>& errors,
+                          std::vector<std::string>* out_new = nullptr);
+
+  mutable std::mutex mutex_;
+  LayeredMap map_;
+  Executor executor_;
+  RecordBus bus_;
+  std::vector<std::unique_ptr<Stage>> stages_;
+  RunReport report_;
+  bool finished_ = false;
+  bool any_event_ = false;
+};
+
+}  // namespace terramap

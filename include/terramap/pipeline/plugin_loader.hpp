@@ -1,0 +1,84 @@
+#pragma once
+/// \file
+/// Finding and loading plugin libraries (Boost.DLL).
+///
+/// Search order for a plugin type `T`: the file `T.so` in (1) the paths given to the
+/// registry (YAML `plugin_paths`), (2) each entry of the environment variable
+/// TERRAMAP_PLUGIN_PATH (colon-separated), (3) `<dir of libterramap_pipeline.so>/terramap/plugins`
+/// (the build tree and the install tree have the same layout). The first file found wins.
+///
+/// Before creating anything the loader checks, in this order, and refuses with a PluginError
+/// naming the file, the expected and the found value: the library loads; it exports
+/// `terramap_plugin_info`; its `abi_version`; its `info_size`; its build fingerprint; it
+/// exports `terramap_plugin_create` and `terramap_plugin_destroy`; its `name` equals `T`.
+/// A loaded library stays loaded as long as any plugin created from it lives.
+#include <terramap/plugin/abi.hpp>
+#include <terramap/plugin/plugin.hpp>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace terramap {
+
+class PluginLibrary;  // opaque: a loaded, checked shared library
+
+/// Owns one plugin instance and keeps its library loaded. Destroys the instance inside the
+/// library that created it.
+class TERRAMAP_API PluginHandle {
+ public:
+  PluginHandle() = default;
+  PluginHandle(std::shared_ptr<PluginLibrary> lib, Plugin* p);
+  PluginHandle(PluginHandle&&) noexcept;
+  PluginHandle& operator=(PluginHandle&&) noexcept;
+  PluginHandle(const PluginHandle&) = delete;
+  PluginHandle& operator=(const PluginHandle&) = delete;
+  ~PluginHandle();
+
+  Plugin* get() const { return plugin_; }
+  Plugin* operator->() const { return plugin_; }
+  explicit operator bool() const { return plugin_ != nullptr; }
+  const std::string& type() const;
+  const std::string& path() const;
+  const std::string& version() const;
+
+ private:
+  void reset();
+  std::shared_ptr<PluginLibrary> lib_;
+  Plugin* plugin_ = nullptr;
+};
+
+/// One library found on the search path, and whether it was accepted.
+struct PluginCandidate {
+  std::string path;
+  bool ok = false;
+  std::string type, version, description;  ///< from the record when it could be read
+  std::string reason;                      ///< why it was refused
+};
+
+class TERRAMAP_API PluginRegistry {
+ public:
+  /// \param extra_paths searched first (e.g. the pipeline's plugin_paths).
+  explicit PluginRegistry(std::vector<std::string> extra_paths = {});
+  const std::vector<std::string>& searchPaths() const { return paths_; }
+  /// The default plugin folder next to libterramap_pipeline.so.
+  static std::string defaultPluginDir();
+
+  /// Every `*.so` on the search path, loaded and checked (refused ones with the reason).
+  std::vector<PluginCandidate> scan() const;
+  /// Names of the accepted plugin types on the search path.
+  std::vector<std::string> availableTypes() const;
+  /// Path of `type.so` on the search path, or "" if none.
+  std::string find(const std::string& type) const;
+
+  /// Creates a plugin of `type`. \throws PluginError: unknown type (with did-you-mean and the
+  /// searched folders) or a refused library.
+  PluginHandle create(const std::string& type) const;
+  /// Loads a specific library file and creates its plugin; `expected_type` empty = any.
+  static PluginHandle createFromFile(const std::string& path, const std::string& expected_type = {});
+
+ private:
+  std::vector<std::string> paths_;
+};
+
+}  // namespace terramap
