@@ -8,6 +8,8 @@
 #include <cmath>
 #include <iostream>
 #include <memory>
+#include <sstream>
+#include <utility>
 #include <string>
 
 namespace terramap::cli {
@@ -21,6 +23,50 @@ struct FeeOptions {
   double beta_deg = std::nan("");
   std::string beta_mode = "min";
 };
+
+/// The offending values, in the units the user typed, so the reason can be acted on.
+std::string detail(fee::Validity v, const FeeOptions& o, double betaRad) {
+  using fee::Validity;
+  const double betaDeg = betaRad / kDegToRad;
+  std::ostringstream m;
+  m.precision(10);
+  switch (v) {
+    case Validity::DepthNotPositive: m << "--d-m " << o.d_m; break;
+    case Validity::WidthNotPositive: m << "--w-m " << o.w_m; break;
+    case Validity::NegativeCohesion: m << "--c-pa " << o.c_pa; break;
+    case Validity::NegativeAdhesion: m << "--ca-pa " << o.ca_pa; break;
+    case Validity::NegativeUnitWeight: m << "--gamma-n-m3 " << o.gamma_n_m3; break;
+    case Validity::NegativeSurcharge: m << "--q-n " << o.q_n; break;
+    case Validity::PhiOutOfRange: m << "--phi-deg " << o.phi_deg; break;
+    case Validity::DeltaOutOfRange: m << "--delta-deg " << o.delta_deg; break;
+    case Validity::AlphaOutOfRange: m << "--alpha-deg " << o.alpha_deg; break;
+    case Validity::RhoOutOfRange: m << "--rho-deg " << o.rho_deg; break;
+    case Validity::BetaOutOfRange: m << "beta = " << betaDeg << " deg"; break;
+    case Validity::RhoPlusBetaTooLarge: m << "rho + beta = " << o.rho_deg + betaDeg << " deg"; break;
+    case Validity::EtaOutOfRange:
+      m << "eta = " << o.delta_deg + o.rho_deg + o.phi_deg + betaDeg << " deg";
+      break;
+    case Validity::AlphaPhiBetaOutOfRange:
+      m << "alpha + phi + beta = " << o.alpha_deg + o.phi_deg + betaDeg << " deg";
+      break;
+    case Validity::NotFinite: {
+      const std::pair<const char*, double> all[] = {
+          {"--c-pa", o.c_pa},     {"--phi-deg", o.phi_deg},     {"--gamma-n-m3", o.gamma_n_m3},
+          {"--ca-pa", o.ca_pa},   {"--delta-deg", o.delta_deg}, {"--alpha-deg", o.alpha_deg},
+          {"--rho-deg", o.rho_deg}, {"--d-m", o.d_m},           {"--w-m", o.w_m},
+          {"--q-n", o.q_n},       {"beta", betaDeg}};
+      m << "not finite:";
+      for (const auto& [name, value] : all)
+        if (!std::isfinite(value)) m << " " << name;
+      break;
+    }
+    case Validity::NoAdmissibleBeta:
+      m << "N_gamma has no admissible minimum for these angles; try --beta nominal or --beta-deg";
+      break;
+    case Validity::Valid: break;
+  }
+  return m.str();
+}
 
 int runFee(const FeeOptions& o, bool betaGiven) {
   fee::Soil s;
@@ -61,7 +107,8 @@ int runFee(const FeeOptions& o, bool betaGiven) {
   j["valid"] = r.valid();
   j["reason"] = r.valid() ? std::string()
                           : std::string(fee::validityName(r.validity)) + ": rule '" +
-                                fee::validityRule(r.validity) + "' does not hold";
+                                fee::validityRule(r.validity) + "' does not hold (" +
+                                detail(r.validity, o, r.beta_rad) + ")";
   std::cout << j.dump(2) << "\n";
   return r.valid() ? kOk : kInvalid;
 }

@@ -23,7 +23,10 @@
 /// wedge is the triangle (edge, blade top, failure-plane exit) of area d^2 (cot rho + cot beta)/2,
 /// gravity makes the angle alpha with the surface normal, and rotating the blade reaction
 /// back to the world frame gives the paper's direction [sin(rho+delta-alpha), cos(rho+delta-alpha)].
-/// On level ground (alpha = 0) every angle is simply measured from the horizontal.
+/// On level ground (alpha = 0) every angle is simply measured from the horizontal. The paper's
+/// own wedge length x_max = d / (cos alpha (tan(alpha+beta) - tan alpha)) (Alg. 4) and the
+/// extraction rule rho = alpha + blade angle from horizontal (ALGORITHMS.md §C) use the same
+/// convention; tests/unit/fee checks it against Coulomb's passive pressure on sloping backfill.
 ///
 /// Which force to use:
 ///  - The soil estimator (PINN, Bayesian layers, fee_index) uses the paper's F: it is what the
@@ -142,6 +145,8 @@ void unpack(const ParamVector& p, Soil& s, Geometry& g, double& beta_rad);
 /// computed by the same formulas elsewhere (may be infinite/NaN at the singular edges).
 /// For uncertainty propagation Sigma_F = J Sigma_Theta J^T (paper Eq. 5).
 Jacobian jacobianF(const Soil& s, const Geometry& g, double beta_rad);
+/// When beta is not independent but beta = betaNominal(s) (+ a residual), chain it in with
+/// J.col(kPhi) += -0.5 * J.col(kBeta).
 /// Analytic dF_total/dTheta (same conventions as jacobianF).
 Jacobian jacobianFTotal(const Soil& s, const Geometry& g, double beta_rad);
 

@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdio>
+
 namespace terramap::fee {
 namespace {
 
@@ -89,6 +91,8 @@ TEST(FeeBetaMin, MatchesNumericMinimisationForRandomGeometries) {
       EXPECT_LT(n0, test::nGammaRef(s.phi_rad, s.delta_rad, g.alpha_rad, g.rho_rad, b + e));
     }
   }
+  std::printf("betaMin: %d of %d random geometries have an interior minimum and were compared\n", interior,
+              total);
   // The comparison must actually have been made for most samples.
   EXPECT_GT(total, 300);
   EXPECT_GT(interior, total * 8 / 10) << interior << " of " << total;
