@@ -1,0 +1,786 @@
+#include "lidar_fusion.hpp"
+
+#include <terramap/core/error.hpp>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <variant>
+
+namespace terramap::plugins {
+
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+/// Points (and rays) per chunk. Fixed, so the chunking - and with it every reduction order -
+/// does not depend on the thread count.
+constexpr int kChunk = 8192;
+constexpr float kRayUpperBound = 0.0f;   // Item::aux of a ray crossing over an unknown cell
+constexpr float kRayPenetration = 1.0f;  // Item::aux of a ray passing below a stale surface
+
+std::string num(double v) {
+  std::ostringstream os;
+  os.precision(17);
+  os << v;
+  return os.str();
+}
+
+}  // namespace
+
+// ---- parameters ------------------------------------------------------------------------------
+
+ParamSchema lidarFusionSchema() {
+  const double inf = std::numeric_limits<double>::infinity();
+  return {
+      param::text("sensor_noise", "range_based", {"range_based", "depth_squared"},
+                  "noise model: range_based sigma = a + b*range (LiDAR); depth_squared v = k*z_s^2 "
+                  "(camera, z_s = sensor-frame z)"),
+      param::real("range_noise_a_m", 0.02, 0.0, 10.0, "m", "range_based: sigma at zero range"),
+      param::real("range_noise_b", 0.001, 0.0, 1.0, "m/m", "range_based: sigma growth per metre of range"),
+      param::real("sensor_noise_factor", 0.05, 0.0, 100.0, "1", "depth_squared: k in v = k*z_s^2"),
+      param::real("min_range_m", 0.5, 0.0, inf, "m", "drop points closer to the sensor"),
+      param::real("max_range_m", 100.0, 0.0, inf, "m", "drop points farther from the sensor"),
+      param::real("max_height_above_sensor_m", 1.0, -inf, inf, "m",
+                  "drop points higher than this above the sensor (map-frame z)"),
+      param::boolean("enable_ramped_height_range", true,
+                     "also drop z - z_sensor > max(d_xy - b, 0)*a + c (ceiling near the robot)"),
+      param::real("ramped_height_range_a", 0.3, 0.0, inf, "m/m", "ramp slope"),
+      param::real("ramped_height_range_b_m", 1.0, 0.0, inf, "m", "horizontal distance where the ramp starts"),
+      param::real("ramped_height_range_c_m", 0.2, -inf, inf, "m", "height allowed next to the sensor"),
+      param::real("mahalanobis_thresh", 2.0, 0.0, inf, "1",
+                  "outlier if |z - h| > k*sqrt(v_cell + v_point)"),
+      param::real("outlier_variance_m2", 0.01, 0.0, inf, "m^2", "added to a cell's variance per outlier"),
+      param::real("max_variance_m2", 100.0, 0.0, inf, "m^2",
+                  "a cell whose variance exceeds this after an outlier is forgotten"),
+      param::real("time_variance_m2_per_s", 0.0005, 0.0, inf, "m^2/s", "variance growth of valid cells"),
+      param::boolean("enable_visibility_cleanup", true, "walk rays: clear stale cells, bound unknown ones"),
+      param::integer("cleanup_ray_stride", 4, 1, 1000000, "walk the ray of every n-th point"),
+      param::real("max_ray_length_m", 10.0, 0.0, inf, "m", "walk at most this far from the sensor"),
+      param::real("cleanup_step", 0.1, 0.0, 1.0, "1", "is_valid lost per penetrating ray"),
+      param::real("cleanup_cos_thresh", 0.1, 0.0, 1.0, "1",
+                  "ignore rays whose |cos| to the surface normal is below this (grazing)"),
+      param::real("cleanup_end_margin_m", 0.3, 0.0, inf, "m", "stop each walk this far before its point"),
+      param::boolean("enable_drift_compensation", false, "shift the map by the mean inlier residual"),
+      param::real("drift_compensation_alpha", 0.1, 0.0, 1.0, "1", "fraction of the mean residual applied"),
+      param::real("drift_compensation_variance_inlier_m2", 0.05, 0.0, inf, "m^2",
+                  "only cells with a variance below this vote"),
+      param::real("max_drift_m", 0.1, 0.0, inf, "m", "larger mean residuals are not applied"),
+      param::integer("min_height_drift_cnt", 100, 1, 1000000000, "minimum inlier points for a correction"),
+      param::real("position_noise_thresh_m", 0.01, 0.0, inf, "m",
+                  "sensor translation since the last cloud needed for a correction"),
+      param::real("orientation_noise_thresh_rad", 0.01, 0.0, inf, "rad",
+                  "or sensor rotation since the last cloud"),
+      param::boolean("follow_robot", false,
+                     "re-centre the map on each Pose (or, before any Pose, on the sensor)"),
+  };
+}
+
+LidarFusionConfig lidarFusionConfigFrom(const Params& p) {
+  LidarFusionConfig c;
+  c.noise_model = p.getString("sensor_noise") == "depth_squared" ? NoiseModel::DepthSquared
+                                                                 : NoiseModel::RangeBased;
+  c.range_noise_a_m = p.getDouble("range_noise_a_m");
+  c.range_noise_b = p.getDouble("range_noise_b");
+  c.sensor_noise_factor = p.getDouble("sensor_noise_factor");
+  c.min_range_m = p.getDouble("min_range_m");
+  c.max_range_m = p.getDouble("max_range_m");
+  c.max_height_above_sensor_m = p.getDouble("max_height_above_sensor_m");
+  c.enable_ramped_height_range = p.getBool("enable_ramped_height_range");
+  c.ramped_height_range_a = p.getDouble("ramped_height_range_a");
+  c.ramped_height_range_b_m = p.getDouble("ramped_height_range_b_m");
+  c.ramped_height_range_c_m = p.getDouble("ramped_height_range_c_m");
+  c.mahalanobis_thresh = p.getDouble("mahalanobis_thresh");
+  c.outlier_variance_m2 = p.getDouble("outlier_variance_m2");
+  c.max_variance_m2 = p.getDouble("max_variance_m2");
+  c.time_variance_m2_per_s = p.getDouble("time_variance_m2_per_s");
+  c.enable_visibility_cleanup = p.getBool("enable_visibility_cleanup");
+  c.cleanup_ray_stride = static_cast<int>(p.getInt("cleanup_ray_stride"));
+  c.max_ray_length_m = p.getDouble("max_ray_length_m");
+  c.cleanup_step = p.getDouble("cleanup_step");
+  c.cleanup_cos_thresh = p.getDouble("cleanup_cos_thresh");
+  c.cleanup_end_margin_m = p.getDouble("cleanup_end_margin_m");
+  c.enable_drift_compensation = p.getBool("enable_drift_compensation");
+  c.drift_compensation_alpha = p.getDouble("drift_compensation_alpha");
+  c.drift_compensation_variance_inlier_m2 = p.getDouble("drift_compensation_variance_inlier_m2");
+  c.max_drift_m = p.getDouble("max_drift_m");
+  c.min_height_drift_cnt = p.getInt("min_height_drift_cnt");
+  c.position_noise_thresh_m = p.getDouble("position_noise_thresh_m");
+  c.orientation_noise_thresh_rad = p.getDouble("orientation_noise_thresh_rad");
+  c.follow_robot = p.getBool("follow_robot");
+  if (!(c.min_range_m < c.max_range_m))
+    p.fail("min_range_m", "must be smaller than max_range_m (" + num(c.max_range_m) + "), got " +
+                              num(c.min_range_m));
+  return c;
+}
+
+void LidarFusion::configure(const LidarFusionConfig& c) {
+  auto bad = [](const std::string& key, const std::string& msg) {
+    throw ConfigError("lidar_fusion: " + key + ": " + msg);
+  };
+  auto finiteNonNeg = [&](const char* key, double v) {
+    if (!(v >= 0.0) || std::isnan(v)) bad(key, "must be >= 0 (got " + num(v) + ")");
+  };
+  finiteNonNeg("range_noise_a_m", c.range_noise_a_m);
+  finiteNonNeg("range_noise_b", c.range_noise_b);
+  finiteNonNeg("sensor_noise_factor", c.sensor_noise_factor);
+  finiteNonNeg("min_range_m", c.min_range_m);
+  finiteNonNeg("mahalanobis_thresh", c.mahalanobis_thresh);
+  finiteNonNeg("outlier_variance_m2", c.outlier_variance_m2);
+  finiteNonNeg("max_variance_m2", c.max_variance_m2);
+  finiteNonNeg("time_variance_m2_per_s", c.time_variance_m2_per_s);
+  finiteNonNeg("max_ray_length_m", c.max_ray_length_m);
+  finiteNonNeg("cleanup_end_margin_m", c.cleanup_end_margin_m);
+  if (!(c.min_range_m < c.max_range_m))
+    bad("min_range_m", "must be smaller than max_range_m (" + num(c.max_range_m) + "), got " + num(c.min_range_m));
+  if (c.cleanup_ray_stride < 1) bad("cleanup_ray_stride", "must be >= 1 (got " + num(c.cleanup_ray_stride) + ")");
+  if (!(c.cleanup_step >= 0.0 && c.cleanup_step <= 1.0))
+    bad("cleanup_step", "must be in [0, 1] (got " + num(c.cleanup_step) + ")");
+  if (!(c.cleanup_cos_thresh >= 0.0 && c.cleanup_cos_thresh <= 1.0))
+    bad("cleanup_cos_thresh", "must be in [0, 1] (got " + num(c.cleanup_cos_thresh) + ")");
+  if (!(c.drift_compensation_alpha >= 0.0 && c.drift_compensation_alpha <= 1.0))
+    bad("drift_compensation_alpha", "must be in [0, 1] (got " + num(c.drift_compensation_alpha) + ")");
+  config_ = c;
+}
+
+// ---- layers / events -------------------------------------------------------------------------
+
+std::vector<LayerSpec> LidarFusion::layers() const {
+  using L = LidarFusionLayers;
+  return {
+      {L::kElevation, LayerAccess::Create, "m", kNaN, "fused surface height, map-frame z; NaN = unknown"},
+      {L::kVariance, LayerAccess::Create, "m^2", kNaN, "variance of elevation; NaN = unknown"},
+      {L::kIsValid, LayerAccess::Create, "1", 0.0f,
+       "1 = measured; lowered by penetrating rays; 0 = unknown (elevation NaN)"},
+      {L::kTimeSinceUpdate, LayerAccess::Create, "s", kNaN, "time since the last fused point; NaN = never"},
+      {L::kUpperBound, LayerAccess::Create, "m", kNaN,
+       "valid cells: elevation; unknown cells: lowest ray height seen above them; NaN = none"},
+      {L::kIsUpperBound, LayerAccess::Create, "1", 0.0f, "1 where upper_bound comes from rays, not points"},
+      {L::kHits, LayerAccess::Create, "count", 0.0f, "points fused into the cell by the latest cloud"},
+  };
+}
+
+EventMask LidarFusion::events() const {
+  return EventKind::PointCloud | EventKind::Pose | EventKind::Tick;
+}
+
+void LidarFusion::bindLayers(const LayeredMap& map) {
+  using L = LidarFusionLayers;
+  elev_ = map.layerId(L::kElevation);
+  var_ = map.layerId(L::kVariance);
+  valid_ = map.layerId(L::kIsValid);
+  time_ = map.layerId(L::kTimeSinceUpdate);
+  ub_ = map.layerId(L::kUpperBound);
+  isub_ = map.layerId(L::kIsUpperBound);
+  hits_ = map.layerId(L::kHits);
+  bound_map_ = &map;
+  tile_known_.assign(static_cast<size_t>(map.tileCount()), 0);
+  hit_tiles_.clear();
+  tables_start_ = Index(-1, -1);
+}
+
+void LidarFusion::attach(LayeredMap& map) {
+  for (const LayerSpec& s : layers())
+    if (!map.hasLayer(s.name)) map.addLayer(s.name, s.unit, s.fill);
+  bindLayers(map);
+}
+
+void LidarFusion::start(ProcessContext& ctx) { bindLayers(ctx.map()); }
+
+void LidarFusion::buildIndexTables(const LayeredMap& map) {
+  if ((tables_start_ == map.startIndex()).all()) return;
+  const int R = map.geometry().size().x(), C = map.geometry().size().y(), T = map.tileSize();
+  const Index s = map.startIndex();
+  // Indexed by *logical* row/column: folds the ring-buffer shift into the lookup.
+  row_tile_.resize(static_cast<size_t>(R));
+  row_local_.resize(static_cast<size_t>(R));
+  col_tile_.resize(static_cast<size_t>(C));
+  col_local_.resize(static_cast<size_t>(C));
+  for (int i = 0; i < R; ++i) {
+    const int b = (i + s.x()) % R;
+    row_tile_[static_cast<size_t>(i)] = (b / T) * map.tileCols();
+    row_local_[static_cast<size_t>(i)] = (b % T) * T;
+  }
+  for (int j = 0; j < C; ++j) {
+    const int b = (j + s.y()) % C;
+    col_tile_[static_cast<size_t>(j)] = b / T;
+    col_local_[static_cast<size_t>(j)] = b % T;
+  }
+  tables_start_ = s;
+}
+
+// ---- time and motion -------------------------------------------------------------------------
+
+void LidarFusion::advanceTime(LayeredMap& map, const Executor& ex, double stamp) {
+  if (!std::isfinite(stamp)) throw InputError("lidar_fusion: event stamp is not finite");
+  if (!have_stamp_) {
+    have_stamp_ = true;
+    last_stamp_ = stamp;
+    return;
+  }
+  if (stamp < last_stamp_)
+    throw InputError("lidar_fusion: event stamp " + num(stamp) + " s is earlier than the previous " +
+                     num(last_stamp_) + " s (events must be time-ordered)");
+  const double dt = stamp - last_stamp_;
+  last_stamp_ = stamp;
+  if (dt == 0.0 || bound_map_ == nullptr) return;
+  const float fdt = static_cast<float>(dt);
+  const float dv = static_cast<float>(config_.time_variance_m2_per_s * dt);
+  const int n = static_cast<int>(map.tileSize()) * map.tileSize();
+  std::vector<int> tiles;
+  for (int t = 0; t < map.tileCount(); ++t)
+    if (tile_known_[static_cast<size_t>(t)]) tiles.push_back(t);
+  ex.forEach(static_cast<int>(tiles.size()), [&](int k) {
+    const int t = tiles[static_cast<size_t>(k)];
+    // NaN + x stays NaN: unknown cells need no branch, and the loops vectorise.
+    if (map.tileData(time_, t)) {
+      float* tm = map.mutableTileData(time_, t);
+      for (int c = 0; c < n; ++c) tm[c] += fdt;
+    }
+    if (dv != 0.0f && map.tileData(var_, t)) {
+      float* v = map.mutableTileData(var_, t);
+      for (int c = 0; c < n; ++c) v[c] += dv;
+    }
+  });
+}
+
+void LidarFusion::followTo(LayeredMap& map, const Eigen::Vector3d& position) {
+  if (!config_.follow_robot) return;
+  if (!position.allFinite()) throw InputError("lidar_fusion: follow_robot position is not finite");
+  map.move(Position(position.x(), position.y()));
+}
+
+// ---- binning ---------------------------------------------------------------------------------
+
+void LidarFusion::binItems(const Executor& ex, std::vector<std::vector<Item>>& chunks, int ntiles) {
+  const int nc = static_cast<int>(chunks.size());
+  // Per-chunk histograms (parallel), then a prefix over (tile, chunk): items keep their chunk
+  // order and, within a chunk, their input order - a stable counting sort by tile.
+  std::vector<int> counts(static_cast<size_t>(nc) * static_cast<size_t>(ntiles), 0);
+  ex.forEach(nc, [&](int c) {
+    int* h = &counts[static_cast<size_t>(c) * static_cast<size_t>(ntiles)];
+    for (const Item& it : chunks[static_cast<size_t>(c)]) ++h[it.tile];
+  });
+  bin_start_.assign(static_cast<size_t>(ntiles) + 1, 0);
+  active_tiles_.clear();
+  int run = 0;
+  for (int t = 0; t < ntiles; ++t) {
+    bin_start_[static_cast<size_t>(t)] = run;
+    for (int c = 0; c < nc; ++c) {
+      int& h = counts[static_cast<size_t>(c) * static_cast<size_t>(ntiles) + static_cast<size_t>(t)];
+      const int k = h;
+      h = run;
+      run += k;
+    }
+    if (run > bin_start_[static_cast<size_t>(t)]) active_tiles_.push_back(t);
+  }
+  bin_start_[static_cast<size_t>(ntiles)] = run;
+  binned_.resize(static_cast<size_t>(run));
+  ex.forEach(nc, [&](int c) {
+    int* h = &counts[static_cast<size_t>(c) * static_cast<size_t>(ntiles)];
+    for (const Item& it : chunks[static_cast<size_t>(c)]) binned_[static_cast<size_t>(h[it.tile]++)] = it;
+  });
+}
+
+void LidarFusion::resetHits(LayeredMap& map, const Executor& ex) {
+  const size_t n = static_cast<size_t>(map.tileSize()) * static_cast<size_t>(map.tileSize());
+  ex.forEach(static_cast<int>(hit_tiles_.size()), [&](int k) {
+    float* h = map.mutableTileData(hits_, hit_tiles_[static_cast<size_t>(k)]);
+    std::fill(h, h + n, 0.0f);
+  });
+  hit_tiles_.clear();
+}
+
+// ---- fusion ----------------------------------------------------------------------------------
+
+FusionStats LidarFusion::fuse(LayeredMap& map, const Executor& ex, const PointCloud& cloud) {
+  if (bound_map_ != &map)
+    throw LayerError("lidar_fusion: fuse() on a map it is not attached to (call attach(map) first)");
+  const Eigen::Isometry3d& T = cloud.T_map_sensor;
+  if (!T.matrix().allFinite())
+    throw InputError("lidar_fusion: point cloud at stamp " + num(cloud.stamp) + " s has a non-finite T_map_sensor");
+  FusionStats st;
+  st.points_in = static_cast<long>(cloud.points.size());
+  resetHits(map, ex);
+  buildIndexTables(map);
+
+  const Geometry& g = map.geometry();
+  const int R = g.size().x(), C = g.size().y();
+  const double res = g.resolution();
+  const Eigen::Array2d half = g.length() * 0.5;
+  const double xmax = g.center().x() + half.x(), ymax = g.center().y() + half.y();
+  const Eigen::Matrix3d Rm = T.linear();
+  const Eigen::Vector3d tv = T.translation();
+  const LidarFusionConfig& cf = config_;
+  const bool rays = cf.enable_visibility_cleanup;
+  const int stride = cf.cleanup_ray_stride;
+
+  const int n = static_cast<int>(cloud.points.size());
+  const int nc = (n + kChunk - 1) / kChunk;
+  point_chunks_.resize(static_cast<size_t>(nc));
+  ray_ends_.resize(static_cast<size_t>(nc));
+  std::vector<std::array<long, 5>> drops(static_cast<size_t>(nc));
+
+  // 1) transform, gate, noise, cell: one task per fixed chunk of points.
+  ex.forEach(nc, [&](int c) {
+    std::vector<Item>& out = point_chunks_[static_cast<size_t>(c)];
+    std::vector<float>& rout = ray_ends_[static_cast<size_t>(c)];
+    out.clear();
+    rout.clear();
+    std::array<long, 5> d{0, 0, 0, 0, 0};
+    const int i0 = c * kChunk, i1 = std::min(n, i0 + kChunk);
+    for (int i = i0; i < i1; ++i) {
+      const PointXYZI& p = cloud.points[static_cast<size_t>(i)];
+      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) { ++d[0]; continue; }
+      const double px = p.x, py = p.y, pz = p.z;
+      const double r = std::sqrt(px * px + py * py + pz * pz);
+      if (r < cf.min_range_m) { ++d[1]; continue; }
+      if (r > cf.max_range_m) { ++d[2]; continue; }
+      const double x = Rm(0, 0) * px + Rm(0, 1) * py + Rm(0, 2) * pz + tv.x();
+      const double y = Rm(1, 0) * px + Rm(1, 1) * py + Rm(1, 2) * pz + tv.y();
+      const double z = Rm(2, 0) * px + Rm(2, 1) * py + Rm(2, 2) * pz + tv.z();
+      const double dz = z - tv.z();
+      if (dz > cf.max_height_above_sensor_m) { ++d[3]; continue; }
+      if (cf.enable_ramped_height_range) {
+        const double dxy = std::hypot(x - tv.x(), y - tv.y());
+        if (dz > std::max(dxy - cf.ramped_height_range_b_m, 0.0) * cf.ramped_height_range_a +
+                     cf.ramped_height_range_c_m) {
+          ++d[3];
+          continue;
+        }
+      }
+      if (rays && i % stride == 0) {
+        rout.push_back(static_cast<float>(x - tv.x()));
+        rout.push_back(static_cast<float>(y - tv.y()));
+        rout.push_back(static_cast<float>(z - tv.z()));
+      }
+      // Same arithmetic as Geometry::indexAt, so a point lands in the cell indexAt names.
+      const double fi = (xmax - x) / res;
+      const double fj = (ymax - y) / res;
+      if (!(fi > 0.0) || !(fj > 0.0)) { ++d[4]; continue; }
+      const double di = std::ceil(fi) - 1.0, dj = std::ceil(fj) - 1.0;
+      if (di >= R || dj >= C) { ++d[4]; continue; }
+      const int li = static_cast<int>(di), lj = static_cast<int>(dj);
+      double var;
+      if (cf.noise_model == NoiseModel::RangeBased) {
+        const double sigma = cf.range_noise_a_m + cf.range_noise_b * r;
+        var = sigma * sigma;
+      } else {
+        var = cf.sensor_noise_factor * pz * pz;
+      }
+      Item it;
+      it.tile = row_tile_[static_cast<size_t>(li)] + col_tile_[static_cast<size_t>(lj)];
+      it.off = static_cast<std::uint32_t>(row_local_[static_cast<size_t>(li)] + col_local_[static_cast<size_t>(lj)]);
+      it.z = static_cast<float>(z);
+      it.aux = static_cast<float>(var);
+      out.push_back(it);
+    }
+    drops[static_cast<size_t>(c)] = d;
+  });
+  for (const auto& d : drops) {
+    st.dropped_non_finite += d[0];
+    st.dropped_too_close += d[1];
+    st.dropped_too_far += d[2];
+    st.dropped_too_high += d[3];
+    st.dropped_outside_map += d[4];
+  }
+
+  // 2) stable counting sort by tile.
+  binItems(ex, point_chunks_, map.tileCount());
+
+  // 3) drift compensation against the map before this cloud.
+  if (cf.enable_drift_compensation) driftCompensation(map, ex, T, st);
+  prev_T_map_sensor_ = T;
+  have_prev_sensor_ = true;
+
+  // 4) per-tile sequential fusion.
+  fuseTiles(map, ex, st);
+
+  // 5) visibility cleanup and upper bounds.
+  if (rays) cleanup(map, ex, tv, st);
+
+  accumulate(st);
+  return st;
+}
+
+void LidarFusion::driftCompensation(LayeredMap& map, const Executor& ex, const Eigen::Isometry3d& T,
+                                    FusionStats& st) {
+  const LidarFusionConfig& cf = config_;
+  const int na = static_cast<int>(active_tiles_.size());
+  std::vector<double> sums(static_cast<size_t>(na), 0.0);
+  std::vector<long> counts(static_cast<size_t>(na), 0);
+  const float k2 = static_cast<float>(cf.mahalanobis_thresh * cf.mahalanobis_thresh);
+  const float vin = static_cast<float>(cf.drift_compensation_variance_inlier_m2);
+  ex.forEach(na, [&](int k) {
+    const int t = active_tiles_[static_cast<size_t>(k)];
+    const float* E = map.tileData(elev_, t);
+    const float* V = map.tileData(var_, t);
+    if (!E || !V) return;
+    double s = 0.0;
+    long cnt = 0;
+    for (int q = bin_start_[static_cast<size_t>(t)]; q < bin_start_[static_cast<size_t>(t) + 1]; ++q) {
+      const Item& it = binned_[static_cast<size_t>(q)];
+      const float h = E[it.off], v = V[it.off];
+      if (!(v < vin)) continue;  // also rejects NaN (unknown)
+      const float r = it.z - h;
+      if (r * r > k2 * (v + it.aux)) continue;
+      s += r;
+      ++cnt;
+    }
+    sums[static_cast<size_t>(k)] = s;
+    counts[static_cast<size_t>(k)] = cnt;
+  });
+  double sum = 0.0;
+  long cnt = 0;
+  for (int k = 0; k < na; ++k) {  // fixed (tile) order: deterministic
+    sum += sums[static_cast<size_t>(k)];
+    cnt += counts[static_cast<size_t>(k)];
+  }
+  st.drift_inliers = cnt;
+  if (cnt < cf.min_height_drift_cnt || cnt == 0) return;
+  bool moved = !have_prev_sensor_;
+  if (have_prev_sensor_) {
+    const double dp = (T.translation() - prev_T_map_sensor_.translation()).norm();
+    const double da = Eigen::AngleAxisd(prev_T_map_sensor_.linear().transpose() * T.linear()).angle();
+    moved = dp > cf.position_noise_thresh_m || da > cf.orientation_noise_thresh_rad;
+  }
+  if (!moved) return;
+  const double mean = sum / static_cast<double>(cnt);
+  if (!(std::abs(mean) < cf.max_drift_m)) return;
+  const float shift = static_cast<float>(mean * cf.drift_compensation_alpha);
+  const int n = map.tileSize() * map.tileSize();
+  ex.forEach(map.tileCount(), [&](int t) {
+    if (!tile_known_[static_cast<size_t>(t)]) return;
+    for (LayerId id : {elev_, ub_}) {
+      if (!map.tileData(id, t)) continue;
+      float* d = map.mutableTileData(id, t);
+      for (int c = 0; c < n; ++c) d[c] += shift;  // NaN stays NaN
+    }
+  });
+  st.drift_applied = true;
+  st.drift_m = shift;
+}
+
+void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st) {
+  const int na = static_cast<int>(active_tiles_.size());
+  std::vector<std::array<long, 3>> per(static_cast<size_t>(na));
+  const float k2 = static_cast<float>(config_.mahalanobis_thresh * config_.mahalanobis_thresh);
+  const float ov = static_cast<float>(config_.outlier_variance_m2);
+  const float vmax = static_cast<float>(config_.max_variance_m2);
+  ex.forEach(na, [&](int k) {
+    const int t = active_tiles_[static_cast<size_t>(k)];
+    // mutableTileData inside the tile's own task: distinct tiles may be un-shared/allocated
+    // concurrently (layered_map.hpp).
+    float* E = map.mutableTileData(elev_, t);
+    float* V = map.mutableTileData(var_, t);
+    float* VAL = map.mutableTileData(valid_, t);
+    float* TM = map.mutableTileData(time_, t);
+    float* UB = map.mutableTileData(ub_, t);
+    float* ISUB = map.mutableTileData(isub_, t);
+    float* H = map.mutableTileData(hits_, t);
+    long fused = 0, outl = 0, forgot = 0;
+    for (int q = bin_start_[static_cast<size_t>(t)]; q < bin_start_[static_cast<size_t>(t) + 1]; ++q) {
+      const Item& it = binned_[static_cast<size_t>(q)];
+      const std::uint32_t o = it.off;
+      const float z = it.z, vp = it.aux;
+      float h = E[o];
+      if (std::isnan(h)) {
+        // Unknown cell: the first point is the estimate (an uninformative prior).
+        E[o] = z;
+        V[o] = vp;
+      } else {
+        const float v = V[o];
+        const float r = z - h;
+        const float s = v + vp;
+        if (r * r > k2 * s) {
+          ++outl;
+          const float nv = v + ov;
+          if (nv > vmax) {
+            ++forgot;
+            E[o] = kNaN;
+            V[o] = kNaN;
+            VAL[o] = 0.0f;
+            UB[o] = kNaN;
+            ISUB[o] = 0.0f;
+          } else {
+            V[o] = nv;
+          }
+          continue;
+        }
+        E[o] = (h * vp + z * v) / s;
+        V[o] = (v * vp) / s;
+      }
+      VAL[o] = 1.0f;
+      TM[o] = 0.0f;
+      H[o] += 1.0f;
+      UB[o] = E[o];
+      ISUB[o] = 0.0f;
+      ++fused;
+    }
+    per[static_cast<size_t>(k)] = {fused, outl, forgot};
+  });
+  for (int k = 0; k < na; ++k) {
+    const int t = active_tiles_[static_cast<size_t>(k)];
+    st.points_fused += per[static_cast<size_t>(k)][0];
+    st.outliers += per[static_cast<size_t>(k)][1];
+    st.cells_forgotten += per[static_cast<size_t>(k)][2];
+    tile_known_[static_cast<size_t>(t)] = 1;
+    hit_tiles_.push_back(t);
+  }
+  st.tiles_touched = na;
+}
+
+// ---- visibility cleanup ----------------------------------------------------------------------
+
+void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vector3d& S, FusionStats& st) {
+  const LidarFusionConfig& cf = config_;
+  const Geometry& g = map.geometry();
+  const int R = g.size().x(), C = g.size().y();
+  const double res = g.resolution();
+  const Eigen::Array2d half = g.length() * 0.5;
+  const double xmax = g.center().x() + half.x(), ymax = g.center().y() + half.y();
+  const int ntiles = map.tileCount();
+  // Read-only views for phase A (the map is not written until phase B).
+  std::vector<const float*> E(static_cast<size_t>(ntiles)), V(static_cast<size_t>(ntiles)),
+      HT(static_cast<size_t>(ntiles));
+  for (int t = 0; t < ntiles; ++t) {
+    E[static_cast<size_t>(t)] = map.tileData(elev_, t);
+    V[static_cast<size_t>(t)] = map.tileData(var_, t);
+    HT[static_cast<size_t>(t)] = map.tileData(hits_, t);
+  }
+  auto cellOf = [&](int li, int lj, std::int32_t& tile, std::uint32_t& off) {
+    tile = row_tile_[static_cast<size_t>(li)] + col_tile_[static_cast<size_t>(lj)];
+    off = static_cast<std::uint32_t>(row_local_[static_cast<size_t>(li)] + col_local_[static_cast<size_t>(lj)]);
+  };
+  auto elevAt = [&](int li, int lj) -> float {
+    if (li < 0 || lj < 0 || li >= R || lj >= C) return kNaN;
+    std::int32_t t;
+    std::uint32_t o;
+    cellOf(li, lj, t, o);
+    const float* e = E[static_cast<size_t>(t)];
+    return e ? e[o] : kNaN;
+  };
+  const int nc = static_cast<int>(ray_ends_.size());
+  ray_chunks_.resize(static_cast<size_t>(nc));
+  std::vector<std::array<long, 2>> per(static_cast<size_t>(nc));
+  const double k = cf.mahalanobis_thresh;
+  const double u0 = (xmax - S.x()) / res, v0 = (ymax - S.y()) / res;
+
+  // Phase A: walk rays (one task per fixed chunk), emit per-cell items; reads only.
+  ex.forEach(nc, [&](int c) {
+    std::vector<Item>& out = ray_chunks_[static_cast<size_t>(c)];
+    out.clear();
+    const std::vector<float>& ends = ray_ends_[static_cast<size_t>(c)];
+    long nrays = 0, ncells = 0;
+    for (size_t q = 0; q + 2 < ends.size(); q += 3) {
+      const double dx = ends[q], dy = ends[q + 1], dz = ends[q + 2];
+      const double L = std::sqrt(dx * dx + dy * dy + dz * dz);
+      if (!(L > 1e-9)) continue;
+      double t1 = std::min({1.0, (L - cf.cleanup_end_margin_m) / L, cf.max_ray_length_m / L});
+      if (!(t1 > 0.0)) continue;
+      ++nrays;
+      // Grid coordinates: u = (xmax - x)/res grows with the row index i (cell i = (i, i+1]).
+      const double du = -dx / res, dv = -dy / res;
+      double t0 = 0.0;
+      // Clip t to the map box u in [0, R], v in [0, C] (Liang-Barsky).
+      auto clip = [&](double p0, double dp, double hi) {
+        if (dp == 0.0) {
+          if (p0 < 0.0 || p0 > hi) t1 = -1.0;
+          return;
+        }
+        double ta = (0.0 - p0) / dp, tb = (hi - p0) / dp;
+        if (ta > tb) std::swap(ta, tb);
+        t0 = std::max(t0, ta);
+        t1 = std::min(t1, tb);
+      };
+      clip(u0, du, R);
+      clip(v0, dv, C);
+      if (!(t1 > t0)) continue;
+      // Start cell: the one containing the point just after t0.
+      const double tm = t0 + 1e-9 * (t1 - t0);
+      int i = static_cast<int>(std::ceil(u0 + tm * du)) - 1;
+      int j = static_cast<int>(std::ceil(v0 + tm * dv)) - 1;
+      i = std::clamp(i, 0, R - 1);
+      j = std::clamp(j, 0, C - 1);
+      const int si = du > 0 ? 1 : -1, sj = dv > 0 ? 1 : -1;
+      const double inf = std::numeric_limits<double>::infinity();
+      const double tdi = du != 0.0 ? 1.0 / std::abs(du) : inf;
+      const double tdj = dv != 0.0 ? 1.0 / std::abs(dv) : inf;
+      double tmi = du != 0.0 ? ((du > 0 ? i + 1 : i) - u0) / du : inf;
+      double tmj = dv != 0.0 ? ((dv > 0 ? j + 1 : j) - v0) / dv : inf;
+      double ta = t0;
+      const double dirx = dx / L, diry = dy / L, dirz = dz / L;
+      while (true) {
+        const double tb = std::min({tmi, tmj, t1});
+        // Highest point of the ray inside this column: the ground under the crossing is below it.
+        const double zhi = S.z() + (dz >= 0 ? tb : ta) * dz;
+        ++ncells;
+        std::int32_t tile;
+        std::uint32_t off;
+        cellOf(i, j, tile, off);
+        const float* e = E[static_cast<size_t>(tile)];
+        const float h = e ? e[off] : kNaN;
+        if (std::isnan(h)) {
+          out.push_back(Item{tile, off, static_cast<float>(zhi), kRayUpperBound});
+        } else {
+          const float* ht = HT[static_cast<size_t>(tile)];
+          const bool fresh = ht && ht[off] > 0.0f;  // measured by this cloud: never cleaned by it
+          const float* vv = V[static_cast<size_t>(tile)];
+          const double var = vv ? vv[off] : 0.0;
+          if (!fresh && h - k * std::sqrt(std::max(var, 0.0)) > zhi) {
+            // Surface normal from central differences (one-sided at unknown neighbours).
+            auto slope = [&](float a, float b, float m, double dist) {
+              if (!std::isnan(a) && !std::isnan(b)) return (a - b) / (2.0 * dist);
+              if (!std::isnan(a)) return (a - m) / dist;
+              if (!std::isnan(b)) return (m - b) / dist;
+              return 0.0;
+            };
+            // Row i-1 lies towards +x, column j-1 towards +y.
+            const double gx = slope(elevAt(i - 1, j), elevAt(i + 1, j), h, res);
+            const double gy = slope(elevAt(i, j - 1), elevAt(i, j + 1), h, res);
+            const double nn = std::sqrt(gx * gx + gy * gy + 1.0);
+            const double cosang = std::abs(-gx * dirx - gy * diry + dirz) / nn;
+            if (cosang >= cf.cleanup_cos_thresh)
+              out.push_back(Item{tile, off, static_cast<float>(zhi), kRayPenetration});
+          }
+        }
+        if (tb >= t1) break;
+        if (tmi <= tmj) {
+          i += si;
+          tmi += tdi;
+        } else {
+          j += sj;
+          tmj += tdj;
+        }
+        if (i < 0 || j < 0 || i >= R || j >= C) break;
+        ta = tb;
+      }
+    }
+    per[static_cast<size_t>(c)] = {nrays, ncells};
+  });
+  for (const auto& p : per) {
+    st.rays += p[0];
+    st.ray_cells += p[1];
+  }
+
+  // Phase B: bin the items per tile (stable), apply each tile's items in ray order.
+  binItems(ex, ray_chunks_, ntiles);
+  const int na = static_cast<int>(active_tiles_.size());
+  std::vector<std::array<long, 3>> res3(static_cast<size_t>(na));
+  const float step = static_cast<float>(cf.cleanup_step);
+  const float ov = static_cast<float>(cf.outlier_variance_m2);
+  ex.forEach(na, [&](int q) {
+    const int t = active_tiles_[static_cast<size_t>(q)];
+    float* Ew = map.mutableTileData(elev_, t);
+    float* Vw = map.mutableTileData(var_, t);
+    float* VAL = map.mutableTileData(valid_, t);
+    float* UB = map.mutableTileData(ub_, t);
+    float* ISUB = map.mutableTileData(isub_, t);
+    long pen = 0, inv = 0, ubs = 0;
+    for (int b = bin_start_[static_cast<size_t>(t)]; b < bin_start_[static_cast<size_t>(t) + 1]; ++b) {
+      const Item& it = binned_[static_cast<size_t>(b)];
+      const std::uint32_t o = it.off;
+      if (std::isnan(Ew[o])) {
+        // Unknown (or just invalidated) cell: the surface is below every ray over it.
+        if (std::isnan(UB[o]) || it.z < UB[o]) UB[o] = it.z;
+        ISUB[o] = 1.0f;
+        ++ubs;
+        continue;
+      }
+      if (it.aux != kRayPenetration) continue;
+      ++pen;
+      VAL[o] -= step;
+      Vw[o] += ov;
+      if (VAL[o] < 0.5f) {
+        ++inv;
+        Ew[o] = kNaN;
+        Vw[o] = kNaN;
+        VAL[o] = 0.0f;
+        UB[o] = it.z;
+        ISUB[o] = 1.0f;
+      }
+    }
+    res3[static_cast<size_t>(q)] = {pen, inv, ubs};
+  });
+  for (int q = 0; q < na; ++q) {
+    st.cells_penetrated += res3[static_cast<size_t>(q)][0];
+    st.cells_invalidated += res3[static_cast<size_t>(q)][1];
+    st.upper_bounds += res3[static_cast<size_t>(q)][2];
+    tile_known_[static_cast<size_t>(active_tiles_[static_cast<size_t>(q)])] = 1;
+  }
+}
+
+// ---- host interface --------------------------------------------------------------------------
+
+void LidarFusion::accumulate(const FusionStats& s) {
+  FusionStats& t = totals_;
+  t.points_in += s.points_in;
+  t.dropped_non_finite += s.dropped_non_finite;
+  t.dropped_too_close += s.dropped_too_close;
+  t.dropped_too_far += s.dropped_too_far;
+  t.dropped_too_high += s.dropped_too_high;
+  t.dropped_outside_map += s.dropped_outside_map;
+  t.points_fused += s.points_fused;
+  t.outliers += s.outliers;
+  t.cells_forgotten += s.cells_forgotten;
+  t.tiles_touched += s.tiles_touched;
+  t.rays += s.rays;
+  t.ray_cells += s.ray_cells;
+  t.cells_penetrated += s.cells_penetrated;
+  t.cells_invalidated += s.cells_invalidated;
+  t.upper_bounds += s.upper_bounds;
+  t.drift_applied = t.drift_applied || s.drift_applied;
+  t.drift_m += s.drift_m;
+  t.drift_inliers += s.drift_inliers;
+  ++clouds_;
+}
+
+void LidarFusion::process(ProcessContext& ctx, const Event& event) {
+  LayeredMap& map = ctx.map();
+  if (bound_map_ != &map) bindLayers(map);
+  if (const auto* pc = std::get_if<PointCloud>(&event)) {
+    advanceTime(map, ctx.executor(), pc->stamp);
+    if (config_.follow_robot && !have_pose_) followTo(map, pc->T_map_sensor.translation());
+    const FusionStats s = fuse(map, ctx.executor(), *pc);
+    ctx.countDrop("non_finite", s.dropped_non_finite);
+    ctx.countDrop("too_close", s.dropped_too_close);
+    ctx.countDrop("too_far", s.dropped_too_far);
+    ctx.countDrop("too_high", s.dropped_too_high);
+    ctx.countDrop("outside_map", s.dropped_outside_map);
+    ctx.addCounter("points_in", static_cast<double>(s.points_in));
+    ctx.addCounter("points_fused", static_cast<double>(s.points_fused));
+    ctx.addCounter("outliers", static_cast<double>(s.outliers));
+    ctx.addCounter("cells_forgotten", static_cast<double>(s.cells_forgotten));
+    ctx.addCounter("rays", static_cast<double>(s.rays));
+    ctx.addCounter("ray_cells", static_cast<double>(s.ray_cells));
+    ctx.addCounter("cells_penetrated", static_cast<double>(s.cells_penetrated));
+    ctx.addCounter("cells_invalidated", static_cast<double>(s.cells_invalidated));
+    ctx.addCounter("upper_bound_updates", static_cast<double>(s.upper_bounds));
+    if (s.drift_applied) ctx.addCounter("drift_m", s.drift_m);
+  } else if (const auto* pose = std::get_if<Pose>(&event)) {
+    advanceTime(map, ctx.executor(), pose->stamp);
+    if (!pose->T_map_base.matrix().allFinite())
+      throw InputError("lidar_fusion: pose at stamp " + num(pose->stamp) + " s is not finite");
+    have_pose_ = true;
+    followTo(map, pose->T_map_base.translation());
+  } else if (const auto* tick = std::get_if<Tick>(&event)) {
+    advanceTime(map, ctx.executor(), tick->stamp);
+  }
+}
+
+void LidarFusion::finish(ProcessContext& ctx) {
+  const FusionStats& t = totals_;
+  std::ostringstream os;
+  os << "{\"type\":\"lidar_fusion.summary\",\"clouds\":" << clouds_ << ",\"points_in\":" << t.points_in
+     << ",\"points_fused\":" << t.points_fused << ",\"outliers\":" << t.outliers
+     << ",\"dropped\":{\"non_finite\":" << t.dropped_non_finite << ",\"too_close\":" << t.dropped_too_close
+     << ",\"too_far\":" << t.dropped_too_far << ",\"too_high\":" << t.dropped_too_high
+     << ",\"outside_map\":" << t.dropped_outside_map << "},\"cells_forgotten\":" << t.cells_forgotten
+     << ",\"rays\":" << t.rays << ",\"cells_penetrated\":" << t.cells_penetrated
+     << ",\"cells_invalidated\":" << t.cells_invalidated << ",\"upper_bound_updates\":" << t.upper_bounds
+     << ",\"drift_total_m\":" << num(t.drift_m) << "}";
+  ctx.reportRecord(os.str());
+}
+
+}  // namespace terramap::plugins

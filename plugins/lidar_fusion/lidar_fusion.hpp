@@ -1,0 +1,186 @@
+#pragma once
+/// \file
+/// lidar_fusion: elevation_mapping_cupy-class fusion of LiDAR point clouds into a 2.5D
+/// elevation map on CPU cores (ALGORITHMS.md section A). The parameter table with the
+/// elevation_mapping_cupy equivalents is in plugins/lidar_fusion/README.md.
+///
+/// Per cloud (PointCloud event, sensor pose T_map_sensor):
+///  1. time: every known cell's `time_since_update` grows by dt = stamp - previous stamp and
+///     every valid cell's `variance` by time_variance_m2_per_s * dt (also on Tick/Pose events);
+///  2. motion: with follow_robot the map re-centres (ring buffer, LayeredMap::move) on the
+///     latest Pose (base position) or, before any Pose arrived, on the sensor position;
+///  3. gates, counted by reason: non_finite, too_close, too_far, too_high, outside_map;
+///  4. noise: range_based v = (a + b*r)^2 or depth_squared v = k*z_s^2;
+///  5. points are binned per tile (stable counting sort), one task per tile fuses its points
+///     in input order: a Mahalanobis gate |z-h| > k*sqrt(v+v_p) marks an outlier (variance +=
+///     outlier_variance), otherwise a precision-weighted update; a cell whose variance exceeds
+///     max_variance is forgotten;
+///  6. visibility cleanup: one ray every `cleanup_ray_stride` points is walked through the
+///     grid (exact column traversal, Amanatides-Woo); valid cells not hit by this cloud whose
+///     surface lies above the ray lose validity (cleanup_step per ray) and gain variance, unknown
+///     cells get an upper bound (min over rays of the ray height in the cell);
+///  7. optional drift compensation (off by default).
+///
+/// Frames: `elevation` and `upper_bound` are map-frame z (metres). NaN = unknown.
+/// Determinism: every stage either writes per tile in a fixed order or reduces with exact
+/// operations (integer counts, min) over fixed chunks, so layers are bit-identical for any
+/// thread count. No float atomics.
+/// Threading: process() runs on the engine thread and parallelises with ctx.executor().
+#include <terramap/plugin/plugin.hpp>
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace terramap::plugins {
+
+enum class NoiseModel {
+  RangeBased,    ///< sigma = a + b * range (LiDAR); variance = sigma^2
+  DepthSquared,  ///< variance = k * z_s^2, z_s = sensor-frame z (depth for a camera)
+};
+
+/// All parameters of the fusion, SI units. Defaults are the plugin's schema defaults.
+struct LidarFusionConfig {
+  NoiseModel noise_model = NoiseModel::RangeBased;
+  double range_noise_a_m = 0.02;          ///< sigma at zero range (m)
+  double range_noise_b = 0.001;           ///< sigma growth per metre of range (m/m)
+  double sensor_noise_factor = 0.05;      ///< depth_squared: k in v = k z_s^2 (1)
+  double min_range_m = 0.5;               ///< points closer to the sensor are dropped
+  double max_range_m = 100.0;             ///< points farther are dropped
+  double max_height_above_sensor_m = 1.0; ///< map-frame z above the sensor's z: dropped
+  bool enable_ramped_height_range = true; ///< also drop z - z_s > max(d_xy - b, 0) * a + c
+  double ramped_height_range_a = 0.3;     ///< slope (m/m)
+  double ramped_height_range_b_m = 1.0;   ///< horizontal distance where the ramp starts (m)
+  double ramped_height_range_c_m = 0.2;   ///< height allowed at the sensor (m)
+  double mahalanobis_thresh = 2.0;        ///< k in |z - h| > k sqrt(v + v_p)
+  double outlier_variance_m2 = 0.01;      ///< added to a cell's variance per outlier (m^2)
+  double max_variance_m2 = 100.0;         ///< a cell above this after an outlier is forgotten
+  double time_variance_m2_per_s = 0.0005; ///< variance growth of valid cells (m^2/s)
+  bool enable_visibility_cleanup = true;
+  int cleanup_ray_stride = 4;             ///< walk the ray of every n-th point (by input index)
+  double max_ray_length_m = 10.0;         ///< walk at most this far from the sensor (m)
+  double cleanup_step = 0.1;              ///< is_valid lost per penetrating ray
+  double cleanup_cos_thresh = 0.1;        ///< skip rays with |ray . normal| below this (grazing)
+  double cleanup_end_margin_m = 0.3;      ///< stop the walk this far before the point (m)
+  bool enable_drift_compensation = false;
+  double drift_compensation_alpha = 0.1;            ///< fraction of the mean residual applied
+  double drift_compensation_variance_inlier_m2 = 0.05;  ///< only cells below this variance vote
+  double max_drift_m = 0.1;               ///< larger mean residuals are not applied (m)
+  long min_height_drift_cnt = 100;        ///< minimum inlier points for a correction
+  double position_noise_thresh_m = 0.01;  ///< sensor motion needed for a correction (m)
+  double orientation_noise_thresh_rad = 0.01;  ///< or rotation needed (rad)
+  bool follow_robot = false;              ///< re-centre the map on the robot (ring buffer)
+};
+
+/// The schema (names, units, ranges, defaults) the YAML params are checked against.
+ParamSchema lidarFusionSchema();
+/// Converts validated params. \throws ConfigError (via params.fail) on inconsistent values,
+/// e.g. min_range_m >= max_range_m.
+LidarFusionConfig lidarFusionConfigFrom(const Params& params);
+
+/// What one cloud did (also summed into the run report's counters).
+struct FusionStats {
+  long points_in = 0;
+  long dropped_non_finite = 0, dropped_too_close = 0, dropped_too_far = 0, dropped_too_high = 0,
+       dropped_outside_map = 0;
+  long points_fused = 0;     ///< points that updated a cell (including cell initialisations)
+  long outliers = 0;         ///< points rejected by the Mahalanobis gate
+  long cells_forgotten = 0;  ///< cells reset because their variance exceeded max_variance
+  long tiles_touched = 0;
+  long rays = 0;             ///< rays walked
+  long ray_cells = 0;        ///< cell crossings visited by the walks
+  long cells_penetrated = 0; ///< penetrating-ray updates applied to stale valid cells
+  long cells_invalidated = 0;  ///< stale cells whose validity fell below 0.5
+  long upper_bounds = 0;     ///< upper-bound updates applied to unknown cells
+  bool drift_applied = false;
+  double drift_m = 0.0;      ///< correction added to the map's elevations (m)
+  long drift_inliers = 0;
+};
+
+/// Layer names the plugin creates.
+struct LidarFusionLayers {
+  static constexpr const char* kElevation = "elevation";            ///< m, map-frame z; NaN unknown
+  static constexpr const char* kVariance = "variance";              ///< m^2; NaN unknown
+  static constexpr const char* kIsValid = "is_valid";               ///< 1 valid .. 0 unknown
+  static constexpr const char* kTimeSinceUpdate = "time_since_update";  ///< s; NaN never
+  static constexpr const char* kUpperBound = "upper_bound";         ///< m; NaN none
+  static constexpr const char* kIsUpperBound = "is_upper_bound";    ///< 1 if bound from rays
+  static constexpr const char* kHits = "hits";                      ///< points fused this cloud
+};
+
+class LidarFusion : public Plugin {
+ public:
+  LidarFusion() = default;
+
+  ParamSchema schema() const override { return lidarFusionSchema(); }
+  void configure(const Params& params) override { config_ = lidarFusionConfigFrom(params); }
+  /// Creates the seven layers (see LidarFusionLayers) with their units and fill values.
+  std::vector<LayerSpec> layers() const override;
+  EventMask events() const override;
+  void start(ProcessContext& ctx) override;
+  /// PointCloud: fuse; Pose: follow the robot (if enabled) and advance time; Tick: advance time.
+  /// \throws InputError on a non-finite sensor pose or a stamp that goes backwards.
+  void process(ProcessContext& ctx, const Event& event) override;
+  void finish(ProcessContext& ctx) override;
+
+  // ---- direct API (embedders, tests, benchmarks) -------------------------------------------
+  /// Uses `config` instead of YAML params. \throws ConfigError as lidarFusionConfigFrom does.
+  void configure(const LidarFusionConfig& config);
+  const LidarFusionConfig& config() const { return config_; }
+  /// Adds the layers to `map` if missing and binds to them (what the host + start() do).
+  void attach(LayeredMap& map);
+  /// Fuses one cloud into the attached map with `executor` (steps 1-7 above).
+  /// \throws InputError if the pose is not finite; LayerError if not attached to `map`.
+  FusionStats fuse(LayeredMap& map, const Executor& executor, const PointCloud& cloud);
+  /// Advances time to `stamp` (time_since_update and variance growth). Earlier stamps throw
+  /// InputError; the first stamp only sets the clock.
+  void advanceTime(LayeredMap& map, const Executor& executor, double stamp);
+  /// Follow-robot motion to a base position (no-op unless follow_robot).
+  void followTo(LayeredMap& map, const Eigen::Vector3d& position);
+  /// Totals over every cloud so far.
+  const FusionStats& totals() const { return totals_; }
+
+ private:
+  struct Item {
+    std::int32_t tile;
+    std::uint32_t off;
+    float z;
+    float aux;
+  };
+  void bindLayers(const LayeredMap& map);
+  void buildIndexTables(const LayeredMap& map);
+  void resetHits(LayeredMap& map, const Executor& ex);
+  void binItems(const Executor& ex, std::vector<std::vector<Item>>& chunks, int ntiles);
+  void driftCompensation(LayeredMap& map, const Executor& ex, const Eigen::Isometry3d& T,
+                         FusionStats& st);
+  void fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st);
+  void cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vector3d& sensor,
+               FusionStats& st);
+  void accumulate(const FusionStats& st);
+
+  LidarFusionConfig config_;
+  // layer ids (elevation, variance, is_valid, time, upper_bound, is_upper_bound, hits)
+  LayerId elev_ = -1, var_ = -1, valid_ = -1, time_ = -1, ub_ = -1, isub_ = -1, hits_ = -1;
+  const LayeredMap* bound_map_ = nullptr;
+  // buffer row/column -> (tile row or column, local offset) lookup, rebuilt when the map moves
+  std::vector<std::int32_t> row_tile_, row_local_, col_tile_, col_local_;
+  Index tables_start_{-1, -1};
+  // scratch reused between clouds
+  std::vector<std::vector<Item>> point_chunks_, ray_chunks_;
+  std::vector<std::vector<float>> ray_ends_;  // xyz per ray, per chunk
+  std::vector<int> bin_start_;     // tile -> first binned item; size tiles + 1
+  std::vector<Item> binned_;
+  std::vector<int> active_tiles_;  // tiles with binned items, ascending
+  std::vector<int> hit_tiles_;     // tiles whose hits layer is non-zero
+  std::vector<char> tile_known_;   // buffer tiles that may hold known cells (time pass)
+  bool have_stamp_ = false;
+  double last_stamp_ = 0.0;
+  bool have_pose_ = false;         // a Pose event arrived (follow it rather than the sensor)
+  bool have_prev_sensor_ = false;
+  Eigen::Isometry3d prev_T_map_sensor_ = Eigen::Isometry3d::Identity();
+  FusionStats totals_;
+  long clouds_ = 0;
+  double fuse_wall_s_ = 0.0;
+};
+
+}  // namespace terramap::plugins
