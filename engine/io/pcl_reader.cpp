@@ -8,6 +8,8 @@
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
 
+#include <algorithm>
+#include <charconv>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -193,16 +195,146 @@ void checkPlyBinarySize(const std::string& path) {
   }
 }
 
+// Validates a PCD header (and, for binary data, the body size) before PCL sees the file:
+// PCL 1.13 crashes on some headerless files and reads past a short binary body, and its own
+// messages carry no byte offsets.
+void checkPcdHeader(const std::string& path) {
+  detail::FileCloser fc{detail::openForRead(path, "PCD file")};
+  const std::uint64_t size = detail::fileSize(fc.f, path);
+  std::string text(static_cast<std::size_t>(std::min<std::uint64_t>(size, 1u << 16)), '\0');
+  if (!text.empty() && std::fread(&text[0], 1, text.size(), fc.f) != text.size()) {
+    throw InputError("PCD file '" + path + "': read error in the header");
+  }
+  auto fail = [&](std::uint64_t offset, const std::string& msg) {
+    throw InputError("PCD file '" + path + "' at byte offset " + std::to_string(offset) + ": " + msg);
+  };
+  std::vector<std::string> fields, sizes, types, counts;
+  std::uint64_t width = 0, height = 1, points = 0;
+  bool have_width = false, have_points = false;
+  std::string data;
+  std::uint64_t sizes_at = 0, types_at = 0, counts_at = 0, points_at = 0, data_at = 0, body = 0;
+  std::size_t at = 0;
+  while (at < text.size() && data.empty()) {
+    const std::size_t eol = text.find('\n', at);
+    if (eol == std::string::npos) fail(at, "header line is not terminated (no DATA line within the first 64 KiB)");
+    std::string line = text.substr(at, eol - at);
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    std::istringstream ls(line);
+    std::string key;
+    ls >> key;
+    std::vector<std::string> vals;
+    for (std::string v; ls >> v;) vals.push_back(v);
+    auto integer = [&](const std::string& what) {
+      std::uint64_t v = 0;
+      if (vals.size() != 1) fail(at, what + " needs one value");
+      const auto [ptr, ec] = std::from_chars(vals[0].data(), vals[0].data() + vals[0].size(), v);
+      if (ec != std::errc() || ptr != vals[0].data() + vals[0].size()) fail(at, what + " value '" + vals[0] + "' is not a count");
+      return v;
+    };
+    if (key.empty() || key[0] == '#') {
+    } else if (key == "VERSION" || key == "VIEWPOINT") {
+    } else if (key == "FIELDS" || key == "COLUMNS") {
+      fields = vals;
+    } else if (key == "SIZE") {
+      sizes = vals;
+      sizes_at = at;
+    } else if (key == "TYPE") {
+      types = vals;
+      types_at = at;
+    } else if (key == "COUNT") {
+      counts = vals;
+      counts_at = at;
+    } else if (key == "WIDTH") {
+      width = integer("WIDTH");
+      have_width = true;
+    } else if (key == "HEIGHT") {
+      height = integer("HEIGHT");
+    } else if (key == "POINTS") {
+      points = integer("POINTS");
+      points_at = at;
+      have_points = true;
+    } else if (key == "DATA") {
+      if (vals.size() != 1 || (vals[0] != "ascii" && vals[0] != "binary" && vals[0] != "binary_compressed")) {
+        fail(at, "DATA must be ascii, binary or binary_compressed");
+      }
+      data = vals[0];
+      data_at = at;
+      body = eol + 1;
+    } else {
+      fail(at, "unknown header keyword '" + key.substr(0, 32) + "' (not a PCD file?)");
+    }
+    at = eol + 1;
+  }
+  if (data.empty()) fail(at, "no DATA line in the header");
+  if (fields.empty()) fail(data_at, "no FIELDS line before DATA");
+  if (sizes.size() != fields.size()) fail(sizes_at, std::to_string(sizes.size()) + " SIZE values for " + std::to_string(fields.size()) + " FIELDS");
+  if (types.size() != fields.size()) fail(types_at, std::to_string(types.size()) + " TYPE values for " + std::to_string(fields.size()) + " FIELDS");
+  if (!counts.empty() && counts.size() != fields.size()) {
+    fail(counts_at, std::to_string(counts.size()) + " COUNT values for " + std::to_string(fields.size()) + " FIELDS");
+  }
+  if (!have_width) fail(data_at, "no WIDTH line before DATA");
+  if (!have_points) points = width * height;
+  if (points != width * height) {
+    fail(points_at, "POINTS " + std::to_string(points) + " differs from WIDTH x HEIGHT = " + std::to_string(width * height));
+  }
+  std::uint64_t step = 0;
+  for (std::size_t k = 0; k < fields.size(); ++k) {
+    const std::string& t = types[k];
+    const std::string& z = sizes[k];
+    if ((t != "F" && t != "I" && t != "U") || (z != "1" && z != "2" && z != "4" && z != "8") ||
+        (t == "F" && z != "4" && z != "8")) {
+      fail(types_at, "field '" + fields[k] + "' has TYPE " + t + " SIZE " + z + " (need I/U of 1, 2, 4, 8 bytes or F of 4, 8)");
+    }
+    std::uint64_t count = 1;
+    if (!counts.empty()) {
+      const auto [ptr, ec] = std::from_chars(counts[k].data(), counts[k].data() + counts[k].size(), count);
+      if (ec != std::errc() || ptr != counts[k].data() + counts[k].size() || count == 0) {
+        fail(counts_at, "COUNT '" + counts[k] + "' of field '" + fields[k] + "' is not a positive count");
+      }
+    }
+    step += count * static_cast<std::uint64_t>(z[0] - '0');
+  }
+  if (data == "binary") {
+    const std::uint64_t avail = size > body ? size - body : 0;
+    if (points > avail / step) {
+      fail(body + (avail / step) * step, "POINTS " + std::to_string(points) + " of " + std::to_string(step) +
+                                             " bytes need the body to end at byte " + std::to_string(body + points * step) +
+                                             " but the file has " + std::to_string(size) + " bytes (point " +
+                                             std::to_string(avail / step) + " is incomplete or missing)");
+    }
+  } else if (data == "binary_compressed") {
+    unsigned char sz[8];
+    if (size < body + 8 || std::fseek(fc.f, static_cast<long>(body), SEEK_SET) != 0 || std::fread(sz, 1, 8, fc.f) != 8) {
+      fail(body, "binary_compressed body lacks its 8-byte size prefix");
+    }
+    const std::uint64_t compressed = detail::loadU32(sz), uncompressed = detail::loadU32(sz + 4);
+    if (body + 8 + compressed > size) {
+      fail(size, "compressed body of " + std::to_string(compressed) + " bytes from offset " + std::to_string(body + 8) +
+                     " runs past the end of the file (" + std::to_string(size) + " bytes)");
+    }
+    if (uncompressed != points * step) {
+      fail(body + 4, "uncompressed size " + std::to_string(uncompressed) + " differs from POINTS x point size = " +
+                         std::to_string(points * step));
+    }
+  }
+}
+
 }  // namespace
 
 std::vector<PointXYZI> readPcd(const std::string& path) {
-  { detail::FileCloser probe{detail::openForRead(path, "PCD file")}; }
+  checkPcdHeader(path);
   pcl::PCLPointCloud2 cloud;
   pcl::PCDReader reader;
   Eigen::Vector4f origin;
   Eigen::Quaternionf orientation;
   int version = 0;
-  if (reader.read(path, cloud, origin, orientation, version) < 0) {
+  int rc = -1;
+  try {
+    rc = reader.read(path, cloud, origin, orientation, version);
+  } catch (const std::exception& e) {  // pcl::PCLException, std::bad_alloc from a bogus count
+    throw InputError("PCD file '" + path + "' could not be parsed by PCL: " + e.what());
+  }
+  if (rc < 0) {
     throw InputError("PCD file '" + path + "' could not be parsed by PCL (see PCL's message on stderr for the cause)");
   }
   return convert(cloud, path, "PCD");
@@ -215,7 +347,13 @@ std::vector<PointXYZI> readPly(const std::string& path) {
   Eigen::Vector4f origin;
   Eigen::Quaternionf orientation;
   int version = 0;
-  if (reader.read(path, cloud, origin, orientation, version) < 0) {
+  int rc = -1;
+  try {
+    rc = reader.read(path, cloud, origin, orientation, version);
+  } catch (const std::exception& e) {  // pcl::PCLException, std::bad_alloc from a bogus count
+    throw InputError("PLY file '" + path + "' could not be parsed by PCL: " + e.what());
+  }
+  if (rc < 0) {
     throw InputError("PLY file '" + path + "' could not be parsed by PCL (see PCL's message on stderr for the cause)");
   }
   return convert(cloud, path, "PLY");

@@ -419,6 +419,46 @@ TEST(PcdReader, MissingXyzAndMissingFileAreInputErrors) {
   expectErrorWith([&] { readPcd(dir.file("none.pcd")); }, {dir.file("none.pcd"), "cannot open"});
 }
 
+TEST(PcdReader, BinaryBodyIsCheckedBeforePclReadsIt) {
+  TempDir dir("pcd_bin");
+  const std::string head =
+      "VERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+      "WIDTH 50\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 50\nDATA binary\n";
+  std::vector<unsigned char> bytes(head.begin(), head.end());
+  for (int i = 0; i < 50; ++i) {
+    const float v[4] = {static_cast<float>(i), -0.5f * i, 0.25f, 3.0f};
+    const auto* b = reinterpret_cast<const unsigned char*>(v);
+    bytes.insert(bytes.end(), b, b + 16);
+  }
+  const std::string p = dir.file("b.pcd");
+  spit(p, bytes);
+  const auto pts = readPcd(p);
+  ASSERT_EQ(pts.size(), 50u);
+  EXPECT_EQ(pts[49].x, 49.f);
+  EXPECT_EQ(pts[49].y, -24.5f);
+  EXPECT_EQ(pts[49].intensity, 3.f);
+
+  bytes.resize(head.size() + 16 * 20 + 9);
+  spit(p, bytes);
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset " + std::to_string(head.size() + 16 * 20), "point 20"});
+  // PCL 1.13 crashes on files without a PCD header; ours refuses them first.
+  spitText(p, "hello world\n");
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset 0", "'hello'"});
+  spitText(p, "VERSION 0.7\nFIELDS x y z\nSIZE 4 4\nTYPE F F F\nWIDTH 1\nPOINTS 1\nDATA ascii\n1 2 3\n");
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset 25", "2 SIZE values for 3 FIELDS"});
+  spitText(p, "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 2\nPOINTS 3\nDATA ascii\n1 2 3\n");
+  expectErrorWith([&] { readPcd(p); }, {p, "POINTS 3 differs from WIDTH x HEIGHT = 2"});
+}
+
+TEST(PlyReader, AsciiWithFewerVerticesThanDeclaredIsRefused) {
+  TempDir dir("ply_bad");
+  const std::string p = dir.file("short.ply");
+  spitText(p, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n");
+  expectErrorWith([&] { readPly(p); }, {p, "PCL"});
+  spitText(p, "not a ply\n");
+  expectErrorWith([&] { readPly(p); }, {p, "byte offset 0", "'ply' magic"});
+}
+
 // ---- dispatch + throughput --------------------------------------------------------------------
 
 TEST(ReadPointCloud, DispatchesByExtension) {
