@@ -116,20 +116,20 @@ int runFee(const FeeOptions& o, bool betaGiven) {
 void setupFee(CLI::App& app, std::function<int()>& run) {
   auto o = std::make_shared<FeeOptions>();
   CLI::App* sub = app.add_subcommand(
-      "fee",
-      "Evaluate the fundamental equation of earthmoving (FEE, ALGORITHMS.md §E) for one soil and\n"
-      "blade geometry and print one JSON object: beta_rad, eta_rad, N_gamma, N_c, N_Q, N_ca, f_N,\n"
-      "Fx_N, Fz_N (paper's F), Fx_total_N, Fz_total_N (F plus adhesion along the blade face),\n"
-      "valid, reason. Angles are given in degrees and reported in radians.");
+      "fee", "Evaluate the fundamental equation of earthmoving (FEE) for one soil and blade; print JSON.");
   sub->footer(
-      "Convention: x horizontal along the direction of travel, z up; the force is that of the\n"
-      "blade on the soil. rho and beta are measured from the soil surface (which rises at alpha\n"
-      "ahead of the blade); d is the edge depth normal to the surface. Values that cannot be\n"
-      "computed print as null.\n"
-      "Exit code: 0 when the FEE is valid, 8 when a validity rule fails (the JSON is still\n"
-      "printed and 'reason' names the rule), 2 on a bad command line.\n"
-      "Example: terramap fee --c-pa 0 --phi-deg 30 --gamma-n-m3 18000 --ca-pa 0 --delta-deg 20 \\\n"
-      "           --alpha-deg 0 --rho-deg 90 --d-m 1 --w-m 1 --q-n 0 --beta min");
+      "Prints one JSON object (ALGORITHMS.md §E): beta_rad, eta_rad, N_gamma, N_c, N_Q, N_ca (dimensionless),\n"
+      "f_N (resultant magnitude), Fx_N, Fz_N (the paper's F), Fx_total_N, Fz_total_N (F plus adhesion along\n"
+      "the blade face, what the simulator uses), valid, reason. Angles are given in degrees and reported in\n"
+      "radians; forces are in N.\n"
+      "Convention: x horizontal along the direction of travel, z up; the force is that of the blade on the\n"
+      "soil. rho and beta are measured from the soil surface (which rises at alpha ahead of the blade); d is\n"
+      "the edge depth normal to the surface. Values that cannot be computed print as null.\n"
+      "Exit code: 0 when the FEE is valid, 8 when a validity rule fails (the JSON is still printed and\n"
+      "'reason' names the rule and the offending value), 2 on a bad command line.\n"
+      "Example (Coulomb passive pressure, K_p = 6.105):\n"
+      "  terramap fee --c-pa 0 --phi-deg 30 --gamma-n-m3 18000 --ca-pa 0 --delta-deg 20 --alpha-deg 0 \\\n"
+      "               --rho-deg 90 --d-m 1 --w-m 1 --q-n 0 --beta min");
   sub->add_option("--c-pa", o->c_pa, "cohesion c [Pa], >= 0")->required();
   sub->add_option("--phi-deg", o->phi_deg, "internal friction angle phi [deg], 0 <= phi < 90")->required();
   sub->add_option("--gamma-n-m3", o->gamma_n_m3, "soil unit weight gamma [N/m^3], >= 0")->required();
