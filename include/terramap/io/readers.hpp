@@ -38,7 +38,11 @@ std::vector<PointXYZI> readKittiBin(const std::string& path);
 /// Fields x, y, z are required (any numeric type; float64 is narrowed to float32); intensity
 /// is taken from the first present field among "intensity", "scalar_intensity",
 /// "reflectance", "remission", else NaN. Organised clouds are returned row-major (width*height).
-/// Throws InputError naming the file when PCL refuses it or x/y/z are missing.
+/// The header is validated by terramap before PCL sees the file (PCL 1.13 crashes on some
+/// headerless files and reads past short binary bodies): unknown keywords, FIELDS/SIZE/TYPE/
+/// COUNT disagreeing, POINTS != WIDTH*HEIGHT, a binary body shorter than POINTS records or a
+/// compressed body running past the end throw InputError naming the file and byte offset.
+/// Throws InputError naming the file when PCL then refuses it or x/y/z are missing.
 /// Note: PCL prints its own diagnostics to stderr before we throw; we do not silence PCL's
 /// process-wide verbosity because that would change behaviour for the embedding application.
 std::vector<PointXYZI> readPcd(const std::string& path);
@@ -132,12 +136,15 @@ struct LasCloud {
 /// shorter than its header, signature other than "LASF", version other than 1.0-1.4, header
 /// size below 227, point data offset before the header end or past the file end, a point data
 /// format other than 0-3 (compressed LAZ is refused by name), a record length below the
-/// format's minimum, non-finite or zero scale factors, non-finite offsets.
+/// format's minimum, non-finite or zero scale factors, non-finite offsets, variable length
+/// records overrunning the point data, and a point count whose records do not fit in the file
+/// (naming the byte offset of the first incomplete record).
 LasHeader readLasHeader(const std::string& path);
 
-/// Reads a whole LAS file (header + all point records). Besides readLasHeader's checks, a
-/// point count whose records do not fit in the file is refused naming the byte offset of the
-/// first incomplete record. Scale and offset are applied in double precision.
+/// Reads a whole LAS file (header + all point records) with readLasHeader's checks, so a
+/// truncated file is refused before any point is decoded. Scale and offset are applied in
+/// double precision, then the origin is subtracted before narrowing to float. Records are
+/// streamed in chunks: peak memory is the output plus ~1 MB.
 LasCloud readLas(const std::string& path, const LasReadOptions& options = {});
 
 // ---- dispatch ---------------------------------------------------------------------------------
