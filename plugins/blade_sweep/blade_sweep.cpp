@@ -1,0 +1,283 @@
+// The blade_sweep plugin: parameters, update thresholds, per-machine pose history, report.
+#include "blade_sweep.hpp"
+
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+namespace terramap::blind {
+
+namespace {
+constexpr double kPi = 3.14159265358979323846;
+
+void num(std::ostringstream& os, double v) {
+  if (!std::isfinite(v)) {
+    os << "null";
+    return;
+  }
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.9g", v);
+  os << buf;
+}
+
+std::string jsonString(const std::string& s) {
+  std::string out = "\"";
+  for (char c : s) {
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += c;
+    } else if (static_cast<unsigned char>(c) < 0x20) {
+      char buf[8];
+      std::snprintf(buf, sizeof buf, "\\u%04x", static_cast<unsigned>(static_cast<unsigned char>(c)));
+      out += buf;
+    } else {
+      out += c;
+    }
+  }
+  return out + "\"";
+}
+
+bool finitePose(const Eigen::Isometry3d& T) { return T.matrix().allFinite(); }
+
+// Largest displacement of the two ends of the cutting edge between two poses.
+double edgeTravel(const BladePose& a, const BladePose& b) {
+  const auto ca = bladeCorners(a.T_map_blade, a.geometry);
+  const auto cb = bladeCorners(b.T_map_blade, b.geometry);
+  return std::max((cb[0] - ca[0]).norm(), (cb[1] - ca[1]).norm());
+}
+
+double rotationBetween(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
+  return Eigen::Quaterniond(a.linear()).angularDistance(Eigen::Quaterniond(b.linear()));
+}
+}  // namespace
+
+std::string sweepRecordJson(const SweepRecord& r, bool with_steps) {
+  std::ostringstream os;
+  auto kv = [&](const char* k, double v) {
+    os << ",\"" << k << "\":";
+    num(os, v);
+  };
+  os << "{\"type\":\"" << SweepRecord::kType << "\",\"sweep_index\":" << r.sweep_index
+     << ",\"machine_id\":" << jsonString(r.machine_id);
+  kv("t0", r.t0);
+  kv("t1", r.t1);
+  os << ",\"edge0\":[";
+  num(os, r.T_map_blade0.translation().x());
+  os << ",";
+  num(os, r.T_map_blade0.translation().y());
+  os << ",";
+  num(os, r.T_map_blade0.translation().z());
+  os << "],\"edge1\":[";
+  num(os, r.T_map_blade1.translation().x());
+  os << ",";
+  num(os, r.T_map_blade1.translation().y());
+  os << ",";
+  num(os, r.T_map_blade1.translation().z());
+  os << "],\"t_hat\":[";
+  num(os, r.t_hat.x());
+  os << ",";
+  num(os, r.t_hat.y());
+  os << "],\"n_hat\":[";
+  num(os, r.n_hat.x());
+  os << ",";
+  num(os, r.n_hat.y());
+  os << "],\"m_hat\":[";
+  num(os, r.m_hat.x());
+  os << ",";
+  num(os, r.m_hat.y());
+  os << "]";
+  kv("travel_m", r.travel_m);
+  kv("rotation_rad", r.rotation_rad);
+  kv("blade_angle_rad", r.blade_angle_rad);
+  os << ",\"fee_valid\":" << (r.fee_valid ? "true" : "false");
+  kv("alpha_rad", r.alpha_rad);
+  kv("rho_rad", r.rho_rad);
+  kv("d_m", r.d_m);
+  kv("w_m", r.w_m);
+  kv("vq0_m3", r.vq0_m3);
+  kv("vq1_m3", r.vq1_m3);
+  kv("q0_n", r.q0_n);
+  kv("q1_n", r.q1_n);
+  kv("var_alpha", r.var_alpha);
+  kv("var_rho", r.var_rho);
+  kv("var_d", r.var_d);
+  kv("var_w", r.var_w);
+  kv("var_vq", r.var_vq);
+  kv("fit_residual_m", r.fit_residual_m);
+  os << ",\"slices_valid\":" << r.slices_valid << ",\"slices_invalid\":" << r.slices_invalid;
+  kv("cut_volume_m3", r.cut_volume_m3);
+  kv("cut_bank_volume_m3", r.cut_bank_volume_m3);
+  kv("deposit_volume_m3", r.deposit_volume_m3);
+  kv("deposit_unknown_volume_m3", r.deposit_unknown_volume_m3);
+  kv("lost_volume_m3", r.lost_volume_m3);
+  os << ",\"cells_under_sv\":" << r.cells_under_sv << ",\"cells_cut\":" << r.cells_cut
+     << ",\"cells_unknown_under_sv\":" << r.cells_unknown_under_sv << ",\"cells_deposit\":" << r.cells_deposit
+     << ",\"cells_deposit_unknown\":" << r.cells_deposit_unknown << ",\"cells_lost\":" << r.cells_lost;
+  if (with_steps) {
+    os << ",\"steps\":[";
+    for (size_t k = 0; k < r.steps.size(); ++k) {
+      const SweepStep& s = r.steps[k];
+      os << (k ? "," : "") << "{\"stamp\":";
+      num(os, s.stamp);
+      kv("tau", s.tau);
+      kv("alpha_rad", s.alpha_rad);
+      kv("rho_rad", s.rho_rad);
+      kv("d_m", s.d_m);
+      kv("w_m", s.w_m);
+      kv("vq_m3", s.vq_m3);
+      kv("q_n", s.q_n);
+      kv("var_alpha", s.var_alpha);
+      kv("var_rho", s.var_rho);
+      kv("var_d", s.var_d);
+      kv("var_w", s.var_w);
+      kv("var_vq", s.var_vq);
+      kv("var_q", s.var_q);
+      os << "}";
+    }
+    os << "]";
+  }
+  os << "}";
+  return os.str();
+}
+
+ParamSchema BladeSweep::schema() const {
+  const SweepConfig d;
+  return {
+      param::real("min_translation_m", d.min_translation_m, 0.0, 100.0, "m",
+                  "edge travel that triggers a swept-volume update (never below resolution*sqrt(2))"),
+      param::real("min_rotation_rad", d.min_rotation_rad, 0.0, kPi, "rad",
+                  "blade rotation since the last update that triggers one"),
+      param::real("max_jump_m", d.max_jump_m, 1e-3, 1e4, "m",
+                  "edge displacement between two consecutive poses treated as a teleport (history reset, no cut)"),
+      param::integer("max_stations", d.max_stations, 2, 256, "poses of the history used as swept-volume mesh stations"),
+      param::real("max_station_rotation_rad", d.max_station_rotation_rad, 1e-3, kPi, "rad",
+                  "interpolated stations are inserted where consecutive ones rotate by more"),
+      param::real("swell", d.swell, 1.0, 3.0, "1", "swell ratio s: loose thickness per undisturbed thickness"),
+      param::real("deposit_normal_weight", d.deposit_normal_weight, 0.0, 1.0, "1",
+                  "lambda_n: deposit direction m = lambda n + (1 - lambda) t"),
+      param::real("fit_length_m", d.fit_length_m, 0.01, 20.0, "m", "surface samples ahead of each cut cell (FEE fit, V_Q)"),
+      param::real("fit_distance_weight_per_m", d.fit_distance_weight, 0.0, 100.0, "1/m",
+                  "C_x: line-fit weights exp(-C_x x)"),
+      param::real("depth_weight_per_m", d.depth_weight, 0.0, 100.0, "1/m",
+                  "C_d: slice-average weights exp(C_d d)"),
+      param::real("unit_weight_n_m3", d.unit_weight_n_m3, 1.0, 1e5, "N/m^3",
+                  "undisturbed unit weight gamma; loose gamma_l = gamma / swell gives Q = gamma_l V_Q"),
+      param::real("sigma_sv_m", d.sigma_sv_m, 0.0, 10.0, "m", "1-sigma uncertainty of the blade height during a sweep"),
+      param::real("min_cut_m", d.min_cut_m, 0.0, 1.0, "m", "elevation above the swept-volume bottom that counts as a cut"),
+      param::boolean("report_steps", true, "write the per-step FEE values of every sweep to the run report"),
+  };
+}
+
+void BladeSweep::configure(const Params& p) {
+  cfg_.min_translation_m = p.getDouble("min_translation_m");
+  cfg_.min_rotation_rad = p.getDouble("min_rotation_rad");
+  cfg_.max_jump_m = p.getDouble("max_jump_m");
+  cfg_.max_stations = static_cast<int>(p.getInt("max_stations"));
+  cfg_.max_station_rotation_rad = p.getDouble("max_station_rotation_rad");
+  cfg_.swell = p.getDouble("swell");
+  cfg_.deposit_normal_weight = p.getDouble("deposit_normal_weight");
+  cfg_.fit_length_m = p.getDouble("fit_length_m");
+  cfg_.fit_distance_weight = p.getDouble("fit_distance_weight_per_m");
+  cfg_.depth_weight = p.getDouble("depth_weight_per_m");
+  cfg_.unit_weight_n_m3 = p.getDouble("unit_weight_n_m3");
+  cfg_.sigma_sv_m = p.getDouble("sigma_sv_m");
+  cfg_.min_cut_m = p.getDouble("min_cut_m");
+  report_steps_ = p.getBool("report_steps");
+  if (cfg_.max_jump_m <= cfg_.min_translation_m)
+    p.fail("max_jump_m", "must be larger than min_translation_m (" + std::to_string(cfg_.min_translation_m) + ")");
+}
+
+std::vector<LayerSpec> BladeSweep::layers() const {
+  return {
+      {"elevation", LayerAccess::Write, "", std::numeric_limits<float>::quiet_NaN(), ""},
+      {"loose", LayerAccess::Create, "m", 0.0f,
+       "thickness of loose (swelled, disturbed) soil on top of the elevation; may be > 0 where elevation is NaN "
+       "(blade deposits on unseen ground)"},
+      {"height_sigma", LayerAccess::Create, "m", std::numeric_limits<float>::quiet_NaN(),
+       "1-sigma of the elevation changes made by the blade and erosion; NaN = never changed by them"},
+  };
+}
+
+void BladeSweep::start(ProcessContext& ctx) {
+  ids_.elevation = ctx.map().layerId("elevation");
+  ids_.loose = ctx.map().layerId("loose");
+  ids_.sigma = ctx.map().layerId("height_sigma");
+  const double res = ctx.map().geometry().resolution();
+  if (cfg_.fit_length_m < 2.0 * res) {
+    std::ostringstream os;
+    os << ctx.name() << ": fit_length_m (" << cfg_.fit_length_m << " m) must cover at least 3 map cells (resolution "
+       << res << " m)";
+    throw ConfigError(os.str());
+  }
+}
+
+void BladeSweep::process(ProcessContext& ctx, const Event& event) {
+  const auto* bp = std::get_if<BladePose>(&event);
+  if (!bp) return;
+  const BladeGeometry& g = bp->geometry;
+  if (!(g.width_m > 0) || !(g.height_m >= 0) || !std::isfinite(g.width_m) || !std::isfinite(g.height_m)) {
+    std::ostringstream os;
+    os << ctx.name() << ": blade pose at stamp " << bp->stamp << " (machine '" << bp->machine_id
+       << "') has an invalid blade geometry: width_m = " << g.width_m << ", height_m = " << g.height_m
+       << " (need width_m > 0, height_m >= 0)";
+    throw InputError(os.str());
+  }
+  if (!finitePose(bp->T_map_blade) || !std::isfinite(bp->stamp)) {
+    ctx.countDrop("non_finite_pose");
+    return;
+  }
+  MachineState& st = machines_[bp->machine_id];
+  if (!st.history.empty()) {
+    const BladePose& last = st.history.back();
+    if (bp->stamp < last.stamp) {
+      ctx.countDrop("stamp_out_of_order");
+      return;
+    }
+    const BladePose& first = st.history.front();
+    if (first.geometry.width_m != g.width_m || first.geometry.height_m != g.height_m) {
+      ctx.addCounter("geometry_changes", 1);  // a new tool: start a new sweep from here
+      st.history.clear();
+    } else if ((bp->T_map_blade.translation() - last.T_map_blade.translation()).norm() > cfg_.max_jump_m) {
+      ctx.addCounter("pose_jumps", 1);
+      st.history.clear();
+    }
+  }
+  st.history.push_back(*bp);
+  if (st.history.size() < 2) return;
+
+  const double min_t = std::max(cfg_.min_translation_m, ctx.map().geometry().resolution() * std::sqrt(2.0));
+  const BladePose& first = st.history.front();
+  const bool moved = edgeTravel(first, *bp) > min_t;
+  const bool turned = rotationBetween(first.T_map_blade, bp->T_map_blade) > cfg_.min_rotation_rad;
+  if (!moved && !turned) {
+    // A stalled blade keeps sending poses: thin the history (keep both ends) so it stays bounded.
+    if (st.history.size() > 1024) {
+      std::vector<BladePose> thin;
+      for (size_t k = 0; k < st.history.size(); k += 2) thin.push_back(st.history[k]);
+      if (thin.back().stamp != st.history.back().stamp) thin.push_back(st.history.back());
+      st.history.swap(thin);
+    }
+    return;
+  }
+
+  auto rec = runSweep(ctx.map(), ids_, cfg_, st.history, ctx.executor());
+  rec->sweep_index = ++sweeps_;
+  rec->machine_id = bp->machine_id;
+  ctx.addCounter("sweeps", 1);
+  ctx.addCounter("cells_cut", static_cast<double>(rec->cells_cut));
+  ctx.addCounter("cut_volume_m3", rec->cut_volume_m3);
+  ctx.addCounter("deposit_volume_m3", rec->deposit_volume_m3);
+  ctx.addCounter("deposit_unknown_volume_m3", rec->deposit_unknown_volume_m3);
+  ctx.addCounter("lost_volume_m3", rec->lost_volume_m3);
+  if (rec->cells_lost > 0) ctx.countDrop("deposit_off_map", rec->cells_lost);
+  ctx.reportRecord(sweepRecordJson(*rec, report_steps_));
+  ctx.records().publish<SweepRecord>(SweepRecord::kType, bp->stamp, rec);
+  // T1 of this sweep is T0 of the next.
+  const BladePose last = st.history.back();
+  st.history.clear();
+  st.history.push_back(last);
+}
+
+void BladeSweep::finish(ProcessContext& ctx) { machines_.clear(); }
+
+}  // namespace terramap::blind

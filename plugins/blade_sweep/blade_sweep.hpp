@@ -1,0 +1,140 @@
+#pragma once
+/// \file
+/// blade_sweep: blind mapping with the blade's swept volume (ALGORITHMS.md §B, §C, §D, §L;
+/// paper Alg. 1-3).
+///
+/// Between two update poses T0 -> T1 (the pose history in between included), the blade quad
+/// sweeps a volume; every map cell whose centre lies under that volume's footprint gets the
+/// lowest point of the volume above it (h^G, mask G); cells whose elevation is above it are
+/// cut (set A, Δh = H - h^G). Before the cut, the FEE geometry (α, ρ, d, w, V_Q, Q) is fitted
+/// on the surface ahead of every cut cell; then the cut soil is deposited on the first cell
+/// outside the footprint along m̂ = normalize(λ n̂ + (1 - λ) t̂), swelling only its undisturbed
+/// part, so that Σ[(H - L) + L/s] is conserved. The result is a SweepRecord
+/// (terramap/plugin/records/sweep_record.hpp) published for later plugins.
+///
+/// Layers: `elevation` (written, must be provided by the map config or an earlier plugin),
+/// `loose` (created, m, fill 0) and `height_sigma` (created, m, NaN = the blade never changed the
+/// cell). The masks erosion needs travel in the record, not in layers.
+#include <terramap/plugin/plugin.hpp>
+#include <terramap/plugin/records/sweep_record.hpp>
+
+#include <Eigen/Geometry>
+#include <array>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace terramap::blind {
+
+/// Parameters of the sweep kernels (the plugin's YAML params, in SI units).
+struct SweepConfig {
+  double min_translation_m = 0.2;     ///< edge travel that triggers an update (>= res·√2 applied)
+  double min_rotation_rad = 0.17453292519943295;  ///< blade rotation that triggers an update
+  double max_jump_m = 2.0;            ///< edge jump between two poses treated as a teleport
+  int max_stations = 16;              ///< poses of the history used to build the mesh
+  double max_station_rotation_rad = 0.03490658503988659;  ///< slerp stations closer than this
+  double swell = 1.2;                 ///< s: loose thickness per undisturbed thickness
+  double deposit_normal_weight = 0.5; ///< λ_n in m = λ n̂ + (1-λ) t̂
+  double fit_length_m = 1.0;          ///< surface samples ahead of each cut cell
+  double fit_distance_weight = 3.0;   ///< C_x (1/m): WLS weights exp(-C_x x)
+  double depth_weight = 5.0;          ///< C_d (1/m): slice average weights exp(C_d d)
+  double unit_weight_n_m3 = 14636.0;  ///< γ (undisturbed); γ_l = γ / s for Q
+  double sigma_sv_m = 0.02;           ///< σ_SV: 1σ of the blade height (pose) during a sweep
+  double min_cut_m = 1e-6;            ///< H - h^G above this is a cut
+};
+
+/// A triangle of the swept-volume surface, map frame (m).
+struct Triangle {
+  Eigen::Vector3d a, b, c;
+};
+
+/// Corners of the blade quad at pose T: edge right, edge left, top left, top right (map frame).
+std::array<Eigen::Vector3d, 4> bladeCorners(const Eigen::Isometry3d& T_map_blade, const BladeGeometry& g);
+
+/// Closed triangulated surface of the volume swept by the blade through `stations` (at least
+/// one pose): both blade quads at every station plus the four ruled quads of each consecutive
+/// pair (each split into two triangles). The union of the per-segment volumes is the swept
+/// volume, so the lowest intersection of a vertical line with these triangles is its bottom.
+std::vector<Triangle> sweptVolumeMesh(const std::vector<Eigen::Isometry3d>& stations,
+                                      const BladeGeometry& g);
+
+/// The ruled surface swept by the cutting edge alone (two triangles per pair of stations):
+/// FEE depths are measured from it, so that soil lying on a raked blade's face above the edge
+/// (which the full volume also cuts) does not pass for a shallower cut.
+std::vector<Triangle> edgeSweepMesh(const std::vector<Eigen::Isometry3d>& stations, const BladeGeometry& g);
+
+/// Stations for the mesh from a pose history: at most `max_stations` poses taken evenly (the
+/// first and last always), with slerp-interpolated poses inserted where consecutive stations
+/// rotate by more than `max_rotation_rad` (a triangulated ruled quad only follows a twisting
+/// edge closely when the twist per segment is small).
+std::vector<Eigen::Isometry3d> meshStations(const std::vector<Eigen::Isometry3d>& history, int max_stations,
+                                            double max_rotation_rad);
+
+/// Axis-aligned block of logical cells.
+struct CellBlock {
+  int i0 = 0, j0 = 0, rows = 0, cols = 0;
+  bool empty() const { return rows <= 0 || cols <= 0; }
+  bool contains(int i, int j) const { return i >= i0 && j >= j0 && i < i0 + rows && j < j0 + cols; }
+  long local(int i, int j) const { return static_cast<long>(i - i0) * cols + (j - j0); }
+};
+
+/// Logical cells whose centres may lie under the triangles' footprint (clipped to the map).
+CellBlock footprintBlock(const std::vector<Triangle>& tris, const Geometry& geo);
+
+/// For every cell centre of `block`, the lowest z where a vertical line through it meets a
+/// triangle (exact, barycentric in the horizontal projection), or NaN if none does.
+/// Vertical triangles (zero projected area) are skipped: a vertical line meets them only on a
+/// set of measure zero, and their lowest points are shared with non-vertical neighbours.
+/// Deterministic for any thread count (a min does not depend on the order).
+void lowestIntersection(const std::vector<Triangle>& tris, const Geometry& geo, const CellBlock& block,
+                        std::vector<double>& z_low, const Executor& ex);
+
+/// Layer ids the sweep touches.
+struct SweepLayers {
+  LayerId elevation = -1, loose = -1, sigma = -1;
+};
+
+/// Blade angle from the horizontal in the vertical plane along `t_hat`, measured through the
+/// soil behind the edge (pi/2 upright, < pi/2 leaning back). NaN if the face is parallel to
+/// the travel direction.
+double bladeAngle(const Eigen::Isometry3d& T_map_blade, const Eigen::Vector2d& t_hat);
+
+/// One complete swept-volume update on `map` (Alg. 1 lines 8-15 and Alg. 3): mesh, intersection,
+/// FEE extraction, cut and deposit, per-step interpolation. `history` holds the poses from T0
+/// (first) to T1 (last), at least two. Mutates the three layers; returns the record
+/// (sweep_index and machine_id are left for the caller).
+std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& layers, const SweepConfig& cfg,
+                                      const std::vector<BladePose>& history, const Executor& ex);
+
+/// JSON object text of a record for the run report (mask and slices summarised by counts;
+/// steps included when `with_steps`). NaN becomes null.
+std::string sweepRecordJson(const SweepRecord& r, bool with_steps);
+
+/// The plugin: keeps a pose history per machine_id and runs runSweep() when the blade edge has
+/// moved more than the translation threshold or rotated more than the rotation threshold.
+class BladeSweep : public Plugin {
+ public:
+  ParamSchema schema() const override;
+  void configure(const Params& params) override;
+  std::vector<LayerSpec> layers() const override;
+  EventMask events() const override { return mask(EventKind::BladePose); }
+  void start(ProcessContext& ctx) override;
+  void process(ProcessContext& ctx, const Event& event) override;
+  void finish(ProcessContext& ctx) override;
+
+  const SweepConfig& config() const { return cfg_; }
+  long sweeps() const { return sweeps_; }
+
+ private:
+  struct MachineState {
+    std::vector<BladePose> history;  // T0 first
+  };
+  SweepConfig cfg_;
+  bool report_steps_ = true;
+  SweepLayers ids_;
+  std::map<std::string, MachineState> machines_;
+  long sweeps_ = 0;
+};
+
+}  // namespace terramap::blind

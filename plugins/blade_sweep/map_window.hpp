@@ -1,0 +1,119 @@
+#pragma once
+/// \file
+/// MapWindow: a rectangle of *logical* map cells gathered into dense row-major arrays, and the
+/// changed cells scattered back. The blind-mapping kernels (blade_sweep, soil_erosion) work on
+/// a few thousand cells around the blade; copying them into a dense local array once costs
+/// less than per-cell ring-buffer arithmetic, lets the kernels compute in double precision,
+/// and writing back only changed cells keeps copy-on-write snapshots sharing untouched tiles.
+///
+/// Threading: gather() is const on the map and may run concurrently with other readers;
+/// scatterChanged() mutates the map and needs the exclusive access a plugin has in process().
+#include <terramap/core/layered_map.hpp>
+
+#include <algorithm>
+#include <cstring>
+#include <vector>
+
+namespace terramap::blind {
+
+class MapWindow {
+ public:
+  MapWindow() = default;
+  /// Window [i0, i0+rows) x [j0, j0+cols) of logical indices, clipped to the map (may be empty).
+  MapWindow(const LayeredMap& map, int i0, int j0, int rows, int cols) {
+    const Size& sz = map.geometry().size();
+    const int i1 = std::min(i0 + rows, sz.x()), j1 = std::min(j0 + cols, sz.y());
+    i0_ = std::max(i0, 0);
+    j0_ = std::max(j0, 0);
+    rows_ = std::max(0, i1 - i0_);
+    cols_ = std::max(0, j1 - j0_);
+    T_ = map.tileSize();
+    map_tile_cols_ = map.tileCols();
+    const Index start = map.startIndex();
+    // Per row/column: which tile row/column (as an index into the distinct ones met) and the
+    // offset inside it. Buffer index = (logical + start) mod size (layered_map.hpp).
+    auto build = [&](int first, int n, int size, int st, std::vector<int>& tile, std::vector<int>& off,
+                     std::vector<int>& distinct) {
+      tile.resize(static_cast<size_t>(n));
+      off.resize(static_cast<size_t>(n));
+      for (int k = 0; k < n; ++k) {
+        int b = (first + k + st) % size;
+        if (b < 0) b += size;
+        const int t = b / T_;
+        auto it = std::find(distinct.begin(), distinct.end(), t);
+        if (it == distinct.end()) {
+          distinct.push_back(t);
+          it = distinct.end() - 1;
+        }
+        tile[static_cast<size_t>(k)] = static_cast<int>(it - distinct.begin());
+        off[static_cast<size_t>(k)] = b - t * T_;
+      }
+    };
+    build(i0_, rows_, sz.x(), start.x(), row_tile_, row_off_, tile_rows_);
+    build(j0_, cols_, sz.y(), start.y(), col_tile_, col_off_, tile_cols_);
+  }
+
+  int i0() const { return i0_; }
+  int j0() const { return j0_; }
+  int rows() const { return rows_; }
+  int cols() const { return cols_; }
+  long size() const { return static_cast<long>(rows_) * cols_; }
+  bool empty() const { return rows_ == 0 || cols_ == 0; }
+  bool contains(int i, int j) const { return i >= i0_ && j >= j0_ && i < i0_ + rows_ && j < j0_ + cols_; }
+  /// Dense index of logical cell (i, j); the cell must be inside.
+  long local(int i, int j) const { return static_cast<long>(i - i0_) * cols_ + (j - j0_); }
+
+  /// Copies layer `id` into `out` (resized to rows*cols, row-major). Unallocated sparse tiles
+  /// read as the layer's fill value.
+  template <class T>
+  void gather(const LayeredMap& map, LayerId id, std::vector<T>& out) const {
+    out.resize(static_cast<size_t>(size()));
+    const float fill = map.layerInfo(id).fill;
+    std::vector<const float*> tiles(tile_rows_.size() * tile_cols_.size());
+    for (size_t a = 0; a < tile_rows_.size(); ++a)
+      for (size_t b = 0; b < tile_cols_.size(); ++b)
+        tiles[a * tile_cols_.size() + b] = map.tileData(id, tile_rows_[a] * map_tile_cols_ + tile_cols_[b]);
+    for (int r = 0; r < rows_; ++r) {
+      const size_t tr = static_cast<size_t>(row_tile_[static_cast<size_t>(r)]) * tile_cols_.size();
+      const long ro = static_cast<long>(row_off_[static_cast<size_t>(r)]) * T_;
+      T* dst = out.data() + static_cast<long>(r) * cols_;
+      for (int c = 0; c < cols_; ++c) {
+        const float* t = tiles[tr + static_cast<size_t>(col_tile_[static_cast<size_t>(c)])];
+        dst[c] = static_cast<T>(t ? t[ro + col_off_[static_cast<size_t>(c)]] : fill);
+      }
+    }
+  }
+
+  /// Writes `after` into layer `id` for every cell whose float32 value differs (bitwise, so a
+  /// NaN that stays NaN is no change) from `before`. Returns the number of cells written.
+  template <class T>
+  long scatterChanged(LayeredMap& map, LayerId id, const std::vector<T>& before,
+                      const std::vector<T>& after) const {
+    std::vector<float*> tiles(tile_rows_.size() * tile_cols_.size(), nullptr);
+    long n = 0;
+    for (int r = 0; r < rows_; ++r) {
+      const size_t tr = static_cast<size_t>(row_tile_[static_cast<size_t>(r)]) * tile_cols_.size();
+      const long ro = static_cast<long>(row_off_[static_cast<size_t>(r)]) * T_;
+      for (int c = 0; c < cols_; ++c) {
+        const size_t k = static_cast<size_t>(r) * static_cast<size_t>(cols_) + static_cast<size_t>(c);
+        const float fa = static_cast<float>(after[k]), fb = static_cast<float>(before[k]);
+        if (std::memcmp(&fa, &fb, sizeof(float)) == 0) continue;
+        const size_t ti = tr + static_cast<size_t>(col_tile_[static_cast<size_t>(c)]);
+        if (!tiles[ti]) {
+          const size_t a = ti / tile_cols_.size(), b = ti % tile_cols_.size();
+          tiles[ti] = map.mutableTileData(id, tile_rows_[a] * map_tile_cols_ + tile_cols_[b]);
+        }
+        tiles[ti][ro + col_off_[static_cast<size_t>(c)]] = fa;
+        ++n;
+      }
+    }
+    return n;
+  }
+
+ private:
+  int i0_ = 0, j0_ = 0, rows_ = 0, cols_ = 0, T_ = 64, map_tile_cols_ = 1;
+  std::vector<int> row_tile_, row_off_, col_tile_, col_off_;
+  std::vector<int> tile_rows_, tile_cols_;  // distinct tile rows / columns met
+};
+
+}  // namespace terramap::blind

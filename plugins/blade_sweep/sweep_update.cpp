@@ -1,0 +1,464 @@
+// One swept-volume update: intersection, FEE extraction, cut and deposit, per-step values.
+#include "blade_sweep.hpp"
+#include "map_window.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace terramap::blind {
+
+namespace {
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+double orZero(double v) { return std::isfinite(v) ? v : 0.0; }
+
+Eigen::Vector2d horizontal(const Eigen::Vector3d& v) { return Eigen::Vector2d(v.x(), v.y()); }
+
+// Surface samples for a slice are read by bilinear interpolation between cell centres, which
+// is exact on planar terrain whatever the direction t̂ (a nearest-cell DDA is off by up to half
+// a cell across the line, which biases the fit on cross slopes).
+struct SurfaceSampler {
+  const MapWindow& win;
+  const std::vector<double>& surf;  // elevation - loose, NaN unknown
+  double xmax, ymax, inv_res;
+  // NaN if a cell with non-zero weight is unknown or outside the window.
+  double operator()(const Eigen::Vector2d& q) const {
+    const double u = (xmax - q.x()) * inv_res - 0.5, v = (ymax - q.y()) * inv_res - 0.5;
+    const double fu0 = std::floor(u), fv0 = std::floor(v);
+    const int i = static_cast<int>(fu0), j = static_cast<int>(fv0);
+    const double fu = u - fu0, fv = v - fv0;
+    double acc = 0.0;
+    const double w[4] = {(1 - fu) * (1 - fv), (1 - fu) * fv, fu * (1 - fv), fu * fv};
+    const int di[4] = {0, 0, 1, 1}, dj[4] = {0, 1, 0, 1};
+    for (int k = 0; k < 4; ++k) {
+      if (w[k] == 0.0) continue;
+      const int ci = i + di[k], cj = j + dj[k];
+      if (!win.contains(ci, cj)) return kNaN;
+      const double s = surf[static_cast<size_t>(win.local(ci, cj))];
+      if (!std::isfinite(s)) return kNaN;
+      acc += w[k] * s;
+    }
+    return acc;
+  }
+};
+
+// Fitted surface line z = z0 + b x (x along t̂ from the slice cell), with its covariance.
+struct LineFit {
+  bool ok = false;
+  double z0 = kNaN, b = kNaN, var_z0 = kNaN, var_b = kNaN, cov = kNaN, residual = kNaN;
+  int n = 0;
+};
+
+LineFit fitLine(const std::vector<double>& x, const std::vector<double>& z, double cx) {
+  LineFit f;
+  double sw = 0, swx = 0, swxx = 0, swz = 0, swxz = 0;
+  const size_t n = x.size();
+  for (size_t k = 0; k < n; ++k) {
+    const double w = std::exp(-cx * x[k]);
+    sw += w;
+    swx += w * x[k];
+    swxx += w * x[k] * x[k];
+    swz += w * z[k];
+    swxz += w * x[k] * z[k];
+  }
+  f.n = static_cast<int>(n);
+  const double det = sw * swxx - swx * swx;
+  if (n < 3 || !(det > 1e-300)) return f;
+  f.b = (sw * swxz - swx * swz) / det;
+  f.z0 = (swz - f.b * swx) / sw;
+  double ssr = 0;
+  for (size_t k = 0; k < n; ++k) {
+    const double r = z[k] - f.z0 - f.b * x[k];
+    ssr += std::exp(-cx * x[k]) * r * r;
+  }
+  // Weights are relative (not inverse variances): scale them to sum to n, estimate the noise
+  // variance from the residuals with n - 2 degrees of freedom, covariance s^2 (X'W'X)^-1.
+  const double s2 = (ssr * static_cast<double>(n) / sw) / static_cast<double>(n - 2);
+  const double scale = s2 * sw / static_cast<double>(n) / det;
+  f.var_b = scale * sw;
+  f.var_z0 = scale * swxx;
+  f.cov = -scale * swx;
+  f.residual = std::sqrt(ssr / sw);
+  f.ok = std::isfinite(f.z0) && std::isfinite(f.b);
+  return f;
+}
+
+// Loose volume in the parallelogram ahead of the blade edge at T: edge + s t̂, s in [0, L].
+// Returns {volume, variance}; cells within half a cell of the region's boundary are a coin
+// flip (in or out), variance (L res^2)^2 / 4 each.
+std::pair<double, double> surchargeVolume(const Eigen::Isometry3d& T, const BladeGeometry& g,
+                                          const Eigen::Vector2d& t_hat, double length, const Geometry& geo,
+                                          const MapWindow& win, const std::vector<double>& loose) {
+  const auto c = bladeCorners(T, g);
+  const Eigen::Vector2d er = horizontal(c[0]), e = horizontal(c[1]) - er;
+  const double det = e.x() * t_hat.y() - e.y() * t_hat.x();
+  const double elen = e.norm();
+  if (std::abs(det) < 1e-9 * std::max(elen, 1e-9) || elen < 1e-9) return {0.0, 0.0};
+  const double sinang = std::abs(det) / elen;
+  const double res = geo.resolution(), cell = res * res;
+  double vol = 0, var = 0;
+  for (int r = 0; r < win.rows(); ++r)
+    for (int cc = 0; cc < win.cols(); ++cc) {
+      const double l = loose[static_cast<size_t>(r) * win.cols() + cc];
+      if (!(l > 0)) continue;
+      const Eigen::Vector2d p = geo.positionOf(Index(win.i0() + r, win.j0() + cc)) - er;
+      // p = u e + s t̂
+      const double u = (p.x() * t_hat.y() - p.y() * t_hat.x()) / det;
+      const double s = (e.x() * p.y() - e.y() * p.x()) / det;
+      if (u < 0 || u > 1 || s < 0 || s > length) continue;
+      vol += l * cell;
+      const double dist = std::min({s * sinang, (length - s) * sinang, u * elen * sinang, (1 - u) * elen * sinang});
+      if (dist < 0.5 * res) var += 0.25 * (l * cell) * (l * cell);
+    }
+  return {vol, var};
+}
+
+}  // namespace
+
+std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, const SweepConfig& cfg,
+                                      const std::vector<BladePose>& history, const Executor& ex) {
+  TERRAMAP_CHECK(history.size() >= 2, "runSweep needs at least two poses");
+  auto rec = std::make_shared<SweepRecord>();
+  const Geometry& geo = map.geometry();
+  const double res = geo.resolution(), cell = res * res;
+  const BladeGeometry& bg = history.front().geometry;
+  const Eigen::Isometry3d& T0 = history.front().T_map_blade;
+  const Eigen::Isometry3d& T1 = history.back().T_map_blade;
+  rec->machine_id = history.front().machine_id;
+  rec->t0 = history.front().stamp;
+  rec->t1 = history.back().stamp;
+  rec->T_map_blade0 = T0;
+  rec->T_map_blade1 = T1;
+  rec->geometry = bg;
+  rec->resolution_m = res;
+  rec->swell = cfg.swell;
+  rec->sigma_sv_m = cfg.sigma_sv_m;
+  rec->fit_length_m = cfg.fit_length_m;
+  rec->slice_step_m = res;
+  const double gamma_l = cfg.unit_weight_n_m3 / cfg.swell;
+  rec->loose_unit_weight_n_m3 = gamma_l;
+
+  // ---- directions ------------------------------------------------------------------------
+  const Eigen::Vector2d e0 = horizontal(T0.translation()), e1 = horizontal(T1.translation());
+  Eigen::Vector2d n_hat = horizontal(T0.linear().col(0));
+  Eigen::Vector2d t_hat = e1 - e0;
+  if (n_hat.norm() < 1e-9) n_hat = t_hat.norm() > 1e-9 ? t_hat : Eigen::Vector2d::UnitX();
+  n_hat.normalize();
+  if (t_hat.norm() < 1e-9) t_hat = n_hat;  // rotation or lift in place: push along the normal
+  t_hat.normalize();
+  Eigen::Vector2d m = cfg.deposit_normal_weight * n_hat + (1.0 - cfg.deposit_normal_weight) * t_hat;
+  if (m.norm() < 1e-6) m = t_hat;  // blade dragged backwards with λ = 0.5: normal and travel cancel
+  m.normalize();
+  rec->t_hat = t_hat;
+  rec->t_perp = Eigen::Vector2d(-t_hat.y(), t_hat.x());
+  rec->n_hat = n_hat;
+  rec->m_hat = m;
+  for (size_t k = 1; k < history.size(); ++k)
+    rec->travel_m += (history[k].T_map_blade.translation() - history[k - 1].T_map_blade.translation()).norm();
+  const Eigen::Quaterniond q0(T0.linear()), q1(T1.linear());
+  rec->rotation_rad = q0.angularDistance(q1);
+  Eigen::Isometry3d Tmid = Eigen::Isometry3d::Identity();
+  Tmid.linear() = q0.slerp(0.5, q1).toRotationMatrix();
+  Tmid.translation() = 0.5 * (T0.translation() + T1.translation());
+  const double theta_mid = bladeAngle(Tmid, t_hat);
+  rec->blade_angle_rad = theta_mid;
+
+  // ---- swept volume and its intersection with the cells (Alg. 1 l. 8-9) --------------------
+  std::vector<Eigen::Isometry3d> poses;
+  poses.reserve(history.size());
+  for (const auto& p : history) poses.push_back(p.T_map_blade);
+  const auto stations = meshStations(poses, cfg.max_stations, cfg.max_station_rotation_rad);
+  const auto tris = sweptVolumeMesh(stations, bg);
+  const CellBlock fp = footprintBlock(tris, geo);
+  std::vector<double> zlow, zedge;
+  lowestIntersection(tris, geo, fp, zlow, ex);
+  lowestIntersection(edgeSweepMesh(stations, bg), geo, fp, zedge, ex);
+
+  // Window: footprint + the fit length ahead along t̂ + 2 cells (deposit cells sit at most one
+  // cell outside the footprint; bilinear samples need one more).
+  const int reach_i = static_cast<int>(std::ceil(cfg.fit_length_m * std::abs(t_hat.x()) / res));
+  const int reach_j = static_cast<int>(std::ceil(cfg.fit_length_m * std::abs(t_hat.y()) / res));
+  const int ai = t_hat.x() > 0 ? reach_i : 0, bi = t_hat.x() > 0 ? 0 : reach_i;  // +x is -i
+  const int aj = t_hat.y() > 0 ? reach_j : 0, bj = t_hat.y() > 0 ? 0 : reach_j;
+  const MapWindow win(map, fp.i0 - ai - 2, fp.j0 - aj - 2, fp.rows + ai + bi + 4, fp.cols + aj + bj + 4);
+  std::vector<double> H0, L0, S0;
+  win.gather(map, ids.elevation, H0);
+  win.gather(map, ids.loose, L0);
+  win.gather(map, ids.sigma, S0);
+  std::vector<double> H = H0, L = L0, S = S0;
+
+  struct CutCell {
+    int i, j;
+    long w;      // window index
+    double dh, zl, ze;  // cut, SV bottom, cutting-edge path height (NaN: not under the edge path)
+  };
+  std::vector<CutCell> cuts;
+  rec->mask.reserve(static_cast<size_t>(fp.rows) * static_cast<size_t>(std::max(0, fp.cols)) / 2);
+  for (int r = 0; r < fp.rows; ++r)
+    for (int c = 0; c < fp.cols; ++c) {
+      const double zl = zlow[static_cast<size_t>(r) * fp.cols + c];
+      if (!std::isfinite(zl)) continue;
+      const int i = fp.i0 + r, j = fp.j0 + c;
+      const long w = win.local(i, j);
+      const double h = H0[static_cast<size_t>(w)];
+      SweepMaskCell mc;
+      mc.position = geo.positionOf(Index(i, j));
+      mc.sv_bottom_m = static_cast<float>(zl);
+      ++rec->cells_under_sv;
+      if (!std::isfinite(h)) {
+        ++rec->cells_unknown_under_sv;
+      } else if (h - zl > cfg.min_cut_m) {
+        mc.cut = true;
+        cuts.push_back({i, j, w, h - zl, zl, zedge[static_cast<size_t>(r) * fp.cols + c]});
+      }
+      rec->mask.push_back(mc);
+    }
+  rec->cells_cut = static_cast<long>(cuts.size());
+
+  // ---- FEE extraction (Alg. 2) on the surface before the cut -------------------------------
+  std::vector<double> surf(H0.size());
+  for (size_t k = 0; k < H0.size(); ++k) surf[k] = H0[k] - orZero(L0[k]);
+  const SurfaceSampler sampler{win, surf, geo.center().x() + 0.5 * geo.length().x(),
+                               geo.center().y() + 0.5 * geo.length().y(), 1.0 / res};
+  const int nsamples = static_cast<int>(std::floor(cfg.fit_length_m / res + 1e-9)) + 1;
+  rec->slices.resize(cuts.size());
+  std::vector<LineFit> fits(cuts.size());
+  const int nc = static_cast<int>(cuts.size());
+  const int chunks = std::min(nc, std::max(1, ex.threads() * 4));
+  ex.forEach(chunks, [&](int ch) {
+    std::vector<double> xs, zs;
+    for (int k = nc * ch / chunks; k < nc * (ch + 1) / chunks; ++k) {
+      const CutCell& a = cuts[static_cast<size_t>(k)];
+      SweepSlice& sl = rec->slices[static_cast<size_t>(k)];
+      sl.position = geo.positionOf(Index(a.i, a.j));
+      sl.cut_m = a.dh;
+      sl.cut_bottom_m = a.ze;
+      sl.lateral_m = (sl.position - e0).dot(rec->t_perp);
+      if (!std::isfinite(a.ze)) continue;  // only under the face, not the edge's path: no slice
+      xs.clear();
+      zs.clear();
+      for (int s = 0; s < nsamples; ++s) {
+        const double x = s * res;
+        const double z = sampler(sl.position + x * t_hat);
+        if (!std::isfinite(z)) continue;
+        xs.push_back(x);
+        zs.push_back(z);
+      }
+      const LineFit f = fitLine(xs, zs, cfg.fit_distance_weight);
+      fits[static_cast<size_t>(k)] = f;
+      sl.samples = f.n;
+      if (!f.ok) continue;
+      const double alpha = std::atan(f.b);
+      const double ca = std::cos(alpha), sa = std::sin(alpha);
+      const double dv = f.z0 - a.ze;  // vertical depth of the edge path under the surface line
+      const double dalpha_db = 1.0 / (1.0 + f.b * f.b);
+      sl.alpha_rad = alpha;
+      sl.rho_rad = alpha + theta_mid;
+      sl.surface_z_m = f.z0;
+      sl.d_m = std::max(0.0, dv * ca);
+      sl.var_alpha = f.var_b * dalpha_db * dalpha_db;
+      // d = (z0 - z_cut) cos(atan b): gradient w.r.t. (z0, b), plus the SV height's own 1σ.
+      const double gz = ca, gb = -dv * sa * dalpha_db;
+      sl.var_d = gz * gz * f.var_z0 + gb * gb * f.var_b + 2 * gz * gb * f.cov +
+                 ca * ca * cfg.sigma_sv_m * cfg.sigma_sv_m;
+      sl.residual_m = f.residual;
+      sl.weight = std::exp(cfg.depth_weight * sl.d_m);
+      sl.valid = std::isfinite(sl.alpha_rad) && std::isfinite(sl.d_m) && std::isfinite(sl.var_d);
+      if (!sl.valid) sl.weight = 0;
+    }
+  });
+
+  // Weighted averages (exp(C_d d)) in slice order: deterministic.
+  double sw = 0, sa = 0, sr = 0, sd = 0, sres = 0;
+  double lat_min = std::numeric_limits<double>::infinity(), lat_max = -lat_min;
+  for (const auto& sl : rec->slices) {
+    lat_min = std::min(lat_min, sl.lateral_m);
+    lat_max = std::max(lat_max, sl.lateral_m);
+    if (!sl.valid) {
+      ++rec->slices_invalid;
+      continue;
+    }
+    ++rec->slices_valid;
+    sw += sl.weight;
+    sa += sl.weight * sl.alpha_rad;
+    sr += sl.weight * sl.rho_rad;
+    sd += sl.weight * sl.d_m;
+    sres += sl.weight * sl.residual_m;
+  }
+  if (!cuts.empty()) {
+    rec->w_m = lat_max - lat_min + res;
+    rec->var_w = cell / 12.0;
+  }
+  if (sw > 0) {
+    rec->alpha_rad = sa / sw;
+    rec->rho_rad = sr / sw;
+    rec->d_m = sd / sw;
+    rec->fit_residual_m = sres / sw;
+    double va = 0, vr = 0, vd = 0;
+    for (const auto& sl : rec->slices) {
+      if (!sl.valid) continue;
+      va += sl.weight * (sl.var_alpha + (sl.alpha_rad - rec->alpha_rad) * (sl.alpha_rad - rec->alpha_rad));
+      vr += sl.weight * (sl.var_alpha + (sl.rho_rad - rec->rho_rad) * (sl.rho_rad - rec->rho_rad));
+      vd += sl.weight * (sl.var_d + (sl.d_m - rec->d_m) * (sl.d_m - rec->d_m));
+    }
+    rec->var_alpha = va / sw;
+    rec->var_rho = vr / sw;
+    rec->var_d = vd / sw;
+    rec->fee_valid = rec->d_m > 0 && std::isfinite(rec->rho_rad);
+  }
+
+  // Surcharge ahead of the blade before the cut.
+  const auto vq0 = surchargeVolume(T0, bg, t_hat, cfg.fit_length_m, geo, win, L0);
+  rec->vq0_m3 = vq0.first;
+
+  // ---- cut and deposit (Alg. 3, mass-conserving) --------------------------------------------
+  const double du = -m.x(), dv = -m.y();  // m̂ in grid coordinates (u = -x, v = -y)
+  const double s = cfg.swell, ssv = cfg.sigma_sv_m;
+  std::vector<char> deposited(H.size(), 0);
+  auto inFootprint = [&](int i, int j) {
+    return fp.contains(i, j) && std::isfinite(zlow[static_cast<size_t>(fp.local(i, j))]);
+  };
+  const int max_steps = 2 * (fp.rows + fp.cols) + 8;
+  for (const CutCell& a : cuts) {
+    const size_t wa = static_cast<size_t>(a.w);
+    const double la = std::max(0.0, orZero(L[wa]));
+    const double sig_a = orZero(S[wa]);
+    const double dh = a.dh;
+    const double dh_l = std::min(la, dh);
+    const double dep = dh_l + s * (dh - dh_l);
+    rec->cut_volume_m3 += dh * cell;
+    rec->cut_bank_volume_m3 += (dh - dh_l) * cell;
+    H[wa] = a.zl;
+    L[wa] = std::max(la - dh, 0.0);
+    S[wa] = std::isfinite(S[wa]) ? std::max(S[wa], ssv) : ssv;
+
+    // 2D DDA (Amanatides-Woo) from the centre of a along m̂ to the first cell off the footprint.
+    int ci = a.i, cj = a.j;
+    const int si = du > 0 ? 1 : -1, sj = dv > 0 ? 1 : -1;
+    const double inf = std::numeric_limits<double>::infinity();
+    double tmi = du != 0 ? 0.5 / std::abs(du) : inf, tmj = dv != 0 ? 0.5 / std::abs(dv) : inf;
+    const double tdi = du != 0 ? 1.0 / std::abs(du) : inf, tdj = dv != 0 ? 1.0 / std::abs(dv) : inf;
+    bool found = false;
+    for (int step = 0; step < max_steps; ++step) {
+      if (tmi <= tmj) {
+        ci += si;
+        tmi += tdi;
+      } else {
+        cj += sj;
+        tmj += tdj;
+      }
+      if (!inFootprint(ci, cj)) {
+        found = true;
+        break;
+      }
+    }
+    TERRAMAP_CHECK(found, "deposit DDA did not leave the swept footprint");
+    if (!geo.contains(Index(ci, cj))) {
+      rec->lost_volume_m3 += dep * cell;
+      ++rec->cells_lost;
+      continue;
+    }
+    TERRAMAP_CHECK(win.contains(ci, cj), "deposit cell outside the sweep window");
+    const size_t wb = static_cast<size_t>(win.local(ci, cj));
+    if (!std::isfinite(H[wb])) {
+      // Unknown ground: keep the soil as loose thickness of known amount on it (its elevation
+      // stays unknown until a sensor sees it), so no volume disappears.
+      L[wb] = orZero(L[wb]) + dep;
+      rec->deposit_unknown_volume_m3 += dep * cell;
+      ++rec->cells_deposit_unknown;
+      continue;
+    }
+    // 1σ worst case of the deposit given the uncertain surface (σ[a]) and blade (σ_SV).
+    const double hi = dh + sig_a + ssv, lo = std::max(0.0, dh - sig_a - ssv);
+    auto depositOf = [&](double x) {
+      const double xl = std::min(la, x);
+      return xl + s * (x - xl);
+    };
+    const double dh_max = depositOf(hi) - depositOf(lo);
+    H[wb] += dep;
+    L[wb] = orZero(L[wb]) + dep;
+    const double sb = orZero(S[wb]);
+    S[wb] = std::sqrt(sb * sb + 0.25 * dh_max * dh_max);
+    rec->deposit_volume_m3 += dep * cell;
+    if (!deposited[wb]) {
+      deposited[wb] = 1;
+      ++rec->cells_deposit;
+    }
+  }
+
+  // Surcharge ahead of the blade at T1 after the deposit.
+  const auto vq1 = surchargeVolume(T1, bg, t_hat, cfg.fit_length_m, geo, win, L);
+  rec->vq1_m3 = vq1.first;
+  rec->q0_n = gamma_l * rec->vq0_m3;
+  rec->q1_n = gamma_l * rec->vq1_m3;
+  rec->var_vq = std::max(vq0.second, vq1.second);
+
+  // ---- per-step values over the pose history (Alg. 1 l. 12) --------------------------------
+  const double span = rec->t1 - rec->t0;
+  rec->steps.reserve(history.size());
+  for (size_t k = 0; k < history.size(); ++k) {
+    SweepStep st;
+    st.stamp = history[k].stamp;
+    st.tau = span > 0 ? std::clamp((st.stamp - rec->t0) / span, 0.0, 1.0) : (k + 1 == history.size() ? 1.0 : 0.0);
+    st.T_map_blade = history[k].T_map_blade;
+    const auto c = bladeCorners(st.T_map_blade, bg);
+    const double lat_r = (horizontal(c[0]) - e0).dot(rec->t_perp);
+    const double lat_l = (horizontal(c[1]) - e0).dot(rec->t_perp);
+    double wsum = 0, dsum = 0, cmin = std::numeric_limits<double>::infinity(), cmax = -cmin;
+    std::vector<double> dk(rec->slices.size(), kNaN);
+    if (std::abs(lat_l - lat_r) > 1e-9) {
+      const double tol = 0.5 * res / std::abs(lat_l - lat_r);
+      for (size_t a = 0; a < rec->slices.size(); ++a) {
+        const SweepSlice& sl = rec->slices[a];
+        if (!sl.valid) continue;
+        const double f = (sl.lateral_m - lat_r) / (lat_l - lat_r);  // where along the edge
+        if (f < -tol || f > 1 + tol) continue;
+        const double fc = std::clamp(f, 0.0, 1.0);
+        const Eigen::Vector3d pe = c[0] + fc * (c[1] - c[0]);
+        const double xe = (horizontal(pe) - sl.position).dot(t_hat);
+        const double zs = sl.surface_z_m + std::tan(sl.alpha_rad) * xe;
+        const double d = std::max(0.0, (zs - pe.z()) * std::cos(sl.alpha_rad));
+        dk[a] = d;
+        wsum += sl.weight;
+        dsum += sl.weight * d;
+        if (d > 0) {
+          cmin = std::min(cmin, sl.lateral_m);
+          cmax = std::max(cmax, sl.lateral_m);
+        }
+      }
+    }
+    st.alpha_rad = rec->alpha_rad;
+    st.var_alpha = rec->var_alpha;
+    st.rho_rad = rec->alpha_rad + bladeAngle(st.T_map_blade, t_hat);
+    st.var_rho = rec->var_alpha;
+    if (wsum > 0) {
+      st.d_m = dsum / wsum;
+      double v = 0;
+      for (size_t a = 0; a < rec->slices.size(); ++a)
+        if (std::isfinite(dk[a])) {
+          const auto& sl = rec->slices[a];
+          v += sl.weight * (sl.var_d + (dk[a] - st.d_m) * (dk[a] - st.d_m));
+        }
+      st.var_d = v / wsum;
+      st.w_m = cmax >= cmin ? cmax - cmin + res : 0.0;
+      st.var_w = cell / 12.0;
+    }
+    st.vq_m3 = (1 - st.tau) * rec->vq0_m3 + st.tau * rec->vq1_m3;
+    // Linear interpolation between two measured ends: 1σ error taken as τ(1-τ)|ΔV| on top of
+    // the ends' own boundary variance.
+    const double interp = st.tau * (1 - st.tau) * (rec->vq1_m3 - rec->vq0_m3);
+    st.var_vq = rec->var_vq + interp * interp;
+    st.q_n = gamma_l * st.vq_m3;
+    st.var_q = gamma_l * gamma_l * st.var_vq;
+    rec->steps.push_back(st);
+  }
+
+  // ---- write back ---------------------------------------------------------------------------
+  win.scatterChanged(map, ids.elevation, H0, H);
+  win.scatterChanged(map, ids.loose, L0, L);
+  win.scatterChanged(map, ids.sigma, S0, S);
+  return rec;
+}
+
+}  // namespace terramap::blind
