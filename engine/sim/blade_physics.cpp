@@ -248,7 +248,8 @@ CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   const int j1 = std::min(terrain.ny() - 1, static_cast<int>(std::ceil((ymax - terrain.originY()) / res)));
   if (i1 - i0 < 1 || j1 - j0 < 1) return out;
   const int w = i1 - i0 + 1, h = j1 - j0 + 1;
-  std::vector<unsigned char> mask(static_cast<std::size_t>(w) * h, 0);
+  thread_local std::vector<unsigned char> mask;
+  mask.assign(static_cast<std::size_t>(w) * h, 0);
   for (int j = 0; j < h; ++j)
     for (int i = 0; i < w; ++i) {
       const Eigen::Vector2d p = terrain.nodePosition(i0 + i, j0 + j);
@@ -261,38 +262,60 @@ CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   const double h0 = terrain.initialHeightAt(f.c.x(), f.c.y());
   const double tanr = std::tan(soil.at(f.c.x(), f.c.y(), std::isnan(h0) ? 0.0 : h0 - f.c.z()).repose_rad);
   const double max_step = res * tanr;
-  std::vector<double> H(static_cast<std::size_t>(w) * h), fx(static_cast<std::size_t>(w) * h), fy(fx.size()),
-      outsum(fx.size());
+  // Scratch buffers reused across calls (per thread) to avoid page faults at 60 Hz.
+  thread_local std::vector<double> H, fx, fy, outsum;
+  H.resize(static_cast<std::size_t>(w) * h);
+  fx.resize(H.size());
+  fy.resize(H.size());
+  outsum.resize(H.size());
   auto idx = [w](int i, int j) { return static_cast<std::size_t>(j) * w + i; };
+  thread_local std::vector<double> LV;
+  LV.resize(H.size());
+  double* Hp = H.data();
+  double* Lp = LV.data();
+  double* fxp = fx.data();
+  double* fyp = fy.data();
+  double* op = outsum.data();
+  const unsigned char* mp = mask.data();
   for (int it = 0; it < iterations; ++it) {
+    bool any_loose = false;
     for (int j = 0; j < h; ++j)
-      for (int i = 0; i < w; ++i) H[idx(i, j)] = terrain.height(i0 + i, j0 + j);
+      for (int i = 0; i < w; ++i) {
+        const std::size_t k = idx(i, j);
+        Lp[k] = terrain.loose(i0 + i, j0 + j);
+        Hp[k] = terrain.undisturbed(i0 + i, j0 + j) + Lp[k];
+        any_loose |= Lp[k] > 0.0;
+      }
+    if (!any_loose) break;
     std::fill(fx.begin(), fx.end(), 0.0);
     std::fill(fy.begin(), fy.end(), 0.0);
     std::fill(outsum.begin(), outsum.end(), 0.0);
     bool moved = false;
-    // Edge fluxes (positive = from (i, j) to the +x / +y neighbour).
+    // Edge fluxes (positive = from (i, j) to the +x / +y neighbour); only loose soil slides.
     for (int j = 0; j < h; ++j) {
       for (int i = 0; i < w; ++i) {
-        if (mask[idx(i, j)]) continue;
-        const double ha = H[idx(i, j)];
-        if (i + 1 < w && !mask[idx(i + 1, j)]) {
-          const double dh = ha - H[idx(i + 1, j)];
+        const std::size_t a = idx(i, j);
+        if (mp[a]) continue;
+        const double ha = Hp[a];
+        const bool la = Lp[a] > 0.0;
+        if (i + 1 < w && !mp[a + 1] && (la || Lp[a + 1] > 0.0)) {
+          const double dh = ha - Hp[a + 1];
           const double ex = std::abs(dh) - max_step;
-          if (ex > 0) {
-            const double a = 0.25 * ex;
-            fx[idx(i, j)] = dh > 0 ? a : -a;
-            outsum[dh > 0 ? idx(i, j) : idx(i + 1, j)] += a;
+          if (ex > 0 && Lp[dh > 0 ? a : a + 1] > 0.0) {
+            const double q = 0.25 * ex;
+            fxp[a] = dh > 0 ? q : -q;
+            op[dh > 0 ? a : a + 1] += q;
             moved = true;
           }
         }
-        if (j + 1 < h && !mask[idx(i, j + 1)]) {
-          const double dh = ha - H[idx(i, j + 1)];
+        const std::size_t b = a + static_cast<std::size_t>(w);
+        if (j + 1 < h && !mp[b] && (la || Lp[b] > 0.0)) {
+          const double dh = ha - Hp[b];
           const double ex = std::abs(dh) - max_step;
-          if (ex > 0) {
-            const double a = 0.25 * ex;
-            fy[idx(i, j)] = dh > 0 ? a : -a;
-            outsum[dh > 0 ? idx(i, j) : idx(i, j + 1)] += a;
+          if (ex > 0 && Lp[dh > 0 ? a : b] > 0.0) {
+            const double q = 0.25 * ex;
+            fyp[a] = dh > 0 ? q : -q;
+            op[dh > 0 ? a : b] += q;
             moved = true;
           }
         }
@@ -300,20 +323,19 @@ CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::
     }
     if (!moved) break;
     // Scale: a node gives at most the loose soil it has (bank soil does not slide).
-    for (int j = 0; j < h; ++j)
-      for (int i = 0; i < w; ++i) {
-        const double o = outsum[idx(i, j)];
-        const double lv = terrain.loose(i0 + i, j0 + j);
-        outsum[idx(i, j)] = o > lv ? (o > 0 ? lv / o : 0.0) : 1.0;  // reuse as scale
-      }
+    for (std::size_t k = 0; k < H.size(); ++k) {
+      const double o = op[k];
+      op[k] = (o > Lp[k] && o > 0) ? Lp[k] / o : 1.0;
+    }
     for (int j = 0; j < h; ++j) {
       for (int i = 0; i < w; ++i) {
-        const double ax = fx[idx(i, j)];
-        if (ax > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i + 1, j0 + j, ax * outsum[idx(i, j)]);
-        else if (ax < 0) terrain.moveLoose(i0 + i + 1, j0 + j, i0 + i, j0 + j, -ax * outsum[idx(i + 1, j)]);
-        const double ay = fy[idx(i, j)];
-        if (ay > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i, j0 + j + 1, ay * outsum[idx(i, j)]);
-        else if (ay < 0) terrain.moveLoose(i0 + i, j0 + j + 1, i0 + i, j0 + j, -ay * outsum[idx(i, j + 1)]);
+        const std::size_t a = idx(i, j);
+        const double ax = fxp[a];
+        if (ax > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i + 1, j0 + j, ax * op[a]);
+        else if (ax < 0) terrain.moveLoose(i0 + i + 1, j0 + j, i0 + i, j0 + j, -ax * op[a + 1]);
+        const double ay = fyp[a];
+        if (ay > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i, j0 + j + 1, ay * op[a]);
+        else if (ay < 0) terrain.moveLoose(i0 + i, j0 + j + 1, i0 + i, j0 + j, -ay * op[a + w]);
       }
     }
     out.i0 = i0; out.j0 = j0; out.i1 = i1; out.j1 = j1;

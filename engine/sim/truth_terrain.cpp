@@ -17,7 +17,8 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 /// Rounds a double up to the next float so a float bound is never below the double value.
 float upperFloat(double v) {
   float f = static_cast<float>(v);
-  if (static_cast<double>(f) < v) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  // Bump up by more than one ulp when rounding went down (cheaper than nextafter; still an upper bound).
+  if (static_cast<double>(f) < v) f += std::abs(f) * 2.4e-7f + 1e-30f;
   return f;
 }
 
@@ -262,8 +263,19 @@ void TruthTerrain::refreshPyramid(int i0, int j0, int i1, int j1) {
   int r0 = std::max(0, std::min(j0, j1) - 1), r1 = std::min(ny_ - 2, std::max(j0, j1));
   if (c0 > c1 || r0 > r1) return;
   Level& L0 = levels_[0];
-  for (int cj = r0; cj <= r1; ++cj)
-    for (int ci = c0; ci <= c1; ++ci) L0.zmax[static_cast<std::size_t>(cj) * L0.w + ci] = upperFloat(nodeMaxCell(ci, cj));
+  for (int cj = r0; cj <= r1; ++cj) {
+    const double* u0 = &u_[index(0, cj)];
+    const double* l0 = &lv_[index(0, cj)];
+    const double* u1 = u0 + nx_;
+    const double* l1 = l0 + nx_;
+    float* out = &L0.zmax[static_cast<std::size_t>(cj) * L0.w];
+    double prev = std::max(u0[c0] + l0[c0], u1[c0] + l1[c0]);
+    for (int ci = c0; ci <= c1; ++ci) {
+      const double nxt = std::max(u0[ci + 1] + l0[ci + 1], u1[ci + 1] + l1[ci + 1]);
+      out[ci] = upperFloat(std::max(prev, nxt));
+      prev = nxt;
+    }
+  }
   for (std::size_t l = 1; l < levels_.size(); ++l) {
     c0 /= 2; c1 /= 2; r0 /= 2; r1 /= 2;
     const Level& P = levels_[l - 1];
@@ -324,42 +336,52 @@ double TruthTerrain::cellHit(int ci, int cj, const Eigen::Vector3d& o, const Eig
 double TruthTerrain::raycast(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min, double t_max) const {
   double t0 = t_min, t1 = t_max;
   if (!slabXY(o, d, ox_, maxX(), oy_, maxY(), t0, t1)) return kNaN;
+  // Quadtree descent in ray order. A node's interval is split at the ray's crossings of the
+  // node's two mid-lines, which gives the children it visits in order without any box test.
   struct Item { int level, bx, by; double ta, tb; };
-  std::array<Item, 128> stack;
+  std::array<Item, 160> stack;
   int sp = 0;
   const int top = static_cast<int>(levels_.size()) - 1;
   stack[sp++] = {top, 0, 0, t0, t1};
-  const int w0 = levels_[0].w, h0 = levels_[0].h;
-  constexpr double kEps = 1e-9;
+  const double invx = d.x() != 0.0 ? 1.0 / d.x() : INFINITY;
+  const double invy = d.y() != 0.0 ? 1.0 / d.y() : INFINITY;
   while (sp > 0) {
     const Item it = stack[--sp];
-    const double za = o.z() + d.z() * it.ta, zb = o.z() + d.z() * it.tb;
     const Level& L = levels_[it.level];
+    const double za = o.z() + d.z() * it.ta, zb = o.z() + d.z() * it.tb;
     if (std::min(za, zb) > L.zmax[static_cast<std::size_t>(it.by) * L.w + it.bx]) continue;
     if (it.level == 0) {
       const double t = cellHit(it.bx, it.by, o, d, it.ta, it.tb);
       if (!std::isnan(t)) return t;
       continue;
     }
-    // Children in ray order.
     const int cl = it.level - 1;
     const Level& C = levels_[cl];
-    Item kids[4];
-    int nk = 0;
-    for (int dy = 0; dy < 2; ++dy) {
-      for (int dx = 0; dx < 2; ++dx) {
-        const int cx = 2 * it.bx + dx, cy = 2 * it.by + dy;
-        if (cx >= C.w || cy >= C.h) continue;
-        const int ci0 = cx << cl, cj0 = cy << cl;
-        const int ci1 = std::min((cx + 1) << cl, w0), cj1 = std::min((cy + 1) << cl, h0);
-        double a = it.ta - kEps, b = it.tb + kEps;
-        if (!slabXY(o, d, ox_ + ci0 * res_, ox_ + ci1 * res_, oy_ + cj0 * res_, oy_ + cj1 * res_, a, b)) continue;
-        kids[nk++] = {cl, cx, cy, std::max(a, t0), std::min(b, t1)};
-      }
+    const int half = 1 << cl;
+    const double xmid = ox_ + static_cast<double>((2 * it.bx + 1) * half) * res_;
+    const double ymid = oy_ + static_cast<double>((2 * it.by + 1) * half) * res_;
+    const double tm = 0.5 * (it.ta + it.tb);
+    // Child at the interval start (decided at the midpoint side if the start lies on a line).
+    const double pxa = o.x() + d.x() * it.ta, pya = o.y() + d.y() * it.ta;
+    int cx = pxa > xmid || (pxa == xmid && d.x() > 0) ? 1 : 0;
+    int cy = pya > ymid || (pya == ymid && d.y() > 0) ? 1 : 0;
+    (void)tm;
+    double tx = (xmid - o.x()) * invx, ty = (ymid - o.y()) * invy;
+    if (!(tx > it.ta && tx < it.tb)) tx = INFINITY;
+    if (!(ty > it.ta && ty < it.tb)) ty = INFINITY;
+    Item seg[3];
+    int ns = 0;
+    double ts = it.ta;
+    for (int k = 0; k < 3; ++k) {
+      const double te = std::min(std::min(tx, ty), it.tb);
+      const int gx = 2 * it.bx + cx, gy = 2 * it.by + cy;
+      if (gx < C.w && gy < C.h) seg[ns++] = {cl, gx, gy, ts, te};
+      if (te >= it.tb) break;
+      if (tx <= ty) { cx ^= 1; tx = INFINITY; if (ty == te) { cy ^= 1; ty = INFINITY; } }
+      else { cy ^= 1; ty = INFINITY; }
+      ts = te;
     }
-    for (int a = 1; a < nk; ++a)  // insertion sort of <= 4 children by entry t
-      for (int b = a; b > 0 && kids[b].ta < kids[b - 1].ta; --b) std::swap(kids[b], kids[b - 1]);
-    for (int k = nk - 1; k >= 0; --k) stack[sp++] = kids[k];
+    for (int k = ns - 1; k >= 0; --k) stack[sp++] = seg[k];
   }
   return kNaN;
 }

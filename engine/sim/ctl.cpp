@@ -1,0 +1,250 @@
+// Compact track loader: drive, blade joints, pose from track contact; its controllers.
+#include <terramap/sim/ctl.hpp>
+
+#include <algorithm>
+#include <cmath>
+
+namespace terramap::sim {
+namespace {
+
+constexpr double kG = 9.80665;
+
+double wrapAngle(double a) {
+  a = std::fmod(a + M_PI, 2 * M_PI);
+  if (a < 0) a += 2 * M_PI;
+  return a - M_PI;
+}
+
+// Linearised linkage: cylinder length = base + lever * joint.
+constexpr double kCylBase[3] = {0.95, 0.40, 0.45};
+constexpr double kCylLever[3] = {0.60, 0.30, 0.35};
+
+}  // namespace
+
+CompactTrackLoader::CompactTrackLoader(const MachineSpec& spec, const TruthTerrain& terrain)
+    : spec_(spec), x_(spec.x_m), y_(spec.y_m), yaw_(spec.yaw_rad), rpm_(spec.engine_rated_rpm) {
+  for (int k = 0; k < 3; ++k) q_[k] = std::clamp(q_[k], spec.joint_min[k], spec.joint_max[k]);
+  placeOnTerrain(terrain);
+}
+
+Eigen::Isometry3d CompactTrackLoader::T_base_blade() const {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = Eigen::Vector3d(spec_.blade_mount_x_m, 0.0, q_[0]);
+  T.linear() = (Eigen::AngleAxisd(q_[2], Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(q_[1], Eigen::Vector3d::UnitX()) *
+                Eigen::AngleAxisd(-(M_PI / 2 - spec_.rake_rad), Eigen::Vector3d::UnitY()))
+                   .toRotationMatrix();
+  return T;
+}
+
+std::array<double, 3> CompactTrackLoader::cylinderLengths() const {
+  std::array<double, 3> l{};
+  for (int k = 0; k < 3; ++k) l[k] = kCylBase[k] + kCylLever[k] * q_[k];
+  return l;
+}
+
+std::array<double, 3> CompactTrackLoader::cylinderVelocities() const {
+  std::array<double, 3> v{};
+  for (int k = 0; k < 3; ++k) v[k] = kCylLever[k] * qd_[k];
+  return v;
+}
+
+void CompactTrackLoader::placeOnTerrain(const TruthTerrain& terrain) {
+  const double c = std::cos(yaw_), s = std::sin(yaw_);
+  const double L = spec_.track_length_m, B = spec_.track_gauge_m;
+  // Support height of each track half: the highest terrain point under it (the track rests on it).
+  double z[2][2];  // [front/rear][left/right]
+  bool ok = true;
+  for (int fr = 0; fr < 2; ++fr) {
+    for (int lr = 0; lr < 2; ++lr) {
+      const double ly = lr == 0 ? 0.5 * B : -0.5 * B;
+      double zmax = -1e300;
+      for (int m = 0; m < 5; ++m) {
+        const double lx = (fr == 0 ? 1.0 : -1.0) * (0.5 * L) * (m + 0.5) / 5.0;
+        const double h = terrain.heightAt(x_ + c * lx - s * ly, y_ + s * lx + c * ly);
+        if (std::isnan(h)) ok = false;
+        else zmax = std::max(zmax, h);
+      }
+      z[fr][lr] = zmax;
+    }
+  }
+  if (!ok) return;  // caller reverts the move
+  const double z0 = 0.25 * (z[0][0] + z[0][1] + z[1][0] + z[1][1]);
+  const double px = (0.5 * (z[0][0] + z[0][1]) - 0.5 * (z[1][0] + z[1][1])) / (0.5 * L);
+  const double py = (0.5 * (z[0][0] + z[1][0]) - 0.5 * (z[0][1] + z[1][1])) / B;
+  const double pitch = -std::atan(px);
+  const double roll = std::atan(py * std::cos(pitch));
+  T_map_base_.setIdentity();
+  T_map_base_.translation() = Eigen::Vector3d(x_, y_, z0);
+  T_map_base_.linear() = (Eigen::AngleAxisd(yaw_, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
+                          Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX()))
+                             .toRotationMatrix();
+}
+
+double CompactTrackLoader::step(double dt, const CtlCommand& cmd, const CtlLoad& load, const TruthTerrain& terrain) {
+  // Blade joints: damped velocity response (poles -beta +- i eta, TERA Eq. 1) or first order.
+  for (int k = 0; k < 3; ++k) {
+    double r = std::clamp(cmd.joint_rate[k], -spec_.joint_max_rate[k], spec_.joint_max_rate[k]);
+    const bool blocked = (k == 0 && load.up_n > spec_.lift_down_force_n);
+    if (blocked) r = std::max(r, 0.0);
+    if (spec_.joint_beta > 0) {
+      const double wn2 = spec_.joint_beta * spec_.joint_beta + spec_.joint_eta * spec_.joint_eta;
+      qdd_[k] += dt * (wn2 * (r - qd_[k]) - 2.0 * spec_.joint_beta * qdd_[k]);
+      qd_[k] += dt * qdd_[k];
+    } else {
+      qd_[k] += (r - qd_[k]) * std::min(1.0, dt / spec_.joint_tau_s);
+    }
+    if (blocked && qd_[k] < 0) {  // the soil carries the blade: the lift cannot push it deeper
+      qd_[k] = 0;
+      qdd_[k] = 0;
+    }
+    q_[k] += qd_[k] * dt;
+    if (q_[k] < spec_.joint_min[k] || q_[k] > spec_.joint_max[k]) {
+      q_[k] = std::clamp(q_[k], spec_.joint_min[k], spec_.joint_max[k]);
+      qd_[k] = 0;
+      qdd_[k] = 0;
+    }
+  }
+  // Drive: track speeds follow their commands (hydrostatic drive lag).
+  const double a = std::min(1.0, dt / std::max(spec_.drive_time_constant_s, 1e-9));
+  vt_[0] += (std::clamp(cmd.v_left, -spec_.max_speed_mps, spec_.max_speed_mps) - vt_[0]) * a;
+  vt_[1] += (std::clamp(cmd.v_right, -spec_.max_speed_mps, spec_.max_speed_mps) - vt_[1]) * a;
+  const double v_d = 0.5 * (vt_[0] + vt_[1]);
+  const double w_d = (vt_[1] - vt_[0]) / spec_.track_gauge_m;
+  const Eigen::Vector3d fwd = T_map_base_.linear().col(0);
+  const double uphill = std::asin(std::clamp(fwd.z(), -1.0, 1.0));
+  const double W = spec_.mass_kg * kG;
+  const double f_lim = std::min(spec_.traction_coefficient * W * std::cos(uphill), spec_.max_drive_force_n);
+  // Tractive force saturates with slip (0.1 m/s of slip mobilises all of it).
+  const double f_trac = f_lim * std::clamp((v_d - v_) / 0.1, -1.0, 1.0);
+  const double m = spec_.mass_kg;
+  const double v_trial = v_ + dt / m * (f_trac - W * std::sin(uphill));
+  const double roll_res = spec_.rolling_resistance * W;
+  double v_new = 0, applied = 0;
+  if (v_trial > 0) {
+    const double resist = roll_res + load.resist_n;
+    v_new = std::max(0.0, v_trial - dt * resist / m);
+    // If the resistances stopped the machine, only what was needed to stop it was mobilised.
+    applied = v_new > 0 ? load.resist_n : std::clamp(m * v_trial / dt - roll_res, 0.0, load.resist_n);
+  } else if (v_trial < 0) {
+    v_new = std::min(0.0, v_trial + dt * roll_res / m);
+  }
+  accel_ = (v_new - v_) / dt;
+  v_ = v_new;
+  omega_ += (w_d - omega_) * std::min(1.0, dt / std::max(spec_.yaw_time_constant_s, 1e-9));
+  const double ox = x_, oy = y_, oyaw = yaw_;
+  const double vh = v_ * std::cos(uphill);
+  x_ += vh * std::cos(yaw_) * dt;
+  y_ += vh * std::sin(yaw_) * dt;
+  yaw_ = wrapAngle(yaw_ + omega_ * dt);
+  const Eigen::Isometry3d before = T_map_base_;
+  placeOnTerrain(terrain);
+  if (T_map_base_.translation().x() != x_ || T_map_base_.translation().y() != y_) {
+    // Left the terrain: stay where we were.
+    x_ = ox;
+    y_ = oy;
+    yaw_ = oyaw;
+    v_ = 0;
+    omega_ = 0;
+    T_map_base_ = before;
+  }
+  stalled_ = v_d > 0.1 && v_ < 0.2 * v_d && load.resist_n > 0;
+  rpm_ = spec_.engine_rated_rpm - spec_.engine_droop_rpm * (f_lim > 0 ? std::abs(f_trac) / f_lim : 0.0);
+  return applied;
+}
+
+// ---- controller -----------------------------------------------------------------------------
+
+CtlController::CtlController(const ControllerSpec& spec, const MachineSpec& machine, std::uint64_t seed)
+    : spec_(spec), gauge_(machine.track_gauge_m), heading0_(machine.yaw_rad), rng_(seed),
+      joint_max_rate_(machine.joint_max_rate) {
+  speed_ = spec.speed_mps.initial;
+  depth_ = spec.depth_m.initial;
+  roll_ = spec.roll_rad.initial;
+  blade_yaw_ = spec.yaw_rad.initial;
+  heading_ = heading0_ + spec.heading_rad.initial;
+  if (spec.type == ControllerSpec::Type::Route) {
+    speed_ = spec.route_speed_mps;
+    depth_ = spec.route_depth_m;
+    roll_ = blade_yaw_ = 0;
+    heading_ = spec.route_heading_rad;
+  }
+}
+
+double CtlController::walk(const RandomWalk& w, double x, double dt) {
+  if (w.sigma <= 0 || w.max <= w.min) return std::clamp(x, w.min, w.max);
+  x += w.sigma * std::sqrt(dt) * normal_(rng_);
+  const double span = w.max - w.min;
+  for (int k = 0; k < 4 && (x < w.min || x > w.max); ++k) {  // reflect at the bounds
+    if (x < w.min) x = 2 * w.min - x;
+    if (x > w.max) x = 2 * w.max - x;
+  }
+  (void)span;
+  return std::clamp(x, w.min, w.max);
+}
+
+CtlCommand CtlController::update(double dt, const CompactTrackLoader& m) {
+  double omega_cmd = 0, v_cmd = 0;
+  const Eigen::Vector2d p(m.x(), m.y());
+  if (spec_.type == ControllerSpec::Type::RandomWalk) {
+    speed_ = walk(spec_.speed_mps, speed_, dt);
+    depth_ = walk(spec_.depth_m, depth_, dt);
+    roll_ = walk(spec_.roll_rad, roll_, dt);
+    blade_yaw_ = walk(spec_.yaw_rad, blade_yaw_, dt);
+    const double rel = walk(spec_.heading_rad, heading_ - heading0_, dt);
+    heading_ = heading0_ + rel;
+    omega_cmd = std::clamp(1.5 * wrapAngle(heading_ - m.yaw()), -0.6, 0.6);
+    v_cmd = speed_;
+  } else {
+    const Eigen::Vector2d dir(std::cos(spec_.route_heading_rad), std::sin(spec_.route_heading_rad));
+    const Eigen::Vector2d left(-dir.y(), dir.x());
+    if (!finished_) {
+      const int lane = reversing_ ? pass_ + 1 : pass_;
+      const Eigen::Vector2d A = spec_.route_start + left * (spec_.route_spacing_m * lane);
+      const double along = (p - A).dot(dir);
+      if (!reversing_) {
+        const Eigen::Vector2d P = A + dir * (along + 1.5);
+        heading_ = std::atan2(P.y() - p.y(), P.x() - p.x());
+        v_cmd = spec_.route_speed_mps;
+        depth_ = spec_.route_depth_m;
+        if (along >= spec_.route_length_m) {
+          if (pass_ + 1 >= spec_.route_passes) finished_ = true;
+          else reversing_ = true;
+        }
+      } else {
+        const Eigen::Vector2d P = A + dir * (along - 2.0);
+        heading_ = std::atan2(p.y() - P.y(), p.x() - P.x());
+        v_cmd = -spec_.route_return_speed_mps;
+        depth_ = -0.2;
+        if (along <= -0.5) {
+          reversing_ = false;
+          ++pass_;
+        }
+      }
+      speed_ = std::abs(v_cmd);
+      omega_cmd = std::clamp(1.5 * wrapAngle(heading_ - m.yaw()), -0.6, 0.6);
+    }
+    if (finished_) {
+      v_cmd = 0;
+      depth_ = -0.2;
+      speed_ = 0;
+    }
+  }
+  // Speed tracking failed for long enough: raise the blade until the machine moves again.
+  if (v_cmd > 0.05 && m.speed() < spec_.stall_ratio * v_cmd) slow_time_ += dt;
+  else slow_time_ = 0;
+  if (slow_time_ > spec_.stall_time_s) raise_ += spec_.raise_rate_mps * dt;
+  else raise_ -= 0.5 * spec_.raise_rate_mps * dt;
+  raise_ = std::clamp(raise_, 0.0, 0.6);
+
+  CtlCommand c;
+  c.v_left = v_cmd - omega_cmd * gauge_ / 2;
+  c.v_right = v_cmd + omega_cmd * gauge_ / 2;
+  const std::array<double, 3> q = m.joints();
+  c.joint_rate[0] = 3.0 * ((-depth_ + raise_) - q[0]);
+  c.joint_rate[1] = 4.0 * (roll_ - q[1]);
+  c.joint_rate[2] = 4.0 * (blade_yaw_ - q[2]);
+  for (int k = 0; k < 3; ++k) c.joint_rate[k] = std::clamp(c.joint_rate[k], -joint_max_rate_[k], joint_max_rate_[k]);
+  return c;
+}
+
+}  // namespace terramap::sim

@@ -1,0 +1,440 @@
+// HDF5 episode writer (C API). Layout: docs/sim.md.
+#include <terramap/core/error.hpp>
+#include <terramap/sim/episode.hpp>
+
+#include <hdf5.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <map>
+
+namespace terramap::sim {
+namespace {
+
+namespace fs = std::filesystem;
+
+/// An HDF5 dataset growing along its first dimension, with rows buffered in memory.
+class Appender {
+ public:
+  Appender() = default;
+  Appender(hid_t parent, const std::string& name, hid_t type, std::vector<hsize_t> row_dims, int gzip,
+           const std::string& path, hsize_t chunk_rows = 1024)
+      : type_(type), row_dims_(std::move(row_dims)), path_(path), name_(name) {
+    row_elems_ = 1;
+    for (hsize_t d : row_dims_) row_elems_ *= d;
+    elem_size_ = H5Tget_size(type);
+    std::vector<hsize_t> dims{0}, maxd{H5S_UNLIMITED}, chunk{chunk_rows};
+    for (hsize_t d : row_dims_) {
+      dims.push_back(d);
+      maxd.push_back(d);
+      chunk.push_back(d);
+    }
+    const hid_t space = H5Screate_simple(static_cast<int>(dims.size()), dims.data(), maxd.data());
+    const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+    H5Pset_chunk(dcpl, static_cast<int>(chunk.size()), chunk.data());
+    if (gzip > 0) {
+      H5Pset_shuffle(dcpl);
+      H5Pset_deflate(dcpl, static_cast<unsigned>(gzip));
+    }
+    ds_ = H5Dcreate2(parent, name.c_str(), type, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
+    H5Pclose(dcpl);
+    H5Sclose(space);
+    if (ds_ < 0) throw OutputError(path_ + ": cannot create dataset '" + name + "'");
+  }
+  Appender(Appender&& o) noexcept { *this = std::move(o); }
+  Appender& operator=(Appender&& o) noexcept {
+    std::swap(ds_, o.ds_);
+    type_ = o.type_; row_dims_ = o.row_dims_; row_elems_ = o.row_elems_; elem_size_ = o.elem_size_;
+    rows_ = o.rows_; buf_ = std::move(o.buf_); path_ = o.path_; name_ = o.name_;
+    return *this;
+  }
+  ~Appender() {
+    if (ds_ >= 0) H5Dclose(ds_);
+  }
+  template <class T>
+  void append(const T* row, std::size_t nrows = 1) {
+    const char* p = reinterpret_cast<const char*>(row);
+    buf_.insert(buf_.end(), p, p + nrows * row_elems_ * elem_size_);
+    if (buf_.size() > (1u << 20)) flush();
+  }
+  void flush() {
+    if (buf_.empty() || ds_ < 0) return;
+    const hsize_t n = buf_.size() / (row_elems_ * elem_size_);
+    std::vector<hsize_t> dims{rows_ + n}, start{rows_}, count{n};
+    for (hsize_t d : row_dims_) {
+      dims.push_back(d);
+      start.push_back(0);
+      count.push_back(d);
+    }
+    if (H5Dset_extent(ds_, dims.data()) < 0) throw OutputError(path_ + ": cannot extend '" + name_ + "'");
+    const hid_t fs_ = H5Dget_space(ds_);
+    H5Sselect_hyperslab(fs_, H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr);
+    const hid_t ms = H5Screate_simple(static_cast<int>(count.size()), count.data(), nullptr);
+    const herr_t rc = H5Dwrite(ds_, type_, ms, fs_, H5P_DEFAULT, buf_.data());
+    H5Sclose(ms);
+    H5Sclose(fs_);
+    if (rc < 0) throw OutputError(path_ + ": cannot write '" + name_ + "' (disk full?)");
+    rows_ += n;
+    buf_.clear();
+  }
+
+ private:
+  hid_t ds_ = -1;
+  hid_t type_ = -1;
+  std::vector<hsize_t> row_dims_;
+  hsize_t row_elems_ = 1, rows_ = 0;
+  std::size_t elem_size_ = 8;
+  std::vector<char> buf_;
+  std::string path_, name_;
+};
+
+hid_t makeGroup(hid_t parent, const std::string& name, const std::string& path) {
+  const hid_t g = H5Gcreate2(parent, name.c_str(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  if (g < 0) throw OutputError(path + ": cannot create group '" + name + "'");
+  return g;
+}
+
+void attrDouble(hid_t obj, const char* name, double v) {
+  const hid_t s = H5Screate(H5S_SCALAR);
+  const hid_t a = H5Acreate2(obj, name, H5T_NATIVE_DOUBLE, s, H5P_DEFAULT, H5P_DEFAULT);
+  H5Awrite(a, H5T_NATIVE_DOUBLE, &v);
+  H5Aclose(a);
+  H5Sclose(s);
+}
+void attrU64(hid_t obj, const char* name, std::uint64_t v) {
+  const hid_t s = H5Screate(H5S_SCALAR);
+  const hid_t a = H5Acreate2(obj, name, H5T_NATIVE_UINT64, s, H5P_DEFAULT, H5P_DEFAULT);
+  H5Awrite(a, H5T_NATIVE_UINT64, &v);
+  H5Aclose(a);
+  H5Sclose(s);
+}
+void attrString(hid_t obj, const char* name, const std::string& v) {
+  const hid_t t = H5Tcopy(H5T_C_S1);
+  H5Tset_size(t, std::max<std::size_t>(1, v.size()));
+  H5Tset_strpad(t, H5T_STR_NULLPAD);
+  const hid_t s = H5Screate(H5S_SCALAR);
+  const hid_t a = H5Acreate2(obj, name, t, s, H5P_DEFAULT, H5P_DEFAULT);
+  H5Awrite(a, t, v.empty() ? " " : v.c_str());
+  H5Aclose(a);
+  H5Sclose(s);
+  H5Tclose(t);
+}
+
+void writeGrid(hid_t parent, const std::string& name, const std::vector<float>& data, int nx, int ny, int gzip,
+               const std::string& path) {
+  hsize_t dims[2] = {static_cast<hsize_t>(ny), static_cast<hsize_t>(nx)};
+  hsize_t chunk[2] = {std::min<hsize_t>(dims[0], 256), std::min<hsize_t>(dims[1], 256)};
+  const hid_t space = H5Screate_simple(2, dims, nullptr);
+  const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+  H5Pset_chunk(dcpl, 2, chunk);
+  if (gzip > 0) {
+    H5Pset_shuffle(dcpl);
+    H5Pset_deflate(dcpl, static_cast<unsigned>(gzip));
+  }
+  const hid_t ds = H5Dcreate2(parent, name.c_str(), H5T_NATIVE_FLOAT, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
+  H5Pclose(dcpl);
+  H5Sclose(space);
+  if (ds < 0 || H5Dwrite(ds, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, data.data()) < 0) {
+    if (ds >= 0) H5Dclose(ds);
+    throw OutputError(path + ": cannot write grid '" + name + "'");
+  }
+  H5Dclose(ds);
+}
+
+void rowMajor4x4(const Eigen::Isometry3d& T, double* out) {
+  const Eigen::Matrix4d M = T.matrix();
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) out[r * 4 + c] = M(r, c);
+}
+
+struct MachineSets {
+  hid_t group = -1, truth = -1, clouds = -1;
+  std::map<std::string, Appender> a;  // by dataset path
+  struct Cloud { hid_t group = -1; Appender stamp, T, offset, count, points; std::uint64_t total = 0; };
+  std::map<std::string, Cloud> cloud;  // by frame "<machine>/<sensor>"
+};
+
+}  // namespace
+
+struct EpisodeWriter::Impl {
+  std::string final_path, tmp_path;
+  EpisodeOptions opt;
+  hid_t file = -1, terrain = -1;
+  Appender snap_stamp, snap_height, snap_loose;
+  int nx = 0, ny = 0;
+  double next_snapshot = 0, snapshot_interval = 1;
+  double last_snapshot_t = -1;
+  std::vector<MachineSets> machines;
+  std::map<std::string, std::size_t> machine_index;
+  bool closed = false;
+
+  void snapshot(const Simulator& sim) {
+    const TruthTerrain& t = sim.truth();
+    std::vector<float> h(static_cast<std::size_t>(nx) * ny), l(h.size());
+    for (int j = 0; j < ny; ++j)
+      for (int i = 0; i < nx; ++i) {
+        h[static_cast<std::size_t>(j) * nx + i] = static_cast<float>(t.height(i, j));
+        l[static_cast<std::size_t>(j) * nx + i] = static_cast<float>(t.loose(i, j));
+      }
+    const double st = sim.time();
+    snap_stamp.append(&st);
+    snap_height.append(h.data());
+    snap_loose.append(l.data());
+    snap_height.flush();
+    snap_loose.flush();
+    last_snapshot_t = st;
+  }
+  void closeAll() {
+    for (auto& m : machines) {
+      for (auto& [k, c] : m.cloud) {
+        c.stamp = Appender(); c.T = Appender(); c.offset = Appender(); c.count = Appender(); c.points = Appender();
+        if (c.group >= 0) H5Gclose(c.group);
+      }
+      m.a.clear();
+      if (m.clouds >= 0) H5Gclose(m.clouds);
+      if (m.truth >= 0) H5Gclose(m.truth);
+      if (m.group >= 0) H5Gclose(m.group);
+    }
+    machines.clear();
+    snap_stamp = Appender(); snap_height = Appender(); snap_loose = Appender();
+    if (terrain >= 0) H5Gclose(terrain);
+    terrain = -1;
+    if (file >= 0) H5Fclose(file);
+    file = -1;
+  }
+};
+
+EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, EpisodeOptions options)
+    : impl_(std::make_unique<Impl>()) {
+  Impl& I = *impl_;
+  I.final_path = path;
+  I.tmp_path = path + ".tmp-" + std::to_string(::getpid());
+  I.opt = options;
+  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);  // errors become OutputError, not stderr noise
+  I.file = H5Fcreate(I.tmp_path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  if (I.file < 0) throw OutputError(I.tmp_path + ": cannot create HDF5 file");
+  const Scenario& sc = sim.scenario();
+  attrString(I.file, "format", "terramap-sim-episode");
+  attrU64(I.file, "version", 1);
+  attrString(I.file, "scenario_name", sc.name);
+  attrString(I.file, "scenario_yaml", sc.yaml_text);
+  attrU64(I.file, "seed", sc.seed);
+  attrDouble(I.file, "duration_s", sc.duration_s);
+  attrDouble(I.file, "observation_hz", sc.observation_hz);
+  attrDouble(I.file, "physics_hz", sc.physics_hz);
+  // Terrain.
+  const TruthTerrain& t = sim.truth();
+  I.nx = t.nx();
+  I.ny = t.ny();
+  I.terrain = makeGroup(I.file, "terrain", I.tmp_path);
+  attrDouble(I.terrain, "origin_x_m", t.originX());
+  attrDouble(I.terrain, "origin_y_m", t.originY());
+  attrDouble(I.terrain, "resolution_m", t.resolution());
+  attrU64(I.terrain, "nx", static_cast<std::uint64_t>(t.nx()));
+  attrU64(I.terrain, "ny", static_cast<std::uint64_t>(t.ny()));
+  std::vector<float> g(static_cast<std::size_t>(I.nx) * I.ny);
+  for (int j = 0; j < I.ny; ++j)
+    for (int i = 0; i < I.nx; ++i) g[static_cast<std::size_t>(j) * I.nx + i] = static_cast<float>(t.initialHeight(i, j));
+  writeGrid(I.terrain, "initial_height", g, I.nx, I.ny, options.compression, I.tmp_path);
+  I.snap_stamp = Appender(I.terrain, "snapshot_stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, 64);
+  const std::vector<hsize_t> grid{static_cast<hsize_t>(I.ny), static_cast<hsize_t>(I.nx)};
+  I.snap_height = Appender(I.terrain, "height", H5T_NATIVE_FLOAT, grid, options.compression, I.tmp_path, 1);
+  I.snap_loose = Appender(I.terrain, "loose", H5T_NATIVE_FLOAT, grid, options.compression, I.tmp_path, 1);
+  I.snapshot_interval = sc.terrain.snapshot_interval_s;
+  // Surface soil maps (depth 0 below the initial surface) and the zone index.
+  {
+    const hid_t soil = makeGroup(I.file, "soil", I.tmp_path);
+    const char* names[] = {"c_pa", "phi_rad", "gamma_n_m3", "ca_pa", "delta_rad", "relative_density", "zone"};
+    std::vector<std::vector<float>> maps(7, std::vector<float>(g.size()));
+    for (int j = 0; j < I.ny; ++j)
+      for (int i = 0; i < I.nx; ++i) {
+        const Eigen::Vector2d p = t.nodePosition(i, j);
+        const int z = sim.soil().zoneAt(p.x(), p.y(), 0.0);
+        const SoilProperties& s = sim.soil().at(p.x(), p.y(), 0.0);
+        const std::size_t k = static_cast<std::size_t>(j) * I.nx + i;
+        maps[0][k] = static_cast<float>(s.fee.c_pa);
+        maps[1][k] = static_cast<float>(s.fee.phi_rad);
+        maps[2][k] = static_cast<float>(s.fee.gamma_n_m3);
+        maps[3][k] = static_cast<float>(s.fee.ca_pa);
+        maps[4][k] = static_cast<float>(s.fee.delta_rad);
+        maps[5][k] = static_cast<float>(s.relative_density);
+        maps[6][k] = static_cast<float>(z);
+      }
+    for (int m = 0; m < 7; ++m) writeGrid(soil, names[m], maps[m], I.nx, I.ny, std::max(1, options.compression), I.tmp_path);
+    H5Gclose(soil);
+  }
+  // Machines.
+  const hid_t mg = makeGroup(I.file, "machines", I.tmp_path);
+  I.machines.resize(sim.machineCount());
+  for (std::size_t mi = 0; mi < sim.machineCount(); ++mi) {
+    const MachineSpec& spec = sc.machines[mi];
+    MachineSets& M = I.machines[mi];
+    I.machine_index[spec.id] = mi;
+    M.group = makeGroup(mg, spec.id, I.tmp_path);
+    attrDouble(M.group, "blade_width_m", spec.blade.width_m);
+    attrDouble(M.group, "blade_height_m", spec.blade.height_m);
+    auto add = [&](hid_t parent, const std::string& key, const std::string& name, hid_t type, std::vector<hsize_t> row) {
+      M.a.emplace(key, Appender(parent, name, type, std::move(row), 0, I.tmp_path));
+    };
+    add(M.group, "stamp", "stamp", H5T_NATIVE_DOUBLE, {});
+    add(M.group, "T_map_base", "T_map_base", H5T_NATIVE_DOUBLE, {4, 4});
+    add(M.group, "twist_base", "twist_base", H5T_NATIVE_DOUBLE, {6});
+    add(M.group, "T_map_blade", "T_map_blade", H5T_NATIVE_DOUBLE, {4, 4});
+    add(M.group, "twist_blade", "twist_blade", H5T_NATIVE_DOUBLE, {6});
+    add(M.group, "cylinder_length_m", "cylinder_length_m", H5T_NATIVE_DOUBLE, {3});
+    add(M.group, "cylinder_velocity_mps", "cylinder_velocity_mps", H5T_NATIVE_DOUBLE, {3});
+    add(M.group, "track_speed_mps", "track_speed_mps", H5T_NATIVE_DOUBLE, {2});
+    add(M.group, "engine_speed_rpm", "engine_speed_rpm", H5T_NATIVE_DOUBLE, {});
+    add(M.group, "action", "action", H5T_NATIVE_DOUBLE, {5});
+    add(M.group, "force_base_N", "force_base_N", H5T_NATIVE_DOUBLE, {3});
+    add(M.group, "pose_T_map_base", "pose_T_map_base", H5T_NATIVE_DOUBLE, {4, 4});
+    M.truth = makeGroup(M.group, "truth", I.tmp_path);
+    add(M.truth, "t_force_map_N", "force_map_N", H5T_NATIVE_DOUBLE, {3});
+    add(M.truth, "t_force_base_N", "force_base_N", H5T_NATIVE_DOUBLE, {3});
+    add(M.truth, "t_fee", "fee", H5T_NATIVE_DOUBLE, {6});
+    add(M.truth, "t_soil", "soil", H5T_NATIVE_DOUBLE, {5});
+    add(M.truth, "t_stalled", "stalled", H5T_NATIVE_UINT8, {});
+    add(M.truth, "t_setpoints", "setpoints", H5T_NATIVE_DOUBLE, {5});
+    add(M.truth, "t_cut", "cut_bank_m3", H5T_NATIVE_DOUBLE, {});
+    if (options.clouds) {
+      M.clouds = makeGroup(M.group, "clouds", I.tmp_path);
+      for (const SensorSpec& s : spec.sensors) {
+        if (s.type != SensorSpec::Type::Lidar) continue;
+        MachineSets::Cloud c;
+        c.group = makeGroup(M.clouds, s.id, I.tmp_path);
+        attrU64(c.group, "beams", static_cast<std::uint64_t>(s.beams));
+        attrU64(c.group, "columns", static_cast<std::uint64_t>(s.columns));
+        c.stamp = Appender(c.group, "stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, 256);
+        c.T = Appender(c.group, "T_map_sensor", H5T_NATIVE_DOUBLE, {4, 4}, 0, I.tmp_path, 256);
+        c.offset = Appender(c.group, "offset", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, 256);
+        c.count = Appender(c.group, "count", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, 256);
+        c.points = Appender(c.group, "points", H5T_NATIVE_FLOAT, {4}, options.compression, I.tmp_path, 65536);
+        M.cloud.emplace(spec.id + "/" + s.id, std::move(c));
+      }
+    }
+  }
+  H5Gclose(mg);
+  I.snapshot(sim);
+  I.next_snapshot = I.snapshot_interval;
+}
+
+EpisodeWriter::~EpisodeWriter() {
+  if (impl_ && !impl_->closed) {
+    try {
+      impl_->closeAll();
+    } catch (...) {
+    }
+    std::error_code ec;
+    fs::remove(impl_->tmp_path, ec);
+  }
+}
+
+void EpisodeWriter::record(const Simulator& sim, const std::vector<Event>& events) {
+  Impl& I = *impl_;
+  for (const Event& e : events) {
+    if (const auto* pc = std::get_if<PointCloud>(&e)) {
+      if (!I.opt.clouds) continue;
+      const std::string& frame = pc->frame;
+      const std::size_t slash = frame.find('/');
+      const auto mit = I.machine_index.find(frame.substr(0, slash));
+      if (mit == I.machine_index.end()) continue;
+      auto cit = I.machines[mit->second].cloud.find(frame);
+      if (cit == I.machines[mit->second].cloud.end()) continue;
+      MachineSets::Cloud& c = cit->second;
+      double T[16];
+      rowMajor4x4(pc->T_map_sensor, T);
+      const std::uint64_t off = c.total, cnt = pc->points.size();
+      c.stamp.append(&pc->stamp);
+      c.T.append(T);
+      c.offset.append(&off);
+      c.count.append(&cnt);
+      if (cnt) c.points.append(reinterpret_cast<const float*>(pc->points.data()), cnt);
+      c.total += cnt;
+    } else if (const auto* ps = std::get_if<Pose>(&e)) {
+      // Pose frames are "base" (one machine) or "<machine>/base".
+      std::size_t mi = 0;
+      const std::size_t slash = ps->frame.find('/');
+      if (slash != std::string::npos) {
+        const auto it = I.machine_index.find(ps->frame.substr(0, slash));
+        if (it == I.machine_index.end()) continue;
+        mi = it->second;
+      }
+      double T[16];
+      rowMajor4x4(ps->T_map_base, T);
+      I.machines[mi].a.at("pose_T_map_base").append(T);
+    } else if (const auto* ob = std::get_if<Observation>(&e)) {
+      const auto it = I.machine_index.find(ob->machine_id);
+      if (it == I.machine_index.end()) continue;
+      MachineSets& M = I.machines[it->second];
+      const MachineTruth& tr = sim.machineTruth(it->second);
+      double T[16];
+      M.a.at("stamp").append(&ob->stamp);
+      rowMajor4x4(ob->T_map_base, T);
+      M.a.at("T_map_base").append(T);
+      M.a.at("twist_base").append(ob->twist_base.data());
+      rowMajor4x4(ob->T_map_blade, T);
+      M.a.at("T_map_blade").append(T);
+      M.a.at("twist_blade").append(ob->twist_blade.data());
+      M.a.at("cylinder_length_m").append(ob->cylinder_length_m.data());
+      M.a.at("cylinder_velocity_mps").append(ob->cylinder_velocity_mps.data());
+      M.a.at("track_speed_mps").append(ob->track_speed_mps.data());
+      M.a.at("engine_speed_rpm").append(&ob->engine_speed_rpm);
+      M.a.at("action").append(ob->action.data());
+      M.a.at("force_base_N").append(ob->force_base_N.data());
+      M.a.at("t_force_map_N").append(tr.force_map_N.data());
+      M.a.at("t_force_base_N").append(tr.force_base_N.data());
+      const double fee[6] = {tr.fee.alpha_rad, tr.fee.rho_rad, tr.fee.depth_m, tr.fee.width_m, tr.fee.q_n, tr.fee.beta_rad};
+      M.a.at("t_fee").append(fee);
+      const double soil[5] = {tr.fee.c_pa, tr.fee.phi_rad, tr.fee.gamma_n_m3, tr.fee.ca_pa, tr.fee.delta_rad};
+      M.a.at("t_soil").append(soil);
+      const std::uint8_t st = tr.stalled ? 1 : 0;
+      M.a.at("t_stalled").append(&st);
+      M.a.at("t_setpoints").append(tr.setpoints.data());
+      M.a.at("t_cut").append(&tr.cut_bank_m3);
+    }
+  }
+  if (sim.time() + 1e-9 >= I.next_snapshot) {
+    I.snapshot(sim);
+    while (I.next_snapshot <= sim.time() + 1e-9) I.next_snapshot += I.snapshot_interval;
+  }
+}
+
+void EpisodeWriter::close(const Simulator& sim) {
+  Impl& I = *impl_;
+  if (I.closed) return;
+  if (std::abs(I.last_snapshot_t - sim.time()) > 1e-9) I.snapshot(sim);
+  for (auto& m : I.machines) {
+    for (auto& [k, a] : m.a) a.flush();
+    for (auto& [k, c] : m.cloud) {
+      c.stamp.flush(); c.T.flush(); c.offset.flush(); c.count.flush(); c.points.flush();
+    }
+  }
+  I.snap_stamp.flush();
+  attrDouble(I.file, "lost_volume_m3", sim.truth().lostVolume());
+  attrDouble(I.file, "bank_volume_final_m3", sim.truth().bankVolume());
+  I.closeAll();
+  std::error_code ec;
+  fs::rename(I.tmp_path, I.final_path, ec);
+  if (ec) throw OutputError(I.final_path + ": cannot rename the finished episode into place: " + ec.message());
+  I.closed = true;
+}
+
+std::string runEpisode(const Scenario& scenario, const std::string& dir, EpisodeOptions options) {
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) throw OutputError(dir + ": cannot create the output folder: " + ec.message());
+  const std::string path = (fs::path(dir) / "episode.h5").string();
+  Simulator sim(scenario);
+  EpisodeWriter w(path, sim, options);
+  std::vector<Event> ev;
+  while (sim.next(ev)) {
+    w.record(sim, ev);
+    ev.clear();
+  }
+  w.close(sim);
+  return path;
+}
+
+}  // namespace terramap::sim

@@ -1,0 +1,105 @@
+#pragma once
+/// \file
+/// Compact track loader model (CAT 299-class): tracked differential drive whose pose comes
+/// from track contact with the truth terrain, three blade joints (lift, tilt, angle) with
+/// limits and a damped velocity response, a traction limit that makes the machine stall when
+/// the soil resists more than the tracks can push, and the controllers that drive it
+/// (random-walk set-points or scripted parallel passes). Deterministic; not thread-safe.
+///
+/// Frames: base = chassis at the centre of the track contact plane (x forward, y left, z up).
+/// The blade hangs from the base: T_base_blade = Trans(mount_x, 0, lift) * Rz(angle) *
+/// Rx(tilt) * Ry(-(pi/2 - rake)), so lift is the cutting-edge height above the contact plane
+/// (negative = below, i.e. cutting) and an upright blade (rake 90 deg) has the blade frame
+/// parallel to the base frame.
+#include <terramap/core/events.hpp>
+#include <terramap/sim/scenario.hpp>
+#include <terramap/sim/truth_terrain.hpp>
+
+#include <Eigen/Geometry>
+#include <array>
+#include <random>
+
+namespace terramap::sim {
+
+/// What the controller asks for.
+struct CtlCommand {
+  double v_left = 0, v_right = 0;        ///< track speed commands, m/s
+  std::array<double, 3> joint_rate{};    ///< lift (m/s), tilt (rad/s), angle (rad/s)
+};
+
+/// Load of the soil on the blade seen by the vehicle (from bladeSoilForce).
+struct CtlLoad {
+  double resist_n = 0;   ///< soil resistance against forward motion at full mobilisation (>= 0)
+  double up_n = 0;       ///< upward soil force on the blade (N; > lift_down_force stops descent)
+};
+
+class CompactTrackLoader {
+ public:
+  CompactTrackLoader(const MachineSpec& spec, const TruthTerrain& terrain);
+
+  /// Advances by dt: joints, drive, pose from track contact. Returns the soil resistance that
+  /// was actually applied (N, <= load.resist_n; less when the machine was not pushing).
+  double step(double dt, const CtlCommand& cmd, const CtlLoad& load, const TruthTerrain& terrain);
+
+  const MachineSpec& spec() const { return spec_; }
+  Eigen::Isometry3d T_map_base() const { return T_map_base_; }
+  Eigen::Isometry3d T_base_blade() const;
+  Eigen::Isometry3d T_map_blade() const { return T_map_base_ * T_base_blade(); }
+  double x() const { return x_; }
+  double y() const { return y_; }
+  double yaw() const { return yaw_; }
+  double speed() const { return v_; }                    ///< forward ground speed, m/s
+  double acceleration() const { return accel_; }
+  double yawRate() const { return omega_; }
+  std::array<double, 2> trackSpeeds() const { return {vt_[0], vt_[1]}; }
+  std::array<double, 3> joints() const { return q_; }
+  std::array<double, 3> jointRates() const { return qd_; }
+  std::array<double, 3> cylinderLengths() const;         ///< linearised linkage, m
+  std::array<double, 3> cylinderVelocities() const;      ///< m/s
+  double engineRpm() const { return rpm_; }
+  bool stalled() const { return stalled_; }
+  /// Commanded trackspeed mean (what the drive is trying to reach).
+  double driveSpeed() const { return 0.5 * (vt_[0] + vt_[1]); }
+
+ private:
+  void placeOnTerrain(const TruthTerrain& terrain);
+
+  MachineSpec spec_;
+  double x_, y_, yaw_;
+  double v_ = 0, accel_ = 0, omega_ = 0;
+  std::array<double, 2> vt_{0, 0};
+  std::array<double, 3> q_{0.2, 0, 0}, qd_{0, 0, 0}, qdd_{0, 0, 0};
+  double rpm_;
+  bool stalled_ = false;
+  Eigen::Isometry3d T_map_base_ = Eigen::Isometry3d::Identity();
+};
+
+/// The machine's controller: random-walk set-points (paper §3.1) or scripted parallel passes.
+/// Blade height and roll are controlled relative to the track contact plane (what the machine
+/// itself can measure); speed tracking failure raises the blade.
+class CtlController {
+ public:
+  CtlController(const ControllerSpec& spec, const MachineSpec& machine, std::uint64_t seed);
+  CtlCommand update(double dt, const CompactTrackLoader& m);
+
+  /// Current set-points (for logging): speed m/s, depth m, roll rad, blade yaw rad, heading rad.
+  std::array<double, 5> setpoints() const { return {speed_, depth_, roll_, blade_yaw_, heading_}; }
+  double raiseOffset() const { return raise_; }
+  bool finished() const { return finished_; }
+
+ private:
+  double walk(const RandomWalk& w, double x, double dt);
+  ControllerSpec spec_;
+  double gauge_;
+  double heading0_;
+  std::mt19937_64 rng_;
+  std::normal_distribution<double> normal_{0.0, 1.0};
+  double speed_, depth_, roll_, blade_yaw_, heading_;
+  double raise_ = 0, slow_time_ = 0;
+  // Route state.
+  int pass_ = 0;
+  bool reversing_ = false, finished_ = false;
+  std::array<double, 3> joint_max_rate_;
+};
+
+}  // namespace terramap::sim

@@ -1,0 +1,44 @@
+#pragma once
+/// \file
+/// Ray-cast LiDAR against the truth terrain: multi-beam spinning sensors (32/64/128-beam
+/// presets) and single-line scanners, with Gaussian range noise and random dropouts.
+/// Rays are cast from one sensor pose per scan (the cloud is motion-compensated, as most
+/// drivers deliver it). Points are in the sensor frame, column-major (all beams of column 0,
+/// then column 1, ...); misses and dropouts are omitted unless keep_dropouts (then NaN).
+/// Noise is a counter-based hash of (key, ray index), so the cloud is bit-identical for any
+/// thread count and chunking. Intensity = |cos(incidence)| (Lambertian, 0..1).
+#include <terramap/core/events.hpp>
+#include <terramap/core/parallel.hpp>
+#include <terramap/sim/scenario.hpp>
+#include <terramap/sim/truth_terrain.hpp>
+
+#include <cstdint>
+#include <vector>
+
+namespace terramap::sim {
+
+/// splitmix64 finaliser: the counter-based generator behind all per-ray noise.
+std::uint64_t mixBits(std::uint64_t x);
+/// Uniform (0, 1) from a 64-bit hash.
+inline double unitFromBits(std::uint64_t h) { return (static_cast<double>(h >> 11) + 0.5) * (1.0 / 9007199254740992.0); }
+
+class LidarModel {
+ public:
+  explicit LidarModel(const SensorSpec& spec);
+  const SensorSpec& spec() const { return spec_; }
+  std::size_t raysPerScan() const { return dirs_.size(); }
+  /// Unit ray directions in the sensor frame, in output order.
+  const std::vector<Eigen::Vector3d>& directions() const { return dirs_; }
+
+  /// Casts every ray. `noise_key` must differ per scan (e.g. hash of seed, sensor, scan index).
+  /// Runs on `exec` in fixed chunks of columns (serial if null). Returns the number of hits.
+  std::size_t scan(const TruthTerrain& terrain, const Eigen::Isometry3d& T_map_sensor, std::uint64_t noise_key,
+                   const Executor* exec, std::vector<PointXYZI>& out) const;
+
+ private:
+  SensorSpec spec_;
+  std::vector<Eigen::Vector3d> dirs_;
+  int columns_per_chunk_ = 16;
+};
+
+}  // namespace terramap::sim

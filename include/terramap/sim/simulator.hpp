@@ -1,0 +1,96 @@
+#pragma once
+/// \file
+/// The simulator: terramap's stand-in for Vortex Studio / TERA. A pull API: each `next()`
+/// advances one observation period (1/observation_hz, 60 Hz by default) of physics sub-steps
+/// and appends that period's events in time order:
+///   PointCloud  (when a LiDAR scan completes; frame "<machine>/<sensor>", stamp = scan time)
+///   Pose        (per machine: noisy if the machine has a `pose` sensor, else the truth;
+///                frame "base" with one machine, "<machine>/base" with several)
+///   BladePose   (per machine, truth)
+///   Observation (per machine: truth kinematics, commanded actions, force sensor reading or
+///                NaN without a force sensor)
+///   Tick        (end of the period)
+/// Everything random comes from per-stream seeded generators or counter hashes, never thread
+/// timing: the same scenario and seed give a bit-identical event stream for any thread count.
+/// Not thread-safe (one Simulator per thread); LiDAR ray casting runs on its own Executor.
+#include <terramap/core/events.hpp>
+#include <terramap/core/parallel.hpp>
+#include <terramap/sim/blade_physics.hpp>
+#include <terramap/sim/ctl.hpp>
+#include <terramap/sim/lidar.hpp>
+#include <terramap/sim/scenario.hpp>
+#include <terramap/sim/truth_terrain.hpp>
+#include <terramap/sim/world.hpp>
+
+#include <memory>
+#include <random>
+#include <vector>
+
+namespace terramap::sim {
+
+/// Per-machine truth at the end of the latest observation period (what the episode logs).
+struct MachineTruth {
+  std::string id;
+  Eigen::Isometry3d T_map_base = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_map_blade = Eigen::Isometry3d::Identity();
+  /// Soil-on-blade force of the truth physics (mobilised FEE + inertia + penetration +
+  /// coloured noise), map frame and base frame, N.
+  Eigen::Vector3d force_map_N = Eigen::Vector3d::Zero();
+  Eigen::Vector3d force_base_N = Eigen::Vector3d::Zero();
+  FeeTruth fee;                         ///< truth FEE geometry and soil of the cut
+  bool stalled = false;
+  std::array<double, 5> setpoints{};    ///< speed, depth, roll, blade yaw, heading
+  double raise_offset_m = 0;
+  double cut_bank_m3 = 0;               ///< cumulative bank volume cut by this machine
+};
+
+class Simulator {
+ public:
+  /// Builds the world. \throws InputError (DEM) or ConfigError (inconsistent scenario).
+  explicit Simulator(const Scenario& scenario);
+  ~Simulator();
+  Simulator(const Simulator&) = delete;
+  Simulator& operator=(const Simulator&) = delete;
+
+  /// Appends the events of the next observation period (time order); false (and nothing
+  /// appended) once the duration is over.
+  bool next(std::vector<Event>& out);
+
+  double time() const { return t_; }
+  long step() const { return obs_step_; }
+  const Scenario& scenario() const { return sc_; }
+  /// The truth terrain now (its ray-casting pyramid is brought up to date lazily here).
+  const TruthTerrain& truth() const {
+    const_cast<Simulator*>(this)->refreshDirty();
+    return terrain_;
+  }
+  const SoilField& soil() const { return soil_; }
+  std::size_t machineCount() const { return machines_.size(); }
+  const CompactTrackLoader& machine(std::size_t i) const;
+  const MachineTruth& machineTruth(std::size_t i) const;
+
+  struct Stats {
+    std::uint64_t rays = 0, points = 0, scans = 0, fee_invalid_slices = 0;
+    double lost_m3 = 0;
+  };
+  const Stats& stats() const { return stats_; }
+
+ private:
+  struct Machine;
+  void physicsStep(double dt, bool relax);
+  void markDirty(const CutResult& r);
+  void refreshDirty();
+
+  Scenario sc_;
+  TruthTerrain terrain_;
+  SoilField soil_;
+  Executor exec_;
+  std::vector<std::unique_ptr<Machine>> machines_;
+  double t_ = 0;
+  long obs_step_ = 0, phys_step_ = 0;
+  int substeps_ = 4;
+  int dirty_i0_ = 0, dirty_j0_ = 0, dirty_i1_ = -1, dirty_j1_ = -1;  // pyramid refresh pending
+  Stats stats_;
+};
+
+}  // namespace terramap::sim
