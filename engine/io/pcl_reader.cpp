@@ -9,6 +9,7 @@
 #include <pcl/io/ply_io.h>
 
 #include <algorithm>
+#include <cctype>
 #include <charconv>
 #include <cmath>
 #include <limits>
@@ -277,7 +278,7 @@ void checkPcdHeader(const std::string& path) {
   if (points != width * height) {
     fail(points_at, "POINTS " + std::to_string(points) + " differs from WIDTH x HEIGHT = " + std::to_string(width * height));
   }
-  std::uint64_t step = 0;
+  std::uint64_t step = 0, step_values = 0;
   for (std::size_t k = 0; k < fields.size(); ++k) {
     const std::string& t = types[k];
     const std::string& z = sizes[k];
@@ -293,8 +294,54 @@ void checkPcdHeader(const std::string& path) {
       }
     }
     step += count * static_cast<std::uint64_t>(z[0] - '0');
+    step_values += count;
   }
-  if (data == "binary") {
+  if (data == "ascii") {
+    // PCL accepts short lines and non-numbers with a warning and zero-fills; refuse instead.
+    std::vector<char> rest(static_cast<std::size_t>(size - std::min<std::uint64_t>(size, body)));
+    if (!rest.empty() && (std::fseek(fc.f, static_cast<long>(body), SEEK_SET) != 0 ||
+                          std::fread(rest.data(), 1, rest.size(), fc.f) != rest.size())) {
+      fail(body, "read error in the ASCII body");
+    }
+    std::uint64_t header_lines = static_cast<std::uint64_t>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(body), '\n'));
+    std::uint64_t rows = 0, line_no = header_lines;
+    std::size_t i = 0;
+    while (i < rest.size()) {
+      std::size_t eol = i;
+      while (eol < rest.size() && rest[eol] != '\n') ++eol;
+      ++line_no;
+      std::uint64_t values = 0;
+      std::size_t j = i;
+      while (j < eol) {
+        while (j < eol && std::isspace(static_cast<unsigned char>(rest[j]))) ++j;
+        if (j >= eol) break;
+        std::size_t k = j;
+        while (k < eol && !std::isspace(static_cast<unsigned char>(rest[k]))) ++k;
+        const char* b = rest.data() + j;
+        const char* e = rest.data() + k;
+        if (*b == '+') ++b;
+        double v;
+        const auto [ptr, ec] = std::from_chars(b, e, v);
+        if ((ec != std::errc() && ec != std::errc::result_out_of_range) || ptr != e) {
+          fail(body + j, "line " + std::to_string(line_no) + ": '" + std::string(rest.data() + j, std::min<std::size_t>(k - j, 32)) +
+                             "' is not a number");
+        }
+        ++values;
+        j = k;
+      }
+      if (values != 0) {
+        if (values != step_values) {
+          fail(body + i, "line " + std::to_string(line_no) + " has " + std::to_string(values) + " values, expected " +
+                             std::to_string(step_values) + " (one per FIELDS x COUNT)");
+        }
+        ++rows;
+      }
+      i = eol + 1;
+    }
+    if (rows != points) {
+      fail(size, "ASCII body has " + std::to_string(rows) + " points, the header declares POINTS " + std::to_string(points));
+    }
+  } else if (data == "binary") {
     const std::uint64_t avail = size > body ? size - body : 0;
     if (points > avail / step) {
       fail(body + (avail / step) * step, "POINTS " + std::to_string(points) + " of " + std::to_string(step) +

@@ -446,6 +446,14 @@ TEST(PcdReader, BinaryBodyIsCheckedBeforePclReadsIt) {
   expectErrorWith([&] { readPcd(p); }, {p, "byte offset 0", "'hello'"});
   spitText(p, "VERSION 0.7\nFIELDS x y z\nSIZE 4 4\nTYPE F F F\nWIDTH 1\nPOINTS 1\nDATA ascii\n1 2 3\n");
   expectErrorWith([&] { readPcd(p); }, {p, "byte offset 25", "2 SIZE values for 3 FIELDS"});
+  // ASCII bodies: PCL zero-fills short lines and non-numbers with only a warning.
+  const std::string ascii = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 2\nPOINTS 2\nDATA ascii\n";
+  spitText(p, ascii + "1 2 3\n4 5\n");
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset " + std::to_string(ascii.size() + 6), "line 9 has 2 values, expected 3"});
+  spitText(p, ascii + "1 2 3\n4 five 6\n");
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset " + std::to_string(ascii.size() + 8), "line 9", "'five'"});
+  spitText(p, ascii + "1 2 3\n");
+  expectErrorWith([&] { readPcd(p); }, {p, "1 points", "POINTS 2"});
   spitText(p, "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 2\nPOINTS 3\nDATA ascii\n1 2 3\n");
   expectErrorWith([&] { readPcd(p); }, {p, "POINTS 3 differs from WIDTH x HEIGHT = 2"});
 }
