@@ -226,7 +226,7 @@ std::map<std::string, RawParam> toRawMap(Diagnostics& d, const YAML::Node& n, co
   for (const auto& kv : n) {
     const std::string k = kv.first.as<std::string>();
     RawParam r = toRaw(d, kv.second, sub(path, k));
-    r.where = d.at(kv.second, sub(path, k));
+    r.where = d.at(kv.first, sub(path, k));  // the key's position: what a reader looks for
     out[k] = r;
   }
   return out;

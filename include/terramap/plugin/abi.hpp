@@ -48,6 +48,9 @@ struct terramap_plugin_info_t {
   const char* version;         ///< the plugin's own version
   const char* description;     ///< one line for `terramap plugins`
 };
+/// Declared here so every definition has external linkage (a namespace-scope const would
+/// otherwise be internal and the host would not find it).
+__attribute__((visibility("default"))) extern const terramap_plugin_info_t terramap_plugin_info;
 }
 
 namespace terramap {

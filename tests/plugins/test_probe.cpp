@@ -1,0 +1,66 @@
+// A well-behaved probe plugin for engine tests: on every event it adds `increment` to every
+// cell of its output layer (tile-parallel), and logs the order in which stages ran.
+#include <terramap/plugin/abi.hpp>
+
+#include <cmath>
+
+namespace {
+class Probe : public terramap::Plugin {
+ public:
+  terramap::ParamSchema schema() const override {
+    using namespace terramap;
+    return {param::text("output_layer", "probe", {}, "layer to create and increment"),
+            param::text("input_layer", "", {}, "optional layer to read (checked by the validator)"),
+            param::real("increment", 1.0, -1e6, 1e6, "1", "added to every cell per event"),
+            param::integer("throw_on_event", -1, -1, 1000000, "throw std::runtime_error on this event number"),
+            param::texts("events", {"tick", "point_cloud"}, "event kinds to take")};
+  }
+  void configure(const terramap::Params& p) override {
+    out_ = p.getString("output_layer");
+    in_ = p.getString("input_layer");
+    inc_ = static_cast<float>(p.getDouble("increment"));
+    throw_on_ = p.getInt("throw_on_event");
+    mask_ = 0;
+    for (const auto& k : p.getStrings("events")) {
+      if (k == "tick") mask_ |= terramap::mask(terramap::EventKind::Tick);
+      else if (k == "point_cloud") mask_ |= terramap::mask(terramap::EventKind::PointCloud);
+      else if (k == "pose") mask_ |= terramap::mask(terramap::EventKind::Pose);
+      else p.fail("events", "unknown kind '" + k + "'");
+    }
+  }
+  std::vector<terramap::LayerSpec> layers() const override {
+    using namespace terramap;
+    std::vector<LayerSpec> l{LayerSpec{out_, LayerAccess::Create, "1", 0.0f, "probe counter"}};
+    if (!in_.empty()) l.push_back(LayerSpec{in_, LayerAccess::Read, "", 0, ""});
+    return l;
+  }
+  terramap::EventMask events() const override { return mask_; }
+  void start(terramap::ProcessContext& ctx) override { id_ = ctx.map().layerId(out_); }
+  void process(terramap::ProcessContext& ctx, const terramap::Event& e) override {
+    if (count_++ == throw_on_) throw std::runtime_error("probe asked to throw on event " + std::to_string(throw_on_));
+    auto& map = ctx.map();
+    const int T = map.tileSize();
+    ctx.executor().forEach(map.tileCount(), [&](int t) {
+      const auto r = map.tileRect(t);
+      float* d = map.mutableTileData(id_, t);
+      for (int i = 0; i < r.rows; ++i)
+        for (int j = 0; j < r.cols; ++j) d[i * T + j] += inc_;
+    });
+    ctx.addCounter("events", 1);
+    if (std::holds_alternative<terramap::PointCloud>(e)) {
+      long nan = 0;
+      for (const auto& p : std::get<terramap::PointCloud>(e).points) nan += !std::isfinite(p.x);
+      if (nan) ctx.countDrop("nan", nan);
+    }
+  }
+
+ private:
+  std::string out_, in_;
+  float inc_ = 1;
+  long throw_on_ = -1, count_ = 0;
+  terramap::EventMask mask_ = 0;
+  terramap::LayerId id_ = -1;
+};
+}  // namespace
+
+TERRAMAP_PLUGIN(Probe, "test_probe", "0.0.1", "test probe: increments a layer per event")

@@ -1,0 +1,194 @@
+#include <terramap/core/error.hpp>
+#include <terramap/core/layered_map.hpp>
+#include <terramap/core/parallel.hpp>
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cmath>
+#include <cstring>
+#include <random>
+#include <set>
+
+using namespace terramap;
+
+namespace {
+// Bitwise equality, NaN-aware (NaN payloads compared as bits).
+bool sameBits(const Eigen::MatrixXf& a, const Eigen::MatrixXf& b) {
+  return a.rows() == b.rows() && a.cols() == b.cols() &&
+         std::memcmp(a.data(), b.data(), sizeof(float) * static_cast<size_t>(a.size())) == 0;
+}
+float valueFor(int i, int j) { return static_cast<float>(i * 1000 + j); }
+}  // namespace
+
+TEST(LayeredMap, LayersHaveNamesUnitsAndFill) {
+  LayeredMap m(Geometry(0.1, Size(10, 20)), MapOptions{8, false});
+  const LayerId e = m.addLayer("elevation", "m");
+  const LayerId h = m.addLayer("hits", "count", 0.0f);
+  EXPECT_TRUE(std::isnan(m.at(e, Index(3, 4))));
+  EXPECT_EQ(m.at(h, Index(3, 4)), 0.0f);
+  EXPECT_EQ(m.layerInfo(h).unit, "count");
+  EXPECT_THROW(m.addLayer("elevation", "m"), LayerError);
+  try {
+    m.layerId("elevaton");
+    FAIL();
+  } catch (const LayerError& err) {
+    EXPECT_NE(std::string(err.what()).find("did you mean 'elevation'"), std::string::npos) << err.what();
+  }
+  EXPECT_THROW(m.at(e, Index(10, 0)), std::out_of_range);
+}
+
+TEST(LayeredMap, TilesCoverTheMapExactlyOnce) {
+  LayeredMap m(Geometry(0.1, Size(70, 33)), MapOptions{16, false});
+  EXPECT_EQ(m.tileRows(), 5);
+  EXPECT_EQ(m.tileCols(), 3);
+  std::vector<int> covered(70 * 33, 0);
+  for (int t = 0; t < m.tileCount(); ++t) {
+    const CellRect r = m.tileRect(t);
+    for (int i = r.r0; i < r.r0 + r.rows; ++i)
+      for (int j = r.c0; j < r.c0 + r.cols; ++j) {
+        covered[static_cast<size_t>(i * 33 + j)]++;
+        EXPECT_EQ(m.tileOfBuffer(i, j), t);
+      }
+  }
+  for (int c : covered) EXPECT_EQ(c, 1);
+}
+
+TEST(LayeredMap, MatrixRoundTripInLogicalOrder) {
+  LayeredMap m(Geometry(0.1, Size(19, 23)), MapOptions{8, false});
+  const LayerId id = m.addLayer("a", "m");
+  Eigen::MatrixXf in(19, 23);
+  for (int i = 0; i < 19; ++i)
+    for (int j = 0; j < 23; ++j) in(i, j) = valueFor(i, j);
+  m.fromMatrix(id, in);
+  EXPECT_TRUE(sameBits(m.toMatrix(id), in));
+  EXPECT_EQ(m.at(id, Index(5, 7)), valueFor(5, 7));
+  EXPECT_THROW(m.fromMatrix(id, Eigen::MatrixXf(3, 3)), LayerError);
+}
+
+TEST(LayeredMap, MoveKeepsDataUnderTheSamePositionAndResetsNewCells) {
+  const Geometry g(1.0, Size(10, 12), Position(0, 0));
+  LayeredMap m(g, MapOptions{8, false});
+  const LayerId id = m.addLayer("a", "m");
+  const LayerId z = m.addLayer("z", "count", 0.0f);
+  for (int i = 0; i < 10; ++i)
+    for (int j = 0; j < 12; ++j) {
+      m.set(id, Index(i, j), valueFor(i, j));
+      m.set(z, Index(i, j), 7.0f);
+    }
+  // Move by +3 cells in x and -2 in y.
+  const MoveResult r = m.move(Position(3.0, -2.0));
+  EXPECT_EQ(r.shift_cells.x(), 3);
+  EXPECT_EQ(r.shift_cells.y(), -2);
+  EXPECT_DOUBLE_EQ(m.geometry().center().x(), 3.0);
+  EXPECT_DOUBLE_EQ(m.geometry().center().y(), -2.0);
+  // Hand-computed: a physical cell at old index (i, j) now has index (i + 3, j - 2).
+  std::set<std::pair<int, int>> fresh;
+  for (const CellRect& rect : r.new_regions)
+    for (int i = rect.r0; i < rect.r0 + rect.rows; ++i)
+      for (int j = rect.c0; j < rect.c0 + rect.cols; ++j) EXPECT_TRUE(fresh.insert({i, j}).second) << "twice";
+  int n_new = 0;
+  for (int i = 0; i < 10; ++i)
+    for (int j = 0; j < 12; ++j) {
+      const int oi = i - 3, oj = j + 2;
+      const bool came_in = oi < 0 || oi >= 10 || oj < 0 || oj >= 12;
+      EXPECT_EQ(came_in, fresh.count({i, j}) == 1) << i << "," << j;
+      if (came_in) {
+        ++n_new;
+        EXPECT_TRUE(std::isnan(m.at(id, Index(i, j))));
+        EXPECT_EQ(m.at(z, Index(i, j)), 0.0f);
+      } else {
+        EXPECT_EQ(m.at(id, Index(i, j)), valueFor(oi, oj));
+        EXPECT_EQ(m.at(z, Index(i, j)), 7.0f);
+      }
+    }
+  EXPECT_EQ(n_new, 10 * 12 - 7 * 10);  // 3 rows x 12 + 7 rows x 2
+  // Positions: the value that was at position p before is still at p.
+  const auto idx = m.geometry().indexAt(Position(0.5, 0.5));
+  ASSERT_TRUE(idx);
+  const auto old_idx = g.indexAt(Position(0.5, 0.5));
+  ASSERT_TRUE(old_idx);
+  EXPECT_EQ(m.at(id, *idx), valueFor(old_idx->x(), old_idx->y()));
+}
+
+TEST(LayeredMap, MoveFartherThanTheMapResetsEverything) {
+  LayeredMap m(Geometry(1.0, Size(4, 4)), MapOptions{8, false});
+  const LayerId id = m.addLayer("a", "m");
+  m.fill(id, 1.0f);
+  const MoveResult r = m.move(Position(100, 0));
+  ASSERT_EQ(r.new_regions.size(), 1u);
+  EXPECT_EQ(r.new_regions[0].cells(), 16);
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) EXPECT_TRUE(std::isnan(m.at(id, Index(i, j))));
+}
+
+TEST(LayeredMap, SparseAllocatesOnFirstWriteOnly) {
+  LayeredMap m(Geometry(0.05, Size(2000, 2000)), MapOptions{64, true});
+  const LayerId id = m.addLayer("a", "m");
+  EXPECT_EQ(m.allocatedTiles(), 0);
+  EXPECT_TRUE(std::isnan(m.at(id, Index(1500, 20))));
+  m.set(id, Index(1500, 20), 2.0f);
+  EXPECT_EQ(m.allocatedTiles(), 1);
+  EXPECT_EQ(m.at(id, Index(1500, 20)), 2.0f);
+  // Moving does not allocate the regions that come in.
+  m.move(Position(1.0, 0.0));
+  EXPECT_LE(m.allocatedTiles(), 1);
+}
+
+TEST(LayeredMap, SnapshotIsCopyOnWrite) {
+  LayeredMap m(Geometry(0.1, Size(64, 64)), MapOptions{16, false});
+  const LayerId id = m.addLayer("a", "m");
+  m.fill(id, 1.0f);
+  const LayeredMap snap = m.snapshot();
+  EXPECT_EQ(snap.tileData(id, 3), m.tileData(id, 3));  // shared, not copied
+  m.set(id, Index(0, 0), 5.0f);
+  EXPECT_EQ(m.at(id, Index(0, 0)), 5.0f);
+  EXPECT_EQ(snap.at(id, Index(0, 0)), 1.0f);
+  EXPECT_NE(snap.tileData(id, 0), m.tileData(id, 0));  // tile 0 was copied on write
+  EXPECT_EQ(snap.tileData(id, 3), m.tileData(id, 3));  // others still shared
+}
+
+TEST(LayeredMap, TileKernelIsBitIdenticalAtOneAndTwoThreads) {
+  // A kernel with real floating-point work per cell; each tile writes only its own cells.
+  auto runKernel = [](int threads) {
+    LayeredMap m(Geometry(0.04, Size(300, 257), Position(1.3, -0.7)), MapOptions{64, false});
+    const LayerId a = m.addLayer("a", "m");
+    const LayerId b = m.addLayer("b", "m");
+    std::mt19937 rng(42);
+    std::normal_distribution<float> n(0.f, 1.f);
+    Eigen::MatrixXf in(300, 257);
+    for (int i = 0; i < in.rows(); ++i)
+      for (int j = 0; j < in.cols(); ++j) in(i, j) = n(rng);
+    m.fromMatrix(a, in);
+    m.move(Position(2.0, 0.3));  // exercise the ring buffer too
+    Executor ex(threads);
+    const int T = m.tileSize();
+    for (int pass = 0; pass < 3; ++pass)
+      ex.forEach(m.tileCount(), [&](int t) {
+        const CellRect r = m.tileRect(t);
+        const float* s = m.tileData(a, t);
+        float* d = m.mutableTileData(b, t);
+        for (int i = 0; i < r.rows; ++i)
+          for (int j = 0; j < r.cols; ++j) {
+            const float v = s[i * T + j];
+            d[i * T + j] = std::isnan(v) ? 0.f : d[i * T + j] * 0.5f + std::sin(v) * std::exp(-v * v);
+          }
+      });
+    return m.toMatrix(b);
+  };
+  const Eigen::MatrixXf one = runKernel(1);
+  const Eigen::MatrixXf two = runKernel(2);
+  EXPECT_TRUE(sameBits(one, two));
+  // And the serial twin gives the same as well.
+  EXPECT_TRUE(sameBits(one, runKernel(4)));
+}
+
+TEST(Executor, ForEachVisitsEveryIndexOnce) {
+  Executor ex(2);
+  std::vector<std::atomic<int>> hits(1000);
+  ex.forEach(1000, [&](int i) { hits[static_cast<size_t>(i)]++; });
+  for (auto& h : hits) EXPECT_EQ(h.load(), 1);
+  int n = 0;
+  serialForEach(17, [&](int) { ++n; });
+  EXPECT_EQ(n, 17);
+}

@@ -1,0 +1,152 @@
+#include <terramap/core/error.hpp>
+#include <terramap/pipeline/engine.hpp>
+#include <terramap/pipeline/report.hpp>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <thread>
+
+using namespace terramap;
+
+namespace {
+const std::string kTestDir = TERRAMAP_TEST_PLUGIN_DIR;
+std::string lib(const std::string& n) { return kTestDir + "/" + n + ".so"; }
+void expectHas(const std::string& msg, const std::string& part) {
+  EXPECT_NE(msg.find(part), std::string::npos) << "expected '" << part << "' in:\n" << msg;
+}
+EngineOptions options(int threads = 2, Size size = Size(40, 30)) {
+  EngineOptions o;
+  o.geometry = Geometry(0.1, size);
+  o.map.tile_size = 16;
+  o.threads = threads;
+  return o;
+}
+std::vector<std::string> validateText(const std::string& yaml) {
+  const auto spec = parsePipelineString(yaml, "p.yaml", ".");
+  PluginRegistry reg({kTestDir});
+  return Engine::validate(spec, reg);
+}
+std::string joined(const std::vector<std::string>& v) {
+  std::string s;
+  for (const auto& e : v) s += e + "\n";
+  return s;
+}
+}  // namespace
+
+TEST(Engine, RunsStagesThatTakeTheEventInPipelineOrder) {
+  Engine e(options());
+  e.addStage("a", PluginRegistry::createFromFile(lib("test_probe")),
+             {{"output_layer", std::string("a")}, {"events", std::vector<std::string>{"tick"}}});
+  e.addStage("b", PluginRegistry::createFromFile(lib("test_probe")),
+             {{"output_layer", std::string("b")}, {"input_layer", std::string("a")},
+              {"events", std::vector<std::string>{"point_cloud"}}, {"increment", 3.0}});
+  e.push(Tick{0.5});
+  PointCloud pc;
+  pc.stamp = 1.0;
+  pc.points = {PointXYZI{NAN, 0, 0, 0}, PointXYZI{1, 2, 3, 0}};
+  e.push(pc);
+  e.push(Tick{1.5});
+  const LayeredMap& m = e.map();
+  EXPECT_EQ(m.at(m.layerId("a"), Index(5, 5)), 2.0f);
+  EXPECT_EQ(m.at(m.layerId("b"), Index(5, 5)), 3.0f);
+  const RunReport r = e.report();
+  EXPECT_EQ(r.events.at("tick"), 2);
+  EXPECT_EQ(r.events.at("point_cloud"), 1);
+  ASSERT_EQ(r.stages.size(), 2u);
+  EXPECT_EQ(r.stages[0].stats.events.at("tick"), 2);
+  EXPECT_EQ(r.stages[1].stats.dropped.at("nan"), 1);
+  EXPECT_DOUBLE_EQ(r.first_stamp, 0.5);
+  EXPECT_DOUBLE_EQ(r.last_stamp, 1.5);
+  const auto j = nlohmann::json::parse(reportToJson(r));
+  EXPECT_EQ(j["stages"][1]["dropped"]["nan"], 1);
+  EXPECT_EQ(j["dropped_total"], 1);
+  EXPECT_EQ(j["events"]["tick"], 2);
+  EXPECT_TRUE(j["stages"][0]["wall_s"].is_number());
+}
+
+TEST(Engine, PluginThrowingInProcessIsNamed) {
+  Engine e(options());
+  e.addStage("boom", PluginRegistry::createFromFile(lib("test_probe")), {{"throw_on_event", 1L}});
+  e.push(Tick{0});
+  try {
+    e.push(Tick{0.1});
+    FAIL();
+  } catch (const PluginError& err) {
+    expectHas(err.what(), "stage 'boom' (test_probe) threw on tick at t=0.1");
+    expectHas(err.what(), "probe asked to throw on event 1");
+  }
+}
+
+TEST(Engine, ValidateCollectsEveryProblem) {
+  const auto errs = validateText(R"(version: 1
+map: {resolution: 0.1, size: [20, 20], tile: 16}
+pipeline:
+  - {name: a, type: test_probe, params: {events: [tick], output_layer: a}}
+  - {name: a2, type: test_probe, params: {incremnt: 2, increment: x, output_layer: a2}}
+  - {name: b, type: test_prob}
+  - {name: c, type: test_probe, params: {output_layer: c, input_layer: elevaton}}
+  - {name: d, type: test_probe, params: {output_layer: a}}
+  - {name: e, type: bad_abi}
+  - {name: f, type: test_probe, params: {output_layer: f, increment: 1e9}}
+outputs: {geotiff: [nope]}
+)");
+  const std::string all = joined(errs);
+  expectHas(all, "p.yaml:5:43: pipeline[1].params.incremnt: unknown parameter 'incremnt' for plugin 'test_probe' "
+                 "(did you mean 'increment'?)");
+  expectHas(all, "p.yaml:5:56: pipeline[1].params.increment: must be a number");
+  expectHas(all, "p.yaml:6:21: pipeline[2].type: unknown plugin type 'test_prob' (did you mean 'test_probe'?)");
+  expectHas(all, "stage 'c' reads layer 'elevaton' before any stage creates it");
+  expectHas(all, "stage 'd' creates layer 'a', which already exists");
+  expectHas(all, "ABI version mismatch: expected 1, found 99");
+  expectHas(all, "pipeline[6].params.increment: must be in [-1e+06, 1e+06] (got 1e+09)");
+  expectHas(all, "outputs.geotiff: no stage creates layer 'nope'");
+  EXPECT_EQ(std::count(all.begin(), all.end(), '\n'), 8) << all;  // one line per problem
+}
+
+TEST(Engine, FromSpecBuildsAValidPipelineAndRefusesAnInvalidOne) {
+  const auto spec = parsePipelineString(R"(version: 1
+map: {resolution: 0.1, size: [20, 20], tile: 16}
+threads: 1
+pipeline:
+  - {name: a, type: test_probe, params: {output_layer: a}}
+)",
+                                        "p.yaml", ".");
+  auto e = Engine::fromSpec(spec, PluginRegistry({kTestDir}));
+  EXPECT_EQ(e->stageNames(), std::vector<std::string>{"a"});
+  auto bad = spec;
+  bad.stages[0].params["output_layer"].value = 3L;
+  EXPECT_THROW(Engine::fromSpec(bad, PluginRegistry({kTestDir})), ConfigError);
+}
+
+TEST(Engine, SnapshotIsConsistentWhileTheEngineKeepsWriting) {
+  // The probe adds 1 to every cell per event, tile by tile. A consistent snapshot must
+  // therefore hold one value everywhere, whatever moment the reader takes it.
+  Engine e(options(2, Size(256, 256)));
+  e.addStage("p", PluginRegistry::createFromFile(lib("test_probe")), {});
+  std::atomic<bool> stop{false};
+  std::atomic<int> snapshots{0}, inconsistent{0};
+  std::thread reader([&] {
+    while (!stop) {
+      auto snap = e.snapshot();
+      const LayerId id = snap->layerId("probe");
+      const Eigen::MatrixXf m = snap->toMatrix(id);
+      // Keep reading the same snapshot while the engine writes on.
+      std::this_thread::yield();
+      const Eigen::MatrixXf again = snap->toMatrix(id);
+      if ((m.array() != m(0, 0)).any() || (again.array() != m.array()).any()) ++inconsistent;
+      ++snapshots;
+    }
+  });
+  // Write until the reader has taken many snapshots in the middle of the run.
+  int pushed = 0;
+  while (pushed < 400 || snapshots.load() < 50) e.push(Tick{0.1 * pushed++});
+  stop = true;
+  reader.join();
+  EXPECT_GE(snapshots.load(), 50);
+  EXPECT_EQ(inconsistent.load(), 0);
+  EXPECT_EQ(e.map().at(e.map().layerId("probe"), Index(100, 100)), static_cast<float>(pushed));
+}
