@@ -109,10 +109,11 @@ std::vector<PointXYZI> convert(const pcl::PCLPointCloud2& c, const std::string& 
   return out;
 }
 
-// Checks a binary PLY's declared elements against the file size before PCL reads the body.
+// Checks a binary PLY's declared elements against the file size before PCL reads the body,
+// and the numbers of an ASCII PLY's vertex lines.
 // Only elements with fixed-size (non-list) properties up to and including "vertex" can be
 // checked; an earlier element with list properties makes the vertex offset data dependent.
-void checkPlyBinarySize(const std::string& path) {
+void checkPlyBody(const std::string& path) {
   detail::FileCloser fc{detail::openForRead(path, "PLY file")};
   const std::uint64_t size = detail::fileSize(fc.f, path);
   std::string header;
@@ -177,7 +178,54 @@ void checkPlyBinarySize(const std::string& path) {
       }
     }
   }
-  if (!binary) return;
+  if (!binary) {
+    // PCL's ASCII PLY parser turns a non-numeric vertex value into NaN without an error;
+    // refuse instead (counts per line and per element PCL does check).
+    std::uint64_t skip = 0;
+    const Element* vertex = nullptr;
+    for (const Element& e : elements) {
+      if (e.name == "vertex") {
+        vertex = &e;
+        break;
+      }
+      skip += e.count;
+    }
+    if (!vertex) return;
+    if (std::fseek(fc.f, static_cast<long>(body), SEEK_SET) != 0) return;
+    std::vector<char> rest(static_cast<std::size_t>(size > body ? size - body : 0));
+    if (!rest.empty() && std::fread(rest.data(), 1, rest.size(), fc.f) != rest.size()) {
+      throw InputError("PLY file '" + path + "': read error in the ASCII body");
+    }
+    const std::uint64_t header_lines = static_cast<std::uint64_t>(std::count(header.begin(), header.begin() + static_cast<std::ptrdiff_t>(body), '\n'));
+    std::uint64_t row = 0;
+    std::size_t i = 0;
+    for (std::uint64_t line_no = header_lines + 1; i < rest.size() && row < skip + vertex->count; ++line_no) {
+      std::size_t eol = i;
+      while (eol < rest.size() && rest[eol] != '\n') ++eol;
+      if (row >= skip) {
+        for (std::size_t j = i; j < eol;) {
+          while (j < eol && std::isspace(static_cast<unsigned char>(rest[j]))) ++j;
+          if (j >= eol) break;
+          std::size_t k = j;
+          while (k < eol && !std::isspace(static_cast<unsigned char>(rest[k]))) ++k;
+          const char* b = rest.data() + j;
+          const char* e = rest.data() + k;
+          if (*b == '+') ++b;
+          double v;
+          const auto [ptr, ec] = std::from_chars(b, e, v);
+          if ((ec != std::errc() && ec != std::errc::result_out_of_range) || ptr != e) {
+            throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(body + j) + ": line " +
+                             std::to_string(line_no) + ": '" + std::string(rest.data() + j, std::min<std::size_t>(k - j, 32)) +
+                             "' is not a number");
+          }
+          j = k;
+        }
+      }
+      ++row;
+      i = eol + 1;
+    }
+    return;
+  }
   std::uint64_t at = body;
   for (const Element& e : elements) {
     if (!e.fixed) return;
@@ -388,7 +436,7 @@ std::vector<PointXYZI> readPcd(const std::string& path) {
 }
 
 std::vector<PointXYZI> readPly(const std::string& path) {
-  checkPlyBinarySize(path);
+  checkPlyBody(path);
   pcl::PCLPointCloud2 cloud;
   pcl::PLYReader reader;
   Eigen::Vector4f origin;

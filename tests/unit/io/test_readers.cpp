@@ -463,6 +463,12 @@ TEST(PlyReader, AsciiWithFewerVerticesThanDeclaredIsRefused) {
   const std::string p = dir.file("short.ply");
   spitText(p, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n");
   expectErrorWith([&] { readPly(p); }, {p, "PCL"});
+  // PCL would read the non-number as NaN; we refuse it with its line and offset.
+  const std::string head = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+  spitText(p, head + "1 2 3\n4 x 6\n");
+  expectErrorWith([&] { readPly(p); }, {p, "byte offset " + std::to_string(head.size() + 8), "line 9", "'x' is not a number"});
+  spitText(p, head + "1 2 3\n4 nan -inf\n");  // spelled-out NaN/inf are values, kept for the fusion to count
+  EXPECT_TRUE(std::isnan(readPly(p)[1].y));
   spitText(p, "not a ply\n");
   expectErrorWith([&] { readPly(p); }, {p, "byte offset 0", "'ply' magic"});
 }
