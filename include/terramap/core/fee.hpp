@@ -79,12 +79,17 @@ const char* validityRule(Validity v);
 /// The enumerator's name, e.g. "BetaOutOfRange" (for logs and JSON). Static storage.
 const char* validityName(Validity v);
 
+/// One FEE evaluation. Forces in N in the world frame (x along travel, z up), blade on soil.
 struct Result {
-  double beta_rad = 0;
-  Factors n;
-  double f_N = 0;                         ///< magnitude along the resultant's direction
+  double beta_rad = 0;                    ///< failure angle used (NaN if beta* did not exist)
+  Factors n;                              ///< N-factors at beta_rad
+  /// Eq. 1: magnitude of the blade's normal + friction reaction, which acts at delta from the
+  /// blade normal. Coulomb's passive force P_p = 1/2 gamma H^2 K_p is this quantity, not Fx.
+  double f_N = 0;
   Eigen::Vector2d F_N = Eigen::Vector2d::Zero();        ///< paper's F = f [sin(rho+delta-alpha), cos(...)]
-  Eigen::Vector2d F_total_N = Eigen::Vector2d::Zero();  ///< F + adhesion along the blade face
+  /// F + (ca d w / sin rho) [cos(rho-alpha), -sin(rho-alpha)]: the adhesion along the blade face
+  /// that the paper's F omits (the N_ca term only accounts for its effect on the wedge balance).
+  Eigen::Vector2d F_total_N = Eigen::Vector2d::Zero();
   Validity validity = Validity::Valid;
   bool valid() const { return validity == Validity::Valid; }
 };
