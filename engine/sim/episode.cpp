@@ -421,6 +421,32 @@ void EpisodeWriter::close(const Simulator& sim) {
   I.closed = true;
 }
 
+std::vector<double> readEpisodeDataset(const std::string& path, const std::string& dataset,
+                                       std::vector<std::uint64_t>& dims) {
+  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+  const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (f < 0) throw InputError(path + ": cannot open as HDF5");
+  const hid_t ds = H5Dopen2(f, dataset.c_str(), H5P_DEFAULT);
+  if (ds < 0) {
+    H5Fclose(f);
+    throw InputError(path + ": no dataset '" + dataset + "'");
+  }
+  const hid_t sp = H5Dget_space(ds);
+  const int nd = H5Sget_simple_extent_ndims(sp);
+  std::vector<hsize_t> d(static_cast<std::size_t>(std::max(nd, 0)));
+  H5Sget_simple_extent_dims(sp, d.data(), nullptr);
+  hsize_t n = 1;
+  for (hsize_t x : d) n *= x;
+  std::vector<double> v(n);
+  const herr_t rc = n ? H5Dread(ds, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data()) : 0;
+  H5Sclose(sp);
+  H5Dclose(ds);
+  H5Fclose(f);
+  if (rc < 0) throw InputError(path + ": cannot read dataset '" + dataset + "' as numbers");
+  dims.assign(d.begin(), d.end());
+  return v;
+}
+
 std::string runEpisode(const Scenario& scenario, const std::string& dir, EpisodeOptions options) {
   std::error_code ec;
   fs::create_directories(dir, ec);

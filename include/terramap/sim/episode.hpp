@@ -6,6 +6,7 @@
 #include <terramap/core/events.hpp>
 #include <terramap/sim/simulator.hpp>
 
+#include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
@@ -39,6 +40,12 @@ class EpisodeWriter {
  private:
   std::unique_ptr<Impl> impl_;
 };
+
+/// Reads one numeric dataset of an episode (any numeric type, converted to double) with its
+/// dimensions; e.g. "/machines/ctl1/force_base_N". For evaluation tools and tests; the layout is
+/// plain HDF5, so h5py or the HDF5 C API read it as well. \throws InputError naming file and dataset.
+std::vector<double> readEpisodeDataset(const std::string& path, const std::string& dataset,
+                                       std::vector<std::uint64_t>& dims);
 
 /// Runs a whole scenario into `dir`/episode.h5 (creating `dir`). Returns the file path.
 std::string runEpisode(const Scenario& scenario, const std::string& dir, EpisodeOptions options = {});

@@ -1,0 +1,272 @@
+// Truth physics (FEE slices, deformation mass balance), the CTL (stall), determinism and the
+// HDF5 episode.
+#include <gtest/gtest.h>
+
+#include <terramap/core/error.hpp>
+#include <terramap/core/fee.hpp>
+#include <terramap/sim/blade_physics.hpp>
+#include <terramap/sim/episode.hpp>
+#include <terramap/sim/simulator.hpp>
+
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+
+using namespace terramap;
+using namespace terramap::sim;
+
+namespace {
+
+Eigen::Isometry3d uprightBlade(double x, double y, double z) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = Eigen::Vector3d(x, y, z);
+  return T;
+}
+
+TruthTerrain flat(double size = 6.0, double res = 0.02) {
+  TerrainSpec s;
+  s.size_x_m = size; s.size_y_m = size; s.origin_x_m = -size / 2; s.origin_y_m = -size / 2; s.resolution_m = res;
+  return buildTerrain(s);
+}
+
+std::string scenarioYaml(const std::string& soil, double depth, double raise_rate, double duration, int threads,
+                         bool lidar) {
+  std::string y = "version: 1\nseed: 9\nduration_s: " + std::to_string(duration) + "\nthreads: " + std::to_string(threads) +
+                  "\nterrain: {size_m: [14, 6], origin_m: [-3, -3], resolution_m: 0.02, snapshot_interval_s: 0.5,\n"
+                  "  hills: {count: 4, amplitude_m: [-0.05, 0.08], sigma_m: [0.8, 1.5], seed: 3}}\n"
+                  "soil: {default: " + soil + "}\n"
+                  "machines:\n  - id: ctl1\n    controller: {type: route, start_m: [0, 0], length_m: 8, passes: 1, depth_m: " +
+                  std::to_string(depth) + ", speed_mps: 0.8, stall: {raise_rate_mps: " + std::to_string(raise_rate) + "}}\n" +
+                  "    sensors:\n      - {id: force, type: force}\n      - {id: gnss, type: pose}\n";
+  if (lidar) y += "      - {id: top, type: lidar, preset: vlp32, columns: 360, offset_m: [0, 0, 2.0]}\n"
+                  "      - {id: line, type: lidar, preset: single_line, offset_m: [0.8, 0, 2.0], rotation_deg: [0, 50, 0]}\n";
+  return y;
+}
+
+}  // namespace
+
+TEST(BladeForce, SlicesOnFlatGroundSumToTheFeeOfTheWholeBlade) {
+  TruthTerrain t = flat();
+  const SoilProperties sp = soilProperties(SoilFamily::Loam, 0.6);
+  const SoilField field(sp, {});
+  BladeGeometry g;
+  const int slices = 37;
+  const double depth = 0.12;
+  const BladeForce bf = bladeSoilForce(t, field, uprightBlade(0, 0, -depth), g, 0.025, slices, 0.0, 0.0, 0.0);
+  // Independent: one FEE evaluation for the full width (flat, no surcharge, upright blade).
+  fee::Geometry geo;
+  geo.alpha_rad = 0; geo.rho_rad = M_PI / 2; geo.d_m = depth; geo.w_m = g.width_m; geo.q_n = 0;
+  const fee::Result r = fee::evaluate(sp.fee, geo, fee::betaMin(sp.fee, geo));
+  ASSERT_TRUE(r.valid());
+  EXPECT_NEAR(bf.fee_map.x(), -r.F_total_N.x(), 1e-6 * std::abs(r.F_total_N.x()));
+  EXPECT_NEAR(bf.fee_map.z(), -r.F_total_N.y(), 1e-6 * std::abs(r.F_total_N.x()));
+  EXPECT_EQ(bf.truth.cutting_slices, slices);
+  EXPECT_NEAR(bf.truth.width_m, g.width_m, 1e-12);
+  EXPECT_NEAR(bf.truth.depth_m, depth, 1e-12);
+  EXPECT_NEAR(bf.truth.c_pa, sp.fee.c_pa, 1e-9);
+  // No contact, no force.
+  const BladeForce up = bladeSoilForce(t, field, uprightBlade(0, 0, 0.05), g, 0.025, slices, 1.0, 0.0, 0.0);
+  EXPECT_EQ(up.fee_map.norm(), 0.0);
+  EXPECT_EQ(up.truth.cutting_slices, 0);
+  // Descending into the soil adds the edge bearing resistance (upward).
+  const BladeForce pen = bladeSoilForce(t, field, uprightBlade(0, 0, -depth), g, 0.025, slices, 0.0, -0.1, 0.0);
+  EXPECT_GT(pen.penetration_map.z(), 0.0);
+}
+
+TEST(Deformation, CutPushAndRelaxConserveSoilMass) {
+  TerrainSpec s;
+  s.size_x_m = 6; s.size_y_m = 4; s.origin_x_m = -3; s.origin_y_m = -2; s.resolution_m = 0.02;
+  s.bumps.push_back({0.5, 0.2, 0.15, 0.8});
+  TruthTerrain t = buildTerrain(s);
+  SoilField field(soilProperties(SoilFamily::Clay, 0.3), {{"sand", soilProperties(SoilFamily::Sand, 0.7),
+                                                           SoilZone::Region::StripX, 0.0, 1.0, {}, 0.0, INFINITY}});
+  const double m0 = t.bankVolume();
+  BladeGeometry g;
+  Eigen::Isometry3d T = uprightBlade(-2.0, 0.0, -0.08);
+  T.linear() = (Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitX()) *
+                Eigen::AngleAxisd(-0.17, Eigen::Vector3d::UnitY()))
+                   .toRotationMatrix();
+  double cut = 0;
+  for (int k = 0; k < 900; ++k) {  // 3.6 m at 4 mm per step, slightly descending
+    Eigen::Isometry3d T1 = T;
+    T1.translation() += Eigen::Vector3d(0.004 * std::cos(0.2), 0.004 * std::sin(0.2), -0.00005);
+    cut += cutAndPush(t, field, T, T1, g, 37).cut_bank_m3;
+    if (k % 4 == 3) relaxLoose(t, field, T1, g, 1.5, 0.5, 2);
+    T = T1;
+  }
+  EXPECT_GT(cut, 0.3);  // it really cut (about 1.85 m x 0.1 m x 3.6 m)
+  double loose = 0;
+  for (int j = 0; j < t.ny(); ++j)
+    for (int i = 0; i < t.nx(); ++i) loose += t.loose(i, j);
+  EXPECT_GT(loose * 0.02 * 0.02, cut);  // swelled
+  EXPECT_NEAR(t.bankVolume() + t.lostVolume(), m0, 1e-9 * std::abs(m0) + 1e-9);
+  // Loose soil is not steeper than its repose (+ one Jacobi step of slack) away from the blade.
+  const double tanr = std::tan(soilProperties(SoilFamily::Clay, 0.3).repose_rad);
+  int steep = 0, total = 0;
+  for (int j = 1; j < t.ny() - 1; ++j)
+    for (int i = 1; i < t.nx() - 1; ++i) {
+      if (t.loose(i, j) <= 0.0) continue;
+      ++total;
+      if ((t.height(i, j) - t.height(i + 1, j)) / 0.02 > tanr + 2.0) ++steep;
+    }
+  EXPECT_LT(steep, total / 10 + 5);
+}
+
+TEST(Ctl, StallsWhenTheCutIsTooDeepForTheTractiveForce) {
+  // Dense clay (c = 70 kPa) at 0.3 m: the FEE force across 1.85 m far exceeds
+  // 0.75 * 5200 kg * g = 38.3 kN of traction. Blade raising is disabled to see the stall.
+  Scenario deep = parseScenario(scenarioYaml("{family: clay, relative_density: 1.0}", 0.30, 0.0, 6.0, 1, false), "deep.yaml");
+  deep.machines[0].lift_down_force_n = 1e9;  // let the blade reach the depth
+  deep.machines[0].joint_min[0] = -0.35;
+  Simulator sim(deep);
+  std::vector<Event> ev;
+  int stalled = 0;
+  double max_resist = 0;
+  while (sim.next(ev)) {
+    ev.clear();
+    stalled += sim.machineTruth(0).stalled ? 1 : 0;
+    max_resist = std::max(max_resist, -sim.machineTruth(0).force_map_N.x());
+  }
+  EXPECT_GT(stalled, 60);  // more than a second stalled
+  EXPECT_LT(sim.machine(0).x(), 2.5);
+  const double traction = 0.75 * 5200 * 9.80665;
+  EXPECT_GT(max_resist, 0.7 * traction);
+  // Shallow cut in loose sand: no stall, and it covers the route at ~0.8 m/s.
+  Simulator easy(parseScenario(scenarioYaml("{family: sand, relative_density: 0.1}", 0.05, 0.0, 6.0, 1, false), "easy.yaml"));
+  int stalled2 = 0;
+  while (easy.next(ev)) {
+    ev.clear();
+    stalled2 += easy.machineTruth(0).stalled ? 1 : 0;
+  }
+  EXPECT_EQ(stalled2, 0);
+  EXPECT_GT(easy.machine(0).x(), 3.5);
+}
+
+TEST(Ctl, SpeedControllerRaisesTheBladeWhenTrackingFails) {
+  Scenario deep = parseScenario(scenarioYaml("{family: clay, relative_density: 1.0}", 0.30, 0.3, 8.0, 1, false), "deep.yaml");
+  deep.machines[0].lift_down_force_n = 1e9;
+  deep.machines[0].joint_min[0] = -0.35;
+  Simulator sim(deep);
+  std::vector<Event> ev;
+  double max_raise = 0;
+  while (sim.next(ev)) {
+    ev.clear();
+    max_raise = std::max(max_raise, sim.machineTruth(0).raise_offset_m);
+  }
+  EXPECT_GT(max_raise, 0.05);
+  EXPECT_GT(sim.machine(0).x(), 3.0);  // it got going again
+}
+
+TEST(Simulator, EventsAreTimeOrderedAndMassIsConserved) {
+  Simulator sim(parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 2.0, 2, true), "s.yaml"));
+  const double m0 = sim.truth().bankVolume();
+  std::vector<Event> ev;
+  double last = -1;
+  int clouds = 0, obs = 0;
+  while (sim.next(ev)) {
+    for (const Event& e : ev) {
+      ASSERT_GE(stampOf(e), last);
+      last = stampOf(e);
+      clouds += std::holds_alternative<PointCloud>(e);
+      obs += std::holds_alternative<Observation>(e);
+    }
+    ev.clear();
+  }
+  EXPECT_EQ(obs, 120);
+  // Scans at k / rate for k = 0.. (scan 0 at the first physics step): 21 vlp32 + 51 single line.
+  EXPECT_EQ(clouds, 21 + 51);
+  EXPECT_GT(sim.machineTruth(0).cut_bank_m3, 0.01);
+  EXPECT_NEAR(sim.truth().bankVolume() + sim.truth().lostVolume(), m0, 1e-9 * std::abs(m0) + 1e-9);
+}
+
+namespace {
+void flatten(const std::vector<Event>& ev, std::vector<double>& nums, std::vector<float>& pts) {
+  for (const Event& e : ev) {
+    nums.push_back(stampOf(e));
+    if (const auto* p = std::get_if<PointCloud>(&e)) {
+      pts.insert(pts.end(), reinterpret_cast<const float*>(p->points.data()),
+                 reinterpret_cast<const float*>(p->points.data()) + 4 * p->points.size());
+      for (int k = 0; k < 16; ++k) nums.push_back(p->T_map_sensor.matrix().data()[k]);
+    } else if (const auto* o = std::get_if<Observation>(&e)) {
+      for (int k = 0; k < 16; ++k) nums.push_back(o->T_map_blade.matrix().data()[k]);
+      for (int k = 0; k < 3; ++k) nums.push_back(o->force_base_N[k]);
+      nums.push_back(o->engine_speed_rpm);
+    } else if (const auto* q = std::get_if<Pose>(&e)) {
+      for (int k = 0; k < 16; ++k) nums.push_back(q->T_map_base.matrix().data()[k]);
+    }
+  }
+}
+}  // namespace
+
+TEST(Simulator, SameSeedIsBitIdenticalForAnyThreadCount) {
+  std::vector<double> n1, n2, n3;
+  std::vector<float> p1, p2, p3;
+  for (int run = 0; run < 3; ++run) {
+    Scenario sc = parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.5, run == 1 ? 2 : 1, true), "s.yaml");
+    if (run == 2) sc.seed = 10;
+    Simulator sim(sc);
+    std::vector<Event> ev;
+    while (sim.next(ev)) {}
+    flatten(ev, run == 0 ? n1 : run == 1 ? n2 : n3, run == 0 ? p1 : run == 1 ? p2 : p3);
+  }
+  ASSERT_EQ(n1.size(), n2.size());
+  ASSERT_EQ(p1.size(), p2.size());
+  EXPECT_EQ(0, std::memcmp(n1.data(), n2.data(), n1.size() * sizeof(double)));
+  EXPECT_EQ(0, std::memcmp(p1.data(), p2.data(), p1.size() * sizeof(float)));
+  // A different seed changes the noise.
+  EXPECT_FALSE(p1.size() == p3.size() && std::memcmp(p1.data(), p3.data(), p1.size() * sizeof(float)) == 0);
+}
+
+TEST(Episode, HdfLayoutReadsBack) {
+  const std::string dir = std::string(TERRAMAP_BINARY_DIR) + "/sim_test_episode";
+  std::filesystem::remove_all(dir);
+  const Scenario sc = parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.0, 2, true), "s.yaml");
+  const std::string path = runEpisode(sc, dir);
+  // Reference values from a second, identical run.
+  Simulator sim(sc);
+  std::vector<Event> ev;
+  std::vector<Observation> obs;
+  std::size_t top_points = 0, top_scans = 0;
+  while (sim.next(ev)) {
+    for (auto& e : ev) {
+      if (auto* o = std::get_if<Observation>(&e)) obs.push_back(*o);
+      if (auto* p = std::get_if<PointCloud>(&e); p && p->frame == "ctl1/top") {
+        top_points += p->points.size();
+        ++top_scans;
+      }
+    }
+    ev.clear();
+  }
+  std::vector<std::uint64_t> dims;
+  auto readDoubles = [&path](const char* name, std::vector<std::uint64_t>& d) { return readEpisodeDataset(path, name, d); };
+  const auto stamp = readDoubles("/machines/ctl1/stamp", dims);
+  ASSERT_EQ(stamp.size(), obs.size());
+  const auto force = readDoubles("/machines/ctl1/force_base_N", dims);
+  ASSERT_EQ(dims.size(), 2u);
+  EXPECT_EQ(dims[1], 3u);
+  const auto Tb = readDoubles("/machines/ctl1/T_map_blade", dims);
+  ASSERT_EQ(dims.size(), 3u);
+  for (std::size_t k = 0; k < obs.size(); ++k) {
+    ASSERT_EQ(stamp[k], obs[k].stamp);
+    for (int a = 0; a < 3; ++a) ASSERT_EQ(force[k * 3 + a], obs[k].force_base_N[a]);
+    for (int r = 0; r < 4; ++r)
+      for (int c = 0; c < 4; ++c) ASSERT_EQ(Tb[k * 16 + r * 4 + c], obs[k].T_map_blade.matrix()(r, c));
+  }
+  const auto pts = readDoubles("/machines/ctl1/clouds/top/points", dims);
+  EXPECT_EQ(dims[0], top_points);
+  const auto cnt = readDoubles("/machines/ctl1/clouds/top/count", dims);
+  EXPECT_EQ(dims[0], top_scans);
+  const auto h = readDoubles("/terrain/height", dims);
+  ASSERT_EQ(dims.size(), 3u);
+  EXPECT_EQ(dims[0], 3u);  // t = 0, 0.5, 1.0
+  EXPECT_EQ(dims[1], 301u);
+  EXPECT_EQ(dims[2], 701u);
+  const auto c = readDoubles("/soil/c_pa", dims);
+  EXPECT_NEAR(c[0], soilProperties(SoilFamily::Loam, 0.4).fee.c_pa, 1e-2);
+  EXPECT_THROW(readEpisodeDataset(path, "/nope", dims), InputError);
+  // No temporary files are left behind.
+  int files = 0;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) files += e.is_regular_file();
+  EXPECT_EQ(files, 1);
+}
