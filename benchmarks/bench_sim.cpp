@@ -1,0 +1,81 @@
+// Simulator throughput: simulated seconds per wall second (one CTL, 64-beam LiDAR at 10 Hz,
+// observations at 60 Hz, 2 threads) and LiDAR rays per second.
+#include <benchmark/benchmark.h>
+
+#include <terramap/sim/lidar.hpp>
+#include <terramap/sim/simulator.hpp>
+
+#include <string>
+
+using namespace terramap;
+using namespace terramap::sim;
+
+namespace {
+
+Scenario benchScenario(int threads) {
+  const std::string y = R"(version: 1
+seed: 1
+duration_s: 2
+physics_hz: 240
+observation_hz: 60
+threads: )" + std::to_string(threads) + R"(
+terrain:
+  size_m: [30, 30]
+  resolution_m: 0.02
+  hills: {count: 20, amplitude_m: [-0.25, 0.3], sigma_m: [1.0, 4.0], seed: 4}
+soil: {default: {family: loam, relative_density: 0.5}}
+machines:
+  - id: ctl1
+    pose: {x_m: -8, y_m: 0}
+    controller: {type: random_walk}
+    sensors:
+      - {id: top, type: lidar, preset: os1_64, rate_hz: 10, offset_m: [0.3, 0, 2.1]}
+      - {id: force, type: force}
+)";
+  return parseScenario(y, "bench_sim.yaml");
+}
+
+void BM_SimRealtime(benchmark::State& state) {
+  const Scenario sc = benchScenario(static_cast<int>(state.range(0)));
+  double simulated = 0;
+  std::uint64_t rays = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    Simulator sim(sc);  // terrain construction is not part of the measured loop
+    std::vector<Event> ev;
+    state.ResumeTiming();
+    while (sim.next(ev)) ev.clear();
+    simulated += sim.time();
+    rays += sim.stats().rays;
+  }
+  state.counters["realtime_factor"] = benchmark::Counter(simulated, benchmark::Counter::kIsRate);
+  state.counters["rays_per_second"] = benchmark::Counter(static_cast<double>(rays), benchmark::Counter::kIsRate);
+}
+BENCHMARK(BM_SimRealtime)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
+
+void BM_SimLidarRays(benchmark::State& state) {
+  TerrainSpec ts;
+  ts.size_x_m = 30; ts.size_y_m = 30; ts.origin_x_m = -15; ts.origin_y_m = -15; ts.resolution_m = 0.02;
+  std::mt19937_64 rng(4);
+  std::uniform_real_distribution<double> U(0, 1);
+  for (int k = 0; k < 20; ++k) ts.bumps.push_back({-15 + 30 * U(rng), -15 + 30 * U(rng), -0.25 + 0.55 * U(rng), 1 + 3 * U(rng)});
+  const TruthTerrain t = buildTerrain(ts);
+  SensorSpec ss;
+  applyLidarPreset("os1_64", ss);
+  const LidarModel L(ss);
+  Executor ex(static_cast<int>(state.range(0)));
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = Eigen::Vector3d(0, 0, 2.4);
+  std::vector<PointXYZI> pts;
+  std::uint64_t key = 0;
+  for (auto _ : state) {
+    L.scan(t, T, ++key, &ex, pts);
+    benchmark::DoNotOptimize(pts.data());
+  }
+  state.SetItemsProcessed(static_cast<int64_t>(state.iterations() * L.raysPerScan()));
+}
+BENCHMARK(BM_SimLidarRays)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+}  // namespace
+
+BENCHMARK_MAIN();
