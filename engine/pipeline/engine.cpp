@@ -285,8 +285,10 @@ void Engine::finish() {
   for (auto& st : stages_) {
     ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
     ctx.setStamp(report_.last_stamp);
+    const auto s0 = std::chrono::steady_clock::now();
     try {
       st->prepared.plugin->finish(ctx);
+      st->stats.wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - s0).count();
     } catch (const std::exception& e) {
       throw PluginError("stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() +
                         ") threw in finish(): " + e.what());

@@ -7,6 +7,8 @@ namespace terramap {
 
 Source::~Source() = default;
 
+void registerModuleSources();  // source_builtin.cpp
+
 namespace {
 std::map<std::string, SourceFactory>& factories() {
   static std::map<std::string, SourceFactory> f;
@@ -97,6 +99,7 @@ void registerBuiltins() {
       checkSourceKeys(spec.source, {});
       return std::make_unique<NoneSource>();
     });
+    registerModuleSources();
   });
 }
 }  // namespace

@@ -1,0 +1,40 @@
+#pragma once
+/// \file
+/// Running a whole pipeline file: validate, build the engine, play the source through it,
+/// finish, write the outputs (GeoTIFF, PNG, snapshot, JSON report) into `outputs.dir`.
+#include <terramap/pipeline/engine.hpp>
+#include <terramap/pipeline/pipeline_spec.hpp>
+
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace terramap {
+
+struct RunOptions {
+  /// Overrides outputs.dir when not empty.
+  std::string out_dir;
+  /// Overrides `threads` when > 0.
+  int threads = 0;
+  /// Called after each event with the source's progress in [0, 1] (or < 0 if unknown) and
+  /// the number of events so far. Runs on the calling thread.
+  std::function<void(double progress, long events)> on_progress;
+};
+
+struct RunResult {
+  RunReport report;
+  std::vector<std::string> files;  ///< every file written
+  std::string out_dir;
+};
+
+/// \throws ConfigError (invalid pipeline: every problem at once), InputError (bad data),
+///   PluginError, LayerError, OutputError. Outputs are written only after a complete run.
+TERRAMAP_API RunResult runPipeline(const PipelineSpec& spec, const RunOptions& options = {});
+
+/// The demo pipeline compiled into the binary (configs/demo.yaml at build time), with its
+/// relative paths resolved against `base_dir`.
+TERRAMAP_API std::string embeddedDemoPipeline();
+/// Folder the demo's relative paths resolve against (the source tree's configs/ at build time).
+TERRAMAP_API std::string embeddedDemoBaseDir();
+
+}  // namespace terramap
