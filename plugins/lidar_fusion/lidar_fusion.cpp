@@ -177,6 +177,8 @@ void LidarFusion::bindLayers(const LayeredMap& map) {
   bound_map_ = &map;
   tile_known_.assign(static_cast<size_t>(map.tileCount()), 0);
   hit_tiles_.clear();
+  hit_start_.clear();
+  hit_offs_.clear();
   tables_start_ = Index(-1, -1);
 }
 
@@ -284,12 +286,17 @@ void LidarFusion::binItems(const Executor& ex, std::vector<std::vector<Item>>& c
 }
 
 void LidarFusion::resetHits(LayeredMap& map, const Executor& ex) {
-  const size_t n = static_cast<size_t>(map.tileSize()) * static_cast<size_t>(map.tileSize());
+  // Only the cells the previous cloud wrote (its binned points, still sorted by tile): a
+  // whole-tile fill would cost 16 KB per touched tile per cloud.
   ex.forEach(static_cast<int>(hit_tiles_.size()), [&](int k) {
-    float* h = map.mutableTileData(hits_, hit_tiles_[static_cast<size_t>(k)]);
-    std::fill(h, h + n, 0.0f);
+    const int t = hit_tiles_[static_cast<size_t>(k)];
+    float* h = map.mutableTileData(hits_, t);
+    for (int q = hit_start_[static_cast<size_t>(k)]; q < hit_start_[static_cast<size_t>(k) + 1]; ++q)
+      h[hit_offs_[static_cast<size_t>(q)]] = 0.0f;
   });
   hit_tiles_.clear();
+  hit_start_.clear();
+  hit_offs_.clear();
 }
 
 // ---- fusion ----------------------------------------------------------------------------------
@@ -342,8 +349,9 @@ FusionStats LidarFusion::fuse(LayeredMap& map, const Executor& ex, const PointCl
       const double z = Rm(2, 0) * px + Rm(2, 1) * py + Rm(2, 2) * pz + tv.z();
       const double dz = z - tv.z();
       if (dz > cf.max_height_above_sensor_m) { ++d[3]; continue; }
-      if (cf.enable_ramped_height_range) {
-        const double dxy = std::hypot(x - tv.x(), y - tv.y());
+      // The ramp allows at least c (a >= 0), so only points above c need the distance.
+      if (cf.enable_ramped_height_range && dz > cf.ramped_height_range_c_m) {
+        const double dxy = std::sqrt((x - tv.x()) * (x - tv.x()) + (y - tv.y()) * (y - tv.y()));
         if (dz > std::max(dxy - cf.ramped_height_range_b_m, 0.0) * cf.ramped_height_range_a +
                      cf.ramped_height_range_c_m) {
           ++d[3];
@@ -358,10 +366,12 @@ FusionStats LidarFusion::fuse(LayeredMap& map, const Executor& ex, const PointCl
       // Same arithmetic as Geometry::indexAt, so a point lands in the cell indexAt names.
       const double fi = (xmax - x) / res;
       const double fj = (ymax - y) / res;
-      if (!(fi > 0.0) || !(fj > 0.0)) { ++d[4]; continue; }
-      const double di = std::ceil(fi) - 1.0, dj = std::ceil(fj) - 1.0;
-      if (di >= R || dj >= C) { ++d[4]; continue; }
-      const int li = static_cast<int>(di), lj = static_cast<int>(dj);
+      // Inside iff 0 < f <= size; then index = ceil(f) - 1 (truncation is floor for f > 0,
+      // and avoids a libm call on targets without SSE4.1 rounding).
+      if (!(fi > 0.0) || !(fj > 0.0) || !(fi <= R) || !(fj <= C)) { ++d[4]; continue; }
+      const int ti = static_cast<int>(fi), tj = static_cast<int>(fj);
+      const int li = static_cast<double>(ti) == fi ? ti - 1 : ti;
+      const int lj = static_cast<double>(tj) == fj ? tj - 1 : tj;
       double var;
       if (cf.noise_model == NoiseModel::RangeBased) {
         const double sigma = cf.range_noise_a_m + cf.range_noise_b * r;
@@ -520,8 +530,12 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
     }
     per[static_cast<size_t>(k)] = {fused, outl, forgot};
   });
+  hit_start_.push_back(0);
+  hit_offs_.resize(binned_.size());
+  for (size_t q = 0; q < binned_.size(); ++q) hit_offs_[q] = binned_[q].off;
   for (int k = 0; k < na; ++k) {
     const int t = active_tiles_[static_cast<size_t>(k)];
+    hit_start_.push_back(bin_start_[static_cast<size_t>(t) + 1]);
     st.points_fused += per[static_cast<size_t>(k)][0];
     st.outliers += per[static_cast<size_t>(k)][1];
     st.cells_forgotten += per[static_cast<size_t>(k)][2];
@@ -571,6 +585,25 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
   ex.forEach(nc, [&](int c) {
     std::vector<Item>& out = ray_chunks_[static_cast<size_t>(c)];
     out.clear();
+    // Rays of one chunk (neighbouring beams) cross the same unknown cells near the sensor
+    // again and again: a small direct-mapped cache merges their upper bounds (min is exact
+    // and the chunk's contents are fixed, so the result does not depend on scheduling).
+    constexpr int kCacheBits = 14;
+    std::vector<std::uint64_t> cache_key(1u << kCacheBits, ~std::uint64_t{0});
+    std::vector<std::uint32_t> cache_pos(1u << kCacheBits, 0);
+    auto emitUpperBound = [&](std::int32_t tile, std::uint32_t off, float z) {
+      const std::uint64_t key = (static_cast<std::uint64_t>(tile) << 20) | off;
+      const std::uint32_t slot =
+          static_cast<std::uint32_t>((key * 0x9E3779B97F4A7C15ull) >> (64 - kCacheBits));
+      if (cache_key[slot] == key) {
+        Item& it = out[cache_pos[slot]];
+        if (z < it.z) it.z = z;
+        return;
+      }
+      cache_key[slot] = key;
+      cache_pos[slot] = static_cast<std::uint32_t>(out.size());
+      out.push_back(Item{tile, off, z, kRayUpperBound});
+    };
     const std::vector<float>& ends = ray_ends_[static_cast<size_t>(c)];
     long nrays = 0, ncells = 0;
     for (size_t q = 0; q + 2 < ends.size(); q += 3) {
@@ -622,7 +655,7 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
         const float* e = E[static_cast<size_t>(tile)];
         const float h = e ? e[off] : kNaN;
         if (std::isnan(h)) {
-          out.push_back(Item{tile, off, static_cast<float>(zhi), kRayUpperBound});
+          emitUpperBound(tile, off, static_cast<float>(zhi));
         } else {
           const float* ht = HT[static_cast<size_t>(tile)];
           const bool fresh = ht && ht[off] > 0.0f;  // measured by this cloud: never cleaned by it

@@ -171,7 +171,9 @@ class LidarFusion : public Plugin {
   std::vector<int> bin_start_;     // tile -> first binned item; size tiles + 1
   std::vector<Item> binned_;
   std::vector<int> active_tiles_;  // tiles with binned items, ascending
-  std::vector<int> hit_tiles_;     // tiles whose hits layer is non-zero
+  std::vector<int> hit_tiles_;     // tiles whose hits layer is non-zero (ascending)
+  std::vector<int> hit_start_;     // per hit tile: first index into hit_offs_; size + 1
+  std::vector<std::uint32_t> hit_offs_;  // cells (tile offsets) the previous cloud hit
   std::vector<char> tile_known_;   // buffer tiles that may hold known cells (time pass)
   bool have_stamp_ = false;
   double last_stamp_ = 0.0;
