@@ -66,10 +66,10 @@ std::pair<int, int> ErosionSolver::offsetsAlong(const Eigen::Vector2d& m) {
   return {m.x() > 0 ? -1 : 1, m.y() > 0 ? -1 : 1};
 }
 
-void ErosionSolver::exchange(ErosionGrid& g, size_t o, size_t n, double& v) const {
+bool ErosionSolver::exchange(ErosionGrid& g, size_t o, size_t n, double& v) const {
   if (!g.active[o] || !g.active[n]) {
     v = 0;
-    return;
+    return false;
   }
   double diff = g.H[o] - g.H[n];
   size_t hi = o, lo = n;
@@ -85,12 +85,12 @@ void ErosionSolver::exchange(ErosionGrid& g, size_t o, size_t n, double& v) cons
   // keep trading ulps forever), or the blade holds the soil in place.
   if (diff <= dh_crit_ * (1.0 + 1e-9) + 1e-12 || g.blade[hi]) {
     v = 0;
-    return;
+    return false;
   }
   const double avail = std::min(diff, g.L[hi]);
   if (!(avail > 0)) {
     v = 0;
-    return;
+    return false;
   }
   const double t = failureTan(avail);
   const double ca = 1.0 / std::sqrt(1.0 + t * t), sa = t * ca;
@@ -101,7 +101,7 @@ void ErosionSolver::exchange(ErosionGrid& g, size_t o, size_t n, double& v) cons
     const double W = 0.5 * cfg_.unit_weight_n_m3 * r_ * r_ * (avail - r_ * t);
     if (!(W > 0)) {
       v = 0;
-      return;
+      return false;
     }
     const double coh = cfg_.cohesion_pa * r_ * r_ / ca;  // c L_f r
     fs = (coh + W * ca * tan_phi_) / (W * sa);
@@ -112,12 +112,12 @@ void ErosionSolver::exchange(ErosionGrid& g, size_t o, size_t n, double& v) cons
   }
   if (fs >= 1.0 && speed == 0.0) {
     v = 0;
-    return;
+    return false;
   }
   speed = std::max(0.0, speed + acc * cfg_.dt_s);
   if (!(speed > 0)) {
     v = 0;
-    return;
+    return false;
   }
   double h = avail * speed * cfg_.dt_s * ca / r_;
   bool stop = false;
@@ -136,56 +136,99 @@ void ErosionSolver::exchange(ErosionGrid& g, size_t o, size_t n, double& v) cons
   }
   if (!(h > 0)) {
     v = 0;
-    return;
+    return false;
   }
   g.H[hi] -= h;
   g.L[hi] = std::max(0.0, g.L[hi] - h);
   g.H[lo] += h;
   g.L[lo] += h;
   v = stop ? 0.0 : sgn * speed;
+  return true;
 }
 
-void ErosionSolver::colour(ErosionGrid& g, std::vector<double>& vi, std::vector<double>& vj, int pr, int pc,
-                           int di, int dj, int row_begin, int row_end) const {
+bool ErosionSolver::colour(ErosionGrid& g, std::vector<double>& vi, std::vector<double>& vj, int pr, int pc,
+                           int di, int dj, int row_begin, int row_end, int col_begin, int col_end) const {
+  bool any = false;
   for (int i = row_begin; i < row_end; ++i) {
     if ((i & 1) != pr) continue;
     const int ni = i + di;
-    for (int j = pc; j < g.cols; j += 2) {
+    const bool row_ok = ni >= 0 && ni < g.rows;
+    for (int j = col_begin + ((col_begin & 1) != pc ? 1 : 0); j < col_end; j += 2) {
       const size_t o = g.at(i, j);
-      if (ni >= 0 && ni < g.rows) exchange(g, o, g.at(ni, j), vi[o]);
+      if (row_ok) any |= exchange(g, o, g.at(ni, j), vi[o]);
       const int nj = j + dj;
-      if (nj >= 0 && nj < g.cols) exchange(g, o, g.at(i, nj), vj[o]);
+      if (nj >= 0 && nj < g.cols) any |= exchange(g, o, g.at(i, nj), vj[o]);
     }
   }
+  return any;
 }
+
+namespace {
+// Block of cells that can change in the next sub-step: cells holding loose soil or carrying a
+// velocity, grown by kReach. Soil moves at most one cell per exchange and a cell takes part in
+// two exchanges per colour, so within one sub-step (4 colours) nothing travels further than
+// kReach cells; every owner outside the block would only run no-op exchanges (no loose soil
+// on either side, velocity already zero). Skipping them changes no bit of the result.
+constexpr int kReach = 9;
+struct Block {
+  int r0, r1, c0, c1;
+};
+Block liveBlock(const ErosionGrid& g, const std::vector<double>& vi, const std::vector<double>& vj, const Block& in) {
+  int r0 = g.rows, r1 = -1, c0 = g.cols, c1 = -1;
+  for (int i = in.r0; i < in.r1; ++i)
+    for (int j = in.c0; j < in.c1; ++j) {
+      const size_t k = g.at(i, j);
+      if (g.L[k] > 0 || vi[k] != 0 || vj[k] != 0) {
+        r0 = std::min(r0, i);
+        r1 = std::max(r1, i);
+        c0 = std::min(c0, j);
+        c1 = std::max(c1, j);
+      }
+    }
+  if (r1 < 0) return {0, 0, 0, 0};
+  return {std::max(0, r0 - kReach), std::min(g.rows, r1 + kReach + 1), std::max(0, c0 - kReach),
+          std::min(g.cols, c1 + kReach + 1)};
+}
+}  // namespace
 
 void ErosionSolver::pass(ErosionGrid& g, int di, int dj, const Executor& ex) const {
   if (g.rows == 0 || g.cols == 0) return;
   std::vector<double> vi(g.H.size(), 0.0), vj(g.H.size(), 0.0);
-  // Below ~4k owners per colour a task costs more than it saves; the result is the same
-  // either way (each cell has one writer per colour), so the split is free to vary.
-  const long owners = static_cast<long>(g.rows) * g.cols / 4;
-  const int chunks = (ex.threads() == 1 || owners < 4096) ? 1 : std::min(g.rows / 2, ex.threads() * 2);
   static const int order[4][2] = {{0, 0}, {0, 1}, {1, 0}, {1, 1}};
-  for (int s = 0; s < cfg_.substeps; ++s)
+  Block b{0, g.rows, 0, g.cols};
+  for (int s = 0; s < cfg_.substeps; ++s) {
+    b = liveBlock(g, vi, vj, b);
+    const int rows = b.r1 - b.r0;
+    if (rows <= 0) break;  // nothing loose and nothing moving: the pass is over
+    // Below ~4k owners per colour a task costs more than it saves; the result is the same
+    // either way (each cell has one writer per colour), so the split is free to vary.
+    const long owners = static_cast<long>(rows) * (b.c1 - b.c0) / 4;
+    const int chunks = (ex.threads() == 1 || owners < 4096) ? 1 : std::min(rows / 2, ex.threads() * 2);
+    bool any = false;
     for (const auto& c : order) {
       if (chunks <= 1) {
-        colour(g, vi, vj, c[0], c[1], di, dj, 0, g.rows);
+        any |= colour(g, vi, vj, c[0], c[1], di, dj, b.r0, b.r1, b.c0, b.c1);
       } else {
+        std::vector<char> moved(static_cast<size_t>(chunks), 0);
         ex.forEach(chunks, [&](int k) {
-          // Chunk boundaries on even rows so a chunk holds whole owner rows of both parities.
-          const int b = (g.rows * k / chunks) & ~1, e = k + 1 == chunks ? g.rows : (g.rows * (k + 1) / chunks) & ~1;
-          colour(g, vi, vj, c[0], c[1], di, dj, b, e);
+          const int rb = b.r0 + rows * k / chunks, re = b.r0 + rows * (k + 1) / chunks;
+          moved[static_cast<size_t>(k)] = colour(g, vi, vj, c[0], c[1], di, dj, rb, re, b.c0, b.c1) ? 1 : 0;
         });
+        for (char m : moved) any |= m != 0;
       }
     }
+    // A sub-step in which nothing moved and every velocity is zero leaves the state exactly as
+    // it found it, so every later sub-step would too.
+    if (!any) break;
+  }
 }
 
 void ErosionSolver::passSerial(ErosionGrid& g, int di, int dj) const {
+  // Every owner, every sub-step, no live-block skipping: the plain reference.
   std::vector<double> vi(g.H.size(), 0.0), vj(g.H.size(), 0.0);
   for (int s = 0; s < cfg_.substeps; ++s)
     for (int pr = 0; pr < 2; ++pr)
-      for (int pc = 0; pc < 2; ++pc) colour(g, vi, vj, pr, pc, di, dj, 0, g.rows);
+      for (int pc = 0; pc < 2; ++pc) colour(g, vi, vj, pr, pc, di, dj, 0, g.rows, 0, g.cols);
 }
 
 }  // namespace terramap::blind

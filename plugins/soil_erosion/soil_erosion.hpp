@@ -78,9 +78,10 @@ class ErosionSolver {
   void passSerial(ErosionGrid& g, int di, int dj) const;
 
  private:
-  void colour(ErosionGrid& g, std::vector<double>& vi, std::vector<double>& vj, int pr, int pc, int di, int dj,
-              int row_begin, int row_end) const;
-  void exchange(ErosionGrid& g, size_t o, size_t n, double& v) const;
+  bool colour(ErosionGrid& g, std::vector<double>& vi, std::vector<double>& vj, int pr, int pc, int di, int dj,
+              int row_begin, int row_end, int col_begin, int col_end) const;
+  /// True if soil moved or the pair still carries a velocity.
+  bool exchange(ErosionGrid& g, size_t o, size_t n, double& v) const;
   ErosionConfig cfg_;
   double r_, tan_phi_, K_, dh_crit_;
 };
