@@ -86,8 +86,8 @@ void removeQuietly(const fs::path& p) {
 }  // namespace
 
 fs::path temporaryPathFor(const fs::path& target) {
-  // random_device is seeded per call: names must differ across processes and threads, not be
-  // reproducible.
+  // One generator per thread, seeded from random_device: names must differ across processes
+  // and threads, not be reproducible (O_EXCL catches the astronomically rare clash).
   static thread_local std::mt19937_64 rng([] {
     std::random_device rd;
     return (static_cast<std::uint64_t>(rd()) << 32) ^ rd();
