@@ -373,9 +373,16 @@ Decoded decode(const unsigned char* p, std::size_t n, const std::string& name, b
   }
   if (n < 8) truncated(kSnapshotHeaderBytes, true);
   const std::uint32_t version = getU32(p + 4);
-  if (version != kSnapshotFormatVersion)
-    err("unsupported snapshot format version " + std::to_string(version) + " (this build reads version " +
-        std::to_string(kSnapshotFormatVersion) + ")");
+  if (version != kSnapshotFormatVersion) {
+    std::string what = "unsupported snapshot format version " + std::to_string(version) + " (this build reads version " +
+                       std::to_string(kSnapshotFormatVersion) + ")";
+    // A flipped bit in the version field looks like a version this build does not know. If the
+    // version-1 header checksum does not hold either, say so: it is more likely damage.
+    if (n >= kSnapshotHeaderBytes && getU64(p + 64) != crc64(p, 64))
+      what += ", or a damaged header: header checksum mismatch: expected " + hex64(getU64(p + 64)) +
+              " (stored at byte 64), found " + hex64(crc64(p, 64));
+    err(what);
+  }
   if (n < kSnapshotHeaderBytes) truncated(kSnapshotHeaderBytes, true);
 
   // 2. header checksum, then the length it declares, then the file checksum.
