@@ -125,6 +125,9 @@ int runExport(const ExportOptions& o, const std::set<std::string>& given) {
     jobs.emplace_back(o.layers[0], o.out.empty() ? fs::path(stem.string() + "_" + safeFileStem(o.layers[0]) + ".png")
                                                  : fs::path(o.out));
   } else {
+    if (!o.out.empty() && inferFormat(o.out) == "png")
+      return usage("--out '" + o.out + "' looks like a file, but " + std::to_string(o.layers.size()) +
+                   " PNG layers need a folder (one <layer>.png each)");
     if (!o.out.empty()) {
       std::error_code ec;
       fs::create_directories(o.out, ec);

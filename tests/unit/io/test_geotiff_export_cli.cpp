@@ -143,6 +143,9 @@ TEST_F(ExportCli, ErrorsMapToDocumentedExitCodes) {
   EXPECT_EQ(r.code, 2) << r.out;
   r = terramap("export " + q(snap_) + " --format png");
   EXPECT_EQ(r.code, 2) << r.out;
+  r = terramap("export " + q(snap_) + " -l elevation -l variance --format png --out " + q(dir_ / "two.png"));
+  EXPECT_EQ(r.code, 2) << r.out;
+  EXPECT_FALSE(fs::exists(dir_ / "two.png"));
   // 7: cannot write
   r = terramap("export " + q(snap_) + " --layer elevation --format geotiff --out " + q(dir_ / "no" / "x.tif"));
   EXPECT_EQ(r.code, 7) << r.out;
