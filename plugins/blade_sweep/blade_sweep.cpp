@@ -266,6 +266,7 @@ void BladeSweep::process(ProcessContext& ctx, const Event& event) {
   ctx.addCounter("sweeps", 1);
   ctx.addCounter("cells_cut", static_cast<double>(rec->cells_cut));
   ctx.addCounter("cut_volume_m3", rec->cut_volume_m3);
+  ctx.addCounter("cut_bank_volume_m3", rec->cut_bank_volume_m3);
   ctx.addCounter("deposit_volume_m3", rec->deposit_volume_m3);
   ctx.addCounter("deposit_unknown_volume_m3", rec->deposit_unknown_volume_m3);
   ctx.addCounter("lost_volume_m3", rec->lost_volume_m3);

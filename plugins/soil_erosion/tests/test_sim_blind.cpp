@@ -1,0 +1,167 @@
+// Blind mapping against the simulator's ground truth (paper §3.2, Fig. 10 style): the map
+// starts from the true initial terrain, LiDAR is off, only the blade's poses update it
+// (blade_sweep + soil_erosion). Checks that the blind map tracks the truth far better than the
+// un-updated map, that the cut volume matches the truth's, and that the extracted FEE geometry
+// matches the simulator's truth geometry of the cut.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+
+#include <terramap/sim/simulator.hpp>
+
+#include "../../blade_sweep/blade_sweep.hpp"
+#include "soil_erosion.hpp"
+
+using namespace terramap;
+using namespace terramap::blind;
+
+namespace {
+
+const char* kScenario = R"(
+version: 1
+name: blind_strip
+seed: 42
+duration_s: 16
+physics_hz: 240
+observation_hz: 60
+threads: 1
+terrain:
+  size_m: [16, 8]
+  origin_m: [-3, -4]
+  resolution_m: 0.02
+  hills: {count: 4, amplitude_m: [-0.06, 0.08], sigma_m: [1.5, 3.0], seed: 7}
+soil:
+  default: {family: clay, relative_density: 0.10}
+machines:
+  - id: ctl1
+    pose: {x_m: 0, y_m: 0, yaw_deg: 0}
+    blade: {width_m: 1.85, height_m: 0.76, rake_deg: 80}
+    controller:
+      type: route
+      start_m: [0, 0]
+      heading_deg: 0
+      length_m: 9
+      spacing_m: 1.6
+      passes: 1
+      depth_m: 0.08
+      speed_mps: 0.8
+)";
+
+double bilinear(const sim::TruthTerrain& t, double x, double y, bool initial) {
+  const double fx = (x - t.originX()) / t.resolution(), fy = (y - t.originY()) / t.resolution();
+  const int i = static_cast<int>(std::floor(fx)), j = static_cast<int>(std::floor(fy));
+  if (!t.inside(i, j) || !t.inside(i + 1, j + 1)) return std::nan("");
+  const double u = fx - i, v = fy - j;
+  auto h = [&](int a, int b) { return initial ? t.initialHeight(a, b) : t.height(a, b); };
+  return (1 - u) * (1 - v) * h(i, j) + u * (1 - v) * h(i + 1, j) + (1 - u) * v * h(i, j + 1) + u * v * h(i + 1, j + 1);
+}
+
+}  // namespace
+
+TEST(SimBlind, BlindMapTracksTheTruthAndExtractsItsGeometry) {
+  sim::Simulator sim(sim::parseScenario(kScenario, "blind_strip.yaml"));
+  LayeredMap map(Geometry(0.05, Size(300, 140), Position(4.5, 0.0)));
+  const LayerId h = map.addLayer("elevation", "m");
+  map.addLayer("loose", "m", 0.0f);
+  map.addLayer("height_sigma", "m");
+  const Geometry& geo = map.geometry();
+  Eigen::MatrixXf h0(geo.size().x(), geo.size().y());
+  for (int i = 0; i < geo.size().x(); ++i)
+    for (int j = 0; j < geo.size().y(); ++j) {
+      const Position p = geo.positionOf(Index(i, j));
+      h0(i, j) = static_cast<float>(bilinear(sim.truth(), p.x(), p.y(), true));
+    }
+  map.fromMatrix(h, h0);
+
+  Executor ex(2);
+  RecordBus bus;
+  PluginStats bs, es;
+  ProcessContext bctx(map, ex, bus, bs, "blade"), ectx(map, ex, bus, es, "erode");
+  BladeSweep blade;
+  blade.configure(makeParams("blade", blade.schema()));
+  SoilErosion erosion;
+  erosion.configure(makeParams("erode", erosion.schema()));
+  blade.start(bctx);
+  erosion.start(ectx);
+
+  std::vector<double> err_d, err_alpha, err_w;
+  long seen = 0;
+  std::vector<Event> events;
+  while (sim.next(events)) {
+    for (const Event& e : events) {
+      if (!std::holds_alternative<BladePose>(e)) continue;
+      blade.process(bctx, e);
+      erosion.process(ectx, e);
+      const Record* r = bus.latest(SweepRecord::kType);
+      if (!r || r->sequence == seen) continue;
+      seen = r->sequence;
+      const auto rec = std::static_pointer_cast<const SweepRecord>(r->payload);
+      const sim::FeeTruth& ft = sim.machineTruth(0).fee;
+      if (rec->fee_valid && ft.cutting_slices > 0 && std::isfinite(ft.depth_m) && !rec->steps.empty()) {
+        err_d.push_back(rec->steps.back().d_m - ft.depth_m);
+        err_alpha.push_back(rec->alpha_rad - ft.alpha_rad);
+        err_w.push_back(rec->steps.back().w_m - ft.width_m);
+      }
+    }
+    events.clear();
+  }
+  if (std::getenv("SIM_BLIND_DUMP")) {
+    const auto& mt = sim.machineTruth(0);
+    std::printf("final edge %.3f %.3f %.3f stalled %d raise %.3f\n", mt.T_map_blade.translation().x(),
+                mt.T_map_blade.translation().y(), mt.T_map_blade.translation().z(), mt.stalled ? 1 : 0, mt.raise_offset_m);
+    for (double x = -0.5; x < 9.5; x += 0.25) {
+      const auto idx = geo.indexAt(Position(x, 0.01));
+      if (!idx) continue;
+      const float hm = map.at(h, *idx);
+      std::printf("x %.2f map %.3f truth %.3f init %.3f\n", x, hm, bilinear(sim.truth(), x, 0.01, false),
+                  bilinear(sim.truth(), x, 0.01, true));
+    }
+  }
+  // Heights against the truth over the cells where either map changed, split along the route:
+  // the first 4.25 m, where the truth keeps all pushed soil in front of the blade (the blind
+  // model's assumption), and the rest, where the truth's surcharge has outgrown the 0.76 m blade
+  // and spills back into the trench behind it, which the blind model does not represent
+  // (documented limitation; reported, not asserted).
+  const Eigen::MatrixXf h1 = map.toMatrix(h);
+  double se_blind[2] = {0, 0}, se_static[2] = {0, 0};
+  long n[2] = {0, 0};
+  for (int i = 0; i < geo.size().x(); ++i)
+    for (int j = 0; j < geo.size().y(); ++j) {
+      const Position p = geo.positionOf(Index(i, j));
+      const double truth = bilinear(sim.truth(), p.x(), p.y(), false);
+      if (!std::isfinite(truth) || !std::isfinite(h1(i, j))) continue;
+      if (std::abs(truth - h0(i, j)) < 0.005 && std::abs(h1(i, j) - h0(i, j)) < 0.005) continue;
+      const int part = p.x() < 4.25 ? 0 : 1;
+      se_blind[part] += (h1(i, j) - truth) * (h1(i, j) - truth);
+      se_static[part] += (h0(i, j) - truth) * (h0(i, j) - truth);
+      ++n[part];
+    }
+  ASSERT_GT(n[0], 1000);
+  double rmse_blind[2], rmse_static[2];
+  for (int k = 0; k < 2; ++k) {
+    rmse_blind[k] = std::sqrt(se_blind[k] / std::max(1L, n[k]));
+    rmse_static[k] = std::sqrt(se_static[k] / std::max(1L, n[k]));
+  }
+  auto median = [](std::vector<double> v) {
+    for (double& x : v) x = std::abs(x);
+    std::sort(v.begin(), v.end());
+    return v.empty() ? NAN : v[v.size() / 2];
+  };
+  std::printf("[ sim-blind ] first 4.25 m: %ld cells, rmse blind %.4f m, un-updated %.4f m | rest: %ld cells, "
+              "rmse blind %.4f m, un-updated %.4f m | bank cut map %.3f m3, truth %.3f m3 | %zu sweeps vs truth: "
+              "median |err| d %.4f m, alpha %.4f rad, w %.3f m\n",
+              n[0], rmse_blind[0], rmse_static[0], n[1], rmse_blind[1], rmse_static[1], bs.counters["cut_bank_volume_m3"],
+              sim.machineTruth(0).cut_bank_m3, err_d.size(), median(err_d), median(err_alpha), median(err_w));
+  // Bounds are regression guards set from the measured values (2026-11-22: rmse 1.4 cm vs
+  // 7.1 cm un-updated, bank volume 1.544 vs 1.597 m3, |d| error 2.3 cm, alpha 1e-4, w 0) with
+  // margin, not derived: the truth physics (TERA-like wedge, spill) is not the blind model.
+  EXPECT_LT(rmse_blind[0], 0.3 * rmse_static[0]);
+  EXPECT_NEAR(bs.counters["cut_bank_volume_m3"], sim.machineTruth(0).cut_bank_m3, 0.1 * sim.machineTruth(0).cut_bank_m3);
+  ASSERT_GT(err_d.size(), 10u);
+  EXPECT_LT(median(err_d), 0.03);
+  EXPECT_LT(median(err_alpha), 0.05);
+  EXPECT_LT(median(err_w), 0.15);
+}
