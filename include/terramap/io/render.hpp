@@ -92,6 +92,7 @@ struct RenderOptions {
 struct Image {
   int width = 0, height = 0;
   std::vector<std::uint8_t> rgba;  ///< 4 bytes per pixel
+  /// \throws std::out_of_range outside the image (a programming error, not user input).
   Rgba pixel(int row, int col) const;
 };
 
