@@ -224,6 +224,12 @@ void checkPlyBody(const std::string& path) {
       ++row;
       i = eol + 1;
     }
+    // PCL reports a short ASCII body only on stderr and may still return success.
+    if (row < skip + vertex->count) {
+      throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(size) + ": the ASCII body ends after " +
+                       std::to_string(row > skip ? row - skip : 0) + " vertex lines, the header declares " +
+                       std::to_string(vertex->count) + " (checked before PCL)");
+    }
     return;
   }
   std::uint64_t at = body;

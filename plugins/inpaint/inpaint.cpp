@@ -42,7 +42,7 @@ Mat Inpaint::distanceToKnown(const Mat& in) {
   Mat d(R, C);
   for (int i = 0; i < R; ++i)
     for (int j = 0; j < C; ++j) d(i, j) = std::isfinite(in(i, j)) ? 0.f : inf;
-  // Two-pass 3-4 chamfer: distances in units of 1/3 cell, exact along axes, ~2 % off at 45°.
+  // Two-pass 3-4 chamfer: distances in units of 1/3 cell, exact along axes, 5.7 % short at 45°.
   auto relax = [&](int i, int j, int di, int dj, float cost) {
     const int ii = i + di, jj = j + dj;
     if (ii < 0 || jj < 0 || ii >= R || jj >= C) return;

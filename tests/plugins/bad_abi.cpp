@@ -1,7 +1,7 @@
 // Broken on purpose: claims ABI version 99.
 #include <terramap/plugin/abi.hpp>
 extern "C" {
-__attribute__((visibility("default"))) const terramap_plugin_info_t terramap_plugin_info = {
+const terramap_plugin_info_t terramap_plugin_info = {
     99u, static_cast<std::uint32_t>(sizeof(terramap_plugin_info_t)), TERRAMAP_BUILD_FINGERPRINT,
     "bad_abi", "0.0.1", "wrong ABI number"};
 }

@@ -64,7 +64,7 @@ constexpr const char* kPluginDestroySymbol = "terramap_plugin_destroy";
 ///   TERRAMAP_PLUGIN(terramap::plugins::SmoothFilter, "smooth_filter", "1.0.0", "Gaussian smoothing")
 #define TERRAMAP_PLUGIN(Class, name_literal, version_literal, description_literal)             \
   extern "C" {                                                                                 \
-  __attribute__((visibility("default"))) const terramap_plugin_info_t terramap_plugin_info = { \
+  const terramap_plugin_info_t terramap_plugin_info = {                                        \
       TERRAMAP_PLUGIN_ABI_VERSION,                                                             \
       static_cast<std::uint32_t>(sizeof(terramap_plugin_info_t)),                              \
       TERRAMAP_BUILD_FINGERPRINT,                                                              \

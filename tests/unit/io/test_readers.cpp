@@ -462,7 +462,7 @@ TEST(PlyReader, AsciiWithFewerVerticesThanDeclaredIsRefused) {
   TempDir dir("ply_bad");
   const std::string p = dir.file("short.ply");
   spitText(p, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n");
-  expectErrorWith([&] { readPly(p); }, {p, "PCL"});
+  expectErrorWith([&] { readPly(p); }, {p, "ends after 1 vertex lines, the header declares 3"});
   // PCL would read the non-number as NaN; we refuse it with its line and offset.
   const std::string head = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
   spitText(p, head + "1 2 3\n4 x 6\n");

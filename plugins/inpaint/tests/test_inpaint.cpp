@@ -1,0 +1,86 @@
+#include "inpaint.hpp"
+
+#include <terramap/pipeline/engine.hpp>
+#include <terramap/pipeline/plugin_loader.hpp>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <random>
+
+using namespace terramap;
+using terramap::plugins::Inpaint;
+
+TEST(Inpaint, KnownCellsAreUntouchedAndAPlaneIsFilledSmoothly) {
+  Eigen::MatrixXf in(32, 32);
+  for (int i = 0; i < 32; ++i)
+    for (int j = 0; j < 32; ++j) in(i, j) = 1.0f + 0.1f * i;
+  for (int i = 10; i < 14; ++i)
+    for (int j = 10; j < 14; ++j) in(i, j) = NAN;  // a 4x4 hole in a plane
+  const Eigen::MatrixXf out = Inpaint::fill(in, -1, Executor(1));
+  for (int i = 0; i < 32; ++i)
+    for (int j = 0; j < 32; ++j) {
+      if (std::isfinite(in(i, j))) EXPECT_EQ(out(i, j), in(i, j));
+      else {
+        // Inside the hole: between the heights of the rows around it, close to the plane.
+        EXPECT_GE(out(i, j), 1.0f + 0.1f * 9 - 1e-5f);
+        EXPECT_LE(out(i, j), 1.0f + 0.1f * 14 + 1e-5f);
+        EXPECT_NEAR(out(i, j), 1.0f + 0.1f * i, 0.2f);
+      }
+    }
+}
+
+TEST(Inpaint, ConstantDataFillsWithTheConstant) {
+  Eigen::MatrixXf in = Eigen::MatrixXf::Constant(20, 17, NAN);
+  in(3, 4) = 5.0f;
+  in(15, 12) = 5.0f;
+  const Eigen::MatrixXf out = Inpaint::fill(in, -1, Executor(2));
+  EXPECT_TRUE((out.array() == 5.0f).all());
+}
+
+TEST(Inpaint, DistanceLimitLeavesFarCellsUnknown) {
+  Eigen::MatrixXf in = Eigen::MatrixXf::Constant(30, 30, NAN);
+  in(0, 0) = 1.0f;
+  const Eigen::MatrixXf d = Inpaint::distanceToKnown(in);
+  EXPECT_FLOAT_EQ(d(0, 0), 0.0f);
+  EXPECT_FLOAT_EQ(d(5, 0), 5.0f);            // along an axis: exact
+  EXPECT_FLOAT_EQ(d(5, 5), 20.0f / 3.0f);  // 3-4 chamfer: 5 diagonal steps of 4/3 (true 7.07)
+  const Eigen::MatrixXf out = Inpaint::fill(in, 4.0, Executor(1));
+  EXPECT_FLOAT_EQ(out(4, 0), 1.0f);
+  EXPECT_TRUE(std::isnan(out(5, 0)));
+  EXPECT_TRUE(std::isnan(out(29, 29)));
+}
+
+TEST(Inpaint, NothingKnownStaysUnknown) {
+  const Eigen::MatrixXf out = Inpaint::fill(Eigen::MatrixXf::Constant(8, 8, NAN), -1, Executor(1));
+  EXPECT_TRUE(out.array().isNaN().all());
+}
+
+TEST(Inpaint, BitIdenticalAtOneAndTwoThreads) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0, 1);
+  Eigen::MatrixXf in(257, 190);
+  for (int i = 0; i < in.rows(); ++i)
+    for (int j = 0; j < in.cols(); ++j) in(i, j) = u(rng) < 0.7f ? NAN : u(rng);
+  const auto a = Inpaint::fill(in, 3.0, Executor(1)), b = Inpaint::fill(in, 3.0, Executor(2));
+  EXPECT_EQ(std::memcmp(a.data(), b.data(), sizeof(float) * a.size()), 0);
+}
+
+TEST(Inpaint, RunsInAnEngineAtFinishAndCountsFilledCells) {
+  EngineOptions o;
+  o.geometry = Geometry(0.1, Size(20, 20));
+  o.map.tile_size = 16;
+  o.layers = {LayerDecl{"elevation", "m", NAN, ""}};
+  Engine e(o);
+  e.mutableMap().set(0, Index(10, 10), 3.0f);
+  e.addStage("fill", PluginRegistry::createFromFile(std::string(TERRAMAP_PLUGIN_DIR) + "/inpaint.so"),
+             {{"max_distance_m", 0.25}});
+  e.finish();
+  const LayerId out = e.map().layerId("elevation_inpainted");
+  EXPECT_FLOAT_EQ(e.map().at(out, Index(12, 10)), 3.0f);
+  EXPECT_TRUE(std::isnan(e.map().at(out, Index(13, 10))));
+  // Cells within 2.5 cells (chamfer) of the single known cell: the 5x5 block without its 4
+  // corners (corner chamfer distance 8/3 > 2.5) = 21, minus the known cell itself = 20.
+  EXPECT_EQ(e.report().stages[0].stats.counters.at("cells_filled"), 20.0);
+}

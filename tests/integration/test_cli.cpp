@@ -1,0 +1,165 @@
+// End-to-end: the `terramap` binary as a user runs it.
+#include <terramap/io/geotiff.hpp>
+#include <terramap/io/snapshot.hpp>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <sys/wait.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+namespace fs = std::filesystem;
+
+namespace {
+const std::string kBin = std::string(TERRAMAP_BINARY_DIR) + "/bin/terramap";
+
+struct Result {
+  int code = -1;
+  std::string out;  // stdout + stderr
+};
+Result sh(const std::string& args) {
+  Result r;
+  const std::string cmd = "TERRAMAP_PLUGIN_PATH= " + kBin + " " + args + " 2>&1";
+  FILE* p = popen(cmd.c_str(), "r");
+  std::array<char, 4096> buf{};
+  size_t n;
+  while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
+  const int st = pclose(p);
+  r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+  return r;
+}
+fs::path tempDir(const std::string& name) {
+  const fs::path d = fs::temp_directory_path() / ("terramap_cli_" + name + "_" + std::to_string(getpid()));
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+void write(const fs::path& p, const std::string& s) { std::ofstream(p) << s; }
+}  // namespace
+
+TEST(Cli, HelpEverywhere) {
+  for (const char* sub : {"", "run", "validate", "plugins", "export", "fee", "sim"}) {
+    const Result r = sh(std::string(sub) + " --help");
+    EXPECT_EQ(r.code, 0) << sub << "\n" << r.out;
+    EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub;
+  }
+  EXPECT_EQ(sh("no_such_command").code, 2);
+}
+
+TEST(Cli, ValidatePrintsEveryErrorAndExitsNonZero) {
+  const fs::path d = tempDir("validate");
+  write(d / "bad.yaml", R"(version: 1
+map: {resolution: 0.1, size: [20, 20], tile: 16}
+pipeline:
+  - {name: s, type: smooth_filtr}
+  - {name: t, type: smooth_filter, params: {sigma_m: 0.1, input_layer: elevation}}
+  - {name: u, type: inpaint, params: {max_distance_m: -5}}
+  - {name: v, type: smooth_filter, params: {sigma: 1, input_layer: t_out}}
+)");
+  const Result r = sh("validate " + (d / "bad.yaml").string());
+  EXPECT_EQ(r.code, 8) << r.out;
+  EXPECT_NE(r.out.find("bad.yaml:4:21: pipeline[0].type: unknown plugin type 'smooth_filtr' (did you mean "
+                       "'smooth_filter'?)"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("bad.yaml:7:45: pipeline[3].params.sigma: unknown parameter 'sigma' for plugin "
+                       "'smooth_filter' (did you mean 'sigma_m'?)"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("stage 't' reads layer 'elevation' before any stage creates it"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("pipeline[2].params.max_distance_m: must be in [-1, 10000] (got -5)"), std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("invalid (4 problems)"), std::string::npos) << r.out;
+
+  write(d / "good.yaml", R"(version: 1
+map: {resolution: 0.1, size: [20, 20], tile: 16, layers: [{name: elevation, unit: m, fill: 0}]}
+pipeline:
+  - {name: t, type: smooth_filter, params: {sigma_m: 0.1}}
+)");
+  const Result ok = sh("validate " + (d / "good.yaml").string());
+  EXPECT_EQ(ok.code, 0) << ok.out;
+  EXPECT_EQ(sh("validate " + (d / "missing.yaml").string()).code, 8);
+}
+
+TEST(Cli, RunWritesOutputsAndExportReadsTheSnapshot) {
+  const fs::path d = tempDir("run");
+  write(d / "p.yaml", R"(version: 1
+map: {resolution: 0.5, size: [24, 20], tile: 16, layers: [{name: elevation, unit: m, fill: 2.5}]}
+threads: 2
+source: {type: none}
+pipeline:
+  - {name: s, type: smooth_filter, params: {run_on: []}}
+outputs: {dir: out, geotiff: [elevation, elevation_smooth], png: all}
+)");
+  const Result r = sh("run " + (d / "p.yaml").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  const fs::path out = d / "out";
+  for (const char* f : {"map.tif", "elevation.png", "elevation_smooth.png", "map.tmap", "report.json"})
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  const auto raster = terramap::io::readRaster(out / "map.tif");
+  EXPECT_EQ(raster.driver, "GTiff");
+  ASSERT_EQ(raster.bands.size(), 2u);
+  EXPECT_EQ(raster.width, 24);  // columns = map rows (x), north up
+  EXPECT_EQ(raster.height, 20);
+  EXPECT_FLOAT_EQ(raster.bands[1].values(10, 10), 2.5f);
+  const auto report = nlohmann::json::parse(std::ifstream(out / "report.json"));
+  EXPECT_EQ(report["stages"][0]["type"], "smooth_filter");
+  EXPECT_EQ(report["stages"][0]["counters"]["passes"], 1.0);
+
+  const Result ex = sh("export " + (out / "map.tmap").string() + " --layer elevation_smooth --format png --out " +
+                       (d / "e.png").string());
+  EXPECT_EQ(ex.code, 0) << ex.out;
+  EXPECT_TRUE(fs::exists(d / "e.png"));
+  const Result ex2 = sh("export " + (out / "map.tmap").string() + " --layer elevaton --format geotiff --out " +
+                        (d / "e.tif").string());
+  EXPECT_EQ(ex2.code, 6) << ex2.out;  // layer error
+  EXPECT_NE(ex2.out.find("did you mean 'elevation'"), std::string::npos) << ex2.out;
+}
+
+TEST(Cli, ExitCodesPerErrorClass) {
+  const fs::path d = tempDir("codes");
+  write(d / "syntax.yaml", "version: 1\npipeline: [\n");
+  EXPECT_EQ(sh("run " + (d / "syntax.yaml").string()).code, 3);  // config
+  // A corrupt snapshot is an input error.
+  write(d / "bad.tmap", "TMAPgarbage");
+  EXPECT_EQ(sh("export " + (d / "bad.tmap").string() + " --layer a --format png").code, 4);
+  write(d / "plug.yaml", R"(version: 1
+map: {resolution: 0.5, size: [8, 8], tile: 8}
+plugin_paths: [)" + std::string(TERRAMAP_BINARY_DIR) + R"(/test_plugins]
+pipeline:
+  - {name: p, type: test_probe, params: {throw_on_event: 0, events: [point_cloud]}}
+source: {type: sequence, clouds: )" + std::string(TERRAMAP_DATA_DIR) + R"(/kitti_hdl64, extensions: [.bin], max_frames: 1}
+outputs: {dir: out, png: [], snapshot: false, report: false}
+)");
+  const Result r = sh("run " + (d / "plug.yaml").string());
+  EXPECT_EQ(r.code, 5) << r.out;  // plugin
+  EXPECT_NE(r.out.find("stage 'p' (test_probe) threw on point_cloud"), std::string::npos) << r.out;
+}
+
+TEST(Cli, PluginsListsFoundAndRefused) {
+  const Result r = sh(std::string("plugins --path ") + TERRAMAP_BINARY_DIR + "/test_plugins");
+  EXPECT_EQ(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("smooth_filter"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("test_probe"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("ABI version mismatch: expected 1, found 99"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("missing symbol 'terramap_plugin_create'"), std::string::npos) << r.out;
+}
+
+TEST(Cli, EmbeddedDemoWritesGeoTiffPngAndReport) {
+  const fs::path d = tempDir("demo");
+  const Result r = sh("run --out " + d.string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto raster = terramap::io::readRaster(d / "map.tif");
+  EXPECT_GE(raster.bands.size(), 1u);
+  EXPECT_EQ(raster.bands[0].description, "elevation");
+  bool any_png = false;
+  for (const auto& e : fs::directory_iterator(d)) any_png = any_png || e.path().extension() == ".png";
+  EXPECT_TRUE(any_png);
+  const auto report = nlohmann::json::parse(std::ifstream(d / "report.json"));
+  EXPECT_GT(report["events_total"].get<long>(), 0);
+  EXPECT_GT(report["stages"][0]["counters"]["points_fused"].get<double>(), 0.0);
+}
