@@ -204,20 +204,34 @@ void LayeredMap::fromMatrix(LayerId id, const Eigen::MatrixXf& m) {
 }
 
 void LayeredMap::resetLogicalRect(const CellRect& logical) {
-  const int T = options_.tile_size;
-  for (int li = logical.r0; li < logical.r0 + logical.rows; ++li) {
-    for (int lj = logical.c0; lj < logical.c0 + logical.cols; ++lj) {
-      const Index b = bufferIndex(Index(li, lj));
-      const int t = tileOfBuffer(b.x(), b.y());
-      const CellRect r = tileRect(t);
-      const size_t off = static_cast<size_t>((b.x() - r.r0) * T + (b.y() - r.c0));
-      for (size_t l = 0; l < layers_.size(); ++l) {
-        // Unallocated sparse tiles already read as the fill: do not allocate them.
-        if (!tiles_[l][static_cast<size_t>(t)]) continue;
-        mutableTileData(static_cast<LayerId>(l), t)[off] = layers_[l].fill;
-      }
+  const int R = geometry_.size().x(), C = geometry_.size().y(), T = options_.tile_size;
+  // The logical rectangle wraps around the ring buffer into at most 2 x 2 buffer rectangles;
+  // each is reset tile by tile in row spans (std::fill), not cell by cell.
+  auto spans = [](int start, int len, int n) {
+    std::vector<std::pair<int, int>> out;  // (buffer start, length)
+    const int first = std::min(len, n - start);
+    out.emplace_back(start, first);
+    if (len > first) out.emplace_back(0, len - first);
+    return out;
+  };
+  const Index b0 = bufferIndex(Index(logical.r0, logical.c0));
+  for (const auto& [br, nr] : spans(b0.x(), logical.rows, R))
+    for (const auto& [bc, nc] : spans(b0.y(), logical.cols, C)) {
+      for (int tr = br / T; tr * T < br + nr; ++tr)
+        for (int tc = bc / T; tc * T < bc + nc; ++tc) {
+          const int t = tr * tile_cols_ + tc;
+          const int r_lo = std::max(br, tr * T), r_hi = std::min(br + nr, (tr + 1) * T);
+          const int c_lo = std::max(bc, tc * T), c_hi = std::min(bc + nc, (tc + 1) * T);
+          for (size_t l = 0; l < layers_.size(); ++l) {
+            // Unallocated sparse tiles already read as the fill: do not allocate them.
+            if (!tiles_[l][static_cast<size_t>(t)]) continue;
+            float* d = mutableTileData(static_cast<LayerId>(l), t);
+            for (int r = r_lo; r < r_hi; ++r)
+              std::fill(d + (r - tr * T) * T + (c_lo - tc * T), d + (r - tr * T) * T + (c_hi - tc * T),
+                        layers_[l].fill);
+          }
+        }
     }
-  }
 }
 
 MoveResult LayeredMap::move(const Position& new_center) {
