@@ -35,14 +35,14 @@ std::string hex32(std::uint32_t v) {
 
 /// Loads and checks one library. Throws PluginError with the file and the mismatch.
 std::shared_ptr<PluginLibrary> openLibrary(const std::string& path) {
-  // Libraries stay cached for the life of the process: unloading code whose objects (or
-  // exception types, or thread-local destructors) may still be referenced is not worth it.
+  // Accepted libraries stay loaded for the life of the process: objects they made (records
+  // on the bus, exceptions in flight, snapshots a user holds) may outlive every plugin
+  // instance, and running their destructors after an unload would crash.
   static std::mutex mu;
-  static std::map<std::string, std::weak_ptr<PluginLibrary>> cache;
+  static auto* cache = new std::map<std::string, std::shared_ptr<PluginLibrary>>();  // never destroyed
   const std::string key = fs::weakly_canonical(path).string();
   std::lock_guard<std::mutex> lock(mu);
-  if (auto it = cache.find(key); it != cache.end())
-    if (auto sp = it->second.lock()) return sp;
+  if (auto it = cache->find(key); it != cache->end()) return it->second;
 
   auto lib = std::make_shared<PluginLibrary>();
   lib->path = path;
@@ -78,7 +78,7 @@ std::shared_ptr<PluginLibrary> openLibrary(const std::string& path) {
   if (lib->type.empty()) throw PluginError(path + ": plugin info record has an empty name");
   lib->create = &lib->lib.get<Plugin*()>(kPluginCreateSymbol);
   lib->destroy = &lib->lib.get<void(Plugin*)>(kPluginDestroySymbol);
-  cache[key] = lib;
+  (*cache)[key] = lib;
   return lib;
 }
 

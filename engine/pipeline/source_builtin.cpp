@@ -144,6 +144,18 @@ class SimEventSource : public Source {
   }
   double progress() const override { return duration_ > 0 ? std::min(1.0, sim_->time() / duration_) : 1.0; }
   const sim::Simulator& simulator() const { return *sim_; }
+  bool truth(const std::string& layer, const Geometry& g, Eigen::MatrixXf& out) const override {
+    if (layer != "elevation") return false;
+    // The truth surface (undisturbed + loose soil) at each cell centre; NaN off the terrain.
+    const sim::TruthTerrain& t = sim_->truth();
+    out.resize(g.size().x(), g.size().y());
+    for (int i = 0; i < g.size().x(); ++i)
+      for (int j = 0; j < g.size().y(); ++j) {
+        const Position p = g.positionOf(Index(i, j));
+        out(i, j) = static_cast<float>(t.heightAt(p.x(), p.y()));  // NaN off the truth grid
+      }
+    return true;
+  }
 
  private:
   std::unique_ptr<sim::Simulator> sim_;

@@ -162,4 +162,29 @@ TEST(Cli, EmbeddedDemoWritesGeoTiffPngAndReport) {
   const auto report = nlohmann::json::parse(std::ifstream(d / "report.json"));
   EXPECT_GT(report["events_total"].get<long>(), 0);
   EXPECT_GT(report["stages"][0]["counters"]["points_fused"].get<double>(), 0.0);
+  // The demo's source is the simulator: the run compares the map with its truth.
+  ASSERT_TRUE(report.contains("truth")) << report.dump(1);
+  EXPECT_GT(report["truth"]["coverage"].get<double>(), 0.9);
+  // The simulated LiDAR has 2 cm range noise; fused cells must be well inside that.
+  EXPECT_LT(report["truth"]["median_abs_m"].get<double>(), 0.02);
+  EXPECT_TRUE(fs::exists(d / "elevation_error.png"));
+  EXPECT_TRUE(fs::exists(d / "truth_elevation.png"));
+}
+
+TEST(Cli, KittiPipelineFusesRealFramesAndReportsDrops) {
+  const fs::path d = tempDir("kitti");
+  const Result r = sh("run " + std::string(TERRAMAP_SOURCE_DIR) + "/configs/kitti.yaml --out " + d.string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto report = nlohmann::json::parse(std::ifstream(d / "report.json"));
+  EXPECT_EQ(report["events"]["point_cloud"], 6);
+  const auto& lidar = report["stages"][0];
+  // Every point is either fused, counted as an outlier or dropped by a named gate.
+  long dropped = 0;
+  for (const auto& [k, v] : lidar["dropped"].items()) dropped += v.get<long>();
+  EXPECT_GT(dropped, 0);
+  EXPECT_EQ(report["dropped_total"].get<long>(), dropped);
+  EXPECT_GT(lidar["counters"]["points_fused"].get<double>(), 1e5);
+  const auto raster = terramap::io::readRaster(d / "map.tif");
+  ASSERT_EQ(raster.bands.size(), 4u);
+  EXPECT_EQ(raster.bands[3].description, "elevation_smooth");
 }

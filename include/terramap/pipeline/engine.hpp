@@ -113,8 +113,8 @@ class TERRAMAP_API Engine {
   mutable std::mutex mutex_;
   LayeredMap map_;
   Executor executor_;
-  RecordBus bus_;
   std::vector<std::unique_ptr<Stage>> stages_;
+  RecordBus bus_;  // after stages_: records are destroyed before the plugins that made them
   RunReport report_;
   bool finished_ = false;
   bool any_event_ = false;

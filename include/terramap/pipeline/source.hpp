@@ -6,6 +6,9 @@
 ///   {type: sim, scenario: FILE}                     the simulator's streams, live
 /// Each type checks its own keys (unknown key -> ConfigError with file:line:col, did-you-mean).
 #include <terramap/core/events.hpp>
+#include <terramap/core/geometry.hpp>
+
+#include <Eigen/Core>
 #include <terramap/pipeline/pipeline_spec.hpp>
 
 #include <functional>
@@ -24,6 +27,10 @@ class TERRAMAP_API Source {
   virtual double progress() const { return -1.0; }
   /// Items the source itself dropped, by reason (go into the run report).
   virtual std::map<std::string, long> dropped() const { return {}; }
+  /// Ground truth of a map layer *now*, if this source knows it (the simulator knows
+  /// `elevation`): fills `out` in logical order for geometry `g` (NaN where unknown) and
+  /// returns true. The runner uses it to write error layers, pictures and statistics.
+  virtual bool truth(const std::string& layer, const Geometry& g, Eigen::MatrixXf& out) const { return false; }
 };
 
 using SourceFactory = std::function<std::unique_ptr<Source>(const PipelineSpec& spec)>;
