@@ -176,9 +176,12 @@ void LidarFusion::bindLayers(const LayeredMap& map) {
   hits_ = map.layerId(L::kHits);
   bound_map_ = &map;
   tile_known_.assign(static_cast<size_t>(map.tileCount()), 0);
-  hit_tiles_.clear();
   hit_start_.clear();
+  hit_count_.clear();
   hit_offs_.clear();
+  prev_hit_start_.clear();
+  prev_hit_count_.clear();
+  prev_hit_offs_.clear();
   tables_start_ = Index(-1, -1);
 }
 
@@ -265,7 +268,7 @@ void LidarFusion::binItems(const Executor& ex, std::vector<std::vector<Item>>& c
     for (const Item& it : chunks[static_cast<size_t>(c)]) ++h[it.tile];
   });
   bin_start_.assign(static_cast<size_t>(ntiles) + 1, 0);
-  active_tiles_.clear();
+  ray_tiles_.clear();
   int run = 0;
   for (int t = 0; t < ntiles; ++t) {
     bin_start_[static_cast<size_t>(t)] = run;
@@ -275,7 +278,7 @@ void LidarFusion::binItems(const Executor& ex, std::vector<std::vector<Item>>& c
       h = run;
       run += k;
     }
-    if (run > bin_start_[static_cast<size_t>(t)]) active_tiles_.push_back(t);
+    if (run > bin_start_[static_cast<size_t>(t)]) ray_tiles_.push_back(t);
   }
   bin_start_[static_cast<size_t>(ntiles)] = run;
   binned_.resize(static_cast<size_t>(run));
@@ -283,20 +286,6 @@ void LidarFusion::binItems(const Executor& ex, std::vector<std::vector<Item>>& c
     int* h = &counts[static_cast<size_t>(c) * static_cast<size_t>(ntiles)];
     for (const Item& it : chunks[static_cast<size_t>(c)]) binned_[static_cast<size_t>(h[it.tile]++)] = it;
   });
-}
-
-void LidarFusion::resetHits(LayeredMap& map, const Executor& ex) {
-  // Only the cells the previous cloud wrote (its binned points, still sorted by tile): a
-  // whole-tile fill would cost 16 KB per touched tile per cloud.
-  ex.forEach(static_cast<int>(hit_tiles_.size()), [&](int k) {
-    const int t = hit_tiles_[static_cast<size_t>(k)];
-    float* h = map.mutableTileData(hits_, t);
-    for (int q = hit_start_[static_cast<size_t>(k)]; q < hit_start_[static_cast<size_t>(k) + 1]; ++q)
-      h[hit_offs_[static_cast<size_t>(q)]] = 0.0f;
-  });
-  hit_tiles_.clear();
-  hit_start_.clear();
-  hit_offs_.clear();
 }
 
 // ---- fusion ----------------------------------------------------------------------------------
@@ -309,109 +298,151 @@ FusionStats LidarFusion::fuse(LayeredMap& map, const Executor& ex, const PointCl
     throw InputError("lidar_fusion: point cloud at stamp " + num(cloud.stamp) + " s has a non-finite T_map_sensor");
   FusionStats st;
   st.points_in = static_cast<long>(cloud.points.size());
-  resetHits(map, ex);
   buildIndexTables(map);
 
+  // 1) transform, gate, noise, cell, and a stable sort by tile inside each fixed chunk.
+  preparePoints(map, ex, cloud);
+  for (const PointChunk& ch : point_chunks_) {
+    st.dropped_non_finite += ch.drops[0];
+    st.dropped_too_close += ch.drops[1];
+    st.dropped_too_far += ch.drops[2];
+    st.dropped_too_high += ch.drops[3];
+    st.dropped_outside_map += ch.drops[4];
+  }
+  // Per-tile totals and the tile lists (serial, tiles x chunks integer adds).
+  const int ntiles = map.tileCount();
+  tile_points_.assign(static_cast<size_t>(ntiles), 0);
+  for (const PointChunk& ch : point_chunks_)
+    for (int t = 0; t < ntiles; ++t)
+      tile_points_[static_cast<size_t>(t)] += ch.start[static_cast<size_t>(t) + 1] - ch.start[static_cast<size_t>(t)];
+  active_tiles_.clear();
+  for (int t = 0; t < ntiles; ++t)
+    if (tile_points_[static_cast<size_t>(t)] > 0) active_tiles_.push_back(t);
+
+  // 2) drift compensation against the map before this cloud.
+  if (config_.enable_drift_compensation) driftCompensation(map, ex, T, st);
+  prev_T_map_sensor_ = T;
+  have_prev_sensor_ = true;
+
+  // 3) per-tile sequential fusion (which first clears the previous cloud's hits).
+  fuseTiles(map, ex, st);
+
+  // 4) visibility cleanup and upper bounds.
+  if (config_.enable_visibility_cleanup) cleanup(map, ex, T.translation(), st);
+
+  accumulate(st);
+  return st;
+}
+
+void LidarFusion::preparePoints(const LayeredMap& map, const Executor& ex, const PointCloud& cloud) {
+  // Everything the loop reads, copied into locals of one struct: with the values behind
+  // references the compiler must reload them after every store into the item arrays.
+  struct Consts {
+    double r00, r01, r02, r10, r11, r12, r20, r21, r22, tx, ty, tz;
+    double xmax, ymax, res, rows, cols;
+    double min_r, max_r, max_h, ramp_a, ramp_b, ramp_c;
+    double noise_a, noise_b, noise_k;
+    bool ramp, range_based, rays;
+    int stride;
+  } k;
   const Geometry& g = map.geometry();
-  const int R = g.size().x(), C = g.size().y();
-  const double res = g.resolution();
+  const Eigen::Matrix3d Rm = cloud.T_map_sensor.linear();
+  const Eigen::Vector3d tv = cloud.T_map_sensor.translation();
   const Eigen::Array2d half = g.length() * 0.5;
-  const double xmax = g.center().x() + half.x(), ymax = g.center().y() + half.y();
-  const Eigen::Matrix3d Rm = T.linear();
-  const Eigen::Vector3d tv = T.translation();
   const LidarFusionConfig& cf = config_;
-  const bool rays = cf.enable_visibility_cleanup;
-  const int stride = cf.cleanup_ray_stride;
+  k.r00 = Rm(0, 0), k.r01 = Rm(0, 1), k.r02 = Rm(0, 2);
+  k.r10 = Rm(1, 0), k.r11 = Rm(1, 1), k.r12 = Rm(1, 2);
+  k.r20 = Rm(2, 0), k.r21 = Rm(2, 1), k.r22 = Rm(2, 2);
+  k.tx = tv.x(), k.ty = tv.y(), k.tz = tv.z();
+  k.xmax = g.center().x() + half.x(), k.ymax = g.center().y() + half.y();
+  k.res = g.resolution();
+  k.rows = g.size().x(), k.cols = g.size().y();
+  k.min_r = cf.min_range_m, k.max_r = cf.max_range_m, k.max_h = cf.max_height_above_sensor_m;
+  k.ramp_a = cf.ramped_height_range_a, k.ramp_b = cf.ramped_height_range_b_m, k.ramp_c = cf.ramped_height_range_c_m;
+  k.noise_a = cf.range_noise_a_m, k.noise_b = cf.range_noise_b, k.noise_k = cf.sensor_noise_factor;
+  k.ramp = cf.enable_ramped_height_range;
+  k.range_based = cf.noise_model == NoiseModel::RangeBased;
+  k.rays = cf.enable_visibility_cleanup;
+  k.stride = cf.cleanup_ray_stride;
 
   const int n = static_cast<int>(cloud.points.size());
   const int nc = (n + kChunk - 1) / kChunk;
+  const int ntiles = map.tileCount();
   point_chunks_.resize(static_cast<size_t>(nc));
-  ray_ends_.resize(static_cast<size_t>(nc));
-  std::vector<std::array<long, 5>> drops(static_cast<size_t>(nc));
+  const PointXYZI* pts = cloud.points.data();
+  const std::int32_t* row_tile = row_tile_.data();
+  const std::int32_t* row_local = row_local_.data();
+  const std::int32_t* col_tile = col_tile_.data();
+  const std::int32_t* col_local = col_local_.data();
 
-  // 1) transform, gate, noise, cell: one task per fixed chunk of points.
-  ex.forEach(nc, [&](int c) {
-    std::vector<Item>& out = point_chunks_[static_cast<size_t>(c)];
-    std::vector<float>& rout = ray_ends_[static_cast<size_t>(c)];
-    out.clear();
-    rout.clear();
-    std::array<long, 5> d{0, 0, 0, 0, 0};
+  ex.forEach(nc, [&, k](int c) {
+    PointChunk& ch = point_chunks_[static_cast<size_t>(c)];
     const int i0 = c * kChunk, i1 = std::min(n, i0 + kChunk);
+    ch.scratch.resize(static_cast<size_t>(i1 - i0));
+    ch.tiles.resize(static_cast<size_t>(i1 - i0));
+    ch.start.assign(static_cast<size_t>(ntiles) + 1, 0);
+    ch.ray_ends.clear();
+    PointItem* out = ch.scratch.data();
+    std::int32_t* out_tile = ch.tiles.data();
+    int* count = ch.start.data() + 1;  // histogram, shifted by one for the prefix sum below
+    long d0 = 0, d1 = 0, d2 = 0, d3 = 0, d4 = 0;
+    int m = 0;
     for (int i = i0; i < i1; ++i) {
-      const PointXYZI& p = cloud.points[static_cast<size_t>(i)];
-      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) { ++d[0]; continue; }
+      const PointXYZI& p = pts[i];
+      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) { ++d0; continue; }
       const double px = p.x, py = p.y, pz = p.z;
       const double r = std::sqrt(px * px + py * py + pz * pz);
-      if (r < cf.min_range_m) { ++d[1]; continue; }
-      if (r > cf.max_range_m) { ++d[2]; continue; }
-      const double x = Rm(0, 0) * px + Rm(0, 1) * py + Rm(0, 2) * pz + tv.x();
-      const double y = Rm(1, 0) * px + Rm(1, 1) * py + Rm(1, 2) * pz + tv.y();
-      const double z = Rm(2, 0) * px + Rm(2, 1) * py + Rm(2, 2) * pz + tv.z();
-      const double dz = z - tv.z();
-      if (dz > cf.max_height_above_sensor_m) { ++d[3]; continue; }
+      if (r < k.min_r) { ++d1; continue; }
+      if (r > k.max_r) { ++d2; continue; }
+      const double z = k.r20 * px + k.r21 * py + k.r22 * pz + k.tz;
+      const double dz = z - k.tz;
+      if (dz > k.max_h) { ++d3; continue; }
+      const double x = k.r00 * px + k.r01 * py + k.r02 * pz + k.tx;
+      const double y = k.r10 * px + k.r11 * py + k.r12 * pz + k.ty;
       // The ramp allows at least c (a >= 0), so only points above c need the distance.
-      if (cf.enable_ramped_height_range && dz > cf.ramped_height_range_c_m) {
-        const double dxy = std::sqrt((x - tv.x()) * (x - tv.x()) + (y - tv.y()) * (y - tv.y()));
-        if (dz > std::max(dxy - cf.ramped_height_range_b_m, 0.0) * cf.ramped_height_range_a +
-                     cf.ramped_height_range_c_m) {
-          ++d[3];
-          continue;
-        }
+      if (k.ramp && dz > k.ramp_c) {
+        const double dxy = std::sqrt((x - k.tx) * (x - k.tx) + (y - k.ty) * (y - k.ty));
+        if (dz > std::max(dxy - k.ramp_b, 0.0) * k.ramp_a + k.ramp_c) { ++d3; continue; }
       }
-      if (rays && i % stride == 0) {
-        rout.push_back(static_cast<float>(x - tv.x()));
-        rout.push_back(static_cast<float>(y - tv.y()));
-        rout.push_back(static_cast<float>(z - tv.z()));
+      if (k.rays && i % k.stride == 0) {
+        ch.ray_ends.push_back(static_cast<float>(x - k.tx));
+        ch.ray_ends.push_back(static_cast<float>(y - k.ty));
+        ch.ray_ends.push_back(static_cast<float>(dz));
       }
       // Same arithmetic as Geometry::indexAt, so a point lands in the cell indexAt names.
-      const double fi = (xmax - x) / res;
-      const double fj = (ymax - y) / res;
+      const double fi = (k.xmax - x) / k.res;
+      const double fj = (k.ymax - y) / k.res;
       // Inside iff 0 < f <= size; then index = ceil(f) - 1 (truncation is floor for f > 0,
       // and avoids a libm call on targets without SSE4.1 rounding).
-      if (!(fi > 0.0) || !(fj > 0.0) || !(fi <= R) || !(fj <= C)) { ++d[4]; continue; }
+      if (!(fi > 0.0) || !(fj > 0.0) || !(fi <= k.rows) || !(fj <= k.cols)) { ++d4; continue; }
       const int ti = static_cast<int>(fi), tj = static_cast<int>(fj);
       const int li = static_cast<double>(ti) == fi ? ti - 1 : ti;
       const int lj = static_cast<double>(tj) == fj ? tj - 1 : tj;
       double var;
-      if (cf.noise_model == NoiseModel::RangeBased) {
-        const double sigma = cf.range_noise_a_m + cf.range_noise_b * r;
+      if (k.range_based) {
+        const double sigma = k.noise_a + k.noise_b * r;
         var = sigma * sigma;
       } else {
-        var = cf.sensor_noise_factor * pz * pz;
+        var = k.noise_k * pz * pz;
       }
-      Item it;
-      it.tile = row_tile_[static_cast<size_t>(li)] + col_tile_[static_cast<size_t>(lj)];
-      it.off = static_cast<std::uint32_t>(row_local_[static_cast<size_t>(li)] + col_local_[static_cast<size_t>(lj)]);
-      it.z = static_cast<float>(z);
-      it.aux = static_cast<float>(var);
-      out.push_back(it);
+      const std::int32_t tile = row_tile[li] + col_tile[lj];
+      out_tile[m] = tile;
+      out[m] = PointItem{static_cast<std::uint32_t>(row_local[li] + col_local[lj]), static_cast<float>(z),
+                         static_cast<float>(var)};
+      ++count[tile];
+      ++m;
     }
-    drops[static_cast<size_t>(c)] = d;
+    ch.drops = {d0, d1, d2, d3, d4};
+    // Stable counting sort by tile: start[t] becomes the first slot of tile t; the scatter
+    // advances it to the first slot of t + 1, so shifting by one restores the starts.
+    int* start = ch.start.data();
+    for (int t = 0; t < ntiles; ++t) start[t + 1] += start[t];
+    ch.items.resize(static_cast<size_t>(m));
+    PointItem* items = ch.items.data();
+    for (int q = 0; q < m; ++q) items[start[out_tile[q]]++] = out[q];
+    for (int t = ntiles; t > 0; --t) start[t] = start[t - 1];
+    start[0] = 0;
   });
-  for (const auto& d : drops) {
-    st.dropped_non_finite += d[0];
-    st.dropped_too_close += d[1];
-    st.dropped_too_far += d[2];
-    st.dropped_too_high += d[3];
-    st.dropped_outside_map += d[4];
-  }
-
-  // 2) stable counting sort by tile.
-  binItems(ex, point_chunks_, map.tileCount());
-
-  // 3) drift compensation against the map before this cloud.
-  if (cf.enable_drift_compensation) driftCompensation(map, ex, T, st);
-  prev_T_map_sensor_ = T;
-  have_prev_sensor_ = true;
-
-  // 4) per-tile sequential fusion.
-  fuseTiles(map, ex, st);
-
-  // 5) visibility cleanup and upper bounds.
-  if (rays) cleanup(map, ex, tv, st);
-
-  accumulate(st);
-  return st;
 }
 
 void LidarFusion::driftCompensation(LayeredMap& map, const Executor& ex, const Eigen::Isometry3d& T,
@@ -429,14 +460,16 @@ void LidarFusion::driftCompensation(LayeredMap& map, const Executor& ex, const E
     if (!E || !V) return;
     double s = 0.0;
     long cnt = 0;
-    for (int q = bin_start_[static_cast<size_t>(t)]; q < bin_start_[static_cast<size_t>(t) + 1]; ++q) {
-      const Item& it = binned_[static_cast<size_t>(q)];
-      const float h = E[it.off], v = V[it.off];
-      if (!(v < vin)) continue;  // also rejects NaN (unknown)
-      const float r = it.z - h;
-      if (r * r > k2 * (v + it.aux)) continue;
-      s += r;
-      ++cnt;
+    for (const PointChunk& ch : point_chunks_) {
+      for (int q = ch.start[static_cast<size_t>(t)]; q < ch.start[static_cast<size_t>(t) + 1]; ++q) {
+        const PointItem& it = ch.items[static_cast<size_t>(q)];
+        const float h = E[it.off], v = V[it.off];
+        if (!(v < vin)) continue;  // also rejects NaN (unknown)
+        const float r = it.z - h;
+        if (r * r > k2 * (v + it.var)) continue;
+        s += r;
+        ++cnt;
+      }
     }
     sums[static_cast<size_t>(k)] = s;
     counts[static_cast<size_t>(k)] = cnt;
@@ -473,13 +506,44 @@ void LidarFusion::driftCompensation(LayeredMap& map, const Executor& ex, const E
 }
 
 void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st) {
-  const int na = static_cast<int>(active_tiles_.size());
-  std::vector<std::array<long, 3>> per(static_cast<size_t>(na));
+  const int ntiles = map.tileCount();
+  // The previous cloud's hit lists become prev_*; this cloud's are laid out per tile with
+  // room for every point of the tile (the distinct cells are at most that many).
+  std::swap(hit_start_, prev_hit_start_);
+  std::swap(hit_count_, prev_hit_count_);
+  std::swap(hit_offs_, prev_hit_offs_);
+  const bool have_prev = prev_hit_count_.size() == static_cast<size_t>(ntiles);
+  hit_start_.resize(static_cast<size_t>(ntiles) + 1);
+  hit_count_.assign(static_cast<size_t>(ntiles), 0);
+  task_tiles_.clear();
+  int run = 0;
+  for (int t = 0; t < ntiles; ++t) {
+    hit_start_[static_cast<size_t>(t)] = run;
+    const int np = tile_points_[static_cast<size_t>(t)];
+    run += np;
+    if (np > 0 || (have_prev && prev_hit_count_[static_cast<size_t>(t)] > 0)) task_tiles_.push_back(t);
+  }
+  hit_start_[static_cast<size_t>(ntiles)] = run;
+  hit_offs_.resize(static_cast<size_t>(run));
+
+  const int nt = static_cast<int>(task_tiles_.size());
+  std::vector<std::array<long, 3>> per(static_cast<size_t>(nt));
   const float k2 = static_cast<float>(config_.mahalanobis_thresh * config_.mahalanobis_thresh);
   const float ov = static_cast<float>(config_.outlier_variance_m2);
   const float vmax = static_cast<float>(config_.max_variance_m2);
-  ex.forEach(na, [&](int k) {
-    const int t = active_tiles_[static_cast<size_t>(k)];
+  ex.forEach(nt, [&](int k) {
+    const int t = task_tiles_[static_cast<size_t>(k)];
+    // Clear the cells the previous cloud hit in this tile (a whole-tile fill would cost 16 KB
+    // per tile per cloud). An unallocated (sparse) tile already reads as 0.
+    if (have_prev && prev_hit_count_[static_cast<size_t>(t)] > 0 && map.tileData(hits_, t)) {
+      float* H = map.mutableTileData(hits_, t);
+      const std::uint32_t* o = prev_hit_offs_.data() + prev_hit_start_[static_cast<size_t>(t)];
+      for (int q = 0; q < prev_hit_count_[static_cast<size_t>(t)]; ++q) H[o[q]] = 0.0f;
+    }
+    if (tile_points_[static_cast<size_t>(t)] == 0) {
+      per[static_cast<size_t>(k)] = {0, 0, 0};
+      return;
+    }
     // mutableTileData inside the tile's own task: distinct tiles may be un-shared/allocated
     // concurrently (layered_map.hpp).
     float* E = map.mutableTileData(elev_, t);
@@ -489,60 +553,65 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
     float* UB = map.mutableTileData(ub_, t);
     float* ISUB = map.mutableTileData(isub_, t);
     float* H = map.mutableTileData(hits_, t);
+    std::uint32_t* hit_list = hit_offs_.data() + hit_start_[static_cast<size_t>(t)];
+    int nhit = 0;
     long fused = 0, outl = 0, forgot = 0;
-    for (int q = bin_start_[static_cast<size_t>(t)]; q < bin_start_[static_cast<size_t>(t) + 1]; ++q) {
-      const Item& it = binned_[static_cast<size_t>(q)];
-      const std::uint32_t o = it.off;
-      const float z = it.z, vp = it.aux;
-      float h = E[o];
-      if (std::isnan(h)) {
-        // Unknown cell: the first point is the estimate (an uninformative prior).
-        E[o] = z;
-        V[o] = vp;
-      } else {
-        const float v = V[o];
-        const float r = z - h;
-        const float s = v + vp;
-        if (r * r > k2 * s) {
-          ++outl;
-          const float nv = v + ov;
-          if (nv > vmax) {
-            ++forgot;
-            E[o] = kNaN;
-            V[o] = kNaN;
-            VAL[o] = 0.0f;
-            UB[o] = kNaN;
-            ISUB[o] = 0.0f;
-          } else {
-            V[o] = nv;
+    // Chunks in order, each chunk's items of this tile in input order: input order overall.
+    for (const PointChunk& ch : point_chunks_) {
+      const PointItem* it = ch.items.data() + ch.start[static_cast<size_t>(t)];
+      const PointItem* end = ch.items.data() + ch.start[static_cast<size_t>(t) + 1];
+      for (; it != end; ++it) {
+        const std::uint32_t o = it->off;
+        const float z = it->z, vp = it->var;
+        const float h = E[o];
+        float nh;
+        if (std::isnan(h)) {
+          // Unknown cell: the first point is the estimate (an uninformative prior).
+          nh = z;
+          V[o] = vp;
+        } else {
+          const float v = V[o];
+          const float r = z - h;
+          const float s = v + vp;
+          if (r * r > k2 * s) {
+            ++outl;
+            const float nv = v + ov;
+            if (nv > vmax) {
+              ++forgot;
+              E[o] = kNaN;
+              V[o] = kNaN;
+              VAL[o] = 0.0f;
+              UB[o] = kNaN;
+              ISUB[o] = 0.0f;
+            } else {
+              V[o] = nv;
+            }
+            continue;
           }
-          continue;
+          nh = (h * vp + z * v) / s;
+          V[o] = (v * vp) / s;
         }
-        E[o] = (h * vp + z * v) / s;
-        V[o] = (v * vp) / s;
+        E[o] = nh;
+        VAL[o] = 1.0f;
+        TM[o] = 0.0f;
+        const float hits = H[o];
+        if (hits == 0.0f) hit_list[nhit++] = o;
+        H[o] = hits + 1.0f;
+        UB[o] = nh;
+        ISUB[o] = 0.0f;
+        ++fused;
       }
-      VAL[o] = 1.0f;
-      TM[o] = 0.0f;
-      H[o] += 1.0f;
-      UB[o] = E[o];
-      ISUB[o] = 0.0f;
-      ++fused;
     }
+    hit_count_[static_cast<size_t>(t)] = nhit;
     per[static_cast<size_t>(k)] = {fused, outl, forgot};
   });
-  hit_start_.push_back(0);
-  hit_offs_.resize(binned_.size());
-  for (size_t q = 0; q < binned_.size(); ++q) hit_offs_[q] = binned_[q].off;
-  for (int k = 0; k < na; ++k) {
-    const int t = active_tiles_[static_cast<size_t>(k)];
-    hit_start_.push_back(bin_start_[static_cast<size_t>(t) + 1]);
+  for (int k = 0; k < nt; ++k) {
     st.points_fused += per[static_cast<size_t>(k)][0];
     st.outliers += per[static_cast<size_t>(k)][1];
     st.cells_forgotten += per[static_cast<size_t>(k)][2];
-    tile_known_[static_cast<size_t>(t)] = 1;
-    hit_tiles_.push_back(t);
   }
-  st.tiles_touched = na;
+  for (int t : active_tiles_) tile_known_[static_cast<size_t>(t)] = 1;
+  st.tiles_touched = static_cast<long>(active_tiles_.size());
 }
 
 // ---- visibility cleanup ----------------------------------------------------------------------
@@ -575,7 +644,7 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
     const float* e = E[static_cast<size_t>(t)];
     return e ? e[o] : kNaN;
   };
-  const int nc = static_cast<int>(ray_ends_.size());
+  const int nc = static_cast<int>(point_chunks_.size());
   ray_chunks_.resize(static_cast<size_t>(nc));
   std::vector<std::array<long, 2>> per(static_cast<size_t>(nc));
   const double k = cf.mahalanobis_thresh;
@@ -604,7 +673,7 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
       cache_pos[slot] = static_cast<std::uint32_t>(out.size());
       out.push_back(Item{tile, off, z, kRayUpperBound});
     };
-    const std::vector<float>& ends = ray_ends_[static_cast<size_t>(c)];
+    const std::vector<float>& ends = point_chunks_[static_cast<size_t>(c)].ray_ends;
     long nrays = 0, ncells = 0;
     for (size_t q = 0; q + 2 < ends.size(); q += 3) {
       const double dx = ends[q], dy = ends[q + 1], dz = ends[q + 2];
@@ -699,12 +768,12 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
 
   // Phase B: bin the items per tile (stable), apply each tile's items in ray order.
   binItems(ex, ray_chunks_, ntiles);
-  const int na = static_cast<int>(active_tiles_.size());
+  const int na = static_cast<int>(ray_tiles_.size());
   std::vector<std::array<long, 3>> res3(static_cast<size_t>(na));
   const float step = static_cast<float>(cf.cleanup_step);
   const float ov = static_cast<float>(cf.outlier_variance_m2);
   ex.forEach(na, [&](int q) {
-    const int t = active_tiles_[static_cast<size_t>(q)];
+    const int t = ray_tiles_[static_cast<size_t>(q)];
     float* Ew = map.mutableTileData(elev_, t);
     float* Vw = map.mutableTileData(var_, t);
     float* VAL = map.mutableTileData(valid_, t);
@@ -740,7 +809,7 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
     st.cells_penetrated += res3[static_cast<size_t>(q)][0];
     st.cells_invalidated += res3[static_cast<size_t>(q)][1];
     st.upper_bounds += res3[static_cast<size_t>(q)][2];
-    tile_known_[static_cast<size_t>(active_tiles_[static_cast<size_t>(q)])] = 1;
+    tile_known_[static_cast<size_t>(ray_tiles_[static_cast<size_t>(q)])] = 1;
   }
 }
 

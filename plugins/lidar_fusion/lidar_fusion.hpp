@@ -28,6 +28,7 @@
 /// Threading: process() runs on the engine thread and parallelises with ctx.executor().
 #include <terramap/plugin/plugin.hpp>
 
+#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -141,15 +142,32 @@ class LidarFusion : public Plugin {
   const FusionStats& totals() const { return totals_; }
 
  private:
+  /// A ray-walk update (visibility cleanup): tile, offset in the tile, ray z, kind.
   struct Item {
     std::int32_t tile;
     std::uint32_t off;
     float z;
     float aux;
   };
+  /// A gated point, already binned: offset in its tile, map-frame z, variance.
+  struct PointItem {
+    std::uint32_t off;
+    float z;
+    float var;
+  };
+  /// One fixed chunk of kChunk input points after step 1: its points sorted by tile (stable),
+  /// with per-tile ranges, and the ray ends it contributes to the cleanup.
+  struct PointChunk {
+    std::vector<PointItem> items;      // sorted by tile, input order within a tile
+    std::vector<PointItem> scratch;    // unsorted, same length as the chunk's kept points
+    std::vector<std::int32_t> tiles;   // tile of each scratch item
+    std::vector<std::int32_t> start;   // tile -> first item; size tiles + 1
+    std::vector<float> ray_ends;       // xyz (sensor-relative, map frame) per walked ray
+    std::array<long, 5> drops{};       // non_finite, too_close, too_far, too_high, outside_map
+  };
   void bindLayers(const LayeredMap& map);
   void buildIndexTables(const LayeredMap& map);
-  void resetHits(LayeredMap& map, const Executor& ex);
+  void preparePoints(const LayeredMap& map, const Executor& ex, const PointCloud& cloud);
   void binItems(const Executor& ex, std::vector<std::vector<Item>>& chunks, int ntiles);
   void driftCompensation(LayeredMap& map, const Executor& ex, const Eigen::Isometry3d& T,
                          FusionStats& st);
@@ -166,14 +184,19 @@ class LidarFusion : public Plugin {
   std::vector<std::int32_t> row_tile_, row_local_, col_tile_, col_local_;
   Index tables_start_{-1, -1};
   // scratch reused between clouds
-  std::vector<std::vector<Item>> point_chunks_, ray_chunks_;
-  std::vector<std::vector<float>> ray_ends_;  // xyz per ray, per chunk
+  std::vector<PointChunk> point_chunks_;
+  std::vector<int> tile_points_;   // tile -> points binned this cloud
+  std::vector<int> active_tiles_;  // tiles with binned points, ascending
+  std::vector<int> task_tiles_;    // active tiles plus tiles whose hits must be cleared
+  // Cells whose `hits` the previous cloud set (distinct tile offsets), per tile: [prev_hit_start_[t],
+  // + prev_hit_count_[t]) of prev_hit_offs_. Double-buffered with the current cloud's lists.
+  std::vector<int> hit_start_, hit_count_, prev_hit_start_, prev_hit_count_;
+  std::vector<std::uint32_t> hit_offs_, prev_hit_offs_;
+  // visibility cleanup: ray items per chunk, binned per tile
+  std::vector<std::vector<Item>> ray_chunks_;
   std::vector<int> bin_start_;     // tile -> first binned item; size tiles + 1
   std::vector<Item> binned_;
-  std::vector<int> active_tiles_;  // tiles with binned items, ascending
-  std::vector<int> hit_tiles_;     // tiles whose hits layer is non-zero (ascending)
-  std::vector<int> hit_start_;     // per hit tile: first index into hit_offs_; size + 1
-  std::vector<std::uint32_t> hit_offs_;  // cells (tile offsets) the previous cloud hit
+  std::vector<int> ray_tiles_;     // tiles with binned ray items, ascending
   std::vector<char> tile_known_;   // buffer tiles that may hold known cells (time pass)
   bool have_stamp_ = false;
   double last_stamp_ = 0.0;
