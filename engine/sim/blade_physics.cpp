@@ -50,6 +50,99 @@ BladeFrame frameOf(const Eigen::Isometry3d& T, const BladeGeometry& g) {
   return f;
 }
 
+/// One Jacobi sweep of loose-soil sliding over the node box [i0, i1] x [j0, j1]; nodes under
+/// the blade (behind the edge within `back_band`) neither give nor take. False if nothing moved.
+bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double back_band, double max_step, int i0,
+                int j0, int i1, int j1) {
+  const int w = i1 - i0 + 1, h = j1 - j0 + 1;
+  thread_local std::vector<unsigned char> mask;
+  mask.assign(static_cast<std::size_t>(w) * h, 0);
+  for (int j = 0; j < h; ++j)
+    for (int i = 0; i < w; ++i) {
+      const Eigen::Vector2d p = terrain.nodePosition(i0 + i, j0 + j);
+      const double dx = p.x() - f.c.x(), dy = p.y() - f.c.y();
+      const double lat = dx * f.e_h.x() + dy * f.e_h.y();
+      const double s = dx * f.n_h.x() + dy * f.n_h.y();
+      if (std::abs(lat) <= f.half_lat + 0.5 * res && s <= 0.0 && s > -back_band) mask[static_cast<std::size_t>(j) * w + i] = 1;
+    }
+  // Scratch buffers reused across calls (per thread) to avoid page faults at 60 Hz.
+  thread_local std::vector<double> H, fx, fy, outsum;
+  H.resize(static_cast<std::size_t>(w) * h);
+  fx.resize(H.size());
+  fy.resize(H.size());
+  outsum.resize(H.size());
+  auto idx = [w](int i, int j) { return static_cast<std::size_t>(j) * w + i; };
+  thread_local std::vector<double> LV;
+  LV.resize(H.size());
+  double* Hp = H.data();
+  double* Lp = LV.data();
+  double* fxp = fx.data();
+  double* fyp = fy.data();
+  double* op = outsum.data();
+  const unsigned char* mp = mask.data();
+  bool any_loose = false;
+  for (int j = 0; j < h; ++j)
+    for (int i = 0; i < w; ++i) {
+      const std::size_t k = idx(i, j);
+      Lp[k] = terrain.loose(i0 + i, j0 + j);
+      Hp[k] = terrain.undisturbed(i0 + i, j0 + j) + Lp[k];
+      any_loose |= Lp[k] > 0.0;
+    }
+  if (!any_loose) return false;
+  std::fill(fx.begin(), fx.end(), 0.0);
+  std::fill(fy.begin(), fy.end(), 0.0);
+  std::fill(outsum.begin(), outsum.end(), 0.0);
+  bool moved = false;
+  // Edge fluxes (positive = from (i, j) to the +x / +y neighbour); only loose soil slides.
+  for (int j = 0; j < h; ++j) {
+    for (int i = 0; i < w; ++i) {
+      const std::size_t a = idx(i, j);
+      if (mp[a]) continue;
+      const double ha = Hp[a];
+      const bool la = Lp[a] > 0.0;
+      if (i + 1 < w && !mp[a + 1] && (la || Lp[a + 1] > 0.0)) {
+        const double dh = ha - Hp[a + 1];
+        const double ex = std::abs(dh) - max_step;
+        if (ex > 0 && Lp[dh > 0 ? a : a + 1] > 0.0) {
+          const double q = 0.25 * ex;
+          fxp[a] = dh > 0 ? q : -q;
+          op[dh > 0 ? a : a + 1] += q;
+          moved = true;
+        }
+      }
+      const std::size_t b = a + static_cast<std::size_t>(w);
+      if (j + 1 < h && !mp[b] && (la || Lp[b] > 0.0)) {
+        const double dh = ha - Hp[b];
+        const double ex = std::abs(dh) - max_step;
+        if (ex > 0 && Lp[dh > 0 ? a : b] > 0.0) {
+          const double q = 0.25 * ex;
+          fyp[a] = dh > 0 ? q : -q;
+          op[dh > 0 ? a : b] += q;
+          moved = true;
+        }
+      }
+    }
+  }
+  if (!moved) return false;
+  // Scale: a node gives at most the loose soil it has (bank soil does not slide).
+  for (std::size_t k = 0; k < H.size(); ++k) {
+    const double o = op[k];
+    op[k] = (o > Lp[k] && o > 0) ? Lp[k] / o : 1.0;
+  }
+  for (int j = 0; j < h; ++j) {
+    for (int i = 0; i < w; ++i) {
+      const std::size_t a = idx(i, j);
+      const double ax = fxp[a];
+      if (ax > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i + 1, j0 + j, ax * op[a]);
+      else if (ax < 0) terrain.moveLoose(i0 + i + 1, j0 + j, i0 + i, j0 + j, -ax * op[a + 1]);
+      const double ay = fyp[a];
+      if (ay > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i, j0 + j + 1, ay * op[a]);
+      else if (ay < 0) terrain.moveLoose(i0 + i, j0 + j + 1, i0 + i, j0 + j, -ay * op[a + w]);
+    }
+  }
+  return true;
+}
+
 }  // namespace
 
 BladeForce bladeSoilForce(const TruthTerrain& terrain, const SoilField& soil, const Eigen::Isometry3d& T_map_blade,
@@ -247,98 +340,35 @@ CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   const int i1 = std::min(terrain.nx() - 1, static_cast<int>(std::ceil((xmax - terrain.originX()) / res)));
   const int j1 = std::min(terrain.ny() - 1, static_cast<int>(std::ceil((ymax - terrain.originY()) / res)));
   if (i1 - i0 < 1 || j1 - j0 < 1) return out;
-  const int w = i1 - i0 + 1, h = j1 - j0 + 1;
-  thread_local std::vector<unsigned char> mask;
-  mask.assign(static_cast<std::size_t>(w) * h, 0);
-  for (int j = 0; j < h; ++j)
-    for (int i = 0; i < w; ++i) {
-      const Eigen::Vector2d p = terrain.nodePosition(i0 + i, j0 + j);
-      const double dx = p.x() - f.c.x(), dy = p.y() - f.c.y();
-      const double lat = dx * f.e_h.x() + dy * f.e_h.y();
-      const double s = dx * f.n_h.x() + dy * f.n_h.y();
-      if (std::abs(lat) <= f.half_lat + 0.5 * res && s <= 0.0 && s > -back_band) mask[static_cast<std::size_t>(j) * w + i] = 1;
-    }
   // Repose of the loose soil around the blade: that of the soil at the edge centre.
   const double h0 = terrain.initialHeightAt(f.c.x(), f.c.y());
   const double tanr = std::tan(soil.at(f.c.x(), f.c.y(), std::isnan(h0) ? 0.0 : h0 - f.c.z()).repose_rad);
   const double max_step = res * tanr;
-  // Scratch buffers reused across calls (per thread) to avoid page faults at 60 Hz.
-  thread_local std::vector<double> H, fx, fy, outsum;
-  H.resize(static_cast<std::size_t>(w) * h);
-  fx.resize(H.size());
-  fy.resize(H.size());
-  outsum.resize(H.size());
-  auto idx = [w](int i, int j) { return static_cast<std::size_t>(j) * w + i; };
-  thread_local std::vector<double> LV;
-  LV.resize(H.size());
-  double* Hp = H.data();
-  double* Lp = LV.data();
-  double* fxp = fx.data();
-  double* fyp = fy.data();
-  double* op = outsum.data();
-  const unsigned char* mp = mask.data();
+  // Only edges touching a node with loose soil carry flux, so each sweep works on the bounding
+  // box of the loose nodes grown by one (usually a thin band ahead of the blade, not the whole
+  // box). Restricting the raster keeps the move order, hence the result, unchanged.
   for (int it = 0; it < iterations; ++it) {
-    bool any_loose = false;
-    for (int j = 0; j < h; ++j)
-      for (int i = 0; i < w; ++i) {
-        const std::size_t k = idx(i, j);
-        Lp[k] = terrain.loose(i0 + i, j0 + j);
-        Hp[k] = terrain.undisturbed(i0 + i, j0 + j) + Lp[k];
-        any_loose |= Lp[k] > 0.0;
-      }
-    if (!any_loose) break;
-    std::fill(fx.begin(), fx.end(), 0.0);
-    std::fill(fy.begin(), fy.end(), 0.0);
-    std::fill(outsum.begin(), outsum.end(), 0.0);
-    bool moved = false;
-    // Edge fluxes (positive = from (i, j) to the +x / +y neighbour); only loose soil slides.
-    for (int j = 0; j < h; ++j) {
-      for (int i = 0; i < w; ++i) {
-        const std::size_t a = idx(i, j);
-        if (mp[a]) continue;
-        const double ha = Hp[a];
-        const bool la = Lp[a] > 0.0;
-        if (i + 1 < w && !mp[a + 1] && (la || Lp[a + 1] > 0.0)) {
-          const double dh = ha - Hp[a + 1];
-          const double ex = std::abs(dh) - max_step;
-          if (ex > 0 && Lp[dh > 0 ? a : a + 1] > 0.0) {
-            const double q = 0.25 * ex;
-            fxp[a] = dh > 0 ? q : -q;
-            op[dh > 0 ? a : a + 1] += q;
-            moved = true;
-          }
-        }
-        const std::size_t b = a + static_cast<std::size_t>(w);
-        if (j + 1 < h && !mp[b] && (la || Lp[b] > 0.0)) {
-          const double dh = ha - Hp[b];
-          const double ex = std::abs(dh) - max_step;
-          if (ex > 0 && Lp[dh > 0 ? a : b] > 0.0) {
-            const double q = 0.25 * ex;
-            fyp[a] = dh > 0 ? q : -q;
-            op[dh > 0 ? a : b] += q;
-            moved = true;
-          }
-        }
-      }
+    int li0 = i1 + 1, li1 = i0 - 1, lj0 = j1 + 1, lj1 = j0 - 1;
+    const std::vector<double>& lvd = terrain.looseData();
+    for (int j = j0; j <= j1; ++j) {
+      const double* row = &lvd[terrain.index(0, j)];
+      int a = i0, b = i1;
+      while (a <= i1 && !(row[a] > 0.0)) ++a;
+      if (a > i1) continue;
+      while (!(row[b] > 0.0)) --b;
+      li0 = std::min(li0, a); li1 = std::max(li1, b);
+      lj0 = std::min(lj0, j); lj1 = std::max(lj1, j);
     }
-    if (!moved) break;
-    // Scale: a node gives at most the loose soil it has (bank soil does not slide).
-    for (std::size_t k = 0; k < H.size(); ++k) {
-      const double o = op[k];
-      op[k] = (o > Lp[k] && o > 0) ? Lp[k] / o : 1.0;
+    if (li1 < li0) break;
+    const int si0 = std::max(i0, li0 - 1), si1 = std::min(i1, li1 + 1);
+    const int sj0 = std::max(j0, lj0 - 1), sj1 = std::min(j1, lj1 + 1);
+    if (!relaxSweep(terrain, f, res, back_band, max_step, si0, sj0, si1, sj1)) break;
+    if (out.i1 < out.i0) {
+      out.i0 = si0; out.j0 = sj0; out.i1 = si1; out.j1 = sj1;
+    } else {
+      out.i0 = std::min(out.i0, si0); out.j0 = std::min(out.j0, sj0);
+      out.i1 = std::max(out.i1, si1); out.j1 = std::max(out.j1, sj1);
     }
-    for (int j = 0; j < h; ++j) {
-      for (int i = 0; i < w; ++i) {
-        const std::size_t a = idx(i, j);
-        const double ax = fxp[a];
-        if (ax > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i + 1, j0 + j, ax * op[a]);
-        else if (ax < 0) terrain.moveLoose(i0 + i + 1, j0 + j, i0 + i, j0 + j, -ax * op[a + 1]);
-        const double ay = fyp[a];
-        if (ay > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i, j0 + j + 1, ay * op[a]);
-        else if (ay < 0) terrain.moveLoose(i0 + i, j0 + j + 1, i0 + i, j0 + j, -ay * op[a + w]);
-      }
-    }
-    out.i0 = i0; out.j0 = j0; out.i1 = i1; out.j1 = j1;
   }
   return out;
 }

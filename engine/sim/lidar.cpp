@@ -1,5 +1,8 @@
 // Ray-cast LiDAR.
 #include <terramap/sim/lidar.hpp>
+#include <terramap/sim/scan_caster.hpp>
+
+#include <algorithm>
 
 #include <cmath>
 #include <limits>
@@ -27,45 +30,74 @@ LidarModel::LidarModel(const SensorSpec& spec) : spec_(spec) {
       const double el = B == 1 ? 0.5 * (spec.vfov_min_rad + spec.vfov_max_rad)
                                : spec.vfov_min_rad + b * (spec.vfov_max_rad - spec.vfov_min_rad) / (B - 1);
       dirs_.emplace_back(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+      if (c == 0) elevations_.push_back(el);
     }
   }
+}
+
+double LidarModel::minSlope(const Eigen::Matrix3d& R_map_sensor) const {
+  // A direction (cos e cos a, cos e sin a, sin e) maps to d_z = r20 cos e cos a + r21 cos e sin a
+  // + r22 sin e >= r22 sin e - cos e |(r20, r21)| for every azimuth a; d_z / |d_xy| rises with
+  // d_z. A small margin covers rounding of the rotated directions.
+  const double rh = std::hypot(R_map_sensor(2, 0), R_map_sensor(2, 1));
+  double dz_min = 1.0;
+  for (double e : elevations_) dz_min = std::min(dz_min, R_map_sensor(2, 2) * std::sin(e) - std::cos(e) * rh);
+  dz_min -= 1e-9;
+  if (dz_min <= -1.0 + 1e-12) return -std::numeric_limits<double>::infinity();
+  return dz_min / std::sqrt(1.0 - dz_min * dz_min);
 }
 
 std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3d& T_map_sensor, std::uint64_t noise_key,
                              const Executor* exec, std::vector<PointXYZI>& out) const {
   const int B = spec_.beams, C = spec_.columns;
   const int chunks = (C + columns_per_chunk_ - 1) / columns_per_chunk_;
-  std::vector<std::vector<PointXYZI>> parts(chunks);
   const Eigen::Vector3d o = T_map_sensor.translation();
   const Eigen::Matrix3d R = T_map_sensor.linear();
+  // One horizon table per scan (the terrain is frozen while the scan is cast); its buffers are
+  // reused per calling thread so a scan allocates nothing after the first.
+  thread_local ScanCaster caster;
+  caster.build(terrain, o, spec_.max_range_m, minSlope(R), exec);
+  thread_local std::vector<std::vector<PointXYZI>> parts_tls;
+  // Workers must see the calling thread's buffers (a lambda names a thread_local directly).
+  std::vector<std::vector<PointXYZI>>& parts = parts_tls;
+  if (static_cast<int>(parts.size()) < chunks) parts.resize(chunks);
   const float nan = std::numeric_limits<float>::quiet_NaN();
+  const ScanCaster& cast = caster;
   auto work = [&](int ch) {
     std::vector<PointXYZI>& pts = parts[ch];
+    pts.clear();
     const int c0 = ch * columns_per_chunk_, c1 = std::min(C, c0 + columns_per_chunk_);
     pts.reserve(static_cast<std::size_t>(c1 - c0) * B);
+    std::vector<Eigen::Vector3d> dm_col(B);
+    std::vector<double> t_col(B);
+    std::vector<int> ci_col(B), cj_col(B);
     for (int c = c0; c < c1; ++c) {
+      for (int b = 0; b < B; ++b) dm_col[b] = R * dirs_[static_cast<std::size_t>(c) * B + b];
+      cast.castBatch(dm_col.data(), B, spec_.min_range_m, spec_.max_range_m, t_col.data(), ci_col.data(),
+                     cj_col.data());
       for (int b = 0; b < B; ++b) {
         const std::size_t k = static_cast<std::size_t>(c) * B + b;
         const Eigen::Vector3d& ds = dirs_[k];
-        const Eigen::Vector3d dm = R * ds;
-        double t = terrain.raycast(o, dm, spec_.min_range_m, spec_.max_range_m);
-        const std::uint64_t h = mixBits(noise_key ^ mixBits(k));
-        bool hit = !std::isnan(t);
-        if (hit && spec_.dropout > 0 && unitFromBits(mixBits(h ^ 0xd1b54a32d192ed03ULL)) < spec_.dropout) hit = false;
-        if (!hit) {
+        const Eigen::Vector3d& dm = dm_col[b];
+        const int ci = ci_col[b], cj = cj_col[b];
+        double t = t_col[b];
+        if (std::isnan(t)) {
           if (spec_.keep_dropouts) pts.push_back({nan, nan, nan, nan});
           continue;
         }
+        const std::uint64_t h = mixBits(noise_key ^ mixBits(k));
+        if (spec_.dropout > 0 && unitFromBits(mixBits(h ^ 0xd1b54a32d192ed03ULL)) < spec_.dropout) {
+          if (spec_.keep_dropouts) pts.push_back({nan, nan, nan, nan});
+          continue;
+        }
+        // Lambertian intensity from the normal of the patch that was hit (noise-free point).
+        const Eigen::Vector3d p = o + dm * t;
+        const Eigen::Vector2d g = terrain.cellGradient(ci, cj, p.x(), p.y());
+        const float inten = static_cast<float>(std::abs(dm.z() - g.x() * dm.x() - g.y() * dm.y()) /
+                                               std::sqrt(1.0 + g.x() * g.x() + g.y() * g.y()));
         if (spec_.range_noise_m > 0) {
           const double u1 = unitFromBits(h), u2 = unitFromBits(mixBits(h + 1));
           t += spec_.range_noise_m * std::sqrt(-2.0 * std::log(u1)) * std::cos(2 * M_PI * u2);
-        }
-        const Eigen::Vector3d p = o + dm * t;
-        const Eigen::Vector2d g = terrain.gradientAt(p.x(), p.y());
-        float inten = nan;
-        if (!std::isnan(g.x())) {
-          const Eigen::Vector3d n = Eigen::Vector3d(-g.x(), -g.y(), 1.0).normalized();
-          inten = static_cast<float>(std::abs(n.dot(dm)));
         }
         pts.push_back({static_cast<float>(ds.x() * t), static_cast<float>(ds.y() * t), static_cast<float>(ds.z() * t), inten});
       }
@@ -74,11 +106,11 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
   if (exec) exec->forEach(chunks, work);
   else serialForEach(chunks, work);
   std::size_t total = 0, hits = 0;
-  for (const auto& p : parts) total += p.size();
+  for (int ch = 0; ch < chunks; ++ch) total += parts[ch].size();
   out.clear();
   out.reserve(total);
-  for (const auto& p : parts) {
-    for (const PointXYZI& q : p) {
+  for (int ch = 0; ch < chunks; ++ch) {
+    for (const PointXYZI& q : parts[ch]) {
       if (!std::isnan(q.x)) ++hits;
       out.push_back(q);
     }

@@ -133,6 +133,7 @@ TruthTerrain::TruthTerrain(double origin_x_m, double origin_y_m, double resoluti
   u_.assign(n, height_m);
   lv_.assign(n, 0.0);
   lc_.assign(n, 0.0);
+  h_.assign(n, height_m);
   h0_.assign(n, static_cast<float>(height_m));
   // Pyramid levels over cells.
   int w = nx - 1, h = ny - 1;
@@ -153,10 +154,11 @@ void TruthTerrain::setUndisturbed(int i, int j, double h) {
   u_[k] = h;
   lv_[k] = 0.0;
   lc_[k] = 0.0;
+  h_[k] = u_[k] + lv_[k];
 }
 
 void TruthTerrain::captureInitial() {
-  for (std::size_t k = 0; k < u_.size(); ++k) h0_[k] = static_cast<float>(u_[k] + lv_[k]);
+  for (std::size_t k = 0; k < u_.size(); ++k) h0_[k] = static_cast<float>(h_[k]);
 }
 
 TruthTerrain::Removed TruthTerrain::removeBetween(int i, int j, double z_lo, double z_hi) {
@@ -183,6 +185,7 @@ TruthTerrain::Removed TruthTerrain::removeBetween(int i, int j, double z_lo, dou
     u_[k] -= bank_part;
     r.bank_u = bank_part;
   }
+  h_[k] = u_[k] + lv_[k];
   return r;
 }
 
@@ -190,6 +193,7 @@ void TruthTerrain::addLoose(int i, int j, double v, double c) {
   const auto k = index(i, j);
   lv_[k] += v;
   lc_[k] += c;
+  h_[k] = u_[k] + lv_[k];
 }
 
 void TruthTerrain::moveLoose(int ia, int ja, int ib, int jb, double dv) {
@@ -201,6 +205,8 @@ void TruthTerrain::moveLoose(int ia, int ja, int ib, int jb, double dv) {
   lc_[a] -= dc;
   lv_[b] += dv;
   lc_[b] += dc;
+  h_[a] = u_[a] + lv_[a];
+  h_[b] = u_[b] + lv_[b];
 }
 
 double TruthTerrain::bilinear(const std::vector<double>& a, double x, double y) const {
@@ -218,7 +224,7 @@ double TruthTerrain::heightAt(double x, double y) const {
   const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
   const double u = fx - i, v = fy - j;
   const std::size_t k = index(i, j);
-  auto H = [&](std::size_t m) { return u_[m] + lv_[m]; };
+  auto H = [&](std::size_t m) { return h_[m]; };
   return (1 - u) * (1 - v) * H(k) + u * (1 - v) * H(k + 1) + (1 - u) * v * H(k + nx_) + u * v * H(k + nx_ + 1);
 }
 
@@ -264,14 +270,12 @@ void TruthTerrain::refreshPyramid(int i0, int j0, int i1, int j1) {
   if (c0 > c1 || r0 > r1) return;
   Level& L0 = levels_[0];
   for (int cj = r0; cj <= r1; ++cj) {
-    const double* u0 = &u_[index(0, cj)];
-    const double* l0 = &lv_[index(0, cj)];
-    const double* u1 = u0 + nx_;
-    const double* l1 = l0 + nx_;
+    const double* h0 = &h_[index(0, cj)];
+    const double* h1 = h0 + nx_;
     float* out = &L0.zmax[static_cast<std::size_t>(cj) * L0.w];
-    double prev = std::max(u0[c0] + l0[c0], u1[c0] + l1[c0]);
+    double prev = std::max(h0[c0], h1[c0]);
     for (int ci = c0; ci <= c1; ++ci) {
-      const double nxt = std::max(u0[ci + 1] + l0[ci + 1], u1[ci + 1] + l1[ci + 1]);
+      const double nxt = std::max(h0[ci + 1], h1[ci + 1]);
       out[ci] = upperFloat(std::max(prev, nxt));
       prev = nxt;
     }
@@ -298,7 +302,11 @@ void TruthTerrain::refreshPyramid(int i0, int j0, int i1, int j1) {
 
 double TruthTerrain::cellHit(int ci, int cj, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double ta,
                              double tb) const {
-  const double z00 = height(ci, cj), z10 = height(ci + 1, cj), z01 = height(ci, cj + 1), z11 = height(ci + 1, cj + 1);
+  return cellHitZ(ci, cj, height(ci, cj), height(ci + 1, cj), height(ci, cj + 1), height(ci + 1, cj + 1), o, d, ta, tb);
+}
+
+double TruthTerrain::cellHitZ(int ci, int cj, double z00, double z10, double z01, double z11, const Eigen::Vector3d& o,
+                              const Eigen::Vector3d& d, double ta, double tb) const {
   const double a = z10 - z00, b = z01 - z00, c = z00 - z10 - z01 + z11;
   // Local coordinates at the interval start (s = t - ta).
   const double u0 = (o.x() + d.x() * ta - (ox_ + ci * res_)) / res_;
@@ -384,6 +392,66 @@ double TruthTerrain::raycast(const Eigen::Vector3d& o, const Eigen::Vector3d& d,
     for (int k = ns - 1; k >= 0; --k) stack[sp++] = seg[k];
   }
   return kNaN;
+}
+
+bool TruthTerrain::clipToGrid(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double& t0, double& t1) const {
+  return slabXY(o, d, ox_, maxX(), oy_, maxY(), t0, t1);
+}
+
+Eigen::Vector2d TruthTerrain::cellGradient(int ci, int cj, double x, double y) const {
+  const double u = (x - (ox_ + ci * res_)) / res_, v = (y - (oy_ + cj * res_)) / res_;
+  const double z00 = height(ci, cj), z10 = height(ci + 1, cj), z01 = height(ci, cj + 1), z11 = height(ci + 1, cj + 1);
+  const double c = z00 - z10 - z01 + z11;
+  return {((z10 - z00) + c * v) / res_, ((z01 - z00) + c * u) / res_};
+}
+
+double TruthTerrain::castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_a, double t_b, int* cell_i,
+                               int* cell_j) const {
+  if (!(t_b >= t_a)) return kNaN;
+  // Cell of the start point (clamped: the caller clipped [t_a, t_b] to the grid, so only
+  // rounding can put it a hair outside).
+  const double px = (o.x() + d.x() * t_a - ox_) / res_, py = (o.y() + d.y() * t_a - oy_) / res_;
+  // Truncation equals floor here once clamped to >= 0 (and avoids a libm floor call).
+  int ci = std::clamp(static_cast<int>(std::clamp(px, -1.0, static_cast<double>(nx_))), 0, nx_ - 2);
+  int cj = std::clamp(static_cast<int>(std::clamp(py, -1.0, static_cast<double>(ny_))), 0, ny_ - 2);
+  const int sx = d.x() > 0 ? 1 : -1, sy = d.y() > 0 ? 1 : -1;
+  const double invx = d.x() != 0.0 ? 1.0 / d.x() : 0.0, invy = d.y() != 0.0 ? 1.0 / d.y() : 0.0;
+  // Ray parameter of the next cell boundary in x / y (same expression as the pyramid walk and
+  // the reference, so the intervals agree to the bit where they start at a cell boundary).
+  auto nextX = [&](int c) { return d.x() != 0.0 ? (ox_ + (c + (sx > 0 ? 1 : 0)) * res_ - o.x()) * invx : INFINITY; };
+  auto nextY = [&](int c) { return d.y() != 0.0 ? (oy_ + (c + (sy > 0 ? 1 : 0)) * res_ - o.y()) * invy : INFINITY; };
+  double tx = nextX(ci), ty = nextY(cj);
+  double t = t_a;
+  while (true) {
+    const double te = std::min(std::min(tx, ty), t_b);
+    if (te >= t) {
+      const double za = o.z() + d.z() * t, zb = o.z() + d.z() * te;
+      // The cell's own corners bound its bilinear patch exactly (and cellHitZ needs them
+      // anyway): two cache lines, no pyramid access.
+      const double* r0 = &h_[static_cast<std::size_t>(cj) * nx_ + ci];
+      const double* r1 = r0 + nx_;
+      const double z00 = r0[0], z10 = r0[1], z01 = r1[0], z11 = r1[1];
+      if (!(std::min(za, zb) > std::max(std::max(z00, z10), std::max(z01, z11)))) {
+        const double h = cellHitZ(ci, cj, z00, z10, z01, z11, o, d, t, te);
+        if (!std::isnan(h)) {
+          if (cell_i) *cell_i = ci;
+          if (cell_j) *cell_j = cj;
+          return h;
+        }
+      }
+      t = te;
+    }
+    if (te >= t_b) return kNaN;
+    if (tx <= ty) {
+      ci += sx;
+      if (ci < 0 || ci > nx_ - 2) return kNaN;
+      tx = nextX(ci);
+    } else {
+      cj += sy;
+      if (cj < 0 || cj > ny_ - 2) return kNaN;
+      ty = nextY(cj);
+    }
+  }
 }
 
 double TruthTerrain::raycastReference(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,

@@ -36,8 +36,12 @@ class LidarModel {
                    const Executor* exec, std::vector<PointXYZI>& out) const;
 
  private:
+  /// Lower bound of d_z / |d_xy| over all rays once rotated into the map (ScanCaster input).
+  double minSlope(const Eigen::Matrix3d& R_map_sensor) const;
+
   SensorSpec spec_;
   std::vector<Eigen::Vector3d> dirs_;
+  std::vector<double> elevations_;  ///< beam elevations (rad)
   int columns_per_chunk_ = 16;
 };
 

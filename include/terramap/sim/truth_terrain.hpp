@@ -58,7 +58,7 @@ class TruthTerrain {
   Eigen::Vector2d nodePosition(int i, int j) const { return {ox_ + i * res_, oy_ + j * res_}; }
 
   /// Surface height H = U + Lv of a node.
-  double height(int i, int j) const { const auto k = index(i, j); return u_[k] + lv_[k]; }
+  double height(int i, int j) const { return h_[index(i, j)]; }
   double undisturbed(int i, int j) const { return u_[index(i, j)]; }
   double loose(int i, int j) const { return lv_[index(i, j)]; }
   double looseBank(int i, int j) const { return lc_[index(i, j)]; }
@@ -99,6 +99,29 @@ class TruthTerrain {
   /// t in [t_min, t_max]; NaN when it misses or leaves the grid. Exact for the bilinear
   /// surface (per-cell quadratic), so a plane is hit exactly. Thread-safe.
   double raycast(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min, double t_max) const;
+  /// Same surface test restricted to the cells the ray crosses for t in [t_a, t_b], walked in
+  /// order with a 2D DDA (no pyramid descent): the fast path once a caller knows the ray is
+  /// clear of the surface before t_a (see ScanCaster). [t_a, t_b] must lie inside the grid's
+  /// xy extent (clip first). Returns NaN when no hit; on a hit stores the cell (cell (ci, cj)
+  /// spans nodes ci..ci+1, cj..cj+1) in *cell_i / *cell_j when non-null. Thread-safe.
+  double castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_a, double t_b,
+                   int* cell_i = nullptr, int* cell_j = nullptr) const;
+  /// Clips [t0, t1] to the part of the ray o + t d whose xy lies in the grid extent; false if
+  /// nothing is left.
+  bool clipToGrid(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double& t0, double& t1) const;
+  /// Surface gradient (dH/dx, dH/dy) of one cell's bilinear patch at map (x, y) (which should
+  /// lie in or on that cell): the normal at a ray hit without re-locating the cell.
+  Eigen::Vector2d cellGradient(int ci, int cj, double x, double y) const;
+
+  /// Max-height pyramid, read-only (ScanCaster builds on it). Level 0 = cells ((nx-1) x
+  /// (ny-1)); level l block (bx, by) covers cells [bx 2^l, (bx+1) 2^l) x [by 2^l, (by+1) 2^l)
+  /// (clipped). Values are upper bounds of the bilinear surface over the block, rounded up to
+  /// float. Valid after refreshPyramid() over every changed node.
+  int pyramidLevels() const { return static_cast<int>(levels_.size()); }
+  int pyramidWidth(int level) const { return levels_[level].w; }
+  int pyramidHeight(int level) const { return levels_[level].h; }
+  const float* pyramidMax(int level) const { return levels_[level].zmax.data(); }
+
   /// Brute-force reference (marches every cell along the ray, no pyramid): tests only.
   double raycastReference(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,
                           double t_max) const;
@@ -116,16 +139,23 @@ class TruthTerrain {
   const std::vector<double>& undisturbedData() const { return u_; }
   const std::vector<double>& looseData() const { return lv_; }
   const std::vector<double>& looseBankData() const { return lc_; }
+  /// Surface H = U + Lv per node (kept equal to the sum, bit for bit, by every mutator).
+  const std::vector<double>& heightData() const { return h_; }
 
  private:
   double cellHit(int ci, int cj, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t0,
                  double t1) const;
+  double cellHitZ(int ci, int cj, double z00, double z10, double z01, double z11, const Eigen::Vector3d& o,
+                  const Eigen::Vector3d& d, double t0, double t1) const;
   double bilinear(const std::vector<double>& a, double x, double y) const;
   double nodeMaxCell(int ci, int cj) const;
 
   double ox_, oy_, res_;
   int nx_, ny_;
   std::vector<double> u_, lv_, lc_;
+  // Surface U + Lv, stored once more so ray casting touches one array (two cache lines per
+  // cell instead of four): memory latency, not arithmetic, bounds a LiDAR scan.
+  std::vector<double> h_;
   std::vector<float> h0_;
   // Pyramid of max surface heights over *cells* (cell (ci, cj) spans nodes ci..ci+1).
   // Level 0 = cells (nx-1) x (ny-1); level l covers 2^l x 2^l cells. Stored conservatively

@@ -1,0 +1,310 @@
+// Per-scan polar horizon table + exact cell walk (see scan_caster.hpp for why it is exact).
+#include <terramap/sim/scan_caster.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace terramap::sim {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr float kNegInf = -std::numeric_limits<float>::infinity();
+/// Pyramid level of the blocks inserted into the table (2^4 = 16 cells = 32 cm at 2 cm); range
+/// bins are half a block (16 cm). Measured best trade-off of table build vs cell walk.
+constexpr int kBlockLevel = 4;
+/// Upper bound of blocks inserted per scan: coarser blocks beyond it (huge worlds).
+constexpr double kMaxBlocks = 150000;
+/// Azimuth bins of the table (0.35 deg, an OS1's column spacing). Rays of one LiDAR column share a bin.
+constexpr int kAzimuthBins = 1024;
+/// Range bins are grouped by this many for skipping (a ray tests one group maximum first).
+constexpr int kGroup = 16;
+/// Pseudo-angle margin added on both sides of a block's azimuth interval.
+constexpr double kAzMargin = 1e-9;
+/// Range bins whose bound is computed per block (a block spans ~sqrt(2) + 1 bins).
+constexpr int kMaxSpan = 8;
+/// Candidate range bins walked per exact cell walk.
+constexpr int kRunBins = 2;
+
+/// Pseudo-angle in [0, 4): monotonic in atan2(y, x) taken counter-clockwise from +x
+/// ("diamond angle"); one division, no trigonometry.
+inline double pseudoAngle(double x, double y) {
+  if (y >= 0) return x >= 0 ? y / (x + y) : 1.0 + (-x) / (-x + y);
+  return x <= 0 ? 2.0 + (-y) / (-x - y) : 3.0 + x / (x - y);
+}
+
+/// A slope bound rounded up to float with a margin far above the rounding of any ray's slope.
+inline float upperBound(double v) {
+  if (std::isinf(v)) return static_cast<float>(v);
+  v += std::abs(v) * 1e-6 + 1e-7;
+  // Float rounding may go down by half an ulp; the margin above is far larger, so step up by
+  // one ulp-sized relative amount instead of calling nextafter.
+  float f = static_cast<float>(v);
+  if (static_cast<double>(f) < v) f += std::abs(f) * 1.2e-7f + 1e-30f;
+  return f;
+}
+
+}  // namespace
+
+void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origin, double max_range_m,
+                       double min_slope, const Executor* exec) {
+  terrain_ = &terrain;
+  o_ = origin;
+  const double res = terrain.resolution();
+  // Horizontal reach: the farthest grid corner, capped by the range.
+  double far = 0;
+  for (double x : {terrain.originX(), terrain.maxX()})
+    for (double y : {terrain.originY(), terrain.maxY()}) far = std::max(far, std::hypot(x - o_.x(), y - o_.y()));
+  const double reach = std::min(far, std::max(0.0, max_range_m));
+  covers_grid_ = far <= max_range_m;
+  top_ = terrain.pyramidMax(terrain.pyramidLevels() - 1)[0];
+  // Block level: 16 cm blocks, coarser if the disc within reach holds too many of them.
+  level_ = std::min(kBlockLevel, terrain.pyramidLevels() - 1);
+  while (level_ + 1 < terrain.pyramidLevels()) {
+    const double bs = std::ldexp(res, level_);
+    const double area = std::min(M_PI * reach * reach, (terrain.maxX() - terrain.originX() + bs) *
+                                                          (terrain.maxY() - terrain.originY() + bs));
+    if (area / (bs * bs) <= kMaxBlocks) break;
+    ++level_;
+  }
+  const double bs = std::ldexp(res, level_);
+  ds_ = 0.5 * bs;
+  inv_ds_ = 1.0 / ds_;
+  na_ = kAzimuthBins;
+  nr_ = static_cast<int>(std::floor(reach * inv_ds_)) + 1;
+  ng_ = (nr_ + kGroup - 1) / kGroup;
+  const std::size_t cells = static_cast<std::size_t>(na_) * nr_;
+
+  const int W = terrain.pyramidWidth(level_), H = terrain.pyramidHeight(level_);
+  const float* zmax = terrain.pyramidMax(level_);
+  const double gx0 = terrain.originX() - o_.x(), gy0 = terrain.originY() - o_.y();
+  const double gx1 = terrain.maxX() - o_.x(), gy1 = terrain.maxY() - o_.y();
+  const double az_scale = na_ / 4.0;
+  const int parts = exec ? std::max(1, std::min(exec->threads(), H)) : 1;
+  if (static_cast<int>(parts_.size()) < parts) parts_.resize(parts);
+  if (parts == 1) parts_.resize(1);
+  auto insertRows = [&](int p) {
+    std::vector<float>& tbl = parts == 1 ? bound_ : parts_[p];
+    tbl.assign(cells, kNegInf);
+    const int by0 = static_cast<int>(static_cast<long>(H) * p / parts);
+    const int by1 = static_cast<int>(static_cast<long>(H) * (p + 1) / parts);
+    std::vector<double> pa0(W + 1), pa1(W + 1);
+    for (int by = by0; by < by1; ++by) {
+      const double y0 = gy0 + by * bs, y1 = std::min(gy0 + (by + 1) * bs, gy1);
+      const double dyn = y0 > 0 ? y0 : (y1 < 0 ? -y1 : 0.0);
+      const double dyf = std::max(std::abs(y0), std::abs(y1));
+      // Pseudo-angles of this row's block corners (shared by neighbouring blocks).
+      for (int k = 0; k <= W; ++k) {
+        const double x = std::min(gx0 + k * bs, gx1);
+        pa0[k] = (x != 0.0 || y0 != 0.0) ? pseudoAngle(x, y0) : 0.0;
+        pa1[k] = (x != 0.0 || y1 != 0.0) ? pseudoAngle(x, y1) : 0.0;
+      }
+      for (int bx = 0; bx < W; ++bx) {
+        const double x0 = gx0 + bx * bs, x1 = std::min(gx0 + (bx + 1) * bs, gx1);
+        const double dxn = x0 > 0 ? x0 : (x1 < 0 ? -x1 : 0.0);
+        const double smin = std::sqrt(dxn * dxn + dyn * dyn);
+        if (smin > reach) continue;
+        const double dxf = std::max(std::abs(x0), std::abs(x1));
+        const double smax = std::sqrt(dxf * dxf + dyf * dyf);
+        const int r0 = static_cast<int>(smin * inv_ds_);
+        const int r1 = std::min(nr_ - 1, static_cast<int>(smax * inv_ds_));
+        int a0 = 0, a1 = na_ - 1;
+        if (smin > 1e-6) {
+          // Azimuth interval of a convex block seen from outside (< 180 deg): spanned by its
+          // corners. Differences to one corner are wrapped into (-2, 2].
+          const double pc = pa0[bx];
+          double lo = 0, hi = 0;
+          for (const double pq : {pa0[bx + 1], pa1[bx], pa1[bx + 1]}) {
+            double q = pq - pc;
+            if (q > 2.0) q -= 4.0;
+            else if (q <= -2.0) q += 4.0;
+            lo = std::min(lo, q);
+            hi = std::max(hi, q);
+          }
+          // floor() of values in (-2 na, 2 na) via a positive shift (std::floor is a libm call
+          // without SSE4.1).
+          a0 = static_cast<int>((pc + lo - kAzMargin) * az_scale + 2 * na_) - 2 * na_;
+          a1 = static_cast<int>((pc + hi + kAzMargin) * az_scale + 2 * na_) - 2 * na_;
+          if (a1 - a0 >= na_) { a0 = 0; a1 = na_ - 1; }
+        }
+        const double dz = static_cast<double>(zmax[static_cast<std::size_t>(by) * W + bx]) - o_.z();
+        // No ray of the scan is steep enough to come down onto a block below it whose every
+        // bound (the largest is dz / smax) is under the scan's steepest slope: leave it out.
+        if (dz <= 0 && dz < min_slope * smax) continue;
+        float fv[kMaxSpan];
+        const int nrr = std::min(kMaxSpan, r1 - r0 + 1);
+        for (int q = 0; q < nrr; ++q) {
+          const int r = r0 + q;
+          double v;
+          if (dz > 0) {
+            const double s = std::max(smin, r * ds_);
+            v = s > 0 ? dz / s : std::numeric_limits<double>::infinity();
+          } else {
+            const double s = std::min(smax, (r + 1) * ds_);
+            v = s > 0 ? dz / s : std::numeric_limits<double>::infinity();
+          }
+          fv[q] = upperBound(v);
+        }
+        // Blocks spanning more range bins than kMaxSpan (only near a huge block) use a bound
+        // valid for all of them: the last one if the block is above the origin (the bound falls
+        // with range), dz / smax if below (it rises towards that).
+        const float tail = dz > 0 ? fv[nrr - 1] : upperBound(dz / smax);
+        for (int a = a0; a <= a1; ++a) {
+          const int aw = a < 0 ? a + na_ : (a >= na_ ? a - na_ : a);
+          float* slot = &tbl[static_cast<std::size_t>(aw) * nr_ + r0];
+          for (int q = 0; q < nrr; ++q) slot[q] = std::max(slot[q], fv[q]);
+          for (int q = nrr; q <= r1 - r0; ++q) slot[q] = std::max(slot[q], tail);
+        }
+      }
+    }
+  };
+  if (exec && parts > 1) exec->forEach(parts, insertRows);
+  else serialForEach(parts, insertRows);
+  if (parts > 1) {
+    // Merge by maximum (exact, order-free): the same table for any number of parts.
+    bound_.resize(cells);
+    auto merge = [&](int p) {
+      const std::size_t k0 = cells * p / parts, k1 = cells * (p + 1) / parts;
+      float* out = bound_.data();
+      for (std::size_t k = k0; k < k1; ++k) {
+        float m = parts_[0][k];
+        for (int q = 1; q < parts; ++q) m = std::max(m, parts_[q][k]);
+        out[k] = m;
+      }
+    };
+    if (exec) exec->forEach(parts, merge);
+    else serialForEach(parts, merge);
+  }
+  group_.assign(static_cast<std::size_t>(na_) * ng_, kNegInf);
+  prefix_.resize(cells);
+  row_.assign(na_, kNegInf);
+  for (int a = 0; a < na_; ++a) {
+    const float* b = &bound_[static_cast<std::size_t>(a) * nr_];
+    float* pre = &prefix_[static_cast<std::size_t>(a) * nr_];
+    float rm = kNegInf;
+    for (int g = 0; g < ng_; ++g) {
+      float m = kNegInf;
+      const int e = std::min(nr_, (g + 1) * kGroup);
+      for (int r = g * kGroup; r < e; ++r) {
+        m = std::max(m, b[r]);
+        rm = std::max(rm, b[r]);
+        pre[r] = rm;
+      }
+      group_[static_cast<std::size_t>(a) * ng_ + g] = m;
+    }
+    row_[a] = rm;
+  }
+}
+
+ScanCaster::Ray ScanCaster::prepare(const Eigen::Vector3d& d, double t_min, double t_max) const {
+  const TruthTerrain& T = *terrain_;
+  Ray ray;
+  // Rays that do not descend from above the highest point of the terrain cannot hit it.
+  if (d.z() >= 0.0 && o_.z() > top_) return ray;  // mode Miss
+  ray.dxy = std::sqrt(d.x() * d.x() + d.y() * d.y());
+  if (ray.dxy >= 1e-9) {
+    ray.m = d.z() / ray.dxy;
+    int a = static_cast<int>(pseudoAngle(d.x(), d.y()) * (na_ / 4.0));
+    if (a >= na_) a -= na_;
+    ray.a = a;
+    // Above every bound of its azimuth row: clear of the surface wherever the table reaches.
+    if (covers_grid_ && ray.m > row_[a]) return ray;
+  }
+  ray.t0 = t_min;
+  ray.t1 = t_max;
+  if (!T.clipToGrid(o_, d, ray.t0, ray.t1)) return ray;
+  // (Near-)vertical rays stay in one or two cells: walk them directly.
+  if (ray.dxy < 1e-9) {
+    ray.mode = Ray::Direct;
+    ray.ta = ray.t0;
+    return ray;
+  }
+  const int r_first = static_cast<int>(ray.t0 * ray.dxy * inv_ds_);
+  ray.r_last = static_cast<int>(ray.t1 * ray.dxy * inv_ds_);
+  if (ray.r_last < nr_ && ray.m > row_[ray.a]) return ray;
+  // First bin whose running maximum from the origin reaches m (binary search: the running
+  // maximum never decreases). If it lies past r_first, every bin in between is clear.
+  const float* pre = &prefix_[static_cast<std::size_t>(ray.a) * nr_];
+  int lo = 0, hi = nr_;  // pre[nr_] counts as >= m
+  while (lo < hi) {
+    const int mid = (lo + hi) >> 1;
+    if (ray.m > pre[mid]) lo = mid + 1;
+    else hi = mid;
+  }
+  ray.r = std::max(r_first, lo);
+  ray.mode = Ray::Bins;
+  ray.ta = std::max(ray.t0, ray.r * ds_ / ray.dxy * (1.0 - 1e-12));
+  return ray;
+}
+
+void ScanCaster::prefetch(const Eigen::Vector3d& d, const Ray& ray) const {
+  if (ray.mode == Ray::Miss || !(ray.ta <= ray.t1)) return;
+  const TruthTerrain& T = *terrain_;
+  const double res = T.resolution();
+  const int ci = std::clamp(static_cast<int>((o_.x() + d.x() * ray.ta - T.originX()) / res), 0, T.nx() - 2);
+  const int cj = std::clamp(static_cast<int>((o_.y() + d.y() * ray.ta - T.originY()) / res), 0, T.ny() - 2);
+  const double* p = &T.heightData()[static_cast<std::size_t>(cj) * T.nx() + ci];
+  __builtin_prefetch(p);
+  __builtin_prefetch(p + T.nx());
+}
+
+double ScanCaster::finish(const Eigen::Vector3d& d, const Ray& ray, int* cell_i, int* cell_j) const {
+  const TruthTerrain& T = *terrain_;
+  if (ray.mode == Ray::Miss) return kNaN;
+  if (ray.mode == Ray::Direct) return T.castCells(o_, d, ray.t0, ray.t1, cell_i, cell_j);
+  const int r_end = std::min(ray.r_last, nr_ - 1);  // last range bin the table covers
+  const float* row = &bound_[static_cast<std::size_t>(ray.a) * nr_];
+  const float* grp = &group_[static_cast<std::size_t>(ray.a) * ng_];
+  const double inv_dxy = 1.0 / ray.dxy;
+  const double m = ray.m;
+  int r = ray.r;
+  while (r <= r_end) {
+    if (r % kGroup == 0 && m > grp[r / kGroup]) {
+      r += kGroup;
+      continue;
+    }
+    if (m > row[r]) {
+      ++r;
+      continue;
+    }
+    // Walk a few candidate bins at a time: past the first candidate nearly every bin is one
+    // (the ray is below the horizon there), and the hit is almost always in the first.
+    int re = r;
+    while (re < r_end && re - r < kRunBins - 1 && !(m > row[re + 1])) ++re;
+    // Bin edges in ray parameter, widened by a relative hair against rounding.
+    const double ta = std::max(ray.t0, r * ds_ * inv_dxy * (1.0 - 1e-12));
+    const double tb = std::min(ray.t1, (re + 1) * ds_ * inv_dxy * (1.0 + 1e-12));
+    const double t = T.castCells(o_, d, ta, tb, cell_i, cell_j);
+    if (!std::isnan(t)) return t;
+    r = re + 1;
+  }
+  if (ray.r_last >= nr_) {
+    // Beyond the table's reach (t_max larger than the range it was built for): exact walk.
+    const double ta = std::max(ray.t0, nr_ * ds_ * inv_dxy * (1.0 - 1e-12));
+    return T.castCells(o_, d, ta, ray.t1, cell_i, cell_j);
+  }
+  return kNaN;
+}
+
+double ScanCaster::cast(const Eigen::Vector3d& d, double t_min, double t_max, int* cell_i, int* cell_j) const {
+  return finish(d, prepare(d, t_min, t_max), cell_i, cell_j);
+}
+
+void ScanCaster::castBatch(const Eigen::Vector3d* d, int n, double t_min, double t_max, double* t, int* cell_i,
+                           int* cell_j) const {
+  // Rays are independent, so locating the first candidate cell of a few rays and prefetching
+  // its two rows before walking any of them overlaps their cache misses (a scan touches the
+  // terrain at scattered places; the misses, not the arithmetic, set its speed).
+  constexpr int kWindow = 8;
+  Ray rays[kWindow];
+  for (int k0 = 0; k0 < n; k0 += kWindow) {
+    const int m = std::min(kWindow, n - k0);
+    for (int q = 0; q < m; ++q) {
+      rays[q] = prepare(d[k0 + q], t_min, t_max);
+      prefetch(d[k0 + q], rays[q]);
+    }
+    for (int q = 0; q < m; ++q) t[k0 + q] = finish(d[k0 + q], rays[q], &cell_i[k0 + q], &cell_j[k0 + q]);
+  }
+}
+
+}  // namespace terramap::sim
