@@ -1,0 +1,577 @@
+#include <terramap/sim/eval.hpp>
+
+#include <terramap/core/error.hpp>
+#include <terramap/io/atomic_file.hpp>
+#include <terramap/io/geotiff.hpp>
+#include <terramap/io/render.hpp>
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <map>
+#include <sstream>
+#include <stdexcept>
+#include <variant>
+
+namespace terramap::sim {
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr double kDeg = 180.0 / M_PI;
+
+double sampleTruth(const TruthTerrain& t, double x, double y, TruthSurface s) {
+  switch (s) {
+    case TruthSurface::Current: return t.heightAt(x, y);
+    case TruthSurface::Initial: return t.initialHeightAt(x, y);
+    case TruthSurface::Bank: return t.undisturbedAt(x, y) + t.looseBankAt(x, y);
+  }
+  return kNaN;
+}
+
+/// numpy "linear" percentile of a sorted vector.
+double percentileSorted(const std::vector<double>& v, double p) {
+  if (v.empty()) return kNaN;
+  const double pos = p / 100.0 * static_cast<double>(v.size() - 1);
+  const std::size_t lo = static_cast<std::size_t>(std::floor(pos));
+  const std::size_t hi = std::min(lo + 1, v.size() - 1);
+  return v[lo] + (pos - static_cast<double>(lo)) * (v[hi] - v[lo]);
+}
+
+RegionStats regionStats(const std::vector<double>& err, const std::vector<double>& base) {
+  RegionStats r;
+  r.cells = static_cast<long>(err.size());
+  if (err.empty()) {
+    r.rmse_m = r.bias_m = r.p95_abs_m = r.max_abs_m = r.baseline_rmse_m = r.baseline_bias_m = kNaN;
+    return r;
+  }
+  double se = 0, s = 0, sb = 0, seb = 0;
+  std::vector<double> a(err.size());
+  for (std::size_t k = 0; k < err.size(); ++k) {
+    se += err[k] * err[k];
+    s += err[k];
+    sb += base[k];
+    seb += base[k] * base[k];
+    a[k] = std::abs(err[k]);
+  }
+  const double n = static_cast<double>(err.size());
+  r.rmse_m = std::sqrt(se / n);
+  r.bias_m = s / n;
+  r.baseline_rmse_m = std::sqrt(seb / n);
+  r.baseline_bias_m = sb / n;
+  std::sort(a.begin(), a.end());
+  r.p95_abs_m = percentileSorted(a, 95.0);
+  r.max_abs_m = a.back();
+  return r;
+}
+
+ParameterStats paramStats(const std::string& name, const std::string& unit, double scale,
+                          const std::vector<ExtractionSample>& samples,
+                          double ExtractionSample::*mapped, double ExtractionSample::*truth) {
+  ParameterStats p;
+  p.name = name;
+  p.unit = unit;
+  std::vector<double> e;
+  double sm = 0, st = 0;
+  for (const ExtractionSample& s : samples) {
+    if (!s.mapped_valid || !s.truth_valid) continue;
+    const double m = s.*mapped * scale, t = s.*truth * scale;
+    if (!std::isfinite(m) || !std::isfinite(t)) continue;
+    e.push_back(m - t);
+    sm += m;
+    st += t;
+  }
+  p.n = static_cast<long>(e.size());
+  if (e.empty()) return p;
+  const double n = static_cast<double>(e.size());
+  p.mapped_mean = sm / n;
+  p.truth_mean = st / n;
+  double s = 0, ss = 0;
+  for (double x : e) {
+    s += x;
+    ss += x * x;
+  }
+  p.bias = s / n;
+  p.rmse = std::sqrt(ss / n);
+  double var = 0;
+  for (double x : e) var += (x - p.bias) * (x - p.bias);
+  p.std = e.size() > 1 ? std::sqrt(var / (n - 1)) : 0.0;
+  std::sort(e.begin(), e.end());
+  p.p5 = percentileSorted(e, 5);
+  p.p50 = percentileSorted(e, 50);
+  p.p95 = percentileSorted(e, 95);
+  return p;
+}
+
+std::string fmt(double v, int prec) {
+  if (!std::isfinite(v)) return "–";
+  char b[64];
+  std::snprintf(b, sizeof b, "%.*f", prec, v);
+  return b;
+}
+
+int precisionFor(const std::string& unit) {
+  if (unit == "deg") return 2;
+  if (unit == "m") return 4;
+  return 0;  // N
+}
+
+nlohmann::json numberOrNull(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
+
+}  // namespace
+
+const char* evalRegionName(EvalRegion r) {
+  switch (r) {
+    case EvalRegion::All: return "all";
+    case EvalRegion::Cut: return "cut";
+    case EvalRegion::Deposit: return "deposit";
+    case EvalRegion::Untouched: return "untouched";
+    case EvalRegion::Outside: return "outside";
+  }
+  return "?";
+}
+
+Eigen::MatrixXd truthOnGeometryD(const TruthTerrain& truth, const Geometry& geometry, TruthSurface surface) {
+  Eigen::MatrixXd m(geometry.size().x(), geometry.size().y());
+  for (int i = 0; i < geometry.size().x(); ++i)
+    for (int j = 0; j < geometry.size().y(); ++j) {
+      const Position p = geometry.positionOf(Index(i, j));
+      m(i, j) = sampleTruth(truth, p.x(), p.y(), surface);
+    }
+  return m;
+}
+
+Eigen::MatrixXf truthOnGeometry(const TruthTerrain& truth, const Geometry& geometry, TruthSurface surface) {
+  return truthOnGeometryD(truth, geometry, surface).cast<float>();
+}
+
+Geometry fitGeometry(const TruthTerrain& truth, double resolution_m, long max_cells) {
+  if (!(resolution_m > 0) || !std::isfinite(resolution_m))
+    throw ConfigError("map resolution must be positive and finite, got " + std::to_string(resolution_m));
+  const double ex = truth.maxX() - truth.originX(), ey = truth.maxY() - truth.originY();
+  // A small tolerance so an extent that is a whole number of cells is not lost to rounding.
+  const long nx = static_cast<long>(std::floor(ex / resolution_m + 1e-9));
+  const long ny = static_cast<long>(std::floor(ey / resolution_m + 1e-9));
+  char b[256];
+  if (nx < 1 || ny < 1) {
+    std::snprintf(b, sizeof b, "truth terrain %.3f x %.3f m is smaller than one %.3f m map cell", ex, ey, resolution_m);
+    throw ConfigError(b);
+  }
+  if (nx * ny > max_cells) {
+    std::snprintf(b, sizeof b,
+                  "a map covering the truth terrain (%.1f x %.1f m) at %.3f m needs %ld x %ld cells, more than %ld: "
+                  "give a pipeline with a smaller map (--pipeline, without --fit-map)",
+                  ex, ey, resolution_m, nx, ny, max_cells);
+    throw ConfigError(b);
+  }
+  const Position c(0.5 * (truth.originX() + truth.maxX()), 0.5 * (truth.originY() + truth.maxY()));
+  return Geometry(resolution_m, Size(static_cast<int>(nx), static_cast<int>(ny)), c);
+}
+
+SurfaceAheadTruth surfaceAheadTruth(const TruthTerrain& truth, const Eigen::Isometry3d& T_map_blade,
+                                    const BladeGeometry& blade, int slices) {
+  SurfaceAheadTruth out;
+  if (slices < 1 || !(blade.width_m > 0)) return out;
+  const Eigen::Vector3d c = T_map_blade.translation();
+  const Eigen::Vector3d xb = T_map_blade.linear().col(0), yb = T_map_blade.linear().col(1),
+                        zb = T_map_blade.linear().col(2);
+  Eigen::Vector2d n(xb.x(), xb.y());
+  if (n.norm() < 1e-6) n = Eigen::Vector2d(-zb.x(), -zb.y());  // face lying flat: push along its top
+  if (n.norm() < 1e-9) return out;
+  n.normalize();
+  out.face_angle_rad = std::atan2(zb.z(), -(zb.x() * n.x() + zb.y() * n.y()));
+  const double ds = blade.width_m / slices;
+  double wsum = 0, a_alpha = 0, a_d = 0;
+  for (int k = 0; k < slices; ++k) {
+    const Eigen::Vector3d pe = c + yb * (-0.5 * blade.width_m + (k + 0.5) * ds);
+    double sx = 0, sz = 0, sxx = 0, sxz = 0;
+    int m = 0;
+    for (int q = 0; q < 7; ++q) {
+      const double l = 0.05 + 0.075 * q;
+      const double z = truth.undisturbedAt(pe.x() + n.x() * l, pe.y() + n.y() * l);
+      if (std::isnan(z)) continue;
+      sx += l;
+      sz += z;
+      sxx += l * l;
+      sxz += l * z;
+      ++m;
+    }
+    if (m < 2) continue;
+    const double den = m * sxx - sx * sx;
+    if (!(den > 1e-12)) continue;
+    const double slope = (m * sxz - sx * sz) / den;
+    const double intercept = (sz - slope * sx) / m;
+    const double depth_v = intercept - pe.z();
+    if (!(depth_v > 1e-4)) continue;
+    const double alpha = std::atan(slope);
+    const double d = depth_v * std::cos(alpha);
+    ++out.cutting_slices;
+    out.w_along_m += ds;
+    wsum += d;
+    a_alpha += d * alpha;
+    a_d += d * d;
+  }
+  if (wsum > 0) {
+    out.alpha_rad = a_alpha / wsum;
+    out.d_m = a_d / wsum;
+  }
+  return out;
+}
+
+ExtractionSummary summarizeExtraction(const std::vector<ExtractionSample>& samples) {
+  ExtractionSummary s;
+  s.sweeps = static_cast<long>(samples.size());
+  for (const ExtractionSample& x : samples) {
+    if (x.mapped_valid && x.truth_valid) ++s.both_valid;
+    else if (x.mapped_valid) ++s.mapped_only;
+    else if (x.truth_valid) ++s.truth_only;
+    else ++s.neither;
+  }
+  using S = ExtractionSample;
+  s.parameters.push_back(paramStats("alpha", "deg", kDeg, samples, &S::alpha_rad, &S::truth_alpha_rad));
+  s.parameters.push_back(paramStats("rho", "deg", kDeg, samples, &S::rho_rad, &S::truth_rho_rad));
+  s.parameters.push_back(paramStats("d", "m", 1.0, samples, &S::d_m, &S::truth_d_m));
+  s.parameters.push_back(paramStats("w", "m", 1.0, samples, &S::w_m, &S::truth_w_m));
+  s.parameters.push_back(paramStats("Q", "N", 1.0, samples, &S::q_n, &S::truth_q_n));
+  s.parameters.push_back(paramStats("d_vs_sim_raw", "m", 1.0, samples, &S::d_m, &S::truth_d_raw_m));
+  s.parameters.push_back(paramStats("rho_vs_sim_raw", "deg", kDeg, samples, &S::rho_rad, &S::truth_rho_raw_rad));
+  s.parameters.push_back(paramStats("w_vs_sim_raw", "m", 1.0, samples, &S::w_m, &S::truth_w_raw_m));
+  return s;
+}
+
+std::string extractionTableMarkdown(const ExtractionSummary& s) {
+  std::ostringstream o;
+  o << s.sweeps << " sweeps: " << s.both_valid << " valid on both sides, " << s.mapped_only
+    << " extracted but the simulator was not cutting, " << s.truth_only
+    << " simulator cutting but nothing extracted, " << s.neither << " neither.\n\n";
+  o << "| parameter | unit | n | truth mean | mapped mean | bias | std | RMSE | p5 | p50 | p95 |\n";
+  o << "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n";
+  const std::map<std::string, std::string> label = {
+      {"alpha", "α"}, {"rho", "ρ"}, {"d", "d"}, {"w", "w"}, {"Q", "Q"},
+      {"d_vs_sim_raw", "d vs sim's raw FeeTruth depth"},
+      {"rho_vs_sim_raw", "ρ vs sim's raw ρ (from horizontal)"}, {"w_vs_sim_raw", "w vs sim's raw w (along blade)"}};
+  for (const ParameterStats& p : s.parameters) {
+    const int k = precisionFor(p.unit);
+    const auto it = label.find(p.name);
+    o << "| " << (it != label.end() ? it->second : p.name) << " | " << p.unit << " | " << p.n << " | "
+      << fmt(p.truth_mean, k) << " | " << fmt(p.mapped_mean, k) << " | " << fmt(p.bias, k) << " | " << fmt(p.std, k)
+      << " | " << fmt(p.rmse, k) << " | " << fmt(p.p5, k) << " | " << fmt(p.p50, k) << " | " << fmt(p.p95, k)
+      << " |\n";
+  }
+  return o.str();
+}
+
+EvalRun runBlindEvaluation(Simulator& sim, BlindMapper& mapper, const EvalOptions& options) {
+  if (sim.step() != 0) throw std::invalid_argument("runBlindEvaluation: the simulator has already been stepped");
+  const auto wall0 = std::chrono::steady_clock::now();
+  EvalRun run;
+  run.options = options;
+  run.scenario = sim.scenario().name;
+  LayeredMap& map = mapper.map();
+  const Geometry geo = map.geometry();
+  run.geometry = geo;
+  const LayerId hid = map.layerId(options.elevation_layer);  // LayerError names the layer
+  const TruthTerrain& truth0 = sim.truth();
+  run.initial = truthOnGeometry(truth0, geo, TruthSurface::Current);
+  map.fromMatrix(hid, run.initial);
+  const bool has_loose = map.hasLayer(options.loose_layer);
+  const Eigen::MatrixXf zeros = Eigen::MatrixXf::Zero(geo.size().x(), geo.size().y());
+  if (has_loose) map.fromMatrix(map.layerId(options.loose_layer), zeros);
+  const Eigen::MatrixXd bank0 = truthOnGeometryD(truth0, geo, TruthSurface::Bank);
+  const double truth_vol0 = truth0.bankVolume(), truth_lost0 = truth0.lostVolume();
+
+  std::map<std::string, std::size_t> machine_index;
+  for (std::size_t i = 0; i < sim.scenario().machines.size(); ++i) machine_index[sim.scenario().machines[i].id] = i;
+
+  Eigen::MatrixXi swept = Eigen::MatrixXi::Zero(geo.size().x(), geo.size().y());
+  long last_seq = 0;
+  {
+    long s0 = 0;
+    if (mapper.latestSweep(&s0)) last_seq = s0;  // a record left from before (not ours)
+  }
+  bool swell_known = false;
+  double swell = options.default_swell;
+  MassBalance& mb = run.mass;
+  std::vector<Event> events;
+  while (sim.next(events)) {
+    for (const Event& e : events) {
+      if (options.withhold_clouds && std::holds_alternative<PointCloud>(e)) {
+        ++run.clouds_withheld;
+        continue;
+      }
+      mapper.push(e);
+      ++run.events_pushed;
+      long seq = 0;
+      const std::shared_ptr<const SweepRecord> rec = mapper.latestSweep(&seq);
+      if (!rec || seq == last_seq) continue;
+      last_seq = seq;
+      ++run.sweeps;
+      const auto mit = machine_index.find(rec->machine_id);
+      if (mit == machine_index.end())
+        throw ConfigError("sweep record " + std::to_string(rec->sweep_index) + " names machine '" + rec->machine_id +
+                          "', which the scenario '" + run.scenario + "' does not have");
+      const MachineTruth& mt = sim.machineTruth(mit->second);
+      mb.cut_bank_blind_m3 += rec->cut_bank_volume_m3;
+      mb.blind_lost_loose_m3 += rec->lost_volume_m3;
+      swell = rec->swell;
+      swell_known = true;
+      for (const SweepMaskCell& c : rec->mask) {
+        const auto idx = geo.indexAt(c.position);
+        if (!idx) continue;
+        const float h0 = run.initial(idx->x(), idx->y());
+        if (std::isfinite(h0) && c.sv_bottom_m < h0) swept(idx->x(), idx->y()) = 1;
+      }
+      ExtractionSample s;
+      s.sweep = rec->sweep_index;
+      s.machine = rec->machine_id;
+      s.stamp = rec->t1;
+      if (rec->fee_valid && !rec->steps.empty()) {
+        const SweepStep& st = rec->steps.back();
+        s.alpha_rad = rec->alpha_rad;
+        s.rho_rad = st.rho_rad;
+        s.d_m = st.d_m;
+        s.w_m = st.w_m;
+        s.q_n = st.q_n;
+        s.mapped_valid = std::isfinite(s.alpha_rad) && std::isfinite(s.rho_rad) && std::isfinite(s.d_m) &&
+                         std::isfinite(s.w_m);
+      }
+      const MachineSpec& spec = sim.scenario().machines[mit->second];
+      const SurfaceAheadTruth sa = surfaceAheadTruth(sim.truth(), mt.T_map_blade, spec.blade, spec.blade_slices);
+      const FeeTruth& ft = mt.fee;
+      if (sa.cutting_slices > 0) {
+        s.truth_valid = true;
+        s.truth_alpha_rad = sa.alpha_rad;
+        s.truth_d_m = sa.d_m;
+        s.truth_rho_rad = sa.face_angle_rad + sa.alpha_rad;
+        const Eigen::Vector3d yb = mt.T_map_blade.linear().col(1);
+        s.truth_w_m = sa.w_along_m * std::abs(yb.x() * rec->t_perp.x() + yb.y() * rec->t_perp.y());
+      }
+      if (ft.cutting_slices > 0) {
+        s.truth_q_n = ft.q_n;
+        s.truth_d_raw_m = ft.depth_m;
+        s.truth_rho_raw_rad = ft.rho_rad;
+        s.truth_w_raw_m = ft.width_m;
+      }
+      run.samples.push_back(std::move(s));
+    }
+    events.clear();
+    if (options.on_progress) options.on_progress(sim.time(), sim.scenario().duration_s);
+  }
+  run.simulated_s = sim.time();
+  if (map.geometry() != geo)
+    throw ConfigError("the map moved during the evaluation (a stage re-centred it); the evaluation compares fixed "
+                      "cells with the truth: use a pipeline whose stages keep the map still");
+
+  // ---- heights by region ----------------------------------------------------------------------
+  run.blind = map.toMatrix(hid);
+  const Eigen::MatrixXf loose1 = has_loose ? map.toMatrix(map.layerId(options.loose_layer)) : zeros;
+  const TruthTerrain& truth1 = sim.truth();
+  const Eigen::MatrixXd truth1d = truthOnGeometryD(truth1, geo, TruthSurface::Current);
+  run.truth = truth1d.cast<float>();
+  const Eigen::MatrixXd bank1 = truthOnGeometryD(truth1, geo, TruthSurface::Bank);
+  run.region = Eigen::MatrixXi::Constant(geo.size().x(), geo.size().y(), -1);
+  std::vector<double> err[kEvalRegionCount], base[kEvalRegionCount];
+  auto add = [&](EvalRegion r, double e, double b) {
+    err[static_cast<int>(r)].push_back(e);
+    base[static_cast<int>(r)].push_back(b);
+  };
+  const double a = geo.resolution() * geo.resolution();
+  double blind0 = 0, blind1 = 0, truth_on_map = 0;
+  for (int i = 0; i < geo.size().x(); ++i)
+    for (int j = 0; j < geo.size().y(); ++j) {
+      const double h0 = run.initial(i, j), h1 = run.blind(i, j), l1 = loose1(i, j), t1 = truth1d(i, j);
+      if (std::isfinite(h0)) blind0 += h0;
+      if (std::isfinite(h1)) blind1 += (h1 - l1) + l1 / swell;
+      else if (std::isfinite(l1)) blind1 += l1 / swell;  // deposits kept on unknown ground
+      if (std::isfinite(bank0(i, j)) && std::isfinite(bank1(i, j))) truth_on_map += bank1(i, j) - bank0(i, j);
+      if (!std::isfinite(h1) || !std::isfinite(t1) || !std::isfinite(h0)) continue;
+      mb.removed_blind_m3 += std::max(0.0, h0 - h1) * a;
+      mb.added_blind_m3 += std::max(0.0, h1 - h0) * a;
+      mb.removed_truth_m3 += std::max(0.0, h0 - t1) * a;
+      mb.added_truth_m3 += std::max(0.0, t1 - h0) * a;
+      EvalRegion r = EvalRegion::Untouched;
+      if (swept(i, j)) r = EvalRegion::Cut;
+      else if (std::abs(t1 - h0) > options.change_threshold_m) r = EvalRegion::Deposit;
+      run.region(i, j) = static_cast<int>(r);
+      const double e = h1 - t1, b = h0 - t1;
+      add(EvalRegion::All, e, b);
+      add(r, e, b);
+      if (r != EvalRegion::Cut) add(EvalRegion::Outside, e, b);
+    }
+  for (int r = 0; r < kEvalRegionCount; ++r) run.regions[r] = regionStats(err[r], base[r]);
+
+  // ---- mass -----------------------------------------------------------------------------------
+  mb.swell = swell_known ? swell : options.default_swell;
+  mb.blind_initial_m3 = blind0 * a;
+  mb.blind_final_m3 = blind1 * a;
+  mb.blind_change_m3 = mb.blind_final_m3 - mb.blind_initial_m3;
+  mb.blind_residual_m3 = mb.blind_change_m3 + mb.blind_lost_loose_m3 / mb.swell;
+  mb.truth_change_m3 = truth1.bankVolume() - truth_vol0;
+  mb.truth_lost_m3 = truth1.lostVolume() - truth_lost0;
+  mb.truth_residual_m3 = mb.truth_change_m3 + mb.truth_lost_m3;
+  mb.truth_change_on_map_m3 = truth_on_map * a;
+  for (std::size_t i = 0; i < sim.machineCount(); ++i) mb.cut_bank_truth_m3 += sim.machineTruth(i).cut_bank_m3;
+
+  run.extraction = summarizeExtraction(run.samples);
+  run.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  return run;
+}
+
+std::string evalJson(const EvalRun& run) {
+  using nlohmann::json;
+  json j;
+  j["format"] = "terramap-eval";
+  j["version"] = 1;
+  j["scenario"] = run.scenario;
+  j["map"] = {{"resolution_m", run.geometry.resolution()},
+              {"size", {run.geometry.size().x(), run.geometry.size().y()}},
+              {"center_m", {run.geometry.center().x(), run.geometry.center().y()}}};
+  j["options"] = {{"change_threshold_m", run.options.change_threshold_m},
+                  {"error_range_m", run.options.error_range_m},
+                  {"withhold_clouds", run.options.withhold_clouds}};
+  j["events_pushed"] = run.events_pushed;
+  j["clouds_withheld"] = run.clouds_withheld;
+  j["sweeps"] = run.sweeps;
+  j["simulated_s"] = run.simulated_s;
+  j["wall_s"] = run.wall_s;
+  json regions = json::object();
+  for (int r = 0; r < kEvalRegionCount; ++r) {
+    const RegionStats& s = run.regions[r];
+    regions[evalRegionName(static_cast<EvalRegion>(r))] = {
+        {"cells", s.cells}, {"rmse_m", numberOrNull(s.rmse_m)}, {"bias_m", numberOrNull(s.bias_m)},
+        {"p95_abs_m", numberOrNull(s.p95_abs_m)}, {"max_abs_m", numberOrNull(s.max_abs_m)},
+        {"baseline_rmse_m", numberOrNull(s.baseline_rmse_m)}, {"baseline_bias_m", numberOrNull(s.baseline_bias_m)}};
+  }
+  j["height_error"] = regions;
+  const MassBalance& m = run.mass;
+  j["mass"] = {{"swell", m.swell},
+               {"blind_initial_m3", m.blind_initial_m3},
+               {"blind_final_m3", m.blind_final_m3},
+               {"blind_change_m3", m.blind_change_m3},
+               {"blind_lost_loose_m3", m.blind_lost_loose_m3},
+               {"blind_residual_m3", m.blind_residual_m3},
+               {"truth_change_m3", m.truth_change_m3},
+               {"truth_lost_m3", m.truth_lost_m3},
+               {"truth_residual_m3", m.truth_residual_m3},
+               {"truth_change_on_map_m3", m.truth_change_on_map_m3},
+               {"cut_bank_blind_m3", m.cut_bank_blind_m3},
+               {"cut_bank_truth_m3", m.cut_bank_truth_m3},
+               {"removed_blind_m3", m.removed_blind_m3},
+               {"removed_truth_m3", m.removed_truth_m3},
+               {"added_blind_m3", m.added_blind_m3},
+               {"added_truth_m3", m.added_truth_m3}};
+  const ExtractionSummary& x = run.extraction;
+  json params = json::array();
+  for (const ParameterStats& p : x.parameters)
+    params.push_back({{"name", p.name}, {"unit", p.unit}, {"n", p.n}, {"truth_mean", numberOrNull(p.truth_mean)},
+                      {"mapped_mean", numberOrNull(p.mapped_mean)}, {"bias", numberOrNull(p.bias)},
+                      {"std", numberOrNull(p.std)}, {"rmse", numberOrNull(p.rmse)}, {"p5", numberOrNull(p.p5)},
+                      {"p50", numberOrNull(p.p50)}, {"p95", numberOrNull(p.p95)}});
+  j["extraction"] = {{"sweeps", x.sweeps},         {"both_valid", x.both_valid}, {"mapped_only", x.mapped_only},
+                     {"truth_only", x.truth_only}, {"neither", x.neither},       {"parameters", params}};
+  return j.dump(2) + "\n";
+}
+
+std::vector<std::string> writeEvalOutputs(const EvalRun& run, const std::filesystem::path& dir) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) throw OutputError(dir.string() + ": cannot create output folder: " + ec.message());
+  if (!(run.options.error_range_m > 0) || !std::isfinite(run.options.error_range_m))
+    throw ConfigError("error_range_m must be positive and finite, got " + std::to_string(run.options.error_range_m));
+  const Geometry& geo = run.geometry;
+  LayeredMap m(geo);
+  const Eigen::MatrixXf err = run.blind - run.truth, base_err = run.initial - run.truth;
+  Eigen::MatrixXf region(geo.size().x(), geo.size().y());
+  for (int i = 0; i < geo.size().x(); ++i)
+    for (int j = 0; j < geo.size().y(); ++j)
+      region(i, j) = run.region(i, j) < 0 ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(run.region(i, j));
+  const std::vector<std::pair<std::string, const Eigen::MatrixXf*>> layers = {
+      {"blind", &run.blind}, {"truth", &run.truth}, {"initial", &run.initial},
+      {"error", &err},       {"baseline_error", &base_err}, {"region", &region}};
+  for (const auto& [name, mat] : layers) m.fromMatrix(m.addLayer(name, name == "region" ? "1" : "m"), *mat);
+
+  // One height colour range for the blind and truth renders, so equal colours mean equal heights.
+  float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+  for (const Eigen::MatrixXf* mat : {&run.truth, &run.blind})
+    for (Eigen::Index k = 0; k < mat->size(); ++k) {
+      const float v = mat->data()[k];
+      if (std::isfinite(v)) {
+        lo = std::min(lo, v);
+        hi = std::max(hi, v);
+      }
+    }
+  if (!(lo < hi)) {
+    lo = std::isfinite(lo) ? lo - 0.01f : -0.01f;
+    hi = std::isfinite(hi) ? hi + 0.01f : 0.01f;
+    if (!(lo < hi)) hi = lo + 0.02f;
+  }
+  std::vector<std::string> files;
+  io::RenderOptions height;
+  height.scale = std::max(1, 800 / std::max(geo.size().x(), geo.size().y()));
+  height.nan_color = io::Rgba{128, 128, 128, 255};
+  height.range = io::ValueRange{lo, hi};
+  height.hillshade = true;
+  height.ambient = 0.35;
+  io::RenderOptions error = height;
+  error.hillshade = false;
+  error.colormap = "rdbu";
+  error.range = io::ValueRange{static_cast<float>(-run.options.error_range_m), static_cast<float>(run.options.error_range_m)};
+  io::RenderOptions reg = height;
+  reg.hillshade = false;
+  reg.range = io::ValueRange{static_cast<float>(EvalRegion::Cut), static_cast<float>(EvalRegion::Untouched)};
+  const std::vector<std::tuple<std::string, std::string, const io::RenderOptions*>> pngs = {
+      {"blind", "blind_heightmap.png", &height}, {"truth", "truth_heightmap.png", &height},
+      {"error", "error.png", &error},            {"baseline_error", "baseline_error.png", &error},
+      {"region", "regions.png", &reg}};
+  for (const auto& [layer, file, opt] : pngs) {
+    io::renderPng(m, layer, dir / file, *opt);
+    files.push_back((dir / file).string());
+  }
+  std::vector<std::string> bands;
+  for (const auto& l : layers) bands.push_back(l.first);
+  io::writeGeoTiff(m, bands, dir / "eval.tif");
+  files.push_back((dir / "eval.tif").string());
+  io::writeFileAtomically(dir / "eval.json", evalJson(run));
+  files.push_back((dir / "eval.json").string());
+
+  std::ostringstream csv;
+  csv.precision(9);
+  csv << "sweep,machine,stamp_s,mapped_valid,truth_valid,alpha_rad,truth_alpha_rad,rho_rad,truth_rho_rad,"
+         "truth_rho_raw_rad,d_m,truth_d_m,truth_d_raw_m,w_m,truth_w_m,truth_w_raw_m,q_n,truth_q_n\n";
+  auto num = [](double v) { return std::isfinite(v) ? v : std::numeric_limits<double>::quiet_NaN(); };
+  for (const ExtractionSample& s : run.samples)
+    csv << s.sweep << ',' << s.machine << ',' << s.stamp << ',' << s.mapped_valid << ',' << s.truth_valid << ','
+        << num(s.alpha_rad) << ',' << num(s.truth_alpha_rad) << ',' << num(s.rho_rad) << ',' << num(s.truth_rho_rad)
+        << ',' << num(s.truth_rho_raw_rad) << ',' << num(s.d_m) << ',' << num(s.truth_d_m) << ',' << num(s.truth_d_raw_m) << ',' << num(s.w_m) << ','
+        << num(s.truth_w_m) << ',' << num(s.truth_w_raw_m) << ',' << num(s.q_n) << ',' << num(s.truth_q_n) << '\n';
+  io::writeFileAtomically(dir / "extraction.csv", csv.str());
+  files.push_back((dir / "extraction.csv").string());
+  return files;
+}
+
+std::string defaultEvalPipeline() {
+  // Keep byte-equal to configs/eval_blind.yaml (tests/unit/sim/test_eval.cpp checks it).
+  return R"(# Blind mapping evaluation (paper §3, Fig. 10): LiDAR off, only the blade updates the map.
+# `terramap eval SCENARIO.yaml` runs this pipeline (it is compiled in; a test keeps the two
+# equal) with the map fitted to the scenario's terrain; `--pipeline FILE` runs another one with
+# its own map geometry (add `--fit-map` to fit it). `source` and `outputs` are not used by eval:
+# the scenario drives the engine and eval writes its own outputs (--out).
+# elevation is declared here because no LiDAR stage creates it; eval fills it with the
+# simulator's initial truth before the first event.
+version: 1
+map: {resolution: 0.05, size: [200, 200], center: [0, 0], tile: 64, layers: [{name: elevation, unit: m}]}
+threads: 2
+source: {type: none}
+pipeline:
+  - {name: blade, type: blade_sweep, params: {swell: 1.2, min_translation_m: 0.2, report_steps: false}}
+  - {name: erode, type: soil_erosion, params: {cohesion_pa: 25, friction_rad: 0.26}}
+outputs: {dir: ../out/eval, snapshot: false, report: false}
+)";
+}
+
+}  // namespace terramap::sim
