@@ -13,4 +13,19 @@ const char* kindName(EventKind k) {
   return "unknown";
 }
 
+EventMask eventMaskFromNames(const std::vector<std::string>& names, std::string* unknown) {
+  EventMask m = 0;
+  for (const auto& n : names) {
+    bool found = false;
+    for (EventKind k : {EventKind::PointCloud, EventKind::Pose, EventKind::BladePose, EventKind::Observation,
+                        EventKind::Tick})
+      if (n == kindName(k)) {
+        m |= mask(k);
+        found = true;
+      }
+    if (!found && unknown && unknown->empty()) *unknown = n;
+  }
+  return m;
+}
+
 }  // namespace terramap

@@ -140,15 +140,9 @@ void Inpaint::configure(const Params& p) {
   on_finish_ = p.getBool("on_finish");
   if (input_ == output_) p.fail("output_layer", "must differ from input_layer ('" + input_ + "')");
   if (max_distance_m_ < 0 && max_distance_m_ != -1.0) p.fail("max_distance_m", "must be >= 0, or -1 for no limit");
-  events_ = 0;
-  for (const auto& k : p.getStrings("run_on")) {
-    if (k == "point_cloud") events_ |= mask(EventKind::PointCloud);
-    else if (k == "pose") events_ |= mask(EventKind::Pose);
-    else if (k == "blade_pose") events_ |= mask(EventKind::BladePose);
-    else if (k == "observation") events_ |= mask(EventKind::Observation);
-    else if (k == "tick") events_ |= mask(EventKind::Tick);
-    else p.fail("run_on", "unknown event kind '" + k + "'");
-  }
+  std::string unknown;
+  events_ = eventMaskFromNames(p.getStrings("run_on"), &unknown);
+  if (!unknown.empty()) p.fail("run_on", "unknown event kind '" + unknown + "'");
   if (!events_ && !on_finish_) p.fail("on_finish", "with run_on empty and on_finish false this stage never runs");
 }
 

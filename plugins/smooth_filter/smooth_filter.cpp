@@ -29,12 +29,11 @@ void SmoothFilter::configure(const Params& p) {
   min_weight_fraction_ = p.getDouble("min_weight_fraction");
   fill_holes_ = p.getBool("fill_holes");
   on_finish_ = p.getBool("on_finish");
-  run_on_ = p.getStrings("run_on");
+  std::string unknown;
+  events_ = eventMaskFromNames(p.getStrings("run_on"), &unknown);
   if (input_ == output_) p.fail("output_layer", "must differ from input_layer ('" + input_ + "')");
   if (radius_m_ < sigma_m_) p.fail("radius_m", "should be at least sigma_m so the kernel is not truncated flat");
-  for (const auto& k : run_on_)
-    if (k != "point_cloud" && k != "pose" && k != "blade_pose" && k != "observation" && k != "tick")
-      p.fail("run_on", "unknown event kind '" + k + "'");
+  if (!unknown.empty()) p.fail("run_on", "unknown event kind '" + unknown + "'");
 }
 
 std::vector<LayerSpec> SmoothFilter::layers() const {
@@ -43,17 +42,7 @@ std::vector<LayerSpec> SmoothFilter::layers() const {
                     "Gaussian-smoothed " + input_ + "; NaN where too little valid input"}};
 }
 
-EventMask SmoothFilter::events() const {
-  EventMask m = 0;
-  for (const auto& k : run_on_) {
-    if (k == "point_cloud") m |= mask(EventKind::PointCloud);
-    if (k == "pose") m |= mask(EventKind::Pose);
-    if (k == "blade_pose") m |= mask(EventKind::BladePose);
-    if (k == "observation") m |= mask(EventKind::Observation);
-    if (k == "tick") m |= mask(EventKind::Tick);
-  }
-  return m;
-}
+EventMask SmoothFilter::events() const { return events_; }
 
 void SmoothFilter::start(ProcessContext& ctx) {
   in_id_ = ctx.map().layerId(input_);

@@ -32,7 +32,7 @@ class SmoothFilter : public Plugin {
   std::string input_, output_;
   double sigma_m_ = 0.1, radius_m_ = 0.3, min_weight_fraction_ = 0.3;
   bool fill_holes_ = false, on_finish_ = true;
-  std::vector<std::string> run_on_;
+  EventMask events_ = 0;
   LayerId in_id_ = -1, out_id_ = -1;
 };
 

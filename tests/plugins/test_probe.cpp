@@ -20,13 +20,9 @@ class Probe : public terramap::Plugin {
     in_ = p.getString("input_layer");
     inc_ = static_cast<float>(p.getDouble("increment"));
     throw_on_ = p.getInt("throw_on_event");
-    mask_ = 0;
-    for (const auto& k : p.getStrings("events")) {
-      if (k == "tick") mask_ |= terramap::mask(terramap::EventKind::Tick);
-      else if (k == "point_cloud") mask_ |= terramap::mask(terramap::EventKind::PointCloud);
-      else if (k == "pose") mask_ |= terramap::mask(terramap::EventKind::Pose);
-      else p.fail("events", "unknown kind '" + k + "'");
-    }
+    std::string unknown;
+    mask_ = terramap::eventMaskFromNames(p.getStrings("events"), &unknown);
+    if (!unknown.empty()) p.fail("events", "unknown kind '" + unknown + "'");
   }
   std::vector<terramap::LayerSpec> layers() const override {
     using namespace terramap;

@@ -5,6 +5,8 @@
 /// coordinates in frame b into frame a (p_a = T_a_b * p_b). Frames: `map` (the LayeredMap's
 /// frame, z up), `sensor` (the LiDAR), `base` (vehicle chassis: x forward, y left, z up),
 /// `blade` (see BladePose).
+#include <terramap/core/error.hpp>
+
 #include <Eigen/Geometry>
 #include <array>
 #include <cstdint>
@@ -106,6 +108,9 @@ inline double stampOf(const Event& e) {
   return std::visit([](const auto& ev) { return ev.stamp; }, e);
 }
 /// Lower-case name of a kind ("point_cloud", "pose", "blade_pose", "observation", "tick").
-const char* kindName(EventKind k);
+TERRAMAP_API const char* kindName(EventKind k);
+/// The mask of kinds named in `names` (as kindName spells them). The first name that is not
+/// a kind is stored in `*unknown` (if given) and the mask of the valid ones is returned.
+TERRAMAP_API EventMask eventMaskFromNames(const std::vector<std::string>& names, std::string* unknown = nullptr);
 
 }  // namespace terramap
