@@ -188,3 +188,18 @@ TEST(Cli, KittiPipelineFusesRealFramesAndReportsDrops) {
   ASSERT_EQ(raster.bands.size(), 4u);
   EXPECT_EQ(raster.bands[3].description, "elevation_smooth");
 }
+
+TEST(Cli, WholePipelineIsBitIdenticalAtOneAndTwoThreads) {
+  // The snapshot holds every layer's bits; it carries no timing, so equal runs give equal files.
+  const fs::path d = tempDir("threads");
+  const std::string cfg = std::string(TERRAMAP_SOURCE_DIR) + "/configs/kitti.yaml";
+  ASSERT_EQ(sh("run " + cfg + " --threads 1 --quiet --out " + (d / "t1").string()).code, 0);
+  ASSERT_EQ(sh("run " + cfg + " --threads 2 --quiet --out " + (d / "t2").string()).code, 0);
+  auto bytes = [](const fs::path& p) {
+    std::ifstream in(p, std::ios::binary);
+    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  };
+  const std::string a = bytes(d / "t1" / "map.tmap"), b = bytes(d / "t2" / "map.tmap");
+  ASSERT_GT(a.size(), 1000u);
+  EXPECT_TRUE(a == b) << "snapshots differ between 1 and 2 threads";
+}
