@@ -54,7 +54,7 @@ void printRun(const sim::EvalRun& r) {
   const std::pair<sim::EvalRegion, const char*> rows[] = {
       {sim::EvalRegion::Cut, "inside the cut"},
       {sim::EvalRegion::Outside, "outside the cut"},
-      {sim::EvalRegion::Deposit, "  deposit (truth moved > threshold)"},
+      {sim::EvalRegion::Deposit, "  deposit (truth moved)"},
       {sim::EvalRegion::Untouched, "  untouched"},
       {sim::EvalRegion::All, "all known cells"}};
   for (const auto& [reg, label] : rows) {

@@ -68,6 +68,8 @@ machines:
   - id: ctl1
     pose: {x_m: 0, y_m: 0, yaw_deg: 0}
     controller: {type: route, start_m: [0, 0], heading_deg: 0, length_m: 3.5, passes: 1, depth_m: 0.04, speed_mps: 0.5}
+    sensors:
+      - {id: front_line, type: lidar, preset: single_line, offset_m: [0.8, 0, 2.0], rotation_deg: [0, 50, 0], columns: 64}
 )";
   return s;
 }
@@ -88,7 +90,7 @@ class EngineMapper : public sim::BlindMapper {
   Engine& e_;
 };
 
-sim::EvalRun evaluateSmallBerm(int threads) {
+sim::EvalRun evaluateSmallBerm(int threads, long* scans = nullptr) {
   sim::Simulator simulator(sim::parseScenario(smallBermScenario(), "small_berm.yaml"));
   PipelineSpec spec = parsePipelineString(sim::defaultEvalPipeline(), "<eval>", ".");
   spec.threads = threads;
@@ -100,11 +102,17 @@ sim::EvalRun evaluateSmallBerm(int threads) {
   EngineMapper mapper(*engine);
   sim::EvalRun r = sim::runBlindEvaluation(simulator, mapper);
   engine->finish();
+  if (scans) *scans = static_cast<long>(simulator.stats().scans);
   return r;
 }
 
+long& smallBermScans() {
+  static long scans = -1;
+  return scans;
+}
+
 const sim::EvalRun& smallBermRun() {
-  static const sim::EvalRun run = evaluateSmallBerm(2);
+  static const sim::EvalRun run = evaluateSmallBerm(2, &smallBermScans());
   return run;
 }
 
@@ -319,7 +327,9 @@ TEST(EvalRun, BlindMapBeatsTheNoUpdateMapAndConservesMass) {
               unt.cells, unt.rmse_m, unt.p95_abs_m, r.mass.blind_residual_m3, r.mass.cut_bank_blind_m3,
               r.mass.cut_bank_truth_m3);
   EXPECT_GT(r.sweeps, 10);
-  EXPECT_EQ(r.clouds_withheld, 0);  // the scenario has no LiDAR
+  // Blind: every scan of the single-line LiDAR was withheld, not pushed.
+  EXPECT_GT(smallBermScans(), 20);
+  EXPECT_EQ(r.clouds_withheld, smallBermScans());
   // Region bookkeeping: every known cell in exactly one of cut / deposit / untouched.
   EXPECT_EQ(r.stats(sim::EvalRegion::All).cells, cut.cells + dep.cells + unt.cells);
   EXPECT_EQ(r.stats(sim::EvalRegion::Outside).cells, dep.cells + unt.cells);
@@ -365,6 +375,20 @@ TEST(EvalRun, BitIdenticalAtOneAndTwoThreads) {
   EXPECT_EQ(0, std::memcmp(one.blind.data(), two.blind.data(), sizeof(float) * one.blind.size()));
   EXPECT_EQ(one.mass.blind_residual_m3, two.mass.blind_residual_m3);
   EXPECT_EQ(one.stats(sim::EvalRegion::Cut).rmse_m, two.stats(sim::EvalRegion::Cut).rmse_m);
+}
+
+TEST(EvalRun, RefusesASteppedSimulatorAndAMapWithoutElevation) {
+  sim::Simulator simulator(sim::parseScenario(smallBermScenario(), "small_berm.yaml"));
+  PipelineSpec spec = parsePipelineString(sim::defaultEvalPipeline(), "<eval>", ".");
+  PluginRegistry registry({TERRAMAP_PLUGIN_DIR});
+  auto engine = Engine::fromSpec(spec, registry);
+  EngineMapper mapper(*engine);
+  sim::EvalOptions o;
+  o.elevation_layer = "height";
+  EXPECT_THROW(sim::runBlindEvaluation(simulator, mapper, o), LayerError);
+  std::vector<Event> ev;
+  simulator.next(ev);
+  EXPECT_THROW(sim::runBlindEvaluation(simulator, mapper), std::invalid_argument);
 }
 
 TEST(EvalOutputs, PngsGeoTiffJsonAndCsvAreWritten) {
@@ -428,6 +452,22 @@ TEST(EvalCli, WritesPngsAndJsonAndReportsErrors) {
   EXPECT_EQ(j["scenario"], "small_berm");
   EXPECT_GT(j["height_error"]["cut"]["baseline_rmse_m"].get<double>(),
             2 * j["height_error"]["cut"]["rmse_m"].get<double>());
+  // The shipped configs/eval_blind.yaml with --fit-map is the embedded default: same figures.
+  const std::string shipped = std::string(TERRAMAP_SOURCE_DIR) + "/configs/eval_blind.yaml";
+  ASSERT_EQ(sh("eval " + (d / "small_berm.yaml").string() + " -q --pipeline " + shipped + " --fit-map --out " +
+               (d / "out2").string(), &out), 0) << out;
+  nlohmann::json j2 = nlohmann::json::parse(readText(d / "out2" / "eval.json"));
+  nlohmann::json j1 = j;
+  j1.erase("wall_s");
+  j2.erase("wall_s");
+  EXPECT_EQ(j1, j2);
+  // Without --fit-map the pipeline's 200 x 200 map at (0, 0) is used as written: its cells
+  // beyond the truth (x < -1.5 m, |y| > 2.5 m) are unknown and left out of the statistics.
+  ASSERT_EQ(sh("eval " + (d / "small_berm.yaml").string() + " -q --pipeline " + shipped + " --out " +
+               (d / "out3").string(), &out), 0) << out;
+  const nlohmann::json j3 = nlohmann::json::parse(readText(d / "out3" / "eval.json"));
+  EXPECT_EQ(j3["map"]["size"][0].get<int>(), 200);
+  EXPECT_LT(j3["height_error"]["all"]["cells"].get<long>(), 200L * 200L);
   // A missing scenario is a configuration error (exit 3), an unknown option a usage error (2).
   EXPECT_EQ(sh("eval " + (d / "nope.yaml").string() + " --out " + (d / "o2").string(), &out), 3) << out;
   EXPECT_EQ(sh("eval " + (d / "small_berm.yaml").string() + " --no-such-flag", &out), 2) << out;
