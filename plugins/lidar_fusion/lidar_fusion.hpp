@@ -138,6 +138,10 @@ class LidarFusion : public Plugin {
   void advanceTime(LayeredMap& map, const Executor& executor, double stamp);
   /// Follow-robot motion to a base position (no-op unless follow_robot).
   void followTo(LayeredMap& map, const Eigen::Vector3d& position);
+  /// Gate the points with the portable scalar loop even where the AVX2 kernel could run
+  /// (x86-64 CPUs with AVX2 use it by default). Both give bit-identical results (tested);
+  /// this exists for that test and for benchmarking the difference.
+  void forceScalarGates(bool on) { force_scalar_gates_ = on; }
   /// Totals over every cloud so far.
   const FusionStats& totals() const { return totals_; }
 
@@ -198,6 +202,7 @@ class LidarFusion : public Plugin {
   std::vector<Item> binned_;
   std::vector<int> ray_tiles_;     // tiles with binned ray items, ascending
   std::vector<char> tile_known_;   // buffer tiles that may hold known cells (time pass)
+  bool force_scalar_gates_ = false;
   bool have_stamp_ = false;
   double last_stamp_ = 0.0;
   bool have_pose_ = false;         // a Pose event arrived (follow it rather than the sensor)

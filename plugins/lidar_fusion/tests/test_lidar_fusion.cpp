@@ -620,3 +620,75 @@ TEST(LidarFusion, MatchesAPlainSerialPerPointLoop) {
   EXPECT_EQ(mismatches, 0);
   EXPECT_GT(known, 10000);
 }
+
+TEST(LidarFusion, VectorAndScalarGatesAgreeBitForBit) {
+#if defined(__x86_64__) && defined(__GNUC__)
+  if (!__builtin_cpu_supports("avx2")) GTEST_SKIP() << "no AVX2 on this CPU: only the scalar gates run";
+#else
+  GTEST_SKIP() << "the AVX2 gate kernel is x86-64 only";
+#endif
+  // A resolution exact in binary (0.25 m) so that points on cell edges give integral
+  // (xmax - x) / res and exercise the ceil(f) - 1 branch; points exactly at min_range_m,
+  // at max_height_above_sensor_m and on the ramp; NaN/inf; a tail that is not a multiple of
+  // the vector width; several chunks (> 8192 points); a rotated, translated sensor.
+  std::vector<PointXYZI> pts = syntheticScan(11, 96, 512);
+  const float inf = std::numeric_limits<float>::infinity();
+  for (int i = -8; i <= 8; ++i)
+    for (int j = -8; j <= 8; ++j) pts.push_back({0.25f * i, 0.25f * j, -1.5f + 0.01f * i, 0});
+  pts.push_back({0.5f, 0.0f, 0.0f, 0});     // r == min_range_m: kept by the range gate
+  pts.push_back({0.0f, 0.0f, 1.0f, 0});     // dz == max_height_above_sensor_m
+  pts.push_back({1.8f, 0.0f, 0.44f, 0});    // near the ramp
+  pts.push_back({inf, 0.0f, 0.0f, 0});
+  pts.push_back({0.0f, -inf, 0.0f, 0});
+  pts.push_back({0.0f, 0.0f, kNaN, 0});
+  pts.push_back({1e30f, 1e30f, 1e30f, 0});  // too far
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-30.0f, 30.0f);
+  for (int i = 0; i < 1003; ++i) pts.push_back({u(rng), u(rng), 0.1f * u(rng), 0});
+  ASSERT_GT(pts.size(), 2u * 8192u);
+  for (int variant = 0; variant < 2; ++variant) {
+    LidarFusionConfig c;
+    c.cleanup_ray_stride = 3;
+    if (variant == 1) {
+      c.noise_model = NoiseModel::DepthSquared;
+      c.enable_ramped_height_range = false;
+      c.max_range_m = 25.0;
+    }
+    std::vector<Eigen::MatrixXf> layers[2];
+    FusionStats stats[2];
+    for (int scalar = 0; scalar < 2; ++scalar) {
+      LayeredMap map(Geometry(0.25, Size(120, 120)), MapOptions{16, false});
+      LidarFusion f;
+      f.configure(c);
+      f.forceScalarGates(scalar == 1);
+      f.attach(map);
+      Executor ex(2);
+      PointCloud pc;
+      pc.T_map_sensor = Eigen::Translation3d(0.25, -0.5, 1.0) * Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitZ());
+      pc.points = pts;
+      f.fuse(map, ex, pc);
+      pc.T_map_sensor = Eigen::Translation3d(0.0, 0.0, 1.0) * Eigen::AngleAxisd(0.0, Eigen::Vector3d::UnitZ());
+      stats[scalar] = f.fuse(map, ex, pc);  // identity rotation: edge points stay on edges
+      for (const char* name : {L::kElevation, L::kVariance, L::kIsValid, L::kTimeSinceUpdate, L::kUpperBound,
+                               L::kIsUpperBound, L::kHits})
+        layers[scalar].push_back(map.toMatrix(map.layerId(name)));
+    }
+    for (size_t l = 0; l < layers[0].size(); ++l)
+      EXPECT_TRUE(sameBits(layers[0][l], layers[1][l])) << "variant " << variant << " layer " << l;
+    const FusionStats &a = stats[0], &b = stats[1];
+    EXPECT_EQ(a.dropped_non_finite, b.dropped_non_finite);
+    EXPECT_EQ(a.dropped_too_close, b.dropped_too_close);
+    EXPECT_EQ(a.dropped_too_far, b.dropped_too_far);
+    EXPECT_EQ(a.dropped_too_high, b.dropped_too_high);
+    EXPECT_EQ(a.dropped_outside_map, b.dropped_outside_map);
+    EXPECT_EQ(a.points_fused, b.points_fused);
+    EXPECT_EQ(a.rays, b.rays);
+    EXPECT_EQ(a.ray_cells, b.ray_cells);
+    // Every gate fired, so every lane path of the kernel was compared.
+    EXPECT_GT(a.dropped_non_finite, 3);
+    EXPECT_GT(a.dropped_too_far, 0);
+    EXPECT_GT(a.dropped_too_high, 0);
+    EXPECT_GT(a.dropped_outside_map, 0);
+    EXPECT_GT(a.points_fused, 10000);
+  }
+}
