@@ -7,6 +7,7 @@
 #include <terramap/sim/truth_terrain.hpp>
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -252,20 +253,75 @@ void readTerrain(MapReader& r, Scenario& sc, const Ctx& ctx) {
   bool have_extent = false;
   if (r.has("dem")) {
     MapReader d = r.child("dem");
+    DemSpec& dem = t.dem;
     const std::string file = d.strRequired("file");
-    const std::string fmt = d.str("format", "esri_ascii");
-    if (fmt != "esri_ascii")
-      d.fail(d.node("format"), "format", "unsupported DEM format '" + fmt + "' (supported: esri_ascii)" +
-                                             didYouMean(fmt, {"esri_ascii"}));
     fs::path p(file);
     if (p.is_relative()) p = fs::path(ctx.base_dir) / p;
-    t.dem_path = p.lexically_normal().string();
+    dem.path = p.lexically_normal().string();
+    // Format: explicit, else from the extension.
+    std::string ext = p.extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+    std::string fmt = ext == ".tif" || ext == ".tiff" ? "geotiff" : ext == ".las" ? "las" : "esri_ascii";
+    const std::vector<std::string> formats = {"esri_ascii", "geotiff", "las"};
+    if (d.has("format")) {
+      fmt = d.str("format", fmt);
+      if (std::find(formats.begin(), formats.end(), fmt) == formats.end())
+        d.fail(d.node("format"), "format", "unsupported DEM format '" + fmt + "' (supported: " + joinStrings(formats) + ")" +
+                                               didYouMean(fmt, formats));
+    }
+    dem.format = fmt == "geotiff" ? DemFormat::GeoTiff : fmt == "las" ? DemFormat::Las : DemFormat::EsriAscii;
+    if (d.has("geo_origin")) {
+      const YAML::Node n = d.node("geo_origin");
+      if (n.IsScalar() && n.Scalar() == "auto") {
+        dem.origin_mode = GeoOriginMode::Auto;
+      } else {
+        if (!n.IsSequence() || (n.size() != 2 && n.size() != 3))
+          d.fail(n, "geo_origin", "expected 'auto' or a list [easting, northing] or [easting, northing, height] (m)");
+        const std::vector<double> v = d.numList(n, "geo_origin", n.size());
+        for (double x : v)
+          if (!std::isfinite(x)) d.fail(n, "geo_origin", "coordinates must be finite");
+        dem.origin_mode = GeoOriginMode::Explicit;
+        dem.geo_origin = Eigen::Vector3d(v[0], v[1], v.size() == 3 ? v[2] : 0.0);
+      }
+    }
+    if (d.has("fill_holes")) dem.fill_holes = d.boolean("fill_holes", false);
+    auto onlyFor = [&](const char* key, DemFormat f, const char* fname) {
+      if (d.has(key) && dem.format != f)
+        d.fail(d.node(key), key, std::string("applies to format ") + fname + " only (format is " + fmt + ")");
+    };
+    onlyFor("band", DemFormat::GeoTiff, "geotiff");
+    onlyFor("cell_m", DemFormat::Las, "las");
+    onlyFor("statistic", DemFormat::Las, "las");
+    onlyFor("ground_class", DemFormat::Las, "las");
+    if (d.has("band")) {
+      const YAML::Node n = d.node("band");
+      bool is_int = false;
+      try {
+        (void)n.as<long long>();
+        is_int = n.IsScalar();
+      } catch (const std::exception&) {
+      }
+      if (is_int) dem.band = d.integer("band", 1, 1, 65535);
+      else if (n.IsScalar()) dem.band_name = n.Scalar();
+      else d.fail(n, "band", "expected a band number (1-based) or a band description");
+    }
+    dem.cell_m = d.num("cell_m", dem.cell_m, 1e-3, 1e4);
+    if (d.has("statistic")) {
+      const std::string st = d.str("statistic", "median");
+      if (st != "median" && st != "mean")
+        d.fail(d.node("statistic"), "statistic", "unknown statistic '" + st + "' (median or mean)" +
+                                                    didYouMean(st, {"median", "mean"}));
+      dem.statistic = st == "mean" ? DemStatistic::Mean : DemStatistic::Median;
+    }
+    dem.ground_class = d.integer("ground_class", dem.ground_class, 0, 31);
     d.finish();
-    const DemGrid g = readEsriAscii(t.dem_path);  // InputError names the file
-    t.origin_x_m = g.x0_m;
-    t.origin_y_m = g.y0_m;
-    t.size_x_m = (g.nx - 1) * g.cell_m;
-    t.size_y_m = (g.ny - 1) * g.cell_m;
+    // Read now: the extent is needed below, and buildTerrain reuses the grid.
+    auto g = std::make_shared<DemGrid>(loadDem(dem, &t.dem_geo_origin));  // InputError names the file
+    t.origin_x_m = g->x0_m;
+    t.origin_y_m = g->y0_m;
+    t.size_x_m = (g->nx - 1) * g->cell_m;
+    t.size_y_m = (g->ny - 1) * g->cell_m;
+    t.dem_grid = std::move(g);
     have_extent = true;
   }
   if (r.has("size_m")) {
@@ -285,7 +341,12 @@ void readTerrain(MapReader& r, Scenario& sc, const Ctx& ctx) {
     t.origin_y_m = -t.size_y_m / 2;
   }
   const double nodes = (t.size_x_m / t.resolution_m + 1) * (t.size_y_m / t.resolution_m + 1);
-  if (nodes > 4e8) r.fail(r.self(), "size_m", "terrain too large: " + std::to_string(static_cast<long long>(nodes)) + " nodes");
+  // ~45 bytes per node (U, Lv, Lc, H in double, the initial surface and the pyramid in float).
+  if (nodes > 5e7)
+    r.fail(r.self(), "size_m", "terrain too large: " + std::to_string(static_cast<long long>(nodes)) + " nodes (~" +
+                                   std::to_string(static_cast<long long>(nodes * 45 / 1e9)) +
+                                   " GB; limit 5e7 nodes): choose a smaller size_m (and origin_m) or a coarser resolution_m" +
+                                   (sc.terrain.dem.path.empty() ? "" : " (a DEM alone sets the extent to the whole file)"));
   if (r.has("hills")) {
     MapReader h = r.child("hills");
     const int count = h.integer("count", 0, 0, 100000);

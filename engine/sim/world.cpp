@@ -1,6 +1,9 @@
 // Truth world construction: terrain surface and soil field.
 #include <terramap/core/error.hpp>
+#include <terramap/sim/dem.hpp>
 #include <terramap/sim/world.hpp>
+
+#include <memory>
 
 #include <cmath>
 
@@ -10,9 +13,9 @@ TruthTerrain buildTerrain(const TerrainSpec& spec) {
   const int nx = static_cast<int>(std::llround(spec.size_x_m / spec.resolution_m)) + 1;
   const int ny = static_cast<int>(std::llround(spec.size_y_m / spec.resolution_m)) + 1;
   TruthTerrain t(spec.origin_x_m, spec.origin_y_m, spec.resolution_m, nx, ny, spec.base_height_m);
-  DemGrid dem;
-  const bool have_dem = !spec.dem_path.empty();
-  if (have_dem) dem = readEsriAscii(spec.dem_path);
+  std::shared_ptr<const DemGrid> dem = spec.dem_grid;
+  const bool have_dem = !spec.dem.path.empty();
+  if (have_dem && !dem) dem = std::make_shared<const DemGrid>(loadDem(spec.dem));
   for (int j = 0; j < ny; ++j) {
     for (int i = 0; i < nx; ++i) {
       const Eigen::Vector2d p = t.nodePosition(i, j);
@@ -23,10 +26,11 @@ TruthTerrain buildTerrain(const TerrainSpec& spec) {
         if (r2 < 60.0) h += b.amplitude_m * std::exp(-0.5 * r2);  // exp(-30) ~ 1e-13: negligible beyond
       }
       if (have_dem) {
-        const double z = dem.heightAt(p.x(), p.y());
+        const double z = dem->heightAt(p.x(), p.y());
         if (std::isnan(z))
-          throw InputError(spec.dem_path + ": DEM has no data at terrain node (" + std::to_string(p.x()) + ", " +
-                           std::to_string(p.y()) + ") (outside the grid or next to a NODATA cell)");
+          throw InputError(spec.dem.path + ": DEM has no data at terrain node (" + std::to_string(p.x()) + ", " +
+                           std::to_string(p.y()) + ") (map frame; outside the DEM or next to a no-data cell: "
+                           "choose terrain.size_m/origin_m inside it or set dem.fill_holes)");
         h += z;
       }
       t.setUndisturbed(i, j, h);

@@ -6,12 +6,14 @@
 /// did-you-mean. The YAML schema is documented in docs/sim.md; configs/scenarios/ has examples.
 /// Units: metres, seconds, radians in the structs (YAML takes *_deg keys for angles).
 #include <terramap/core/events.hpp>
+#include <terramap/sim/dem.hpp>
 #include <terramap/sim/soil_table.hpp>
 
 #include <Eigen/Core>
 #include <array>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -33,9 +35,15 @@ struct TerrainSpec {
   /// Explicit bumps (from YAML `hills.list`) plus `hills.count` random ones drawn from the
   /// ranges below with `hills.seed` (already expanded by loadScenario, so `bumps` is complete).
   std::vector<GaussianBump> bumps;
-  /// DEM file instead of/added to the analytic surface: ESRI ASCII grid (.asc). Empty = none.
-  /// The DEM is resampled bilinearly onto the node grid; nodes outside the DEM are an error.
-  std::string dem_path;
+  /// DEM added to the analytic surface (dem.path empty = none): ESRI ASCII, GeoTIFF or LAS
+  /// ground points (dem.hpp), in the map frame after subtracting the geo origin. It is
+  /// resampled bilinearly onto the node grid; nodes outside the DEM are an error.
+  DemSpec dem;
+  /// The DEM as loaded by loadScenario (which needs its extent), so buildTerrain does not read
+  /// the file again; buildTerrain loads `dem` itself when this is null.
+  std::shared_ptr<const DemGrid> dem_grid;
+  /// World (E, N, Z) of map (0, 0, 0) the DEM was shifted by (zero without a DEM).
+  Eigen::Vector3d dem_geo_origin = Eigen::Vector3d::Zero();
   double snapshot_interval_s = 1.0;  ///< truth heightmaps written every this many seconds
 };
 

@@ -1,0 +1,284 @@
+// Truth terrain from a GeoTIFF (written here through terramap::io) and from LAS ground points
+// (the real airborne PDAL sample), gridding and hole filling.
+#include <gtest/gtest.h>
+
+#include <terramap/core/error.hpp>
+#include <terramap/core/layered_map.hpp>
+#include <terramap/io/geotiff.hpp>
+#include <terramap/io/readers.hpp>
+#include <terramap/sim/dem.hpp>
+#include <terramap/sim/scenario.hpp>
+#include <terramap/sim/world.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+
+using namespace terramap;
+using namespace terramap::sim;
+namespace fs = std::filesystem;
+
+namespace {
+
+const std::string kLas = std::string(TERRAMAP_DATA_DIR) + "/las_hexbin/hexbin-crop.las";
+
+double field(double x, double y) { return 0.2 * x - 0.1 * y + 0.05 * std::sin(3 * x) * std::cos(2 * y); }
+
+/// A 40 x 30-cell map (10 cm) centred at (1, -0.5): bands "count" (1) and "elevation" (2).
+LayeredMap elevationMap(double offset) {
+  LayeredMap m(Geometry(0.1, Size(40, 30), Position(1.0, -0.5)));
+  const LayerId c = m.addLayer("count", "", 0.f);
+  const LayerId e = m.addLayer("elevation", "m");
+  for (int i = 0; i < 40; ++i)
+    for (int j = 0; j < 30; ++j) {
+      const Position p = m.geometry().positionOf(Index(i, j));
+      m.set(e, Index(i, j), static_cast<float>(offset + field(p.x(), p.y())));
+      m.set(c, Index(i, j), 3.f);
+    }
+  return m;
+}
+
+/// Independent bilinear interpolation of the map's float cells at (x, y) (cell centres at
+/// xmin + (k + 0.5) res), through the map's own index convention.
+double bilinearOfMap(const LayeredMap& m, double x, double y) {
+  const Geometry& g = m.geometry();
+  const double res = g.resolution();
+  const double xmin = g.center().x() - 0.5 * g.length().x(), ymin = g.center().y() - 0.5 * g.length().y();
+  const double fx = (x - xmin) / res - 0.5, fy = (y - ymin) / res - 0.5;
+  const int kx = std::clamp(static_cast<int>(std::floor(fx)), 0, g.size().x() - 2);
+  const int ky = std::clamp(static_cast<int>(std::floor(fy)), 0, g.size().y() - 2);
+  const double u = fx - kx, v = fy - ky;
+  const LayerId e = m.layerId("elevation");
+  auto at = [&](int ax, int ay) {  // ax counts cells from the west, ay from the south
+    return static_cast<double>(m.at(e, Index(g.size().x() - 1 - ax, g.size().y() - 1 - ay)));
+  };
+  return (1 - u) * (1 - v) * at(kx, ky) + u * (1 - v) * at(kx + 1, ky) + (1 - u) * v * at(kx, ky + 1) +
+         u * v * at(kx + 1, ky + 1);
+}
+
+std::string scenarioWithDem(const std::string& dem_yaml, const std::string& extent = "") {
+  return "version: 1\nseed: 1\nduration_s: 1\nterrain: {resolution_m: 0.02, " + extent + "dem: " + dem_yaml +
+         "}\nmachines:\n  - id: m1\n";
+}
+
+std::string errorOf(const std::string& yaml) {
+  try {
+    const Scenario sc = parseScenario(yaml, "s.yaml");
+    buildTerrain(sc.terrain);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+TEST(DemGridding, MedianMeanAndBorderAssignmentAreHandComputable) {
+  // Cells of 1 m centred at x = 0, 1, 2 and y = 0, 1.
+  const std::vector<Eigen::Vector3d> pts = {
+      {0.1, 0.1, 5.0}, {-0.2, 0.3, 1.0}, {0.4, -0.4, 3.0},  // cell (0, 0): median 3, mean 3
+      {1.0, 0.0, 2.0}, {1.2, 0.2, 4.0},                      // cell (1, 0): even count, median 3, mean 3
+      {1.5, 0.0, 10.0},                                       // on the 1|2 border -> cell (2, 0)
+      {2.0, 1.2, 7.0}, {2.1, 0.9, 9.0}, {1.9, 1.1, 2.0}, {2.2, 1.0, 1.0},  // cell (2, 1): median 4.5, mean 4.75
+      {9.0, 9.0, 99.0}};                                      // outside: ignored
+  const DemGrid med = gridPoints(pts, 0.0, 0.0, 1.0, 3, 2, DemStatistic::Median);
+  const DemGrid mean = gridPoints(pts, 0.0, 0.0, 1.0, 3, 2, DemStatistic::Mean);
+  EXPECT_DOUBLE_EQ(med.z[0], 3.0);
+  EXPECT_DOUBLE_EQ(med.z[1], 3.0);
+  EXPECT_DOUBLE_EQ(med.z[2], 10.0);
+  EXPECT_TRUE(std::isnan(med.z[3]));
+  EXPECT_TRUE(std::isnan(med.z[4]));
+  EXPECT_DOUBLE_EQ(med.z[5], 4.5);
+  EXPECT_DOUBLE_EQ(mean.z[0], 3.0);
+  EXPECT_DOUBLE_EQ(mean.z[1], 3.0);
+  EXPECT_DOUBLE_EQ(mean.z[5], 4.75);
+}
+
+TEST(DemGridding, HolesAreFilledByDirectionalInverseDistance) {
+  // 3 x 3, centre missing: axis neighbours at distance 1 (weight 1), diagonals at sqrt 2 (1/2).
+  DemGrid g;
+  g.nx = 3; g.ny = 3; g.cell_m = 1;
+  g.z = {1, 2, 3, 4, NAN, 6, 7, 8, 9.5};
+  EXPECT_EQ(fillDemHoles(g, "t"), 1u);
+  EXPECT_NEAR(g.z[4], ((2 + 4 + 6 + 8) + 0.5 * (1 + 3 + 7 + 9.5)) / 6.0, 1e-12);
+  // A hole seeing no data along its 8 lines is filled in a later pass from filled cells:
+  // 5 x 3 with data only at (0, 0); (2, 1)'s lines reach (1, 0) but never (0, 0).
+  DemGrid h;
+  h.nx = 5; h.ny = 3; h.cell_m = 1;
+  h.z.assign(15, NAN);
+  h.z[0] = 2.0;
+  EXPECT_EQ(fillDemHoles(h, "t"), 14u);
+  for (double v : h.z) EXPECT_DOUBLE_EQ(v, 2.0);  // a convex combination of 2.0 only
+  DemGrid empty;
+  empty.nx = 2; empty.ny = 2; empty.z.assign(4, NAN);
+  EXPECT_THROW(fillDemHoles(empty, "t"), InputError);
+}
+
+TEST(DemInputs, GeoTiffWrittenFromALayeredMapBecomesTheTruthSurface) {
+  const fs::path dir = fs::path(TERRAMAP_BINARY_DIR) / "sim_test_dem";
+  fs::create_directories(dir);
+  const fs::path tif = dir / "local.tif";
+  const LayeredMap m = elevationMap(0.0);
+  io::writeGeoTiff(m, {"count", "elevation"}, tif);
+  // Local CRS: the map frame is kept (geo origin 0). Extent = the hull of the cell centres.
+  const Scenario sc = parseScenario(scenarioWithDem("{file: " + tif.string() + ", band: elevation}"), "s.yaml");
+  EXPECT_EQ(sc.terrain.dem.format, DemFormat::GeoTiff);
+  EXPECT_NEAR(sc.terrain.origin_x_m, 1.0 - 2.0 + 0.05, 1e-12);
+  EXPECT_NEAR(sc.terrain.origin_y_m, -0.5 - 1.5 + 0.05, 1e-12);
+  EXPECT_NEAR(sc.terrain.size_x_m, 3.9, 1e-9);
+  EXPECT_NEAR(sc.terrain.size_y_m, 2.9, 1e-9);
+  EXPECT_TRUE(sc.terrain.dem_geo_origin.isZero());
+  const TruthTerrain t = buildTerrain(sc.terrain);
+  ASSERT_EQ(t.nx(), 196);
+  ASSERT_EQ(t.ny(), 146);
+  double worst = 0;
+  for (int j = 0; j < t.ny(); j += 7)
+    for (int i = 0; i < t.nx(); i += 5) {
+      const Eigen::Vector2d p = t.nodePosition(i, j);
+      worst = std::max(worst, std::abs(t.height(i, j) - bilinearOfMap(m, p.x(), p.y())));
+    }
+  EXPECT_LT(worst, 1e-9);
+  // Band by number, and errors that name the file.
+  const Scenario sc1 = parseScenario(scenarioWithDem("{file: " + tif.string() + ", band: 1}"), "s.yaml");
+  EXPECT_NEAR(buildTerrain(sc1.terrain).height(10, 10), 3.0, 1e-12);
+  std::string e = errorOf(scenarioWithDem("{file: " + tif.string() + ", band: 3}"));
+  EXPECT_NE(e.find("band 3 out of range"), std::string::npos) << e;
+  EXPECT_NE(e.find("local.tif"), std::string::npos) << e;
+  e = errorOf(scenarioWithDem("{file: " + tif.string() + ", band: height}"));
+  EXPECT_NE(e.find("no band named 'height'"), std::string::npos) << e;
+  e = errorOf(scenarioWithDem("{file: " + tif.string() + ", cell_m: 2}"));
+  EXPECT_NE(e.find("terrain.dem.cell_m: applies to format las only"), std::string::npos) << e;
+}
+
+TEST(DemInputs, GeoTiffHolesFailOrAreFilledOnRequest) {
+  const fs::path dir = fs::path(TERRAMAP_BINARY_DIR) / "sim_test_dem";
+  fs::create_directories(dir);
+  const fs::path tif = dir / "holes.tif";
+  LayeredMap m = elevationMap(0.0);
+  m.set(m.layerId("elevation"), Index(20, 15), NAN);
+  io::writeGeoTiff(m, {"elevation"}, tif);
+  const std::string e = errorOf(scenarioWithDem("{file: " + tif.string() + "}"));
+  EXPECT_NE(e.find("DEM has no data at terrain node"), std::string::npos) << e;
+  const Scenario sc = parseScenario(scenarioWithDem("{file: " + tif.string() + ", fill_holes: true}"), "s.yaml");
+  const TruthTerrain t = buildTerrain(sc.terrain);
+  const Position c = m.geometry().positionOf(Index(20, 15));
+  int i = 0, j = 0;
+  t.nearestNode(c.x(), c.y(), i, j);
+  // The filled cell is an inverse-distance mean of its 8 neighbours' values: close to the field.
+  EXPECT_NEAR(t.height(i, j), field(c.x(), c.y()), 0.01);
+}
+
+TEST(DemInputs, GeoreferencedGeoTiffIsShiftedToItsRoundedCentre) {
+  const fs::path dir = fs::path(TERRAMAP_BINARY_DIR) / "sim_test_dem";
+  fs::create_directories(dir);
+  const fs::path tif = dir / "utm.tif";
+  const LayeredMap m = elevationMap(3100.0);
+  io::GeoTiffOptions opt;
+  opt.georef.epsg = 32642;  // WGS 84 / UTM 42N
+  opt.georef.origin_easting = 393900.3;
+  opt.georef.origin_northing = 3689100.6;
+  io::writeGeoTiff(m, {"elevation"}, tif, opt);
+  const Scenario sc = parseScenario(scenarioWithDem("{file: " + tif.string() + "}", "size_m: [1, 1], origin_m: [0, 0], "),
+                                    "s.yaml");
+  // Raster extent: easting 393900.3 + [-1, 3], northing 3689100.6 + [-2, 1]; heights 3100 +- 0.6.
+  const Eigen::Vector3d o = sc.terrain.dem_geo_origin;
+  EXPECT_DOUBLE_EQ(o.x(), std::round(393900.3 + 1.0));
+  EXPECT_DOUBLE_EQ(o.y(), std::round(3689100.6 - 0.5));
+  EXPECT_DOUBLE_EQ(o.z(), 3100.0);
+  const TruthTerrain t = buildTerrain(sc.terrain);
+  for (int j = 0; j < t.ny(); j += 10)
+    for (int i = 0; i < t.nx(); i += 10) {
+      // Map (x, y) = world - origin; the raster's own map frame is world - (393900.3, 3689100.6).
+      const Eigen::Vector2d p = t.nodePosition(i, j);
+      const double xr = p.x() + o.x() - 393900.3, yr = p.y() + o.y() - 3689100.6;
+      ASSERT_NEAR(t.height(i, j) + o.z(), bilinearOfMap(m, xr, yr), 1e-6) << i << " " << j;
+    }
+}
+
+TEST(DemInputs, LasGroundPointsGiveMediansPerCellAndFilledHoles) {
+  ASSERT_TRUE(fs::exists(kLas)) << kLas;
+  const std::string yaml = scenarioWithDem("{file: " + kLas + ", cell_m: 4}", "size_m: [24, 16], origin_m: [-12, -8], ");
+  const Scenario sc = parseScenario(yaml, "s.yaml");
+  EXPECT_EQ(sc.terrain.dem.format, DemFormat::Las);
+  // Default geo origin: the header box centre rounded to metres (PDAL sample, UTM 42N):
+  // x (393775.823 + 394069.238) / 2, y (3689071.943 + 3689273.095) / 2, z (3107.863 + 3209.321) / 2.
+  const Eigen::Vector3d o = sc.terrain.dem_geo_origin;
+  EXPECT_DOUBLE_EQ(o.x(), 393923.0);
+  EXPECT_DOUBLE_EQ(o.y(), 3689173.0);
+  EXPECT_DOUBLE_EQ(o.z(), 3159.0);
+  const TruthTerrain t = buildTerrain(sc.terrain);
+  // Direct computation from the points: ground points within each 4 m cell centred on
+  // multiples of 4 m (map frame), median of their heights.
+  io::LasReadOptions ro;
+  ro.keep_double_positions = true;
+  const io::LasCloud cloud = io::readLas(kLas, ro);
+  int checked = 0, holes = 0;
+  for (int cy = -8; cy <= 8; cy += 4)
+    for (int cx = -12; cx <= 12; cx += 4) {
+      std::vector<double> z;
+      double zmin = INFINITY, zmax = -INFINITY;  // data within 14 m (bounds a filled hole)
+      for (std::size_t k = 0; k < cloud.size(); ++k) {
+        if (cloud.classification[k] != 2) continue;
+        const Eigen::Vector3d p = cloud.positions[k] - o;
+        if (std::abs(p.x() - cx) < 2.0 && std::abs(p.y() - cy) < 2.0) z.push_back(p.z());
+        if (std::abs(p.x() - cx) < 14.0 && std::abs(p.y() - cy) < 14.0) {
+          zmin = std::min(zmin, p.z());
+          zmax = std::max(zmax, p.z());
+        }
+      }
+      int i = 0, j = 0;
+      t.nearestNode(cx, cy, i, j);
+      ASSERT_TRUE(t.inside(i, j));
+      ASSERT_NEAR(t.nodePosition(i, j).x(), cx, 1e-9);
+      if (z.empty()) {
+        // Filled hole: a weighted mean of nearby data, so within their range.
+        EXPECT_GE(t.height(i, j), zmin - 1e-9);
+        EXPECT_LE(t.height(i, j), zmax + 1e-9);
+        ++holes;
+        continue;
+      }
+      std::sort(z.begin(), z.end());
+      const std::size_t n = z.size();
+      const double median = n % 2 ? z[n / 2] : 0.5 * (z[n / 2 - 1] + z[n / 2]);
+      EXPECT_NEAR(t.height(i, j), median, 1e-9) << cx << " " << cy << " n " << n;
+      ++checked;
+    }
+  EXPECT_GT(checked, 20);
+  // Between cell centres the surface is the bilinear blend of the four cells.
+  const double a = t.height(50, 50);
+  EXPECT_TRUE(std::isfinite(a));
+  // The whole file at 2 cm would be ~150 M nodes: refused with advice, before any allocation.
+  const std::string e = errorOf(scenarioWithDem("{file: " + kLas + "}"));
+  EXPECT_NE(e.find("terrain too large"), std::string::npos) << e;
+  EXPECT_NE(e.find("a DEM alone sets the extent"), std::string::npos) << e;
+  // No point of the requested class.
+  const std::string e2 = errorOf(scenarioWithDem("{file: " + kLas + ", ground_class: 9}", "size_m: [4, 4], "));
+  EXPECT_NE(e2.find("no points of class 9"), std::string::npos) << e2;
+  EXPECT_NE(e2.find("hexbin-crop.las"), std::string::npos) << e2;
+  (void)holes;
+}
+
+TEST(DemInputs, LasMeanStatisticAndExplicitOrigin) {
+  const std::string yaml = scenarioWithDem(
+      "{file: " + kLas + ", cell_m: 5, statistic: mean, geo_origin: [393900, 3689150, 3150]}",
+      "size_m: [10, 10], origin_m: [-5, -5], ");
+  const Scenario sc = parseScenario(yaml, "s.yaml");
+  EXPECT_TRUE(sc.terrain.dem_geo_origin.isApprox(Eigen::Vector3d(393900, 3689150, 3150)));
+  const TruthTerrain t = buildTerrain(sc.terrain);
+  io::LasReadOptions ro;
+  ro.keep_double_positions = true;
+  const io::LasCloud cloud = io::readLas(kLas, ro);
+  double s = 0;
+  int n = 0;
+  for (std::size_t k = 0; k < cloud.size(); ++k) {
+    if (cloud.classification[k] != 2) continue;
+    const Eigen::Vector3d p = cloud.positions[k] - Eigen::Vector3d(393900, 3689150, 3150);
+    if (std::abs(p.x()) < 2.5 && std::abs(p.y()) < 2.5) { s += p.z(); ++n; }
+  }
+  ASSERT_GT(n, 3);
+  int i = 0, j = 0;
+  t.nearestNode(0.0, 0.0, i, j);
+  EXPECT_NEAR(t.height(i, j), s / n, 1e-9);
+  const std::string e = errorOf(scenarioWithDem("{file: " + kLas + ", statistic: mode}", "size_m: [4, 4], "));
+  EXPECT_NE(e.find("terrain.dem.statistic: unknown statistic 'mode'"), std::string::npos) << e;
+}
