@@ -133,7 +133,7 @@ struct MassBalance {
 };
 
 /// The truth FEE geometry of a blade pose, recomputed by the evaluation from the truth
-/// terrain (see SurfaceAheadTruth's note on why). Per slice across the blade (the simulator's
+/// terrain (why: see the second paragraph). Per slice across the blade (the simulator's
 /// own slicing: `slices` slices of width W/slices along the edge), the undisturbed surface U is
 /// sampled along the horizontal blade normal at 0.05, 0.125, ..., 0.5 m ahead of the edge and a
 /// least-squares line is fitted (the simulator's own slope fit); the surface height *at the
@@ -151,6 +151,9 @@ struct SurfaceAheadTruth {
   int cutting_slices = 0;
   double alpha_rad = NAN, d_m = NAN, w_along_m = 0, face_angle_rad = NAN;
 };
+/// Evaluates it at `T_map_blade` (blade frame of core/events.hpp). No horizontal push direction
+/// (face normal and face direction both vertical) or `slices` < 1 gives no cutting slices and a
+/// NaN face angle. Pure and thread-safe (reads the terrain only).
 SurfaceAheadTruth surfaceAheadTruth(const TruthTerrain& truth, const Eigen::Isometry3d& T_map_blade,
                                     const BladeGeometry& blade, int slices);
 
