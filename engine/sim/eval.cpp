@@ -495,20 +495,18 @@ std::vector<std::string> writeEvalOutputs(const EvalRun& run, const std::filesys
       {"error", &err},       {"baseline_error", &base_err}, {"region", &region}};
   for (const auto& [name, mat] : layers) m.fromMatrix(m.addLayer(name, name == "region" ? "1" : "m"), *mat);
 
-  // One height colour range for the blind and truth renders, so equal colours mean equal heights.
-  float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+  // One height colour range for the blind and truth renders, so equal colours mean equal
+  // heights: the 0.1 and 99.9 percentiles of both, so a few cells of a spoil spike do not wash
+  // out the rest (they clip; the hillshade still shows them).
+  std::vector<double> hv;
   for (const Eigen::MatrixXf* mat : {&run.truth, &run.blind})
-    for (Eigen::Index k = 0; k < mat->size(); ++k) {
-      const float v = mat->data()[k];
-      if (std::isfinite(v)) {
-        lo = std::min(lo, v);
-        hi = std::max(hi, v);
-      }
-    }
-  if (!(lo < hi)) {
+    for (Eigen::Index k = 0; k < mat->size(); ++k)
+      if (std::isfinite(mat->data()[k])) hv.push_back(mat->data()[k]);
+  std::sort(hv.begin(), hv.end());
+  float lo = static_cast<float>(percentileSorted(hv, 0.1)), hi = static_cast<float>(percentileSorted(hv, 99.9));
+  if (!(lo < hi)) {  // flat or empty
     lo = std::isfinite(lo) ? lo - 0.01f : -0.01f;
-    hi = std::isfinite(hi) ? hi + 0.01f : 0.01f;
-    if (!(lo < hi)) hi = lo + 0.02f;
+    hi = lo + 0.02f;
   }
   std::vector<std::string> files;
   io::RenderOptions height;

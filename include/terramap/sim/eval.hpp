@@ -231,7 +231,8 @@ struct EvalRun {
 EvalRun runBlindEvaluation(Simulator& sim, BlindMapper& mapper, const EvalOptions& options = {});
 
 /// Writes into `dir` (created if needed), each file atomically:
-///   blind_heightmap.png  blind elevation, hillshaded, viridis over the truth's height range
+///   blind_heightmap.png  blind elevation, hillshaded, viridis over the 0.1-99.9 percentiles
+///                        of the blind and truth heights together
 ///   truth_heightmap.png  truth at the end, same colours
 ///   error.png            blind − truth, "rdbu", ±error_range_m
 ///   baseline_error.png   initial − truth (the "no update" map), same colours
