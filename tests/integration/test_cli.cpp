@@ -42,7 +42,7 @@ void write(const fs::path& p, const std::string& s) { std::ofstream(p) << s; }
 }  // namespace
 
 TEST(Cli, HelpEverywhere) {
-  for (const char* sub : {"", "run", "validate", "plugins", "export", "fee", "sim"}) {
+  for (const char* sub : {"", "run", "validate", "plugins", "export", "fee", "sim", "eval"}) {
     const Result r = sh(std::string(sub) + " --help");
     EXPECT_EQ(r.code, 0) << sub << "\n" << r.out;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub;
