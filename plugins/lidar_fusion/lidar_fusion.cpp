@@ -7,6 +7,8 @@
 #include <cmath>
 #include <limits>
 #include <sstream>
+#include <stdexcept>
+#include <string>
 #include <variant>
 
 #if defined(__x86_64__) && defined(__GNUC__)
@@ -24,7 +26,6 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 constexpr int kChunk = 8192;
 /// Items ahead of the current one whose cells the fusion loop prefetches.
 constexpr int kPrefetchAhead = 8;
-constexpr float kRayUpperBound = 0.0f;   // Item::aux of a ray crossing over an unknown cell
 constexpr float kRayPenetration = 1.0f;  // Item::aux of a ray passing below a stale surface
 
 std::string num(double v) {
@@ -798,56 +799,99 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
   const Eigen::Array2d half = g.length() * 0.5;
   const double xmax = g.center().x() + half.x(), ymax = g.center().y() + half.y();
   const int ntiles = map.tileCount();
+  const int tile_cells = map.tileSize() * map.tileSize();
   // Read-only views for phase A (the map is not written until phase B).
   std::vector<const float*> E(static_cast<size_t>(ntiles)), V(static_cast<size_t>(ntiles)),
       HT(static_cast<size_t>(ntiles));
+  // An unallocated (sparse) elevation tile reads as NaN: point it at a NaN tile, so the walk
+  // needs no null test.
+  nan_tile_.assign(static_cast<size_t>(tile_cells), kNaN);
   for (int t = 0; t < ntiles; ++t) {
-    E[static_cast<size_t>(t)] = map.tileData(elev_, t);
+    const float* e = map.tileData(elev_, t);
+    E[static_cast<size_t>(t)] = e ? e : nan_tile_.data();
     V[static_cast<size_t>(t)] = map.tileData(var_, t);
     HT[static_cast<size_t>(t)] = map.tileData(hits_, t);
   }
-  auto cellOf = [&](int li, int lj, std::int32_t& tile, std::uint32_t& off) {
-    tile = row_tile_[static_cast<size_t>(li)] + col_tile_[static_cast<size_t>(lj)];
-    off = static_cast<std::uint32_t>(row_local_[static_cast<size_t>(li)] + col_local_[static_cast<size_t>(lj)]);
-  };
+  const std::int32_t* row_tile = row_tile_.data();
+  const std::int32_t* row_local = row_local_.data();
+  const std::int32_t* col_tile = col_tile_.data();
+  const std::int32_t* col_local = col_local_.data();
   auto elevAt = [&](int li, int lj) -> float {
     if (li < 0 || lj < 0 || li >= R || lj >= C) return kNaN;
-    std::int32_t t;
-    std::uint32_t o;
-    cellOf(li, lj, t, o);
-    const float* e = E[static_cast<size_t>(t)];
-    return e ? e[o] : kNaN;
+    return E[static_cast<size_t>(row_tile[li] + col_tile[lj])][row_local[li] + col_local[lj]];
   };
+  // One ray-minimum buffer set per worker slot of the executor's arena (see RayMinSlot).
+  const int slots = ex.threads();
+  if (ray_min_.size() != static_cast<size_t>(slots) || ray_min_[0].tiles.size() != static_cast<size_t>(ntiles) ||
+      ray_min_tile_cells_ != tile_cells) {
+    ray_min_.clear();
+    ray_min_.resize(static_cast<size_t>(slots));
+    for (RayMinSlot& m : ray_min_) {
+      m.tiles.resize(static_cast<size_t>(ntiles));
+      m.active.assign(static_cast<size_t>(ntiles), nullptr);
+    }
+    ray_min_tile_cells_ = tile_cells;
+  }
   const int nc = static_cast<int>(point_chunks_.size());
   ray_chunks_.resize(static_cast<size_t>(nc));
   std::vector<std::array<long, 2>> per(static_cast<size_t>(nc));
   const double k = cf.mahalanobis_thresh;
   const double u0 = (xmax - S.x()) / res, v0 = (ymax - S.y()) / res;
+  constexpr float kInf = std::numeric_limits<float>::infinity();
 
-  // Phase A: walk rays (one task per fixed chunk), emit per-cell items; reads only.
+  // Phase A: walk rays (one task per fixed chunk); reads the map only. Over unknown cells a
+  // ray lowers its slot's per-cell minimum (min is exact and order-free, so neither the
+  // chunk-to-thread assignment nor the order of rays changes the result); under stale
+  // surfaces it emits a penetration item (those are applied in ray order in phase B).
   ex.forEach(nc, [&](int c) {
+    // forEach runs inline (on the caller, maybe outside the arena) for one thread or one task.
+    int slot = slots > 1 && nc > 1 ? tbb::this_task_arena::current_thread_index() : 0;
+    if (slot < 0 || slot >= slots)
+      throw std::logic_error("lidar_fusion: worker slot " + std::to_string(slot) + " outside the executor's " +
+                             std::to_string(slots));
+    RayMinSlot& mins = ray_min_[static_cast<size_t>(slot)];
+    auto touch = [&](std::int32_t tile) {
+      std::unique_ptr<float[]>& buf = mins.tiles[static_cast<size_t>(tile)];
+      if (!buf) {
+        buf.reset(new float[static_cast<size_t>(tile_cells)]);
+        std::fill(buf.get(), buf.get() + tile_cells, kInf);
+      }
+      mins.active[static_cast<size_t>(tile)] = buf.get();
+      mins.list.push_back(tile);
+      return buf.get();
+    };
     std::vector<Item>& out = ray_chunks_[static_cast<size_t>(c)];
     out.clear();
-    // Rays of one chunk (neighbouring beams) cross the same unknown cells near the sensor
-    // again and again: a small direct-mapped cache merges their upper bounds (min is exact
-    // and the chunk's contents are fixed, so the result does not depend on scheduling).
-    constexpr int kCacheBits = 14;
-    std::vector<std::uint64_t> cache_key(1u << kCacheBits, ~std::uint64_t{0});
-    std::vector<std::uint32_t> cache_pos(1u << kCacheBits, 0);
-    auto emitUpperBound = [&](std::int32_t tile, std::uint32_t off, float z) {
-      const std::uint64_t key = (static_cast<std::uint64_t>(tile) << 20) | off;
-      const std::uint32_t slot =
-          static_cast<std::uint32_t>((key * 0x9E3779B97F4A7C15ull) >> (64 - kCacheBits));
-      if (cache_key[slot] == key) {
-        Item& it = out[cache_pos[slot]];
-        if (z < it.z) it.z = z;
-        return;
-      }
-      cache_key[slot] = key;
-      cache_pos[slot] = static_cast<std::uint32_t>(out.size());
-      out.push_back(Item{tile, off, z, kRayUpperBound});
-    };
     const std::vector<float>& ends = point_chunks_[static_cast<size_t>(c)].ray_ends;
+    // Locals for the walk loop (through the closure the compiler reloads them every step).
+    const float* const* const Et = E.data();
+    float* const* const active = mins.active.data();
+    const unsigned Ru = static_cast<unsigned>(R), Cu = static_cast<unsigned>(C);
+    const double Sz = S.z();
+    // A known cell under the ray: a penetration item if the cell is stale (not measured by
+    // this cloud), its surface is above the ray by k sigma and the ray is not grazing.
+    // Rare next to the unknown-cell case: kept out of line, away from the walk's registers.
+    auto stale = [&](int i, int j, std::int32_t tile, std::uint32_t off, float h, double zhi, double dirx,
+                     double diry, double dirz, std::vector<Item>& items) __attribute__((noinline)) {
+      const float* ht = HT[static_cast<size_t>(tile)];
+      if (ht && ht[off] > 0.0f) return;  // measured by this cloud: never cleaned by it
+      const float* vv = V[static_cast<size_t>(tile)];
+      const double var = vv ? vv[off] : 0.0;
+      if (!(h - k * std::sqrt(std::max(var, 0.0)) > zhi)) return;
+      // Surface normal from central differences (one-sided at unknown neighbours).
+      auto slope = [&](float a, float b, float m, double dist) {
+        if (!std::isnan(a) && !std::isnan(b)) return (a - b) / (2.0 * dist);
+        if (!std::isnan(a)) return (a - m) / dist;
+        if (!std::isnan(b)) return (m - b) / dist;
+        return 0.0;
+      };
+      // Row i-1 lies towards +x, column j-1 towards +y.
+      const double gx = slope(elevAt(i - 1, j), elevAt(i + 1, j), h, res);
+      const double gy = slope(elevAt(i, j - 1), elevAt(i, j + 1), h, res);
+      const double nn = std::sqrt(gx * gx + gy * gy + 1.0);
+      const double cosang = std::abs(-gx * dirx - gy * diry + dirz) / nn;
+      if (cosang >= cf.cleanup_cos_thresh) items.push_back(Item{tile, off, static_cast<float>(zhi), kRayPenetration});
+    };
     long nrays = 0, ncells = 0;
     for (size_t q = 0; q + 2 < ends.size(); q += 3) {
       const double dx = ends[q], dy = ends[q + 1], dz = ends[q + 2];
@@ -887,51 +931,44 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
       double tmj = dv != 0.0 ? ((dv > 0 ? j + 1 : j) - v0) / dv : inf;
       double ta = t0;
       const double dirx = dx / L, diry = dy / L, dirz = dz / L;
+      // Tile and in-tile offset of (i, j), updated per step from the axis that changed.
+      std::int32_t rt = row_tile[i], rl = row_local[i], ct = col_tile[j], cl = col_local[j];
+      const bool up = dz >= 0;
+      long steps = 0;
       while (true) {
-        const double tb = std::min({tmi, tmj, t1});
+        const double tb = std::min(std::min(tmi, tmj), t1);
         // Highest point of the ray inside this column: the ground under the crossing is below it.
-        const double zhi = S.z() + (dz >= 0 ? tb : ta) * dz;
-        ++ncells;
-        std::int32_t tile;
-        std::uint32_t off;
-        cellOf(i, j, tile, off);
-        const float* e = E[static_cast<size_t>(tile)];
-        const float h = e ? e[off] : kNaN;
+        const double zhi = Sz + (up ? tb : ta) * dz;
+        ++steps;
+        const std::int32_t tile = rt + ct;
+        const std::uint32_t off = static_cast<std::uint32_t>(rl + cl);
+        const float h = Et[tile][off];
         if (std::isnan(h)) {
-          emitUpperBound(tile, off, static_cast<float>(zhi));
-        } else {
-          const float* ht = HT[static_cast<size_t>(tile)];
-          const bool fresh = ht && ht[off] > 0.0f;  // measured by this cloud: never cleaned by it
-          const float* vv = V[static_cast<size_t>(tile)];
-          const double var = vv ? vv[off] : 0.0;
-          if (!fresh && h - k * std::sqrt(std::max(var, 0.0)) > zhi) {
-            // Surface normal from central differences (one-sided at unknown neighbours).
-            auto slope = [&](float a, float b, float m, double dist) {
-              if (!std::isnan(a) && !std::isnan(b)) return (a - b) / (2.0 * dist);
-              if (!std::isnan(a)) return (a - m) / dist;
-              if (!std::isnan(b)) return (m - b) / dist;
-              return 0.0;
-            };
-            // Row i-1 lies towards +x, column j-1 towards +y.
-            const double gx = slope(elevAt(i - 1, j), elevAt(i + 1, j), h, res);
-            const double gy = slope(elevAt(i, j - 1), elevAt(i, j + 1), h, res);
-            const double nn = std::sqrt(gx * gx + gy * gy + 1.0);
-            const double cosang = std::abs(-gx * dirx - gy * diry + dirz) / nn;
-            if (cosang >= cf.cleanup_cos_thresh)
-              out.push_back(Item{tile, off, static_cast<float>(zhi), kRayPenetration});
-          }
+          float* m = active[tile];
+          if (!m) m = touch(tile);
+          const float z = static_cast<float>(zhi);
+          if (z < m[off]) m[off] = z;
+        } else if (h > zhi) {
+          // (Necessary for h - k sigma > zhi, as k sigma >= 0: most known cells stop here.)
+          stale(i, j, tile, off, h, zhi, dirx, diry, dirz, out);
         }
         if (tb >= t1) break;
         if (tmi <= tmj) {
           i += si;
           tmi += tdi;
+          if (static_cast<unsigned>(i) >= Ru) break;
+          rt = row_tile[i];
+          rl = row_local[i];
         } else {
           j += sj;
           tmj += tdj;
+          if (static_cast<unsigned>(j) >= Cu) break;
+          ct = col_tile[j];
+          cl = col_local[j];
         }
-        if (i < 0 || j < 0 || i >= R || j >= C) break;
         ta = tb;
       }
+      ncells += steps;
     }
     per[static_cast<size_t>(c)] = {nrays, ncells};
   });
@@ -940,50 +977,85 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
     st.ray_cells += p[1];
   }
 
-  // Phase B: bin the items per tile (stable), apply each tile's items in ray order.
-  binItems(ex, ray_chunks_, ntiles);
-  const int na = static_cast<int>(ray_tiles_.size());
+  // Phase B, one task per tile that has ray minima or penetration items: apply the minima
+  // (and reset the buffers), then the penetration items in ray order.
+  binItems(ex, ray_chunks_, ntiles);  // penetration items, stable by tile
+  std::vector<char> mark(static_cast<size_t>(ntiles), 0);
+  for (const RayMinSlot& m : ray_min_)
+    for (int t : m.list) mark[static_cast<size_t>(t)] = 1;
+  for (int t : ray_tiles_) mark[static_cast<size_t>(t)] = 1;
+  std::vector<int> tiles;
+  for (int t = 0; t < ntiles; ++t)
+    if (mark[static_cast<size_t>(t)]) tiles.push_back(t);
+  const int na = static_cast<int>(tiles.size());
   std::vector<std::array<long, 3>> res3(static_cast<size_t>(na));
   const float step = static_cast<float>(cf.cleanup_step);
   const float ov = static_cast<float>(cf.outlier_variance_m2);
   ex.forEach(na, [&](int q) {
-    const int t = ray_tiles_[static_cast<size_t>(q)];
-    float* Ew = map.mutableTileData(elev_, t);
-    float* Vw = map.mutableTileData(var_, t);
-    float* VAL = map.mutableTileData(valid_, t);
-    float* UB = map.mutableTileData(ub_, t);
-    float* ISUB = map.mutableTileData(isub_, t);
+    const int t = tiles[static_cast<size_t>(q)];
     long pen = 0, inv = 0, ubs = 0;
-    for (int b = bin_start_[static_cast<size_t>(t)]; b < bin_start_[static_cast<size_t>(t) + 1]; ++b) {
-      const Item& it = binned_[static_cast<size_t>(b)];
-      const std::uint32_t o = it.off;
-      if (std::isnan(Ew[o])) {
-        // Unknown (or just invalidated) cell: the surface is below every ray over it.
-        if (std::isnan(UB[o]) || it.z < UB[o]) UB[o] = it.z;
-        ISUB[o] = 1.0f;
+    float* bufs[64];
+    int nb = 0;
+    for (RayMinSlot& m : ray_min_) {
+      float*& a = m.active[static_cast<size_t>(t)];
+      if (a) bufs[nb++] = a;
+      a = nullptr;
+    }
+    if (nb > 0) {
+      // Cells that were unknown in phase A (and still are: phase B changes valid cells only).
+      float* UB = map.mutableTileData(ub_, t);
+      float* ISUB = map.mutableTileData(isub_, t);
+      for (int cidx = 0; cidx < tile_cells; ++cidx) {
+        float m = bufs[0][cidx];
+        bufs[0][cidx] = kInf;
+        for (int b = 1; b < nb; ++b) {
+          m = std::min(m, bufs[b][cidx]);
+          bufs[b][cidx] = kInf;
+        }
+        if (m == kInf) continue;
+        if (!(UB[cidx] <= m)) UB[cidx] = m;  // also replaces NaN (no bound yet)
+        ISUB[cidx] = 1.0f;
         ++ubs;
-        continue;
       }
-      if (it.aux != kRayPenetration) continue;
-      ++pen;
-      VAL[o] -= step;
-      Vw[o] += ov;
-      if (VAL[o] < 0.5f) {
-        ++inv;
-        Ew[o] = kNaN;
-        Vw[o] = kNaN;
-        VAL[o] = 0.0f;
-        UB[o] = it.z;
-        ISUB[o] = 1.0f;
+    }
+    const int b0 = bin_start_[static_cast<size_t>(t)], b1 = bin_start_[static_cast<size_t>(t) + 1];
+    if (b1 > b0) {
+      float* Ew = map.mutableTileData(elev_, t);
+      float* Vw = map.mutableTileData(var_, t);
+      float* VAL = map.mutableTileData(valid_, t);
+      float* UB = map.mutableTileData(ub_, t);
+      float* ISUB = map.mutableTileData(isub_, t);
+      for (int b = b0; b < b1; ++b) {
+        const Item& it = binned_[static_cast<size_t>(b)];
+        const std::uint32_t o = it.off;
+        if (std::isnan(Ew[o])) {
+          // Invalidated by an earlier ray of this cloud: the surface is below every later ray.
+          if (std::isnan(UB[o]) || it.z < UB[o]) UB[o] = it.z;
+          ISUB[o] = 1.0f;
+          ++ubs;
+          continue;
+        }
+        ++pen;
+        VAL[o] -= step;
+        Vw[o] += ov;
+        if (VAL[o] < 0.5f) {
+          ++inv;
+          Ew[o] = kNaN;
+          Vw[o] = kNaN;
+          VAL[o] = 0.0f;
+          UB[o] = it.z;
+          ISUB[o] = 1.0f;
+        }
       }
     }
     res3[static_cast<size_t>(q)] = {pen, inv, ubs};
   });
+  for (RayMinSlot& m : ray_min_) m.list.clear();
   for (int q = 0; q < na; ++q) {
     st.cells_penetrated += res3[static_cast<size_t>(q)][0];
     st.cells_invalidated += res3[static_cast<size_t>(q)][1];
     st.upper_bounds += res3[static_cast<size_t>(q)][2];
-    tile_known_[static_cast<size_t>(ray_tiles_[static_cast<size_t>(q)])] = 1;
+    tile_known_[static_cast<size_t>(tiles[static_cast<size_t>(q)])] = 1;
   }
 }
 

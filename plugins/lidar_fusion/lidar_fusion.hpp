@@ -30,6 +30,7 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -196,7 +197,18 @@ class LidarFusion : public Plugin {
   // + prev_hit_count_[t]) of prev_hit_offs_. Double-buffered with the current cloud's lists.
   std::vector<int> hit_start_, hit_count_, prev_hit_start_, prev_hit_count_;
   std::vector<std::uint32_t> hit_offs_, prev_hit_offs_;
-  // visibility cleanup: ray items per chunk, binned per tile
+  /// Visibility cleanup, per worker slot of the executor's arena: the lowest ray height seen
+  /// over each unknown cell of the tiles this slot's rays crossed (+inf = none). Buffers are
+  /// allocated on first use and kept; phase B merges them per tile (min) and resets them.
+  struct RayMinSlot {
+    std::vector<std::unique_ptr<float[]>> tiles;  // per tile: tileSize^2 floats, or null
+    std::vector<float*> active;                   // per tile: the buffer if touched this cloud
+    std::vector<int> list;                        // tiles touched this cloud
+  };
+  std::vector<RayMinSlot> ray_min_;
+  int ray_min_tile_cells_ = 0;
+  std::vector<float> nan_tile_;  // stands in for unallocated elevation tiles during the walk
+  // visibility cleanup: penetration items per chunk, binned per tile
   std::vector<std::vector<Item>> ray_chunks_;
   std::vector<int> bin_start_;     // tile -> first binned item; size tiles + 1
   std::vector<Item> binned_;
