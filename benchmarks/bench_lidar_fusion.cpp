@@ -5,6 +5,8 @@
 //     cloud: Kitti (000000.bin of /work/shared/data/kitti_hdl64, 124,668 points; KITTI data
 //            CC BY-NC-SA 3.0) or Synthetic (128 x 1024 spinning LiDAR, seeded);
 //     map:   400x400_5cm (20 m) or 2000x2000_4cm (80 m), tiles of 64 cells;
+//   BM_LidarFusion_<cloud>_400x400_5cm_NoCleanup_ScalarGates/<threads>: the same with the
+//     portable scalar gate loop instead of the AVX2 kernel (LidarFusion::forceScalarGates);
 //   BM_LidarFusion_TimeUpdate_<map>/<threads>: the per-event time/variance pass alone;
 //   BM_OctoMapInsert_<cloud>_<map>/1: octomap::OcTree::insertPointCloud at the map's
 //     resolution, rays clipped at the map's half width (maxrange), single-threaded;
@@ -87,13 +89,14 @@ Eigen::Isometry3d sensorPose(bool kitti) {
   return Eigen::Isometry3d(Eigen::Translation3d(0.0, 0.0, kitti ? 1.73 : 1.8));
 }
 
-void runLidarFusion(benchmark::State& state, bool kitti, MapSpec m, bool cleanup) {
+void runLidarFusion(benchmark::State& state, bool kitti, MapSpec m, bool cleanup, bool scalar_gates = false) {
   const int threads = static_cast<int>(state.range(0));
   LayeredMap map(Geometry(m.res, Size(m.cells, m.cells)), MapOptions{64, false});
   LidarFusion f;
   LidarFusionConfig c;
   c.enable_visibility_cleanup = cleanup;
   f.configure(c);
+  f.forceScalarGates(scalar_gates);
   f.attach(map);
   Executor ex(threads);
   PointCloud pc;
@@ -203,6 +206,14 @@ void registerAll() {
             ->Unit(benchmark::kMillisecond)
             ->UseRealTime();
       }
+      if (m.cells == 400)
+        benchmark::RegisterBenchmark(
+            ("BM_LidarFusion_" + cloud + "_" + m.name + "_NoCleanup_ScalarGates").c_str(),
+            [=](benchmark::State& s) { runLidarFusion(s, kitti, m, false, true); })
+            ->Arg(1)
+            ->Arg(2)
+            ->Unit(benchmark::kMillisecond)
+            ->UseRealTime();
       benchmark::RegisterBenchmark(("BM_OctoMapInsert_" + cloud + "_" + m.name).c_str(),
                                    [=](benchmark::State& s) { runOctoMap(s, kitti, m); })
           ->Arg(1)

@@ -11,8 +11,10 @@
 ///     latest Pose (base position) or, before any Pose arrived, on the sensor position;
 ///  3. gates, counted by reason: non_finite, too_close, too_far, too_high, outside_map;
 ///  4. noise: range_based v = (a + b*r)^2 or depth_squared v = k*z_s^2;
-///  5. points are binned per tile (stable counting sort), one task per tile fuses its points
-///     in input order: a Mahalanobis gate |z-h| > k*sqrt(v+v_p) marks an outlier (variance +=
+///  5. points are binned per tile (a stable counting sort inside each fixed chunk of points;
+///     the gates of 3-4 run as an AVX2 kernel where the CPU has it, bit-identical to the
+///     scalar loop), one task per tile fuses its points in input order (clearing the previous
+///     cloud's `hits` of the tile first): a Mahalanobis gate |z-h| > k*sqrt(v+v_p) marks an outlier (variance +=
 ///     outlier_variance), otherwise a precision-weighted update; a cell whose variance exceeds
 ///     max_variance is forgotten;
 ///  6. visibility cleanup: one ray every `cleanup_ray_stride` points is walked through the
@@ -24,7 +26,8 @@
 /// Frames: `elevation` and `upper_bound` are map-frame z (metres). NaN = unknown.
 /// Determinism: every stage either writes per tile in a fixed order or reduces with exact
 /// operations (integer counts, min) over fixed chunks, so layers are bit-identical for any
-/// thread count. No float atomics.
+/// thread count. No float atomics. (Upper bounds are minima kept per worker thread and merged
+/// per tile: min is exact and order-free, so which thread walked which ray does not matter.)
 /// Threading: process() runs on the engine thread and parallelises with ctx.executor().
 #include <terramap/plugin/plugin.hpp>
 
@@ -93,7 +96,8 @@ struct FusionStats {
   long ray_cells = 0;        ///< cell crossings visited by the walks
   long cells_penetrated = 0; ///< penetrating-ray updates applied to stale valid cells
   long cells_invalidated = 0;  ///< stale cells whose validity fell below 0.5
-  long upper_bounds = 0;     ///< upper-bound updates applied to unknown cells
+  long upper_bounds = 0;     ///< unknown cells given a ray upper bound (once per cell), plus
+                             ///< rays over cells that this cloud's rays invalidated
   bool drift_applied = false;
   double drift_m = 0.0;      ///< correction added to the map's elevations (m)
   long drift_inliers = 0;

@@ -692,3 +692,27 @@ TEST(LidarFusion, VectorAndScalarGatesAgreeBitForBit) {
     EXPECT_GT(a.points_fused, 10000);
   }
 }
+
+TEST(LidarFusion, OneChunkCloudsWithCleanupAtTwoThreads) {
+  // A cloud of one chunk runs its ray walk inline on the calling thread even with a 2-thread
+  // executor (outside the arena): its upper bounds must land as with 1 thread, also when the
+  // next, multi-chunk cloud runs on the arena's threads.
+  LidarFusionConfig c = plainConfig();
+  c.enable_visibility_cleanup = true;
+  c.cleanup_ray_stride = 1;
+  std::vector<Eigen::MatrixXf> layers[2];
+  for (int threads : {1, 2}) {
+    LayeredMap map = makeMap();
+    LidarFusion f;
+    f.configure(c);
+    f.attach(map);
+    Executor ex(threads);
+    f.fuse(map, ex, cloudAt({0.0, 0.05, 1.0}, {{1.55f, 0.0f, -1.0f, 0}, {-1.2f, 0.7f, -1.2f, 0}}));
+    f.fuse(map, ex, cloudAt({0.1, 0.0, 1.0}, syntheticScan(3, 40, 512)));
+    for (const char* name : {L::kElevation, L::kUpperBound, L::kIsUpperBound, L::kIsValid})
+      layers[threads - 1].push_back(map.toMatrix(map.layerId(name)));
+  }
+  for (size_t l = 0; l < layers[0].size(); ++l) EXPECT_TRUE(sameBits(layers[0][l], layers[1][l])) << "layer " << l;
+  // Rays did bound unknown cells, so the comparison above is not vacuous.
+  EXPECT_GT((layers[1][2].array() == 1.0f).count(), 100);
+}
