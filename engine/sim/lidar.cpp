@@ -71,10 +71,30 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
     std::vector<Eigen::Vector3d> dm_col(B);
     std::vector<double> t_col(B);
     std::vector<int> ci_col(B), cj_col(B);
+    std::vector<double> t_may(B);
+    std::vector<int> ci_may(B), cj_may(B);
+    std::vector<Eigen::Vector3d> dm_may(B);
+    std::vector<int> may_idx(B);
     for (int c = c0; c < c1; ++c) {
-      for (int b = 0; b < B; ++b) dm_col[b] = R * dirs_[static_cast<std::size_t>(c) * B + b];
-      cast.castBatch(dm_col.data(), B, spec_.min_range_m, spec_.max_range_m, t_col.data(), ci_col.data(),
-                     cj_col.data());
+      // Rays that cannot hit (upwards from above the terrain: half of a spinning LiDAR's) are
+      // settled here; the rest are cast as one batch.
+      int n_may = 0;
+      for (int b = 0; b < B; ++b) {
+        dm_col[b] = R * dirs_[static_cast<std::size_t>(c) * B + b];
+        t_col[b] = std::numeric_limits<double>::quiet_NaN();
+        if (cast.mayHit(dm_col[b])) {
+          dm_may[n_may] = dm_col[b];
+          may_idx[n_may++] = b;
+        }
+      }
+      cast.castBatch(dm_may.data(), n_may, spec_.min_range_m, spec_.max_range_m, t_may.data(), ci_may.data(),
+                     cj_may.data());
+      for (int q = 0; q < n_may; ++q) {
+        const int b = may_idx[q];
+        t_col[b] = t_may[q];
+        ci_col[b] = ci_may[q];
+        cj_col[b] = cj_may[q];
+      }
       for (int b = 0; b < B; ++b) {
         const std::size_t k = static_cast<std::size_t>(c) * B + b;
         const Eigen::Vector3d& ds = dirs_[k];

@@ -415,41 +415,49 @@ double TruthTerrain::castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& 
   int ci = std::clamp(static_cast<int>(std::clamp(px, -1.0, static_cast<double>(nx_))), 0, nx_ - 2);
   int cj = std::clamp(static_cast<int>(std::clamp(py, -1.0, static_cast<double>(ny_))), 0, ny_ - 2);
   const int sx = d.x() > 0 ? 1 : -1, sy = d.y() > 0 ? 1 : -1;
-  const double invx = d.x() != 0.0 ? 1.0 / d.x() : 0.0, invy = d.y() != 0.0 ? 1.0 / d.y() : 0.0;
-  // Ray parameter of the next cell boundary in x / y (same expression as the pyramid walk and
-  // the reference, so the intervals agree to the bit where they start at a cell boundary).
-  auto nextX = [&](int c) { return d.x() != 0.0 ? (ox_ + (c + (sx > 0 ? 1 : 0)) * res_ - o.x()) * invx : INFINITY; };
-  auto nextY = [&](int c) { return d.y() != 0.0 ? (oy_ + (c + (sy > 0 ? 1 : 0)) * res_ - o.y()) * invy : INFINITY; };
-  double tx = nextX(ci), ty = nextY(cj);
+  // Ray parameter of the next cell boundary in x / y: exact (as in the pyramid walk and the
+  // reference) for the first boundary, then stepped by res / |d| (the walk is short, so the
+  // accumulated rounding stays ~1e-15 relative; a root at a boundary is found by either cell).
+  const double tx0 = d.x() != 0.0 ? (ox_ + (ci + (sx > 0 ? 1 : 0)) * res_ - o.x()) / d.x() : INFINITY;
+  const double ty0 = d.y() != 0.0 ? (oy_ + (cj + (sy > 0 ? 1 : 0)) * res_ - o.y()) / d.y() : INFINITY;
+  const double dtx = d.x() != 0.0 ? res_ / std::abs(d.x()) : INFINITY;
+  const double dty = d.y() != 0.0 ? res_ / std::abs(d.y()) : INFINITY;
+  double tx = tx0, ty = ty0;
   double t = t_a;
+  double za = o.z() + d.z() * t;
+  const double* h = h_.data();
+  std::size_t k = static_cast<std::size_t>(cj) * nx_ + ci;
+  const std::ptrdiff_t kx = sx, ky = sy > 0 ? nx_ : -static_cast<std::ptrdiff_t>(nx_);
+  // Steps left before leaving the grid in x / y.
+  int left_x = sx > 0 ? nx_ - 2 - ci : ci, left_y = sy > 0 ? ny_ - 2 - cj : cj;
   while (true) {
     const double te = std::min(std::min(tx, ty), t_b);
     if (te >= t) {
-      const double za = o.z() + d.z() * t, zb = o.z() + d.z() * te;
+      const double zb = o.z() + d.z() * te;
       // The cell's own corners bound its bilinear patch exactly (and cellHitZ needs them
       // anyway): two cache lines, no pyramid access.
-      const double* r0 = &h_[static_cast<std::size_t>(cj) * nx_ + ci];
-      const double* r1 = r0 + nx_;
-      const double z00 = r0[0], z10 = r0[1], z01 = r1[0], z11 = r1[1];
+      const double z00 = h[k], z10 = h[k + 1], z01 = h[k + nx_], z11 = h[k + nx_ + 1];
       if (!(std::min(za, zb) > std::max(std::max(z00, z10), std::max(z01, z11)))) {
-        const double h = cellHitZ(ci, cj, z00, z10, z01, z11, o, d, t, te);
-        if (!std::isnan(h)) {
-          if (cell_i) *cell_i = ci;
-          if (cell_j) *cell_j = cj;
-          return h;
+        const int cci = static_cast<int>(k % static_cast<std::size_t>(nx_)), ccj = static_cast<int>(k / nx_);
+        const double hit = cellHitZ(cci, ccj, z00, z10, z01, z11, o, d, t, te);
+        if (!std::isnan(hit)) {
+          if (cell_i) *cell_i = cci;
+          if (cell_j) *cell_j = ccj;
+          return hit;
         }
       }
       t = te;
+      za = zb;
     }
     if (te >= t_b) return kNaN;
     if (tx <= ty) {
-      ci += sx;
-      if (ci < 0 || ci > nx_ - 2) return kNaN;
-      tx = nextX(ci);
+      if (--left_x < 0) return kNaN;
+      k += kx;
+      tx += dtx;
     } else {
-      cj += sy;
-      if (cj < 0 || cj > ny_ - 2) return kNaN;
-      ty = nextY(cj);
+      if (--left_y < 0) return kNaN;
+      k += ky;
+      ty += dty;
     }
   }
 }

@@ -47,6 +47,10 @@ class ScanCaster {
   double cast(const Eigen::Vector3d& d, double t_min, double t_max, int* cell_i = nullptr,
               int* cell_j = nullptr) const;
 
+  /// False when the ray certainly misses: it does not descend and starts above the highest
+  /// point of the terrain. A cheap pre-filter before batching (cast returns NaN for these too).
+  bool mayHit(const Eigen::Vector3d& d) const { return d.z() < 0.0 || !(o_.z() > top_); }
+
   /// The same for n rays at once (t[k], cell_i[k], cell_j[k] for d[k]; cells are left unset
   /// on a miss). Faster than n calls of `cast`: the first candidate cells of a few rays are
   /// prefetched before any is walked. Results are identical to `cast`.
