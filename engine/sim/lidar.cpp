@@ -16,7 +16,16 @@ std::uint64_t mixBits(std::uint64_t x) {
   return x ^ (x >> 31);
 }
 
-LidarModel::LidarModel(const SensorSpec& spec) : spec_(spec) {
+struct LidarModel::Scratch {
+  ScanCaster caster;
+  std::vector<std::vector<PointXYZI>> parts;
+};
+
+LidarModel::~LidarModel() = default;
+LidarModel::LidarModel(LidarModel&&) noexcept = default;
+LidarModel& LidarModel::operator=(LidarModel&&) noexcept = default;
+
+LidarModel::LidarModel(const SensorSpec& spec) : spec_(spec), scratch_(std::make_unique<Scratch>()) {
   const int B = spec.beams, C = spec.columns;
   dirs_.reserve(static_cast<std::size_t>(B) * C);
   const bool full_circle = spec.hfov_rad >= 2 * M_PI - 1e-9;
@@ -53,13 +62,11 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
   const int chunks = (C + columns_per_chunk_ - 1) / columns_per_chunk_;
   const Eigen::Vector3d o = T_map_sensor.translation();
   const Eigen::Matrix3d R = T_map_sensor.linear();
-  // One horizon table per scan (the terrain is frozen while the scan is cast); its buffers are
-  // reused per calling thread so a scan allocates nothing after the first.
-  thread_local ScanCaster caster;
+  // One horizon table per scan (the ray-casting view is frozen while the scan is cast); the
+  // model keeps its buffers, so a scan allocates nothing after the first.
+  ScanCaster& caster = scratch_->caster;
   caster.build(terrain, o, spec_.max_range_m, minSlope(R), exec);
-  thread_local std::vector<std::vector<PointXYZI>> parts_tls;
-  // Workers must see the calling thread's buffers (a lambda names a thread_local directly).
-  std::vector<std::vector<PointXYZI>>& parts = parts_tls;
+  std::vector<std::vector<PointXYZI>>& parts = scratch_->parts;
   if (static_cast<int>(parts.size()) < chunks) parts.resize(chunks);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const ScanCaster& cast = caster;

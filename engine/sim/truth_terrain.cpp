@@ -302,7 +302,8 @@ void TruthTerrain::refreshPyramid(int i0, int j0, int i1, int j1) {
 
 double TruthTerrain::cellHit(int ci, int cj, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double ta,
                              double tb) const {
-  return cellHitZ(ci, cj, height(ci, cj), height(ci + 1, cj), height(ci, cj + 1), height(ci + 1, cj + 1), o, d, ta, tb);
+  const std::size_t k = index(ci, cj);
+  return cellHitZ(ci, cj, h_[k], h_[k + 1], h_[k + nx_], h_[k + nx_ + 1], o, d, ta, tb);
 }
 
 double TruthTerrain::cellHitZ(int ci, int cj, double z00, double z10, double z01, double z11, const Eigen::Vector3d& o,
@@ -400,7 +401,8 @@ bool TruthTerrain::clipToGrid(const Eigen::Vector3d& o, const Eigen::Vector3d& d
 
 Eigen::Vector2d TruthTerrain::cellGradient(int ci, int cj, double x, double y) const {
   const double u = (x - (ox_ + ci * res_)) / res_, v = (y - (oy_ + cj * res_)) / res_;
-  const double z00 = height(ci, cj), z10 = height(ci + 1, cj), z01 = height(ci, cj + 1), z11 = height(ci + 1, cj + 1);
+  const std::size_t k = index(ci, cj);
+  const double z00 = h_[k], z10 = h_[k + 1], z01 = h_[k + nx_], z11 = h_[k + nx_ + 1];
   const double c = z00 - z10 - z01 + z11;
   return {((z10 - z00) + c * v) / res_, ((z01 - z00) + c * u) / res_};
 }

@@ -13,6 +13,7 @@
 #include <terramap/sim/truth_terrain.hpp>
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 namespace terramap::sim {
@@ -25,13 +26,18 @@ inline double unitFromBits(std::uint64_t h) { return (static_cast<double>(h >> 1
 class LidarModel {
  public:
   explicit LidarModel(const SensorSpec& spec);
+  ~LidarModel();
+  LidarModel(LidarModel&&) noexcept;
+  LidarModel& operator=(LidarModel&&) noexcept;
   const SensorSpec& spec() const { return spec_; }
   std::size_t raysPerScan() const { return dirs_.size(); }
   /// Unit ray directions in the sensor frame, in output order.
   const std::vector<Eigen::Vector3d>& directions() const { return dirs_; }
 
-  /// Casts every ray. `noise_key` must differ per scan (e.g. hash of seed, sensor, scan index).
-  /// Runs on `exec` in fixed chunks of columns (serial if null). Returns the number of hits.
+  /// Casts every ray against the terrain's ray-casting view (TruthTerrain::refreshPyramid).
+  /// `noise_key` must differ per scan (e.g. hash of seed, sensor, scan index). Runs on `exec`
+  /// in fixed chunks of columns (serial if null). Returns the number of hits. One scan at a
+  /// time per model (it reuses the model's buffers); different models may scan concurrently.
   std::size_t scan(const TruthTerrain& terrain, const Eigen::Isometry3d& T_map_sensor, std::uint64_t noise_key,
                    const Executor* exec, std::vector<PointXYZI>& out) const;
 
@@ -42,6 +48,8 @@ class LidarModel {
   SensorSpec spec_;
   std::vector<Eigen::Vector3d> dirs_;
   std::vector<double> elevations_;  ///< beam elevations (rad)
+  struct Scratch;                   ///< horizon table and per-chunk outputs, reused per scan
+  std::unique_ptr<Scratch> scratch_;
   int columns_per_chunk_ = 16;
 };
 

@@ -13,8 +13,8 @@
 /// simulator makes moves (U, Lv, Lc) so that sum is conserved (tested).
 ///
 /// Ray casting uses a max-height pyramid (quadtree of 2x2 node blocks) so rays skip empty
-/// space; `raycast` is const and thread-safe; mutators are not (the simulator mutates between
-/// scans, then calls `refreshPyramid`).
+/// space; const members (ray casting included) are thread-safe; mutators are not (the simulator
+/// mutates between scans, then calls `refreshPyramid` over the changed nodes before casting).
 #include <Eigen/Core>
 
 #include <cmath>
@@ -126,7 +126,8 @@ class TruthTerrain {
   double raycastReference(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,
                           double t_max) const;
 
-  /// Rebuilds the max pyramid over the node box [i0, i1] x [j0, j1] (clamped), or all.
+  /// Rebuilds the max pyramid over the node box [i0, i1] x [j0, j1] (clamped), or all. Not
+  /// while rays are being cast.
   void refreshPyramid(int i0, int j0, int i1, int j1);
   void refreshPyramid() { refreshPyramid(0, 0, nx_ - 1, ny_ - 1); }
 
