@@ -66,44 +66,39 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
       if (std::abs(lat) <= f.half_lat + 0.5 * res && s <= 0.0 && s > -back_band) mask[static_cast<std::size_t>(j) * w + i] = 1;
     }
   // Scratch buffers reused across calls (per thread) to avoid page faults at 60 Hz.
-  thread_local std::vector<double> H, fx, fy, outsum;
-  H.resize(static_cast<std::size_t>(w) * h);
-  fx.resize(H.size());
-  fy.resize(H.size());
-  outsum.resize(H.size());
+  thread_local std::vector<double> fx, fy, outsum;
+  const std::size_t n = static_cast<std::size_t>(w) * h;
+  fx.resize(n);
+  fy.resize(n);
+  outsum.resize(n);
   auto idx = [w](int i, int j) { return static_cast<std::size_t>(j) * w + i; };
-  thread_local std::vector<double> LV;
-  LV.resize(H.size());
-  double* Hp = H.data();
-  double* Lp = LV.data();
   double* fxp = fx.data();
   double* fyp = fy.data();
   double* op = outsum.data();
   const unsigned char* mp = mask.data();
-  bool any_loose = false;
-  for (int j = 0; j < h; ++j)
-    for (int i = 0; i < w; ++i) {
-      const std::size_t k = idx(i, j);
-      Lp[k] = terrain.loose(i0 + i, j0 + j);
-      Hp[k] = terrain.undisturbed(i0 + i, j0 + j) + Lp[k];
-      any_loose |= Lp[k] > 0.0;
-    }
-  if (!any_loose) return false;
+  // Heights and loose thicknesses are read in place (no moves happen before the last pass):
+  // node (i, j) of the box is at terrain index base + j * stride + i.
+  const double* Hg = terrain.heightData().data();
+  const double* Lg = terrain.looseData().data();
+  const std::size_t base = terrain.index(i0, j0), stride = static_cast<std::size_t>(terrain.nx());
+  auto gidx = [&](int i, int j) { return base + static_cast<std::size_t>(j) * stride + i; };
   std::fill(fx.begin(), fx.end(), 0.0);
   std::fill(fy.begin(), fy.end(), 0.0);
   std::fill(outsum.begin(), outsum.end(), 0.0);
   bool moved = false;
   // Edge fluxes (positive = from (i, j) to the +x / +y neighbour); only loose soil slides.
   for (int j = 0; j < h; ++j) {
+    const double* Hr = Hg + gidx(0, j);
+    const double* Lr = Lg + gidx(0, j);
     for (int i = 0; i < w; ++i) {
       const std::size_t a = idx(i, j);
       if (mp[a]) continue;
-      const double ha = Hp[a];
-      const bool la = Lp[a] > 0.0;
-      if (i + 1 < w && !mp[a + 1] && (la || Lp[a + 1] > 0.0)) {
-        const double dh = ha - Hp[a + 1];
+      const double ha = Hr[i];
+      const bool la = Lr[i] > 0.0;
+      if (i + 1 < w && !mp[a + 1] && (la || Lr[i + 1] > 0.0)) {
+        const double dh = ha - Hr[i + 1];
         const double ex = std::abs(dh) - max_step;
-        if (ex > 0 && Lp[dh > 0 ? a : a + 1] > 0.0) {
+        if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + 1]) > 0.0) {
           const double q = 0.25 * ex;
           fxp[a] = dh > 0 ? q : -q;
           op[dh > 0 ? a : a + 1] += q;
@@ -111,10 +106,10 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
         }
       }
       const std::size_t b = a + static_cast<std::size_t>(w);
-      if (j + 1 < h && !mp[b] && (la || Lp[b] > 0.0)) {
-        const double dh = ha - Hp[b];
+      if (j + 1 < h && !mp[b] && (la || Lr[i + stride] > 0.0)) {
+        const double dh = ha - Hr[i + stride];
         const double ex = std::abs(dh) - max_step;
-        if (ex > 0 && Lp[dh > 0 ? a : b] > 0.0) {
+        if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + stride]) > 0.0) {
           const double q = 0.25 * ex;
           fyp[a] = dh > 0 ? q : -q;
           op[dh > 0 ? a : b] += q;
@@ -125,9 +120,13 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
   }
   if (!moved) return false;
   // Scale: a node gives at most the loose soil it has (bank soil does not slide).
-  for (std::size_t k = 0; k < H.size(); ++k) {
-    const double o = op[k];
-    op[k] = (o > Lp[k] && o > 0) ? Lp[k] / o : 1.0;
+  for (int j = 0; j < h; ++j) {
+    const double* Lr = Lg + gidx(0, j);
+    for (int i = 0; i < w; ++i) {
+      const std::size_t k = idx(i, j);
+      const double o = op[k];
+      op[k] = (o > Lr[i] && o > 0) ? Lr[i] / o : 1.0;
+    }
   }
   for (int j = 0; j < h; ++j) {
     for (int i = 0; i < w; ++i) {
@@ -169,7 +168,25 @@ BladeForce bladeSoilForce(const TruthTerrain& terrain, const SoilField& soil, co
       const double lc = terrain.looseBankAt(pe.x() + f.n_h.x() * l, pe.y() + f.n_h.y() * l);
       if (!std::isnan(lc)) lc_sum += lc;
     }
-    const double depth_v = ue - pe.z();
+    // The intact surface ahead of the edge (least squares over 0.05..0.5 m) gives both the
+    // slope and, by its intercept at the edge, the height the blade is cutting into: the node
+    // at the edge itself has already been carved by this step's deformation, so reading it
+    // would see anything from 0 to 100 % of the real depth.
+    double sx = 0, sz = 0, sxx = 0, sxz = 0;
+    int n = 0;
+    for (int m = 0; m < 7; ++m) {
+      const double l = 0.05 + 0.075 * m;
+      const double z = terrain.undisturbedAt(pe.x() + f.n_h.x() * l, pe.y() + f.n_h.y() * l);
+      if (std::isnan(z)) continue;
+      sx += l; sz += z; sxx += l * l; sxz += l * z; ++n;
+    }
+    double slope = 0.0, surface_at_edge = ue;
+    if (n >= 2) {
+      const double den = n * sxx - sx * sx;
+      if (den > 1e-12) slope = (n * sxz - sx * sz) / den;
+      surface_at_edge = (sz - slope * sx) / n;
+    }
+    const double depth_v = surface_at_edge - pe.z();
     const double h0 = terrain.initialHeightAt(pe.x(), pe.y());
     const double mid_depth = h0 - (pe.z() + std::max(0.0, depth_v) * 0.5);
     const SoilProperties& sp = soil.at(pe.x(), pe.y(), mid_depth);
@@ -180,25 +197,14 @@ BladeForce bladeSoilForce(const TruthTerrain& terrain, const SoilField& soil, co
       if (q > 0 && !std::isnan(hf) && hf > pe.z()) out.fee_map -= f.n_h * (q * std::tan(sp.repose_rad));
       continue;
     }
-    // Slope of the undisturbed surface ahead (least squares over 0.05..0.5 m).
-    double sx = 0, sz = 0, sxx = 0, sxz = 0;
-    int n = 0;
-    for (int m = 0; m < 7; ++m) {
-      const double l = 0.05 + 0.075 * m;
-      const double z = terrain.undisturbedAt(pe.x() + f.n_h.x() * l, pe.y() + f.n_h.y() * l);
-      if (std::isnan(z)) continue;
-      sx += l; sz += z; sxx += l * l; sxz += l * z; ++n;
-    }
-    double slope = 0.0;
-    if (n >= 2) {
-      const double den = n * sxx - sx * sx;
-      if (den > 1e-12) slope = (n * sxz - sx * sz) / den;
-    }
     const double alpha = std::atan(slope);
     const double d = depth_v * std::cos(alpha);
+    // fee.hpp measures the rake from the soil surface (rho = alpha + face angle from the
+    // horizontal) and d normal to it; on level ground both conventions agree.
+    const double rho_s = rho + alpha;
     fee::Geometry g;
     g.alpha_rad = alpha;
-    g.rho_rad = rho;
+    g.rho_rad = rho_s;
     g.d_m = d;
     g.w_m = ds;
     g.q_n = q;
@@ -225,7 +231,7 @@ BladeForce bladeSoilForce(const TruthTerrain& terrain, const SoilField& soil, co
     }
     const double w = d;  // depth-weighted summaries
     wsum += w;
-    a_alpha += w * alpha; a_rho += w * rho; a_d += w * d; a_beta += w * beta;
+    a_alpha += w * alpha; a_rho += w * rho_s; a_d += w * d; a_beta += w * beta;
     a_c += w * sp.fee.c_pa; a_phi += w * sp.fee.phi_rad; a_g += w * sp.fee.gamma_n_m3;
     a_ca += w * sp.fee.ca_pa; a_delta += w * sp.fee.delta_rad;
     tr.width_m += ds;
@@ -347,21 +353,23 @@ CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   // Only edges touching a node with loose soil carry flux, so each sweep works on the bounding
   // box of the loose nodes grown by one (usually a thin band ahead of the blade, not the whole
   // box). Restricting the raster keeps the move order, hence the result, unchanged.
+  // Loose soil moves at most one node per sweep, so sweep k works on the initial bounding box
+  // grown by k nodes (a superset of the exact one gives the same result).
+  int li0 = i1 + 1, li1 = i0 - 1, lj0 = j1 + 1, lj1 = j0 - 1;
+  const std::vector<double>& lvd = terrain.looseData();
+  for (int j = j0; j <= j1; ++j) {
+    const double* row = &lvd[terrain.index(0, j)];
+    int a = i0, b = i1;
+    while (a <= i1 && !(row[a] > 0.0)) ++a;
+    if (a > i1) continue;
+    while (!(row[b] > 0.0)) --b;
+    li0 = std::min(li0, a); li1 = std::max(li1, b);
+    lj0 = std::min(lj0, j); lj1 = std::max(lj1, j);
+  }
+  if (li1 < li0) return out;
   for (int it = 0; it < iterations; ++it) {
-    int li0 = i1 + 1, li1 = i0 - 1, lj0 = j1 + 1, lj1 = j0 - 1;
-    const std::vector<double>& lvd = terrain.looseData();
-    for (int j = j0; j <= j1; ++j) {
-      const double* row = &lvd[terrain.index(0, j)];
-      int a = i0, b = i1;
-      while (a <= i1 && !(row[a] > 0.0)) ++a;
-      if (a > i1) continue;
-      while (!(row[b] > 0.0)) --b;
-      li0 = std::min(li0, a); li1 = std::max(li1, b);
-      lj0 = std::min(lj0, j); lj1 = std::max(lj1, j);
-    }
-    if (li1 < li0) break;
-    const int si0 = std::max(i0, li0 - 1), si1 = std::min(i1, li1 + 1);
-    const int sj0 = std::max(j0, lj0 - 1), sj1 = std::min(j1, lj1 + 1);
+    const int si0 = std::max(i0, li0 - 1 - it * GROW), si1 = std::min(i1, li1 + 1 + it * GROW);
+    const int sj0 = std::max(j0, lj0 - 1 - it * GROW), sj1 = std::min(j1, lj1 + 1 + it * GROW);
     if (!relaxSweep(terrain, f, res, back_band, max_step, si0, sj0, si1, sj1)) break;
     if (out.i1 < out.i0) {
       out.i0 = si0; out.j0 = sj0; out.i1 = si1; out.j1 = sj1;

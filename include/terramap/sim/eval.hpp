@@ -142,11 +142,9 @@ struct MassBalance {
 /// cutting slices, w_along the summed width of the cutting slices along the edge,
 /// face angle = atan2(ẑ_b.z, −ẑ_b · n̂) (the blade face from the horizontal, through the soil).
 ///
-/// Why not MachineTruth::fee directly: the simulator evaluates its force after carving every
-/// node the edge crossed, and reads the undisturbed height bilinearly *at* the edge, between a
-/// carved node behind and an intact one ahead; its FeeTruth::depth_m therefore reads 0–100 % of
-/// the true depth depending on where the edge lies between nodes (measured 7–76 mm for a steady
-/// 80 mm cut). The surface ahead of the edge is intact, so extrapolating it is the true depth.
+/// The simulator's own FeeTruth now uses the same construction (it used to read the surface at
+/// the already carved edge and saw 0-100 % of the depth); this stays the evaluation's
+/// reference because it is computed from the truth terrain alone, at exactly the record's T1.
 struct SurfaceAheadTruth {
   int cutting_slices = 0;
   double alpha_rad = NAN, d_m = NAN, w_along_m = 0, face_angle_rad = NAN;
@@ -162,8 +160,8 @@ SurfaceAheadTruth surfaceAheadTruth(const TruthTerrain& truth, const Eigen::Isom
 /// The mapper's values: the sweep's α (SweepRecord::alpha_rad) and the per-step ρ, d, w, Q at T1
 /// (SweepRecord::steps.back()). The truth, in core/fee.hpp's conventions (the estimator's):
 ///  - α, d: SurfaceAheadTruth at T1; `truth_d_raw_m` keeps the simulator's FeeTruth::depth_m.
-///  - ρ: measured from the surface line, ρ = α + face angle (fee.hpp). The simulator's
-///    FeeTruth::rho_rad is the face angle from the *horizontal*; kept as `truth_rho_raw_rad`.
+///  - ρ: measured from the surface line, ρ = α + face angle (fee.hpp), as FeeTruth::rho_rad
+///    (kept as `truth_rho_raw_rad`).
 ///  - w: the contact width across the travel direction (blade_sweep's w ∝ cos yaw): the
 ///    cutting slices' width along the edge projected on the record's t_perp,
 ///    w_along · |ŷ_blade · t_perp|; FeeTruth::width_m (along the edge) kept as `truth_w_raw_m`.
