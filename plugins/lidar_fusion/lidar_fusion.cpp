@@ -71,49 +71,43 @@ inline void toMap(const GateConsts& k, double px, double py, double pz, double& 
   z = k.r20 * px + k.r21 * py + k.r22 * pz + k.tz;
 }
 
-/// Scalar gates of points [0, n) into out[0, n): the portable reference of gateAvx2.
-void gateScalar(const PointXYZI* pts, int n, const GateConsts& k, GateBlock& out, int base = 0) {
-  for (int q = 0; q < n; ++q) {
-    const PointXYZI& p = pts[q];
-    const int o = base + q;
-    out.li[o] = 0;
-    out.lj[o] = 0;
-    out.z[o] = 0.0f;
-    out.var[o] = 0.0f;
-    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) { out.code[o] = kNonFinite; continue; }
-    const double px = p.x, py = p.y, pz = p.z;
-    const double r = std::sqrt(px * px + py * py + pz * pz);
-    if (r < k.min_r) { out.code[o] = kTooClose; continue; }
-    if (r > k.max_r) { out.code[o] = kTooFar; continue; }
-    double x, y, z;
-    toMap(k, px, py, pz, x, y, z);
-    const double dz = z - k.tz;
-    if (dz > k.max_h) { out.code[o] = kTooHigh; continue; }
-    // The ramp allows at least c (a >= 0), so only points above c need the distance.
-    if (k.ramp && dz > k.ramp_c) {
-      const double dxy = std::sqrt((x - k.tx) * (x - k.tx) + (y - k.ty) * (y - k.ty));
-      if (dz > std::max(dxy - k.ramp_b, 0.0) * k.ramp_a + k.ramp_c) { out.code[o] = kTooHigh; continue; }
-    }
-    // Same arithmetic as Geometry::indexAt, so a point lands in the cell indexAt names.
-    const double fi = (k.xmax - x) / k.res;
-    const double fj = (k.ymax - y) / k.res;
-    // Inside iff 0 < f <= size; then index = ceil(f) - 1 (truncation is floor for f > 0,
-    // and avoids a libm call on targets without SSE4.1 rounding).
-    if (!(fi > 0.0) || !(fj > 0.0) || !(fi <= k.rows) || !(fj <= k.cols)) { out.code[o] = kOutsideMap; continue; }
-    const int ti = static_cast<int>(fi), tj = static_cast<int>(fj);
-    out.li[o] = static_cast<double>(ti) == fi ? ti - 1 : ti;
-    out.lj[o] = static_cast<double>(tj) == fj ? tj - 1 : tj;
-    double var;
-    if (k.range_based) {
-      const double sigma = k.noise_a + k.noise_b * r;
-      var = sigma * sigma;
-    } else {
-      var = k.noise_k * pz * pz;
-    }
-    out.code[o] = kInside;
-    out.z[o] = static_cast<float>(z);
-    out.var[o] = static_cast<float>(var);
+/// The gates of one point: its GateCode and, if kInside, its cell and values. The portable
+/// reference of gateAvx2 (and what runs where AVX2 does not).
+inline GateCode gateOne(const PointXYZI& p, const GateConsts& k, std::int32_t& li, std::int32_t& lj, float& zf,
+                        float& varf) {
+  if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) return kNonFinite;
+  const double px = p.x, py = p.y, pz = p.z;
+  const double r = std::sqrt(px * px + py * py + pz * pz);
+  if (r < k.min_r) return kTooClose;
+  if (r > k.max_r) return kTooFar;
+  double x, y, z;
+  toMap(k, px, py, pz, x, y, z);
+  const double dz = z - k.tz;
+  if (dz > k.max_h) return kTooHigh;
+  // The ramp allows at least c (a >= 0), so only points above c need the distance.
+  if (k.ramp && dz > k.ramp_c) {
+    const double dxy = std::sqrt((x - k.tx) * (x - k.tx) + (y - k.ty) * (y - k.ty));
+    if (dz > std::max(dxy - k.ramp_b, 0.0) * k.ramp_a + k.ramp_c) return kTooHigh;
   }
+  // Same arithmetic as Geometry::indexAt, so a point lands in the cell indexAt names.
+  const double fi = (k.xmax - x) / k.res;
+  const double fj = (k.ymax - y) / k.res;
+  // Inside iff 0 < f <= size; then index = ceil(f) - 1 (truncation is floor for f > 0,
+  // and avoids a libm call on targets without SSE4.1 rounding).
+  if (!(fi > 0.0) || !(fj > 0.0) || !(fi <= k.rows) || !(fj <= k.cols)) return kOutsideMap;
+  const int ti = static_cast<int>(fi), tj = static_cast<int>(fj);
+  li = static_cast<double>(ti) == fi ? ti - 1 : ti;
+  lj = static_cast<double>(tj) == fj ? tj - 1 : tj;
+  double var;
+  if (k.range_based) {
+    const double sigma = k.noise_a + k.noise_b * r;
+    var = sigma * sigma;
+  } else {
+    var = k.noise_k * pz * pz;
+  }
+  zf = static_cast<float>(z);
+  varf = static_cast<float>(var);
+  return kInside;
 }
 
 #ifdef TERRAMAP_LIDAR_AVX2
@@ -130,9 +124,9 @@ __attribute__((target("avx2"))) inline __m256d dot4(__m256d m0, __m256d m1, __m2
       _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(m0, px), _mm256_mul_pd(m1, py)), _mm256_mul_pd(m2, pz)), t);
 }
 
-/// gateScalar four points at a time. Every value is computed with the same IEEE operations in
+/// gateOne four points at a time. Every value is computed with the same IEEE operations in
 /// the same order (mul, add, sub, div, sqrt are correctly rounded; no FMA: the avx2 target
-/// does not enable it), so the results are bit-identical to gateScalar - tested.
+/// does not enable it), so the results are bit-identical to gateOne - tested.
 __attribute__((target("avx2"))) void gateAvx2(const PointXYZI* pts, int n, const GateConsts& k, GateBlock& out) {
   const __m256d r00 = _mm256_set1_pd(k.r00), r01 = _mm256_set1_pd(k.r01), r02 = _mm256_set1_pd(k.r02);
   const __m256d r10 = _mm256_set1_pd(k.r10), r11 = _mm256_set1_pd(k.r11), r12 = _mm256_set1_pd(k.r12);
@@ -201,7 +195,11 @@ __attribute__((target("avx2"))) void gateAvx2(const PointXYZI* pts, int n, const
     _mm_storeu_ps(out.z + q, _mm_and_ps(_mm256_cvtpd_ps(z), keepf));
     _mm_storeu_ps(out.var + q, _mm_and_ps(_mm256_cvtpd_ps(var), keepf));
   }
-  gateScalar(pts + q, n - q, k, out, q);
+  for (; q < n; ++q) {
+    out.li[q] = out.lj[q] = 0;
+    out.z[q] = out.var[q] = 0.0f;
+    out.code[q] = gateOne(pts[q], k, out.li[q], out.lj[q], out.z[q], out.var[q]);
+  }
 }
 
 bool cpuHasAvx2() {
@@ -566,39 +564,55 @@ void LidarFusion::preparePoints(const LayeredMap& map, const Executor& ex, const
     int* count = ch.start.data() + 1;  // histogram, shifted by one for the prefix sum below
     long drops[kInside + 1] = {0, 0, 0, 0, 0, 0};
     int m = 0;
-    GateBlock blk;
     int ray_phase = i0 % stride;  // i % stride, advanced incrementally
-    for (int b0 = i0; b0 < i1; b0 += kGateBlock) {
-      const int nb = std::min(kGateBlock, i1 - b0);
+    // Rays of points that passed the range and height gates (also outside the map).
+    auto ray = [&](int i, std::int32_t code) {
+      if (ray_phase == 0 && code >= kOutsideMap) {
+        const PointXYZI& p = pts[i];
+        double x, y, z;
+        toMap(k, p.x, p.y, p.z, x, y, z);
+        ch.ray_ends.push_back(static_cast<float>(x - k.tx));
+        ch.ray_ends.push_back(static_cast<float>(y - k.ty));
+        ch.ray_ends.push_back(static_cast<float>(z - k.tz));
+      }
+      if (++ray_phase == stride) ray_phase = 0;
+    };
 #ifdef TERRAMAP_LIDAR_AVX2
-      if (simd)
+    if (simd) {
+      // Gate a block with the vector kernel, then append its points without branches.
+      GateBlock blk;
+      for (int b0 = i0; b0 < i1; b0 += kGateBlock) {
+        const int nb = std::min(kGateBlock, i1 - b0);
         gateAvx2(pts + b0, nb, k, blk);
-      else
-#endif
-        gateScalar(pts + b0, nb, k, blk);
-      for (int q = 0; q < nb; ++q) {
-        const std::int32_t code = blk.code[q];
-        ++drops[code];
-        if (rays) {
-          // Rays of points that passed the range and height gates (also outside the map).
-          if (ray_phase == 0 && code >= kOutsideMap) {
-            const PointXYZI& p = pts[b0 + q];
-            double x, y, z;
-            toMap(k, p.x, p.y, p.z, x, y, z);
-            ch.ray_ends.push_back(static_cast<float>(x - k.tx));
-            ch.ray_ends.push_back(static_cast<float>(y - k.ty));
-            ch.ray_ends.push_back(static_cast<float>(z - k.tz));
-          }
-          if (++ray_phase == stride) ray_phase = 0;
+        for (int q = 0; q < nb; ++q) {
+          const std::int32_t code = blk.code[q];
+          ++drops[code];
+          if (rays) ray(b0 + q, code);
+          // Rejected points write a slot (li = lj = 0) that is not kept.
+          const int keep = code == kInside;
+          const std::int32_t li = blk.li[q], lj = blk.lj[q];
+          const std::int32_t tile = row_tile[li] + col_tile[lj];
+          out_tile[m] = tile;
+          out[m] = PointItem{static_cast<std::uint32_t>(row_local[li] + col_local[lj]), blk.z[q], blk.var[q]};
+          count[tile] += keep;
+          m += keep;
         }
-        // Branch-free append: rejected points write a slot (li = lj = 0) that is not kept.
-        const int keep = code == kInside;
-        const std::int32_t li = blk.li[q], lj = blk.lj[q];
+      }
+    } else
+#endif
+    {
+      for (int i = i0; i < i1; ++i) {
+        std::int32_t li = 0, lj = 0;
+        float z = 0.0f, var = 0.0f;
+        const GateCode code = gateOne(pts[i], k, li, lj, z, var);
+        ++drops[code];
+        if (rays) ray(i, code);
+        if (code != kInside) continue;
         const std::int32_t tile = row_tile[li] + col_tile[lj];
         out_tile[m] = tile;
-        out[m] = PointItem{static_cast<std::uint32_t>(row_local[li] + col_local[lj]), blk.z[q], blk.var[q]};
-        count[tile] += keep;
-        m += keep;
+        out[m] = PointItem{static_cast<std::uint32_t>(row_local[li] + col_local[lj]), z, var};
+        ++count[tile];
+        ++m;
       }
     }
     for (int r = 0; r < kInside; ++r) ch.drops[static_cast<size_t>(r)] = drops[r];
