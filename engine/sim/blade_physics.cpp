@@ -368,8 +368,8 @@ CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   }
   if (li1 < li0) return out;
   for (int it = 0; it < iterations; ++it) {
-    const int si0 = std::max(i0, li0 - 1 - it * GROW), si1 = std::min(i1, li1 + 1 + it * GROW);
-    const int sj0 = std::max(j0, lj0 - 1 - it * GROW), sj1 = std::min(j1, lj1 + 1 + it * GROW);
+    const int si0 = std::max(i0, li0 - 1 - it), si1 = std::min(i1, li1 + 1 + it);
+    const int sj0 = std::max(j0, lj0 - 1 - it), sj1 = std::min(j1, lj1 + 1 + it);
     if (!relaxSweep(terrain, f, res, back_band, max_step, si0, sj0, si1, sj1)) break;
     if (out.i1 < out.i0) {
       out.i0 = si0; out.j0 = sj0; out.i1 = si1; out.j1 = sj1;
