@@ -9,12 +9,17 @@
 
 namespace terramap::sim {
 
-std::uint64_t mixBits(std::uint64_t x) {
+namespace {
+/// Inlinable copy of mixBits for the per-ray loop (the exported one may be interposed).
+inline std::uint64_t mix(std::uint64_t x) {
   x += 0x9e3779b97f4a7c15ULL;
   x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
   x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
   return x ^ (x >> 31);
 }
+}  // namespace
+
+std::uint64_t mixBits(std::uint64_t x) { return mix(x); }
 
 struct LidarModel::Scratch {
   ScanCaster caster;
@@ -112,8 +117,8 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
           if (spec_.keep_dropouts) pts.push_back({nan, nan, nan, nan});
           continue;
         }
-        const std::uint64_t h = mixBits(noise_key ^ mixBits(k));
-        if (spec_.dropout > 0 && unitFromBits(mixBits(h ^ 0xd1b54a32d192ed03ULL)) < spec_.dropout) {
+        const std::uint64_t h = mix(noise_key ^ mix(k));
+        if (spec_.dropout > 0 && unitFromBits(mix(h ^ 0xd1b54a32d192ed03ULL)) < spec_.dropout) {
           if (spec_.keep_dropouts) pts.push_back({nan, nan, nan, nan});
           continue;
         }
@@ -123,7 +128,7 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
         const float inten = static_cast<float>(std::abs(dm.z() - g.x() * dm.x() - g.y() * dm.y()) /
                                                std::sqrt(1.0 + g.x() * g.x() + g.y() * g.y()));
         if (spec_.range_noise_m > 0) {
-          const double u1 = unitFromBits(h), u2 = unitFromBits(mixBits(h + 1));
+          const double u1 = unitFromBits(h), u2 = unitFromBits(mix(h + 1));
           t += spec_.range_noise_m * std::sqrt(-2.0 * std::log(u1)) * std::cos(2 * M_PI * u2);
         }
         pts.push_back({static_cast<float>(ds.x() * t), static_cast<float>(ds.y() * t), static_cast<float>(ds.z() * t), inten});

@@ -46,6 +46,9 @@ inline float upperBound(double v) {
 
 }  // namespace
 
+// prepare / prefetch / finish are `inline` so they can be inlined into castBatch despite -fPIC
+// (an exported, non-inline function may be interposed, which blocks inlining).
+
 void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origin, double max_range_m,
                        double min_slope, const Executor* exec) {
   terrain_ = &terrain;
@@ -196,7 +199,7 @@ void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origi
   }
 }
 
-ScanCaster::Ray ScanCaster::prepare(const Eigen::Vector3d& d, double t_min, double t_max) const {
+inline ScanCaster::Ray ScanCaster::prepare(const Eigen::Vector3d& d, double t_min, double t_max) const {
   const TruthTerrain& T = *terrain_;
   Ray ray;
   // Rays that do not descend from above the highest point of the terrain cannot hit it.
@@ -212,7 +215,22 @@ ScanCaster::Ray ScanCaster::prepare(const Eigen::Vector3d& d, double t_min, doub
   }
   ray.t0 = t_min;
   ray.t1 = t_max;
-  if (!T.clipToGrid(o_, d, ray.t0, ray.t1)) return ray;
+  // Clip to the grid's xy extent (slab test; inlined here, this runs for every descending ray).
+  {
+    const double lo[2] = {T.originX(), T.originY()}, hi[2] = {T.maxX(), T.maxY()};
+    for (int ax = 0; ax < 2; ++ax) {
+      if (d[ax] == 0.0) {
+        if (o_[ax] < lo[ax] || o_[ax] > hi[ax]) return ray;
+        continue;
+      }
+      const double inv = 1.0 / d[ax];
+      double ta = (lo[ax] - o_[ax]) * inv, tb = (hi[ax] - o_[ax]) * inv;
+      if (ta > tb) std::swap(ta, tb);
+      ray.t0 = std::max(ray.t0, ta);
+      ray.t1 = std::min(ray.t1, tb);
+      if (ray.t0 > ray.t1) return ray;
+    }
+  }
   // (Near-)vertical rays stay in one or two cells: walk them directly.
   if (ray.dxy < 1e-9) {
     ray.mode = Ray::Direct;
@@ -237,7 +255,7 @@ ScanCaster::Ray ScanCaster::prepare(const Eigen::Vector3d& d, double t_min, doub
   return ray;
 }
 
-void ScanCaster::prefetch(const Eigen::Vector3d& d, const Ray& ray) const {
+inline void ScanCaster::prefetch(const Eigen::Vector3d& d, const Ray& ray) const {
   if (ray.mode == Ray::Miss || !(ray.ta <= ray.t1)) return;
   const TruthTerrain& T = *terrain_;
   const double res = T.resolution();
@@ -248,7 +266,7 @@ void ScanCaster::prefetch(const Eigen::Vector3d& d, const Ray& ray) const {
   __builtin_prefetch(p + T.nx());
 }
 
-double ScanCaster::finish(const Eigen::Vector3d& d, const Ray& ray, int* cell_i, int* cell_j) const {
+inline double ScanCaster::finish(const Eigen::Vector3d& d, const Ray& ray, int* cell_i, int* cell_j) const {
   const TruthTerrain& T = *terrain_;
   if (ray.mode == Ray::Miss) return kNaN;
   if (ray.mode == Ray::Direct) return T.castCells(o_, d, ray.t0, ray.t1, cell_i, cell_j);

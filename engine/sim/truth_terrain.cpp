@@ -209,15 +209,6 @@ void TruthTerrain::moveLoose(int ia, int ja, int ib, int jb, double dv) {
   h_[b] = u_[b] + lv_[b];
 }
 
-double TruthTerrain::bilinear(const std::vector<double>& a, double x, double y) const {
-  const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
-  if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return kNaN;
-  const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
-  const double u = fx - i, v = fy - j;
-  const std::size_t k = index(i, j);
-  return (1 - u) * (1 - v) * a[k] + u * (1 - v) * a[k + 1] + (1 - u) * v * a[k + nx_] + u * v * a[k + nx_ + 1];
-}
-
 double TruthTerrain::heightAt(double x, double y) const {
   const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
   if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return kNaN;
@@ -300,13 +291,8 @@ void TruthTerrain::refreshPyramid(int i0, int j0, int i1, int j1) {
 
 // ---- ray casting ----------------------------------------------------------------------------
 
-double TruthTerrain::cellHit(int ci, int cj, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double ta,
-                             double tb) const {
-  const std::size_t k = index(ci, cj);
-  return cellHitZ(ci, cj, h_[k], h_[k + 1], h_[k + nx_], h_[k + nx_ + 1], o, d, ta, tb);
-}
-
-double TruthTerrain::cellHitZ(int ci, int cj, double z00, double z10, double z01, double z11, const Eigen::Vector3d& o,
+// `inline`: lets castCells inline it despite -fPIC (only this file calls it).
+inline double TruthTerrain::cellHitZ(int ci, int cj, double z00, double z10, double z01, double z11, const Eigen::Vector3d& o,
                               const Eigen::Vector3d& d, double ta, double tb) const {
   const double a = z10 - z00, b = z01 - z00, c = z00 - z10 - z01 + z11;
   // Local coordinates at the interval start (s = t - ta).
@@ -340,6 +326,12 @@ double TruthTerrain::cellHitZ(int ci, int cj, double z00, double z10, double z01
     }
   }
   return std::isnan(best) ? kNaN : ta + best;
+}
+
+double TruthTerrain::cellHit(int ci, int cj, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double ta,
+                             double tb) const {
+  const std::size_t k = index(ci, cj);
+  return cellHitZ(ci, cj, h_[k], h_[k + 1], h_[k + nx_], h_[k + nx_ + 1], o, d, ta, tb);
 }
 
 double TruthTerrain::raycast(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min, double t_max) const {

@@ -17,6 +17,7 @@
 /// mutates between scans, then calls `refreshPyramid` over the changed nodes before casting).
 #include <Eigen/Core>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -148,7 +149,15 @@ class TruthTerrain {
                  double t1) const;
   double cellHitZ(int ci, int cj, double z00, double z10, double z01, double z11, const Eigen::Vector3d& o,
                   const Eigen::Vector3d& d, double t0, double t1) const;
-  double bilinear(const std::vector<double>& a, double x, double y) const;
+  // Defined here so the physics' many surface look-ups inline it.
+  double bilinear(const std::vector<double>& a, double x, double y) const {
+    const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
+    if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return std::numeric_limits<double>::quiet_NaN();
+    const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
+    const double u = fx - i, v = fy - j;
+    const std::size_t k = index(i, j);
+    return (1 - u) * (1 - v) * a[k] + u * (1 - v) * a[k + 1] + (1 - u) * v * a[k + nx_] + u * v * a[k + nx_ + 1];
+  }
   double nodeMaxCell(int ci, int cj) const;
 
   double ox_, oy_, res_;
