@@ -24,6 +24,8 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 /// Points (and rays) per chunk. Fixed, so the chunking - and with it every reduction order -
 /// does not depend on the thread count.
 constexpr int kChunk = 8192;
+/// Rays per visibility-cleanup task (fixed: the tasks' contents never depend on threads).
+constexpr int kRayTask = 1024;
 /// Items ahead of the current one whose cells the fusion loop prefetches.
 constexpr int kPrefetchAhead = 8;
 constexpr float kRayPenetration = 1.0f;  // Item::aux of a ray passing below a stale surface
@@ -846,14 +848,21 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
     }
     ray_min_tile_cells_ = tile_cells;
   }
-  const int nc = static_cast<int>(point_chunks_.size());
+  // Ray tasks: fixed runs of kRayTask rays of one point chunk, in input order. Smaller than
+  // a chunk, so that the two threads stay balanced although ray lengths differ by chunk.
+  ray_tasks_.clear();
+  for (int c = 0; c < static_cast<int>(point_chunks_.size()); ++c) {
+    const int nr = static_cast<int>(point_chunks_[static_cast<size_t>(c)].ray_ends.size() / 3);
+    for (int r0 = 0; r0 < nr; r0 += kRayTask) ray_tasks_.push_back({c, r0, std::min(nr, r0 + kRayTask)});
+  }
+  const int nc = static_cast<int>(ray_tasks_.size());
   ray_chunks_.resize(static_cast<size_t>(nc));
   std::vector<std::array<long, 2>> per(static_cast<size_t>(nc));
   const double k = cf.mahalanobis_thresh;
   const double u0 = (xmax - S.x()) / res, v0 = (ymax - S.y()) / res;
   constexpr float kInf = std::numeric_limits<float>::infinity();
 
-  // Phase A: walk rays (one task per fixed chunk); reads the map only. Over unknown cells a
+  // Phase A: walk rays (one task per fixed run of rays); reads the map only. Over unknown cells a
   // ray lowers its slot's per-cell minimum (min is exact and order-free, so neither the
   // chunk-to-thread assignment nor the order of rays changes the result); under stale
   // surfaces it emits a penetration item (those are applied in ray order in phase B).
@@ -876,7 +885,8 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
     };
     std::vector<Item>& out = ray_chunks_[static_cast<size_t>(c)];
     out.clear();
-    const std::vector<float>& ends = point_chunks_[static_cast<size_t>(c)].ray_ends;
+    const RayTask task = ray_tasks_[static_cast<size_t>(c)];
+    const std::vector<float>& ends = point_chunks_[static_cast<size_t>(task.chunk)].ray_ends;
     // Locals for the walk loop (through the closure the compiler reloads them every step).
     const float* const* const Et = E.data();
     float* const* const active = mins.active.data();
@@ -907,7 +917,7 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
       if (cosang >= cf.cleanup_cos_thresh) items.push_back(Item{tile, off, static_cast<float>(zhi), kRayPenetration});
     };
     long nrays = 0, ncells = 0;
-    for (size_t q = 0; q + 2 < ends.size(); q += 3) {
+    for (size_t q = 3 * static_cast<size_t>(task.begin); q < 3 * static_cast<size_t>(task.end); q += 3) {
       const double dx = ends[q], dy = ends[q + 1], dz = ends[q + 2];
       const double L = std::sqrt(dx * dx + dy * dy + dz * dz);
       if (!(L > 1e-9)) continue;

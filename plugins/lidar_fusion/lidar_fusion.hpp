@@ -212,7 +212,12 @@ class LidarFusion : public Plugin {
   std::vector<RayMinSlot> ray_min_;
   int ray_min_tile_cells_ = 0;
   std::vector<float> nan_tile_;  // stands in for unallocated elevation tiles during the walk
-  // visibility cleanup: penetration items per chunk, binned per tile
+  // visibility cleanup: ray tasks (rays [begin, end) of a point chunk) and their penetration
+  // items (one list per task, in task order = input order), binned per tile
+  struct RayTask {
+    int chunk, begin, end;
+  };
+  std::vector<RayTask> ray_tasks_;
   std::vector<std::vector<Item>> ray_chunks_;
   std::vector<int> bin_start_;     // tile -> first binned item; size tiles + 1
   std::vector<Item> binned_;
