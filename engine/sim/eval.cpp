@@ -253,7 +253,7 @@ std::string extractionTableMarkdown(const ExtractionSummary& s) {
   const std::map<std::string, std::string> label = {
       {"alpha", "α"}, {"rho", "ρ"}, {"d", "d"}, {"w", "w"}, {"Q", "Q"},
       {"d_vs_sim_raw", "d vs sim's raw FeeTruth depth"},
-      {"rho_vs_sim_raw", "ρ vs sim's raw ρ (from horizontal)"}, {"w_vs_sim_raw", "w vs sim's raw w (along blade)"}};
+      {"rho_vs_sim_raw", "ρ vs sim's raw FeeTruth ρ"}, {"w_vs_sim_raw", "w vs sim's raw w (along blade)"}};
   for (const ParameterStats& p : s.parameters) {
     const int k = precisionFor(p.unit);
     const auto it = label.find(p.name);
