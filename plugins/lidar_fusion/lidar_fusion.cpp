@@ -1018,13 +1018,13 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
   ex.forEach(na, [&](int q) {
     const int t = tiles[static_cast<size_t>(q)];
     long pen = 0, inv = 0, ubs = 0;
-    float* bufs[64];
-    int nb = 0;
+    std::vector<float*> bufs;
     for (RayMinSlot& m : ray_min_) {
       float*& a = m.active[static_cast<size_t>(t)];
-      if (a) bufs[nb++] = a;
+      if (a) bufs.push_back(a);
       a = nullptr;
     }
+    const int nb = static_cast<int>(bufs.size());
     if (nb > 0) {
       // Cells that were unknown in phase A (and still are: phase B changes valid cells only).
       float* UB = map.mutableTileData(ub_, t);

@@ -14,9 +14,9 @@
 ///  5. points are binned per tile (a stable counting sort inside each fixed chunk of points;
 ///     the gates of 3-4 run as an AVX2 kernel where the CPU has it, bit-identical to the
 ///     scalar loop), one task per tile fuses its points in input order (clearing the previous
-///     cloud's `hits` of the tile first): a Mahalanobis gate |z-h| > k*sqrt(v+v_p) marks an outlier (variance +=
-///     outlier_variance), otherwise a precision-weighted update; a cell whose variance exceeds
-///     max_variance is forgotten;
+///     cloud's `hits` of the tile first): a Mahalanobis gate |z-h| > k*sqrt(v+v_p) marks an
+///     outlier (variance += outlier_variance), otherwise a precision-weighted update; a cell
+///     whose variance exceeds max_variance is forgotten;
 ///  6. visibility cleanup: one ray every `cleanup_ray_stride` points is walked through the
 ///     grid (exact column traversal, Amanatides-Woo); valid cells not hit by this cloud whose
 ///     surface lies above the ray lose validity (cleanup_step per ray) and gain variance, unknown
@@ -151,7 +151,7 @@ class LidarFusion : public Plugin {
   const FusionStats& totals() const { return totals_; }
 
  private:
-  /// A ray-walk update (visibility cleanup): tile, offset in the tile, ray z, kind.
+  /// A penetrating ray (visibility cleanup): tile, offset in the tile, ray z, kind.
   struct Item {
     std::int32_t tile;
     std::uint32_t off;
@@ -168,7 +168,7 @@ class LidarFusion : public Plugin {
   /// with per-tile ranges, and the ray ends it contributes to the cleanup.
   struct PointChunk {
     std::vector<PointItem> items;      // sorted by tile, input order within a tile
-    std::vector<PointItem> scratch;    // unsorted, same length as the chunk's kept points
+    std::vector<PointItem> scratch;    // kept points in input order (sized for all of the chunk)
     std::vector<std::int32_t> tiles;   // tile of each scratch item
     std::vector<std::int32_t> start;   // tile -> first item; size tiles + 1
     std::vector<float> ray_ends;       // xyz (sensor-relative, map frame) per walked ray
@@ -197,8 +197,9 @@ class LidarFusion : public Plugin {
   std::vector<int> tile_points_;   // tile -> points binned this cloud
   std::vector<int> active_tiles_;  // tiles with binned points, ascending
   std::vector<int> task_tiles_;    // active tiles plus tiles whose hits must be cleared
-  // Cells whose `hits` the previous cloud set (distinct tile offsets), per tile: [prev_hit_start_[t],
-  // + prev_hit_count_[t]) of prev_hit_offs_. Double-buffered with the current cloud's lists.
+  // Cells whose `hits` the previous cloud set (distinct tile offsets), per tile t:
+  // prev_hit_offs_[prev_hit_start_[t] .. + prev_hit_count_[t]). Double-buffered with the
+  // current cloud's lists.
   std::vector<int> hit_start_, hit_count_, prev_hit_start_, prev_hit_count_;
   std::vector<std::uint32_t> hit_offs_, prev_hit_offs_;
   /// Visibility cleanup, per worker slot of the executor's arena: the lowest ray height seen
