@@ -955,8 +955,12 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
       double tmj = dv != 0.0 ? ((dv > 0 ? j + 1 : j) - v0) / dv : inf;
       double ta = t0;
       const double dirx = dx / L, diry = dy / L, dirz = dz / L;
-      // Tile and in-tile offset of (i, j), updated per step from the axis that changed.
+      // Tile and in-tile offset of (i, j), updated per step from the axis that changed; the
+      // tile's elevation data and minimum buffer are looked up only when the tile changes.
       std::int32_t rt = row_tile[i], rl = row_local[i], ct = col_tile[j], cl = col_local[j];
+      std::int32_t tile = rt + ct;
+      const float* e = Et[tile];
+      float* m = active[tile];
       const bool up = dz >= 0;
       long steps = 0;
       while (true) {
@@ -964,11 +968,9 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
         // Highest point of the ray inside this column: the ground under the crossing is below it.
         const double zhi = Sz + (up ? tb : ta) * dz;
         ++steps;
-        const std::int32_t tile = rt + ct;
         const std::uint32_t off = static_cast<std::uint32_t>(rl + cl);
-        const float h = Et[tile][off];
+        const float h = e[off];
         if (std::isnan(h)) {
-          float* m = active[tile];
           if (!m) m = touch(tile);
           const float z = static_cast<float>(zhi);
           if (z < m[off]) m[off] = z;
@@ -981,14 +983,24 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
           i += si;
           tmi += tdi;
           if (static_cast<unsigned>(i) >= Ru) break;
-          rt = row_tile[i];
           rl = row_local[i];
+          if (row_tile[i] != rt) {
+            rt = row_tile[i];
+            tile = rt + ct;
+            e = Et[tile];
+            m = active[tile];
+          }
         } else {
           j += sj;
           tmj += tdj;
           if (static_cast<unsigned>(j) >= Cu) break;
-          ct = col_tile[j];
           cl = col_local[j];
+          if (col_tile[j] != ct) {
+            ct = col_tile[j];
+            tile = rt + ct;
+            e = Et[tile];
+            m = active[tile];
+          }
         }
         ta = tb;
       }
