@@ -3,6 +3,7 @@
 #include <terramap/sim/blade_physics.hpp>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 
 namespace terramap::sim {
@@ -50,24 +51,35 @@ BladeFrame frameOf(const Eigen::Isometry3d& T, const BladeGeometry& g) {
   return f;
 }
 
+/// Runs body(r0, r1) over row blocks [r0, r1) covering [0, rows): on the executor when it has
+/// more than one thread and the box is big enough to pay for the hand-off, else inline.
+template <class Body>
+void forRowBlocks(const Executor* exec, int rows, std::size_t nodes, Body&& body) {
+  if (exec == nullptr || exec->threads() < 2 || nodes < 4096 || rows < 2) {
+    body(0, rows);
+    return;
+  }
+  const int blocks = std::min(rows, 4 * exec->threads());
+  exec->forEach(blocks, [&](int b) {
+    body(static_cast<int>(static_cast<long>(rows) * b / blocks), static_cast<int>(static_cast<long>(rows) * (b + 1) / blocks));
+  });
+}
+
 /// One Jacobi sweep of loose-soil sliding over the node box [i0, i1] x [j0, j1]; nodes under
 /// the blade (behind the edge within `back_band`) neither give nor take. False if nothing moved.
+/// The mask, flux and outflow-limit passes write only their own rows (each node gathers its
+/// outflow from the fluxes in the order a raster scatter would have added them), so they run in
+/// row blocks on `exec`; the moves are applied serially in raster order as before, so the result
+/// is bit-identical for any thread count.
 bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double back_band, double max_step, int i0,
-                int j0, int i1, int j1) {
+                int j0, int i1, int j1, const Executor* exec) {
   const int w = i1 - i0 + 1, h = j1 - j0 + 1;
+  // Scratch buffers reused across calls (per calling thread) to avoid page faults at 60 Hz;
+  // the row-block tasks write into the caller's buffers through the raw pointers below.
   thread_local std::vector<unsigned char> mask;
-  mask.assign(static_cast<std::size_t>(w) * h, 0);
-  for (int j = 0; j < h; ++j)
-    for (int i = 0; i < w; ++i) {
-      const Eigen::Vector2d p = terrain.nodePosition(i0 + i, j0 + j);
-      const double dx = p.x() - f.c.x(), dy = p.y() - f.c.y();
-      const double lat = dx * f.e_h.x() + dy * f.e_h.y();
-      const double s = dx * f.n_h.x() + dy * f.n_h.y();
-      if (std::abs(lat) <= f.half_lat + 0.5 * res && s <= 0.0 && s > -back_band) mask[static_cast<std::size_t>(j) * w + i] = 1;
-    }
-  // Scratch buffers reused across calls (per thread) to avoid page faults at 60 Hz.
   thread_local std::vector<double> fx, fy, outsum;
   const std::size_t n = static_cast<std::size_t>(w) * h;
+  mask.resize(n);
   fx.resize(n);
   fy.resize(n);
   outsum.resize(n);
@@ -75,59 +87,78 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
   double* fxp = fx.data();
   double* fyp = fy.data();
   double* op = outsum.data();
-  const unsigned char* mp = mask.data();
+  unsigned char* mp = mask.data();
   // Heights and loose thicknesses are read in place (no moves happen before the last pass):
   // node (i, j) of the box is at terrain index base + j * stride + i.
   const double* Hg = terrain.heightData().data();
   const double* Lg = terrain.looseData().data();
   const std::size_t base = terrain.index(i0, j0), stride = static_cast<std::size_t>(terrain.nx());
   auto gidx = [&](int i, int j) { return base + static_cast<std::size_t>(j) * stride + i; };
-  std::fill(fx.begin(), fx.end(), 0.0);
-  std::fill(fy.begin(), fy.end(), 0.0);
-  std::fill(outsum.begin(), outsum.end(), 0.0);
-  bool moved = false;
+  forRowBlocks(exec, h, n, [&](int r0, int r1) {
+    for (int j = r0; j < r1; ++j)
+      for (int i = 0; i < w; ++i) {
+        const Eigen::Vector2d p = terrain.nodePosition(i0 + i, j0 + j);
+        const double dx = p.x() - f.c.x(), dy = p.y() - f.c.y();
+        const double lat = dx * f.e_h.x() + dy * f.e_h.y();
+        const double s = dx * f.n_h.x() + dy * f.n_h.y();
+        mp[idx(i, j)] = (std::abs(lat) <= f.half_lat + 0.5 * res && s <= 0.0 && s > -back_band) ? 1 : 0;
+      }
+  });
   // Edge fluxes (positive = from (i, j) to the +x / +y neighbour); only loose soil slides.
-  for (int j = 0; j < h; ++j) {
-    const double* Hr = Hg + gidx(0, j);
-    const double* Lr = Lg + gidx(0, j);
-    for (int i = 0; i < w; ++i) {
-      const std::size_t a = idx(i, j);
-      if (mp[a]) continue;
-      const double ha = Hr[i];
-      const bool la = Lr[i] > 0.0;
-      if (i + 1 < w && !mp[a + 1] && (la || Lr[i + 1] > 0.0)) {
-        const double dh = ha - Hr[i + 1];
-        const double ex = std::abs(dh) - max_step;
-        if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + 1]) > 0.0) {
-          const double q = 0.25 * ex;
-          fxp[a] = dh > 0 ? q : -q;
-          op[dh > 0 ? a : a + 1] += q;
-          moved = true;
+  std::atomic<bool> moved_any{false};
+  forRowBlocks(exec, h, n, [&](int r0, int r1) {
+    bool moved = false;
+    for (int j = r0; j < r1; ++j) {
+      const double* Hr = Hg + gidx(0, j);
+      const double* Lr = Lg + gidx(0, j);
+      for (int i = 0; i < w; ++i) {
+        const std::size_t a = idx(i, j);
+        fxp[a] = 0.0;
+        fyp[a] = 0.0;
+        if (mp[a]) continue;
+        const double ha = Hr[i];
+        const bool la = Lr[i] > 0.0;
+        if (i + 1 < w && !mp[a + 1] && (la || Lr[i + 1] > 0.0)) {
+          const double dh = ha - Hr[i + 1];
+          const double ex = std::abs(dh) - max_step;
+          if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + 1]) > 0.0) {
+            const double q = 0.25 * ex;
+            fxp[a] = dh > 0 ? q : -q;
+            moved = true;
+          }
         }
-      }
-      const std::size_t b = a + static_cast<std::size_t>(w);
-      if (j + 1 < h && !mp[b] && (la || Lr[i + stride] > 0.0)) {
-        const double dh = ha - Hr[i + stride];
-        const double ex = std::abs(dh) - max_step;
-        if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + stride]) > 0.0) {
-          const double q = 0.25 * ex;
-          fyp[a] = dh > 0 ? q : -q;
-          op[dh > 0 ? a : b] += q;
-          moved = true;
+        const std::size_t b = a + static_cast<std::size_t>(w);
+        if (j + 1 < h && !mp[b] && (la || Lr[i + stride] > 0.0)) {
+          const double dh = ha - Hr[i + stride];
+          const double ex = std::abs(dh) - max_step;
+          if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + stride]) > 0.0) {
+            const double q = 0.25 * ex;
+            fyp[a] = dh > 0 ? q : -q;
+            moved = true;
+          }
         }
       }
     }
-  }
-  if (!moved) return false;
-  // Scale: a node gives at most the loose soil it has (bank soil does not slide).
-  for (int j = 0; j < h; ++j) {
-    const double* Lr = Lg + gidx(0, j);
-    for (int i = 0; i < w; ++i) {
-      const std::size_t k = idx(i, j);
-      const double o = op[k];
-      op[k] = (o > Lr[i] && o > 0) ? Lr[i] / o : 1.0;
+    if (moved) moved_any.store(true, std::memory_order_relaxed);
+  });
+  if (!moved_any.load()) return false;
+  // Outflow of each node, summed in raster order of the edges (the -y edge, the -x edge, the
+  // +x edge, the +y edge), then turned into a scale: a node gives at most the loose soil it
+  // has (bank soil does not slide).
+  forRowBlocks(exec, h, n, [&](int r0, int r1) {
+    for (int j = r0; j < r1; ++j) {
+      const double* Lr = Lg + gidx(0, j);
+      for (int i = 0; i < w; ++i) {
+        const std::size_t k = idx(i, j);
+        double o = 0.0;
+        if (j > 0 && fyp[k - w] < 0) o += -fyp[k - w];
+        if (i > 0 && fxp[k - 1] < 0) o += -fxp[k - 1];
+        if (fxp[k] > 0) o += fxp[k];
+        if (fyp[k] > 0) o += fyp[k];
+        op[k] = (o > Lr[i] && o > 0) ? Lr[i] / o : 1.0;
+      }
     }
-  }
+  });
   for (int j = 0; j < h; ++j) {
     for (int i = 0; i < w; ++i) {
       const std::size_t a = idx(i, j);
@@ -146,7 +177,7 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
 
 BladeForce bladeSoilForce(const TruthTerrain& terrain, const SoilField& soil, const Eigen::Isometry3d& T_map_blade,
                           const BladeGeometry& blade, double edge_thickness_m, int slices, double normal_speed_mps,
-                          double edge_vz_mps, double accel_mps2) {
+                          double edge_vz_mps, double accel_mps2, const Executor* exec) {
   BladeForce out;
   const BladeFrame f = frameOf(T_map_blade, blade);
   out.push_dir = f.n_h;
@@ -155,13 +186,26 @@ BladeForce bladeSoilForce(const TruthTerrain& terrain, const SoilField& soil, co
   const double ds = blade.width_m / slices;
   const double res = terrain.resolution();
   const double q_step = std::max(res, 0.04);
-  FeeTruth& tr = out.truth;
-  double wsum = 0, a_alpha = 0, a_rho = 0, a_d = 0, a_c = 0, a_phi = 0, a_g = 0, a_ca = 0, a_delta = 0, a_beta = 0;
-  for (int k = 0; k < slices; ++k) {
+  // Each slice only reads the terrain and the soil, so the slices are evaluated independently
+  // (in parallel when an executor is given) into one record each; the records are then summed
+  // serially in slice order, with the same expressions as a single serial loop, so the result
+  // is bit-identical for any thread count.
+  struct Slice {
+    int kind = 0;  // 0: nothing, 1: pushing a loose pile, 2: cutting
+    double q = 0, pile = 0, alpha = 0, rho_s = 0, d = 0, beta = 0, f_in = 0, qb = 0;
+    Eigen::Vector2d F = Eigen::Vector2d::Zero();
+    bool valid = false;
+    const SoilProperties* sp = nullptr;
+  };
+  thread_local std::vector<Slice> rec;
+  rec.assign(static_cast<std::size_t>(slices), Slice{});
+  Slice* recp = rec.data();
+  auto evalSlice = [&](int k) {
+    Slice& o = recp[k];
     const double ys = -0.5 * blade.width_m + (k + 0.5) * ds;
     const Eigen::Vector3d pe = f.c + f.yb * ys;
     const double ue = terrain.undisturbedAt(pe.x(), pe.y());
-    if (std::isnan(ue)) continue;
+    if (std::isnan(ue)) return;
     // Surcharge: loose soil (bank-equivalent thickness) ahead of the slice within 1 m.
     double lc_sum = 0.0;
     for (double l = 0.5 * q_step; l < 1.0; l += q_step) {
@@ -194,9 +238,15 @@ BladeForce bladeSoilForce(const TruthTerrain& terrain, const SoilField& soil, co
     if (depth_v <= 1e-4) {
       // Not cutting: pushing a loose pile only if the edge is below the pile surface.
       const double hf = terrain.heightAt(pe.x() + f.n_h.x() * res, pe.y() + f.n_h.y() * res);
-      if (q > 0 && !std::isnan(hf) && hf > pe.z()) out.fee_map -= f.n_h * (q * std::tan(sp.repose_rad));
-      continue;
+      if (q > 0 && !std::isnan(hf) && hf > pe.z()) {
+        o.kind = 1;
+        o.pile = q * std::tan(sp.repose_rad);
+      }
+      return;
     }
+    o.kind = 2;
+    o.sp = &sp;
+    o.q = q;
     const double alpha = std::atan(slope);
     const double d = depth_v * std::cos(alpha);
     // fee.hpp measures the rake from the soil surface (rho = alpha + face angle from the
@@ -211,31 +261,52 @@ BladeForce bladeSoilForce(const TruthTerrain& terrain, const SoilField& soil, co
     double beta = fee::betaMin(sp.fee, g);
     if (!std::isfinite(beta)) beta = fee::betaNominal(sp.fee);
     const fee::Result r = fee::evaluate(sp.fee, g, beta);
-    ++tr.cutting_slices;
-    if (!r.valid()) {
-      ++tr.invalid_slices;
-    } else {
-      // F_total is the blade's force on the soil in (push, up); the soil pushes back.
-      out.fee_map -= f.n_h * r.F_total_N.x() + Eigen::Vector3d::UnitZ() * r.F_total_N.y();
-    }
+    o.valid = r.valid();
+    if (o.valid) o.F = r.F_total_N;
     if (normal_speed_mps > 0) {
       const double mass_flux = sp.fee.gamma_n_m3 / kG * d * ds * normal_speed_mps;  // kg/s entering the wedge
-      const double f_in = mass_flux * normal_speed_mps + q / kG * std::max(0.0, accel_mps2);
-      out.inertia_map -= f.n_h * f_in;
+      o.f_in = mass_flux * normal_speed_mps + q / kG * std::max(0.0, accel_mps2);
     }
     if (edge_vz_mps < 0) {
       double nc = 0, nq = 0;
       bearingFactors(sp.fee.phi_rad, nc, nq);
-      const double qb = sp.fee.c_pa * nc + sp.fee.gamma_n_m3 * depth_v * nq;
-      out.penetration_map.z() += qb * edge_thickness_m * ds;
+      o.qb = sp.fee.c_pa * nc + sp.fee.gamma_n_m3 * depth_v * nq;
     }
-    const double w = d;  // depth-weighted summaries
+    o.alpha = alpha; o.rho_s = rho_s; o.d = d; o.beta = beta;
+  };
+  if (exec != nullptr && exec->threads() > 1 && slices > 1) {
+    // A few slices per task: one slice (~8 k instructions) is too small to schedule alone.
+    const int per = std::max(1, (slices + 4 * exec->threads() - 1) / (4 * exec->threads()));
+    const int tasks = (slices + per - 1) / per;
+    exec->forEach(tasks, [&](int t) {
+      for (int k = t * per, e = std::min(slices, k + per); k < e; ++k) evalSlice(k);
+    });
+  } else {
+    for (int k = 0; k < slices; ++k) evalSlice(k);
+  }
+  FeeTruth& tr = out.truth;
+  double wsum = 0, a_alpha = 0, a_rho = 0, a_d = 0, a_c = 0, a_phi = 0, a_g = 0, a_ca = 0, a_delta = 0, a_beta = 0;
+  for (int k = 0; k < slices; ++k) {
+    const Slice& o = recp[k];
+    if (o.kind == 1) out.fee_map -= f.n_h * o.pile;
+    if (o.kind != 2) continue;
+    const SoilProperties& sp = *o.sp;
+    ++tr.cutting_slices;
+    if (!o.valid) {
+      ++tr.invalid_slices;
+    } else {
+      // F_total is the blade's force on the soil in (push, up); the soil pushes back.
+      out.fee_map -= f.n_h * o.F.x() + Eigen::Vector3d::UnitZ() * o.F.y();
+    }
+    if (normal_speed_mps > 0) out.inertia_map -= f.n_h * o.f_in;
+    if (edge_vz_mps < 0) out.penetration_map.z() += o.qb * edge_thickness_m * ds;
+    const double w = o.d;  // depth-weighted summaries
     wsum += w;
-    a_alpha += w * alpha; a_rho += w * rho_s; a_d += w * d; a_beta += w * beta;
+    a_alpha += w * o.alpha; a_rho += w * o.rho_s; a_d += w * o.d; a_beta += w * o.beta;
     a_c += w * sp.fee.c_pa; a_phi += w * sp.fee.phi_rad; a_g += w * sp.fee.gamma_n_m3;
     a_ca += w * sp.fee.ca_pa; a_delta += w * sp.fee.delta_rad;
     tr.width_m += ds;
-    tr.q_n += q;
+    tr.q_n += o.q;
   }
   if (wsum > 0) {
     tr.alpha_rad = a_alpha / wsum; tr.rho_rad = a_rho / wsum; tr.depth_m = a_d / wsum; tr.beta_rad = a_beta / wsum;
@@ -328,7 +399,8 @@ CutResult cutAndPush(TruthTerrain& terrain, const SoilField& soil, const Eigen::
 }
 
 CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::Isometry3d& T_map_blade,
-                     const BladeGeometry& blade, double ahead_m, double side_m, int iterations) {
+                     const BladeGeometry& blade, double ahead_m, double side_m, int iterations,
+                     const Executor* exec) {
   CutResult out;
   const BladeFrame f = frameOf(T_map_blade, blade);
   if (!f.ok) return out;
@@ -370,7 +442,7 @@ CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   for (int it = 0; it < iterations; ++it) {
     const int si0 = std::max(i0, li0 - 1 - it), si1 = std::min(i1, li1 + 1 + it);
     const int sj0 = std::max(j0, lj0 - 1 - it), sj1 = std::min(j1, lj1 + 1 + it);
-    if (!relaxSweep(terrain, f, res, back_band, max_step, si0, sj0, si1, sj1)) break;
+    if (!relaxSweep(terrain, f, res, back_band, max_step, si0, sj0, si1, sj1, exec)) break;
     if (out.i1 < out.i0) {
       out.i0 = si0; out.j0 = sj0; out.i1 = si1; out.j1 = sj1;
     } else {

@@ -83,7 +83,7 @@ void Simulator::physicsStep(double dt, bool relax) {
     m.last_cmd = m.controller.update(dt, m.ctl);
     const Eigen::Isometry3d T_old = m.ctl.T_map_blade();
     const BladeForce bf = bladeSoilForce(terrain_, soil_, T_old, spec.blade, spec.edge_thickness_m, spec.blade_slices,
-                                         m.edge_vn, m.edge_vz, m.edge_acc);
+                                         m.edge_vn, m.edge_vz, m.edge_acc, &exec_);
     const Eigen::Vector3d fwd = m.ctl.T_map_base().linear().col(0);
     const Eigen::Vector3d fwd_h = Eigen::Vector3d(fwd.x(), fwd.y(), 0).normalized();
     const Eigen::Vector3d resisting = bf.fee_map + bf.inertia_map;
@@ -106,7 +106,7 @@ void Simulator::physicsStep(double dt, bool relax) {
     const CutResult cut = cutAndPush(terrain_, soil_, T_old, T_new, spec.blade, spec.blade_slices);
     m.truth.cut_bank_m3 += cut.cut_bank_m3;
     markDirty(cut);
-    if (relax) markDirty(relaxLoose(terrain_, soil_, T_new, spec.blade, 1.5, 0.5, 2));
+    if (relax) markDirty(relaxLoose(terrain_, soil_, T_new, spec.blade, 1.5, 0.5, 2, &exec_));
     const Eigen::Vector3d dv = (T_new.translation() - T_old.translation()) / dt;
     const double vn = dv.dot(bf.push_dir);
     m.edge_acc = (vn - m.edge_vn) / dt;

@@ -14,6 +14,7 @@
 /// Frames: map (z up); blade frame as in core/events.hpp (x = face normal forward, y along the
 /// edge to the left, z up the face). Forces in newtons, map frame, *soil on blade*.
 #include <terramap/core/events.hpp>
+#include <terramap/core/parallel.hpp>
 #include <terramap/sim/truth_terrain.hpp>
 #include <terramap/sim/world.hpp>
 
@@ -47,9 +48,13 @@ struct BladeForce {
 /// \param edge_vz_mps vertical speed of the cutting edge (< 0 = descending into the soil)
 /// \param accel_mps2 blade acceleration along push_dir (surcharge inertia)
 /// \param slices number of slices across the width (>= 1)
+/// \param exec optional executor: the slices are evaluated on it (nullptr = inline); the
+///        per-slice results are summed serially in slice order, so the result is bit-identical
+///        for any thread count.
 BladeForce bladeSoilForce(const TruthTerrain& terrain, const SoilField& soil, const Eigen::Isometry3d& T_map_blade,
                           const BladeGeometry& blade, double edge_thickness_m, int slices,
-                          double normal_speed_mps, double edge_vz_mps, double accel_mps2);
+                          double normal_speed_mps, double edge_vz_mps, double accel_mps2,
+                          const Executor* exec = nullptr);
 
 /// Result of one cut-and-push step (volumes in m^3 of bank-equivalent soil).
 struct CutResult {
@@ -70,7 +75,11 @@ CutResult cutAndPush(TruthTerrain& terrain, const SoilField& soil, const Eigen::
 /// node has, so the result does not depend on iteration order). Nodes under the blade (a band
 /// one node thick or more behind the edge) neither give nor take soil, so nothing flows
 /// through the blade. Returns the changed node box.
+/// \param exec optional executor for the row-parallel passes of each sweep (masks, fluxes,
+///        outflow limits); the moves themselves are applied serially in raster order, so the
+///        result is bit-identical for any thread count (nullptr = all inline).
 CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::Isometry3d& T_map_blade,
-                     const BladeGeometry& blade, double ahead_m, double side_m, int iterations);
+                     const BladeGeometry& blade, double ahead_m, double side_m, int iterations,
+                     const Executor* exec = nullptr);
 
 }  // namespace terramap::sim
