@@ -157,12 +157,14 @@ __attribute__((target("avx2"))) void gateAvx2(const PointXYZI* pts, int n, const
                   z = dot4(r20, r21, r22, tz, px, py, pz);
     const __m256d dz = _mm256_sub_pd(z, tz);
     __m256d high = _mm256_cmp_pd(dz, max_h, _CMP_GT_OQ);
-    if (k.ramp) {
+    const __m256d above_c = _mm256_cmp_pd(dz, rc, _CMP_GT_OQ);
+    // Only lanes above c can fail the ramp (as in gateOne); ground points rarely are.
+    if (k.ramp && _mm256_movemask_pd(above_c) != 0) {
       const __m256d ex = _mm256_sub_pd(x, tx), ey = _mm256_sub_pd(y, ty);
       const __m256d dxy = _mm256_sqrt_pd(_mm256_add_pd(_mm256_mul_pd(ex, ex), _mm256_mul_pd(ey, ey)));
       // max(zero, v) returns v when both are zeros or v is NaN, as std::max(v, 0.0) does.
       const __m256d lim = _mm256_add_pd(_mm256_mul_pd(_mm256_max_pd(zero, _mm256_sub_pd(dxy, rb)), ra), rc);
-      high = _mm256_or_pd(high, _mm256_and_pd(_mm256_cmp_pd(dz, rc, _CMP_GT_OQ), _mm256_cmp_pd(dz, lim, _CMP_GT_OQ)));
+      high = _mm256_or_pd(high, _mm256_and_pd(above_c, _mm256_cmp_pd(dz, lim, _CMP_GT_OQ)));
     }
     const __m256d fi = _mm256_div_pd(_mm256_sub_pd(xmax, x), res);
     const __m256d fj = _mm256_div_pd(_mm256_sub_pd(ymax, y), res);
