@@ -1,3 +1,4 @@
+#include "scratch_dir.hpp"
 #include <terramap/core/error.hpp>
 #include <terramap/io/atomic_file.hpp>
 
@@ -22,28 +23,14 @@ namespace tio = terramap::io;
 namespace {
 
 /// A fresh folder per test so directory listings are meaningful.
-class AtomicFileTest : public ::testing::Test {
+class AtomicFileTest : public ScratchDirTest {
  protected:
-  void SetUp() override {
-    dir_ = fs::path(TERRAMAP_BINARY_DIR) / "test_tmp" /
-           ("atomic_" + std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) + "_" +
-            std::to_string(::getpid()));
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
+  AtomicFileTest() : ScratchDirTest("atomic_") {}
 
-  std::vector<std::string> listing() const {
-    std::vector<std::string> names;
-    for (const auto& e : fs::directory_iterator(dir_)) names.push_back(e.path().filename().string());
-    std::sort(names.begin(), names.end());
-    return names;
-  }
   static std::string slurp(const fs::path& p) {
     std::ifstream in(p, std::ios::binary);
     return std::string(std::istreambuf_iterator<char>(in), {});
   }
-  fs::path dir_;
 };
 
 TEST_F(AtomicFileTest, WritesAndReplacesWithoutLeavingTemporaries) {

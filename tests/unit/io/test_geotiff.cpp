@@ -1,3 +1,4 @@
+#include "scratch_dir.hpp"
 #include <terramap/core/error.hpp>
 #include <terramap/core/layered_map.hpp>
 #include <terramap/io/geotiff.hpp>
@@ -24,23 +25,9 @@ namespace {
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
-class GeoTiffTest : public ::testing::Test {
+class GeoTiffTest : public ScratchDirTest {
  protected:
-  void SetUp() override {
-    dir_ = fs::path(TERRAMAP_BINARY_DIR) / "test_tmp" /
-           ("geotiff_" + std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) + "_" +
-            std::to_string(::getpid()));
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-  std::vector<std::string> listing() const {
-    std::vector<std::string> names;
-    for (const auto& e : fs::directory_iterator(dir_)) names.push_back(e.path().filename().string());
-    std::sort(names.begin(), names.end());
-    return names;
-  }
-  fs::path dir_;
+  GeoTiffTest() : ScratchDirTest("geotiff_") {}
 };
 
 /// 3 rows (along x) x 4 columns (along y), 0.5 m cells, centred at (10, 20):

@@ -1,4 +1,5 @@
 // `terramap export` end to end: runs the built CLI binary on snapshots written here.
+#include "scratch_dir.hpp"
 #include <terramap/core/layered_map.hpp>
 #include <terramap/io/geotiff.hpp>
 #include <terramap/io/snapshot.hpp>
@@ -39,15 +40,12 @@ Result terramap(const std::string& args) {
   return r;
 }
 
-class ExportCli : public ::testing::Test {
+class ExportCli : public ScratchDirTest {
  protected:
+  ExportCli() : ScratchDirTest("export_cli_") {}
   void SetUp() override {
     if (!fs::exists(kBinary)) GTEST_SKIP() << "build the 'terramap' target first (" << kBinary << ")";
-    dir_ = fs::path(TERRAMAP_BINARY_DIR) / "test_tmp" /
-           ("export_cli_" + std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) + "_" +
-            std::to_string(::getpid()));
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
+    ScratchDirTest::SetUp();
     LayeredMap m(Geometry(0.5, Size(6, 4), Position(1.0, 2.0)), MapOptions{8, false});
     const LayerId e = m.addLayer("elevation", "m");
     const LayerId v = m.addLayer("variance", "m^2");
@@ -59,11 +57,8 @@ class ExportCli : public ::testing::Test {
     snap_ = dir_ / "map.tmap";
     tio::saveSnapshot(m, snap_);
   }
-  void TearDown() override {
-    if (!dir_.empty()) fs::remove_all(dir_);
-  }
   std::string q(const fs::path& p) const { return "'" + p.string() + "'"; }
-  fs::path dir_, snap_;
+  fs::path snap_;
 };
 
 TEST_F(ExportCli, GeoTiffWithDefaultNameAndEpsg) {

@@ -1,3 +1,4 @@
+#include "scratch_dir.hpp"
 #include <terramap/core/error.hpp>
 #include <terramap/core/layered_map.hpp>
 #include <terramap/io/geotiff.hpp>
@@ -257,17 +258,9 @@ TEST(Render, RefusesBadOptions) {
   EXPECT_THROW(tio::renderLayer(m, "elevaton", {}), LayerError);
 }
 
-class PngTest : public ::testing::Test {
+class PngTest : public ScratchDirTest {
  protected:
-  void SetUp() override {
-    dir_ = fs::path(TERRAMAP_BINARY_DIR) / "test_tmp" /
-           ("png_" + std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) + "_" +
-            std::to_string(::getpid()));
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-  fs::path dir_;
+  PngTest() : ScratchDirTest("png_") {}
 };
 
 TEST_F(PngTest, WrittenPngReadsBackPixelForPixel) {

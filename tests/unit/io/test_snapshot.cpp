@@ -1,3 +1,4 @@
+#include "scratch_dir.hpp"
 #include <terramap/core/error.hpp>
 #include <terramap/core/layered_map.hpp>
 #include <terramap/io/snapshot.hpp>
@@ -78,16 +79,9 @@ LayeredMap makeDenseMap(std::uint32_t seed) {
   return m;
 }
 
-class SnapshotTest : public ::testing::Test {
+class SnapshotTest : public ScratchDirTest {
  protected:
-  void SetUp() override {
-    dir_ = fs::path(TERRAMAP_BINARY_DIR) / "test_tmp" /
-           ("snapshot_" + std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) + "_" +
-            std::to_string(::getpid()));
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
+  SnapshotTest() : ScratchDirTest("snapshot_") {}
   static std::vector<unsigned char> slurp(const fs::path& p) {
     std::ifstream in(p, std::ios::binary);
     return std::vector<unsigned char>(std::istreambuf_iterator<char>(in), {});
@@ -106,7 +100,6 @@ class SnapshotTest : public ::testing::Test {
     ADD_FAILURE() << "decode accepted a bad snapshot";
     return {};
   }
-  fs::path dir_;
 };
 
 std::uint32_t rd32(const std::vector<unsigned char>& b, std::size_t at) {
