@@ -422,10 +422,13 @@ void checkPcdHeader(const std::string& path) {
 
 }  // namespace
 
-std::vector<PointXYZI> readPcd(const std::string& path) {
-  checkPcdHeader(path);
+namespace {
+/// Runs a PCL reader (pcl::PCDReader or pcl::PLYReader, same read() signature) and turns every
+/// way it can fail into an InputError naming the file.
+template <class Reader>
+std::vector<PointXYZI> readWithPcl(const std::string& path, const char* format) {
   pcl::PCLPointCloud2 cloud;
-  pcl::PCDReader reader;
+  Reader reader;
   Eigen::Vector4f origin;
   Eigen::Quaternionf orientation;
   int version = 0;
@@ -433,31 +436,24 @@ std::vector<PointXYZI> readPcd(const std::string& path) {
   try {
     rc = reader.read(path, cloud, origin, orientation, version);
   } catch (const std::exception& e) {  // pcl::PCLException, std::bad_alloc from a bogus count
-    throw InputError("PCD file '" + path + "' could not be parsed by PCL: " + e.what());
+    throw InputError(std::string(format) + " file '" + path + "' could not be parsed by PCL: " + e.what());
   }
   if (rc < 0) {
-    throw InputError("PCD file '" + path + "' could not be parsed by PCL (see PCL's message on stderr for the cause)");
+    throw InputError(std::string(format) + " file '" + path +
+                     "' could not be parsed by PCL (see PCL's message on stderr for the cause)");
   }
-  return convert(cloud, path, "PCD");
+  return convert(cloud, path, format);
+}
+}  // namespace
+
+std::vector<PointXYZI> readPcd(const std::string& path) {
+  checkPcdHeader(path);
+  return readWithPcl<pcl::PCDReader>(path, "PCD");
 }
 
 std::vector<PointXYZI> readPly(const std::string& path) {
   checkPlyBody(path);
-  pcl::PCLPointCloud2 cloud;
-  pcl::PLYReader reader;
-  Eigen::Vector4f origin;
-  Eigen::Quaternionf orientation;
-  int version = 0;
-  int rc = -1;
-  try {
-    rc = reader.read(path, cloud, origin, orientation, version);
-  } catch (const std::exception& e) {  // pcl::PCLException, std::bad_alloc from a bogus count
-    throw InputError("PLY file '" + path + "' could not be parsed by PCL: " + e.what());
-  }
-  if (rc < 0) {
-    throw InputError("PLY file '" + path + "' could not be parsed by PCL (see PCL's message on stderr for the cause)");
-  }
-  return convert(cloud, path, "PLY");
+  return readWithPcl<pcl::PLYReader>(path, "PLY");
 }
 
 }  // namespace terramap::io
