@@ -198,6 +198,10 @@ std::vector<std::string> Engine::validate(const PipelineSpec& spec, const Plugin
 std::unique_ptr<Engine> Engine::fromSpec(const PipelineSpec& spec, const PluginRegistry& registry) {
   const auto errors = validate(spec, registry);
   if (!errors.empty()) throw ConfigError(joinLines(errors));
+  return fromValidatedSpec(spec, registry);
+}
+
+std::unique_ptr<Engine> Engine::fromValidatedSpec(const PipelineSpec& spec, const PluginRegistry& registry) {
   EngineOptions o;
   o.geometry = spec.geometry();
   o.map = spec.map_options;
@@ -259,18 +263,19 @@ void Engine::push(const Event& event) {
     ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
     ctx.setStamp(stamp);
     const auto s0 = std::chrono::steady_clock::now();
-    const std::string who = "stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() + ")";
-    const std::string when = std::string(" on ") + kindName(kind) + " at t=" + std::to_string(stamp);
+    // The context strings are built only when something failed: this loop runs per event.
+    auto who = [&] { return "stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() + ")"; };
+    auto when = [&] { return std::string(" on ") + kindName(kind) + " at t=" + std::to_string(stamp); };
     try {
       st->prepared.plugin->process(ctx, event);
     } catch (const ConfigError& e) {
-      throw ConfigError(who + when + ": " + e.what());
+      throw ConfigError(who() + when() + ": " + e.what());
     } catch (const InputError& e) {
-      throw InputError(who + when + ": " + e.what());
+      throw InputError(who() + when() + ": " + e.what());
     } catch (const LayerError& e) {
-      throw LayerError(who + when + ": " + e.what());
+      throw LayerError(who() + when() + ": " + e.what());
     } catch (const std::exception& e) {
-      throw PluginError(who + " threw" + when + ": " + e.what());
+      throw PluginError(who() + " threw" + when() + ": " + e.what());
     }
     st->stats.wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - s0).count();
     st->stats.events[kindName(kind)] += 1;

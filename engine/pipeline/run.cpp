@@ -36,7 +36,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
     for (const auto& e : errors) all += (all.empty() ? "" : "\n") + e;
     throw ConfigError(all);
   }
-  auto engine = Engine::fromSpec(spec, registry);
+  auto engine = Engine::fromValidatedSpec(spec, registry);  // validated just above
 
   const auto t0 = std::chrono::steady_clock::now();
   long n = 0;

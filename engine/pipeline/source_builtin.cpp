@@ -1,6 +1,7 @@
 // The built-in sources that need other modules: `sequence` (terramap::io) and `sim`.
 #include <terramap/io/sequence.hpp>
 #include <terramap/pipeline/source.hpp>
+#include <terramap/sim/eval.hpp>
 #include <terramap/sim/scenario.hpp>
 #include <terramap/sim/simulator.hpp>
 
@@ -146,14 +147,7 @@ class SimEventSource : public Source {
   const sim::Simulator& simulator() const { return *sim_; }
   bool truth(const std::string& layer, const Geometry& g, Eigen::MatrixXf& out) const override {
     if (layer != "elevation") return false;
-    // The truth surface (undisturbed + loose soil) at each cell centre; NaN off the terrain.
-    const sim::TruthTerrain& t = sim_->truth();
-    out.resize(g.size().x(), g.size().y());
-    for (int i = 0; i < g.size().x(); ++i)
-      for (int j = 0; j < g.size().y(); ++j) {
-        const Position p = g.positionOf(Index(i, j));
-        out(i, j) = static_cast<float>(t.heightAt(p.x(), p.y()));  // NaN off the truth grid
-      }
+    out = sim::truthOnGeometry(sim_->truth(), g);  // surface (bank + loose) at cell centres, NaN off it
     return true;
   }
 

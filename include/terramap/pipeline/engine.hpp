@@ -66,6 +66,9 @@ class TERRAMAP_API Engine {
   /// names, a layer read before anyone writes it, a layer created twice) is collected and
   /// thrown as one ConfigError, one line each.
   static std::unique_ptr<Engine> fromSpec(const PipelineSpec& spec, const PluginRegistry& registry);
+  /// fromSpec without the up-front validate(), for callers that just ran validate() and got no
+  /// errors (it would only repeat the work). Still throws if building fails.
+  static std::unique_ptr<Engine> fromValidatedSpec(const PipelineSpec& spec, const PluginRegistry& registry);
 
   /// Checks a pipeline without building an engine; returns every problem (empty = valid).
   static std::vector<std::string> validate(const PipelineSpec& spec, const PluginRegistry& registry);
