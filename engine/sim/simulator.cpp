@@ -3,6 +3,7 @@
 #include <terramap/sim/simulator.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 
 namespace terramap::sim {
@@ -139,7 +140,9 @@ bool Simulator::next(std::vector<Event>& out) {
   for (int s = 0; s < substeps_; ++s) {
     // Loose soil relaxes once per observation period (2 Jacobi sweeps: spreads 2.4 m/s at 60 Hz
     // and 2 cm, faster than the blade moves).
+    const auto w0 = std::chrono::steady_clock::now();
     physicsStep(dt, s == substeps_ - 1);
+    stats_.physics_wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
     ++phys_step_;
     const double t = static_cast<double>(phys_step_) / sc_.physics_hz;
     // LiDAR scans that are due.
@@ -148,6 +151,7 @@ bool Simulator::next(std::vector<Event>& out) {
       for (auto& L : m.lidars) {
         const SensorSpec& ss = m.ctl.spec().sensors[L.sensor_index];
         if (t + 1e-9 < static_cast<double>(L.next_scan) / ss.rate_hz) continue;
+        const auto w1 = std::chrono::steady_clock::now();
         refreshDirty();
         PointCloud pc;
         pc.stamp = t;
@@ -160,6 +164,7 @@ bool Simulator::next(std::vector<Event>& out) {
         ++stats_.scans;
         ++L.next_scan;
         ev.emplace_back(std::move(pc));
+        stats_.lidar_wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - w1).count();
       }
     }
   }

@@ -72,6 +72,10 @@ class Simulator {
   struct Stats {
     std::uint64_t rays = 0, points = 0, scans = 0, fee_invalid_slices = 0;
     double lost_m3 = 0;
+    /// Wall-clock seconds spent in the machine and soil physics, and in the LiDAR (pyramid
+    /// refresh + ray casting), since construction. For profiling only: never part of an
+    /// episode (they vary run to run).
+    double physics_wall_s = 0, lidar_wall_s = 0;
   };
   const Stats& stats() const { return stats_; }
 
