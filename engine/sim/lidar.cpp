@@ -21,6 +21,66 @@ inline std::uint64_t mix(std::uint64_t x) {
 
 std::uint64_t mixBits(std::uint64_t x) { return mix(x); }
 
+namespace {
+/// Ziggurat tables (Marsaglia & Tsang 2000, "The ziggurat method for generating random
+/// variables", 128 layers): layer i is accepted at once when |j| < k[i], j being a signed
+/// 32-bit draw; w[i] scales j to x; f[i] = exp(-x_i^2 / 2).
+struct Ziggurat {
+  std::uint32_t k[128];
+  double w[128], f[128];
+  static constexpr double kR = 3.442619855899;  // right edge of the base layer
+  Ziggurat() {
+    const double m1 = 2147483648.0, vn = 9.91256303526217e-3;
+    double dn = kR, tn = dn;
+    const double q = vn / std::exp(-0.5 * dn * dn);
+    k[0] = static_cast<std::uint32_t>((dn / q) * m1);
+    k[1] = 0;
+    w[0] = q / m1;
+    w[127] = dn / m1;
+    f[0] = 1.0;
+    f[127] = std::exp(-0.5 * dn * dn);
+    for (int i = 126; i >= 1; --i) {
+      dn = std::sqrt(-2.0 * std::log(vn / dn + std::exp(-0.5 * dn * dn)));
+      k[i + 1] = static_cast<std::uint32_t>((dn / tn) * m1);
+      tn = dn;
+      f[i] = std::exp(-0.5 * dn * dn);
+      w[i] = dn / m1;
+    }
+  }
+};
+const Ziggurat& ziggurat() {
+  static const Ziggurat z;
+  return z;
+}
+}  // namespace
+
+double gaussianFromBits(std::uint64_t h) {
+  const Ziggurat& z = ziggurat();
+  std::uint64_t s = h;
+  for (int draw = 1;; ++draw) {
+    const auto j = static_cast<std::int32_t>(static_cast<std::uint32_t>(s));
+    const int i = static_cast<int>((s >> 32) & 127);
+    const std::uint32_t aj = j < 0 ? static_cast<std::uint32_t>(-static_cast<std::int64_t>(j)) : static_cast<std::uint32_t>(j);
+    const double x = j * z.w[i];
+    if (aj < z.k[i]) return x;
+    if (i == 0) {
+      // Base layer: the tail beyond kR, by Marsaglia's exponential rejection.
+      double xt, yt;
+      do {
+        s = mix(s + static_cast<std::uint64_t>(draw++));
+        xt = -std::log(unitFromBits(s)) / Ziggurat::kR;
+        s = mix(s + static_cast<std::uint64_t>(draw++));
+        yt = -std::log(unitFromBits(s));
+      } while (yt + yt < xt * xt);
+      return j > 0 ? Ziggurat::kR + xt : -Ziggurat::kR - xt;
+    }
+    // Wedge of layer i: accept under the density.
+    s = mix(s + static_cast<std::uint64_t>(draw));
+    if (z.f[i] + unitFromBits(s) * (z.f[i - 1] - z.f[i]) < std::exp(-0.5 * x * x)) return x;
+    s = mix(s ^ 0x632be59bd9b4e019ULL);
+  }
+}
+
 struct LidarModel::Scratch {
   ScanCaster caster;
   std::vector<std::vector<PointXYZI>> parts;
@@ -127,10 +187,7 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
         const Eigen::Vector2d g = terrain.cellGradient(ci, cj, p.x(), p.y());
         const float inten = static_cast<float>(std::abs(dm.z() - g.x() * dm.x() - g.y() * dm.y()) /
                                                std::sqrt(1.0 + g.x() * g.x() + g.y() * g.y()));
-        if (spec_.range_noise_m > 0) {
-          const double u1 = unitFromBits(h), u2 = unitFromBits(mix(h + 1));
-          t += spec_.range_noise_m * std::sqrt(-2.0 * std::log(u1)) * std::cos(2 * M_PI * u2);
-        }
+        if (spec_.range_noise_m > 0) t += spec_.range_noise_m * gaussianFromBits(h);
         pts.push_back({static_cast<float>(ds.x() * t), static_cast<float>(ds.y() * t), static_cast<float>(ds.z() * t), inten});
       }
     }

@@ -163,40 +163,44 @@ void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origi
   };
   if (exec && parts > 1) exec->forEach(parts, insertRows);
   else serialForEach(parts, insertRows);
-  if (parts > 1) {
-    // Merge by maximum (exact, order-free): the same table for any number of parts.
-    bound_.resize(cells);
-    auto merge = [&](int p) {
-      const std::size_t k0 = cells * p / parts, k1 = cells * (p + 1) / parts;
-      float* out = bound_.data();
-      for (std::size_t k = k0; k < k1; ++k) {
-        float m = parts_[0][k];
-        for (int q = 1; q < parts; ++q) m = std::max(m, parts_[q][k]);
-        out[k] = m;
-      }
-    };
-    if (exec) exec->forEach(parts, merge);
-    else serialForEach(parts, merge);
-  }
-  group_.assign(static_cast<std::size_t>(na_) * ng_, kNegInf);
+  // Per azimuth row: merge the parts by maximum (exact, order-free: the same table for any
+  // number of parts), then the group maxima, running maxima and row maximum. Rows are
+  // independent, so this runs in blocks of rows on the executor too.
+  if (parts > 1) bound_.resize(cells);
+  group_.resize(static_cast<std::size_t>(na_) * ng_);
   prefix_.resize(cells);
-  row_.assign(na_, kNegInf);
-  for (int a = 0; a < na_; ++a) {
-    const float* b = &bound_[static_cast<std::size_t>(a) * nr_];
-    float* pre = &prefix_[static_cast<std::size_t>(a) * nr_];
-    float rm = kNegInf;
-    for (int g = 0; g < ng_; ++g) {
-      float m = kNegInf;
-      const int e = std::min(nr_, (g + 1) * kGroup);
-      for (int r = g * kGroup; r < e; ++r) {
-        m = std::max(m, b[r]);
-        rm = std::max(rm, b[r]);
-        pre[r] = rm;
+  row_.resize(na_);
+  constexpr int kRowsPerTask = 64;
+  auto finishRows = [&](int task) {
+    const int a0 = task * kRowsPerTask, a1 = std::min(na_, a0 + kRowsPerTask);
+    for (int a = a0; a < a1; ++a) {
+      float* b = &bound_[static_cast<std::size_t>(a) * nr_];
+      if (parts > 1) {
+        for (int r = 0; r < nr_; ++r) {
+          const std::size_t k = static_cast<std::size_t>(a) * nr_ + r;
+          float m = parts_[0][k];
+          for (int q = 1; q < parts; ++q) m = std::max(m, parts_[q][k]);
+          b[r] = m;
+        }
       }
-      group_[static_cast<std::size_t>(a) * ng_ + g] = m;
+      float* pre = &prefix_[static_cast<std::size_t>(a) * nr_];
+      float rm = kNegInf;
+      for (int g = 0; g < ng_; ++g) {
+        float m = kNegInf;
+        const int e = std::min(nr_, (g + 1) * kGroup);
+        for (int r = g * kGroup; r < e; ++r) {
+          m = std::max(m, b[r]);
+          rm = std::max(rm, b[r]);
+          pre[r] = rm;
+        }
+        group_[static_cast<std::size_t>(a) * ng_ + g] = m;
+      }
+      row_[a] = rm;
     }
-    row_[a] = rm;
-  }
+  };
+  const int tasks = (na_ + kRowsPerTask - 1) / kRowsPerTask;
+  if (exec && exec->threads() > 1) exec->forEach(tasks, finishRows);
+  else serialForEach(tasks, finishRows);
 }
 
 inline ScanCaster::Ray ScanCaster::prepare(const Eigen::Vector3d& d, double t_min, double t_max) const {
@@ -243,11 +247,14 @@ inline ScanCaster::Ray ScanCaster::prepare(const Eigen::Vector3d& d, double t_mi
   // First bin whose running maximum from the origin reaches m (binary search: the running
   // maximum never decreases). If it lies past r_first, every bin in between is clear.
   const float* pre = &prefix_[static_cast<std::size_t>(ray.a) * nr_];
-  int lo = 0, hi = nr_;  // pre[nr_] counts as >= m
-  while (lo < hi) {
-    const int mid = (lo + hi) >> 1;
-    if (ray.m > pre[mid]) lo = mid + 1;
-    else hi = mid;
+  // Branch-free halving (the comparisons are unpredictable from ray to ray); pre[nr_] counts
+  // as >= m.
+  int lo = 0, len = nr_;
+  while (len > 0) {
+    const int half = len >> 1;
+    const bool right = ray.m > pre[lo + half];
+    lo = right ? lo + half + 1 : lo;
+    len = right ? len - half - 1 : half;
   }
   ray.r = std::max(r_first, lo);
   ray.mode = Ray::Bins;

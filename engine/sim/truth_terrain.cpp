@@ -404,7 +404,11 @@ double TruthTerrain::castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& 
   if (!(t_b >= t_a)) return kNaN;
   // Cell of the start point (clamped: the caller clipped [t_a, t_b] to the grid, so only
   // rounding can put it a hair outside).
-  const double px = (o.x() + d.x() * t_a - ox_) / res_, py = (o.y() + d.y() * t_a - oy_) / res_;
+  // Two divisions instead of six (this runs ~45k times per LiDAR scan): the reciprocals
+  // below differ from the quotients by an ulp at most, and a root at a cell boundary is found
+  // by either neighbouring cell.
+  const double inv_res = 1.0 / res_;
+  const double px = (o.x() + d.x() * t_a - ox_) * inv_res, py = (o.y() + d.y() * t_a - oy_) * inv_res;
   // Truncation equals floor here once clamped to >= 0 (and avoids a libm floor call).
   int ci = std::clamp(static_cast<int>(std::clamp(px, -1.0, static_cast<double>(nx_))), 0, nx_ - 2);
   int cj = std::clamp(static_cast<int>(std::clamp(py, -1.0, static_cast<double>(ny_))), 0, ny_ - 2);
@@ -412,10 +416,11 @@ double TruthTerrain::castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& 
   // Ray parameter of the next cell boundary in x / y: exact (as in the pyramid walk and the
   // reference) for the first boundary, then stepped by res / |d| (the walk is short, so the
   // accumulated rounding stays ~1e-15 relative; a root at a boundary is found by either cell).
-  const double tx0 = d.x() != 0.0 ? (ox_ + (ci + (sx > 0 ? 1 : 0)) * res_ - o.x()) / d.x() : INFINITY;
-  const double ty0 = d.y() != 0.0 ? (oy_ + (cj + (sy > 0 ? 1 : 0)) * res_ - o.y()) / d.y() : INFINITY;
-  const double dtx = d.x() != 0.0 ? res_ / std::abs(d.x()) : INFINITY;
-  const double dty = d.y() != 0.0 ? res_ / std::abs(d.y()) : INFINITY;
+  const double inv_dx = d.x() != 0.0 ? 1.0 / d.x() : 0.0, inv_dy = d.y() != 0.0 ? 1.0 / d.y() : 0.0;
+  const double tx0 = d.x() != 0.0 ? (ox_ + (ci + (sx > 0 ? 1 : 0)) * res_ - o.x()) * inv_dx : INFINITY;
+  const double ty0 = d.y() != 0.0 ? (oy_ + (cj + (sy > 0 ? 1 : 0)) * res_ - o.y()) * inv_dy : INFINITY;
+  const double dtx = d.x() != 0.0 ? res_ * std::abs(inv_dx) : INFINITY;
+  const double dty = d.y() != 0.0 ? res_ * std::abs(inv_dy) : INFINITY;
   double tx = tx0, ty = ty0;
   double t = t_a;
   double za = o.z() + d.z() * t;

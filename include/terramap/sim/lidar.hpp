@@ -22,6 +22,10 @@ namespace terramap::sim {
 std::uint64_t mixBits(std::uint64_t x);
 /// Uniform (0, 1) from a 64-bit hash.
 inline double unitFromBits(std::uint64_t h) { return (static_cast<double>(h >> 11) + 0.5) * (1.0 / 9007199254740992.0); }
+/// Standard normal deviate from a 64-bit hash (Marsaglia-Tsang ziggurat, 128 layers): ~99 % of
+/// draws cost a table look-up and a multiply; the rest draw further bits from mixBits(h + k).
+/// Deterministic in `h`, thread-safe.
+double gaussianFromBits(std::uint64_t h);
 
 class LidarModel {
  public:
