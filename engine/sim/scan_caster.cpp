@@ -37,11 +37,10 @@ inline double pseudoAngle(double x, double y) {
 inline float upperBound(double v) {
   if (std::isinf(v)) return static_cast<float>(v);
   v += std::abs(v) * 1e-6 + 1e-7;
-  // Float rounding may go down by half an ulp; the margin above is far larger, so step up by
-  // one ulp-sized relative amount instead of calling nextafter.
-  float f = static_cast<float>(v);
-  if (static_cast<double>(f) < v) f += std::abs(f) * 1.2e-7f + 1e-30f;
-  return f;
+  // Float rounding may go down by half an ulp: always step up by an ulp-sized relative amount
+  // (cheaper than nextafter, and than a branch on the rounding direction, which is random).
+  const float f = static_cast<float>(v);
+  return f + (std::abs(f) * 1.2e-7f + 1e-30f);
 }
 
 }  // namespace
@@ -83,26 +82,40 @@ void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origi
   const double gx0 = terrain.originX() - o_.x(), gy0 = terrain.originY() - o_.y();
   const double gx1 = terrain.maxX() - o_.x(), gy1 = terrain.maxY() - o_.y();
   const double az_scale = na_ / 4.0;
-  const int parts = exec ? std::max(1, std::min(exec->threads(), H)) : 1;
-  if (static_cast<int>(parts_.size()) < parts) parts_.resize(parts);
-  if (parts == 1) parts_.resize(1);
+  // With several threads the table is split by azimuth into the four quadrants (pseudo-angle
+  // [q, q + 1)): each task writes only its own bins of the one table (no per-task tables to
+  // clear and merge) and walks only the blocks that can reach its quadrant: those on its side
+  // of the origin's row and column, plus two rows / columns of overlap (a block two blocks off
+  // an axis is at least two bins away from the neighbouring quadrant, for any reach allowed by
+  // kMaxBlocks). Four uneven tasks balance well enough on two threads by stealing.
+  const int parts = (exec && exec->threads() > 1 && H > 1 && W > 1) ? 4 : 1;
+  const int quarter = na_ / 4;
   auto insertRows = [&](int p) {
-    std::vector<float>& tbl = parts == 1 ? bound_ : parts_[p];
-    tbl.assign(cells, kNegInf);
-    const int by0 = static_cast<int>(static_cast<long>(H) * p / parts);
-    const int by1 = static_cast<int>(static_cast<long>(H) * (p + 1) / parts);
+    std::vector<float>& tbl = bound_;
+    int by0 = 0, by1 = H, bx0 = 0, bx1 = W;
+    const int bin0 = parts == 4 ? p * quarter : 0, bin1 = parts == 4 ? (p + 1) * quarter : na_;
+    std::fill(tbl.begin() + static_cast<std::ptrdiff_t>(bin0) * nr_, tbl.begin() + static_cast<std::ptrdiff_t>(bin1) * nr_, kNegInf);
+    if (parts == 4) {
+      // Block (bx, by) spans [gx0 + bx bs, gx0 + (bx + 1) bs] x [gy0 + by bs, ...] around the origin.
+      const int axis_x = static_cast<int>(std::floor(-gx0 / bs)), axis_y = static_cast<int>(std::floor(-gy0 / bs));
+      const bool east = p == 0 || p == 3, north = p == 0 || p == 1;
+      if (east) bx0 = std::clamp(axis_x - 2, 0, W);
+      else bx1 = std::clamp(axis_x + 3, 0, W);
+      if (north) by0 = std::clamp(axis_y - 2, 0, H);
+      else by1 = std::clamp(axis_y + 3, 0, H);
+    }
     std::vector<double> pa0(W + 1), pa1(W + 1);
     for (int by = by0; by < by1; ++by) {
       const double y0 = gy0 + by * bs, y1 = std::min(gy0 + (by + 1) * bs, gy1);
       const double dyn = y0 > 0 ? y0 : (y1 < 0 ? -y1 : 0.0);
       const double dyf = std::max(std::abs(y0), std::abs(y1));
       // Pseudo-angles of this row's block corners (shared by neighbouring blocks).
-      for (int k = 0; k <= W; ++k) {
+      for (int k = bx0; k <= bx1; ++k) {
         const double x = std::min(gx0 + k * bs, gx1);
         pa0[k] = (x != 0.0 || y0 != 0.0) ? pseudoAngle(x, y0) : 0.0;
         pa1[k] = (x != 0.0 || y1 != 0.0) ? pseudoAngle(x, y1) : 0.0;
       }
-      for (int bx = 0; bx < W; ++bx) {
+      for (int bx = bx0; bx < bx1; ++bx) {
         const double x0 = gx0 + bx * bs, x1 = std::min(gx0 + (bx + 1) * bs, gx1);
         const double dxn = x0 > 0 ? x0 : (x1 < 0 ? -x1 : 0.0);
         const double smin = std::sqrt(dxn * dxn + dyn * dyn);
@@ -154,6 +167,7 @@ void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origi
         const float tail = dz > 0 ? fv[nrr - 1] : upperBound(dz / smax);
         for (int a = a0; a <= a1; ++a) {
           const int aw = a < 0 ? a + na_ : (a >= na_ ? a - na_ : a);
+          if (aw < bin0 || aw >= bin1) continue;
           float* slot = &tbl[static_cast<std::size_t>(aw) * nr_ + r0];
           for (int q = 0; q < nrr; ++q) slot[q] = std::max(slot[q], fv[q]);
           for (int q = nrr; q <= r1 - r0; ++q) slot[q] = std::max(slot[q], tail);
@@ -161,12 +175,12 @@ void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origi
       }
     }
   };
+  bound_.resize(cells);
   if (exec && parts > 1) exec->forEach(parts, insertRows);
   else serialForEach(parts, insertRows);
-  // Per azimuth row: merge the parts by maximum (exact, order-free: the same table for any
-  // number of parts), then the group maxima, running maxima and row maximum. Rows are
-  // independent, so this runs in blocks of rows on the executor too.
-  if (parts > 1) bound_.resize(cells);
+  // Per azimuth row: the group maxima, running maxima and row maximum. Rows are independent,
+  // so this runs in blocks of rows on the executor too. The table is the same for any number
+  // of parts (each bin is a maximum over the same blocks).
   group_.resize(static_cast<std::size_t>(na_) * ng_);
   prefix_.resize(cells);
   row_.resize(na_);
@@ -174,15 +188,7 @@ void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origi
   auto finishRows = [&](int task) {
     const int a0 = task * kRowsPerTask, a1 = std::min(na_, a0 + kRowsPerTask);
     for (int a = a0; a < a1; ++a) {
-      float* b = &bound_[static_cast<std::size_t>(a) * nr_];
-      if (parts > 1) {
-        for (int r = 0; r < nr_; ++r) {
-          const std::size_t k = static_cast<std::size_t>(a) * nr_ + r;
-          float m = parts_[0][k];
-          for (int q = 1; q < parts; ++q) m = std::max(m, parts_[q][k]);
-          b[r] = m;
-        }
-      }
+      const float* b = &bound_[static_cast<std::size_t>(a) * nr_];
       float* pre = &prefix_[static_cast<std::size_t>(a) * nr_];
       float rm = kNegInf;
       for (int g = 0; g < ng_; ++g) {

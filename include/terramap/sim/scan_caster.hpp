@@ -84,7 +84,6 @@ class ScanCaster {
   std::vector<float> group_;      ///< [a * ng_ + g]: max of bound_ over kGroup range bins
   std::vector<float> prefix_;     ///< [a * nr_ + r]: max of bound_ over range bins 0..r
   std::vector<float> row_;        ///< [a]: max over the row
-  std::vector<std::vector<float>> parts_;  ///< per-task tables, merged by max
 };
 
 }  // namespace terramap::sim

@@ -128,3 +128,43 @@ TEST(ScanCaster, SeesTerrainChangesAfterARebuild) {
   EXPECT_LT(after, 0.55 * before);
   EXPECT_NEAR(after, t.raycastReference(o, d, 0, 20), 1e-12);
 }
+
+TEST(ScanCaster, TableBuiltInQuadrantTasksEqualsTheSerialOne) {
+  // With an executor the table is filled by four azimuth-quadrant tasks that each walk only the
+  // blocks near their side of the origin: the casts must be bit-identical to the serial build's
+  // and exact, for origins inside, on block boundaries and outside the grid on every side.
+  const TruthTerrain t = roughTerrain(11);
+  Executor ex(2);
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> U(-1, 1);
+  std::vector<Eigen::Vector3d> dirs;
+  for (int k = 0; k < 400; ++k) dirs.push_back(Eigen::Vector3d(U(rng), U(rng), U(rng) - 0.5).normalized());
+  // Rays grazing the quadrant boundaries (the origin's axes).
+  for (const double e : {0.0, 1e-7, -1e-7})
+    for (const Eigen::Vector3d& a : {Eigen::Vector3d(1, e, -0.2), Eigen::Vector3d(-1, e, -0.2), Eigen::Vector3d(e, 1, -0.2),
+                                     Eigen::Vector3d(e, -1, -0.2)})
+      dirs.push_back(a.normalized());
+  const double bs = 0.32;  // 16 cells of 2 cm: the table's block size here
+  const std::vector<Eigen::Vector3d> origins = {
+      {0.1, 0.2, 1.2},  {-3 + 5 * bs, -2 + 3 * bs, 0.8},  // on a block corner
+      {-4.0, 0.3, 1.0}, {4.0, -0.3, 1.0}, {0.5, -3.5, 1.0}, {-0.5, 3.5, 1.0}, {-5, -4, 2.0}, {5, 4, 0.4}};
+  int hits = 0;
+  for (const Eigen::Vector3d& o : origins) {
+    for (const double max_range : {40.0, 2.0}) {
+      ScanCaster serial, quads;
+      serial.build(t, o, max_range);
+      quads.build(t, o, max_range, -std::numeric_limits<double>::infinity(), &ex);
+      for (const auto& d : dirs) {
+        const double a = serial.cast(d, 0.0, max_range), b = quads.cast(d, 0.0, max_range);
+        const double r = t.raycastReference(o, d, 0.0, max_range);
+        ASSERT_EQ(std::isnan(a), std::isnan(b)) << o.transpose() << " | " << d.transpose();
+        ASSERT_EQ(std::isnan(a), std::isnan(r)) << o.transpose() << " | " << d.transpose();
+        if (std::isnan(a)) continue;
+        ++hits;
+        ASSERT_EQ(a, b) << o.transpose() << " | " << d.transpose();
+        ASSERT_NEAR(a, r, 1e-12 * std::max(1.0, r));
+      }
+    }
+  }
+  EXPECT_GT(hits, 1000);
+}
