@@ -3,7 +3,6 @@
 #include <terramap/sim/blade_physics.hpp>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 
 namespace terramap::sim {
@@ -51,31 +50,16 @@ BladeFrame frameOf(const Eigen::Isometry3d& T, const BladeGeometry& g) {
   return f;
 }
 
-/// Runs body(r0, r1) over row blocks [r0, r1) covering [0, rows): on the executor when it has
-/// more than one thread and the box is big enough to pay for the hand-off, else inline.
-template <class Body>
-void forRowBlocks(const Executor* exec, int rows, std::size_t nodes, Body&& body) {
-  if (exec == nullptr || exec->threads() < 2 || nodes < 4096 || rows < 2) {
-    body(0, rows);
-    return;
-  }
-  const int blocks = std::min(rows, 4 * exec->threads());
-  exec->forEach(blocks, [&](int b) {
-    body(static_cast<int>(static_cast<long>(rows) * b / blocks), static_cast<int>(static_cast<long>(rows) * (b + 1) / blocks));
-  });
-}
-
 /// One Jacobi sweep of loose-soil sliding over the node box [i0, i1] x [j0, j1]; nodes under
 /// the blade (behind the edge within `back_band`) neither give nor take. False if nothing moved.
-/// The mask, flux and outflow-limit passes write only their own rows (each node gathers its
-/// outflow from the fluxes in the order a raster scatter would have added them), so they run in
-/// row blocks on `exec`; the moves are applied serially in raster order as before, so the result
-/// is bit-identical for any thread count.
+/// Serial: a sweep is ~10^4 nodes, too little to pay for handing row blocks to another thread
+/// (measured: no gain at 2 threads), and serially each node's outflow limit can be computed in
+/// the same pass as its fluxes (it needs only its own and its -x / -y neighbours' fluxes). The
+/// moves are applied afterwards in raster order.
 bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double back_band, double max_step, int i0,
-                int j0, int i1, int j1, const Executor* exec) {
+                int j0, int i1, int j1) {
   const int w = i1 - i0 + 1, h = j1 - j0 + 1;
-  // Scratch buffers reused across calls (per calling thread) to avoid page faults at 60 Hz;
-  // the row-block tasks write into the caller's buffers through the raw pointers below.
+  // Scratch buffers reused across calls (per calling thread) to avoid page faults at 60 Hz.
   thread_local std::vector<unsigned char> mask;
   thread_local std::vector<double> fx, fy, outsum;
   const std::size_t n = static_cast<std::size_t>(w) * h;
@@ -98,90 +82,71 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
   // exact per-node test runs only on a superset of that interval (two nodes wider than the
   // analytic one), the rest of the row is clear. Same mask as testing every node.
   const double lat_max = f.half_lat + 0.5 * res;
-  forRowBlocks(exec, h, n, [&](int r0, int r1) {
-    for (int j = r0; j < r1; ++j) {
-      unsigned char* row = mp + idx(0, j);
-      std::fill(row, row + w, static_cast<unsigned char>(0));
-      const double dy = terrain.nodePosition(i0, j0 + j).y() - f.c.y();
-      // x interval (relative to the edge centre) where every constraint can hold; a constraint
-      // whose x coefficient is ~0 is left to the exact test.
-      double xlo = -1e300, xhi = 1e300;
-      auto clip = [&](double coef, double off, double lo, double hi) {  // lo <= coef x + off <= hi
-        if (std::abs(coef) < 1e-9) return;
-        double a = (lo - off) / coef, b = (hi - off) / coef;
-        if (a > b) std::swap(a, b);
-        xlo = std::max(xlo, a);
-        xhi = std::min(xhi, b);
-      };
-      clip(f.e_h.x(), dy * f.e_h.y(), -lat_max, lat_max);
-      clip(f.n_h.x(), dy * f.n_h.y(), -back_band, 0.0);
-      if (xlo > xhi) continue;
-      const double ox = terrain.nodePosition(i0, j0 + j).x() - f.c.x();
-      const double ia = std::max(-1.0, std::floor((xlo - ox) / res) - 2), ib = std::min(static_cast<double>(w), std::ceil((xhi - ox) / res) + 2);
-      for (int i = static_cast<int>(ia) < 0 ? 0 : static_cast<int>(ia); i < w && i <= static_cast<int>(ib); ++i) {
-        const Eigen::Vector2d p = terrain.nodePosition(i0 + i, j0 + j);
-        const double dx = p.x() - f.c.x(), dyy = p.y() - f.c.y();
-        const double lat = dx * f.e_h.x() + dyy * f.e_h.y();
-        const double s = dx * f.n_h.x() + dyy * f.n_h.y();
-        row[i] = (std::abs(lat) <= lat_max && s <= 0.0 && s > -back_band) ? 1 : 0;
-      }
+  for (int j = 0; j < h; ++j) {
+    unsigned char* row = mp + idx(0, j);
+    std::fill(row, row + w, static_cast<unsigned char>(0));
+    const double dy = terrain.nodePosition(i0, j0 + j).y() - f.c.y();
+    // x interval (relative to the edge centre) where every constraint can hold; a constraint
+    // whose x coefficient is ~0 is left to the exact test.
+    double xlo = -1e300, xhi = 1e300;
+    auto clip = [&](double coef, double off, double lo, double hi) {  // lo <= coef x + off <= hi
+      if (std::abs(coef) < 1e-9) return;
+      double a = (lo - off) / coef, b = (hi - off) / coef;
+      if (a > b) std::swap(a, b);
+      xlo = std::max(xlo, a);
+      xhi = std::min(xhi, b);
+    };
+    clip(f.e_h.x(), dy * f.e_h.y(), -lat_max, lat_max);
+    clip(f.n_h.x(), dy * f.n_h.y(), -back_band, 0.0);
+    if (xlo > xhi) continue;
+    const double ox = terrain.nodePosition(i0, j0 + j).x() - f.c.x();
+    const double ia = std::max(-1.0, std::floor((xlo - ox) / res) - 2), ib = std::min(static_cast<double>(w), std::ceil((xhi - ox) / res) + 2);
+    for (int i = static_cast<int>(ia) < 0 ? 0 : static_cast<int>(ia); i < w && i <= static_cast<int>(ib); ++i) {
+      const Eigen::Vector2d p = terrain.nodePosition(i0 + i, j0 + j);
+      const double dx = p.x() - f.c.x(), dyy = p.y() - f.c.y();
+      const double lat = dx * f.e_h.x() + dyy * f.e_h.y();
+      const double s = dx * f.n_h.x() + dyy * f.n_h.y();
+      row[i] = (std::abs(lat) <= lat_max && s <= 0.0 && s > -back_band) ? 1 : 0;
     }
-  });
+  }
   // Edge fluxes (positive = from (i, j) to the +x / +y neighbour); only loose soil slides.
-  std::atomic<bool> moved_any{false};
-  forRowBlocks(exec, h, n, [&](int r0, int r1) {
-    bool moved = false;
-    for (int j = r0; j < r1; ++j) {
-      const double* Hr = Hg + gidx(0, j);
-      const double* Lr = Lg + gidx(0, j);
-      for (int i = 0; i < w; ++i) {
-        const std::size_t a = idx(i, j);
-        fxp[a] = 0.0;
-        fyp[a] = 0.0;
-        if (mp[a]) continue;
+  // Then the node's outflow, summed in raster order of its edges (the -y edge, the -x edge,
+  // the +x edge, the +y edge), turned into a scale: a node gives at most the loose soil it has
+  // (bank soil does not slide).
+  bool moved = false;
+  for (int j = 0; j < h; ++j) {
+    const double* Hr = Hg + gidx(0, j);
+    const double* Lr = Lg + gidx(0, j);
+    for (int i = 0; i < w; ++i) {
+      const std::size_t a = idx(i, j);
+      double qx = 0.0, qy = 0.0;
+      if (!mp[a]) {
         const double ha = Hr[i];
         const bool la = Lr[i] > 0.0;
         if (i + 1 < w && !mp[a + 1] && (la || Lr[i + 1] > 0.0)) {
           const double dh = ha - Hr[i + 1];
           const double ex = std::abs(dh) - max_step;
-          if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + 1]) > 0.0) {
-            const double q = 0.25 * ex;
-            fxp[a] = dh > 0 ? q : -q;
-            moved = true;
-          }
+          if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + 1]) > 0.0) qx = dh > 0 ? 0.25 * ex : -0.25 * ex;
         }
         const std::size_t b = a + static_cast<std::size_t>(w);
         if (j + 1 < h && !mp[b] && (la || Lr[i + stride] > 0.0)) {
           const double dh = ha - Hr[i + stride];
           const double ex = std::abs(dh) - max_step;
-          if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + stride]) > 0.0) {
-            const double q = 0.25 * ex;
-            fyp[a] = dh > 0 ? q : -q;
-            moved = true;
-          }
+          if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + stride]) > 0.0) qy = dh > 0 ? 0.25 * ex : -0.25 * ex;
         }
       }
+      fxp[a] = qx;
+      fyp[a] = qy;
+      moved = moved || qx != 0.0 || qy != 0.0;
+      double o = 0.0;
+      if (j > 0 && fyp[a - w] < 0) o += -fyp[a - w];
+      if (i > 0 && fxp[a - 1] < 0) o += -fxp[a - 1];
+      if (qx > 0) o += qx;
+      if (qy > 0) o += qy;
+      op[a] = (o > Lr[i] && o > 0) ? Lr[i] / o : 1.0;
     }
-    if (moved) moved_any.store(true, std::memory_order_relaxed);
-  });
-  if (!moved_any.load()) return false;
-  // Outflow of each node, summed in raster order of the edges (the -y edge, the -x edge, the
-  // +x edge, the +y edge), then turned into a scale: a node gives at most the loose soil it
-  // has (bank soil does not slide).
-  forRowBlocks(exec, h, n, [&](int r0, int r1) {
-    for (int j = r0; j < r1; ++j) {
-      const double* Lr = Lg + gidx(0, j);
-      for (int i = 0; i < w; ++i) {
-        const std::size_t k = idx(i, j);
-        double o = 0.0;
-        if (j > 0 && fyp[k - w] < 0) o += -fyp[k - w];
-        if (i > 0 && fxp[k - 1] < 0) o += -fxp[k - 1];
-        if (fxp[k] > 0) o += fxp[k];
-        if (fyp[k] > 0) o += fyp[k];
-        op[k] = (o > Lr[i] && o > 0) ? Lr[i] / o : 1.0;
-      }
-    }
-  });
+  }
+  if (!moved) return false;
   for (int j = 0; j < h; ++j) {
     for (int i = 0; i < w; ++i) {
       const std::size_t a = idx(i, j);
@@ -495,8 +460,7 @@ CutResult cutAndPush(TruthTerrain& terrain, const SoilField& soil, const Eigen::
 }
 
 CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::Isometry3d& T_map_blade,
-                     const BladeGeometry& blade, double ahead_m, double side_m, int iterations,
-                     const Executor* exec) {
+                     const BladeGeometry& blade, double ahead_m, double side_m, int iterations) {
   CutResult out;
   const BladeFrame f = frameOf(T_map_blade, blade);
   if (!f.ok) return out;
@@ -538,7 +502,7 @@ CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   for (int it = 0; it < iterations; ++it) {
     const int si0 = std::max(i0, li0 - 1 - it), si1 = std::min(i1, li1 + 1 + it);
     const int sj0 = std::max(j0, lj0 - 1 - it), sj1 = std::min(j1, lj1 + 1 + it);
-    if (!relaxSweep(terrain, f, res, back_band, max_step, si0, sj0, si1, sj1, exec)) break;
+    if (!relaxSweep(terrain, f, res, back_band, max_step, si0, sj0, si1, sj1)) break;
     if (out.i1 < out.i0) {
       out.i0 = si0; out.j0 = sj0; out.i1 = si1; out.j1 = sj1;
     } else {

@@ -107,7 +107,7 @@ void Simulator::physicsStep(double dt, bool relax) {
     const CutResult cut = cutAndPush(terrain_, soil_, T_old, T_new, spec.blade, spec.blade_slices);
     m.truth.cut_bank_m3 += cut.cut_bank_m3;
     markDirty(cut);
-    if (relax) markDirty(relaxLoose(terrain_, soil_, T_new, spec.blade, 1.5, 0.5, 2, &exec_));
+    if (relax) markDirty(relaxLoose(terrain_, soil_, T_new, spec.blade, 1.5, 0.5, 2));
     const Eigen::Vector3d dv = (T_new.translation() - T_old.translation()) / dt;
     const double vn = dv.dot(bf.push_dir);
     m.edge_acc = (vn - m.edge_vn) / dt;

@@ -197,19 +197,6 @@ void TruthTerrain::addLoose(int i, int j, double v, double c) {
   h_[k] = u_[k] + lv_[k];
 }
 
-void TruthTerrain::moveLoose(int ia, int ja, int ib, int jb, double dv) {
-  const auto a = index(ia, ja), b = index(ib, jb);
-  if (!(dv > 0.0) || lv_[a] <= 0.0) return;
-  dv = std::min(dv, lv_[a]);
-  const double dc = (dv == lv_[a]) ? lc_[a] : dv * (lc_[a] / lv_[a]);
-  lv_[a] -= dv;
-  lc_[a] -= dc;
-  lv_[b] += dv;
-  lc_[b] += dc;
-  h_[a] = u_[a] + lv_[a];
-  h_[b] = u_[b] + lv_[b];
-}
-
 double TruthTerrain::heightAt(double x, double y) const {
   const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
   if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return kNaN;

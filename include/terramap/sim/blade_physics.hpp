@@ -74,12 +74,9 @@ CutResult cutAndPush(TruthTerrain& terrain, const SoilField& soil, const Eigen::
 /// sweeps: every edge flux is computed from one snapshot, outflow limited to the loose soil a
 /// node has, so the result does not depend on iteration order). Nodes under the blade (a band
 /// one node thick or more behind the edge) neither give nor take soil, so nothing flows
-/// through the blade. Returns the changed node box.
-/// \param exec optional executor for the row-parallel passes of each sweep (masks, fluxes,
-///        outflow limits); the moves themselves are applied serially in raster order, so the
-///        result is bit-identical for any thread count (nullptr = all inline).
+/// through the blade. Returns the changed node box. Serial (a sweep is too small to pay for
+/// row-parallel hand-offs).
 CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::Isometry3d& T_map_blade,
-                     const BladeGeometry& blade, double ahead_m, double side_m, int iterations,
-                     const Executor* exec = nullptr);
+                     const BladeGeometry& blade, double ahead_m, double side_m, int iterations);
 
 }  // namespace terramap::sim

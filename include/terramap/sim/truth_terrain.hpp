@@ -79,7 +79,19 @@ class TruthTerrain {
   /// Adds loose soil: Lv += v, Lc += c.
   void addLoose(int i, int j, double v, double c);
   /// Moves a loose thickness dv (<= Lv) from a to b keeping a's Lc/Lv ratio.
-  void moveLoose(int ia, int ja, int ib, int jb, double dv);
+  void moveLoose(int ia, int ja, int ib, int jb, double dv) {
+    // Inline: the relaxation and the spoil settling call it for every moving edge.
+    const std::size_t a = index(ia, ja), b = index(ib, jb);
+    if (!(dv > 0.0) || lv_[a] <= 0.0) return;
+    dv = std::min(dv, lv_[a]);
+    const double dc = (dv == lv_[a]) ? lc_[a] : dv * (lc_[a] / lv_[a]);
+    lv_[a] -= dv;
+    lc_[a] -= dc;
+    lv_[b] += dv;
+    lc_[b] += dc;
+    h_[a] = u_[a] + lv_[a];
+    h_[b] = u_[b] + lv_[b];
+  }
 
   /// Bilinear surface height at a map position; NaN outside the grid.
   double heightAt(double x, double y) const;
