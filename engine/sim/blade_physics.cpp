@@ -50,6 +50,33 @@ BladeFrame frameOf(const Eigen::Isometry3d& T, const BladeGeometry& g) {
   return f;
 }
 
+/// Nodes i0..i1 of row j that can satisfy lat_lo <= (p - c).e <= lat_hi and s_lo <= (p - c).n <= s_hi
+/// (p = node position; e, n horizontal): a superset, two nodes wider than the analytic interval,
+/// so exact per-node tests on it find the same nodes as on the whole row. Empty: lo > hi.
+std::pair<int, int> rowInterval(const TruthTerrain& terrain, int i0, int i1, int j, const Eigen::Vector3d& c,
+                                const Eigen::Vector3d& e, double lat_lo, double lat_hi, const Eigen::Vector3d& n,
+                                double s_lo, double s_hi) {
+  const double res = terrain.resolution();
+  const Eigen::Vector2d p0 = terrain.nodePosition(i0, j);
+  const double dy = p0.y() - c.y(), ox = p0.x() - c.x();
+  // x interval (relative to c) where both constraints can hold; a constraint whose x
+  // coefficient is ~0 is left to the exact test.
+  double xlo = -1e300, xhi = 1e300;
+  auto clip = [&](double coef, double off, double lo, double hi) {  // lo <= coef x + off <= hi
+    if (std::abs(coef) < 1e-9) return;
+    double a = (lo - off) / coef, b = (hi - off) / coef;
+    if (a > b) std::swap(a, b);
+    xlo = std::max(xlo, a);
+    xhi = std::min(xhi, b);
+  };
+  clip(e.x(), dy * e.y(), lat_lo, lat_hi);
+  clip(n.x(), dy * n.y(), s_lo, s_hi);
+  if (xlo > xhi) return {1, 0};
+  const int w = i1 - i0 + 1;
+  const double ia = std::max(-1.0, std::floor((xlo - ox) / res) - 2), ib = std::min(static_cast<double>(w), std::ceil((xhi - ox) / res) + 2);
+  return {i0 + std::max(0, static_cast<int>(ia)), i0 + std::min(w - 1, static_cast<int>(ib))};
+}
+
 /// One Jacobi sweep of loose-soil sliding over the node box [i0, i1] x [j0, j1]; nodes under
 /// the blade (behind the edge within `back_band`) neither give nor take. False if nothing moved.
 /// Serial: a sweep is ~10^4 nodes, too little to pay for handing row blocks to another thread
@@ -85,23 +112,8 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
   for (int j = 0; j < h; ++j) {
     unsigned char* row = mp + idx(0, j);
     std::fill(row, row + w, static_cast<unsigned char>(0));
-    const double dy = terrain.nodePosition(i0, j0 + j).y() - f.c.y();
-    // x interval (relative to the edge centre) where every constraint can hold; a constraint
-    // whose x coefficient is ~0 is left to the exact test.
-    double xlo = -1e300, xhi = 1e300;
-    auto clip = [&](double coef, double off, double lo, double hi) {  // lo <= coef x + off <= hi
-      if (std::abs(coef) < 1e-9) return;
-      double a = (lo - off) / coef, b = (hi - off) / coef;
-      if (a > b) std::swap(a, b);
-      xlo = std::max(xlo, a);
-      xhi = std::min(xhi, b);
-    };
-    clip(f.e_h.x(), dy * f.e_h.y(), -lat_max, lat_max);
-    clip(f.n_h.x(), dy * f.n_h.y(), -back_band, 0.0);
-    if (xlo > xhi) continue;
-    const double ox = terrain.nodePosition(i0, j0 + j).x() - f.c.x();
-    const double ia = std::max(-1.0, std::floor((xlo - ox) / res) - 2), ib = std::min(static_cast<double>(w), std::ceil((xhi - ox) / res) + 2);
-    for (int i = static_cast<int>(ia) < 0 ? 0 : static_cast<int>(ia); i < w && i <= static_cast<int>(ib); ++i) {
+    const auto [ia, ib] = rowInterval(terrain, i0, i1, j0 + j, f.c, f.e_h, -lat_max, lat_max, f.n_h, -back_band, 0.0);
+    for (int i = ia - i0; i <= ib - i0; ++i) {
       const Eigen::Vector2d p = terrain.nodePosition(i0 + i, j0 + j);
       const double dx = p.x() - f.c.x(), dyy = p.y() - f.c.y();
       const double lat = dx * f.e_h.x() + dyy * f.e_h.y();
@@ -338,8 +350,14 @@ CutResult cutAndPush(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   const double yb_h = std::hypot(f1.yb.x(), f1.yb.y());
   const double top = f1.zb.z() * blade.height_m;
   bool any = false;
+  // Nodes the edge swept this step lie in a band behind the new edge line no deeper than
+  // `band` (|s0 - s1| <= |c1 - c0| + |p - c1| |n0 - n1|); only that band of each row is tested.
+  const double turn = (f1.n_h - f0.n_h).norm(), shift = (f1.c - f0.c).norm();
+  double band = res + shift + (f1.half_lat + 1.0) * turn + res;
+  if (band > 1.0) band = 1e300;  // a jump (not a physics step): test whole rows
   for (int j = j0; j <= j1; ++j) {
-    for (int i = i0; i <= i1; ++i) {
+    const auto [ra, rb] = rowInterval(terrain, i0, i1, j, f1.c, f1.e_h, -f1.half_lat, f1.half_lat, f1.n_h, -band, 0.0);
+    for (int i = ra; i <= rb; ++i) {
       const Eigen::Vector2d p = terrain.nodePosition(i, j);
       const double dx1 = p.x() - f1.c.x(), dy1 = p.y() - f1.c.y();
       const double lat = dx1 * f1.e_h.x() + dy1 * f1.e_h.y();
