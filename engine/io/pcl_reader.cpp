@@ -113,6 +113,41 @@ std::vector<PointXYZI> convert(const pcl::PCLPointCloud2& c, const std::string& 
 // and the numbers of an ASCII PLY's vertex lines.
 // Only elements with fixed-size (non-list) properties up to and including "vertex" can be
 // checked; an earlier element with list properties makes the vertex offset data dependent.
+/// The whitespace-separated tokens of rest[i, eol) parsed as numbers, as PCL's ASCII readers
+/// would (a leading '+' allowed, out-of-range values accepted): how many parse, up to the first
+/// that does not (`bad` = its offset in `rest`, npos if none).
+struct AsciiLine {
+  std::uint64_t values = 0;
+  std::size_t bad = std::string::npos, bad_len = 0;
+  /// "'<token, at most 32 chars>' is not a number", for the error message.
+  std::string badText(const std::vector<char>& rest) const {
+    return "'" + std::string(rest.data() + bad, std::min<std::size_t>(bad_len, 32)) + "' is not a number";
+  }
+};
+
+AsciiLine scanAsciiNumbers(const std::vector<char>& rest, std::size_t i, std::size_t eol) {
+  AsciiLine out;
+  for (std::size_t j = i; j < eol;) {
+    while (j < eol && std::isspace(static_cast<unsigned char>(rest[j]))) ++j;
+    if (j >= eol) break;
+    std::size_t k = j;
+    while (k < eol && !std::isspace(static_cast<unsigned char>(rest[k]))) ++k;
+    const char* b = rest.data() + j;
+    const char* e = rest.data() + k;
+    if (*b == '+') ++b;
+    double v;
+    const auto [ptr, ec] = std::from_chars(b, e, v);
+    if ((ec != std::errc() && ec != std::errc::result_out_of_range) || ptr != e) {
+      out.bad = j;
+      out.bad_len = k - j;
+      return out;
+    }
+    ++out.values;
+    j = k;
+  }
+  return out;
+}
+
 void checkPlyBody(const std::string& path) {
   detail::FileCloser fc{detail::openForRead(path, "PLY file")};
   const std::uint64_t size = detail::fileSize(fc.f, path);
@@ -203,22 +238,10 @@ void checkPlyBody(const std::string& path) {
       std::size_t eol = i;
       while (eol < rest.size() && rest[eol] != '\n') ++eol;
       if (row >= skip) {
-        for (std::size_t j = i; j < eol;) {
-          while (j < eol && std::isspace(static_cast<unsigned char>(rest[j]))) ++j;
-          if (j >= eol) break;
-          std::size_t k = j;
-          while (k < eol && !std::isspace(static_cast<unsigned char>(rest[k]))) ++k;
-          const char* b = rest.data() + j;
-          const char* e = rest.data() + k;
-          if (*b == '+') ++b;
-          double v;
-          const auto [ptr, ec] = std::from_chars(b, e, v);
-          if ((ec != std::errc() && ec != std::errc::result_out_of_range) || ptr != e) {
-            throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(body + j) + ": line " +
-                             std::to_string(line_no) + ": '" + std::string(rest.data() + j, std::min<std::size_t>(k - j, 32)) +
-                             "' is not a number");
-          }
-          j = k;
+        const AsciiLine line = scanAsciiNumbers(rest, i, eol);
+        if (line.bad != std::string::npos) {
+          throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(body + line.bad) + ": line " +
+                           std::to_string(line_no) + ": " + line.badText(rest));
         }
       }
       ++row;
@@ -364,25 +387,9 @@ void checkPcdHeader(const std::string& path) {
       std::size_t eol = i;
       while (eol < rest.size() && rest[eol] != '\n') ++eol;
       ++line_no;
-      std::uint64_t values = 0;
-      std::size_t j = i;
-      while (j < eol) {
-        while (j < eol && std::isspace(static_cast<unsigned char>(rest[j]))) ++j;
-        if (j >= eol) break;
-        std::size_t k = j;
-        while (k < eol && !std::isspace(static_cast<unsigned char>(rest[k]))) ++k;
-        const char* b = rest.data() + j;
-        const char* e = rest.data() + k;
-        if (*b == '+') ++b;
-        double v;
-        const auto [ptr, ec] = std::from_chars(b, e, v);
-        if ((ec != std::errc() && ec != std::errc::result_out_of_range) || ptr != e) {
-          fail(body + j, "line " + std::to_string(line_no) + ": '" + std::string(rest.data() + j, std::min<std::size_t>(k - j, 32)) +
-                             "' is not a number");
-        }
-        ++values;
-        j = k;
-      }
+      const AsciiLine line = scanAsciiNumbers(rest, i, eol);
+      if (line.bad != std::string::npos) fail(body + line.bad, "line " + std::to_string(line_no) + ": " + line.badText(rest));
+      const std::uint64_t values = line.values;
       if (values != 0) {
         if (values != step_values) {
           fail(body + i, "line " + std::to_string(line_no) + " has " + std::to_string(values) + " values, expected " +
