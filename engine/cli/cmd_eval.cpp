@@ -2,6 +2,7 @@
 // FEE-geometry extraction statistics. The work is in include/terramap/sim/eval.hpp.
 #include "command.hpp"
 
+#include <terramap/pipeline/blind_mapper.hpp>
 #include <terramap/pipeline/engine.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/pipeline/plugin_loader.hpp>
@@ -25,23 +26,6 @@ struct EvalArgs {
   int threads = 0;
   double duration = -1, change_threshold = 0.01, error_range = 0.10;
   long long seed = -1;
-};
-
-/// terramap::Engine seen through the evaluation's BlindMapper interface.
-class EngineMapper : public sim::BlindMapper {
- public:
-  explicit EngineMapper(Engine& e) : e_(e) {}
-  LayeredMap& map() override { return e_.mutableMap(); }
-  void push(const Event& event) override { e_.push(event); }
-  std::shared_ptr<const SweepRecord> latestSweep(long* sequence) override {
-    const Record* r = e_.records().latest(SweepRecord::kType);
-    if (!r) return nullptr;
-    if (sequence) *sequence = r->sequence;
-    return std::static_pointer_cast<const SweepRecord>(r->payload);
-  }
-
- private:
-  Engine& e_;
 };
 
 void printRun(const sim::EvalRun& r) {
@@ -133,7 +117,7 @@ Registrar reg{Command{"eval", [](CLI::App& app, std::function<int()>& run) {
                      spec.source.type.c_str(), a->scenario.c_str());
       PluginRegistry registry(spec.plugin_paths);
       auto engine = Engine::fromSpec(spec, registry);
-      EngineMapper mapper(*engine);
+      EngineBlindMapper mapper(*engine);
       sim::EvalOptions opt;
       opt.change_threshold_m = a->change_threshold;
       opt.error_range_m = a->error_range;

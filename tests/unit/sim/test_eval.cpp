@@ -2,6 +2,7 @@
 // the map grid, the statistics, a whole evaluation on a small berm-cut scenario through the
 // real engine and plugins, the outputs, and the CLI.
 #include <terramap/io/geotiff.hpp>
+#include <terramap/pipeline/blind_mapper.hpp>
 #include <terramap/pipeline/engine.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/pipeline/plugin_loader.hpp>
@@ -74,22 +75,6 @@ machines:
   return s;
 }
 
-class EngineMapper : public sim::BlindMapper {
- public:
-  explicit EngineMapper(Engine& e) : e_(e) {}
-  LayeredMap& map() override { return e_.mutableMap(); }
-  void push(const Event& event) override { e_.push(event); }
-  std::shared_ptr<const SweepRecord> latestSweep(long* sequence) override {
-    const Record* r = e_.records().latest(SweepRecord::kType);
-    if (!r) return nullptr;
-    *sequence = r->sequence;
-    return std::static_pointer_cast<const SweepRecord>(r->payload);
-  }
-
- private:
-  Engine& e_;
-};
-
 sim::EvalRun evaluateSmallBerm(int threads, long* scans = nullptr) {
   sim::Simulator simulator(sim::parseScenario(smallBermScenario(), "small_berm.yaml"));
   PipelineSpec spec = parsePipelineString(sim::defaultEvalPipeline(), "<eval>", ".");
@@ -99,7 +84,7 @@ sim::EvalRun evaluateSmallBerm(int threads, long* scans = nullptr) {
   spec.center = g.center();
   PluginRegistry registry({TERRAMAP_PLUGIN_DIR});
   auto engine = Engine::fromSpec(spec, registry);
-  EngineMapper mapper(*engine);
+  EngineBlindMapper mapper(*engine);
   sim::EvalRun r = sim::runBlindEvaluation(simulator, mapper);
   engine->finish();
   if (scans) *scans = static_cast<long>(simulator.stats().scans);
@@ -382,7 +367,7 @@ TEST(EvalRun, RefusesASteppedSimulatorAndAMapWithoutElevation) {
   PipelineSpec spec = parsePipelineString(sim::defaultEvalPipeline(), "<eval>", ".");
   PluginRegistry registry({TERRAMAP_PLUGIN_DIR});
   auto engine = Engine::fromSpec(spec, registry);
-  EngineMapper mapper(*engine);
+  EngineBlindMapper mapper(*engine);
   sim::EvalOptions o;
   o.elevation_layer = "height";
   EXPECT_THROW(sim::runBlindEvaluation(simulator, mapper, o), LayerError);
