@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <numeric>
+#include <sstream>
 
 namespace terramap {
 
@@ -49,6 +50,13 @@ std::string joinStrings(const std::vector<std::string>& items, const std::string
     out += items[i];
   }
   return out;
+}
+
+std::string formatNumber(double v) {
+  std::ostringstream os;
+  os.precision(17);
+  os << v;
+  return os.str();
 }
 
 }  // namespace terramap

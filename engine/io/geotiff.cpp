@@ -1,6 +1,7 @@
 #include "gdal_support.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/core/text.hpp>
 #include <terramap/io/atomic_file.hpp>
 #include <terramap/io/geotiff.hpp>
 
@@ -12,7 +13,6 @@
 #include <limits>
 #include <memory>
 #include <set>
-#include <sstream>
 
 namespace terramap::io {
 
@@ -27,13 +27,6 @@ constexpr const char* kLocalCsWkt =
     "LOCAL_DATUM[\"terramap local datum\",0],"
     "UNIT[\"metre\",1,AUTHORITY[\"EPSG\",\"9001\"]],"
     "AXIS[\"Easting\",EAST],AXIS[\"Northing\",NORTH]]";
-
-std::string formatDouble(double v) {
-  std::ostringstream os;
-  os.precision(17);
-  os << v;
-  return os.str();
-}
 
 struct DatasetCloser {
   void operator()(GDALDataset* ds) const {
@@ -60,7 +53,7 @@ OGRSpatialReference makeCrs(const GeoReference& georef) {
   const double unit = srs.GetLinearUnits(&unit_name);
   if (std::abs(unit - 1.0) > 1e-12)
     throw ConfigError("EPSG:" + std::to_string(georef.epsg) + " measures in '" + (unit_name ? unit_name : "?") +
-                      "' (" + formatDouble(unit) + " m), not metres");
+                      "' (" + formatNumber(unit) + " m), not metres");
   srs.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
   return srs;
 }
@@ -135,9 +128,9 @@ void writeGeoTiff(const LayeredMap& map, const std::vector<std::string>& layers,
     if (ds->SetGeoTransform(gtv) != CE_None) fail("cannot set the geotransform");
     if (ds->SetSpatialRef(&srs) != CE_None) fail("cannot set the CRS");
     ds->SetMetadataItem("TIFFTAG_SOFTWARE", "terramap");
-    ds->SetMetadataItem("TERRAMAP_RESOLUTION_M", formatDouble(map.geometry().resolution()).c_str());
+    ds->SetMetadataItem("TERRAMAP_RESOLUTION_M", formatNumber(map.geometry().resolution()).c_str());
     ds->SetMetadataItem("TERRAMAP_MAP_CENTER_XY_M",
-                        (formatDouble(map.geometry().center().x()) + " " + formatDouble(map.geometry().center().y())).c_str());
+                        (formatNumber(map.geometry().center().x()) + " " + formatNumber(map.geometry().center().y())).c_str());
     ds->SetMetadataItem("TERRAMAP_AXES", "easting = origin_e + map x, northing = origin_n + map y");
     for (std::size_t b = 0; b < ids.size(); ++b) {
       const LayerInfo& info = map.layerInfo(ids[b]);
@@ -145,7 +138,7 @@ void writeGeoTiff(const LayeredMap& map, const std::vector<std::string>& layers,
       band->SetDescription(info.name.c_str());
       band->SetUnitType(info.unit.c_str());
       band->SetMetadataItem("unit", info.unit.c_str());
-      band->SetMetadataItem("fill", formatDouble(info.fill).c_str());
+      band->SetMetadataItem("fill", formatNumber(info.fill).c_str());
       band->SetNoDataValue(std::numeric_limits<double>::quiet_NaN());
       RasterF data = northUpRaster(map, ids[b]);
       if (band->RasterIO(GF_Write, 0, 0, width, height, data.data(), width, height, GDT_Float32, 0, 0, nullptr) !=

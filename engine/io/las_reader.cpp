@@ -2,12 +2,12 @@
 // specification (1.2 R2 and 1.4 R15): public header block, variable length records (only the
 // GeoKeyDirectory is interpreted), point data records.
 #include <terramap/io/readers.hpp>
+#include <terramap/core/text.hpp>
 
 #include "reader_detail.hpp"
 
 #include <algorithm>
 #include <cmath>
-#include <sstream>
 
 namespace terramap::io {
 
@@ -29,13 +29,6 @@ std::string fixedString(const unsigned char* p, std::size_t n) {
   if (nul != std::string::npos) s.resize(nul);
   while (!s.empty() && s.back() == ' ') s.pop_back();
   return s;
-}
-
-std::string num(double v) {
-  std::ostringstream os;
-  os.precision(17);
-  os << v;
-  return os.str();
 }
 
 // Reads exactly n bytes at `offset`; a short read means the file is shorter than the header
@@ -133,10 +126,10 @@ LasHeader parseHeader(std::FILE* f, const std::string& path, std::uint64_t file_
   }
   for (int a = 0; a < 3; ++a) {
     if (!std::isfinite(hd.scale[a]) || hd.scale[a] == 0.0) {
-      fail(path, 131 + 8 * a, std::string("scale factor ") + "xyz"[a] + " = " + num(hd.scale[a]) + " is not a finite non-zero number");
+      fail(path, 131 + 8 * a, std::string("scale factor ") + "xyz"[a] + " = " + formatNumber(hd.scale[a]) + " is not a finite non-zero number");
     }
     if (!std::isfinite(hd.offset[a])) {
-      fail(path, 155 + 8 * a, std::string("offset ") + "xyz"[a] + " = " + num(hd.offset[a]) + " is not finite");
+      fail(path, 155 + 8 * a, std::string("offset ") + "xyz"[a] + " = " + formatNumber(hd.offset[a]) + " is not finite");
     }
   }
   if (hd.version_minor >= 4 && hd.header_size >= kLas14HeaderSize) {

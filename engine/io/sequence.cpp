@@ -20,13 +20,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::string num(double v) {
-  std::ostringstream os;
-  os.precision(17);
-  os << v;
-  return os.str();
-}
-
 // Natural order: digit runs compare by value (then by length, so "01" < "1" stays a strict
 // weak order), everything else byte-wise.
 bool naturalLess(const std::string& a, const std::string& b) {
@@ -139,13 +132,13 @@ SequenceSource::SequenceSource(SequenceSpec spec, SequencePoses poses) : spec_(s
   }
   if (spec_.stride == 0) throw ConfigError("sequence '" + folder + "': stride must be >= 1");
   if (spec_.stamps_from_file_names && (!std::isfinite(spec_.file_name_stamp_scale) || spec_.file_name_stamp_scale <= 0)) {
-    throw ConfigError("sequence '" + folder + "': file name stamp scale " + num(spec_.file_name_stamp_scale) +
+    throw ConfigError("sequence '" + folder + "': file name stamp scale " + formatNumber(spec_.file_name_stamp_scale) +
                       " must be positive and finite");
   }
   if (spec_.times_file.empty() && !spec_.stamps_from_file_names &&
       (!std::isfinite(spec_.period_s) || spec_.period_s <= 0 || !std::isfinite(spec_.start_stamp_s))) {
-    throw ConfigError("sequence '" + folder + "': period " + num(spec_.period_s) + " s must be positive and start stamp " +
-                      num(spec_.start_stamp_s) + " s finite");
+    throw ConfigError("sequence '" + folder + "': period " + formatNumber(spec_.period_s) + " s must be positive and start stamp " +
+                      formatNumber(spec_.start_stamp_s) + " s finite");
   }
   std::vector<std::string> exts = spec_.extensions.empty() ? supportedCloudExtensions() : spec_.extensions;
   for (auto& e : exts) {
@@ -233,7 +226,7 @@ SequenceSource::SequenceSource(SequenceSpec spec, SequencePoses poses) : spec_(s
       s = spec_.start_stamp_s + static_cast<double>(index[p]) * spec_.period_s;
     }
     if (!stamps_.empty() && !(s > stamps_.back())) {
-      throw InputError("sequence '" + folder + "': stamp " + num(s) + " s of '" + path + "' is not after " + num(stamps_.back()) +
+      throw InputError("sequence '" + folder + "': stamp " + formatNumber(s) + " s of '" + path + "' is not after " + formatNumber(stamps_.back()) +
                        " s of '" + files_.back() + "' (files are emitted in name order)");
     }
     Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
@@ -243,9 +236,9 @@ SequenceSource::SequenceSource(SequenceSpec spec, SequencePoses poses) : spec_(s
       case SequencePoses::Kind::Interpolated: {
         auto T = poses.trajectory().tryAt(s);
         if (!T) {
-          throw InputError("sequence '" + folder + "': frame '" + names[p] + "' at stamp " + num(s) +
-                           " s is outside the trajectory '" + poses.source() + "' [" + num(poses.trajectory().startStamp()) +
-                           ", " + num(poses.trajectory().endStamp()) + "] s");
+          throw InputError("sequence '" + folder + "': frame '" + names[p] + "' at stamp " + formatNumber(s) +
+                           " s is outside the trajectory '" + poses.source() + "' [" + formatNumber(poses.trajectory().startStamp()) +
+                           ", " + formatNumber(poses.trajectory().endStamp()) + "] s");
         }
         T_world_body = *T;
         break;

@@ -1,4 +1,5 @@
 #include <terramap/io/trajectory.hpp>
+#include <terramap/core/text.hpp>
 
 #include <terramap/core/error.hpp>
 
@@ -14,13 +15,6 @@
 namespace terramap::io {
 
 namespace {
-
-std::string num(double v) {
-  std::ostringstream os;
-  os.precision(17);
-  os << v;
-  return os.str();
-}
 
 // A text file read line by line with the position for messages.
 class LineReader {
@@ -71,8 +65,8 @@ Eigen::Matrix3d checkedRotation(const Eigen::Matrix3d& R, double tol, const Line
   const double err = (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
   const double det = R.determinant();
   if (err > tol || det <= 0.0) {
-    lr.fail("rotation is not orthonormal: max |R^T R - I| = " + num(err) + ", det = " + num(det) +
-            " (tolerance " + num(tol) + ")");
+    lr.fail("rotation is not orthonormal: max |R^T R - I| = " + formatNumber(err) + ", det = " + formatNumber(det) +
+            " (tolerance " + formatNumber(tol) + ")");
   }
   Eigen::JacobiSVD<Eigen::Matrix3d> svd(R, Eigen::ComputeFullU | Eigen::ComputeFullV);
   return svd.matrixU() * svd.matrixV().transpose();
@@ -90,8 +84,8 @@ Eigen::Isometry3d parseMatrixPose(const std::vector<std::string>& tokens, std::s
     const double want[4] = {0, 0, 0, 1};
     for (int k = 0; k < 4; ++k) {
       if (std::abs(last[k] - want[k]) > 1e-6) {
-        lr.fail("bottom row of the 4x4 matrix is " + num(v[12]) + " " + num(v[13]) + " " + num(v[14]) + " " +
-                num(v[15]) + ", expected 0 0 0 1");
+        lr.fail("bottom row of the 4x4 matrix is " + formatNumber(v[12]) + " " + formatNumber(v[13]) + " " + formatNumber(v[14]) + " " +
+                formatNumber(v[15]) + ", expected 0 0 0 1");
       }
     }
   }
@@ -117,17 +111,17 @@ Trajectory::Trajectory(std::vector<StampedPose> poses, std::string source)
   for (std::size_t i = 0; i < poses_.size(); ++i) {
     const StampedPose& p = poses_[i];
     if (!std::isfinite(p.stamp)) {
-      throw InputError(source_ + ": pose " + std::to_string(i) + " has a non-finite stamp " + num(p.stamp));
+      throw InputError(source_ + ": pose " + std::to_string(i) + " has a non-finite stamp " + formatNumber(p.stamp));
     }
     if (i > 0 && !(p.stamp > poses_[i - 1].stamp)) {
       throw InputError(source_ + ": stamps must be strictly increasing, but pose " + std::to_string(i) + " has stamp " +
-                       num(p.stamp) + " after " + num(poses_[i - 1].stamp));
+                       formatNumber(p.stamp) + " after " + formatNumber(poses_[i - 1].stamp));
     }
     const Eigen::Matrix3d R = p.T_world_body.linear();
     const double err = (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
     if (!p.T_world_body.matrix().allFinite() || err > 1e-6 || R.determinant() <= 0.0) {
-      throw InputError(source_ + ": pose " + std::to_string(i) + " (stamp " + num(p.stamp) +
-                       ") is not a finite rigid transform (max |R^T R - I| = " + num(err) + ")");
+      throw InputError(source_ + ": pose " + std::to_string(i) + " (stamp " + formatNumber(p.stamp) +
+                       ") is not a finite rigid transform (max |R^T R - I| = " + formatNumber(err) + ")");
     }
     rotations_.emplace_back(R);
   }
@@ -163,9 +157,9 @@ std::optional<Eigen::Isometry3d> Trajectory::tryAt(double stamp) const {
 
 Eigen::Isometry3d Trajectory::at(double stamp) const {
   if (auto T = tryAt(stamp)) return *T;
-  if (poses_.empty()) throw InputError(source_ + ": cannot look up stamp " + num(stamp) + " in an empty trajectory");
-  throw InputError(source_ + ": stamp " + num(stamp) + " s is outside the trajectory's range [" + num(startStamp()) +
-                   ", " + num(endStamp()) + "] s (" + std::to_string(poses_.size()) +
+  if (poses_.empty()) throw InputError(source_ + ": cannot look up stamp " + formatNumber(stamp) + " in an empty trajectory");
+  throw InputError(source_ + ": stamp " + formatNumber(stamp) + " s is outside the trajectory's range [" + formatNumber(startStamp()) +
+                   ", " + formatNumber(endStamp()) + "] s (" + std::to_string(poses_.size()) +
                    " poses); poses are not extrapolated");
 }
 
@@ -183,13 +177,13 @@ Trajectory readTumTrajectory(const std::string& path, const TrajectoryReadOption
     }
     double v[8];
     for (int k = 0; k < 8; ++k) v[k] = lr.number(tok[k], kNames[k]);
-    if (!(v[0] > prev)) lr.fail("stamp " + tok[0] + " is not after the previous stamp " + num(prev));
+    if (!(v[0] > prev)) lr.fail("stamp " + tok[0] + " is not after the previous stamp " + formatNumber(prev));
     prev = v[0];
     Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);
     const double n = q.norm();
     if (std::abs(n - 1.0) > opt.quaternion_norm_tolerance) {
       lr.fail("quaternion (qx qy qz qw) = (" + tok[4] + " " + tok[5] + " " + tok[6] + " " + tok[7] + ") has norm " +
-              num(n) + ", not 1 within " + num(opt.quaternion_norm_tolerance));
+              formatNumber(n) + ", not 1 within " + formatNumber(opt.quaternion_norm_tolerance));
     }
     q.normalize();
     StampedPose p;
@@ -221,7 +215,7 @@ std::vector<double> readStampFile(const std::string& path) {
   while (lr.next(tok)) {
     if (tok.size() != 1) lr.fail("expected 1 stamp, found " + std::to_string(tok.size()) + " values");
     const double s = lr.number(tok[0], "stamp");
-    if (!out.empty() && !(s > out.back())) lr.fail("stamp " + tok[0] + " is not after the previous stamp " + num(out.back()));
+    if (!out.empty() && !(s > out.back())) lr.fail("stamp " + tok[0] + " is not after the previous stamp " + formatNumber(out.back()));
     out.push_back(s);
   }
   return out;
@@ -243,10 +237,10 @@ Trajectory readKittiTrajectory(const std::string& poses_path, const std::string&
 Trajectory readKittiTrajectory(const std::string& poses_path, double period_s, double start_stamp_s,
                                const TrajectoryReadOptions& opt) {
   if (!std::isfinite(period_s) || period_s <= 0.0) {
-    throw ConfigError("KITTI poses '" + poses_path + "': period " + num(period_s) + " s must be positive and finite");
+    throw ConfigError("KITTI poses '" + poses_path + "': period " + formatNumber(period_s) + " s must be positive and finite");
   }
   if (!std::isfinite(start_stamp_s)) {
-    throw ConfigError("KITTI poses '" + poses_path + "': start stamp " + num(start_stamp_s) + " s must be finite");
+    throw ConfigError("KITTI poses '" + poses_path + "': start stamp " + formatNumber(start_stamp_s) + " s must be finite");
   }
   const auto rows = readKittiPoseRows(poses_path, opt);
   std::vector<StampedPose> poses(rows.size());

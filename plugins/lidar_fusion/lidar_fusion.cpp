@@ -1,6 +1,7 @@
 #include "lidar_fusion.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/core/text.hpp>
 
 #include <algorithm>
 #include <array>
@@ -29,13 +30,6 @@ constexpr int kRayTask = 1024;
 /// Items ahead of the current one whose cells the fusion loop prefetches.
 constexpr int kPrefetchAhead = 8;
 constexpr float kRayPenetration = 1.0f;  // Item::aux of a ray passing below a stale surface
-
-std::string num(double v) {
-  std::ostringstream os;
-  os.precision(17);
-  os << v;
-  return os.str();
-}
 
 // ---- gates: one point -> drop reason or cell ---------------------------------------------------
 
@@ -295,8 +289,8 @@ LidarFusionConfig lidarFusionConfigFrom(const Params& p) {
   c.orientation_noise_thresh_rad = p.getDouble("orientation_noise_thresh_rad");
   c.follow_robot = p.getBool("follow_robot");
   if (!(c.min_range_m < c.max_range_m))
-    p.fail("min_range_m", "must be smaller than max_range_m (" + num(c.max_range_m) + "), got " +
-                              num(c.min_range_m));
+    p.fail("min_range_m", "must be smaller than max_range_m (" + formatNumber(c.max_range_m) + "), got " +
+                              formatNumber(c.min_range_m));
   return c;
 }
 
@@ -305,7 +299,7 @@ void LidarFusion::configure(const LidarFusionConfig& c) {
     throw ConfigError("lidar_fusion: " + key + ": " + msg);
   };
   auto finiteNonNeg = [&](const char* key, double v) {
-    if (!(v >= 0.0) || std::isnan(v)) bad(key, "must be >= 0 (got " + num(v) + ")");
+    if (!(v >= 0.0) || std::isnan(v)) bad(key, "must be >= 0 (got " + formatNumber(v) + ")");
   };
   finiteNonNeg("range_noise_a_m", c.range_noise_a_m);
   finiteNonNeg("range_noise_b", c.range_noise_b);
@@ -318,14 +312,14 @@ void LidarFusion::configure(const LidarFusionConfig& c) {
   finiteNonNeg("max_ray_length_m", c.max_ray_length_m);
   finiteNonNeg("cleanup_end_margin_m", c.cleanup_end_margin_m);
   if (!(c.min_range_m < c.max_range_m))
-    bad("min_range_m", "must be smaller than max_range_m (" + num(c.max_range_m) + "), got " + num(c.min_range_m));
-  if (c.cleanup_ray_stride < 1) bad("cleanup_ray_stride", "must be >= 1 (got " + num(c.cleanup_ray_stride) + ")");
+    bad("min_range_m", "must be smaller than max_range_m (" + formatNumber(c.max_range_m) + "), got " + formatNumber(c.min_range_m));
+  if (c.cleanup_ray_stride < 1) bad("cleanup_ray_stride", "must be >= 1 (got " + formatNumber(c.cleanup_ray_stride) + ")");
   if (!(c.cleanup_step >= 0.0 && c.cleanup_step <= 1.0))
-    bad("cleanup_step", "must be in [0, 1] (got " + num(c.cleanup_step) + ")");
+    bad("cleanup_step", "must be in [0, 1] (got " + formatNumber(c.cleanup_step) + ")");
   if (!(c.cleanup_cos_thresh >= 0.0 && c.cleanup_cos_thresh <= 1.0))
-    bad("cleanup_cos_thresh", "must be in [0, 1] (got " + num(c.cleanup_cos_thresh) + ")");
+    bad("cleanup_cos_thresh", "must be in [0, 1] (got " + formatNumber(c.cleanup_cos_thresh) + ")");
   if (!(c.drift_compensation_alpha >= 0.0 && c.drift_compensation_alpha <= 1.0))
-    bad("drift_compensation_alpha", "must be in [0, 1] (got " + num(c.drift_compensation_alpha) + ")");
+    bad("drift_compensation_alpha", "must be in [0, 1] (got " + formatNumber(c.drift_compensation_alpha) + ")");
   config_ = c;
 }
 
@@ -410,8 +404,8 @@ void LidarFusion::advanceTime(LayeredMap& map, const Executor& ex, double stamp)
     return;
   }
   if (stamp < last_stamp_)
-    throw InputError("lidar_fusion: event stamp " + num(stamp) + " s is earlier than the previous " +
-                     num(last_stamp_) + " s (events must be time-ordered)");
+    throw InputError("lidar_fusion: event stamp " + formatNumber(stamp) + " s is earlier than the previous " +
+                     formatNumber(last_stamp_) + " s (events must be time-ordered)");
   const double dt = stamp - last_stamp_;
   last_stamp_ = stamp;
   if (dt == 0.0 || bound_map_ == nullptr) return;
@@ -480,7 +474,7 @@ FusionStats LidarFusion::fuse(LayeredMap& map, const Executor& ex, const PointCl
     throw LayerError("lidar_fusion: fuse() on a map it is not attached to (call attach(map) first)");
   const Eigen::Isometry3d& T = cloud.T_map_sensor;
   if (!T.matrix().allFinite())
-    throw InputError("lidar_fusion: point cloud at stamp " + num(cloud.stamp) + " s has a non-finite T_map_sensor");
+    throw InputError("lidar_fusion: point cloud at stamp " + formatNumber(cloud.stamp) + " s has a non-finite T_map_sensor");
   FusionStats st;
   st.points_in = static_cast<long>(cloud.points.size());
   buildIndexTables(map);
@@ -1154,7 +1148,7 @@ void LidarFusion::process(ProcessContext& ctx, const Event& event) {
   } else if (const auto* pose = std::get_if<Pose>(&event)) {
     advanceTime(map, ctx.executor(), pose->stamp);
     if (!pose->T_map_base.matrix().allFinite())
-      throw InputError("lidar_fusion: pose at stamp " + num(pose->stamp) + " s is not finite");
+      throw InputError("lidar_fusion: pose at stamp " + formatNumber(pose->stamp) + " s is not finite");
     have_pose_ = true;
     followTo(map, pose->T_map_base.translation());
   } else if (const auto* tick = std::get_if<Tick>(&event)) {
@@ -1172,7 +1166,7 @@ void LidarFusion::finish(ProcessContext& ctx) {
      << ",\"outside_map\":" << t.dropped_outside_map << "},\"cells_forgotten\":" << t.cells_forgotten
      << ",\"rays\":" << t.rays << ",\"cells_penetrated\":" << t.cells_penetrated
      << ",\"cells_invalidated\":" << t.cells_invalidated << ",\"upper_bound_updates\":" << t.upper_bounds
-     << ",\"drift_total_m\":" << num(t.drift_m) << "}";
+     << ",\"drift_total_m\":" << formatNumber(t.drift_m) << "}";
   ctx.reportRecord(os.str());
 }
 

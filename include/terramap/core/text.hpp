@@ -15,5 +15,7 @@ std::vector<std::string> closestMatches(const std::string& word, const std::vect
 std::string didYouMean(const std::string& word, const std::vector<std::string>& candidates);
 /// "a, b, c"
 std::string joinStrings(const std::vector<std::string>& items, const std::string& sep = ", ");
+/// A double with 17 significant digits (round-trips exactly), for messages and metadata.
+std::string formatNumber(double v);
 
 }  // namespace terramap
