@@ -72,14 +72,15 @@ std::vector<std::string> LayeredMap::layerNames() const {
   return out;
 }
 
-CellRect LayeredMap::tileRect(int t) const {
-  const int T = options_.tile_size;
-  const int tr = t / tile_cols_, tc = t % tile_cols_;
+CellRect LayeredMap::tileRectOf(const Size& size, int tile_size, int t) {
+  const int T = tile_size;
+  const int tile_cols = (size.y() + T - 1) / T;
+  const int tr = t / tile_cols, tc = t % tile_cols;
   CellRect r;
   r.r0 = tr * T;
   r.c0 = tc * T;
-  r.rows = std::min(T, geometry_.size().x() - r.r0);
-  r.cols = std::min(T, geometry_.size().y() - r.c0);
+  r.rows = std::min(T, size.x() - r.r0);
+  r.cols = std::min(T, size.y() - r.c0);
   return r;
 }
 

@@ -132,17 +132,6 @@ float bitsFloat(std::uint32_t u) {
   return f;
 }
 
-/// Logical tile rectangle (same tiling as LayeredMap::tileRect, applied to logical indices).
-CellRect logicalTileRect(const Geometry& g, int T, int tile_cols, int k) {
-  const int tr = k / tile_cols, tc = k % tile_cols;
-  CellRect r;
-  r.r0 = tr * T;
-  r.c0 = tc * T;
-  r.rows = std::min(T, g.size().x() - r.r0);
-  r.cols = std::min(T, g.size().y() - r.c0);
-  return r;
-}
-
 /// Visits logical cells (li, c0 .. c0+n-1) as runs that are contiguous inside one buffer tile:
 /// fn(tile_data_or_null, offset_in_tile, count). Handles the ring-buffer wrap.
 template <class F>
@@ -236,7 +225,7 @@ void encode(const LayeredMap& map, const Sink& sink, const std::string& name_for
     length += 16 + info.name.size() + info.unit.size();
     auto& tiles = stored[static_cast<std::size_t>(id)];
     for (int k = 0; k < tile_count; ++k) {
-      const CellRect r = logicalTileRect(g, T, tile_cols, k);
+      const CellRect r = LayeredMap::tileRectOf(g.size(), T, k);
       if (sparse && !logicalTileTouchesAllocated(map, id, r)) continue;
       tiles.push_back(k);
       length += 4 + static_cast<std::uint64_t>(r.cells()) * 4;
@@ -270,7 +259,7 @@ void encode(const LayeredMap& map, const Sink& sink, const std::string& name_for
     enc.u32(static_cast<std::uint32_t>(tiles.size()));
     for (const int k : tiles) {
       enc.u32(static_cast<std::uint32_t>(k));
-      const CellRect r = logicalTileRect(g, T, tile_cols, k);
+      const CellRect r = LayeredMap::tileRectOf(g.size(), T, k);
       for (int li = r.r0; li < r.r0 + r.rows; ++li) {
         float* out = row.data();
         forEachRun(map, id, li, r.c0, r.cols, [&](const float* d, std::size_t off, int n) {
@@ -471,7 +460,7 @@ Decoded decode(const unsigned char* p, std::size_t n, const std::string& name, b
                               "' is out of range or not increasing (previous " + std::to_string(prev_k) +
                               ", tile count " + std::to_string(tile_count) + ")");
       prev_k = k;
-      const CellRect r = logicalTileRect(info.geometry, T, tile_cols, static_cast<int>(k));
+      const CellRect r = LayeredMap::tileRectOf(info.geometry.size(), T, static_cast<int>(k));
       if (!build_map) {
         dec.skip(static_cast<std::size_t>(r.cells()) * 4, "tile cells");
         continue;

@@ -78,7 +78,10 @@ class TERRAMAP_API LayeredMap {
   int tileCols() const { return tile_cols_; }
   int tileCount() const { return tile_rows_ * tile_cols_; }
   /// Buffer-space rectangle of tile `t` (row-major tile numbering).
-  CellRect tileRect(int t) const;
+  CellRect tileRect(int t) const { return tileRectOf(geometry_.size(), options_.tile_size, t); }
+  /// The tiling itself: rectangle of tile `t` of a size.x() x size.y() cell grid cut into
+  /// tile_size squares, row-major, clipped at the far edges (the .tmap format uses it too).
+  static CellRect tileRectOf(const Size& size, int tile_size, int t);
   /// Tile that holds buffer cell (r, c).
   int tileOfBuffer(int r, int c) const {
     return (r / options_.tile_size) * tile_cols_ + c / options_.tile_size;
