@@ -111,7 +111,9 @@ TEST(SweptVolume, ExactFootprintForAnyHeadingRollAndYaw) {
           }
         EXPECT_GT(inside, 100) << heading << " " << yaw_rel << " " << roll;
         EXPECT_EQ(wrong, 0) << "heading " << heading << " yaw " << yaw_rel << " roll " << roll;
-        if (roll == 0.0) EXPECT_EQ(rec->cells_cut, rec->cells_under_sv - rec->cells_unknown_under_sv);
+        if (roll == 0.0) {
+          EXPECT_EQ(rec->cells_cut, rec->cells_under_sv - rec->cells_unknown_under_sv);
+        }
       }
     }
   }

@@ -214,7 +214,9 @@ TEST(Erosion, BladeMasksHoldSoilAndLimitInflow) {
   for (int j = 0; j < 4; ++j) {
     EXPECT_EQ(g.H[g.at(65, j)], 0.3);
     for (int i = 60; i < 70; ++i)
-      if (i != 65) EXPECT_LE(g.H[g.at(i, j)], 0.1 + 1e-12) << i;
+      if (i != 65) {
+        EXPECT_LE(g.H[g.at(i, j)], 0.1 + 1e-12) << i;
+      }
     EXPECT_NEAR(g.H[g.at(60, j)], 0.1, 1e-12);  // filled up to the blade bottom next to the pile
   }
   // Without masks the same soil spreads through.
