@@ -71,7 +71,7 @@ void BM_SimRealtimeSustained(benchmark::State& state) {
   state.counters["realtime_factor"] = benchmark::Counter(simulated, benchmark::Counter::kIsRate);
   state.counters["physics_share"] = physics / (physics + lidar);
 }
-BENCHMARK(BM_SimRealtimeSustained)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+BENCHMARK(BM_SimRealtimeSustained)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
 
 void BM_SimLidarRays(benchmark::State& state) {
   TerrainSpec ts;

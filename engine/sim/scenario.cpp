@@ -455,6 +455,7 @@ Scenario parseImpl(const std::string& text, const Ctx& ctx) {
   if (std::abs(ratio - std::round(ratio)) > 1e-9 || ratio < 1)
     r.fail(r.node("physics_hz"), "physics_hz", "must be a whole multiple of observation_hz");
   sc.threads = r.integer("threads", sc.threads, 1, 256);
+  sc.overlap_scans = r.boolean("overlap_scans", sc.overlap_scans);
   {
     MapReader t = r.child("terrain");
     readTerrain(t, sc, ctx);

@@ -5,6 +5,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
+#include <deque>
+#include <exception>
+#include <limits>
+#include <mutex>
 
 namespace terramap::sim {
 namespace {
@@ -63,19 +68,87 @@ struct Simulator::Machine {
   }
 };
 
+/// A LiDAR scan that fell due: everything its cloud needs except the terrain.
+struct Simulator::ScanRequest {
+  std::size_t machine = 0, lidar = 0;
+  std::size_t patches_before = 0;  ///< patches of the period to apply to the view first
+  double stamp = 0;
+  Eigen::Isometry3d T_map_sensor = Eigen::Isometry3d::Identity();
+  std::uint64_t key = 0;
+};
+
+/// One observation period as the physics produced it.
+struct Simulator::Period {
+  long obs_step = 0, phys_step = 0;
+  double t = 0;
+  std::vector<PointCloud> clouds;           ///< serial mode: cast during the period
+  std::vector<ScanRequest> scans;           ///< overlap mode: cast by the caller's side
+  std::vector<TruthTerrain::Patch> patches; ///< overlap mode: terrain changes, in time order
+  std::vector<Event> events;                ///< Pose, BladePose, Observation per machine, Tick
+  std::vector<MachineTruth> truths;
+  std::vector<CompactTrackLoader> ctls;     ///< overlap mode: the machines at the period's end
+  std::uint64_t fee_invalid_slices = 0;
+  double lost_m3 = 0, physics_wall_s = 0;
+  bool end = false;                         ///< no period: the duration is over
+  std::exception_ptr error;                 ///< the physics threw (rethrown by next())
+};
+
+/// The queue between the physics (producer tasks) and next() (consumer).
+struct Simulator::Pipe {
+  std::mutex mu;
+  std::condition_variable cv;
+  std::deque<Period> ring;
+  std::size_t capacity = 12;
+  bool started = false, active = false, finished = false, stopping = false;
+};
+
+void Simulator::Box::add(int a0, int b0, int a1, int b1) {
+  if (a1 < a0) return;
+  if (empty()) {
+    i0 = a0; j0 = b0; i1 = a1; j1 = b1;
+    return;
+  }
+  i0 = std::min(i0, a0); j0 = std::min(j0, b0);
+  i1 = std::max(i1, a1); j1 = std::max(j1, b1);
+}
+
 Simulator::Simulator(const Scenario& scenario)
     : sc_(scenario), terrain_(buildTerrain(scenario.terrain)), soil_(scenario.default_soil, scenario.zones),
       exec_(scenario.threads) {
   substeps_ = static_cast<int>(std::llround(sc_.physics_hz / sc_.observation_hz));
   if (substeps_ < 1) throw ConfigError(sc_.source_path + ": physics_hz must be >= observation_hz");
-  for (std::size_t i = 0; i < sc_.machines.size(); ++i)
+  double min_rate = std::numeric_limits<double>::infinity();
+  for (std::size_t i = 0; i < sc_.machines.size(); ++i) {
     machines_.push_back(std::make_unique<Machine>(i, sc_.machines[i], terrain_, sc_.seed));
+    view_truth_.push_back(machines_.back()->truth);
+    for (const auto& L : machines_.back()->lidars)
+      min_rate = std::min(min_rate, sc_.machines[i].sensors[L.sensor_index].rate_hz);
+  }
+  overlap_ = sc_.overlap_scans && exec_.threads() > 1 && std::isfinite(min_rate);
+  if (overlap_) {
+    view_ = std::make_unique<TruthTerrain>(terrain_);
+    for (const auto& m : machines_) view_ctl_.push_back(m->ctl);
+    pipe_ = std::make_unique<Pipe>();
+    // Room for two scan periods: the physics can finish the next scan's periods while this
+    // one is cast, and is never held up by a scan that takes longer than usual.
+    const double per_scan = std::ceil(sc_.observation_hz / min_rate);
+    pipe_->capacity = static_cast<std::size_t>(std::clamp(2.0 * per_scan, 4.0, 64.0));
+  }
 }
 
-Simulator::~Simulator() = default;
+Simulator::~Simulator() {
+  if (!pipe_) return;
+  // A producer task may still be queued or running: let it see `stopping` and finish.
+  std::unique_lock<std::mutex> lk(pipe_->mu);
+  pipe_->stopping = true;
+  pipe_->cv.wait(lk, [&] { return !pipe_->active; });
+}
 
-const CompactTrackLoader& Simulator::machine(std::size_t i) const { return machines_.at(i)->ctl; }
-const MachineTruth& Simulator::machineTruth(std::size_t i) const { return machines_.at(i)->truth; }
+const CompactTrackLoader& Simulator::machine(std::size_t i) const {
+  if (overlap_) return view_ctl_.at(i);
+  return machines_.at(i)->ctl;
+}
+const MachineTruth& Simulator::machineTruth(std::size_t i) const { return view_truth_.at(i); }
 
 void Simulator::physicsStep(double dt, bool relax) {
   for (auto& mp : machines_) {
@@ -84,7 +157,7 @@ void Simulator::physicsStep(double dt, bool relax) {
     m.last_cmd = m.controller.update(dt, m.ctl);
     const Eigen::Isometry3d T_old = m.ctl.T_map_blade();
     const BladeForce bf = bladeSoilForce(terrain_, soil_, T_old, spec.blade, spec.edge_thickness_m, spec.blade_slices,
-                                         m.edge_vn, m.edge_vz, m.edge_acc, &exec_);
+                                         m.edge_vn, m.edge_vz, m.edge_acc, overlap_ ? nullptr : &exec_);
     const Eigen::Vector3d fwd = m.ctl.T_map_base().linear().col(0);
     const Eigen::Vector3d fwd_h = Eigen::Vector3d(fwd.x(), fwd.y(), 0).normalized();
     const Eigen::Vector3d resisting = bf.fee_map + bf.inertia_map;
@@ -102,7 +175,7 @@ void Simulator::physicsStep(double dt, bool relax) {
     m.truth.force_map_N = F;
     m.truth.fee = bf.truth;
     m.truth.stalled = m.ctl.stalled();
-    stats_.fee_invalid_slices += static_cast<std::uint64_t>(bf.truth.invalid_slices);
+    p_fee_invalid_ += static_cast<std::uint64_t>(bf.truth.invalid_slices);
     const Eigen::Isometry3d T_new = m.ctl.T_map_blade();
     const CutResult cut = cutAndPush(terrain_, soil_, T_old, T_new, spec.blade, spec.blade_slices);
     m.truth.cut_bank_m3 += cut.cut_bank_m3;
@@ -116,60 +189,92 @@ void Simulator::physicsStep(double dt, bool relax) {
   }
 }
 
-void Simulator::markDirty(const CutResult& r) {
-  if (r.i1 < r.i0) return;
-  if (dirty_i1_ < dirty_i0_) {
-    dirty_i0_ = r.i0; dirty_j0_ = r.j0; dirty_i1_ = r.i1; dirty_j1_ = r.j1;
-    return;
-  }
-  dirty_i0_ = std::min(dirty_i0_, r.i0); dirty_j0_ = std::min(dirty_j0_, r.j0);
-  dirty_i1_ = std::max(dirty_i1_, r.i1); dirty_j1_ = std::max(dirty_j1_, r.j1);
-}
-
 void Simulator::refreshDirty() {
-  if (dirty_i1_ < dirty_i0_) return;
-  terrain_.refreshPyramid(dirty_i0_, dirty_j0_, dirty_i1_, dirty_j1_);
-  dirty_i0_ = 0; dirty_j0_ = 0; dirty_i1_ = -1; dirty_j1_ = -1;
+  if (dirty_.empty()) return;
+  terrain_.refreshPyramid(dirty_.i0, dirty_.j0, dirty_.i1, dirty_.j1);
+  dirty_ = Box{};
 }
 
-bool Simulator::next(std::vector<Event>& out) {
+void Simulator::refreshView() {
+  if (view_dirty_.empty()) return;
+  view_->refreshPyramid(view_dirty_.i0, view_dirty_.j0, view_dirty_.i1, view_dirty_.j1);
+  view_dirty_ = Box{};
+}
+
+const TruthTerrain& Simulator::truth() const {
+  // The ray-casting pyramid is brought up to date lazily (only scans and callers need it).
+  auto* self = const_cast<Simulator*>(this);
+  if (overlap_) {
+    self->refreshView();
+    return *view_;
+  }
+  self->refreshDirty();
+  return terrain_;
+}
+
+PointCloud Simulator::runScan(const ScanRequest& q, const TruthTerrain& terrain) {
+  Machine& m = *machines_[q.machine];
+  auto& L = m.lidars[q.lidar];
+  const SensorSpec& ss = m.ctl.spec().sensors[L.sensor_index];
+  PointCloud pc;
+  pc.stamp = q.stamp;
+  pc.frame = m.ctl.spec().id + "/" + ss.id;
+  pc.T_map_sensor = q.T_map_sensor;
+  const std::size_t hits = L.model.scan(terrain, pc.T_map_sensor, q.key, &exec_, pc.points);
+  stats_.rays += L.model.raysPerScan();
+  stats_.points += hits;
+  ++stats_.scans;
+  return pc;
+}
+
+void Simulator::producePeriod(Period& rec) {
   const double period = 1.0 / sc_.observation_hz;
-  if (obs_step_ * period >= sc_.duration_s - 1e-9) return false;
   const double dt = 1.0 / sc_.physics_hz;
-  std::vector<Event> ev;
+  TruthTerrain::Patch patch;
+  auto cutPatch = [&] {
+    if (dirty_.empty()) return;
+    terrain_.capturePatch(dirty_.i0, dirty_.j0, dirty_.i1, dirty_.j1, patch);
+    rec.patches.push_back(std::move(patch));
+    dirty_ = Box{};
+  };
   for (int s = 0; s < substeps_; ++s) {
     // Loose soil relaxes once per observation period (2 Jacobi sweeps: spreads 2.4 m/s at 60 Hz
     // and 2 cm, faster than the blade moves).
     const auto w0 = std::chrono::steady_clock::now();
     physicsStep(dt, s == substeps_ - 1);
-    stats_.physics_wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
-    ++phys_step_;
-    const double t = static_cast<double>(phys_step_) / sc_.physics_hz;
+    p_physics_wall_s_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
+    ++p_phys_step_;
+    const double t = static_cast<double>(p_phys_step_) / sc_.physics_hz;
     // LiDAR scans that are due.
     for (auto& mp : machines_) {
       Machine& m = *mp;
-      for (auto& L : m.lidars) {
+      for (std::size_t li = 0; li < m.lidars.size(); ++li) {
+        auto& L = m.lidars[li];
         const SensorSpec& ss = m.ctl.spec().sensors[L.sensor_index];
         if (t + 1e-9 < static_cast<double>(L.next_scan) / ss.rate_hz) continue;
-        const auto w1 = std::chrono::steady_clock::now();
-        refreshDirty();
-        PointCloud pc;
-        pc.stamp = t;
-        pc.frame = m.ctl.spec().id + "/" + ss.id;
-        pc.T_map_sensor = m.ctl.T_map_base() * ss.T_base_sensor;
-        const std::uint64_t key = streamSeed(sc_.seed, 1000 + m.index * 64 + L.sensor_index, static_cast<std::uint64_t>(L.next_scan));
-        const std::size_t hits = L.model.scan(terrain_, pc.T_map_sensor, key, &exec_, pc.points);
-        stats_.rays += L.model.raysPerScan();
-        stats_.points += hits;
-        ++stats_.scans;
+        ScanRequest q;
+        q.machine = m.index;
+        q.lidar = li;
+        q.stamp = t;
+        q.T_map_sensor = m.ctl.T_map_base() * ss.T_base_sensor;
+        q.key = streamSeed(sc_.seed, 1000 + m.index * 64 + L.sensor_index, static_cast<std::uint64_t>(L.next_scan));
         ++L.next_scan;
-        ev.emplace_back(std::move(pc));
-        stats_.lidar_wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - w1).count();
+        if (overlap_) {
+          cutPatch();
+          q.patches_before = rec.patches.size();
+          rec.scans.push_back(q);
+        } else {
+          const auto w1 = std::chrono::steady_clock::now();
+          refreshDirty();
+          rec.clouds.push_back(runScan(q, terrain_));
+          stats_.lidar_wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - w1).count();
+        }
       }
     }
   }
-  ++obs_step_;
-  t_ = static_cast<double>(phys_step_) / sc_.physics_hz;
+  ++p_obs_step_;
+  const double tp = static_cast<double>(p_phys_step_) / sc_.physics_hz;
+  if (overlap_) cutPatch();
   const bool single = machines_.size() == 1;
   for (auto& mp : machines_) {
     Machine& m = *mp;
@@ -182,7 +287,7 @@ bool Simulator::next(std::vector<Event>& out) {
     m.truth.raise_offset_m = m.controller.raiseOffset();
     // Pose (noisy if a pose sensor exists).
     Pose pose;
-    pose.stamp = t_;
+    pose.stamp = tp;
     pose.frame = single ? "base" : spec.id + "/base";
     pose.T_map_base = Tb;
     if (m.pose_sensor >= 0) {
@@ -200,12 +305,12 @@ bool Simulator::next(std::vector<Event>& out) {
                                  Tb.linear();
     }
     BladePose bp;
-    bp.stamp = t_;
+    bp.stamp = tp;
     bp.machine_id = spec.id;
     bp.T_map_blade = Tbl;
     bp.geometry = spec.blade;
     Observation ob;
-    ob.stamp = t_;
+    ob.stamp = tp;
     ob.machine_id = spec.id;
     ob.T_map_base = Tb;
     ob.twist_base = bodyTwist(m.prev_base, Tb, period);
@@ -227,14 +332,121 @@ bool Simulator::next(std::vector<Event>& out) {
     }
     m.prev_base = Tb;
     m.prev_blade = Tbl;
-    ev.emplace_back(std::move(pose));
-    ev.emplace_back(std::move(bp));
-    ev.emplace_back(std::move(ob));
+    rec.events.emplace_back(std::move(pose));
+    rec.events.emplace_back(std::move(bp));
+    rec.events.emplace_back(std::move(ob));
+    rec.truths.push_back(m.truth);
+    if (overlap_) rec.ctls.push_back(m.ctl);
   }
-  stats_.lost_m3 = terrain_.lostVolume();
-  ev.emplace_back(Tick{t_});
+  rec.events.emplace_back(Tick{tp});
+  rec.obs_step = p_obs_step_;
+  rec.phys_step = p_phys_step_;
+  rec.t = tp;
+  rec.lost_m3 = terrain_.lostVolume();
+  rec.fee_invalid_slices = p_fee_invalid_;
+  rec.physics_wall_s = p_physics_wall_s_;
+}
+
+void Simulator::produceAsync() {
+  Period rec;
+  {
+    std::lock_guard<std::mutex> lk(pipe_->mu);
+    if (pipe_->stopping) {
+      pipe_->active = false;
+      pipe_->cv.notify_all();
+      return;
+    }
+  }
+  try {
+    if (static_cast<double>(p_obs_step_) * (1.0 / sc_.observation_hz) >= sc_.duration_s - 1e-9) rec.end = true;
+    else producePeriod(rec);
+  } catch (...) {
+    rec.error = std::current_exception();
+    rec.end = true;
+  }
+  std::lock_guard<std::mutex> lk(pipe_->mu);
+  const bool end = rec.end;
+  pipe_->ring.push_back(std::move(rec));
+  if (end) pipe_->finished = true;
+  // One period per task: a task picked up by the caller's thread while it waits inside a
+  // scan holds it up by one period of physics at most.
+  if (!end && !pipe_->stopping && pipe_->ring.size() < pipe_->capacity) exec_.arena().enqueue([this] { produceAsync(); });
+  else pipe_->active = false;
+  pipe_->cv.notify_all();
+}
+
+void Simulator::consume(Period& rec, std::vector<Event>& out) {
+  if (overlap_) {
+    // Bring the view to each scan's instant, cast, then to the period's end.
+    const auto w1 = std::chrono::steady_clock::now();
+    std::size_t applied = 0;
+    auto applyUpTo = [&](std::size_t n) {
+      for (; applied < n; ++applied) {
+        const TruthTerrain::Patch& p = rec.patches[applied];
+        view_->applyPatch(p);
+        view_dirty_.add(p.i0, p.j0, p.i1, p.j1);
+      }
+    };
+    for (const ScanRequest& q : rec.scans) {
+      applyUpTo(q.patches_before);
+      refreshView();
+      rec.clouds.push_back(runScan(q, *view_));
+    }
+    applyUpTo(rec.patches.size());
+    view_ctl_ = std::move(rec.ctls);
+    stats_.lidar_wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - w1).count();
+  }
+  t_ = rec.t;
+  obs_step_ = rec.obs_step;
+  phys_step_ = rec.phys_step;
+  view_truth_ = std::move(rec.truths);
+  stats_.fee_invalid_slices = rec.fee_invalid_slices;
+  stats_.lost_m3 = rec.lost_m3;
+  stats_.physics_wall_s = rec.physics_wall_s;
+  std::vector<Event> ev;
+  ev.reserve(rec.clouds.size() + rec.events.size());
+  for (auto& c : rec.clouds) ev.emplace_back(std::move(c));
+  for (auto& e : rec.events) ev.push_back(std::move(e));
   std::stable_sort(ev.begin(), ev.end(), [](const Event& a, const Event& b) { return stampOf(a) < stampOf(b); });
   for (auto& e : ev) out.push_back(std::move(e));
+}
+
+bool Simulator::next(std::vector<Event>& out) {
+  if (done_) return false;
+  if (!overlap_) {
+    if (static_cast<double>(p_obs_step_) * (1.0 / sc_.observation_hz) >= sc_.duration_s - 1e-9) {
+      done_ = true;
+      return false;
+    }
+    Period rec;
+    producePeriod(rec);
+    consume(rec, out);
+    return true;
+  }
+  Period rec;
+  {
+    std::unique_lock<std::mutex> lk(pipe_->mu);
+    if (!pipe_->started) {
+      pipe_->started = pipe_->active = true;
+      exec_.arena().enqueue([this] { produceAsync(); });
+    }
+    pipe_->cv.wait(lk, [&] { return !pipe_->ring.empty(); });
+    rec = std::move(pipe_->ring.front());
+    pipe_->ring.pop_front();
+    if (!pipe_->active && !pipe_->finished && !pipe_->stopping) {
+      pipe_->active = true;
+      exec_.arena().enqueue([this] { produceAsync(); });
+    }
+  }
+  if (rec.error) {
+    done_ = true;
+    std::rethrow_exception(rec.error);
+  }
+  if (rec.end) {
+    done_ = true;
+    return false;
+  }
+  consume(rec, out);
   return true;
 }
 

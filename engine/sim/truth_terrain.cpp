@@ -242,6 +242,37 @@ double TruthTerrain::nodeMaxCell(int ci, int cj) const {
   return std::max(std::max(height(ci, cj), height(ci + 1, cj)), std::max(height(ci, cj + 1), height(ci + 1, cj + 1)));
 }
 
+void TruthTerrain::capturePatch(int i0, int j0, int i1, int j1, Patch& out) const {
+  out.i0 = std::max(0, i0); out.j0 = std::max(0, j0);
+  out.i1 = std::min(nx_ - 1, i1); out.j1 = std::min(ny_ - 1, j1);
+  out.lost_m3 = lost_m3_;
+  const int w = std::max(0, out.i1 - out.i0 + 1), hgt = std::max(0, out.j1 - out.j0 + 1);
+  const std::size_t n = static_cast<std::size_t>(w) * hgt;
+  out.u.resize(n); out.lv.resize(n); out.lc.resize(n); out.h.resize(n);
+  for (int j = 0; j < hgt; ++j) {
+    const std::size_t src = index(out.i0, out.j0 + j), dst = static_cast<std::size_t>(j) * w;
+    std::copy_n(&u_[src], w, &out.u[dst]);
+    std::copy_n(&lv_[src], w, &out.lv[dst]);
+    std::copy_n(&lc_[src], w, &out.lc[dst]);
+    std::copy_n(&h_[src], w, &out.h[dst]);
+  }
+}
+
+void TruthTerrain::applyPatch(const Patch& p) {
+  lost_m3_ = p.lost_m3;
+  const int w = p.i1 - p.i0 + 1, hgt = p.j1 - p.j0 + 1;
+  if (w <= 0 || hgt <= 0) return;
+  if (p.i0 < 0 || p.j0 < 0 || p.i1 >= nx_ || p.j1 >= ny_ || p.h.size() != static_cast<std::size_t>(w) * hgt)
+    throw std::invalid_argument("TruthTerrain::applyPatch: the patch does not fit this grid");
+  for (int j = 0; j < hgt; ++j) {
+    const std::size_t src = static_cast<std::size_t>(j) * w, dst = index(p.i0, p.j0 + j);
+    std::copy_n(&p.u[src], w, &u_[dst]);
+    std::copy_n(&p.lv[src], w, &lv_[dst]);
+    std::copy_n(&p.lc[src], w, &lc_[dst]);
+    std::copy_n(&p.h[src], w, &h_[dst]);
+  }
+}
+
 void TruthTerrain::refreshPyramid(int i0, int j0, int i1, int j1) {
   // Cells touching the node box.
   int c0 = std::max(0, std::min(i0, i1) - 1), c1 = std::min(nx_ - 2, std::max(i0, i1));

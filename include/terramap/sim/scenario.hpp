@@ -150,6 +150,9 @@ struct Scenario {
   double physics_hz = 240;      ///< internal step (multiple of observation_hz)
   double observation_hz = 60;   ///< Observation/Pose/BladePose events and next() step
   int threads = 2;              ///< LiDAR ray-casting threads (results independent of it)
+  /// With threads >= 2: run the physics ahead while LiDAR scans are cast (results identical;
+  /// costs a second copy of the truth terrain). See Simulator.
+  bool overlap_scans = true;
   TerrainSpec terrain;
   SoilProperties default_soil = soilProperties(SoilFamily::Loam, 0.5);
   std::vector<SoilZone> zones;  ///< later zones override earlier ones

@@ -13,6 +13,14 @@
 /// Everything random comes from per-stream seeded generators or counter hashes, never thread
 /// timing: the same scenario and seed give a bit-identical event stream for any thread count.
 /// Not thread-safe (one Simulator per thread); LiDAR ray casting runs on its own Executor.
+///
+/// With `threads` >= 2 and a LiDAR, the physics runs ahead of the caller (up to two scan
+/// periods, as tasks on the Simulator's executor) while the caller's thread casts the scans
+/// on a second copy of the terrain that is brought, by patches of the changed node boxes, to
+/// the exact instant of each scan: the two stages overlap instead of alternating, and every
+/// output (events, truth(), machineTruth(), machine()) is still that of the period next()
+/// returned, bit-identical to the serial order. It costs a second copy of the truth terrain;
+/// `overlap_scans: false` in the scenario turns it off.
 #include <terramap/core/events.hpp>
 #include <terramap/core/parallel.hpp>
 #include <terramap/sim/blade_physics.hpp>
@@ -60,10 +68,7 @@ class Simulator {
   long step() const { return obs_step_; }
   const Scenario& scenario() const { return sc_; }
   /// The truth terrain now (its ray-casting pyramid is brought up to date lazily here).
-  const TruthTerrain& truth() const {
-    const_cast<Simulator*>(this)->refreshDirty();
-    return terrain_;
-  }
+  const TruthTerrain& truth() const;
   const SoilField& soil() const { return soil_; }
   std::size_t machineCount() const { return machines_.size(); }
   const CompactTrackLoader& machine(std::size_t i) const;
@@ -81,20 +86,50 @@ class Simulator {
 
  private:
   struct Machine;
+  struct ScanRequest;
+  struct Period;
+  struct Pipe;
+  /// A node box (inclusive), empty when i1 < i0.
+  struct Box {
+    int i0 = 0, j0 = 0, i1 = -1, j1 = -1;
+    bool empty() const { return i1 < i0; }
+    void add(int a0, int b0, int a1, int b1);
+  };
   void physicsStep(double dt, bool relax);
-  void markDirty(const CutResult& r);
+  void markDirty(const CutResult& r) { dirty_.add(r.i0, r.j0, r.i1, r.j1); }
   void refreshDirty();
+  void refreshView();
+  void producePeriod(Period& rec);
+  void produceAsync();
+  void consume(Period& rec, std::vector<Event>& out);
+  PointCloud runScan(const ScanRequest& q, const TruthTerrain& terrain);
 
   Scenario sc_;
-  TruthTerrain terrain_;
+  TruthTerrain terrain_;  ///< the physics' terrain (ahead of the caller's period when overlapping)
   SoilField soil_;
   Executor exec_;
   std::vector<std::unique_ptr<Machine>> machines_;
+  int substeps_ = 4;
+  // Producer side (the physics): its own step counters and cumulative figures.
+  long p_obs_step_ = 0, p_phys_step_ = 0;
+  double p_physics_wall_s_ = 0;
+  std::uint64_t p_fee_invalid_ = 0;
+  /// Nodes changed since the last pyramid refresh (serial mode) or the last patch (overlap).
+  Box dirty_;
+  // Caller side: what the last next() delivered.
   double t_ = 0;
   long obs_step_ = 0, phys_step_ = 0;
-  int substeps_ = 4;
-  int dirty_i0_ = 0, dirty_j0_ = 0, dirty_i1_ = -1, dirty_j1_ = -1;  // pyramid refresh pending
+  bool done_ = false;
+  std::vector<MachineTruth> view_truth_;
   Stats stats_;
+  // Overlap mode (threads >= 2, LiDAR present, Scenario::overlap_scans): the physics runs
+  // ahead as tasks on exec_ and the caller's side keeps `view_`, a copy of the terrain brought
+  // to each scan's instant by patches, for the scans and for truth().
+  bool overlap_ = false;
+  std::unique_ptr<TruthTerrain> view_;
+  Box view_dirty_;
+  std::vector<CompactTrackLoader> view_ctl_;
+  std::unique_ptr<Pipe> pipe_;
 };
 
 }  // namespace terramap::sim

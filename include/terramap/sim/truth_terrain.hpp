@@ -150,6 +150,21 @@ class TruthTerrain {
   double lostVolume() const { return lost_m3_; }
   void addLost(double m3) { lost_m3_ += m3; }
 
+  /// The state of a node box [i0, i1] x [j0, j1] (inclusive) at one instant: what another
+  /// copy of the terrain needs to catch up with the changes made inside that box (the
+  /// simulator's LiDAR view follows its physics terrain this way). Units as the node arrays.
+  struct Patch {
+    int i0 = 0, j0 = 0, i1 = -1, j1 = -1;
+    std::vector<double> u, lv, lc, h;  ///< row-major over the box
+    double lost_m3 = 0;
+  };
+  /// Copies the box (clamped to the grid) and the lost volume into `out` (reusing its buffers).
+  void capturePatch(int i0, int j0, int i1, int j1, Patch& out) const;
+  /// Overwrites the patch's box with its values (bit for bit) and sets the lost volume. The
+  /// pyramid is not refreshed: call refreshPyramid over the box before casting. The terrain
+  /// must have the grid the patch was captured on. Not thread-safe.
+  void applyPatch(const Patch& p);
+
   const std::vector<double>& undisturbedData() const { return u_; }
   const std::vector<double>& looseData() const { return lv_; }
   const std::vector<double>& looseBankData() const { return lc_; }

@@ -220,22 +220,62 @@ void flatten(const std::vector<Event>& ev, std::vector<double>& nums, std::vecto
 }  // namespace
 
 TEST(Simulator, SameSeedIsBitIdenticalForAnyThreadCount) {
-  std::vector<double> n1, n2, n3;
-  std::vector<float> p1, p2, p3;
-  for (int run = 0; run < 3; ++run) {
-    Scenario sc = parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.5, run == 1 ? 2 : 1, true), "s.yaml");
-    if (run == 2) sc.seed = 10;
+  // Runs 0-2: 1 thread (serial), 2 threads with the physics overlapping the scans (default),
+  // 2 threads without overlap; run 3: another seed. Besides the events, what a caller reads
+  // between periods (truth(), machineTruth(), machine()) must be that period's, in every mode.
+  std::vector<double> n[4], views[4];
+  std::vector<float> p[4];
+  for (int run = 0; run < 4; ++run) {
+    Scenario sc = parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.5, run == 1 || run == 2 ? 2 : 1, true), "s.yaml");
+    if (run == 2) sc.overlap_scans = false;
+    if (run == 3) sc.seed = 10;
     Simulator sim(sc);
     std::vector<Event> ev;
-    while (sim.next(ev)) {}
-    flatten(ev, run == 0 ? n1 : run == 1 ? n2 : n3, run == 0 ? p1 : run == 1 ? p2 : p3);
+    while (sim.next(ev)) {
+      if (sim.step() % 7 != 3) continue;
+      const TruthTerrain& t = sim.truth();
+      views[run].insert(views[run].end(), t.heightData().begin(), t.heightData().end());
+      views[run].insert(views[run].end(), t.looseBankData().begin(), t.looseBankData().end());
+      views[run].push_back(t.lostVolume());
+      views[run].push_back(sim.time());
+      views[run].push_back(sim.machineTruth(0).cut_bank_m3);
+      views[run].push_back(sim.machineTruth(0).force_map_N.x());
+      views[run].push_back(sim.machine(0).x());
+      views[run].push_back(static_cast<double>(sim.stats().scans));
+    }
+    flatten(ev, n[run], p[run]);
+    const TruthTerrain& t = sim.truth();
+    views[run].insert(views[run].end(), t.undisturbedData().begin(), t.undisturbedData().end());
+    views[run].insert(views[run].end(), t.looseData().begin(), t.looseData().end());
   }
-  ASSERT_EQ(n1.size(), n2.size());
-  ASSERT_EQ(p1.size(), p2.size());
-  EXPECT_EQ(0, std::memcmp(n1.data(), n2.data(), n1.size() * sizeof(double)));
-  EXPECT_EQ(0, std::memcmp(p1.data(), p2.data(), p1.size() * sizeof(float)));
+  for (int run = 1; run < 3; ++run) {
+    ASSERT_EQ(n[0].size(), n[run].size());
+    ASSERT_EQ(p[0].size(), p[run].size());
+    ASSERT_EQ(views[0].size(), views[run].size());
+    EXPECT_EQ(0, std::memcmp(n[0].data(), n[run].data(), n[0].size() * sizeof(double))) << "run " << run;
+    EXPECT_EQ(0, std::memcmp(p[0].data(), p[run].data(), p[0].size() * sizeof(float))) << "run " << run;
+    EXPECT_EQ(0, std::memcmp(views[0].data(), views[run].data(), views[0].size() * sizeof(double))) << "run " << run;
+  }
   // A different seed changes the noise.
-  EXPECT_FALSE(p1.size() == p3.size() && std::memcmp(p1.data(), p3.data(), p1.size() * sizeof(float)) == 0);
+  EXPECT_FALSE(p[0].size() == p[3].size() && std::memcmp(p[0].data(), p[3].data(), p[0].size() * sizeof(float)) == 0);
+}
+
+TEST(Simulator, StopsCleanlyWhileThePhysicsRunsAhead) {
+  // Destroyed a few periods in, while producer tasks may be queued or running (a sanitizer
+  // or a hang would show a task outliving the simulator).
+  for (int k = 1; k < 6; ++k) {
+    Simulator sim(parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.5, 2, true), "s.yaml"));
+    std::vector<Event> ev;
+    for (int i = 0; i < k; ++i) ASSERT_TRUE(sim.next(ev));
+    EXPECT_EQ(sim.step(), k);
+  }
+  // Run to the end: next() stays false after the last period.
+  Simulator sim(parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 0.2, 2, true), "s.yaml"));
+  std::vector<Event> ev;
+  int periods = 0;
+  while (sim.next(ev)) ++periods;
+  EXPECT_EQ(periods, 12);
+  EXPECT_FALSE(sim.next(ev));
 }
 
 TEST(Episode, HdfLayoutReadsBack) {
