@@ -85,7 +85,7 @@ std::pair<int, int> rowInterval(const TruthTerrain& terrain, int i0, int i1, int
 /// the same pass as its fluxes (it needs only its own and its -x / -y neighbours' fluxes). The
 /// moves are applied afterwards in raster order.
 bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double back_band, double max_step, int i0,
-                int j0, int i1, int j1) {
+                int j0, int i1, int j1, CutResult& changed) {
   const int w = i1 - i0 + 1, h = j1 - j0 + 1;
   // Scratch buffers reused across calls (per calling thread) to avoid page faults at 60 Hz.
   thread_local std::vector<unsigned char> mask;
@@ -160,15 +160,35 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
     }
   }
   if (!moved) return false;
+  // The box of the nodes that moved soil (often much smaller than the sweep's box): what the
+  // pyramid refresh and the simulator's terrain patches have to cover.
+  int ci0 = w, ci1 = -1, cj0 = h, cj1 = -1;
   for (int j = 0; j < h; ++j) {
+    int ri0 = w, ri1 = -1;
     for (int i = 0; i < w; ++i) {
       const std::size_t a = idx(i, j);
       const double ax = fxp[a];
+      const double ay = fyp[a];
+      if (ax == 0.0 && ay == 0.0) continue;
       if (ax > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i + 1, j0 + j, ax * op[a]);
       else if (ax < 0) terrain.moveLoose(i0 + i + 1, j0 + j, i0 + i, j0 + j, -ax * op[a + 1]);
-      const double ay = fyp[a];
       if (ay > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i, j0 + j + 1, ay * op[a]);
       else if (ay < 0) terrain.moveLoose(i0 + i, j0 + j + 1, i0 + i, j0 + j, -ay * op[a + w]);
+      ri0 = std::min(ri0, i);
+      ri1 = std::max(ri1, ax != 0.0 ? i + 1 : i);
+      cj0 = std::min(cj0, j);
+      cj1 = std::max(cj1, ay != 0.0 ? j + 1 : j);
+    }
+    ci0 = std::min(ci0, ri0);
+    ci1 = std::max(ci1, ri1);
+  }
+  if (ci1 >= ci0) {
+    const int a0 = i0 + ci0, b0 = j0 + cj0, a1 = i0 + ci1, b1 = j0 + cj1;
+    if (changed.i1 < changed.i0) {
+      changed.i0 = a0; changed.j0 = b0; changed.i1 = a1; changed.j1 = b1;
+    } else {
+      changed.i0 = std::min(changed.i0, a0); changed.j0 = std::min(changed.j0, b0);
+      changed.i1 = std::max(changed.i1, a1); changed.j1 = std::max(changed.j1, b1);
     }
   }
   return true;
@@ -521,13 +541,7 @@ CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   for (int it = 0; it < iterations; ++it) {
     const int si0 = std::max(i0, li0 - 1 - it), si1 = std::min(i1, li1 + 1 + it);
     const int sj0 = std::max(j0, lj0 - 1 - it), sj1 = std::min(j1, lj1 + 1 + it);
-    if (!relaxSweep(terrain, f, res, back_band, max_step, si0, sj0, si1, sj1)) break;
-    if (out.i1 < out.i0) {
-      out.i0 = si0; out.j0 = sj0; out.i1 = si1; out.j1 = sj1;
-    } else {
-      out.i0 = std::min(out.i0, si0); out.j0 = std::min(out.j0, sj0);
-      out.i1 = std::max(out.i1, si1); out.j1 = std::max(out.j1, sj1);
-    }
+    if (!relaxSweep(terrain, f, res, back_band, max_step, si0, sj0, si1, sj1, out)) break;
   }
   return out;
 }
