@@ -126,11 +126,35 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
   // Then the node's outflow, summed in raster order of its edges (the -y edge, the -x edge,
   // the +x edge, the +y edge), turned into a scale: a node gives at most the loose soil it has
   // (bank soil does not slide).
+  // Only edges with loose soil at one end can carry flux, so each row is visited only over
+  // [first loose node - 1, last loose node] of itself and of the row above (its +y edges):
+  // about 60 % of the box on a spoil pile. The outflow of a node without loose soil is never
+  // used (it gives nothing), so it is not computed; a node with loose soil lies inside its
+  // row's span and inside the span of the row below, so the fluxes its outflow sums were
+  // computed in this sweep. Same fluxes and moves, in the same order, as visiting every node.
+  thread_local std::vector<int> ext_lo, ext_hi, span_lo, span_hi;
+  ext_lo.assign(h + 1, w);
+  ext_hi.assign(h + 1, -1);
+  span_lo.resize(h);
+  span_hi.resize(h);
+  for (int j = 0; j < h; ++j) {
+    const double* Lr = Lg + gidx(0, j);
+    int a = 0, b = w - 1;
+    while (a < w && !(Lr[a] > 0.0)) ++a;
+    if (a == w) continue;
+    while (!(Lr[b] > 0.0)) --b;
+    ext_lo[j] = a;
+    ext_hi[j] = b;
+  }
   bool moved = false;
   for (int j = 0; j < h; ++j) {
     const double* Hr = Hg + gidx(0, j);
     const double* Lr = Lg + gidx(0, j);
-    for (int i = 0; i < w; ++i) {
+    const int lo = std::max(0, std::min(ext_lo[j] - 1, ext_lo[j + 1]));
+    const int hi = std::min(w - 1, std::max(ext_hi[j], ext_hi[j + 1]));
+    span_lo[j] = lo;
+    span_hi[j] = hi;
+    for (int i = lo; i <= hi; ++i) {
       const std::size_t a = idx(i, j);
       double qx = 0.0, qy = 0.0;
       if (!mp[a]) {
@@ -151,6 +175,7 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
       fxp[a] = qx;
       fyp[a] = qy;
       moved = moved || qx != 0.0 || qy != 0.0;
+      if (!(Lr[i] > 0.0)) continue;
       double o = 0.0;
       if (j > 0 && fyp[a - w] < 0) o += -fyp[a - w];
       if (i > 0 && fxp[a - 1] < 0) o += -fxp[a - 1];
@@ -165,7 +190,7 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
   int ci0 = w, ci1 = -1, cj0 = h, cj1 = -1;
   for (int j = 0; j < h; ++j) {
     int ri0 = w, ri1 = -1;
-    for (int i = 0; i < w; ++i) {
+    for (int i = span_lo[j]; i <= span_hi[j]; ++i) {
       const std::size_t a = idx(i, j);
       const double ax = fxp[a];
       const double ay = fyp[a];
