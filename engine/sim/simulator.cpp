@@ -99,7 +99,10 @@ struct Simulator::Pipe {
   std::condition_variable cv;
   std::deque<Period> ring;
   std::size_t capacity = 12;
-  bool started = false, active = false, finished = false, stopping = false;
+  bool queued = false;    ///< a producer task is enqueued or running
+  bool running = false;   ///< a period is being produced (by a task or inline by next())
+  bool finished = false;  ///< the end (or an error) is in the ring
+  bool stopping = false;  ///< the destructor is waiting
 };
 
 void Simulator::Box::add(int a0, int b0, int a1, int b1) {
@@ -141,7 +144,7 @@ Simulator::~Simulator() {
   // A producer task may still be queued or running: let it see `stopping` and finish.
   std::unique_lock<std::mutex> lk(pipe_->mu);
   pipe_->stopping = true;
-  pipe_->cv.wait(lk, [&] { return !pipe_->active; });
+  pipe_->cv.wait(lk, [&] { return !pipe_->queued && !pipe_->running; });
 }
 
 const CompactTrackLoader& Simulator::machine(std::size_t i) const {
@@ -347,16 +350,15 @@ void Simulator::producePeriod(Period& rec) {
   rec.physics_wall_s = p_physics_wall_s_;
 }
 
-void Simulator::produceAsync() {
-  Period rec;
+bool Simulator::produceOne() {
   {
     std::lock_guard<std::mutex> lk(pipe_->mu);
-    if (pipe_->stopping) {
-      pipe_->active = false;
-      pipe_->cv.notify_all();
-      return;
-    }
+    if (pipe_->running || pipe_->finished || pipe_->stopping || pipe_->ring.size() >= pipe_->capacity) return false;
+    pipe_->running = true;
   }
+  // Only one producer at a time (the claim above), in period order: the physics is the same
+  // whoever runs it.
+  Period rec;
   try {
     if (static_cast<double>(p_obs_step_) * (1.0 / sc_.observation_hz) >= sc_.duration_s - 1e-9) rec.end = true;
     else producePeriod(rec);
@@ -365,13 +367,21 @@ void Simulator::produceAsync() {
     rec.end = true;
   }
   std::lock_guard<std::mutex> lk(pipe_->mu);
-  const bool end = rec.end;
+  if (rec.end) pipe_->finished = true;
   pipe_->ring.push_back(std::move(rec));
-  if (end) pipe_->finished = true;
-  // One period per task: a task picked up by the caller's thread while it waits inside a
-  // scan holds it up by one period of physics at most.
-  if (!end && !pipe_->stopping && pipe_->ring.size() < pipe_->capacity) exec_.arena().enqueue([this] { produceAsync(); });
-  else pipe_->active = false;
+  pipe_->running = false;
+  pipe_->cv.notify_all();
+  return true;
+}
+
+void Simulator::produceTask() {
+  // One period per task: a task picked up by the caller's thread while it waits inside a scan
+  // holds that scan up by one period of physics at most.
+  const bool produced = produceOne();
+  std::lock_guard<std::mutex> lk(pipe_->mu);
+  if (produced && !pipe_->finished && !pipe_->stopping && pipe_->ring.size() < pipe_->capacity)
+    exec_.arena().enqueue([this] { produceTask(); });
+  else pipe_->queued = false;
   pipe_->cv.notify_all();
 }
 
@@ -426,16 +436,22 @@ bool Simulator::next(std::vector<Event>& out) {
   Period rec;
   {
     std::unique_lock<std::mutex> lk(pipe_->mu);
-    if (!pipe_->started) {
-      pipe_->started = pipe_->active = true;
-      exec_.arena().enqueue([this] { produceAsync(); });
+    while (pipe_->ring.empty()) {
+      if (!pipe_->running && !pipe_->finished) {
+        // Nobody is producing (no task yet, or the executor's worker is busy elsewhere, e.g. in
+        // another arena): produce this period here rather than wait for one.
+        lk.unlock();
+        produceOne();
+        lk.lock();
+        continue;
+      }
+      pipe_->cv.wait(lk);
     }
-    pipe_->cv.wait(lk, [&] { return !pipe_->ring.empty(); });
     rec = std::move(pipe_->ring.front());
     pipe_->ring.pop_front();
-    if (!pipe_->active && !pipe_->finished && !pipe_->stopping) {
-      pipe_->active = true;
-      exec_.arena().enqueue([this] { produceAsync(); });
+    if (!pipe_->queued && !pipe_->finished && !pipe_->stopping) {
+      pipe_->queued = true;
+      exec_.arena().enqueue([this] { produceTask(); });
     }
   }
   if (rec.error) {

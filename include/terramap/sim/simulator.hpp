@@ -100,7 +100,8 @@ class Simulator {
   void refreshDirty();
   void refreshView();
   void producePeriod(Period& rec);
-  void produceAsync();
+  bool produceOne();
+  void produceTask();
   void consume(Period& rec, std::vector<Event>& out);
   PointCloud runScan(const ScanRequest& q, const TruthTerrain& terrain);
 

@@ -9,9 +9,11 @@
 #include <terramap/sim/simulator.hpp>
 
 
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <thread>
 
 using namespace terramap;
 using namespace terramap::sim;
@@ -276,6 +278,24 @@ TEST(Simulator, StopsCleanlyWhileThePhysicsRunsAhead) {
   while (sim.next(ev)) ++periods;
   EXPECT_EQ(periods, 12);
   EXPECT_FALSE(sim.next(ev));
+}
+
+TEST(Simulator, ProgressesWhenTheExecutorsWorkerIsBusyElsewhere) {
+  // Another arena's tasks hold TBB's worker(s) until the simulator has delivered 20 periods:
+  // its physics must then run on the caller's thread instead of waiting for a worker.
+  std::atomic<int> periods{0};
+  Executor other(2);
+  std::thread hog([&] {
+    other.forEach(2, [&](int) {
+      while (periods.load() < 20) std::this_thread::yield();
+    });
+  });
+  Scenario sc = parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.0, 2, true), "s.yaml");
+  Simulator sim(sc);
+  std::vector<Event> ev;
+  while (sim.next(ev)) periods.fetch_add(1);
+  hog.join();
+  EXPECT_EQ(periods.load(), 60);
 }
 
 TEST(Episode, HdfLayoutReadsBack) {
