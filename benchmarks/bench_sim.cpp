@@ -12,7 +12,7 @@ using namespace terramap::sim;
 
 namespace {
 
-Scenario benchScenario(int threads, double duration_s = 2) {
+Scenario benchScenario(int threads, double duration_s = 2, bool overlap = true) {
   const std::string y = R"(version: 1
 seed: 1
 duration_s: )" + std::to_string(duration_s) + R"(
@@ -32,11 +32,12 @@ machines:
       - {id: top, type: lidar, preset: os1_64, rate_hz: 10, offset_m: [0.3, 0, 2.1]}
       - {id: force, type: force}
 )";
-  return parseScenario(y, "bench_sim.yaml");
+  Scenario sc = parseScenario(y, "bench_sim.yaml");
+  sc.overlap_scans = overlap;
+  return sc;
 }
 
-void BM_SimRealtime(benchmark::State& state) {
-  const Scenario sc = benchScenario(static_cast<int>(state.range(0)));
+void runRealtime(benchmark::State& state, const Scenario& sc) {
   double simulated = 0;
   std::uint64_t rays = 0;
   for (auto _ : state) {
@@ -51,10 +52,20 @@ void BM_SimRealtime(benchmark::State& state) {
   state.counters["realtime_factor"] = benchmark::Counter(simulated, benchmark::Counter::kIsRate);
   state.counters["rays_per_second"] = benchmark::Counter(static_cast<double>(rays), benchmark::Counter::kIsRate);
 }
+void BM_SimRealtime(benchmark::State& state) { runRealtime(state, benchScenario(static_cast<int>(state.range(0)))); }
 BENCHMARK(BM_SimRealtime)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
 
+// The same with `overlap_scans: false`: physics and scans alternate (the order before the
+// overlap), for comparisons run back to back on a machine whose speed drifts.
+void BM_SimRealtimeSerialOrder(benchmark::State& state) {
+  runRealtime(state, benchScenario(static_cast<int>(state.range(0)), 2, false));
+}
+BENCHMARK(BM_SimRealtimeSerialOrder)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
+
 // The same machine over 16 s: past the first seconds it cuts and pushes spoil most of the
-// time, so the soil physics (serial) weighs about twice as much as in BM_SimRealtime's window.
+// time, so the soil physics weighs about twice as much as in BM_SimRealtime's window.
+// physics_share: the physics' part of (physics + LiDAR) wall seconds as Simulator::stats()
+// counts them (with the overlap the two run at the same time, so it is not a share of the run).
 void BM_SimRealtimeSustained(benchmark::State& state) {
   const Scenario sc = benchScenario(static_cast<int>(state.range(0)), 16);
   double simulated = 0, physics = 0, lidar = 0;
