@@ -2,6 +2,8 @@
 #include <terramap/core/error.hpp>
 #include <terramap/sim/simulator.hpp>
 
+#include <tbb/task_group.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -103,6 +105,7 @@ struct Simulator::Pipe {
   bool running = false;   ///< a period is being produced (by a task or inline by next())
   bool finished = false;  ///< the end (or an error) is in the ring
   bool stopping = false;  ///< the destructor is waiting
+  tbb::task_group tasks;  ///< the producer tasks (the destructor waits for them in the arena)
 };
 
 void Simulator::Box::add(int a0, int b0, int a1, int b1) {
@@ -141,10 +144,13 @@ Simulator::Simulator(const Scenario& scenario)
 
 Simulator::~Simulator() {
   if (!pipe_) return;
-  // A producer task may still be queued or running: let it see `stopping` and finish.
-  std::unique_lock<std::mutex> lk(pipe_->mu);
-  pipe_->stopping = true;
-  pipe_->cv.wait(lk, [&] { return !pipe_->queued && !pipe_->running; });
+  {
+    std::lock_guard<std::mutex> lk(pipe_->mu);
+    pipe_->stopping = true;
+  }
+  // A producer task may still be running, or queued with no worker free to take it: wait in
+  // the arena, where this thread runs a queued one itself (it sees `stopping` and returns).
+  exec_.arena().execute([&] { pipe_->tasks.wait(); });
 }
 
 const CompactTrackLoader& Simulator::machine(std::size_t i) const {
@@ -380,7 +386,7 @@ void Simulator::produceTask() {
   const bool produced = produceOne();
   std::lock_guard<std::mutex> lk(pipe_->mu);
   if (produced && !pipe_->finished && !pipe_->stopping && pipe_->ring.size() < pipe_->capacity)
-    exec_.arena().enqueue([this] { produceTask(); });
+    exec_.arena().enqueue(pipe_->tasks.defer([this] { produceTask(); }));
   else pipe_->queued = false;
   pipe_->cv.notify_all();
 }
@@ -451,7 +457,7 @@ bool Simulator::next(std::vector<Event>& out) {
     pipe_->ring.pop_front();
     if (!pipe_->queued && !pipe_->finished && !pipe_->stopping) {
       pipe_->queued = true;
-      exec_.arena().enqueue([this] { produceTask(); });
+      exec_.arena().enqueue(pipe_->tasks.defer([this] { produceTask(); }));
     }
   }
   if (rec.error) {

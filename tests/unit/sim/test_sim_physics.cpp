@@ -291,8 +291,13 @@ TEST(Simulator, ProgressesWhenTheExecutorsWorkerIsBusyElsewhere) {
     });
   });
   Scenario sc = parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.0, 2, true), "s.yaml");
-  Simulator sim(sc);
   std::vector<Event> ev;
+  {
+    // Destroyed with a physics task queued and no worker to take it: must not hang.
+    Simulator early(sc);
+    for (int i = 0; i < 5; ++i) ASSERT_TRUE(early.next(ev));
+  }
+  Simulator sim(sc);
   while (sim.next(ev)) periods.fetch_add(1);
   hog.join();
   EXPECT_EQ(periods.load(), 60);
