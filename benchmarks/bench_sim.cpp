@@ -66,8 +66,7 @@ BENCHMARK(BM_SimRealtimeSerialOrder)->Arg(2)->Unit(benchmark::kMillisecond)->Use
 // time, so the soil physics weighs about twice as much as in BM_SimRealtime's window.
 // physics_share: the physics' part of (physics + LiDAR) wall seconds as Simulator::stats()
 // counts them (with the overlap the two run at the same time, so it is not a share of the run).
-void BM_SimRealtimeSustained(benchmark::State& state) {
-  const Scenario sc = benchScenario(static_cast<int>(state.range(0)), 16);
+void runSustained(benchmark::State& state, const Scenario& sc) {
   double simulated = 0, physics = 0, lidar = 0;
   for (auto _ : state) {
     state.PauseTiming();
@@ -82,7 +81,14 @@ void BM_SimRealtimeSustained(benchmark::State& state) {
   state.counters["realtime_factor"] = benchmark::Counter(simulated, benchmark::Counter::kIsRate);
   state.counters["physics_share"] = physics / (physics + lidar);
 }
+void BM_SimRealtimeSustained(benchmark::State& state) {
+  runSustained(state, benchScenario(static_cast<int>(state.range(0)), 16));
+}
 BENCHMARK(BM_SimRealtimeSustained)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+void BM_SimRealtimeSustainedSerialOrder(benchmark::State& state) {
+  runSustained(state, benchScenario(static_cast<int>(state.range(0)), 16, false));
+}
+BENCHMARK(BM_SimRealtimeSustainedSerialOrder)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
 
 void BM_SimLidarRays(benchmark::State& state) {
   TerrainSpec ts;
