@@ -19,8 +19,9 @@
 /// on a second copy of the terrain that is brought, by patches of the changed node boxes, to
 /// the exact instant of each scan: the two stages overlap instead of alternating, and every
 /// output (events, truth(), machineTruth(), machine()) is still that of the period next()
-/// returned, bit-identical to the serial order. It costs a second copy of the truth terrain;
-/// `overlap_scans: false` in the scenario turns it off.
+/// returned, bit-identical to the serial order. The physics keeps running on the executor's
+/// worker between next() calls, until it is two scan periods ahead. It costs a second copy of
+/// the truth terrain; `overlap_scans: false` in the scenario turns it off.
 #include <terramap/core/events.hpp>
 #include <terramap/core/parallel.hpp>
 #include <terramap/sim/blade_physics.hpp>
@@ -61,7 +62,8 @@ class Simulator {
   Simulator& operator=(const Simulator&) = delete;
 
   /// Appends the events of the next observation period (time order); false (and nothing
-  /// appended) once the duration is over.
+  /// appended) once the duration is over. \throws whatever the physics threw (with the overlap,
+  /// at the period it was computing; every later call returns false).
   bool next(std::vector<Event>& out);
 
   double time() const { return t_; }
