@@ -51,7 +51,6 @@ struct Simulator::Machine {
   std::vector<Lidar> lidars;
   int pose_sensor = -1, force_sensor = -1;
   std::mt19937_64 pose_rng, force_rng;
-  std::vector<PointCloud> pending;  // clouds captured during the current period
 
   Machine(std::size_t idx, const MachineSpec& spec, const TruthTerrain& terrain, std::uint64_t seed)
       : index(idx), ctl(spec, terrain), controller(spec.controller, spec, streamSeed(seed, idx, 1)),
@@ -198,26 +197,26 @@ void Simulator::physicsStep(double dt, bool relax) {
   }
 }
 
-void Simulator::refreshDirty() {
-  if (dirty_.empty()) return;
-  terrain_.refreshPyramid(dirty_.i0, dirty_.j0, dirty_.i1, dirty_.j1);
-  dirty_ = Box{};
+void Simulator::refreshPyramid(TruthTerrain& terrain, Box& dirty) {
+  if (dirty.empty()) return;
+  terrain.refreshPyramid(dirty.i0, dirty.j0, dirty.i1, dirty.j1);
+  dirty = Box{};
 }
 
-void Simulator::refreshView() {
-  if (view_dirty_.empty()) return;
-  view_->refreshPyramid(view_dirty_.i0, view_dirty_.j0, view_dirty_.i1, view_dirty_.j1);
-  view_dirty_ = Box{};
+bool Simulator::durationOver() const {
+  return static_cast<double>(p_obs_step_) * (1.0 / sc_.observation_hz) >= sc_.duration_s - 1e-9;
 }
+
+void Simulator::enqueueProducer() { exec_.arena().enqueue(pipe_->tasks.defer([this] { produceTask(); })); }
 
 const TruthTerrain& Simulator::truth() const {
   // The ray-casting pyramid is brought up to date lazily (only scans and callers need it).
   auto* self = const_cast<Simulator*>(this);
   if (overlap_) {
-    self->refreshView();
+    refreshPyramid(*self->view_, self->view_dirty_);
     return *view_;
   }
-  self->refreshDirty();
+  refreshPyramid(self->terrain_, self->dirty_);
   return terrain_;
 }
 
@@ -274,7 +273,7 @@ void Simulator::producePeriod(Period& rec) {
           rec.scans.push_back(q);
         } else {
           const auto w1 = std::chrono::steady_clock::now();
-          refreshDirty();
+          refreshPyramid(terrain_, dirty_);
           rec.clouds.push_back(runScan(q, terrain_));
           stats_.lidar_wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - w1).count();
         }
@@ -366,7 +365,7 @@ bool Simulator::produceOne() {
   // whoever runs it.
   Period rec;
   try {
-    if (static_cast<double>(p_obs_step_) * (1.0 / sc_.observation_hz) >= sc_.duration_s - 1e-9) rec.end = true;
+    if (durationOver()) rec.end = true;
     else producePeriod(rec);
   } catch (...) {
     rec.error = std::current_exception();
@@ -386,7 +385,7 @@ void Simulator::produceTask() {
   const bool produced = produceOne();
   std::lock_guard<std::mutex> lk(pipe_->mu);
   if (produced && !pipe_->finished && !pipe_->stopping && pipe_->ring.size() < pipe_->capacity)
-    exec_.arena().enqueue(pipe_->tasks.defer([this] { produceTask(); }));
+    enqueueProducer();
   else pipe_->queued = false;
   pipe_->cv.notify_all();
 }
@@ -405,7 +404,7 @@ void Simulator::consume(Period& rec, std::vector<Event>& out) {
     };
     for (const ScanRequest& q : rec.scans) {
       applyUpTo(q.patches_before);
-      refreshView();
+      refreshPyramid(*view_, view_dirty_);
       rec.clouds.push_back(runScan(q, *view_));
     }
     applyUpTo(rec.patches.size());
@@ -430,7 +429,7 @@ void Simulator::consume(Period& rec, std::vector<Event>& out) {
 bool Simulator::next(std::vector<Event>& out) {
   if (done_) return false;
   if (!overlap_) {
-    if (static_cast<double>(p_obs_step_) * (1.0 / sc_.observation_hz) >= sc_.duration_s - 1e-9) {
+    if (durationOver()) {
       done_ = true;
       return false;
     }
@@ -457,7 +456,7 @@ bool Simulator::next(std::vector<Event>& out) {
     pipe_->ring.pop_front();
     if (!pipe_->queued && !pipe_->finished && !pipe_->stopping) {
       pipe_->queued = true;
-      exec_.arena().enqueue(pipe_->tasks.defer([this] { produceTask(); }));
+      enqueueProducer();
     }
   }
   if (rec.error) {

@@ -80,7 +80,8 @@ class Simulator {
     std::uint64_t rays = 0, points = 0, scans = 0, fee_invalid_slices = 0;
     double lost_m3 = 0;
     /// Wall-clock seconds spent in the machine and soil physics, and in the LiDAR (pyramid
-    /// refresh + ray casting), since construction. For profiling only: never part of an
+    /// refresh + ray casting; with the overlap also applying the physics' patches to the
+    /// view), since construction. For profiling only: never part of an
     /// episode (they vary run to run).
     double physics_wall_s = 0, lidar_wall_s = 0;
   };
@@ -99,8 +100,10 @@ class Simulator {
   };
   void physicsStep(double dt, bool relax);
   void markDirty(const CutResult& r) { dirty_.add(r.i0, r.j0, r.i1, r.j1); }
-  void refreshDirty();
-  void refreshView();
+  /// Brings `terrain`'s ray-casting pyramid up to date over `dirty` and empties it.
+  static void refreshPyramid(TruthTerrain& terrain, Box& dirty);
+  bool durationOver() const;  ///< the physics has produced every period of the duration
+  void enqueueProducer();
   void producePeriod(Period& rec);
   bool produceOne();
   void produceTask();
