@@ -155,12 +155,13 @@ class TruthTerrain {
   /// simulator's LiDAR view follows its physics terrain this way). Units as the node arrays.
   struct Patch {
     int i0 = 0, j0 = 0, i1 = -1, j1 = -1;
-    std::vector<double> u, lv, lc, h;  ///< row-major over the box
+    std::vector<double> u, lv, lc;  ///< row-major over the box (H = U + Lv is derived)
     double lost_m3 = 0;
   };
   /// Copies the box (clamped to the grid) and the lost volume into `out` (reusing its buffers).
   void capturePatch(int i0, int j0, int i1, int j1, Patch& out) const;
-  /// Overwrites the patch's box with its values (bit for bit) and sets the lost volume. The
+  /// Overwrites the patch's box with its values (bit for bit; H recomputed as U + Lv, as every
+  /// mutator keeps it) and sets the lost volume. The
   /// pyramid is not refreshed: call refreshPyramid over the box before casting. The terrain
   /// must have the grid the patch was captured on. Not thread-safe.
   void applyPatch(const Patch& p);
