@@ -67,7 +67,8 @@ BENCHMARK(BM_SimRealtimeSerialOrder)->Arg(2)->Unit(benchmark::kMillisecond)->Use
 // physics_share: the physics' part of (physics + LiDAR) wall seconds as Simulator::stats()
 // counts them (with the overlap the two run at the same time, so it is not a share of the run).
 void runSustained(benchmark::State& state, const Scenario& sc) {
-  double simulated = 0, physics = 0, lidar = 0;
+  double simulated = 0, physics = 0, lidar = 0, wait = 0;
+  std::uint64_t patches = 0, patch_nodes = 0;
   for (auto _ : state) {
     state.PauseTiming();
     Simulator sim(sc);
@@ -77,9 +78,15 @@ void runSustained(benchmark::State& state, const Scenario& sc) {
     simulated += sim.time();
     physics += sim.stats().physics_wall_s;
     lidar += sim.stats().lidar_wall_s;
+    wait += sim.stats().wait_wall_s;
+    patches += sim.stats().patches;
+    patch_nodes += sim.stats().patch_nodes;
   }
   state.counters["realtime_factor"] = benchmark::Counter(simulated, benchmark::Counter::kIsRate);
   state.counters["physics_share"] = physics / (physics + lidar);
+  // Overlap only: seconds next() waited for the physics, mean nodes per terrain patch.
+  state.counters["wait_s"] = wait;
+  state.counters["patch_nodes"] = patches ? static_cast<double>(patch_nodes) / static_cast<double>(patches) : 0.0;
 }
 void BM_SimRealtimeSustained(benchmark::State& state) {
   runSustained(state, benchScenario(static_cast<int>(state.range(0)), 16));

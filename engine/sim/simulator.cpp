@@ -400,6 +400,8 @@ void Simulator::consume(Period& rec, std::vector<Event>& out) {
         const TruthTerrain::Patch& p = rec.patches[applied];
         view_->applyPatch(p);
         view_dirty_.add(p.i0, p.j0, p.i1, p.j1);
+        ++stats_.patches;
+        stats_.patch_nodes += p.u.size();
       }
     };
     for (const ScanRequest& q : rec.scans) {
@@ -446,11 +448,15 @@ bool Simulator::next(std::vector<Event>& out) {
         // Nobody is producing (no task yet, or the executor's worker is busy elsewhere, e.g. in
         // another arena): produce this period here rather than wait for one.
         lk.unlock();
+        const auto w0 = std::chrono::steady_clock::now();
         produceOne();
+        stats_.wait_wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
         lk.lock();
         continue;
       }
+      const auto w0 = std::chrono::steady_clock::now();
       pipe_->cv.wait(lk);
+      stats_.wait_wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
     }
     rec = std::move(pipe_->ring.front());
     pipe_->ring.pop_front();

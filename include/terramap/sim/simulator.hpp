@@ -84,6 +84,11 @@ class Simulator {
     /// view), since construction. For profiling only: never part of an
     /// episode (they vary run to run).
     double physics_wall_s = 0, lidar_wall_s = 0;
+    /// With the overlap: wall seconds next() spent waiting for the physics or computing a
+    /// period itself (near 0 when the scans, not the physics, set the pace), and the terrain
+    /// patches handed over (count, nodes).
+    double wait_wall_s = 0;
+    std::uint64_t patches = 0, patch_nodes = 0;
   };
   const Stats& stats() const { return stats_; }
 
