@@ -37,63 +37,54 @@ machines:
   return sc;
 }
 
-void runRealtime(benchmark::State& state, const Scenario& sc) {
-  double simulated = 0;
-  std::uint64_t rays = 0;
-  for (auto _ : state) {
-    state.PauseTiming();
-    Simulator sim(sc);  // terrain construction is not part of the measured loop
-    std::vector<Event> ev;
-    state.ResumeTiming();
-    while (sim.next(ev)) ev.clear();
-    simulated += sim.time();
-    rays += sim.stats().rays;
-  }
-  state.counters["realtime_factor"] = benchmark::Counter(simulated, benchmark::Counter::kIsRate);
-  state.counters["rays_per_second"] = benchmark::Counter(static_cast<double>(rays), benchmark::Counter::kIsRate);
-}
-void BM_SimRealtime(benchmark::State& state) { runRealtime(state, benchScenario(static_cast<int>(state.range(0)))); }
-BENCHMARK(BM_SimRealtime)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
-
-// The same with `overlap_scans: false`: physics and scans alternate (the order before the
-// overlap), for comparisons run back to back on a machine whose speed drifts.
-void BM_SimRealtimeSerialOrder(benchmark::State& state) {
-  runRealtime(state, benchScenario(static_cast<int>(state.range(0)), 2, false));
-}
-BENCHMARK(BM_SimRealtimeSerialOrder)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
-
-// The same machine over 16 s: past the first seconds it cuts and pushes spoil most of the
-// time, so the soil physics weighs about twice as much as in BM_SimRealtime's window.
-// physics_share: the physics' part of (physics + LiDAR) wall seconds as Simulator::stats()
-// counts them (with the overlap the two run at the same time, so it is not a share of the run).
-void runSustained(benchmark::State& state, const Scenario& sc) {
+// Runs the scenario to its end per iteration (terrain construction is not part of the measured
+// loop). Counters: realtime_factor and rays_per_second; physics_share, the physics' part of
+// (physics + LiDAR) wall seconds as Simulator::stats() counts them (with the overlap the two run
+// at the same time, so it is not a share of the run); with the overlap only, wait_s (seconds
+// next() waited for or computed the physics) and patch_nodes (mean nodes per terrain patch).
+void runScenario(benchmark::State& state, const Scenario& sc) {
   double simulated = 0, physics = 0, lidar = 0, wait = 0;
-  std::uint64_t patches = 0, patch_nodes = 0;
+  std::uint64_t rays = 0, patches = 0, patch_nodes = 0;
   for (auto _ : state) {
     state.PauseTiming();
     Simulator sim(sc);
     std::vector<Event> ev;
     state.ResumeTiming();
     while (sim.next(ev)) ev.clear();
+    const Simulator::Stats& st = sim.stats();
     simulated += sim.time();
-    physics += sim.stats().physics_wall_s;
-    lidar += sim.stats().lidar_wall_s;
-    wait += sim.stats().wait_wall_s;
-    patches += sim.stats().patches;
-    patch_nodes += sim.stats().patch_nodes;
+    rays += st.rays;
+    physics += st.physics_wall_s;
+    lidar += st.lidar_wall_s;
+    wait += st.wait_wall_s;
+    patches += st.patches;
+    patch_nodes += st.patch_nodes;
   }
   state.counters["realtime_factor"] = benchmark::Counter(simulated, benchmark::Counter::kIsRate);
+  state.counters["rays_per_second"] = benchmark::Counter(static_cast<double>(rays), benchmark::Counter::kIsRate);
   state.counters["physics_share"] = physics / (physics + lidar);
-  // Overlap only: seconds next() waited for the physics, mean nodes per terrain patch.
   state.counters["wait_s"] = wait;
   state.counters["patch_nodes"] = patches ? static_cast<double>(patch_nodes) / static_cast<double>(patches) : 0.0;
 }
+
+void BM_SimRealtime(benchmark::State& state) { runScenario(state, benchScenario(static_cast<int>(state.range(0)))); }
+BENCHMARK(BM_SimRealtime)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
+
+// The same with `overlap_scans: false`: physics and scans alternate (the order before the
+// overlap), for comparisons run back to back on a machine whose speed drifts.
+void BM_SimRealtimeSerialOrder(benchmark::State& state) {
+  runScenario(state, benchScenario(static_cast<int>(state.range(0)), 2, false));
+}
+BENCHMARK(BM_SimRealtimeSerialOrder)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
+
+// The same machine over 16 s: past the first seconds it cuts and pushes spoil most of the
+// time, so the soil physics weighs about twice as much as in BM_SimRealtime's window.
 void BM_SimRealtimeSustained(benchmark::State& state) {
-  runSustained(state, benchScenario(static_cast<int>(state.range(0)), 16));
+  runScenario(state, benchScenario(static_cast<int>(state.range(0)), 16));
 }
 BENCHMARK(BM_SimRealtimeSustained)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
 void BM_SimRealtimeSustainedSerialOrder(benchmark::State& state) {
-  runSustained(state, benchScenario(static_cast<int>(state.range(0)), 16, false));
+  runScenario(state, benchScenario(static_cast<int>(state.range(0)), 16, false));
 }
 BENCHMARK(BM_SimRealtimeSustainedSerialOrder)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
 
