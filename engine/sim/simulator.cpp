@@ -107,16 +107,6 @@ struct Simulator::Pipe {
   tbb::task_group tasks;  ///< the producer tasks (the destructor waits for them in the arena)
 };
 
-void Simulator::Box::add(int a0, int b0, int a1, int b1) {
-  if (a1 < a0) return;
-  if (empty()) {
-    i0 = a0; j0 = b0; i1 = a1; j1 = b1;
-    return;
-  }
-  i0 = std::min(i0, a0); j0 = std::min(j0, b0);
-  i1 = std::max(i1, a1); j1 = std::max(j1, b1);
-}
-
 Simulator::Simulator(const Scenario& scenario)
     : sc_(scenario), terrain_(buildTerrain(scenario.terrain)), soil_(scenario.default_soil, scenario.zones),
       exec_(scenario.threads) {

@@ -97,14 +97,9 @@ class Simulator {
   struct ScanRequest;
   struct Period;
   struct Pipe;
-  /// A node box (inclusive), empty when i1 < i0.
-  struct Box {
-    int i0 = 0, j0 = 0, i1 = -1, j1 = -1;
-    bool empty() const { return i1 < i0; }
-    void add(int a0, int b0, int a1, int b1);
-  };
+  using Box = NodeBox;
   void physicsStep(double dt, bool relax);
-  void markDirty(const CutResult& r) { dirty_.add(r.i0, r.j0, r.i1, r.j1); }
+  void markDirty(const CutResult& r) { dirty_.add(r); }
   /// Brings `terrain`'s ray-casting pyramid up to date over `dirty` and empties it.
   static void refreshPyramid(TruthTerrain& terrain, Box& dirty);
   bool durationOver() const;  ///< the physics has produced every period of the duration
