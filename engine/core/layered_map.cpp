@@ -165,11 +165,21 @@ void LayeredMap::fill(LayerId id, float value) {
   }
 }
 
-Eigen::MatrixXf LayeredMap::toMatrix(LayerId id) const {
-  layerInfo(id);
+namespace {
+void checkLayerBuffer(const LayerInfo& info, const Size& size, long rows, long cols) {
+  if (rows == size.x() && cols == size.y()) return;
+  std::ostringstream os;
+  os << "matrix of " << rows << "x" << cols << " does not fit layer '" << info.name << "' of "
+     << size.x() << "x" << size.y();
+  throw LayerError(os.str());
+}
+}  // namespace
+
+void LayeredMap::readLayer(LayerId id, float* dst, long rows, long cols) const {
+  const LayerInfo& info = layerInfo(id);
+  checkLayerBuffer(info, geometry_.size(), rows, cols);
   const int R = geometry_.size().x(), C = geometry_.size().y(), T = options_.tile_size;
-  Eigen::MatrixXf m(R, C);
-  const float fill = layers_[static_cast<size_t>(id)].fill;
+  Eigen::Map<Eigen::MatrixXf> m(dst, R, C);
   for (int t = 0; t < tileCount(); ++t) {
     const CellRect r = tileRect(t);
     const float* d = tileData(id, t);
@@ -177,22 +187,16 @@ Eigen::MatrixXf LayeredMap::toMatrix(LayerId id) const {
       const int li = floorMod(br - start_.x(), R);
       for (int bc = r.c0; bc < r.c0 + r.cols; ++bc) {
         const int lj = floorMod(bc - start_.y(), C);
-        m(li, lj) = d ? d[(br - r.r0) * T + (bc - r.c0)] : fill;
+        m(li, lj) = d ? d[(br - r.r0) * T + (bc - r.c0)] : info.fill;
       }
     }
   }
-  return m;
 }
 
-void LayeredMap::fromMatrix(LayerId id, const Eigen::MatrixXf& m) {
-  layerInfo(id);
+void LayeredMap::writeLayer(LayerId id, const float* src, long rows, long cols) {
+  checkLayerBuffer(layerInfo(id), geometry_.size(), rows, cols);
   const int R = geometry_.size().x(), C = geometry_.size().y(), T = options_.tile_size;
-  if (m.rows() != R || m.cols() != C) {
-    std::ostringstream os;
-    os << "matrix of " << m.rows() << "x" << m.cols() << " does not fit layer '"
-       << layers_[static_cast<size_t>(id)].name << "' of " << R << "x" << C;
-    throw LayerError(os.str());
-  }
+  const Eigen::Map<const Eigen::MatrixXf> m(src, R, C);
   for (int t = 0; t < tileCount(); ++t) {
     const CellRect r = tileRect(t);
     float* d = mutableTileData(id, t);

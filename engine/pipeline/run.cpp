@@ -53,7 +53,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   // Sources that know the truth (the simulator) get error layers and statistics.
   nlohmann::json truth_json;
   LayeredMap& mmap = engine->mutableMap();
-  Eigen::MatrixXf truth;
+  Eigen::MatrixXf truth(mmap.geometry().size().x(), mmap.geometry().size().y());
   const bool has_truth = mmap.hasLayer("elevation") && !mmap.hasLayer("truth_elevation") &&
                          source->truth("elevation", mmap.geometry(), truth);
   if (has_truth) {

@@ -145,8 +145,9 @@ class SimEventSource : public Source {
   }
   double progress() const override { return duration_ > 0 ? std::min(1.0, sim_->time() / duration_) : 1.0; }
   const sim::Simulator& simulator() const { return *sim_; }
-  bool truth(const std::string& layer, const Geometry& g, Eigen::MatrixXf& out) const override {
+  bool truth(const std::string& layer, const Geometry& g, Eigen::Ref<Eigen::MatrixXf> out) const override {
     if (layer != "elevation") return false;
+    TERRAMAP_CHECK(out.rows() == g.size().x() && out.cols() == g.size().y(), "truth view of the wrong size");
     out = sim::truthOnGeometry(sim_->truth(), g);  // surface (bank + loose) at cell centres, NaN off it
     return true;
   }

@@ -2,12 +2,10 @@
 /// \file
 /// Error types for everything a user can cause (bad YAML, bad files, bad plugins, bad layers).
 /// Internal invariants use TERRAMAP_CHECK, which is always on (not an assert).
+#include <terramap/core/export.hpp>
+
 #include <stdexcept>
 #include <string>
-
-/// Marks types and functions that cross shared-library boundaries (plugins are built with
-/// hidden visibility; these must still resolve to one definition in the terramap libraries).
-#define TERRAMAP_API __attribute__((visibility("default")))
 
 namespace terramap {
 

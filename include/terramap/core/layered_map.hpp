@@ -107,10 +107,26 @@ class TERRAMAP_API LayeredMap {
 
   // ---- whole layers ------------------------------------------------------------------------
   void fill(LayerId id, float value);
-  /// Layer as a rows x cols matrix in logical order (row i, column j).
-  Eigen::MatrixXf toMatrix(LayerId id) const;
-  /// \throws LayerError if the matrix size differs from the geometry.
-  void fromMatrix(LayerId id, const Eigen::MatrixXf& m);
+  /// Copies layer `id` into `dst`, a caller-owned column-major buffer of rows x cols floats in
+  /// logical order: dst[i + j * rows] is cell (i, j). `rows`, `cols` must equal geometry().size().
+  /// The map never allocates or frees the buffer (see abi.hpp, "Memory rule of the boundary").
+  /// \throws LayerError on a bad id or a size that differs from the geometry.
+  void readLayer(LayerId id, float* dst, long rows, long cols) const;
+  /// Writes `src` (same layout as readLayer) into layer `id`.
+  /// \throws LayerError on a bad id or a size that differs from the geometry.
+  void writeLayer(LayerId id, const float* src, long rows, long cols);
+  /// Layer as a rows x cols matrix in logical order (row i, column j). Inline and local to the
+  /// calling library or plugin (TERRAMAP_LOCAL): the matrix is allocated by the build that
+  /// frees it, whatever its compile flags. \throws LayerError on a bad id.
+  TERRAMAP_LOCAL Eigen::MatrixXf toMatrix(LayerId id) const {
+    Eigen::MatrixXf m(geometry_.size().x(), geometry_.size().y());
+    readLayer(id, m.data(), m.rows(), m.cols());
+    return m;
+  }
+  /// \throws LayerError on a bad id or if the matrix size differs from the geometry.
+  TERRAMAP_LOCAL void fromMatrix(LayerId id, const Eigen::MatrixXf& m) {
+    writeLayer(id, m.data(), m.rows(), m.cols());
+  }
 
   // ---- motion ------------------------------------------------------------------------------
   /// Re-centres the map on the cell-aligned position nearest `new_center` by shifting the ring

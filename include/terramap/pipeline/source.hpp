@@ -28,9 +28,13 @@ class TERRAMAP_API Source {
   /// Items the source itself dropped, by reason (go into the run report).
   virtual std::map<std::string, long> dropped() const { return {}; }
   /// Ground truth of a map layer *now*, if this source knows it (the simulator knows
-  /// `elevation`): fills `out` in logical order for geometry `g` (NaN where unknown) and
-  /// returns true. The runner uses it to write error layers, pictures and statistics.
-  virtual bool truth(const std::string& layer, const Geometry& g, Eigen::MatrixXf& out) const { return false; }
+  /// `elevation`): fills `out`, a caller-owned g.size().x() x g.size().y() view, in logical
+  /// order (NaN where unknown) and returns true. The runner uses it to write error layers,
+  /// pictures and statistics. `out` is a view so that no matrix allocated by the source is
+  /// freed by the caller's build (abi.hpp, "Memory rule of the boundary").
+  virtual bool truth(const std::string& layer, const Geometry& g, Eigen::Ref<Eigen::MatrixXf> out) const {
+    return false;
+  }
 };
 
 using SourceFactory = std::function<std::unique_ptr<Source>(const PipelineSpec& spec)>;

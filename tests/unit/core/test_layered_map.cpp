@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <dlfcn.h>
 #include <cmath>
 #include <cstring>
 #include <random>
@@ -64,6 +65,37 @@ TEST(LayeredMap, MatrixRoundTripInLogicalOrder) {
   EXPECT_TRUE(sameBits(m.toMatrix(id), in));
   EXPECT_EQ(m.at(id, Index(5, 7)), valueFor(5, 7));
   EXPECT_THROW(m.fromMatrix(id, Eigen::MatrixXf(3, 3)), LayerError);
+}
+
+TEST(LayeredMap, ReadsAndWritesCallerOwnedBuffersOfTheGeometrysSizeOnly) {
+  LayeredMap m(Geometry(0.1, Size(9, 5)), MapOptions{8, true});
+  const LayerId id = m.addLayer("a", "m", 2.5f);
+  std::vector<float> buf(9 * 5, -1.0f);
+  m.readLayer(id, buf.data(), 9, 5);  // sparse: nothing allocated, every cell reads the fill
+  for (float v : buf) ASSERT_EQ(v, 2.5f);
+  for (int i = 0; i < 9; ++i)
+    for (int j = 0; j < 5; ++j) buf[static_cast<size_t>(i + j * 9)] = valueFor(i, j);
+  m.writeLayer(id, buf.data(), 9, 5);
+  EXPECT_EQ(m.at(id, Index(7, 3)), valueFor(7, 3));  // column-major: dst[i + j * rows]
+  EXPECT_THROW(m.readLayer(id, buf.data(), 5, 9), LayerError);
+  EXPECT_THROW(m.writeLayer(id, buf.data(), 9, 4), LayerError);
+  EXPECT_THROW(m.readLayer(7, buf.data(), 9, 5), LayerError);
+}
+
+long terramapTestMatrixUser(const LayeredMap& map, LayerId id);  // tests/plugins/matrix_user.cpp
+
+// The matrix-returning convenience must be compiled into each caller (TERRAMAP_LOCAL), never
+// exported: a plugin that called an exported copy would free, with its own Eigen allocator, a
+// matrix the library allocated with another (the -march=native crash). Nothing in the process
+// may export it, not even a library built with default visibility that emits a copy.
+TEST(LayeredMap, MatrixConvenienceIsNotExportedByAnyLibrary) {
+  LayeredMap m(Geometry(0.1, Size(4, 3)), MapOptions{8, false});
+  ASSERT_EQ(terramapTestMatrixUser(m, m.addLayer("a", "m")), 12);  // the library is loaded
+  for (const char* sym : {"_ZNK8terramap10LayeredMap8toMatrixEi",
+                          "_ZN8terramap10LayeredMap10fromMatrixEiRKN5Eigen6MatrixIfLin1ELin1ELi0ELin1ELin1EEE"})
+    EXPECT_EQ(dlsym(RTLD_DEFAULT, sym), nullptr) << sym << " is exported";
+  // ... while the buffer functions are (the check above looks in the right place).
+  EXPECT_NE(dlsym(RTLD_DEFAULT, "_ZNK8terramap10LayeredMap9readLayerEiPfll"), nullptr);
 }
 
 TEST(LayeredMap, MoveKeepsDataUnderTheSamePositionAndResetsNewCells) {
