@@ -1,17 +1,25 @@
 #include <terramap/pipeline/plugin_loader.hpp>
 #include <terramap/core/text.hpp>
 
+#include "elf_section.hpp"
+
 #define BOOST_DLL_USE_STD_FS
 #include <boost/dll/runtime_symbol_info.hpp>
 #include <boost/dll/shared_library.hpp>
 
 #include <algorithm>
+#include <cctype>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <map>
 #include <mutex>
 #include <sstream>
+
+#include <cfenv>
+#if defined(__SSE__)
+#include <xmmintrin.h>
+#endif
 
 namespace terramap {
 
@@ -33,6 +41,78 @@ std::string hex32(std::uint32_t v) {
   return os.str();
 }
 
+std::vector<std::string> fingerprintFields(const std::string& fp) {
+  std::vector<std::string> out;
+  std::stringstream ss(fp);
+  std::string f;
+  while (std::getline(ss, f, ';')) out.push_back(f);
+  return out;
+}
+
+/// What to do about one fingerprint field that differs. Its key is the text before the first
+/// '-' that a digit follows ("eigen-align-16-16" -> "eigen-align", "gcc-12" -> "gcc").
+std::string fieldAdvice(const std::string& field) {
+  std::size_t cut = 0;
+  while ((cut = field.find('-', cut)) != std::string::npos && cut + 1 < field.size() &&
+         !std::isdigit(static_cast<unsigned char>(field[cut + 1])))
+    ++cut;
+  const std::string key = field.substr(0, cut);
+  if (key == "eigen-align")
+    return "Eigen's maximum alignment (EIGEN_MAX_ALIGN_BYTES-EIGEN_MAX_STATIC_ALIGN_BYTES) differs: SIMD "
+           "flags such as -mavx or -march=native raise it unless EIGEN_MAX_ALIGN_BYTES=16 is defined, "
+           "which terramap::plugin_api does for plugins built with find_package(terramap)";
+  if (key == "asan" || key == "tsan")
+    return "host and plugin must both be built with the sanitizer or both without it "
+           "(TERRAMAP_SANITIZE is exported by the installed package)";
+  if (key == "glibcxx-debug") return "_GLIBCXX_DEBUG changes the layout of every std container";
+  if (key == "cxx11abi") return "the libstdc++ string ABI (_GLIBCXX_USE_CXX11_ABI) differs";
+  if (key == "eigen") return "built against another Eigen version";
+  if (key == "terramap") return "built against another terramap version";
+  return "built with another compiler or compiler major version";
+}
+
+/// The refusal for a fingerprint that differs, naming each differing field and its cause.
+PluginError fingerprintMismatch(const std::string& path, const std::string& found, const char* when) {
+  std::string msg = path + ": plugin build fingerprint mismatch" + when + ": expected '" +
+                    std::string(TERRAMAP_BUILD_FINGERPRINT) + "', found '" + found + "'";
+  const auto want = fingerprintFields(TERRAMAP_BUILD_FINGERPRINT), got = fingerprintFields(found);
+  std::vector<std::string> reasons;
+  for (std::size_t i = 0; i < std::max(want.size(), got.size()); ++i) {
+    const std::string w = i < want.size() ? want[i] : "", g = i < got.size() ? got[i] : "";
+    if (w == g) continue;
+    const std::string advice = fieldAdvice(w.empty() ? g : w);
+    if (std::find(reasons.begin(), reasons.end(), advice) == reasons.end()) reasons.push_back(advice);
+  }
+  for (const auto& r : reasons) msg += "; " + r;
+  return PluginError(msg + " (rebuild the plugin with the host's compiler, flags and terramap version)");
+}
+
+/// The floating-point environment a library's load may change for the loading thread: the
+/// rounding mode and, on x86, MXCSR (flush-to-zero and denormals-are-zero). A library linked
+/// with -ffast-math/-Ofast by GCC < 13 sets FTZ/DAZ from a constructor; that would make the
+/// host's results depend on which thread loaded the plugin.
+struct FpState {
+  int rounding = std::fegetround();
+#if defined(__SSE__)
+  unsigned mxcsr = _mm_getcsr();
+#else
+  unsigned mxcsr = 0;
+#endif
+  bool operator==(const FpState& o) const { return rounding == o.rounding && mxcsr == o.mxcsr; }
+  void restore() const {
+    std::fesetround(rounding);
+#if defined(__SSE__)
+    _mm_setcsr(mxcsr);
+#endif
+  }
+};
+
+std::string fpStateText(const FpState& s) {
+  std::ostringstream os;
+  os << "rounding " << s.rounding << ", MXCSR 0x" << std::hex << s.mxcsr;
+  return os.str();
+}
+
 /// Loads and checks one library. Throws PluginError with the file and the mismatch.
 std::shared_ptr<PluginLibrary> openLibrary(const std::string& path) {
   // Accepted libraries stay loaded for the life of the process: objects they made (records
@@ -44,13 +124,27 @@ std::shared_ptr<PluginLibrary> openLibrary(const std::string& path) {
   std::lock_guard<std::mutex> lock(mu);
   if (auto it = cache->find(key); it != cache->end()) return it->second;
 
+  // The ABI note is read from the file before dlopen() runs any of the library's code.
+  if (const auto note = detail::readElfSection(path, TERRAMAP_PLUGIN_ABI_SECTION)) {
+    const std::string found(note->c_str());  // up to the NUL
+    if (found != TERRAMAP_BUILD_FINGERPRINT) throw fingerprintMismatch(path, found, " (read before loading)");
+  }
   auto lib = std::make_shared<PluginLibrary>();
   lib->path = path;
+  const FpState fp_before;
   try {
     lib->lib.load(boost::dll::fs::path(path),
                   boost::dll::load_mode::rtld_now | boost::dll::load_mode::rtld_local);
   } catch (const std::exception& e) {
     throw PluginError(path + ": cannot load plugin library: " + e.what());
+  }
+  if (const FpState fp_after; !(fp_after == fp_before)) {
+    fp_before.restore();
+    throw PluginError(path + ": loading the plugin changed the floating-point environment (expected " +
+                      fpStateText(fp_before) + ", found " + fpStateText(fp_after) +
+                      "): it was linked with -ffast-math or -Ofast, which sets flush-to-zero for the "
+                      "loading thread only and would make results depend on the thread; rebuild "
+                      "without them (restored)");
   }
   if (!lib->lib.has(kPluginInfoSymbol))
     throw PluginError(path + ": missing symbol '" + std::string(kPluginInfoSymbol) +
@@ -65,10 +159,7 @@ std::shared_ptr<PluginLibrary> openLibrary(const std::string& path) {
                       std::to_string(sizeof(terramap_plugin_info_t)) + " bytes, found " +
                       std::to_string(info.info_size) + " (rebuild the plugin against this terramap)");
   const char* fp = info.fingerprint ? info.fingerprint : "(null)";
-  if (std::strcmp(fp, TERRAMAP_BUILD_FINGERPRINT) != 0)
-    throw PluginError(path + ": plugin build fingerprint mismatch: expected '" +
-                      std::string(TERRAMAP_BUILD_FINGERPRINT) + "', found '" + fp +
-                      "' (rebuild the plugin with the same compiler and terramap version)");
+  if (std::strcmp(fp, TERRAMAP_BUILD_FINGERPRINT) != 0) throw fingerprintMismatch(path, fp, "");
   for (const char* sym : {kPluginCreateSymbol, kPluginDestroySymbol})
     if (!lib->lib.has(sym))
       throw PluginError(path + ": missing symbol '" + std::string(sym) + "' (export it with TERRAMAP_PLUGIN)");

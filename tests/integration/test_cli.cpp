@@ -1,6 +1,7 @@
 // End-to-end: the `terramap` binary as a user runs it.
 #include <terramap/io/geotiff.hpp>
 #include <terramap/io/snapshot.hpp>
+#include <terramap/plugin/abi.hpp>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -145,8 +146,17 @@ TEST(Cli, PluginsListsFoundAndRefused) {
   EXPECT_EQ(r.code, 0) << r.out;
   EXPECT_NE(r.out.find("smooth_filter"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("test_probe"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("ABI version mismatch: expected 1, found 99"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("ABI version mismatch: expected " + std::to_string(TERRAMAP_PLUGIN_ABI_VERSION) + ", found 99"),
+            std::string::npos)
+      << r.out;
   EXPECT_NE(r.out.find("missing symbol 'terramap_plugin_create'"), std::string::npos) << r.out;
+  // Plugins built with flags that must match the host's are listed as refused, and the listing
+  // survives them (an instrumented one would abort the process inside dlopen()).
+  EXPECT_NE(r.out.find("eigen-align-32-32"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("changed the floating-point environment"), std::string::npos) << r.out;
+  if (fs::exists(std::string(TERRAMAP_BINARY_DIR) + "/test_plugins/bad_sanitizer.so")) {
+    EXPECT_NE(r.out.find("asan-1"), std::string::npos) << r.out;
+  }
 }
 
 TEST(Cli, EmbeddedDemoWritesGeoTiffPngAndReport) {

@@ -8,9 +8,14 @@
 /// (the build tree and the install tree have the same layout). The first file found wins.
 ///
 /// Before creating anything the loader checks, in this order, and refuses with a PluginError
-/// naming the file, the expected and the found value: the library loads; it exports
-/// `terramap_plugin_info`; its `abi_version`; its `info_size`; its build fingerprint; it
-/// exports `terramap_plugin_create` and `terramap_plugin_destroy`; its `name` equals `T`.
+/// naming the file, the expected and the found value: the build fingerprint in the file's
+/// `.terramap_abi` section, read *before* loading (so a plugin built with other flags or a
+/// sanitizer never runs); the library loads; loading it left the floating-point environment
+/// (rounding, x86 MXCSR flush-to-zero) as it was (restored and refused otherwise: -ffast-math);
+/// it exports `terramap_plugin_info`; its `abi_version`; its `info_size`; its build fingerprint
+/// (again, for libraries without the section); it exports `terramap_plugin_create` and
+/// `terramap_plugin_destroy`; its `name` equals `T`. A fingerprint refusal names each
+/// differing field and its likely cause (abi.hpp lists the fields).
 /// A loaded library stays loaded as long as any plugin created from it lives.
 #include <terramap/plugin/abi.hpp>
 #include <terramap/plugin/plugin.hpp>

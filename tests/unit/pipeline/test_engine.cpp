@@ -101,7 +101,7 @@ outputs: {geotiff: [nope]}
   expectHas(all, "p.yaml:6:21: pipeline[2].type: unknown plugin type 'test_prob' (did you mean 'test_probe'?)");
   expectHas(all, "stage 'c' reads layer 'elevaton' before any stage creates it");
   expectHas(all, "stage 'd' creates layer 'a', which already exists");
-  expectHas(all, "ABI version mismatch: expected 1, found 99");
+  expectHas(all, "ABI version mismatch: expected " + std::to_string(TERRAMAP_PLUGIN_ABI_VERSION) + ", found 99");
   expectHas(all, "pipeline[6].params.increment: must be in [-1e+06, 1e+06] (got 1e+09)");
   expectHas(all, "outputs.geotiff: no stage creates layer 'nope'");
   EXPECT_EQ(std::count(all.begin(), all.end(), '\n'), 8) << all;  // one line per problem

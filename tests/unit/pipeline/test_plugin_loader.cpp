@@ -4,7 +4,15 @@
 
 #include <gtest/gtest.h>
 
+#include <pipeline/elf_section.hpp>
+
+#include <cstdlib>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
+#if defined(__SSE__)
+#include <xmmintrin.h>
+#endif
 
 using namespace terramap;
 
@@ -45,7 +53,7 @@ TEST(PluginLoader, LoadsAGoodPlugin) {
 TEST(PluginLoader, WrongAbiNumberIsRefusedWithBothValues) {
   const auto m = loadError("bad_abi");
   expectHas(m, lib("bad_abi"));
-  expectHas(m, "ABI version mismatch: expected 1, found 99");
+  expectHas(m, "ABI version mismatch: expected " + std::to_string(TERRAMAP_PLUGIN_ABI_VERSION) + ", found 99");
 }
 
 TEST(PluginLoader, WrongRecordSizeIsRefusedWithBothValues) {
@@ -151,4 +159,80 @@ TEST(PluginLoader, RefusedPluginsLeaveTheEngineUnchanged) {
   // And it still runs exactly as before.
   engine.push(Tick{2.0});
   EXPECT_EQ(engine.map().at(engine.map().layerId("probe"), Index(3, 3)), 4.0f);
+}
+
+// ---- flags that must match (docs/plugins.md, "Compile flags") ------------------------------
+
+namespace {
+bool ranCode(const std::string& name) { return std::getenv(("TERRAMAP_TEST_LOADED_" + name).c_str()) != nullptr; }
+std::string fileBytes(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(f), {});
+}
+}  // namespace
+
+TEST(PluginLoader, EveryPluginCarriesItsFingerprintInTheAbiSection) {
+  const auto note = detail::readElfSection(lib("test_probe"), TERRAMAP_PLUGIN_ABI_SECTION);
+  ASSERT_TRUE(note.has_value());
+  EXPECT_STREQ(note->c_str(), TERRAMAP_BUILD_FINGERPRINT);
+  // The host pins Eigen's alignment (CMake package) and says so in the fingerprint.
+  EXPECT_NE(std::string(TERRAMAP_BUILD_FINGERPRINT).find(";eigen-align-16-16;"), std::string::npos);
+}
+
+TEST(PluginLoader, OtherEigenAlignmentIsRefusedBeforeAnyOfItsCodeRuns) {
+  const auto m = loadError("bad_eigen_align");
+  expectHas(m, lib("bad_eigen_align"));
+  expectHas(m, "build fingerprint mismatch (read before loading): expected '" + std::string(TERRAMAP_BUILD_FINGERPRINT));
+  expectHas(m, "eigen-align-32-32");
+  expectHas(m, "Eigen's maximum alignment");
+  EXPECT_FALSE(ranCode("bad_eigen_align")) << "the library was loaded (its constructor ran)";
+}
+
+TEST(PluginLoader, SanitizedPluginInAPlainHostIsRefusedNotAborted) {
+  if (!std::filesystem::exists(lib("bad_sanitizer"))) GTEST_SKIP() << "host built with a sanitizer";
+  const auto m = loadError("bad_sanitizer");  // dlopen() would abort this process
+  expectHas(m, lib("bad_sanitizer"));
+  expectHas(m, "asan-1");
+  expectHas(m, "sanitizer");
+  EXPECT_FALSE(ranCode("bad_sanitizer"));
+}
+
+TEST(PluginLoader, FastMathPluginIsRefusedAndTheFloatingPointStateRestored) {
+#if defined(__SSE__)
+  const unsigned before = _mm_getcsr();
+#endif
+  const auto m = loadError("bad_fast_math");
+  expectHas(m, lib("bad_fast_math"));
+  expectHas(m, "changed the floating-point environment");
+  expectHas(m, "-ffast-math");
+  EXPECT_TRUE(ranCode("bad_fast_math")) << "refused for another reason than its constructor";
+#if defined(__SSE__)
+  EXPECT_EQ(_mm_getcsr(), before) << "flush-to-zero left set on the loading thread";
+#endif
+  // A denormal survives arithmetic on this thread (FTZ would flush it to zero).
+  volatile float tiny = 1e-39f;
+  EXPECT_GT(tiny * 1.0f, 0.0f);
+}
+
+TEST(ElfSection, ReadsNothingFromFilesThatAreNotWholeElfLibraries) {
+  const std::string good = lib("test_probe");
+  ASSERT_TRUE(detail::readElfSection(good, TERRAMAP_PLUGIN_ABI_SECTION).has_value());
+  EXPECT_FALSE(detail::readElfSection(good, ".no_such_section").has_value());
+  EXPECT_FALSE(detail::readElfSection(good + ".missing", TERRAMAP_PLUGIN_ABI_SECTION).has_value());
+  const std::string bytes = fileBytes(good);
+  const auto dir = std::filesystem::temp_directory_path() / "terramap_elf_section_test";
+  std::filesystem::create_directories(dir);
+  const std::string cut = (dir / "cut.so").string();
+  // Truncated anywhere (header, section table, string table): no section, no crash.
+  for (std::size_t n : {std::size_t{0}, std::size_t{3}, std::size_t{40}, std::size_t{64}, bytes.size() / 2,
+                        bytes.size() - 1}) {
+    std::ofstream(cut, std::ios::binary | std::ios::trunc).write(bytes.data(), static_cast<std::streamsize>(n));
+    EXPECT_FALSE(detail::readElfSection(cut, TERRAMAP_PLUGIN_ABI_SECTION).has_value()) << n << " bytes";
+  }
+  // Header fields pointing outside the file.
+  std::string bad = bytes;
+  std::memset(&bad[0x28], 0xff, 8);  // e_shoff (ELF64)
+  std::ofstream(cut, std::ios::binary | std::ios::trunc).write(bad.data(), static_cast<std::streamsize>(bad.size()));
+  EXPECT_FALSE(detail::readElfSection(cut, TERRAMAP_PLUGIN_ABI_SECTION).has_value());
+  std::filesystem::remove_all(dir);
 }
