@@ -1,48 +1,100 @@
-# Driven by CTest: install the build tree to a scratch prefix, build the out-of-tree plugin
-# against it, and run the *installed* terramap with a pipeline that uses that plugin.
-# Inputs: -DBUILD_DIR= -DSOURCE_DIR= -DWORK_DIR=
+# Driven by CTest: build the out-of-tree plugins against an installed terramap and run them
+# through the *installed* terramap, once with the default flags and once with CXX_FLAGS (e.g.
+# -march=native); the plugin that reads events must see the same values in both builds.
+# Inputs: -DSOURCE_DIR= -DWORK_DIR= and either -DBUILD_DIR= (installed here to a scratch
+# prefix) or -DPREFIX= (already installed); optional -DCXX_FLAGS= and -DREQUIRE_CPU_FLAG=
+# (skipped, printing "SKIP:", when /proc/cpuinfo does not list it).
+if(REQUIRE_CPU_FLAG)
+  file(READ /proc/cpuinfo cpuinfo)
+  if(NOT cpuinfo MATCHES "flags[^\n]* ${REQUIRE_CPU_FLAG}[ \n]")
+    message("SKIP: this CPU has no ${REQUIRE_CPU_FLAG}")
+    return()
+  endif()
+endif()
 file(REMOVE_RECURSE ${WORK_DIR})
-set(prefix ${WORK_DIR}/prefix)
-execute_process(COMMAND ${CMAKE_COMMAND} --install ${BUILD_DIR} --prefix ${prefix}
-  RESULT_VARIABLE rc OUTPUT_QUIET)
-if(rc)
-  message(FATAL_ERROR "install failed: ${rc}")
+if(NOT PREFIX)
+  set(PREFIX ${WORK_DIR}/prefix)
+  execute_process(COMMAND ${CMAKE_COMMAND} --install ${BUILD_DIR} --prefix ${PREFIX}
+    RESULT_VARIABLE rc OUTPUT_QUIET)
+  if(rc)
+    message(FATAL_ERROR "install failed: ${rc}")
+  endif()
 endif()
-execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR}/tests/out_of_tree -B ${WORK_DIR}/build -G Ninja
-  -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH=${prefix} RESULT_VARIABLE rc)
-if(rc)
-  message(FATAL_ERROR "configuring the out-of-tree plugin against the installed package failed: ${rc}")
-endif()
-execute_process(COMMAND ${CMAKE_COMMAND} --build ${WORK_DIR}/build RESULT_VARIABLE rc)
-if(rc)
-  message(FATAL_ERROR "building the out-of-tree plugin failed: ${rc}")
-endif()
-file(WRITE ${WORK_DIR}/pipeline.yaml "version: 1
-map: {resolution: 0.5, size: [20, 20], layers: [{name: elevation, unit: m, fill: 1.0}]}
-threads: 1
+
+# Builds the out-of-tree project with `flags` into ${WORK_DIR}/<tag>, runs the installed
+# terramap on it and returns the pose_probe record of report.json in `out_record`.
+function(build_and_run tag flags out_record)
+  set(dir ${WORK_DIR}/${tag})
+  execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR}/tests/out_of_tree -B ${dir}/build -G Ninja
+    -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH=${PREFIX} "-DCMAKE_CXX_FLAGS=${flags}"
+    RESULT_VARIABLE rc OUTPUT_QUIET)
+  if(rc)
+    message(FATAL_ERROR "[${tag}] configuring the out-of-tree plugins against the installed package failed: ${rc}")
+  endif()
+  execute_process(COMMAND ${CMAKE_COMMAND} --build ${dir}/build RESULT_VARIABLE rc OUTPUT_VARIABLE log)
+  if(rc)
+    message(FATAL_ERROR "[${tag}] building the out-of-tree plugins failed: ${rc}\n${log}")
+  endif()
+  # A short simulator run: Pose, BladePose and Observation events (Isometry3d members) reach
+  # the probe; the slope plugin reads and writes whole layers (toMatrix/fromMatrix).
+  file(WRITE ${dir}/pipeline.yaml "version: 1
+map: {resolution: 0.5, size: [20, 20], center: [4, 0], layers: [{name: elevation, unit: m, fill: 1.0}]}
+threads: 2
 plugin_paths: [build/plugins]
-source: {type: none}
+source: {type: sim, scenario: ${PREFIX}/share/terramap/configs/scenarios/dense_strip.yaml, max_time_s: 1.0}
 pipeline:
+  - {name: probe, type: pose_probe}
   - {name: slope, type: slope_layer, params: {output_layer: slope}}
   - {name: smooth, type: smooth_filter, params: {input_layer: slope, output_layer: slope_smooth, run_on: []}}
 outputs: {dir: out, geotiff: [slope], png: [], snapshot: false}
 ")
-execute_process(COMMAND ${prefix}/bin/terramap plugins --path ${WORK_DIR}/build/plugins
-  OUTPUT_VARIABLE out RESULT_VARIABLE rc)
-message("${out}")
-if(rc OR NOT out MATCHES "slope_layer" OR NOT out MATCHES "smooth_filter")
-  message(FATAL_ERROR "installed terramap does not list the out-of-tree and installed plugins")
+  execute_process(COMMAND ${PREFIX}/bin/terramap plugins --path ${dir}/build/plugins
+    OUTPUT_VARIABLE out RESULT_VARIABLE rc)
+  if(rc OR NOT out MATCHES "slope_layer" OR NOT out MATCHES "pose_probe" OR NOT out MATCHES "smooth_filter")
+    message(FATAL_ERROR "[${tag}] installed terramap does not list the out-of-tree and installed plugins:\n${out}")
+  endif()
+  execute_process(COMMAND ${PREFIX}/bin/terramap run ${dir}/pipeline.yaml --quiet
+    RESULT_VARIABLE rc ERROR_VARIABLE err)
+  if(rc)
+    message(FATAL_ERROR "[${tag}] installed terramap could not run the out-of-tree plugins (${rc}): ${err}")
+  endif()
+  if(NOT EXISTS ${dir}/out/map.tif OR NOT EXISTS ${dir}/out/report.json)
+    message(FATAL_ERROR "[${tag}] no outputs from the run")
+  endif()
+  file(READ ${dir}/out/report.json report)
+  string(JSON stages LENGTH "${report}" stages)
+  math(EXPR last "${stages} - 1")
+  set(record "")
+  foreach(i RANGE ${last})
+    string(JSON name GET "${report}" stages ${i} name)
+    string(JSON type GET "${report}" stages ${i} type)
+    if(name STREQUAL "slope" AND NOT type STREQUAL "slope_layer")
+      message(FATAL_ERROR "[${tag}] report does not show the out-of-tree stage")
+    endif()
+    if(name STREQUAL "probe")
+      string(JSON record GET "${report}" stages ${i} records 0)
+    endif()
+  endforeach()
+  if(record STREQUAL "")
+    message(FATAL_ERROR "[${tag}] no pose_probe record in the report")
+  endif()
+  string(JSON poses GET "${record}" poses)
+  string(JSON unexpected GET "${record}" unexpected)
+  string(JSON frames_wrong GET "${record}" frames_wrong)
+  string(JSON rot_err GET "${record}" max_rotation_error)
+  if(poses LESS 100 OR NOT unexpected EQUAL 0 OR NOT frames_wrong EQUAL 0 OR NOT rot_err LESS 1e-9)
+    message(FATAL_ERROR "[${tag}] the plugin misread the host's events: ${record}")
+  endif()
+  message("[${tag}] flags '${flags}': ${record}")
+  set(${out_record} "${record}" PARENT_SCOPE)
+endfunction()
+
+build_and_run(default "" reference)
+if(CXX_FLAGS)
+  build_and_run(flagged "${CXX_FLAGS}" flagged)
+  if(NOT flagged STREQUAL reference)
+    message(FATAL_ERROR "a plugin built with '${CXX_FLAGS}' read other event values than one built "
+      "with the default flags:\n  default: ${reference}\n  flagged: ${flagged}")
+  endif()
 endif()
-execute_process(COMMAND ${prefix}/bin/terramap run ${WORK_DIR}/pipeline.yaml --quiet
-  RESULT_VARIABLE rc ERROR_VARIABLE err)
-if(rc)
-  message(FATAL_ERROR "installed terramap could not run the out-of-tree plugin (${rc}): ${err}")
-endif()
-if(NOT EXISTS ${WORK_DIR}/out/map.tif OR NOT EXISTS ${WORK_DIR}/out/report.json)
-  message(FATAL_ERROR "no outputs from the run")
-endif()
-file(READ ${WORK_DIR}/out/report.json report)
-if(NOT report MATCHES "\"type\": \"slope_layer\"")
-  message(FATAL_ERROR "report does not show the out-of-tree stage")
-endif()
-message("out-of-tree plugin built against the installed package and ran")
+message("out-of-tree plugins built against the installed package and ran")
