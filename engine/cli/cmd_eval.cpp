@@ -1,12 +1,11 @@
 // `terramap eval SCENARIO.yaml`: blind mapping against the simulator's truth (paper Fig. 10) and
-// FEE-geometry extraction statistics. The work is in include/terramap/sim/eval.hpp.
+// FEE-geometry extraction statistics. The work is in include/terramap/eval/blind_eval.hpp.
 #include "command.hpp"
 
-#include <terramap/pipeline/blind_mapper.hpp>
+#include <terramap/eval/blind_eval.hpp>
 #include <terramap/pipeline/engine.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/pipeline/plugin_loader.hpp>
-#include <terramap/sim/eval.hpp>
 #include <terramap/sim/scenario.hpp>
 #include <terramap/sim/simulator.hpp>
 
@@ -28,25 +27,25 @@ struct EvalArgs {
   long long seed = -1;
 };
 
-void printRun(const sim::EvalRun& r) {
+void printRun(const eval::EvalRun& r) {
   const Geometry& g = r.geometry;
   std::printf("eval %s: %.2f s simulated, %ld sweeps, %ld events pushed, %ld clouds withheld, %.2f s wall\n",
               r.scenario.c_str(), r.simulated_s, r.sweeps, r.events_pushed, r.clouds_withheld, r.wall_s);
   std::printf("map %d x %d cells at %.3f m, centre (%.3f, %.3f)\n\n", g.size().x(), g.size().y(), g.resolution(),
               g.center().x(), g.center().y());
   std::printf("height error, map - truth (m)      cells     RMSE     bias   p95|e|    max|e|   no-update RMSE\n");
-  const std::pair<sim::EvalRegion, const char*> rows[] = {
-      {sim::EvalRegion::Cut, "inside the cut"},
-      {sim::EvalRegion::Outside, "outside the cut"},
-      {sim::EvalRegion::Deposit, "  deposit (truth moved)"},
-      {sim::EvalRegion::Untouched, "  untouched"},
-      {sim::EvalRegion::All, "all known cells"}};
+  const std::pair<eval::EvalRegion, const char*> rows[] = {
+      {eval::EvalRegion::Cut, "inside the cut"},
+      {eval::EvalRegion::Outside, "outside the cut"},
+      {eval::EvalRegion::Deposit, "  deposit (truth moved)"},
+      {eval::EvalRegion::Untouched, "  untouched"},
+      {eval::EvalRegion::All, "all known cells"}};
   for (const auto& [reg, label] : rows) {
-    const sim::RegionStats& s = r.stats(reg);
+    const eval::RegionStats& s = r.stats(reg);
     std::printf("  %-32s %8ld %8.4f %8.4f %8.4f %9.4f %16.4f\n", label, s.cells, s.rmse_m, s.bias_m, s.p95_abs_m,
                 s.max_abs_m, s.baseline_rmse_m);
   }
-  const sim::MassBalance& m = r.mass;
+  const eval::MassBalance& m = r.mass;
   std::printf("\nmass balance (m^3 of bank soil; blind: sum[(H - L) + L/s], s = %.3f; truth: sum(U + Lc))\n", m.swell);
   std::printf("  blind map:  change %+.6f, lost off the map %.6f (loose %.6f), residual %+.2e\n", m.blind_change_m3,
               m.blind_lost_loose_m3 / m.swell, m.blind_lost_loose_m3, m.blind_residual_m3);
@@ -56,7 +55,7 @@ void printRun(const sim::EvalRun& r) {
   std::printf("  surface removed:  blind %.4f, truth %.4f; added: blind %.4f, truth %.4f\n\n", m.removed_blind_m3,
               m.removed_truth_m3, m.added_blind_m3, m.added_truth_m3);
   std::printf("FEE geometry per sweep, mapped - truth at the sweep's end (angles in degrees):\n%s",
-              sim::extractionTableMarkdown(r.extraction).c_str());
+              eval::extractionTableMarkdown(r.extraction).c_str());
 }
 
 Registrar reg{Command{"eval", [](CLI::App& app, std::function<int()>& run) {
@@ -103,7 +102,7 @@ Registrar reg{Command{"eval", [](CLI::App& app, std::function<int()>& run) {
       if (a->seed >= 0) sc.seed = static_cast<std::uint64_t>(a->seed);
       const bool embedded = a->pipeline.empty();
       PipelineSpec spec = embedded
-          ? parsePipelineString(sim::defaultEvalPipeline(), "<embedded eval_blind.yaml>", ".")
+          ? parsePipelineString(eval::defaultEvalPipeline(), "<embedded eval_blind.yaml>", ".")
           : parsePipelineFile(a->pipeline);
       if (a->threads > 0) spec.threads = a->threads;
       sim::Simulator simulator(sc);
@@ -117,8 +116,7 @@ Registrar reg{Command{"eval", [](CLI::App& app, std::function<int()>& run) {
                      spec.source.type.c_str(), a->scenario.c_str());
       PluginRegistry registry(spec.plugin_paths);
       auto engine = Engine::fromSpec(spec, registry);
-      EngineBlindMapper mapper(*engine);
-      sim::EvalOptions opt;
+      eval::EvalOptions opt;
       opt.change_threshold_m = a->change_threshold;
       opt.error_range_m = a->error_range;
       opt.withhold_clouds = !a->lidar;
@@ -132,10 +130,10 @@ Registrar reg{Command{"eval", [](CLI::App& app, std::function<int()>& run) {
           std::fprintf(stderr, "\r  simulating %3d%%", pct);
           std::fflush(stderr);
         };
-      const sim::EvalRun r = sim::runBlindEvaluation(simulator, mapper, opt);
+      const eval::EvalRun r = eval::runBlindEvaluation(simulator, *engine, opt);
       engine->finish();
       if (tty) std::fprintf(stderr, "\r                     \r");
-      const std::vector<std::string> files = sim::writeEvalOutputs(r, a->out);
+      const std::vector<std::string> files = eval::writeEvalOutputs(r, a->out);
       if (!a->quiet) {
         printRun(r);
         std::printf("\n");

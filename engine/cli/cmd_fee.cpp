@@ -1,7 +1,7 @@
 // `terramap fee`: evaluate the fundamental equation of earthmoving once and print JSON.
 #include "command.hpp"
 
-#include <terramap/core/fee.hpp>
+#include <terramap/soil/fee.hpp>
 
 #include <nlohmann/json.hpp>
 

@@ -1,6 +1,7 @@
 // `terramap run [PIPELINE.yaml]`: run a pipeline (the embedded demo without a file).
 #include "command.hpp"
 
+#include <terramap/eval/truth_report.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/pipeline/run.hpp>
 
@@ -69,6 +70,7 @@ Registrar reg{Command{"run", [](CLI::App& app, std::function<int()>& run) {
       RunOptions o;
       o.out_dir = a->out;
       o.threads = a->threads;
+      o.compare_truth = eval::compareWithSourceTruth;
       ProgressBar bar(!a->quiet && !a->no_progress);
       o.on_progress = [&bar](double f, long n) { bar.update(f, n); };
       const RunResult r = runPipeline(spec, o);

@@ -2,6 +2,7 @@
 #include "command.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/eval/sim_source.hpp>
 
 #include <algorithm>
 #include <iostream>
@@ -16,6 +17,7 @@ std::vector<Command>& registry() {
 int main(int argc, char** argv) {
   using namespace terramap;
   using namespace terramap::cli;
+  sim::registerSimSource();  // `source: {type: sim}` (the pipeline library does not know the simulator)
   CLI::App app{"terramap: parallel layered grid maps for machines that move soil.\n"
                "Exit codes: 0 ok, 1 internal error, 2 usage, 3 config, 4 input, 5 plugin, 6 layer,\n"
                "7 output, 8 validation failed / invalid result."};

@@ -51,44 +51,12 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   const double run_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 
   // Sources that know the truth (the simulator) get error layers and statistics.
-  nlohmann::json truth_json;
-  LayeredMap& mmap = engine->mutableMap();
-  Eigen::MatrixXf truth(mmap.geometry().size().x(), mmap.geometry().size().y());
-  const bool has_truth = mmap.hasLayer("elevation") && !mmap.hasLayer("truth_elevation") &&
-                         source->truth("elevation", mmap.geometry(), truth);
-  if (has_truth) {
-    const Eigen::MatrixXf est = mmap.toMatrix(mmap.layerId("elevation"));
-    Eigen::MatrixXf err = Eigen::MatrixXf::Constant(est.rows(), est.cols(), std::numeric_limits<float>::quiet_NaN());
-    std::vector<double> abs_err;
-    long truth_cells = 0;
-    double sq = 0;
-    for (int i = 0; i < est.rows(); ++i)
-      for (int j = 0; j < est.cols(); ++j) {
-        if (!std::isfinite(truth(i, j))) continue;
-        ++truth_cells;
-        if (!std::isfinite(est(i, j))) continue;
-        err(i, j) = est(i, j) - truth(i, j);
-        sq += static_cast<double>(err(i, j)) * err(i, j);
-        abs_err.push_back(std::abs(err(i, j)));
-      }
-    mmap.fromMatrix(mmap.addLayer("truth_elevation", "m"), truth);
-    mmap.fromMatrix(mmap.addLayer("elevation_error", "m"), err);
-    std::sort(abs_err.begin(), abs_err.end());
-    auto pct = [&](double q) {
-      return abs_err.empty() ? 0.0 : abs_err[static_cast<size_t>(q * static_cast<double>(abs_err.size() - 1))];
-    };
-    truth_json = {{"layer", "elevation"},
-                  {"cells_with_truth", truth_cells},
-                  {"cells_compared", abs_err.size()},
-                  {"coverage", truth_cells ? static_cast<double>(abs_err.size()) / truth_cells : 0.0},
-                  {"rmse_m", abs_err.empty() ? 0.0 : std::sqrt(sq / static_cast<double>(abs_err.size()))},
-                  {"median_abs_m", pct(0.5)},
-                  {"p95_abs_m", pct(0.95)},
-                  {"max_abs_m", abs_err.empty() ? 0.0 : abs_err.back()}};
-    if (std::find(spec.outputs.geotiff.begin(), spec.outputs.geotiff.end(), "elevation_error") ==
-        spec.outputs.geotiff.end() && !spec.outputs.geotiff.empty())
-      spec.outputs.geotiff.insert(spec.outputs.geotiff.end(), {"truth_elevation", "elevation_error"});
-    if (!spec.outputs.png_all) spec.outputs.png.insert(spec.outputs.png.end(), {"truth_elevation", "elevation_error"});
+  TruthComparison truth;
+  if (options.compare_truth) truth = options.compare_truth(engine->mutableMap(), *source);
+  for (const std::string& layer : truth.layers) {
+    auto& tif = spec.outputs.geotiff;
+    if (!tif.empty() && std::find(tif.begin(), tif.end(), layer) == tif.end()) tif.push_back(layer);
+    if (!spec.outputs.png_all) spec.outputs.png.push_back(layer);
   }
 
   RunResult res;
@@ -134,7 +102,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
     const fs::path p = dir / "report.json";
     nlohmann::json extra;
     extra["pipeline"] = spec.file;
-    if (has_truth) extra["truth"] = truth_json;
+    if (!truth.json.empty()) extra["truth"] = nlohmann::json::parse(truth.json);
     extra["events_total"] = n;
     extra["run_wall_s"] = run_s;
     extra["map"] = {{"resolution_m", map.geometry().resolution()},

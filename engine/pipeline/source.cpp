@@ -53,7 +53,11 @@ std::unique_ptr<Source> makeSource(const PipelineSpec& spec) {
     const auto types = sourceTypes();
     throw ConfigError((spec.source.where.empty() ? spec.file : spec.source.where) + ".type: unknown source type '" +
                       spec.source.type + "'" + didYouMean(spec.source.type, types) + "; known: [" +
-                      joinStrings(types) + "]");
+                      joinStrings(types) + "]" +
+                      (spec.source.type == "sim"
+                           ? " (the simulator source is registered by terramap::sim::registerSimSource() in "
+                             "terramap::eval, which the terramap CLI calls)"
+                           : ""));
   }
   return f(spec);
 }

@@ -1,12 +1,10 @@
-// The built-in sources that need other modules: `sequence` (terramap::io) and `sim`.
+// The built-in source that needs another module: `sequence` (terramap::io). The simulator's
+// `sim` source lives above both libraries (terramap::eval, sim_source.hpp), so an embedder that
+// links only terramap::pipeline pulls in neither the simulator nor HDF5.
 #include <terramap/io/sequence.hpp>
 #include <terramap/pipeline/source.hpp>
-#include <terramap/sim/eval.hpp>
-#include <terramap/sim/scenario.hpp>
-#include <terramap/sim/simulator.hpp>
 
 #include <cmath>
-#include <deque>
 
 namespace terramap {
 
@@ -127,51 +125,10 @@ std::unique_ptr<Source> makeSequence(const PipelineSpec& spec) {
   return std::make_unique<SequenceEventSource>(std::move(q), std::move(sp), sourceBool(s, "emit_poses", true));
 }
 
-/// The simulator, live: each step's events in time order.
-class SimEventSource : public Source {
- public:
-  explicit SimEventSource(const sim::Scenario& sc, double max_time_s)
-      : sim_(std::make_unique<sim::Simulator>(sc)), duration_(std::min(sc.duration_s, max_time_s)) {}
-  bool next(Event& e) override {
-    while (queue_.empty()) {
-      if (sim_->time() >= duration_) return false;
-      std::vector<Event> batch;
-      if (!sim_->next(batch)) return false;
-      for (auto& ev : batch) queue_.push_back(std::move(ev));
-    }
-    e = std::move(queue_.front());
-    queue_.pop_front();
-    return true;
-  }
-  double progress() const override { return duration_ > 0 ? std::min(1.0, sim_->time() / duration_) : 1.0; }
-  const sim::Simulator& simulator() const { return *sim_; }
-  bool truth(const std::string& layer, const Geometry& g, Eigen::Ref<Eigen::MatrixXf> out) const override {
-    if (layer != "elevation") return false;
-    TERRAMAP_CHECK(out.rows() == g.size().x() && out.cols() == g.size().y(), "truth view of the wrong size");
-    out = sim::truthOnGeometry(sim_->truth(), g);  // surface (bank + loose) at cell centres, NaN off it
-    return true;
-  }
-
- private:
-  std::unique_ptr<sim::Simulator> sim_;
-  double duration_;
-  std::deque<Event> queue_;
-};
-
-std::unique_ptr<Source> makeSim(const PipelineSpec& spec) {
-  const SourceSpec& s = spec.source;
-  checkSourceKeys(s, {"scenario", "max_time_s"});
-  const sim::Scenario sc = sim::loadScenario(spec.resolvePath(sourceString(s, "scenario", true)));
-  const double max_t = sourceDouble(s, "max_time_s", false, INFINITY);
-  if (!(max_t > 0)) throw ConfigError(setting(s, "max_time_s")->where + ": must be > 0");
-  return std::make_unique<SimEventSource>(sc, max_t);
-}
-
 }  // namespace
 
 void registerModuleSources() {
   registerSource("sequence", makeSequence);
-  registerSource("sim", makeSim);
 }
 
 }  // namespace terramap

@@ -1,5 +1,5 @@
 // Truth soil-tool force (FEE per slice) and truth terrain deformation (cut, push, relax).
-#include <terramap/core/fee.hpp>
+#include <terramap/soil/fee.hpp>
 #include <terramap/sim/blade_physics.hpp>
 
 #include <algorithm>

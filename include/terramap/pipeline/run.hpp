@@ -11,6 +11,14 @@
 
 namespace terramap {
 
+class Source;
+
+/// What a comparison of the finished map with the source's truth produced.
+struct TruthComparison {
+  std::string json;                 ///< a JSON object for report.json's "truth"; empty = none
+  std::vector<std::string> layers;  ///< layers it added to the map (exported with the others)
+};
+
 struct RunOptions {
   /// Overrides outputs.dir when not empty.
   std::string out_dir;
@@ -19,6 +27,11 @@ struct RunOptions {
   /// Called after each event with the source's progress in [0, 1] (or < 0 if unknown) and
   /// the number of events so far. Runs on the calling thread.
   std::function<void(double progress, long events)> on_progress;
+  /// After the last event: compares the map with the source's truth, when the source has one
+  /// (the simulator), adding error layers to the map. The CLI sets it to
+  /// terramap::eval::compareWithSourceTruth (eval/truth_report.hpp); unset = no comparison, so
+  /// the pipeline library needs no evaluation code. Runs on the calling thread.
+  std::function<TruthComparison(LayeredMap& map, const Source& source)> compare_truth;
 };
 
 struct RunResult {

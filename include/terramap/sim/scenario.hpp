@@ -7,7 +7,7 @@
 /// Units: metres, seconds, radians in the structs (YAML takes *_deg keys for angles).
 #include <terramap/core/events.hpp>
 #include <terramap/sim/dem.hpp>
-#include <terramap/sim/soil_table.hpp>
+#include <terramap/soil/soil_table.hpp>
 
 #include <Eigen/Core>
 #include <array>
@@ -18,6 +18,15 @@
 #include <vector>
 
 namespace terramap::sim {
+
+// The soil table lives in terramap::soil (the estimator shares it); the simulator's scenarios
+// and truth speak of its families and properties directly.
+using soil::parseSoilFamily;
+using soil::SoilFamily;
+using soil::soilFamilyName;
+using soil::soilFamilyNames;
+using soil::SoilProperties;
+using soil::soilProperties;
 
 /// One Gaussian bump of the truth terrain: h += amplitude * exp(-|p - c|^2 / (2 sigma^2)).
 struct GaussianBump {

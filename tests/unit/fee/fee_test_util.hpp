@@ -1,7 +1,7 @@
 #pragma once
 // Helpers shared by the FEE tests: an independent world-frame trial-wedge force balance and
 // random admissible parameter sets. Nothing here calls the library under test.
-#include <terramap/core/fee.hpp>
+#include <terramap/soil/fee.hpp>
 
 #include <Eigen/Dense>
 

@@ -4,7 +4,7 @@
 #include <terramap/core/error.hpp>
 #include <terramap/sim/lidar.hpp>
 #include <terramap/sim/scenario.hpp>
-#include <terramap/sim/soil_table.hpp>
+#include <terramap/soil/soil_table.hpp>
 #include <terramap/sim/truth_terrain.hpp>
 #include <terramap/sim/world.hpp>
 

@@ -3,7 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <terramap/core/error.hpp>
-#include <terramap/core/fee.hpp>
+#include <terramap/soil/fee.hpp>
 #include <terramap/sim/blade_physics.hpp>
 #include <terramap/sim/episode.hpp>
 #include <terramap/sim/simulator.hpp>

@@ -1,12 +1,11 @@
-// Blind-mapping evaluation (include/terramap/sim/eval.hpp, `terramap eval`): truth sampling on
+// Blind-mapping evaluation (include/terramap/eval/blind_eval.hpp, `terramap eval`): truth sampling on
 // the map grid, the statistics, a whole evaluation on a small berm-cut scenario through the
 // real engine and plugins, the outputs, and the CLI.
 #include <terramap/io/geotiff.hpp>
-#include <terramap/pipeline/blind_mapper.hpp>
+#include <terramap/eval/blind_eval.hpp>
 #include <terramap/pipeline/engine.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/pipeline/plugin_loader.hpp>
-#include <terramap/sim/eval.hpp>
 #include <terramap/sim/scenario.hpp>
 #include <terramap/sim/simulator.hpp>
 
@@ -75,17 +74,16 @@ machines:
   return s;
 }
 
-sim::EvalRun evaluateSmallBerm(int threads, long* scans = nullptr) {
+eval::EvalRun evaluateSmallBerm(int threads, long* scans = nullptr) {
   sim::Simulator simulator(sim::parseScenario(smallBermScenario(), "small_berm.yaml"));
-  PipelineSpec spec = parsePipelineString(sim::defaultEvalPipeline(), "<eval>", ".");
+  PipelineSpec spec = parsePipelineString(eval::defaultEvalPipeline(), "<eval>", ".");
   spec.threads = threads;
   const Geometry g = sim::fitGeometry(simulator.truth(), spec.resolution);
   spec.size = g.size();
   spec.center = g.center();
   PluginRegistry registry({TERRAMAP_PLUGIN_DIR});
   auto engine = Engine::fromSpec(spec, registry);
-  EngineBlindMapper mapper(*engine);
-  sim::EvalRun r = sim::runBlindEvaluation(simulator, mapper);
+  eval::EvalRun r = eval::runBlindEvaluation(simulator, *engine);
   engine->finish();
   if (scans) *scans = static_cast<long>(simulator.stats().scans);
   return r;
@@ -96,8 +94,8 @@ long& smallBermScans() {
   return scans;
 }
 
-const sim::EvalRun& smallBermRun() {
-  static const sim::EvalRun run = evaluateSmallBerm(2, &smallBermScans());
+const eval::EvalRun& smallBermRun() {
+  static const eval::EvalRun run = evaluateSmallBerm(2, &smallBermScans());
   return run;
 }
 
@@ -181,7 +179,7 @@ TEST(EvalExtraction, SurfaceAheadTruthOnASlope) {
   // Upright blade, edge 5 cm below the surface at x = 2.
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.translation() = Eigen::Vector3d(2.0, 0.0, 0.15);
-  sim::SurfaceAheadTruth s = sim::surfaceAheadTruth(t, T, blade, 37);
+  eval::SurfaceAheadTruth s = eval::surfaceAheadTruth(t, T, blade, 37);
   EXPECT_EQ(s.cutting_slices, 37);
   EXPECT_NEAR(s.alpha_rad, std::atan(0.1), 1e-9);
   EXPECT_NEAR(s.d_m, 0.05 * std::cos(std::atan(0.1)), 1e-9);
@@ -190,7 +188,7 @@ TEST(EvalExtraction, SurfaceAheadTruthOnASlope) {
   // Yawed by 30 deg: the slope along the normal is 0.1 cos 30; the depth varies along the edge
   // (the edge runs uphill to the right), d-weighted like the simulator.
   T.linear() = Eigen::AngleAxisd(M_PI / 6, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-  s = sim::surfaceAheadTruth(t, T, blade, 37);
+  s = eval::surfaceAheadTruth(t, T, blade, 37);
   const double alpha = std::atan(0.1 * std::cos(M_PI / 6));
   double sd = 0, sdd = 0;
   for (int k = 0; k < 37; ++k) {
@@ -207,7 +205,7 @@ TEST(EvalExtraction, SurfaceAheadTruthOnASlope) {
   T = Eigen::Isometry3d::Identity();
   T.translation() = Eigen::Vector3d(2.0, 0.0, 0.21);
   T.linear() = Eigen::AngleAxisd(-10 * M_PI / 180, Eigen::Vector3d::UnitY()).toRotationMatrix();
-  s = sim::surfaceAheadTruth(t, T, blade, 37);
+  s = eval::surfaceAheadTruth(t, T, blade, 37);
   EXPECT_EQ(s.cutting_slices, 0);
   EXPECT_TRUE(std::isnan(s.d_m));
   EXPECT_NEAR(s.face_angle_rad, 80 * M_PI / 180, 1e-9);
@@ -215,17 +213,17 @@ TEST(EvalExtraction, SurfaceAheadTruthOnASlope) {
   T = Eigen::Isometry3d::Identity();
   T.translation() = Eigen::Vector3d(2.0, 0.0, 0.2);
   T.linear() = Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitX()).toRotationMatrix();
-  s = sim::surfaceAheadTruth(t, T, blade, 37);
+  s = eval::surfaceAheadTruth(t, T, blade, 37);
   EXPECT_EQ(s.cutting_slices, 18);  // slices with ys < 0 (slice 18 sits at ys = 0: no cut)
   EXPECT_NEAR(s.w_along_m, 18 * 1.85 / 37, 1e-12);
 }
 
 TEST(EvalExtraction, StatisticsAreHandComputable) {
-  std::vector<sim::ExtractionSample> v;
+  std::vector<eval::ExtractionSample> v;
   // Five sweeps valid on both sides with d errors 1..5 cm, alpha errors of 0.01 rad, and
   // Q unknown on the mapped side for one of them; plus one of each other kind.
   for (int k = 0; k < 5; ++k) {
-    sim::ExtractionSample s;
+    eval::ExtractionSample s;
     s.sweep = k + 1;
     s.mapped_valid = s.truth_valid = true;
     s.truth_d_m = 0.10;
@@ -242,23 +240,23 @@ TEST(EvalExtraction, StatisticsAreHandComputable) {
     s.truth_q_n = 1000.0;
     v.push_back(s);
   }
-  sim::ExtractionSample m;
+  eval::ExtractionSample m;
   m.mapped_valid = true;
   m.d_m = 5.0;  // must not enter the statistics
   v.push_back(m);
-  sim::ExtractionSample t;
+  eval::ExtractionSample t;
   t.truth_valid = true;
   t.truth_d_m = 5.0;
   v.push_back(t);
-  v.push_back(sim::ExtractionSample{});
-  const sim::ExtractionSummary s = sim::summarizeExtraction(v);
+  v.push_back(eval::ExtractionSample{});
+  const eval::ExtractionSummary s = eval::summarizeExtraction(v);
   EXPECT_EQ(s.sweeps, 8);
   EXPECT_EQ(s.both_valid, 5);
   EXPECT_EQ(s.mapped_only, 1);
   EXPECT_EQ(s.truth_only, 1);
   EXPECT_EQ(s.neither, 1);
   ASSERT_EQ(s.parameters.size(), 8u);
-  const sim::ParameterStats& d = s.parameters[2];
+  const eval::ParameterStats& d = s.parameters[2];
   EXPECT_EQ(d.name, "d");
   EXPECT_EQ(d.unit, "m");
   EXPECT_EQ(d.n, 5);
@@ -269,29 +267,29 @@ TEST(EvalExtraction, StatisticsAreHandComputable) {
   EXPECT_NEAR(d.p50, 0.03, 1e-12);
   EXPECT_NEAR(d.p95, 0.048, 1e-12);
   EXPECT_NEAR(d.truth_mean, 0.10, 1e-12);
-  const sim::ParameterStats& a = s.parameters[0];
+  const eval::ParameterStats& a = s.parameters[0];
   EXPECT_EQ(a.unit, "deg");
   EXPECT_NEAR(a.bias, 0.01 * 180 / M_PI, 1e-9);
   EXPECT_NEAR(a.std, 0.0, 1e-9);
-  const sim::ParameterStats& q = s.parameters[4];
+  const eval::ParameterStats& q = s.parameters[4];
   EXPECT_EQ(q.n, 4);  // the NaN one is left out
   EXPECT_NEAR(q.bias, (0 + 100 + 300 + 400) / 4.0, 1e-9);
-  const sim::ParameterStats& rho = s.parameters[1];
+  const eval::ParameterStats& rho = s.parameters[1];
   EXPECT_NEAR(rho.bias, (0.1 - 0.1) * 180 / M_PI, 1e-9);    // mean of 0.1 - 0.05 k, k = 0..4
   EXPECT_EQ(s.parameters[5].name, "d_vs_sim_raw");
   EXPECT_EQ(s.parameters[5].n, 0);  // no raw depths given
-  const sim::ParameterStats& rho_raw = s.parameters[6];
+  const eval::ParameterStats& rho_raw = s.parameters[6];
   EXPECT_NEAR(rho_raw.bias, 0.1 * 180 / M_PI, 1e-9);
-  const sim::ParameterStats& w = s.parameters[3];
+  const eval::ParameterStats& w = s.parameters[3];
   EXPECT_NEAR(w.bias, 1.80 - 1.85 * std::cos(0.1), 1e-12);
   EXPECT_NEAR(s.parameters[7].bias, -0.05, 1e-12);
-  const std::string md = sim::extractionTableMarkdown(s);
+  const std::string md = eval::extractionTableMarkdown(s);
   EXPECT_NE(md.find("| d | m | 5 | 0.1000 | 0.1300 | 0.0300 |"), std::string::npos) << md;
   EXPECT_NE(md.find("8 sweeps: 5 valid on both sides"), std::string::npos) << md;
 }
 
 TEST(EvalPipeline, EmbeddedDefaultEqualsConfigsEvalBlind) {
-  EXPECT_EQ(sim::defaultEvalPipeline(), readText(fs::path(TERRAMAP_SOURCE_DIR) / "configs" / "eval_blind.yaml"));
+  EXPECT_EQ(eval::defaultEvalPipeline(), readText(fs::path(TERRAMAP_SOURCE_DIR) / "configs" / "eval_blind.yaml"));
   const PipelineSpec spec = parsePipelineFile(std::string(TERRAMAP_SOURCE_DIR) + "/configs/eval_blind.yaml");
   ASSERT_EQ(spec.stages.size(), 2u);
   EXPECT_EQ(spec.stages[0].type, "blade_sweep");
@@ -302,10 +300,10 @@ TEST(EvalPipeline, EmbeddedDefaultEqualsConfigsEvalBlind) {
 }
 
 TEST(EvalRun, BlindMapBeatsTheNoUpdateMapAndConservesMass) {
-  const sim::EvalRun& r = smallBermRun();
-  const sim::RegionStats& cut = r.stats(sim::EvalRegion::Cut);
-  const sim::RegionStats& dep = r.stats(sim::EvalRegion::Deposit);
-  const sim::RegionStats& unt = r.stats(sim::EvalRegion::Untouched);
+  const eval::EvalRun& r = smallBermRun();
+  const eval::RegionStats& cut = r.stats(eval::EvalRegion::Cut);
+  const eval::RegionStats& dep = r.stats(eval::EvalRegion::Deposit);
+  const eval::RegionStats& unt = r.stats(eval::EvalRegion::Untouched);
   std::printf("[ eval ] %ld sweeps; cut %ld cells rmse %.4f (no update %.4f); deposit %ld rmse %.4f (%.4f); "
               "untouched %ld rmse %.5f p95 %.5f; mass blind residual %.3e, cut bank blind %.4f truth %.4f\n",
               r.sweeps, cut.cells, cut.rmse_m, cut.baseline_rmse_m, dep.cells, dep.rmse_m, dep.baseline_rmse_m,
@@ -316,8 +314,8 @@ TEST(EvalRun, BlindMapBeatsTheNoUpdateMapAndConservesMass) {
   EXPECT_GT(smallBermScans(), 20);
   EXPECT_EQ(r.clouds_withheld, smallBermScans());
   // Region bookkeeping: every known cell in exactly one of cut / deposit / untouched.
-  EXPECT_EQ(r.stats(sim::EvalRegion::All).cells, cut.cells + dep.cells + unt.cells);
-  EXPECT_EQ(r.stats(sim::EvalRegion::Outside).cells, dep.cells + unt.cells);
+  EXPECT_EQ(r.stats(eval::EvalRegion::All).cells, cut.cells + dep.cells + unt.cells);
+  EXPECT_EQ(r.stats(eval::EvalRegion::Outside).cells, dep.cells + unt.cells);
   // The blade went through ~2.5 m x 1.85 m of ground below the initial surface (1850 cells of 5 cm).
   EXPECT_GT(cut.cells, 1000);
   // Inside the cut, blind mapping must beat a map that ignored the blade by far: the no-update
@@ -354,32 +352,31 @@ TEST(EvalRun, BlindMapBeatsTheNoUpdateMapAndConservesMass) {
 }
 
 TEST(EvalRun, BitIdenticalAtOneAndTwoThreads) {
-  const sim::EvalRun one = evaluateSmallBerm(1);
-  const sim::EvalRun& two = smallBermRun();
+  const eval::EvalRun one = evaluateSmallBerm(1);
+  const eval::EvalRun& two = smallBermRun();
   ASSERT_EQ(one.blind.size(), two.blind.size());
   EXPECT_EQ(0, std::memcmp(one.blind.data(), two.blind.data(), sizeof(float) * one.blind.size()));
   EXPECT_EQ(one.mass.blind_residual_m3, two.mass.blind_residual_m3);
-  EXPECT_EQ(one.stats(sim::EvalRegion::Cut).rmse_m, two.stats(sim::EvalRegion::Cut).rmse_m);
+  EXPECT_EQ(one.stats(eval::EvalRegion::Cut).rmse_m, two.stats(eval::EvalRegion::Cut).rmse_m);
 }
 
 TEST(EvalRun, RefusesASteppedSimulatorAndAMapWithoutElevation) {
   sim::Simulator simulator(sim::parseScenario(smallBermScenario(), "small_berm.yaml"));
-  PipelineSpec spec = parsePipelineString(sim::defaultEvalPipeline(), "<eval>", ".");
+  PipelineSpec spec = parsePipelineString(eval::defaultEvalPipeline(), "<eval>", ".");
   PluginRegistry registry({TERRAMAP_PLUGIN_DIR});
   auto engine = Engine::fromSpec(spec, registry);
-  EngineBlindMapper mapper(*engine);
-  sim::EvalOptions o;
+  eval::EvalOptions o;
   o.elevation_layer = "height";
-  EXPECT_THROW(sim::runBlindEvaluation(simulator, mapper, o), LayerError);
+  EXPECT_THROW(eval::runBlindEvaluation(simulator, *engine, o), LayerError);
   std::vector<Event> ev;
   simulator.next(ev);
-  EXPECT_THROW(sim::runBlindEvaluation(simulator, mapper), std::invalid_argument);
+  EXPECT_THROW(eval::runBlindEvaluation(simulator, *engine), std::invalid_argument);
 }
 
 TEST(EvalOutputs, PngsGeoTiffJsonAndCsvAreWritten) {
-  const sim::EvalRun& r = smallBermRun();
+  const eval::EvalRun& r = smallBermRun();
   const fs::path d = tempDir("outputs") / "nested";
-  const std::vector<std::string> files = sim::writeEvalOutputs(r, d);
+  const std::vector<std::string> files = eval::writeEvalOutputs(r, d);
   for (const char* f : {"blind_heightmap.png", "truth_heightmap.png", "error.png", "baseline_error.png", "regions.png",
                         "eval.tif", "eval.json", "extraction.csv"}) {
     EXPECT_TRUE(fs::exists(d / f)) << f;
@@ -393,8 +390,8 @@ TEST(EvalOutputs, PngsGeoTiffJsonAndCsvAreWritten) {
   const nlohmann::json j = nlohmann::json::parse(readText(d / "eval.json"));
   EXPECT_EQ(j["format"], "terramap-eval");
   EXPECT_EQ(j["sweeps"].get<long>(), r.sweeps);
-  EXPECT_DOUBLE_EQ(j["height_error"]["cut"]["rmse_m"].get<double>(), r.stats(sim::EvalRegion::Cut).rmse_m);
-  EXPECT_EQ(j["height_error"]["outside"]["cells"].get<long>(), r.stats(sim::EvalRegion::Outside).cells);
+  EXPECT_DOUBLE_EQ(j["height_error"]["cut"]["rmse_m"].get<double>(), r.stats(eval::EvalRegion::Cut).rmse_m);
+  EXPECT_EQ(j["height_error"]["outside"]["cells"].get<long>(), r.stats(eval::EvalRegion::Outside).cells);
   EXPECT_DOUBLE_EQ(j["mass"]["blind_residual_m3"].get<double>(), r.mass.blind_residual_m3);
   EXPECT_EQ(j["extraction"]["parameters"].size(), 8u);
   const io::Raster ras = io::readRaster(d / "eval.tif");

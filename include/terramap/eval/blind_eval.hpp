@@ -13,15 +13,19 @@
 ///  - FEE geometry extracted per sweep (α, ρ, d, w, Q of every SweepRecord) against the
 ///    simulator's truth at the same instant (MachineTruth::fee), as bias and spread.
 ///
-/// Layering: this lives in terramap_sim, below the pipeline library, so the mapper is reached
-/// through the small BlindMapper interface (the CLI adapts terramap::Engine to it; tests may
-/// adapt plugins directly). Units: metres, radians, newtons, cubic metres; map frame (z up).
+/// Layering: terramap::eval sits above the pipeline and the simulator (it drives an Engine with
+/// a Simulator's events); nothing but the CLI and tests depends on it. The simulator itself
+/// only produces truth (sim/truth_sampling.hpp). Units: metres, radians, newtons, cubic metres;
+/// map frame (z up).
 /// Threading: everything here runs on the caller's thread (the mapper uses its own executor).
 #include <terramap/core/events.hpp>
 #include <terramap/core/geometry.hpp>
 #include <terramap/core/layered_map.hpp>
+#include <terramap/eval/statistics.hpp>
+#include <terramap/pipeline/engine.hpp>
 #include <terramap/plugin/records/sweep_record.hpp>
 #include <terramap/sim/simulator.hpp>
+#include <terramap/sim/truth_sampling.hpp>
 #include <terramap/sim/truth_terrain.hpp>
 
 #include <Eigen/Core>
@@ -31,44 +35,7 @@
 #include <string>
 #include <vector>
 
-namespace terramap::sim {
-
-/// Which truth surface truthOnGeometry samples.
-enum class TruthSurface {
-  Current,  ///< H = U + Lv now (bank plus loose as it lies): what a height map should show
-  Initial,  ///< the surface at t = 0 (stored by the truth as float)
-  Bank,     ///< U + Lc now: the bank-equivalent column (soil mass per area / bank density)
-};
-
-/// The truth surface sampled at the centres of the cells of `geometry`, bilinearly between
-/// the truth's nodes (TruthTerrain::heightAt and friends), as a size.x() x size.y() matrix in
-/// the geometry's logical order (row i, column j: what LayeredMap::fromMatrix takes). A point
-/// sample, not a cell average: the map is initialised with the same samples, so the initial
-/// error is exactly zero. NaN where the cell centre lies outside the truth grid.
-Eigen::MatrixXf truthOnGeometry(const TruthTerrain& truth, const Geometry& geometry,
-                                TruthSurface surface = TruthSurface::Current);
-/// Same in double precision (mass sums).
-Eigen::MatrixXd truthOnGeometryD(const TruthTerrain& truth, const Geometry& geometry,
-                                 TruthSurface surface = TruthSurface::Current);
-
-/// The largest map at `resolution_m` whose cell centres all lie inside the truth grid,
-/// centred on it. \throws ConfigError if the resolution is not positive or finite, the truth
-/// is smaller than one cell, or the map would exceed `max_cells` (name both sizes).
-Geometry fitGeometry(const TruthTerrain& truth, double resolution_m, long max_cells = 40'000'000);
-
-/// What `evaluate` needs from the mapper. The engine is a library above the simulator, so it
-/// is reached through this interface (the CLI wraps terramap::Engine in 10 lines).
-class BlindMapper {
- public:
-  virtual ~BlindMapper() = default;
-  /// The map the pipeline writes (elevation is initialised through it before the first event).
-  virtual LayeredMap& map() = 0;
-  /// Runs the pipeline on one event.
-  virtual void push(const Event& event) = 0;
-  /// The latest SweepRecord published (nullptr if none yet) and its RecordBus sequence number
-  /// (a new number = a new sweep).
-  virtual std::shared_ptr<const SweepRecord> latestSweep(long* sequence) = 0;
-};
+namespace terramap::eval {
 
 struct EvalOptions {
   /// A cell outside the cut whose truth surface moved by more than this counts as
@@ -152,13 +119,13 @@ struct SurfaceAheadTruth {
 /// Evaluates it at `T_map_blade` (blade frame of core/events.hpp). No horizontal push direction
 /// (face normal and face direction both vertical) or `slices` < 1 gives no cutting slices and a
 /// NaN face angle. Pure and thread-safe (reads the terrain only).
-SurfaceAheadTruth surfaceAheadTruth(const TruthTerrain& truth, const Eigen::Isometry3d& T_map_blade,
+SurfaceAheadTruth surfaceAheadTruth(const sim::TruthTerrain& truth, const Eigen::Isometry3d& T_map_blade,
                                     const BladeGeometry& blade, int slices);
 
 /// One sweep's extracted FEE geometry next to the simulator's truth at the sweep's end (T1,
 /// the pose the simulator reports after the period that produced the record's last BladePose).
 /// The mapper's values: the sweep's α (SweepRecord::alpha_rad) and the per-step ρ, d, w, Q at T1
-/// (SweepRecord::steps.back()). The truth, in core/fee.hpp's conventions (the estimator's):
+/// (SweepRecord::steps.back()). The truth, in soil/fee.hpp's conventions (the estimator's):
 ///  - α, d: SurfaceAheadTruth at T1; `truth_d_raw_m` keeps the simulator's FeeTruth::depth_m.
 ///  - ρ: measured from the surface line, ρ = α + face angle (fee.hpp), as FeeTruth::rho_rad
 ///    (kept as `truth_rho_raw_rad`).
@@ -220,13 +187,14 @@ struct EvalRun {
   const RegionStats& stats(EvalRegion r) const { return regions[static_cast<int>(r)]; }
 };
 
-/// Initialises the mapper's elevation from the truth (TruthSurface::Current at the cell
+/// Initialises the engine map's elevation from the truth (TruthSurface::Current at the cell
 /// centres; NaN outside the truth grid) and its loose layer, if any, to 0, then plays the
-/// simulator through it to the end and evaluates. `sim` must not have been stepped yet.
+/// simulator through the engine to the end and evaluates; sweeps are read from the engine's
+/// RecordBus (SweepRecord::kType). `sim` must not have been stepped yet.
 /// \throws LayerError if the map has no elevation layer; ConfigError if a plugin moved the
 ///   map (the evaluation compares fixed cells) or a record names an unknown machine;
 ///   std::invalid_argument if `sim` has already been stepped; whatever push() throws.
-EvalRun runBlindEvaluation(Simulator& sim, BlindMapper& mapper, const EvalOptions& options = {});
+EvalRun runBlindEvaluation(sim::Simulator& sim, Engine& engine, const EvalOptions& options = {});
 
 /// Writes into `dir` (created if needed), each file atomically:
 ///   blind_heightmap.png  blind elevation, hillshaded, viridis over the 0.1-99.9 percentiles
@@ -248,4 +216,4 @@ std::string evalJson(const EvalRun& run);
 /// `elevation`), the same text as configs/eval_blind.yaml (a test keeps them equal).
 std::string defaultEvalPipeline();
 
-}  // namespace terramap::sim
+}  // namespace terramap::eval

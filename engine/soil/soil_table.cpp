@@ -1,10 +1,10 @@
 // Soil table: family + relative density -> truth FEE parameters. Sources in docs/sim.md.
-#include <terramap/sim/soil_table.hpp>
+#include <terramap/soil/soil_table.hpp>
 
 #include <cmath>
 #include <stdexcept>
 
-namespace terramap::sim {
+namespace terramap::soil {
 namespace {
 
 constexpr double kDeg = M_PI / 180.0;
@@ -76,4 +76,4 @@ SoilProperties soilProperties(SoilFamily family, double relative_density) {
   return p;
 }
 
-}  // namespace terramap::sim
+}  // namespace terramap::soil

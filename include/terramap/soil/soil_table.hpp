@@ -6,12 +6,12 @@
 /// (I_d = 0) and a dense (I_d = 1) end member, which is how Vortex Studio's presets expose
 /// relative density too (one scalar that moves all strength properties together).
 /// Pure functions: safe from any thread.
-#include <terramap/core/fee.hpp>
+#include <terramap/soil/fee.hpp>
 
 #include <string>
 #include <vector>
 
-namespace terramap::sim {
+namespace terramap::soil {
 
 enum class SoilFamily { Clay, Loam, Sand, Gravel };
 
@@ -35,4 +35,4 @@ struct SoilProperties {
 /// or not finite (scenario loading checks the range first and reports file:line:col).
 SoilProperties soilProperties(SoilFamily family, double relative_density);
 
-}  // namespace terramap::sim
+}  // namespace terramap::soil

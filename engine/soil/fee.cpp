@@ -1,7 +1,7 @@
 // The fundamental equation of earthmoving (ALGORITHMS.md §E). The derivatives below were
 // derived by hand from the N-factor formulas; the identities used are noted where they
 // shorten an expression (e.g. cos A sin eta - sin A cos eta = sin(eta - A) = sin(delta+rho-alpha)).
-#include <terramap/core/fee.hpp>
+#include <terramap/soil/fee.hpp>
 
 #include <cmath>
 #include <limits>

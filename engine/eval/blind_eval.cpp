@@ -1,4 +1,4 @@
-#include <terramap/sim/eval.hpp>
+#include <terramap/eval/blind_eval.hpp>
 
 #include <terramap/core/error.hpp>
 #include <terramap/io/atomic_file.hpp>
@@ -17,55 +17,32 @@
 #include <stdexcept>
 #include <variant>
 
-namespace terramap::sim {
+namespace terramap::eval {
+
+using sim::FeeTruth;
+using sim::MachineSpec;
+using sim::MachineTruth;
+using sim::Simulator;
+using sim::TruthSurface;
+using sim::TruthTerrain;
+using sim::truthOnGeometry;
+using sim::truthOnGeometryD;
 
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kDeg = 180.0 / M_PI;
 
-double sampleTruth(const TruthTerrain& t, double x, double y, TruthSurface s) {
-  switch (s) {
-    case TruthSurface::Current: return t.heightAt(x, y);
-    case TruthSurface::Initial: return t.initialHeightAt(x, y);
-    case TruthSurface::Bank: return t.undisturbedAt(x, y) + t.looseBankAt(x, y);
-  }
-  return kNaN;
-}
-
-/// numpy "linear" percentile of a sorted vector.
-double percentileSorted(const std::vector<double>& v, double p) {
-  if (v.empty()) return kNaN;
-  const double pos = p / 100.0 * static_cast<double>(v.size() - 1);
-  const std::size_t lo = static_cast<std::size_t>(std::floor(pos));
-  const std::size_t hi = std::min(lo + 1, v.size() - 1);
-  return v[lo] + (pos - static_cast<double>(lo)) * (v[hi] - v[lo]);
-}
-
 RegionStats regionStats(const std::vector<double>& err, const std::vector<double>& base) {
   RegionStats r;
   r.cells = static_cast<long>(err.size());
-  if (err.empty()) {
-    r.rmse_m = r.bias_m = r.p95_abs_m = r.max_abs_m = r.baseline_rmse_m = r.baseline_bias_m = kNaN;
-    return r;
-  }
-  double se = 0, s = 0, sb = 0, seb = 0;
-  std::vector<double> a(err.size());
-  for (std::size_t k = 0; k < err.size(); ++k) {
-    se += err[k] * err[k];
-    s += err[k];
-    sb += base[k];
-    seb += base[k] * base[k];
-    a[k] = std::abs(err[k]);
-  }
-  const double n = static_cast<double>(err.size());
-  r.rmse_m = std::sqrt(se / n);
-  r.bias_m = s / n;
-  r.baseline_rmse_m = std::sqrt(seb / n);
-  r.baseline_bias_m = sb / n;
-  std::sort(a.begin(), a.end());
-  r.p95_abs_m = percentileSorted(a, 95.0);
-  r.max_abs_m = a.back();
+  const ErrorStats e = errorStats(err), b = errorStats(base);
+  r.rmse_m = e.rmse;
+  r.bias_m = e.bias;
+  r.p95_abs_m = e.p95_abs;
+  r.max_abs_m = e.max_abs;
+  r.baseline_rmse_m = b.rmse;
+  r.baseline_bias_m = b.bias;
   return r;
 }
 
@@ -90,20 +67,13 @@ ParameterStats paramStats(const std::string& name, const std::string& unit, doub
   const double n = static_cast<double>(e.size());
   p.mapped_mean = sm / n;
   p.truth_mean = st / n;
-  double s = 0, ss = 0;
-  for (double x : e) {
-    s += x;
-    ss += x * x;
-  }
-  p.bias = s / n;
-  p.rmse = std::sqrt(ss / n);
-  double var = 0;
-  for (double x : e) var += (x - p.bias) * (x - p.bias);
-  p.std = e.size() > 1 ? std::sqrt(var / (n - 1)) : 0.0;
-  std::sort(e.begin(), e.end());
-  p.p5 = percentileSorted(e, 5);
-  p.p50 = percentileSorted(e, 50);
-  p.p95 = percentileSorted(e, 95);
+  const ErrorStats es = errorStats(std::move(e));
+  p.bias = es.bias;
+  p.rmse = es.rmse;
+  p.std = es.std;
+  p.p5 = es.p5;
+  p.p50 = es.p50;
+  p.p95 = es.p95;
   return p;
 }
 
@@ -120,6 +90,15 @@ int precisionFor(const std::string& unit) {
   return 0;  // N
 }
 
+/// The latest SweepRecord on the engine's RecordBus (nullptr if none yet) and its sequence
+/// number (a new number = a new sweep).
+std::shared_ptr<const SweepRecord> latestSweep(Engine& engine, long* sequence) {
+  const Record* r = engine.records().latest(SweepRecord::kType);
+  if (!r) return nullptr;
+  *sequence = r->sequence;
+  return std::static_pointer_cast<const SweepRecord>(r->payload);
+}
+
 nlohmann::json numberOrNull(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
 
 }  // namespace
@@ -133,43 +112,6 @@ const char* evalRegionName(EvalRegion r) {
     case EvalRegion::Outside: return "outside";
   }
   return "?";
-}
-
-Eigen::MatrixXd truthOnGeometryD(const TruthTerrain& truth, const Geometry& geometry, TruthSurface surface) {
-  Eigen::MatrixXd m(geometry.size().x(), geometry.size().y());
-  for (int i = 0; i < geometry.size().x(); ++i)
-    for (int j = 0; j < geometry.size().y(); ++j) {
-      const Position p = geometry.positionOf(Index(i, j));
-      m(i, j) = sampleTruth(truth, p.x(), p.y(), surface);
-    }
-  return m;
-}
-
-Eigen::MatrixXf truthOnGeometry(const TruthTerrain& truth, const Geometry& geometry, TruthSurface surface) {
-  return truthOnGeometryD(truth, geometry, surface).cast<float>();
-}
-
-Geometry fitGeometry(const TruthTerrain& truth, double resolution_m, long max_cells) {
-  if (!(resolution_m > 0) || !std::isfinite(resolution_m))
-    throw ConfigError("map resolution must be positive and finite, got " + std::to_string(resolution_m));
-  const double ex = truth.maxX() - truth.originX(), ey = truth.maxY() - truth.originY();
-  // A small tolerance so an extent that is a whole number of cells is not lost to rounding.
-  const long nx = static_cast<long>(std::floor(ex / resolution_m + 1e-9));
-  const long ny = static_cast<long>(std::floor(ey / resolution_m + 1e-9));
-  char b[256];
-  if (nx < 1 || ny < 1) {
-    std::snprintf(b, sizeof b, "truth terrain %.3f x %.3f m is smaller than one %.3f m map cell", ex, ey, resolution_m);
-    throw ConfigError(b);
-  }
-  if (nx * ny > max_cells) {
-    std::snprintf(b, sizeof b,
-                  "a map covering the truth terrain (%.1f x %.1f m) at %.3f m needs %ld x %ld cells, more than %ld: "
-                  "give a pipeline with a smaller map (--pipeline, without --fit-map)",
-                  ex, ey, resolution_m, nx, ny, max_cells);
-    throw ConfigError(b);
-  }
-  const Position c(0.5 * (truth.originX() + truth.maxX()), 0.5 * (truth.originY() + truth.maxY()));
-  return Geometry(resolution_m, Size(static_cast<int>(nx), static_cast<int>(ny)), c);
 }
 
 SurfaceAheadTruth surfaceAheadTruth(const TruthTerrain& truth, const Eigen::Isometry3d& T_map_blade,
@@ -265,13 +207,13 @@ std::string extractionTableMarkdown(const ExtractionSummary& s) {
   return o.str();
 }
 
-EvalRun runBlindEvaluation(Simulator& sim, BlindMapper& mapper, const EvalOptions& options) {
+EvalRun runBlindEvaluation(Simulator& sim, Engine& engine, const EvalOptions& options) {
   if (sim.step() != 0) throw std::invalid_argument("runBlindEvaluation: the simulator has already been stepped");
   const auto wall0 = std::chrono::steady_clock::now();
   EvalRun run;
   run.options = options;
   run.scenario = sim.scenario().name;
-  LayeredMap& map = mapper.map();
+  LayeredMap& map = engine.mutableMap();
   const Geometry geo = map.geometry();
   run.geometry = geo;
   const LayerId hid = map.layerId(options.elevation_layer);  // LayerError names the layer
@@ -291,7 +233,7 @@ EvalRun runBlindEvaluation(Simulator& sim, BlindMapper& mapper, const EvalOption
   long last_seq = 0;
   {
     long s0 = 0;
-    if (mapper.latestSweep(&s0)) last_seq = s0;  // a record left from before (not ours)
+    if (latestSweep(engine, &s0)) last_seq = s0;  // a record left from before (not ours)
   }
   bool swell_known = false;
   double swell = options.default_swell;
@@ -303,10 +245,10 @@ EvalRun runBlindEvaluation(Simulator& sim, BlindMapper& mapper, const EvalOption
         ++run.clouds_withheld;
         continue;
       }
-      mapper.push(e);
+      engine.push(e);
       ++run.events_pushed;
       long seq = 0;
-      const std::shared_ptr<const SweepRecord> rec = mapper.latestSweep(&seq);
+      const std::shared_ptr<const SweepRecord> rec = latestSweep(engine, &seq);
       if (!rec || seq == last_seq) continue;
       last_seq = seq;
       ++run.sweeps;
@@ -572,4 +514,4 @@ outputs: {dir: ../out/eval, snapshot: false, report: false}
 )";
 }
 
-}  // namespace terramap::sim
+}  // namespace terramap::eval

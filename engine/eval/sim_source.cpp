@@ -1,0 +1,66 @@
+// The `sim` pipeline source (see sim_source.hpp for why it lives here).
+#include <terramap/eval/sim_source.hpp>
+
+#include <terramap/core/error.hpp>
+#include <terramap/pipeline/source.hpp>
+#include <terramap/sim/scenario.hpp>
+#include <terramap/sim/simulator.hpp>
+#include <terramap/sim/truth_sampling.hpp>
+
+#include <cmath>
+#include <deque>
+#include <mutex>
+
+namespace terramap::sim {
+
+namespace {
+
+/// The simulator, live: each step's events in time order.
+class SimEventSource : public Source {
+ public:
+  explicit SimEventSource(const Scenario& sc, double max_time_s)
+      : sim_(std::make_unique<Simulator>(sc)), duration_(std::min(sc.duration_s, max_time_s)) {}
+  bool next(Event& e) override {
+    while (queue_.empty()) {
+      if (sim_->time() >= duration_) return false;
+      std::vector<Event> batch;
+      if (!sim_->next(batch)) return false;
+      for (auto& ev : batch) queue_.push_back(std::move(ev));
+    }
+    e = std::move(queue_.front());
+    queue_.pop_front();
+    return true;
+  }
+  double progress() const override { return duration_ > 0 ? std::min(1.0, sim_->time() / duration_) : 1.0; }
+  const Simulator& simulator() const { return *sim_; }
+  bool truth(const std::string& layer, const Geometry& g, Eigen::Ref<Eigen::MatrixXf> out) const override {
+    if (layer != "elevation") return false;
+    TERRAMAP_CHECK(out.rows() == g.size().x() && out.cols() == g.size().y(), "truth view of the wrong size");
+    out = truthOnGeometry(sim_->truth(), g);  // surface (bank + loose) at cell centres, NaN off it
+    return true;
+  }
+
+ private:
+  std::unique_ptr<Simulator> sim_;
+  double duration_;
+  std::deque<Event> queue_;
+};
+
+std::unique_ptr<Source> makeSim(const PipelineSpec& spec) {
+  const SourceSpec& s = spec.source;
+  checkSourceKeys(s, {"scenario", "max_time_s"});
+  const Scenario sc = loadScenario(spec.resolvePath(sourceString(s, "scenario", true)));
+  const double max_t = sourceDouble(s, "max_time_s", false, INFINITY);
+  if (!(max_t > 0)) throw ConfigError(s.settings.at("max_time_s").where + ": must be > 0");
+  return std::make_unique<SimEventSource>(sc, max_t);
+}
+
+
+}  // namespace
+
+void registerSimSource() {
+  static std::once_flag once;
+  std::call_once(once, [] { registerSource("sim", makeSim); });
+}
+
+}  // namespace terramap::sim

@@ -1,0 +1,20 @@
+#pragma once
+/// \file
+/// The truth section of `terramap run`'s report: the finished map's elevation against the
+/// source's truth (the simulator's surface at the cell centres, Source::truth).
+#include <terramap/core/layered_map.hpp>
+#include <terramap/pipeline/run.hpp>
+#include <terramap/pipeline/source.hpp>
+
+namespace terramap::eval {
+
+/// When the map has `elevation` (and no `truth_elevation` yet) and the source knows the truth
+/// of `elevation`, adds the layers `truth_elevation` (m, NaN where the truth is unknown) and
+/// `elevation_error` (map - truth, m, NaN where either is unknown) and returns, as JSON:
+/// layer, cells_with_truth, cells_compared (both known), coverage (compared / with truth),
+/// rmse_m, median_abs_m, p95_abs_m, max_abs_m (statistics.hpp; 0 when nothing was compared).
+/// Otherwise returns an empty comparison and leaves the map alone. Fits
+/// RunOptions::compare_truth. \throws LayerError only if the map changes under it.
+TERRAMAP_API TruthComparison compareWithSourceTruth(LayeredMap& map, const Source& source);
+
+}  // namespace terramap::eval
