@@ -91,10 +91,14 @@ PluginError fingerprintMismatch(const std::string& path, const std::string& foun
 /// rounding mode and, on x86, MXCSR (flush-to-zero and denormals-are-zero). A library linked
 /// with -ffast-math/-Ofast by GCC < 13 sets FTZ/DAZ from a constructor; that would make the
 /// host's results depend on which thread loaded the plugin.
+/// Only MXCSR's control bits count (DAZ, exception masks, rounding, FTZ); its low six bits are
+/// sticky exception *status* flags that any inexact operation in a library's initialisers sets
+/// (loading libtorch sets "inexact"), which changes no result.
 struct FpState {
+  static constexpr unsigned kMxcsrStatus = 0x3Fu;
   int rounding = std::fegetround();
 #if defined(__SSE__)
-  unsigned mxcsr = _mm_getcsr();
+  unsigned mxcsr = _mm_getcsr() & ~kMxcsrStatus;
 #else
   unsigned mxcsr = 0;
 #endif
@@ -102,14 +106,16 @@ struct FpState {
   void restore() const {
     std::fesetround(rounding);
 #if defined(__SSE__)
-    _mm_setcsr(mxcsr);
+    _mm_setcsr((_mm_getcsr() & kMxcsrStatus) | mxcsr);
 #endif
   }
 };
 
 std::string fpStateText(const FpState& s) {
   std::ostringstream os;
-  os << "rounding " << s.rounding << ", MXCSR 0x" << std::hex << s.mxcsr;
+  os << "rounding " << s.rounding << ", MXCSR control 0x" << std::hex << s.mxcsr;
+  if (s.mxcsr & 0x8000u) os << " flush-to-zero";
+  if (s.mxcsr & 0x40u) os << " denormals-are-zero";
   return os.str();
 }
 

@@ -204,10 +204,11 @@ TEST(PluginLoader, FastMathPluginIsRefusedAndTheFloatingPointStateRestored) {
   const auto m = loadError("bad_fast_math");
   expectHas(m, lib("bad_fast_math"));
   expectHas(m, "changed the floating-point environment");
+  expectHas(m, "flush-to-zero denormals-are-zero");
   expectHas(m, "-ffast-math");
   EXPECT_TRUE(ranCode("bad_fast_math")) << "refused for another reason than its constructor";
 #if defined(__SSE__)
-  EXPECT_EQ(_mm_getcsr(), before) << "flush-to-zero left set on the loading thread";
+  EXPECT_EQ(_mm_getcsr() & ~0x3Fu, before & ~0x3Fu) << "flush-to-zero left set on the loading thread";
 #endif
   // A denormal survives arithmetic on this thread (FTZ would flush it to zero).
   volatile float tiny = 1e-39f;
