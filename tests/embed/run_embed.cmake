@@ -56,3 +56,17 @@ if(NOT out MATCHES "sim source: [^\n]*unknown source type 'sim'[^\n]*registerSim
   message(FATAL_ERROR "a pipeline-only embedder should be told where the sim source lives:\n${out}")
 endif()
 message("an embedder linking terramap::pipeline links neither the simulator nor HDF5")
+
+# The installed Python package (when built) imports from the prefix alone: its RPATH finds the
+# installed libraries and the plugins, with no build tree on any path.
+file(GLOB py_pkg ${prefix}/lib/python3*/dist-packages/terramap)
+if(py_pkg)
+  get_filename_component(py_site ${py_pkg} DIRECTORY)
+  execute_process(COMMAND ${CMAKE_COMMAND} -E env PYTHONPATH=${py_site} TERRAMAP_PLUGIN_PATH= /usr/bin/python3
+    ${SOURCE_DIR}/tests/embed/installed_python.py
+    RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+  message("${out}")
+  if(rc OR NOT out MATCHES "installed python: ${py_site}/terramap/__init__.py 1.0")
+    message(FATAL_ERROR "the installed Python package does not work from the prefix (${rc}):\n${out}${err}")
+  endif()
+endif()

@@ -1,0 +1,154 @@
+"""The Python package against the C++ engine: events in, layers out, snapshots that do not
+change under a writing engine, .tmap round trips, the simulator source and the FEE."""
+import json
+import os
+import subprocess
+
+import numpy as np
+import pytest
+
+import terramap
+
+SOURCE_DIR = os.environ.get("TERRAMAP_SOURCE_DIR", os.path.join(os.path.dirname(__file__), "..", ".."))
+BINARY_DIR = os.environ.get("TERRAMAP_BINARY_DIR", os.path.join(SOURCE_DIR, "build"))
+
+PROBE_YAML = """version: 1
+map: {resolution: 0.1, size: [40, 30], tile: 16, layers: [{name: elevation, unit: m}]}
+threads: 2
+plugin_paths: [%s]
+source: {type: none}
+pipeline:
+  - {name: probe, type: test_probe, params: {increment: 0.5, events: [tick]}}
+""" % os.path.join(BINARY_DIR, "test_plugins")
+
+FUSION_YAML = """version: 1
+map: {resolution: 0.2, size: [50, 50], center: [5, 0]}
+threads: 2
+source: {type: none}
+pipeline:
+  - {name: lidar, type: lidar_fusion, params: {min_range_m: 0.5, max_range_m: 30}}
+"""
+
+
+def identity():
+    return np.eye(4)
+
+
+def test_layers_come_out_in_logical_order_and_match_the_tiles():
+    eng = terramap.Engine.from_yaml(PROBE_YAML)
+    for k in range(3):
+        eng.push_tick(0.1 * k)
+    snap = eng.snapshot()
+    probe = snap.layer("probe")
+    assert probe.shape == (40, 30) and probe.dtype == np.float32
+    assert np.all(probe == 1.5)  # three ticks of +0.5
+    # Every tile view is the same memory the layer was copied from (the map has not moved, so
+    # buffer order is logical order).
+    assert snap.start_index == (0, 0)
+    for t in range(snap.tile_count):
+        r = snap.tile_rect(t)
+        view = snap.tile("probe", t)
+        assert view.shape == (r["rows"], r["cols"])
+        np.testing.assert_array_equal(view, probe[r["row"]:r["row"] + r["rows"], r["col"]:r["col"] + r["cols"]])
+
+
+def test_tile_views_are_zero_copy_read_only_and_survive_later_writes():
+    eng = terramap.Engine.from_yaml(PROBE_YAML)
+    eng.push_tick(0.0)
+    snap = eng.snapshot()
+    a, b = snap.tile("probe", 0), snap.tile("probe", 0)
+    assert np.shares_memory(a, b)  # both views are the snapshot's tile, not copies
+    assert not a.flags.writeable
+    with pytest.raises(ValueError):
+        a[0, 0] = 7
+    before = a.copy()
+    del snap  # the view alone keeps the snapshot's memory alive
+    for k in range(5):
+        eng.push_tick(1.0 + k)  # the engine copies the shared tile before writing it
+    np.testing.assert_array_equal(a, before)
+    assert np.all(eng.snapshot().layer("probe") == 3.0)
+
+
+def test_a_flat_ground_cloud_is_fused_at_its_height():
+    eng = terramap.Engine.from_yaml(FUSION_YAML)
+    rng = np.random.default_rng(1)
+    xy = rng.uniform([1, -4], [9, 4], size=(20000, 2))
+    sensor_z = 1.5  # sensor 1.5 m above ground at z = 0.25 in the map frame
+    pts = np.column_stack([xy, np.full(len(xy), -sensor_z), np.ones(len(xy))]).astype(np.float64)
+    T = identity()
+    T[2, 3] = 0.25 + sensor_z
+    eng.push_cloud(pts, T, 0.0)
+    h = eng.snapshot().layer("elevation")
+    known = h[np.isfinite(h)]
+    assert known.size > 1000
+    np.testing.assert_allclose(known, 0.25, atol=1e-4)
+    report = eng.report()
+    lidar = [s for s in report["stages"] if s["name"] == "lidar"][0]
+    assert lidar["counters"]["points_in"] == 20000
+
+
+def test_bad_input_raises_with_its_context():
+    with pytest.raises(terramap.ConfigError, match=r"<python>:\d+:\d+.*incremnt"):
+        terramap.Engine.from_yaml(PROBE_YAML.replace("increment", "incremnt"))
+    eng = terramap.Engine.from_yaml(PROBE_YAML)
+    with pytest.raises(ValueError, match="N x 3"):
+        eng.push_cloud(np.zeros((5, 2)), identity(), 0.0)
+    bad = identity()
+    bad[0, 0] = 2.0
+    with pytest.raises(ValueError, match="rigid"):
+        eng.push_pose(bad, 0.0)
+    with pytest.raises(terramap.LayerError, match="elevaton"):
+        eng.snapshot().layer("elevaton")
+    with pytest.raises(terramap.InputError):
+        terramap.load_snapshot(os.path.join(SOURCE_DIR, "README.md"))
+
+
+def test_snapshot_files_round_trip(tmp_path):
+    eng = terramap.Engine.from_yaml(PROBE_YAML)
+    eng.push_tick(0.0)
+    snap = eng.snapshot()
+    path = tmp_path / "m.tmap"
+    snap.save(str(path))
+    back = terramap.load_snapshot(str(path))
+    assert back.layer_names == snap.layer_names
+    assert back.geometry.size == (40, 30) and back.geometry.resolution == pytest.approx(0.1)
+    for name in snap.layer_names:
+        np.testing.assert_array_equal(back.layer(name), snap.layer(name))
+    assert back.layer_info("probe")["unit"] == "1"
+
+
+def test_the_simulator_source_plays_and_knows_the_truth():
+    yaml = open(os.path.join(SOURCE_DIR, "configs", "demo.yaml")).read()
+    eng = terramap.Engine.from_yaml(yaml, base_dir=os.path.join(SOURCE_DIR, "configs"), threads=2)
+    n = eng.play(max_events=400)
+    assert n == 400
+    n += eng.play()  # the rest
+    eng.finish()
+    truth = eng.compare_with_truth()
+    assert truth["cells_compared"] > 0.9 * truth["cells_with_truth"]
+    assert truth["rmse_m"] < 0.05
+    err = eng.snapshot().layer("elevation_error")
+    np.testing.assert_allclose(np.sqrt(np.nanmean(err.astype(np.float64) ** 2)), truth["rmse_m"], rtol=1e-6)
+
+
+def test_fee_equals_the_command_line_calculator():
+    args = dict(c_pa=5000.0, phi_rad=np.radians(30), gamma_n_m3=18000.0, ca_pa=2000.0, delta_rad=np.radians(20),
+                alpha_rad=np.radians(5), rho_rad=np.radians(80), d_m=0.15, w_m=1.85, q_n=300.0)
+    r = terramap.fee(**args)
+    assert r["valid"] and r["validity"] == "Valid"
+    cli = subprocess.run(
+        [os.path.join(BINARY_DIR, "bin", "terramap"), "fee", "--c-pa", "5000", "--phi-deg", "30", "--gamma-n-m3",
+         "18000", "--ca-pa", "2000", "--delta-deg", "20", "--alpha-deg", "5", "--rho-deg", "80", "--d-m", "0.15",
+         "--w-m", "1.85", "--q-n", "300"], capture_output=True, text=True, check=True)
+    ref = json.loads(cli.stdout)
+    assert r["f_N"] == pytest.approx(ref["f_N"], rel=1e-12)
+    assert r["beta_rad"] == pytest.approx(ref["beta_rad"], rel=1e-12)
+    # At another failure angle the force changes (the argument is used).
+    assert terramap.fee(**args, beta_rad=r["beta_rad"] + 0.1)["f_N"] != pytest.approx(r["f_N"])
+
+
+def test_help_is_useful():
+    doc = terramap.__doc__
+    for word in ("snapshot", "layer(", "tile(", "NaN", "metres"):
+        assert word in doc
+    assert "push_cloud" in terramap.Engine.__doc__
