@@ -6,7 +6,8 @@ PKGS=(build-essential cmake ninja-build pkg-config
   libtbb-dev libeigen3-dev liboctomap-dev libyaml-cpp-dev libboost-dev libboost-filesystem-dev
   libbenchmark-dev libgtest-dev googletest libpcl-dev libgdal-dev gdal-bin libhdf5-dev
   libtorch-dev libopenblas0-openmp nlohmann-json3-dev libcli11-dev
-  pybind11-dev python3-dev python3-numpy python3-pytest python3-matplotlib)
+  pybind11-dev python3-dev python3-numpy python3-pytest python3-matplotlib
+  libfreetype-dev fonts-dejavu-core)
 missing=()
 for p in "${PKGS[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

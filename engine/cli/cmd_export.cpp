@@ -37,6 +37,7 @@ struct ExportOptions {
   int epsg = 0;
   std::vector<double> origin;  // empty or {easting, northing}
   bool no_compress = false;
+  bool raw = false;
 };
 
 /// Layer names become file names: keep them readable but never let one escape the folder.
@@ -138,7 +139,8 @@ int runExport(const ExportOptions& o, const std::set<std::string>& given) {
                                          : fs::path(o.out) / (safeFileStem(l) + ".png"));
   }
   for (const auto& [layer, path] : jobs) {
-    const io::Image img = io::renderLayer(map, layer, r);
+    const io::Image raw = io::renderLayer(map, layer, r);
+    const io::Image img = o.raw ? raw : io::annotate(raw, map, layer, r, io::Annotation{});
     io::writePng(img, path);
     std::cout << "wrote " << path.string() << " (PNG " << img.width << "x" << img.height << ", layer '" << layer
               << "', " << io::Colormap::byName(r.colormap).name() << (r.hillshade ? ", hillshaded" : "") << ")\n";
@@ -199,6 +201,9 @@ void setupExport(CLI::App& app, std::function<int()>& run) {
   sub->add_option("--percentiles", o->percentiles, "png: automatic range percentiles LOW HIGH (default 2 98)")
       ->expected(2);
   sub->add_option("--scale", o->scale, "png: pixels per cell edge, 1..64")->capture_default_str();
+  sub->add_flag("--raw", o->raw,
+                "png: the layer's pixels only (overlays the GeoTIFF); default: with title, colour bar in "
+                "the layer's unit, scale bar and axes");
   sub->add_option("--nan-color", o->nan_color, "png: colour of unknown cells: transparent or grey")
       ->check(CLI::IsMember({"transparent", "grey"}))
       ->capture_default_str();

@@ -464,12 +464,25 @@ std::vector<std::string> writeEvalOutputs(const EvalRun& run, const std::filesys
   io::RenderOptions reg = height;
   reg.hillshade = false;
   reg.range = io::ValueRange{static_cast<float>(EvalRegion::Cut), static_cast<float>(EvalRegion::Untouched)};
-  const std::vector<std::tuple<std::string, std::string, const io::RenderOptions*>> pngs = {
-      {"blind", "blind_heightmap.png", &height}, {"truth", "truth_heightmap.png", &height},
-      {"error", "error.png", &error},            {"baseline_error", "baseline_error.png", &error},
-      {"region", "regions.png", &reg}};
-  for (const auto& [layer, file, opt] : pngs) {
-    io::renderPng(m, layer, dir / file, *opt);
+  char cap[256];
+  const RegionStats &cut = run.stats(EvalRegion::Cut), &out = run.stats(EvalRegion::Outside);
+  std::snprintf(cap, sizeof cap, "RMSE inside the cut %.2f cm (no update: %.2f cm), outside %.2f cm (%.2f cm)",
+                100 * cut.rmse_m, 100 * cut.baseline_rmse_m, 100 * out.rmse_m, 100 * out.baseline_rmse_m);
+  const std::string caption = cap;
+  io::Annotation a_blind{"blind heightmap [m]: blade only, no LiDAR", run.scenario, 0, {}, {}};
+  io::Annotation a_truth{"truth heightmap [m] at the end", run.scenario, 0, {}, {}};
+  io::Annotation a_error{"error: blind map - truth [cm]", caption, 0, {}, {}};
+  io::Annotation a_base{"error of the no-update baseline: initial map - truth [cm]", caption, 0, {}, {}};
+  io::Annotation a_reg{"regions of the evaluation", run.scenario, 0, {}, {}};
+  a_reg.categories = {{static_cast<float>(EvalRegion::Cut), "cut"},
+                      {static_cast<float>(EvalRegion::Deposit), "deposit"},
+                      {static_cast<float>(EvalRegion::Untouched), "untouched"}};
+  const std::vector<std::tuple<std::string, std::string, const io::RenderOptions*, const io::Annotation*>> pngs = {
+      {"blind", "blind_heightmap.png", &height, &a_blind}, {"truth", "truth_heightmap.png", &height, &a_truth},
+      {"error", "error.png", &error, &a_error},            {"baseline_error", "baseline_error.png", &error, &a_base},
+      {"region", "regions.png", &reg, &a_reg}};
+  for (const auto& [layer, file, opt, ann] : pngs) {
+    io::renderPng(m, layer, dir / file, *opt, *ann);
     files.push_back((dir / file).string());
   }
   std::vector<std::string> bands;

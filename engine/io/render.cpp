@@ -187,6 +187,25 @@ RasterF hillshade(const LayeredMap& map, LayerId id, double azimuth_deg, double 
 
 // ---- render -----------------------------------------------------------------------------------
 
+ValueRange renderRange(const LayeredMap& map, LayerId id, const RenderOptions& o) {
+  ValueRange range;
+  if (o.range) {
+    range = *o.range;
+    if (!std::isfinite(range.min) || !std::isfinite(range.max) || !(range.min < range.max)) {
+      std::ostringstream os;
+      os << "render range must be finite with min < max (got " << range.min << ", " << range.max << ")";
+      throw ConfigError(os.str());
+    }
+    return range;
+  }
+  range = robustRange(map, id, o.low_percentile, o.high_percentile);
+  if (Colormap::byName(o.colormap).diverging() && o.symmetric_auto_range) {
+    const float m = std::max(std::abs(range.min), std::abs(range.max));
+    range = m > 0.f ? ValueRange{-m, m} : ValueRange{-1.f, 1.f};
+  }
+  return range;
+}
+
 Image renderLayer(const LayeredMap& map, const std::string& layer, const RenderOptions& o) {
   const LayerId id = map.layerId(layer);
   const Colormap cmap = Colormap::byName(o.colormap);
@@ -196,21 +215,7 @@ Image renderLayer(const LayeredMap& map, const std::string& layer, const RenderO
   if (W * o.scale * H * o.scale > (1L << 28))
     throw ConfigError("render of " + std::to_string(W) + "x" + std::to_string(H) + " cells at scale " +
                       std::to_string(o.scale) + " exceeds 2^28 pixels; lower --scale");
-  ValueRange range;
-  if (o.range) {
-    range = *o.range;
-    if (!std::isfinite(range.min) || !std::isfinite(range.max) || !(range.min < range.max)) {
-      std::ostringstream os;
-      os << "render range must be finite with min < max (got " << range.min << ", " << range.max << ")";
-      throw ConfigError(os.str());
-    }
-  } else {
-    range = robustRange(map, id, o.low_percentile, o.high_percentile);
-    if (cmap.diverging() && o.symmetric_auto_range) {
-      const float m = std::max(std::abs(range.min), std::abs(range.max));
-      range = m > 0.f ? ValueRange{-m, m} : ValueRange{-1.f, 1.f};
-    }
-  }
+  const ValueRange range = renderRange(map, id, o);
   const RasterF values = northUpRaster(map, id);
   RasterF shade;
   if (o.hillshade) shade = hillshade(map, id, o.azimuth_deg, o.altitude_deg, o.z_factor);
@@ -291,8 +296,10 @@ void writePng(const Image& image, const fs::path& path) {
   });
 }
 
-void renderPng(const LayeredMap& map, const std::string& layer, const fs::path& path, const RenderOptions& options) {
-  writePng(renderLayer(map, layer, options), path);
+void renderPng(const LayeredMap& map, const std::string& layer, const fs::path& path, const RenderOptions& options,
+               const std::optional<Annotation>& annotation) {
+  const Image img = renderLayer(map, layer, options);
+  writePng(annotation ? annotate(img, map, layer, options, *annotation) : img, path);
 }
 
 }  // namespace terramap::io

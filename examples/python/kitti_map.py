@@ -38,15 +38,16 @@ def main():
     g = snap.geometry
     unit = snap.layer_info(args.layer)["unit"]
 
-    # Logical cell (i, j) lies at x = cx + (rows/2 - i - 0.5) res, y = cy + (cols/2 - j - 0.5) res:
-    # rows run towards -x and columns towards -y, so x up and y to the left is the array as is.
+    # North-up like terramap's own PNG and GeoTIFF exports: logical rows i run towards -x and
+    # columns j towards -y, so x to the right and y up is the array transposed, columns reversed.
     (rows, cols), (cx, cy), res = g.size, g.center, g.resolution
-    extent = [cy + cols / 2 * res, cy - cols / 2 * res, cx - rows / 2 * res, cx + rows / 2 * res]
+    h = h.T[:, ::-1]
+    extent = [cx - rows / 2 * res, cx + rows / 2 * res, cy - cols / 2 * res, cy + cols / 2 * res]
     lo, hi = np.nanpercentile(h, [1, 99])
     fig, ax = plt.subplots(figsize=(7, 6), dpi=110)
     im = ax.imshow(h, extent=extent, cmap="viridis", vmin=lo, vmax=hi, interpolation="nearest")
-    ax.set_xlabel("y (m, map frame; left is +y)")
-    ax.set_ylabel("x (m, map frame)")
+    ax.set_xlabel("x (m, map frame)")
+    ax.set_ylabel("y (m, map frame)")
     known = np.isfinite(h).mean()
     ax.set_title(f"{args.layer} ({unit}) from {events} events, {known:.0%} of cells known")
     fig.colorbar(im, ax=ax, label=f"{args.layer} [{unit}]")

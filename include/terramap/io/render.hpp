@@ -121,11 +121,49 @@ RasterF hillshade(const LayeredMap& map, LayerId id, double azimuth_deg = 315.0,
 /// or an image over 2^28 pixels).
 Image renderLayer(const LayeredMap& map, const std::string& layer, const RenderOptions& options = {});
 
+/// The value range renderLayer maps to the colour ramp: options.range, or the robust range
+/// (made symmetric for diverging maps). \throws ConfigError as renderLayer.
+ValueRange renderRange(const LayeredMap& map, LayerId id, const RenderOptions& options);
+
 /// Writes an RGBA PNG through GDAL's PNG driver, atomically. \throws OutputError.
 void writePng(const Image& image, const std::filesystem::path& path);
 
-/// renderLayer + writePng.
+/// What makes a picture explain itself (annotate()).
+struct Annotation {
+  std::string title;    ///< first line; empty = "<layer> [<unit>]"
+  std::string caption;  ///< optional second line (e.g. the error statistics of the picture)
+  /// Colour-bar labels show value * display_scale in display_unit; empty unit = displayUnit().
+  double display_scale = 0.0;  ///< 0 = from displayUnit()
+  std::string display_unit;
+  /// A categorical layer (e.g. regions): labelled swatches instead of a colour bar.
+  std::vector<std::pair<float, std::string>> categories;
+};
+
+/// The unit a colour bar shows a layer in: errors and differences in metres (diverging colour
+/// maps) read in centimetres; everything else in its own unit. Returns {unit, scale}.
+std::pair<std::string, double> displayUnit(const std::string& unit, bool diverging);
+
+/// Where annotate() put things, for tests and for callers that overlay more.
+struct AnnotatedLayout {
+  int map_x = 0, map_y = 0;          ///< top-left pixel of the map image in the canvas
+  int bar_x = 0, bar_y = 0, bar_height = 0;  ///< colour bar (top = range max); 0 height if none
+  int scale_bar_x = 0, scale_bar_y = 0, scale_bar_px = 0;  ///< left end, row, length
+  double scale_bar_m = 0;            ///< the length it stands for
+};
+
+/// Puts `map_image` (renderLayer's output for `layer` with `options`) on a white canvas with a
+/// title (layer and unit) and optional caption, a colour bar whose labels are in the display
+/// unit (symmetric around 0 for diverging maps, as the range is) or category swatches, a swatch
+/// for unknown cells when they are drawn opaque, a scale bar in metres and x/y axis arrows (map
+/// frame: x to the right, y up, as the picture is north-up). Text is drawn with FreeType from
+/// DejaVu Sans (fonts-dejavu-core; TERRAMAP_FONT overrides the file).
+/// \throws OutputError naming the font file when it cannot be loaded; ConfigError as renderLayer.
+Image annotate(const Image& map_image, const LayeredMap& map, const std::string& layer, const RenderOptions& options,
+               const Annotation& annotation, AnnotatedLayout* layout = nullptr);
+
+/// renderLayer + writePng. With `annotation`, the picture is annotate()d first; without, the PNG
+/// is pixel for pixel the layer (it overlays the GeoTIFF).
 void renderPng(const LayeredMap& map, const std::string& layer, const std::filesystem::path& path,
-               const RenderOptions& options = {});
+               const RenderOptions& options = {}, const std::optional<Annotation>& annotation = std::nullopt);
 
 }  // namespace terramap::io

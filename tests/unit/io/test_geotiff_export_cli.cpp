@@ -83,13 +83,20 @@ TEST_F(ExportCli, GeoTiffWithDefaultNameAndEpsg) {
 }
 
 TEST_F(ExportCli, PngSingleAndSeveralLayers) {
-  Result r = terramap("export " + q(snap_) + " --layer elevation --format png --hillshade --scale 3 --out " +
+  Result r = terramap("export " + q(snap_) + " --layer elevation --format png --hillshade --scale 3 --raw --out " +
                       q(dir_ / "e.png"));
   ASSERT_EQ(r.code, 0) << r.out;
   tio::Raster p = tio::readRaster(dir_ / "e.png");
   EXPECT_EQ(p.width, 18);
   EXPECT_EQ(p.height, 12);
   EXPECT_EQ(p.bands.size(), 4u);
+  // Without --raw the picture explains itself: title, colour bar, scale bar around the map.
+  r = terramap("export " + q(snap_) + " --layer elevation --format png --hillshade --scale 3 --out " +
+               q(dir_ / "annotated.png"));
+  ASSERT_EQ(r.code, 0) << r.out;
+  const tio::Raster a = tio::readRaster(dir_ / "annotated.png");
+  EXPECT_GT(a.width, 18 + 100);
+  EXPECT_GT(a.height, 12 + 60);
 
   r = terramap("export " + q(snap_) + " --layer elevation --layer variance --format png --colormap rdbu --out " +
                q(dir_ / "renders"));
@@ -97,7 +104,7 @@ TEST_F(ExportCli, PngSingleAndSeveralLayers) {
   EXPECT_TRUE(fs::exists(dir_ / "renders" / "elevation.png"));
   EXPECT_TRUE(fs::exists(dir_ / "renders" / "variance.png"));
 
-  r = terramap("export " + q(snap_) + " --layer variance --format png --range 0 0.05 --colormap grey");
+  r = terramap("export " + q(snap_) + " --layer variance --format png --range 0 0.05 --colormap grey --raw");
   ASSERT_EQ(r.code, 0) << r.out;
   p = tio::readRaster(dir_ / "map_variance.png");
   // Column 0 = smallest x = i = 5, variance 0.05 -> white at the fixed range's top.

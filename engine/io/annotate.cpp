@@ -1,0 +1,262 @@
+// Pictures that explain themselves: title, colour bar in the display unit, scale bar, axes.
+// Text comes from FreeType (DejaVu Sans); lines and boxes are drawn directly into the RGBA image.
+#include <terramap/core/error.hpp>
+#include <terramap/io/render.hpp>
+
+#include <ft2build.h>
+#include FT_FREETYPE_H
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <memory>
+#include <mutex>
+
+namespace terramap::io {
+
+namespace {
+
+constexpr const char* kDefaultFont = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+const Rgba kInk{30, 30, 30, 255};
+const Rgba kWhite{255, 255, 255, 255};
+
+// ---- canvas ----------------------------------------------------------------------------------
+
+struct Canvas {
+  Image img;
+  Canvas(int w, int h) {
+    img.width = w;
+    img.height = h;
+    img.rgba.assign(static_cast<std::size_t>(w) * static_cast<std::size_t>(h) * 4, 255);
+  }
+  void set(int x, int y, Rgba c) {
+    if (x < 0 || y < 0 || x >= img.width || y >= img.height) return;
+    std::uint8_t* p = img.rgba.data() + (static_cast<std::size_t>(y) * img.width + x) * 4;
+    p[0] = c.r, p[1] = c.g, p[2] = c.b, p[3] = c.a;
+  }
+  /// Alpha-blends `c` with coverage a in [0, 255] over an opaque pixel.
+  void blend(int x, int y, Rgba c, int a) {
+    if (x < 0 || y < 0 || x >= img.width || y >= img.height || a <= 0) return;
+    std::uint8_t* p = img.rgba.data() + (static_cast<std::size_t>(y) * img.width + x) * 4;
+    p[0] = static_cast<std::uint8_t>((c.r * a + p[0] * (255 - a) + 127) / 255);
+    p[1] = static_cast<std::uint8_t>((c.g * a + p[1] * (255 - a) + 127) / 255);
+    p[2] = static_cast<std::uint8_t>((c.b * a + p[2] * (255 - a) + 127) / 255);
+    p[3] = 255;
+  }
+  void fill(int x0, int y0, int w, int h, Rgba c) {
+    for (int y = y0; y < y0 + h; ++y)
+      for (int x = x0; x < x0 + w; ++x) set(x, y, c);
+  }
+  void frame(int x0, int y0, int w, int h, Rgba c) {
+    fill(x0 - 1, y0 - 1, w + 2, 1, c);
+    fill(x0 - 1, y0 + h, w + 2, 1, c);
+    fill(x0 - 1, y0, 1, h, c);
+    fill(x0 + w, y0, 1, h, c);
+  }
+  void paste(const Image& src, int x0, int y0) {
+    for (int y = 0; y < src.height; ++y)
+      for (int x = 0; x < src.width; ++x) {
+        const std::uint8_t* s = src.rgba.data() + (static_cast<std::size_t>(y) * src.width + x) * 4;
+        // Transparent (unknown) cells show the canvas: blend by the source's alpha.
+        blend(x0 + x, y0 + y, Rgba{s[0], s[1], s[2], 255}, s[3]);
+      }
+  }
+};
+
+// ---- text ------------------------------------------------------------------------------------
+
+/// One FreeType face, loaded once per process (FreeType objects are not thread-safe: guarded).
+class Font {
+ public:
+  static Font& get() {
+    static std::mutex mu;
+    static std::unique_ptr<Font> font;
+    std::lock_guard<std::mutex> lock(mu);
+    const char* env = std::getenv("TERRAMAP_FONT");
+    const std::string path = env && *env ? env : kDefaultFont;
+    if (!font || font->path_ != path) font.reset(new Font(path));
+    return *font;
+  }
+  ~Font() {
+    if (face_) FT_Done_Face(face_);
+    if (lib_) FT_Done_FreeType(lib_);
+  }
+  std::mutex& mutex() { return mu_; }
+
+  /// Width in pixels of `text` at `px` pixels per em.
+  int width(const std::string& text, int px) {
+    FT_Set_Pixel_Sizes(face_, 0, static_cast<FT_UInt>(px));
+    long w = 0;
+    for (unsigned char ch : text)
+      if (FT_Load_Char(face_, ch, FT_LOAD_DEFAULT) == 0) w += face_->glyph->advance.x >> 6;
+    return static_cast<int>(w);
+  }
+  /// Draws `text` with its baseline at row y, starting at column x.
+  void draw(Canvas& c, int x, int y, const std::string& text, int px, Rgba colour) {
+    FT_Set_Pixel_Sizes(face_, 0, static_cast<FT_UInt>(px));
+    for (unsigned char ch : text) {
+      if (FT_Load_Char(face_, ch, FT_LOAD_RENDER) != 0) continue;
+      const FT_GlyphSlot g = face_->glyph;
+      const FT_Bitmap& b = g->bitmap;
+      for (unsigned r = 0; r < b.rows; ++r)
+        for (unsigned k = 0; k < b.width; ++k)
+          c.blend(x + g->bitmap_left + static_cast<int>(k), y - g->bitmap_top + static_cast<int>(r), colour,
+                  b.buffer[r * static_cast<unsigned>(b.pitch) + k]);
+      x += static_cast<int>(g->advance.x >> 6);
+    }
+  }
+
+ private:
+  explicit Font(std::string path) : path_(std::move(path)) {
+    if (FT_Init_FreeType(&lib_) != 0) throw OutputError("cannot initialise FreeType for picture labels");
+    if (FT_New_Face(lib_, path_.c_str(), 0, &face_) != 0) {
+      FT_Done_FreeType(lib_);
+      lib_ = nullptr;
+      throw OutputError("cannot load the font for picture labels: '" + path_ +
+                        "' (install fonts-dejavu-core, or point TERRAMAP_FONT at a TrueType file)");
+    }
+  }
+  std::string path_;
+  FT_Library lib_ = nullptr;
+  FT_Face face_ = nullptr;
+  std::mutex mu_;
+};
+
+// ---- numbers ---------------------------------------------------------------------------------
+
+/// A "nice" step (1, 2, 2.5 or 5 times a power of ten) giving about `n` intervals over `span`.
+double niceStep(double span, int n) {
+  const double raw = span / n, p = std::pow(10.0, std::floor(std::log10(raw))), f = raw / p;
+  const double m = f <= 1.0 ? 1.0 : f <= 2.0 ? 2.0 : f <= 2.5 ? 2.5 : f <= 5.0 ? 5.0 : 10.0;
+  return m * p;
+}
+
+/// v with as many decimals as the step needs (0.25 -> 2, 0.5 -> 1, 2 -> 0, 2.5 -> 1).
+std::string label(double v, double step) {
+  int decimals = 0;
+  for (double s = step; decimals < 6 && std::abs(s - std::round(s)) > 1e-9 * std::max(1.0, s); s *= 10) ++decimals;
+  char b[64];
+  std::snprintf(b, sizeof b, "%.*f", decimals, std::abs(v) < step * 1e-6 ? 0.0 : v);
+  return b;
+}
+
+/// The largest nice length (1, 2, 5 x 10^k m) not longer than `max_m`.
+double niceLength(double max_m) {
+  const double p = std::pow(10.0, std::floor(std::log10(max_m)));
+  for (double m : {5.0, 2.0, 1.0})
+    if (m * p <= max_m) return m * p;
+  return p;
+}
+
+// ---- parts of the picture ---------------------------------------------------------------------
+
+constexpr int kMargin = 16, kTitlePx = 16, kCaptionPx = 13, kLabelPx = 12, kBarWidth = 16;
+
+void drawColourBar(Canvas& c, Font& f, const Colormap& cmap, ValueRange range, double scale,
+                   const std::string& unit, int x, int y, int h) {
+  for (int r = 0; r < h; ++r) {
+    const double t = h > 1 ? 1.0 - static_cast<double>(r) / (h - 1) : 0.5;
+    c.fill(x, y + r, kBarWidth, 1, cmap.at(t));
+  }
+  c.frame(x, y, kBarWidth, h, kInk);
+  f.draw(c, x, y - 6, "[" + unit + "]", kLabelPx, kInk);
+  const double lo = range.min * scale, hi = range.max * scale, step = niceStep(hi - lo, 5);
+  for (double v = std::ceil(lo / step - 1e-9) * step; v <= hi + step * 1e-9; v += step) {
+    const double t = (v - lo) / (hi - lo);
+    const int row = y + static_cast<int>(std::lround((1.0 - t) * (h - 1)));
+    c.fill(x + kBarWidth, row, 5, 1, kInk);
+    f.draw(c, x + kBarWidth + 8, row + kLabelPx / 2 - 1, label(v, step), kLabelPx, kInk);
+  }
+}
+
+void drawCategories(Canvas& c, Font& f, const Colormap& cmap, ValueRange range,
+                    const std::vector<std::pair<float, std::string>>& cats, int x, int y) {
+  for (std::size_t k = 0; k < cats.size(); ++k) {
+    const double t = (cats[k].first - range.min) / (range.max - range.min);
+    const int row = y + static_cast<int>(k) * 22;
+    c.fill(x, row, kBarWidth, kBarWidth, cmap.at(t));
+    c.frame(x, row, kBarWidth, kBarWidth, kInk);
+    f.draw(c, x + kBarWidth + 6, row + kBarWidth - 3, cats[k].second, kLabelPx, kInk);
+  }
+}
+
+void drawArrow(Canvas& c, int x0, int y0, int dx, int dy, int len) {
+  for (int k = 0; k <= len; ++k) c.set(x0 + dx * k, y0 + dy * k, kInk);
+  const int hx = x0 + dx * len, hy = y0 + dy * len;
+  for (int k = 1; k <= 4; ++k)  // arrow head: two short strokes back from the tip
+    for (int s : {-1, 1}) c.set(hx - dx * k + (dx == 0 ? s * k : 0), hy - dy * k + (dy == 0 ? s * k : 0), kInk);
+}
+
+}  // namespace
+
+std::pair<std::string, double> displayUnit(const std::string& unit, bool diverging) {
+  if (unit == "m" && diverging) return {"cm", 100.0};
+  return {unit.empty() ? "1" : unit, 1.0};
+}
+
+Image annotate(const Image& map_image, const LayeredMap& map, const std::string& layer, const RenderOptions& o,
+               const Annotation& a, AnnotatedLayout* layout) {
+  const LayerId id = map.layerId(layer);
+  const Colormap cmap = Colormap::byName(o.colormap);
+  const ValueRange range = renderRange(map, id, o);
+  const LayerInfo& info = map.layerInfo(id);
+  auto [unit, scale] = displayUnit(info.unit, cmap.diverging());
+  if (!a.display_unit.empty()) unit = a.display_unit;
+  if (a.display_scale > 0) scale = a.display_scale;
+
+  Font& font = Font::get();
+  std::lock_guard<std::mutex> lock(font.mutex());
+  const std::string title = a.title.empty() ? layer + " [" + (info.unit.empty() ? "1" : info.unit) + "]" : a.title;
+  const int top = kMargin + kTitlePx + 6 + (a.caption.empty() ? 0 : kCaptionPx + 6) + 12;
+  const int right = a.categories.empty() ? 24 + kBarWidth + 8 + 64 : 24 + kBarWidth + 8 + 96;
+  const int bottom = 56;
+  const int min_w = std::max(font.width(title, kTitlePx), font.width(a.caption, kCaptionPx)) + 2 * kMargin;
+  const int W = std::max(kMargin + map_image.width + right, min_w), H = top + map_image.height + bottom;
+  Canvas c(W, H);
+
+  font.draw(c, kMargin, kMargin + kTitlePx, title, kTitlePx, kInk);
+  if (!a.caption.empty()) font.draw(c, kMargin, kMargin + kTitlePx + 6 + kCaptionPx, a.caption, kCaptionPx, kInk);
+  const int mx = kMargin, my = top;
+  c.paste(map_image, mx, my);
+  c.frame(mx, my, map_image.width, map_image.height, kInk);
+
+  const int bx = mx + map_image.width + 24;
+  if (a.categories.empty())
+    drawColourBar(c, font, cmap, range, scale, unit, bx, my, map_image.height);
+  else
+    drawCategories(c, font, cmap, range, a.categories, bx, my);
+  if (o.nan_color.a > 0) {  // unknown cells are drawn: say what their colour means
+    // Under the colour bar, or under the last category swatch.
+    const int sx = bx;
+    const int sy = a.categories.empty() ? my + map_image.height + 12 : my + static_cast<int>(a.categories.size()) * 22;
+    c.fill(sx, sy, kBarWidth, kBarWidth, o.nan_color);
+    c.frame(sx, sy, kBarWidth, kBarWidth, kInk);
+    font.draw(c, sx + kBarWidth + 6, sy + kBarWidth - 3, "unknown", kLabelPx, kInk);
+  }
+
+  // Scale bar: a nice length up to a third of the map's width, half black, half white.
+  const double px_per_m = map_image.width / (map.geometry().size().x() * map.geometry().resolution());
+  const double len_m = niceLength(map_image.width / px_per_m / 3.0);
+  const int len_px = std::max(1, static_cast<int>(std::lround(len_m * px_per_m)));
+  const int sx = mx, sy = my + map_image.height + 14;
+  c.fill(sx, sy, len_px, 6, kInk);
+  c.fill(sx + len_px / 2, sy + 1, len_px - len_px / 2 - 1, 4, kWhite);
+  char lb[64];
+  std::snprintf(lb, sizeof lb, len_m >= 1 ? "%.0f m" : "%.2g m", len_m);
+  font.draw(c, sx, sy + 6 + 4 + kLabelPx, lb, kLabelPx, kInk);
+
+  // Axes of the map frame as the picture shows them: x to the right, y up.
+  const int ax = sx + len_px + 40, ay = sy + 22;
+  drawArrow(c, ax, ay, 1, 0, 22);
+  drawArrow(c, ax, ay, 0, -1, 22);
+  font.draw(c, ax + 26, ay + 4, "x", kLabelPx, kInk);
+  font.draw(c, ax - 3, ay - 26, "y", kLabelPx, kInk);
+
+  if (layout) {
+    *layout = AnnotatedLayout{mx, my, bx, my, a.categories.empty() ? map_image.height : 0, sx, sy, len_px, len_m};
+  }
+  return std::move(c.img);
+}
+
+}  // namespace terramap::io
