@@ -7,13 +7,16 @@ PKGS=(build-essential cmake ninja-build pkg-config
   libbenchmark-dev libgtest-dev googletest libpcl-dev libgdal-dev gdal-bin libhdf5-dev
   libtorch-dev libopenblas0-openmp nlohmann-json3-dev libcli11-dev
   pybind11-dev python3-dev python3-numpy python3-pytest python3-matplotlib
-  libfreetype-dev fonts-dejavu-core)
+  libfreetype-dev fonts-dejavu-core chromium)
 missing=()
 for p in "${PKGS[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
+# node and npm build the live view's page (three.js from the npm registry at build time); any
+# node >= 18 on PATH will do, else Debian's.
+if ! command -v npm >/dev/null 2>&1 || ! command -v node >/dev/null 2>&1; then missing+=(nodejs npm); fi
 if [ ${#missing[@]} -eq 0 ]; then
-  echo "install_deps: all ${#PKGS[@]} packages present"
+  echo "install_deps: all ${#PKGS[@]} packages and node/npm present"
   exit 0
 fi
 echo "install_deps: installing ${missing[*]}"
