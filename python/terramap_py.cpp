@@ -91,6 +91,18 @@ class Map {
     return std::move(view);
   }
 
+  /// The whole layer as one zero-copy view: possible only when one tile holds the map and the
+  /// ring buffer has not moved (then buffer order is logical order). \throws ValueError otherwise.
+  py::object layerView(const std::string& name) const {
+    const LayerId id = m_->layerId(name);
+    if (m_->tileCount() != 1 || m_->startIndex().x() != 0 || m_->startIndex().y() != 0)
+      throw py::value_error("layer_view('" + name + "'): the map is stored in " + std::to_string(m_->tileCount()) +
+                            " tiles" + (m_->tileCount() == 1 ? " and has moved" : "") +
+                            "; use layer() (a copy) or tile() views, or a map whose `tile` covers it (at most 1024 cells)");
+    if (!m_->tileData(id, 0)) throw py::value_error("layer_view('" + name + "'): the layer was never written (sparse map)");
+    return tile(name, 0);
+  }
+
   py::dict tileRect(int t) const {
     if (t < 0 || t >= m_->tileCount()) throw py::index_error("tile " + std::to_string(t) + " out of range");
     const CellRect r = m_->tileRect(t);
@@ -226,6 +238,7 @@ PYBIND11_MODULE(_terramap, m) {
                              [](const Map& s) { return std::make_pair(s.get().startIndex().x(), s.get().startIndex().y()); })
       .def("layer", &Map::layer, py::arg("name"))
       .def("tile", &Map::tile, py::arg("name"), py::arg("t"))
+      .def("layer_view", &Map::layerView, py::arg("name"))
       .def("tile_rect", &Map::tileRect, py::arg("t"))
       .def("layer_info", &Map::layerInfo, py::arg("name"))
       .def("save", &Map::save, py::arg("path"));

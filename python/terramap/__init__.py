@@ -10,6 +10,7 @@ ring buffer. Everything a pipeline YAML can do is reachable from here:
     snap = eng.snapshot()             # consistent copy-on-write map, valid while eng writes
     h = snap.layer("elevation")       # rows x cols float32 array in logical order (a copy)
     v = snap.tile("elevation", 0)     # read-only zero-copy view of one tile's memory
+    w = snap.layer_view("elevation")  # the whole layer zero-copy, when one tile holds the map
 
 Frames and units: the map frame is x, y horizontal and z up, metres; transforms T_a_b map
 frame-b coordinates into frame a; stamps are seconds. Logical cell (i, j) has its centre at
@@ -66,6 +67,8 @@ layer(name) -> float32 array [rows, cols] in logical order. A copy: tiles are st
 tile(name, t) -> read-only float32 view [rows, cols] of tile t's memory in buffer order
     (tile_rect(t) says where), or None for an unallocated tile of a sparse map (all fill). The
     view keeps the snapshot alive and never changes, whatever the engine writes afterwards.
+layer_view(name) -> the whole layer as one read-only zero-copy view, when one tile holds the map
+    (`tile` >= the map's size in the YAML, up to 1024) and it has not moved; ValueError otherwise.
 layer_info(name) -> {name, unit, fill};  save(path): writes a .tmap file atomically.
 """
 

@@ -152,3 +152,19 @@ def test_help_is_useful():
     for word in ("snapshot", "layer(", "tile(", "NaN", "metres"):
         assert word in doc
     assert "push_cloud" in terramap.Engine.__doc__
+
+
+def test_a_single_tile_map_gives_the_whole_layer_zero_copy():
+    eng = terramap.Engine.from_yaml(PROBE_YAML.replace("tile: 16", "tile: 64"))
+    eng.push_tick(0.0)
+    snap = eng.snapshot()
+    view = snap.layer_view("probe")
+    assert view.shape == (40, 30) and not view.flags.writeable
+    assert np.shares_memory(view, snap.tile("probe", 0))
+    np.testing.assert_array_equal(view, snap.layer("probe"))
+    eng.push_tick(1.0)
+    assert np.all(view == 0.5)  # the snapshot's view, not the engine's newer map
+    tiled = terramap.Engine.from_yaml(PROBE_YAML)
+    tiled.push_tick(0.0)
+    with pytest.raises(ValueError, match="tiles"):
+        tiled.snapshot().layer_view("probe")
