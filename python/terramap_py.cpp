@@ -132,12 +132,42 @@ class Map {
   MapPtr m_;
 };
 
-/// An Engine built from a pipeline, with the pipeline's source at hand for play().
+/// A Python value as a plugin parameter (bool, int, float, str, or a list of numbers / strings).
+ParamValue paramFrom(const std::string& key, const py::handle& v) {
+  if (py::isinstance<py::bool_>(v)) return v.cast<bool>();
+  if (py::isinstance<py::int_>(v)) return v.cast<long>();
+  if (py::isinstance<py::float_>(v)) return v.cast<double>();
+  if (py::isinstance<py::str>(v)) return v.cast<std::string>();
+  if (py::isinstance<py::list>(v) || py::isinstance<py::tuple>(v)) {
+    const py::sequence seq = v.cast<py::sequence>();
+    bool strings = seq.size() > 0, numbers = true;
+    for (const auto& item : seq) {
+      strings = strings && py::isinstance<py::str>(item);
+      numbers = numbers && (py::isinstance<py::int_>(item) || py::isinstance<py::float_>(item)) &&
+                !py::isinstance<py::bool_>(item);
+    }
+    if (strings) return seq.cast<std::vector<std::string>>();
+    if (numbers) return seq.cast<std::vector<double>>();
+  }
+  throw py::type_error("parameter '" + key + "': expected bool, int, float, str or a list of numbers or of strings, got " +
+                       std::string(py::str(v.get_type())));
+}
+
+/// An Engine built from a pipeline (with the pipeline's source at hand for play()) or in code.
 class PyEngine {
  public:
-  PyEngine(PipelineSpec spec, int threads) : spec_(std::move(spec)) {
+  PyEngine(PipelineSpec spec, int threads) : spec_(std::move(spec)), has_spec_(true) {
     if (threads > 0) spec_.threads = threads;
     engine_ = Engine::fromSpec(spec_, PluginRegistry(spec_.plugin_paths));
+  }
+  PyEngine(const EngineOptions& o, std::vector<std::string> plugin_paths) : plugin_paths_(std::move(plugin_paths)) {
+    engine_ = std::make_unique<Engine>(o);
+  }
+
+  void addStage(const std::string& name, const std::string& type, const py::dict& params) {
+    std::map<std::string, ParamValue> values;
+    for (const auto& [k, v] : params) values[k.cast<std::string>()] = paramFrom(k.cast<std::string>(), v);
+    engine_->addStage(name, PluginRegistry(plugin_paths_).create(type), values);
   }
 
   void push(Event e) {
@@ -146,6 +176,7 @@ class PyEngine {
   }
 
   long play(long max_events) {
+    if (!has_spec_) throw py::value_error("play(): this engine was built in code and has no source; push events instead");
     if (!source_) source_ = makeSource(spec_);
     long n = 0;
     py::gil_scoped_release nogil;
@@ -168,6 +199,8 @@ class PyEngine {
 
  private:
   PipelineSpec spec_;
+  bool has_spec_ = false;
+  std::vector<std::string> plugin_paths_;
   std::unique_ptr<Engine> engine_;
   std::unique_ptr<Source> source_;
 };
@@ -265,6 +298,29 @@ PYBIND11_MODULE(_terramap, m) {
             return new PyEngine(parsePipelineString(text, "<python>", base_dir), threads);
           },
           py::arg("text"), py::arg("base_dir") = ".", py::arg("threads") = 0, py::return_value_policy::take_ownership)
+      .def_static(
+          "create",
+          [](double resolution, std::pair<int, int> size, std::pair<double, double> center, py::list layers,
+             int tile, bool sparse, int threads, std::vector<std::string> plugin_paths) {
+            EngineOptions o;
+            o.geometry = Geometry(resolution, Size(size.first, size.second), Position(center.first, center.second));
+            o.map.tile_size = tile;
+            o.map.sparse = sparse;
+            o.threads = threads;
+            for (const auto& l : layers) {
+              const py::dict d = l.cast<py::dict>();
+              LayerDecl decl;
+              decl.name = d["name"].cast<std::string>();
+              decl.unit = d.contains("unit") ? d["unit"].cast<std::string>() : "";
+              if (d.contains("fill")) decl.fill = d["fill"].cast<float>();
+              o.layers.push_back(decl);
+            }
+            return new PyEngine(o, std::move(plugin_paths));
+          },
+          py::arg("resolution"), py::arg("size"), py::arg("center") = std::pair<double, double>{0.0, 0.0},
+          py::arg("layers") = py::list(), py::arg("tile") = 64, py::arg("sparse") = false, py::arg("threads") = 2,
+          py::arg("plugin_paths") = std::vector<std::string>{}, py::return_value_policy::take_ownership)
+      .def("add_stage", &PyEngine::addStage, py::arg("name"), py::arg("type"), py::arg("params") = py::dict())
       .def(
           "push_cloud",
           [](PyEngine& e, const py::array_t<float, py::array::c_style | py::array::forcecast>& points,

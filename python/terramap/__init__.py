@@ -44,6 +44,10 @@ Engine.__doc__ = """A pipeline: one map, one thread pool, plugins in YAML order.
 Engine.from_file(path, threads=0) / Engine.from_yaml(text, base_dir=".", threads=0) validate the
 whole pipeline first and raise ConfigError listing every problem. threads > 0 overrides the
 YAML's `threads`; results are bit-identical for any thread count.
+Engine.create(resolution, size, center=(0, 0), layers=[{"name", "unit", "fill"}...], tile=64,
+    sparse=False, threads=2, plugin_paths=[]) builds one in code; then
+add_stage(name, type, params={...}): appends a plugin stage (params: bool, int, float, str or lists),
+    checked like a YAML stage (ConfigError / PluginError / LayerError).
 
 push_cloud(points, T_map_sensor, stamp): points N x 3 (x, y, z) or N x 4 (+ intensity) in the
     sensor frame, any float dtype; T_map_sensor a rigid 4 x 4 transform (ValueError otherwise).

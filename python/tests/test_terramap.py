@@ -168,3 +168,23 @@ def test_a_single_tile_map_gives_the_whole_layer_zero_copy():
     tiled.push_tick(0.0)
     with pytest.raises(ValueError, match="tiles"):
         tiled.snapshot().layer_view("probe")
+
+
+def test_a_pipeline_built_in_code_runs_like_one_from_yaml():
+    plugins = os.path.join(BINARY_DIR, "test_plugins")
+    eng = terramap.Engine.create(0.1, (40, 30), layers=[{"name": "elevation", "unit": "m"}], tile=16,
+                                 plugin_paths=[plugins])
+    eng.add_stage("probe", "test_probe", {"increment": 0.5, "events": ["tick"]})
+    for k in range(3):
+        eng.push_tick(0.1 * k)
+    from_yaml = terramap.Engine.from_yaml(PROBE_YAML)
+    for k in range(3):
+        from_yaml.push_tick(0.1 * k)
+    np.testing.assert_array_equal(eng.snapshot().layer("probe"), from_yaml.snapshot().layer("probe"))
+    assert eng.stage_names == ["probe"]
+    with pytest.raises(terramap.ConfigError, match="increment"):
+        eng.add_stage("bad", "test_probe", {"output_layer": "other", "increment": "a lot"})
+    with pytest.raises(TypeError, match="'events'"):
+        eng.add_stage("bad", "test_probe", {"events": [1, "tick"]})
+    with pytest.raises(ValueError, match="no source"):
+        eng.play()
