@@ -491,25 +491,7 @@ TEST(ReadPointCloud, DispatchesByExtension) {
   expectErrorWith([&] { readPointCloud(dir.file("cloud.laz")); }, {"cloud.laz", "'.laz'", "did you mean '.las'", ".pcd"});
 }
 
-TEST(ReadPointCloud, ThroughputReport) {
-  // Informative only (no assertion on time): printed for the report / BENCHMARKS.md.
-  using Clock = std::chrono::steady_clock;
-  auto measure = [](const char* label, const std::string& path, auto&& read) {
-    const double bytes = static_cast<double>(std::filesystem::file_size(path));
-    std::size_t n = 0;
-    const int reps = 20;
-    read();  // warm the page cache
-    const auto t0 = Clock::now();
-    for (int r = 0; r < reps; ++r) n = read();
-    const double s = std::chrono::duration<double>(Clock::now() - t0).count() / reps;
-    std::cout << "[throughput] " << label << ": " << n << " points, " << s * 1e3 << " ms/read, " << n / s / 1e6
-              << " Mpoints/s, " << bytes / s / 1e6 << " MB/s\n";
-    EXPECT_GT(n, 0u);
-  };
-  measure("KITTI 000000.bin", kKitti0, [] { return readKittiBin(kKitti0).size(); });
-  measure("LAS hexbin-crop.las", kLas, [] { return readLas(kLas).size(); });
-  measure("PLY source.ply (PCL)", kPlySource, [] { return readPly(kPlySource).size(); });
-}
+// Reader throughput is measured by benchmarks/bench_readers.cpp, not in the unit suite.
 
 }  // namespace
 }  // namespace terramap::io
