@@ -76,6 +76,32 @@ TEST(BladeForce, SlicesOnFlatGroundSumToTheFeeOfTheWholeBlade) {
   EXPECT_GT(pen.penetration_map.z(), 0.0);
 }
 
+// Against a closed form that shares no code with the FEE: a vertical, smooth (delta = 0, no
+// adhesion) wall pushed into flat ground fails the soil in Rankine's passive state, with Bell's
+// cohesion term: per unit width F = 1/2 gamma d^2 Kp + 2 c d sqrt(Kp), Kp = tan^2(45 deg + phi/2),
+// horizontal (a smooth wall takes no shear). Every slice is such a wall, so the blade's force is
+// that times its width, pointing back against the push (-x).
+TEST(BladeForce, SmoothUprightBladeOnFlatGroundMeetsBellsPassivePressure) {
+  TruthTerrain t = flat();
+  for (const auto& [phi_deg, c_pa] : {std::pair{30.0, 0.0}, std::pair{30.0, 5000.0}, std::pair{38.0, 1500.0}}) {
+    SoilProperties sp = soilProperties(SoilFamily::Loam, 0.6);
+    sp.fee.phi_rad = phi_deg * M_PI / 180.0;
+    sp.fee.c_pa = c_pa;
+    sp.fee.gamma_n_m3 = 18000.0;
+    sp.fee.ca_pa = 0.0;
+    sp.fee.delta_rad = 0.0;
+    const SoilField field(sp, {});
+    BladeGeometry g;
+    const double depth = 0.15;
+    const BladeForce bf = bladeSoilForce(t, field, uprightBlade(0, 0, -depth), g, 0.025, 25, 0.0, 0.0, 0.0);
+    const double kp = std::pow(std::tan(M_PI / 4 + sp.fee.phi_rad / 2), 2);
+    const double bell = (0.5 * 18000.0 * depth * depth * kp + 2.0 * c_pa * depth * std::sqrt(kp)) * g.width_m;
+    EXPECT_NEAR(bf.fee_map.x(), -bell, 1e-9 * bell) << "phi " << phi_deg << " c " << c_pa;
+    EXPECT_NEAR(bf.fee_map.z(), 0.0, 1e-9 * bell) << "phi " << phi_deg << " c " << c_pa;
+    EXPECT_NEAR(bf.fee_map.y(), 0.0, 1e-9 * bell);
+  }
+}
+
 TEST(Deformation, CutPushAndRelaxConserveSoilMass) {
   TerrainSpec s;
   s.size_x_m = 6; s.size_y_m = 4; s.origin_x_m = -3; s.origin_y_m = -2; s.resolution_m = 0.02;
