@@ -1,0 +1,111 @@
+#include <terramap/sim/localisation.hpp>
+
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace terramap::sim {
+
+namespace {
+constexpr double kDeg = M_PI / 180.0;
+
+void checkSigma(double v, const char* what) {
+  if (!(v >= 0.0) || !std::isfinite(v)) throw std::invalid_argument(std::string("localisation: ") + what + " must be >= 0 and finite");
+}
+}  // namespace
+
+LocalisationSpec LocalisationSpec::none() {
+  LocalisationSpec s;
+  s.perfect = true;
+  return s;
+}
+
+LocalisationSpec LocalisationSpec::rtkImu() {
+  LocalisationSpec s;
+  // RTK fixed solution: ~1 cm horizontal, ~2 cm vertical; slow multipath drift of a few mm/sqrt(s).
+  s.position = {AxisError{0.010, 0.005, 0.002}, AxisError{0.010, 0.005, 0.002}, AxisError{0.020, 0.010, 0.003}};
+  // MEMS IMU roll/pitch ~0.05 deg; dual-antenna heading ~0.2 deg over a ~1.5 m baseline.
+  s.attitude = {AxisError{0.05 * kDeg, 0.03 * kDeg, 0.005 * kDeg}, AxisError{0.05 * kDeg, 0.03 * kDeg, 0.005 * kDeg},
+                AxisError{0.20 * kDeg, 0.10 * kDeg, 0.02 * kDeg}};
+  s.latency_s = 0.02;
+  s.cylinder_white_m = 0.0005;
+  s.cylinder_bias_m = 0.001;
+  return s;
+}
+
+PoseEstimator::PoseEstimator(const LocalisationSpec& spec, std::uint64_t seed) : spec_(spec), rng_(seed) {
+  if (!(spec.latency_s >= 0.0) || !std::isfinite(spec.latency_s))
+    throw std::invalid_argument("localisation: latency_s must be >= 0 and finite");
+  for (int k = 0; k < 3; ++k) {
+    for (const AxisError* a : {&spec.position[k], &spec.attitude[k]}) {
+      checkSigma(a->white, "white");
+      checkSigma(a->bias, "bias");
+      checkSigma(a->random_walk, "random_walk");
+    }
+  }
+  checkSigma(spec.cylinder_white_m, "cylinder_white_m");
+  checkSigma(spec.cylinder_bias_m, "cylinder_bias_m");
+  if (spec.perfect) return;
+  for (int k = 0; k < 3; ++k) {
+    bias_[k] = normal_(rng_) * spec.position[k].bias;
+    bias_[3 + k] = normal_(rng_) * spec.attitude[k].bias;
+  }
+  for (double& b : cylinder_bias_) b = normal_(rng_) * spec.cylinder_bias_m;
+}
+
+void PoseEstimator::addTruth(double t, const Eigen::Isometry3d& T) {
+  if (!history_.empty() && t < history_.back().t)
+    throw std::invalid_argument("localisation: truths must come in time order");
+  if (!history_.empty() && t == history_.back().t) history_.pop_back();
+  history_.push_back(Sample{t, T.translation(), Eigen::Quaterniond(T.linear())});
+  // Keep what a delayed look-up can still reach: everything after the first sample older
+  // than newest - latency.
+  while (history_.size() > 2 && history_[1].t <= t - spec_.latency_s) history_.pop_front();
+}
+
+Eigen::Isometry3d PoseEstimator::delayedTruth(double t) const {
+  const double td = t - spec_.latency_s;
+  auto pose = [](const Eigen::Vector3d& p, const Eigen::Quaterniond& q) {
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = q.toRotationMatrix();
+    T.translation() = p;
+    return T;
+  };
+  if (td <= history_.front().t) return pose(history_.front().p, history_.front().q);
+  if (td >= history_.back().t) return pose(history_.back().p, history_.back().q);
+  std::size_t k = 0;
+  while (history_[k + 1].t <= td) ++k;  // history_[k].t <= td < history_[k + 1].t
+  const Sample &a = history_[k], &b = history_[k + 1];
+  const double u = (td - a.t) / (b.t - a.t);
+  return pose(a.p + u * (b.p - a.p), a.q.slerp(u, b.q));
+}
+
+Eigen::Isometry3d PoseEstimator::estimate(double t) {
+  if (history_.empty()) throw std::logic_error("PoseEstimator::estimate before any truth");
+  if (spec_.perfect) return delayedTruth(t + spec_.latency_s);  // no delay either
+  const double dt = last_t_ < -1e299 ? 0.0 : std::max(0.0, t - last_t_);
+  last_t_ = t;
+  Eigen::Matrix<double, 6, 1> e;
+  for (int k = 0; k < 6; ++k) {
+    const AxisError& a = k < 3 ? spec_.position[k] : spec_.attitude[k - 3];
+    walk_[k] += normal_(rng_) * a.random_walk * std::sqrt(dt);
+    e[k] = bias_[k] + walk_[k] + normal_(rng_) * a.white;
+  }
+  last_error_ = e;
+  Eigen::Isometry3d T = delayedTruth(t);
+  T.translation() += e.head<3>();
+  T.linear() = (Eigen::AngleAxisd(e[5], Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(e[4], Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(e[3], Eigen::Vector3d::UnitX()))
+                   .toRotationMatrix() *
+               T.linear();
+  return T;
+}
+
+std::array<double, 3> PoseEstimator::cylinders(const std::array<double, 3>& L) {
+  if (spec_.perfect) return L;
+  std::array<double, 3> out{};
+  for (int k = 0; k < 3; ++k) out[k] = L[k] + cylinder_bias_[k] + normal_(rng_) * spec_.cylinder_white_m;
+  return out;
+}
+
+}  // namespace terramap::sim

@@ -1,0 +1,146 @@
+// The localisation error model (sim/localisation.hpp): latency, white noise, bias, drift, the
+// perfect estimator, determinism per seed, bad settings.
+#include <terramap/sim/localisation.hpp>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <stdexcept>
+#include <vector>
+
+using namespace terramap::sim;
+
+namespace {
+Eigen::Isometry3d along(double t) {  // 1 m/s along x, yawing at 0.5 rad/s
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = Eigen::Vector3d(t, 0.2 * t, 0.1);
+  T.linear() = Eigen::AngleAxisd(0.5 * t, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  return T;
+}
+double yawOf(const Eigen::Isometry3d& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }
+LocalisationSpec only(int axis, AxisError e) {
+  LocalisationSpec s;
+  (axis < 3 ? s.position[axis] : s.attitude[axis - 3]) = e;
+  return s;
+}
+}  // namespace
+
+TEST(Localisation, PerfectEstimatesAreTheTruth) {
+  PoseEstimator est(LocalisationSpec::none(), 1);
+  for (int k = 0; k <= 60; ++k) {
+    est.addTruth(k / 60.0, along(k / 60.0));
+    EXPECT_TRUE(est.estimate(k / 60.0).isApprox(along(k / 60.0), 1e-15)) << k;
+  }
+}
+
+TEST(Localisation, LatencyShowsThePoseOfThatLongAgoInterpolated) {
+  LocalisationSpec s;
+  s.latency_s = 0.025;  // between two 60 Hz truths
+  PoseEstimator est(s, 1);
+  for (int k = 0; k <= 120; ++k) est.addTruth(k / 60.0, along(k / 60.0));
+  const Eigen::Isometry3d T = est.estimate(2.0);
+  EXPECT_NEAR(T.translation().x(), 2.0 - 0.025, 1e-12);  // linear motion: interpolation is exact
+  EXPECT_NEAR(T.translation().y(), 0.2 * (2.0 - 0.025), 1e-12);
+  EXPECT_NEAR(yawOf(T), 0.5 * (2.0 - 0.025), 1e-12);      // constant yaw rate: slerp is exact
+  EXPECT_EQ(est.lastError().norm(), 0.0);
+}
+
+TEST(Localisation, WhiteNoiseHasItsSigmaAndNoMemory) {
+  PoseEstimator est(only(0, AxisError{0.01, 0, 0}), 7);
+  const int n = 20000;
+  double s = 0, ss = 0, lag = 0, prev = 0;
+  for (int k = 0; k < n; ++k) {
+    est.addTruth(k * 0.01, along(k * 0.01));
+    const double e = est.estimate(k * 0.01).translation().x() - k * 0.01;
+    s += e;
+    ss += e * e;
+    lag += e * prev;
+    prev = e;
+  }
+  const double mean = s / n, sd = std::sqrt(ss / n - mean * mean);
+  // Sample sd of n normals: 1-sigma relative error 1/sqrt(2n) = 0.5 %; 4 sigma bounds.
+  EXPECT_NEAR(sd, 0.01, 0.01 * 4 / std::sqrt(2.0 * n));
+  EXPECT_NEAR(mean, 0.0, 4 * 0.01 / std::sqrt(n));
+  EXPECT_NEAR(lag / n / (sd * sd), 0.0, 4 / std::sqrt(n));  // lag-1 autocorrelation
+}
+
+TEST(Localisation, BiasIsConstantPerRunAndDrawnPerSeed) {
+  std::vector<double> biases;
+  for (std::uint64_t seed = 1; seed <= 2000; ++seed) {
+    PoseEstimator est(only(5, AxisError{0, 0.002, 0}), seed);
+    est.addTruth(0, along(0));
+    const double b0 = yawOf(est.estimate(0.0));
+    est.addTruth(5, along(5));
+    EXPECT_NEAR(yawOf(est.estimate(5.0)) - 2.5, b0, 1e-12);  // the same offset 5 s later
+    biases.push_back(b0);
+  }
+  double ss = 0;
+  for (double b : biases) ss += b * b;
+  EXPECT_NEAR(std::sqrt(ss / biases.size()), 0.002, 0.002 * 4 / std::sqrt(2.0 * biases.size()));
+}
+
+TEST(Localisation, RandomWalkVarianceGrowsLinearlyWithTime) {
+  // Var w(T) = random_walk^2 T whatever the step: check at T = 4 s and 16 s over many seeds, with
+  // 100 Hz and 25 Hz estimates (the step must not matter).
+  for (const double hz : {100.0, 25.0}) {
+    double v4 = 0, v16 = 0;
+    const int seeds = 1500;
+    for (int seed = 0; seed < seeds; ++seed) {
+      PoseEstimator est(only(1, AxisError{0, 0, 0.01}), 1000 + seed);
+      for (int k = 0; k <= static_cast<int>(16 * hz); ++k) {
+        const double t = k / hz;
+        est.addTruth(t, along(t));
+        const double e = est.estimate(t).translation().y() - 0.2 * t;
+        if (k == static_cast<int>(4 * hz)) v4 += e * e;
+        if (k == static_cast<int>(16 * hz)) v16 += e * e;
+      }
+    }
+    v4 /= seeds;
+    v16 /= seeds;
+    // Expected 4e-4 and 1.6e-3 m^2; a sample variance of 1500 normals is within 4 sqrt(2/1500) = 15 %.
+    EXPECT_NEAR(v4, 1e-4 * 4, 0.15 * 4e-4) << hz << " Hz";
+    EXPECT_NEAR(v16, 1e-4 * 16, 0.15 * 1.6e-3) << hz << " Hz";
+  }
+}
+
+TEST(Localisation, SameSeedSameErrorsOtherSeedOtherErrors) {
+  auto run = [](std::uint64_t seed) {
+    PoseEstimator est(LocalisationSpec::rtkImu(), seed);
+    std::vector<double> out;
+    for (int k = 0; k < 200; ++k) {
+      est.addTruth(k / 60.0, along(k / 60.0));
+      const Eigen::Isometry3d T = est.estimate(k / 60.0);
+      out.push_back(T.translation().x());
+      const auto c = est.cylinders({0.5, 0.6, 0.7});
+      out.push_back(c[0]);
+    }
+    return out;
+  };
+  EXPECT_EQ(run(3), run(3));
+  EXPECT_NE(run(3), run(4));
+}
+
+TEST(Localisation, CylinderSensorsAddBiasAndNoise) {
+  LocalisationSpec s;
+  s.cylinder_white_m = 0.001;
+  PoseEstimator est(s, 2);
+  double ss = 0;
+  for (int k = 0; k < 4000; ++k) {
+    const auto c = est.cylinders({0.5, 0.5, 0.5});
+    ss += (c[1] - 0.5) * (c[1] - 0.5);
+  }
+  EXPECT_NEAR(std::sqrt(ss / 4000), 0.001, 0.001 * 4 / std::sqrt(8000.0));
+}
+
+TEST(Localisation, BadSettingsAreRefused) {
+  LocalisationSpec s;
+  s.latency_s = -0.1;
+  EXPECT_THROW(PoseEstimator(s, 1), std::invalid_argument);
+  s = LocalisationSpec{};
+  s.attitude[2].white = NAN;
+  EXPECT_THROW(PoseEstimator(s, 1), std::invalid_argument);
+  PoseEstimator ok(LocalisationSpec::rtkImu(), 1);
+  EXPECT_THROW(ok.estimate(0.0), std::logic_error);
+  ok.addTruth(1.0, along(1.0));
+  EXPECT_THROW(ok.addTruth(0.5, along(0.5)), std::invalid_argument);
+}
