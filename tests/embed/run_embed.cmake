@@ -4,21 +4,11 @@
 # not loaded at all. (GDAL, which terramap::io uses for GeoTIFF, may itself load an HDF5
 # driver library; that is GDAL's dependency, not the engine's, so only the direct ones count.)
 # Inputs: -DBUILD_DIR= -DSOURCE_DIR= -DWORK_DIR=
+include(${CMAKE_CURRENT_LIST_DIR}/../cmake/scratch_package.cmake)
 file(REMOVE_RECURSE ${WORK_DIR})
 set(prefix ${WORK_DIR}/prefix)
-execute_process(COMMAND ${CMAKE_COMMAND} --install ${BUILD_DIR} --prefix ${prefix} RESULT_VARIABLE rc OUTPUT_QUIET)
-if(rc)
-  message(FATAL_ERROR "install failed: ${rc}")
-endif()
-execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR}/tests/embed -B ${WORK_DIR}/build -G Ninja
-  -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH=${prefix} RESULT_VARIABLE rc OUTPUT_QUIET)
-if(rc)
-  message(FATAL_ERROR "configuring the embedding program against the installed package failed: ${rc}")
-endif()
-execute_process(COMMAND ${CMAKE_COMMAND} --build ${WORK_DIR}/build RESULT_VARIABLE rc OUTPUT_VARIABLE log)
-if(rc)
-  message(FATAL_ERROR "building the embedding program failed: ${rc}\n${log}")
-endif()
+terramap_scratch_install(${BUILD_DIR} ${prefix})
+terramap_build_against(${prefix} ${SOURCE_DIR}/tests/embed ${WORK_DIR}/build "" "the embedding program")
 
 # The link line, as Ninja runs it.
 execute_process(COMMAND ninja -C ${WORK_DIR}/build -t commands embed OUTPUT_VARIABLE commands RESULT_VARIABLE rc)

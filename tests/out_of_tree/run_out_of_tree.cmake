@@ -11,30 +11,19 @@ if(REQUIRE_CPU_FLAG)
     return()
   endif()
 endif()
+include(${CMAKE_CURRENT_LIST_DIR}/../cmake/scratch_package.cmake)
 file(REMOVE_RECURSE ${WORK_DIR})
 if(NOT PREFIX)
   set(PREFIX ${WORK_DIR}/prefix)
-  execute_process(COMMAND ${CMAKE_COMMAND} --install ${BUILD_DIR} --prefix ${PREFIX}
-    RESULT_VARIABLE rc OUTPUT_QUIET)
-  if(rc)
-    message(FATAL_ERROR "install failed: ${rc}")
-  endif()
+  terramap_scratch_install(${BUILD_DIR} ${PREFIX})
 endif()
 
 # Builds the out-of-tree project with `flags` into ${WORK_DIR}/<tag>, runs the installed
 # terramap on it and returns the pose_probe record of report.json in `out_record`.
 function(build_and_run tag flags out_record)
   set(dir ${WORK_DIR}/${tag})
-  execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR}/tests/out_of_tree -B ${dir}/build -G Ninja
-    -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH=${PREFIX} "-DCMAKE_CXX_FLAGS=${flags}"
-    RESULT_VARIABLE rc OUTPUT_QUIET)
-  if(rc)
-    message(FATAL_ERROR "[${tag}] configuring the out-of-tree plugins against the installed package failed: ${rc}")
-  endif()
-  execute_process(COMMAND ${CMAKE_COMMAND} --build ${dir}/build RESULT_VARIABLE rc OUTPUT_VARIABLE log)
-  if(rc)
-    message(FATAL_ERROR "[${tag}] building the out-of-tree plugins failed: ${rc}\n${log}")
-  endif()
+  terramap_build_against(${PREFIX} ${SOURCE_DIR}/tests/out_of_tree ${dir}/build "${flags}"
+    "[${tag}] the out-of-tree plugins")
   # A short simulator run: Pose, BladePose and Observation events (Isometry3d members) reach
   # the probe; the slope plugin reads and writes whole layers (toMatrix/fromMatrix).
   file(WRITE ${dir}/pipeline.yaml "version: 1
