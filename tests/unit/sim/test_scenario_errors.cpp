@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <terramap/core/error.hpp>
+#include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/sim/scenario.hpp>
 
 #include <algorithm>
@@ -100,4 +101,18 @@ TEST(ScenarioErrors, UnreadableDemComesAfterTheYamlMistakes) {
   } catch (const InputError& err) {
     expectHas(err.what(), "/nonexistent/dem.asc");
   }
+}
+
+// One reader: the same mistake reads the same in a pipeline and in a scenario.
+TEST(ScenarioErrors, PipelineAndScenarioWordAMistakeAlike) {
+  std::string pipeline_error;
+  try {
+    parsePipelineString("version: 1\nthreads: many\npipeline: []\n", "p.yaml");
+  } catch (const ConfigError& e) {
+    pipeline_error = e.what();
+  }
+  const std::string scenario_error =
+      configErrorOf("version: 1\nthreads: many\nterrain: {size_m: [4, 4]}\nmachines: [{id: a}]\n");
+  expectHas(pipeline_error, "p.yaml:2:10: threads: must be an integer (got 'many')");
+  expectHas(scenario_error, "s.yaml:2:10: threads: must be an integer (got 'many')");
 }
