@@ -207,36 +207,68 @@ std::string extractionTableMarkdown(const ExtractionSummary& s) {
   return o.str();
 }
 
-EvalRun runBlindEvaluation(Simulator& sim, Engine& engine, const EvalOptions& options) {
-  if (sim.step() != 0) throw std::invalid_argument("runBlindEvaluation: the simulator has already been stepped");
-  const auto wall0 = std::chrono::steady_clock::now();
-  EvalRun run;
-  run.options = options;
-  run.scenario = sim.scenario().name;
-  LayeredMap& map = engine.mutableMap();
-  const Geometry geo = map.geometry();
-  run.geometry = geo;
-  const LayerId hid = map.layerId(options.elevation_layer);  // LayerError names the layer
-  const TruthTerrain& truth0 = sim.truth();
-  run.initial = truthOnGeometry(truth0, geo, TruthSurface::Current);
-  map.fromMatrix(hid, run.initial);
-  const bool has_loose = map.hasLayer(options.loose_layer);
-  const Eigen::MatrixXf zeros = Eigen::MatrixXf::Zero(geo.size().x(), geo.size().y());
-  if (has_loose) map.fromMatrix(map.layerId(options.loose_layer), zeros);
-  const Eigen::MatrixXd bank0 = truthOnGeometryD(truth0, geo, TruthSurface::Bank);
-  const double truth_vol0 = truth0.bankVolume(), truth_lost0 = truth0.lostVolume();
+namespace {
 
+/// What the replay accumulates besides the run itself.
+struct Replay {
+  Eigen::MatrixXi swept;  // 1 where a sweep's volume reached below the initial surface
+  long last_seq = 0;      // sequence number of the last sweep record seen
+  bool swell_known = false;
+  double swell = 0;
+};
+
+/// The cells of a sweep's mask whose swept-volume bottom lies below the initial surface.
+void markSwept(const SweepRecord& rec, const Geometry& geo, const Eigen::MatrixXf& initial, Eigen::MatrixXi& swept) {
+  for (const SweepMaskCell& c : rec.mask) {
+    const auto idx = geo.indexAt(c.position);
+    if (!idx) continue;
+    const float h0 = initial(idx->x(), idx->y());
+    if (std::isfinite(h0) && c.sv_bottom_m < h0) swept(idx->x(), idx->y()) = 1;
+  }
+}
+
+/// The FEE parameters the mapper extracted for one sweep beside the simulator's truth at its end.
+ExtractionSample extractionSample(const SweepRecord& rec, const Simulator& sim, std::size_t machine) {
+  ExtractionSample s;
+  s.sweep = rec.sweep_index;
+  s.machine = rec.machine_id;
+  s.stamp = rec.t1;
+  if (rec.fee_valid && !rec.steps.empty()) {
+    const SweepStep& st = rec.steps.back();
+    s.alpha_rad = rec.alpha_rad;
+    s.rho_rad = st.rho_rad;
+    s.d_m = st.d_m;
+    s.w_m = st.w_m;
+    s.q_n = st.q_n;
+    s.mapped_valid =
+        std::isfinite(s.alpha_rad) && std::isfinite(s.rho_rad) && std::isfinite(s.d_m) && std::isfinite(s.w_m);
+  }
+  const MachineTruth& mt = sim.machineTruth(machine);
+  const MachineSpec& spec = sim.scenario().machines[machine];
+  const SurfaceAheadTruth sa = surfaceAheadTruth(sim.truth(), mt.T_map_blade, spec.blade, spec.blade_slices);
+  const FeeTruth& ft = mt.fee;
+  if (sa.cutting_slices > 0) {
+    s.truth_valid = true;
+    s.truth_alpha_rad = sa.alpha_rad;
+    s.truth_d_m = sa.d_m;
+    s.truth_rho_rad = sa.face_angle_rad + sa.alpha_rad;
+    const Eigen::Vector3d yb = mt.T_map_blade.linear().col(1);
+    s.truth_w_m = sa.w_along_m * std::abs(yb.x() * rec.t_perp.x() + yb.y() * rec.t_perp.y());
+  }
+  if (ft.cutting_slices > 0) {
+    s.truth_q_n = ft.q_n;
+    s.truth_d_raw_m = ft.depth_m;
+    s.truth_rho_raw_rad = ft.rho_rad;
+    s.truth_w_raw_m = ft.width_m;
+  }
+  return s;
+}
+
+/// Runs the simulator to its end, pushing its events (clouds withheld if asked) into the
+/// engine; each new sweep record adds to the mass balance, the swept cells and the samples.
+void replay(Simulator& sim, Engine& engine, const EvalOptions& options, EvalRun& run, Replay& rp) {
   std::map<std::string, std::size_t> machine_index;
   for (std::size_t i = 0; i < sim.scenario().machines.size(); ++i) machine_index[sim.scenario().machines[i].id] = i;
-
-  Eigen::MatrixXi swept = Eigen::MatrixXi::Zero(geo.size().x(), geo.size().y());
-  long last_seq = 0;
-  {
-    long s0 = 0;
-    if (latestSweep(engine, &s0)) last_seq = s0;  // a record left from before (not ours)
-  }
-  bool swell_known = false;
-  double swell = options.default_swell;
   MassBalance& mb = run.mass;
   std::vector<Event> events;
   while (sim.next(events)) {
@@ -249,72 +281,38 @@ EvalRun runBlindEvaluation(Simulator& sim, Engine& engine, const EvalOptions& op
       ++run.events_pushed;
       long seq = 0;
       const std::shared_ptr<const SweepRecord> rec = latestSweep(engine, &seq);
-      if (!rec || seq == last_seq) continue;
-      last_seq = seq;
+      if (!rec || seq == rp.last_seq) continue;
+      rp.last_seq = seq;
       ++run.sweeps;
       const auto mit = machine_index.find(rec->machine_id);
       if (mit == machine_index.end())
         throw ConfigError("sweep record " + std::to_string(rec->sweep_index) + " names machine '" + rec->machine_id +
                           "', which the scenario '" + run.scenario + "' does not have");
-      const MachineTruth& mt = sim.machineTruth(mit->second);
       mb.cut_bank_blind_m3 += rec->cut_bank_volume_m3;
       mb.blind_lost_loose_m3 += rec->lost_volume_m3;
-      swell = rec->swell;
-      swell_known = true;
-      for (const SweepMaskCell& c : rec->mask) {
-        const auto idx = geo.indexAt(c.position);
-        if (!idx) continue;
-        const float h0 = run.initial(idx->x(), idx->y());
-        if (std::isfinite(h0) && c.sv_bottom_m < h0) swept(idx->x(), idx->y()) = 1;
-      }
-      ExtractionSample s;
-      s.sweep = rec->sweep_index;
-      s.machine = rec->machine_id;
-      s.stamp = rec->t1;
-      if (rec->fee_valid && !rec->steps.empty()) {
-        const SweepStep& st = rec->steps.back();
-        s.alpha_rad = rec->alpha_rad;
-        s.rho_rad = st.rho_rad;
-        s.d_m = st.d_m;
-        s.w_m = st.w_m;
-        s.q_n = st.q_n;
-        s.mapped_valid = std::isfinite(s.alpha_rad) && std::isfinite(s.rho_rad) && std::isfinite(s.d_m) &&
-                         std::isfinite(s.w_m);
-      }
-      const MachineSpec& spec = sim.scenario().machines[mit->second];
-      const SurfaceAheadTruth sa = surfaceAheadTruth(sim.truth(), mt.T_map_blade, spec.blade, spec.blade_slices);
-      const FeeTruth& ft = mt.fee;
-      if (sa.cutting_slices > 0) {
-        s.truth_valid = true;
-        s.truth_alpha_rad = sa.alpha_rad;
-        s.truth_d_m = sa.d_m;
-        s.truth_rho_rad = sa.face_angle_rad + sa.alpha_rad;
-        const Eigen::Vector3d yb = mt.T_map_blade.linear().col(1);
-        s.truth_w_m = sa.w_along_m * std::abs(yb.x() * rec->t_perp.x() + yb.y() * rec->t_perp.y());
-      }
-      if (ft.cutting_slices > 0) {
-        s.truth_q_n = ft.q_n;
-        s.truth_d_raw_m = ft.depth_m;
-        s.truth_rho_raw_rad = ft.rho_rad;
-        s.truth_w_raw_m = ft.width_m;
-      }
-      run.samples.push_back(std::move(s));
+      rp.swell = rec->swell;
+      rp.swell_known = true;
+      markSwept(*rec, run.geometry, run.initial, rp.swept);
+      run.samples.push_back(extractionSample(*rec, sim, mit->second));
     }
     events.clear();
     if (options.on_progress) options.on_progress(sim.time(), sim.scenario().duration_s);
   }
-  run.simulated_s = sim.time();
-  if (map.geometry() != geo)
-    throw ConfigError("the map moved during the evaluation (a stage re-centred it); the evaluation compares fixed "
-                      "cells with the truth: use a pipeline whose stages keep the map still");
+}
 
-  // ---- heights by region ----------------------------------------------------------------------
-  run.blind = map.toMatrix(hid);
-  const Eigen::MatrixXf loose1 = has_loose ? map.toMatrix(map.layerId(options.loose_layer)) : zeros;
-  const TruthTerrain& truth1 = sim.truth();
-  const Eigen::MatrixXd truth1d = truthOnGeometryD(truth1, geo, TruthSurface::Current);
-  run.truth = truth1d.cast<float>();
-  const Eigen::MatrixXd bank1 = truthOnGeometryD(truth1, geo, TruthSurface::Bank);
+/// Sums over the map's cells for the mass balance (heights, m; times the cell area later).
+struct HeightSums {
+  double blind0 = 0, blind1 = 0, truth_on_map = 0;
+};
+
+/// Compares the blind map with the truth cell by cell: assigns each cell its region (cut where
+/// a sweep reached below the initial surface, deposit where the truth changed, else
+/// untouched), collects the errors per region and the removed / added volumes.
+HeightSums compareHeights(EvalRun& run, const EvalOptions& options, const Eigen::MatrixXf& loose1,
+                          const Eigen::MatrixXd& truth1d, const Eigen::MatrixXd& bank0, const Eigen::MatrixXd& bank1,
+                          const Eigen::MatrixXi& swept, double swell) {
+  const Geometry& geo = run.geometry;
+  MassBalance& mb = run.mass;
   run.region = Eigen::MatrixXi::Constant(geo.size().x(), geo.size().y(), -1);
   std::vector<double> err[kEvalRegionCount], base[kEvalRegionCount];
   auto add = [&](EvalRegion r, double e, double b) {
@@ -322,14 +320,14 @@ EvalRun runBlindEvaluation(Simulator& sim, Engine& engine, const EvalOptions& op
     base[static_cast<int>(r)].push_back(b);
   };
   const double a = geo.resolution() * geo.resolution();
-  double blind0 = 0, blind1 = 0, truth_on_map = 0;
+  HeightSums sums;
   for (int i = 0; i < geo.size().x(); ++i)
     for (int j = 0; j < geo.size().y(); ++j) {
       const double h0 = run.initial(i, j), h1 = run.blind(i, j), l1 = loose1(i, j), t1 = truth1d(i, j);
-      if (std::isfinite(h0)) blind0 += h0;
-      if (std::isfinite(h1)) blind1 += (h1 - l1) + l1 / swell;
-      else if (std::isfinite(l1)) blind1 += l1 / swell;  // deposits kept on unknown ground
-      if (std::isfinite(bank0(i, j)) && std::isfinite(bank1(i, j))) truth_on_map += bank1(i, j) - bank0(i, j);
+      if (std::isfinite(h0)) sums.blind0 += h0;
+      if (std::isfinite(h1)) sums.blind1 += (h1 - l1) + l1 / swell;
+      else if (std::isfinite(l1)) sums.blind1 += l1 / swell;  // deposits kept on unknown ground
+      if (std::isfinite(bank0(i, j)) && std::isfinite(bank1(i, j))) sums.truth_on_map += bank1(i, j) - bank0(i, j);
       if (!std::isfinite(h1) || !std::isfinite(t1) || !std::isfinite(h0)) continue;
       mb.removed_blind_m3 += std::max(0.0, h0 - h1) * a;
       mb.added_blind_m3 += std::max(0.0, h1 - h0) * a;
@@ -345,17 +343,64 @@ EvalRun runBlindEvaluation(Simulator& sim, Engine& engine, const EvalOptions& op
       if (r != EvalRegion::Cut) add(EvalRegion::Outside, e, b);
     }
   for (int r = 0; r < kEvalRegionCount; ++r) run.regions[r] = regionStats(err[r], base[r]);
+  return sums;
+}
 
-  // ---- mass -----------------------------------------------------------------------------------
-  mb.swell = swell_known ? swell : options.default_swell;
-  mb.blind_initial_m3 = blind0 * a;
-  mb.blind_final_m3 = blind1 * a;
+}  // namespace
+
+EvalRun runBlindEvaluation(Simulator& sim, Engine& engine, const EvalOptions& options) {
+  if (sim.step() != 0) throw std::invalid_argument("runBlindEvaluation: the simulator has already been stepped");
+  const auto wall0 = std::chrono::steady_clock::now();
+  EvalRun run;
+  run.options = options;
+  run.scenario = sim.scenario().name;
+  LayeredMap& map = engine.mutableMap();
+  const Geometry geo = map.geometry();
+  run.geometry = geo;
+  // The mapper starts from the true surface, with no loose soil.
+  const LayerId hid = map.layerId(options.elevation_layer);  // LayerError names the layer
+  const TruthTerrain& truth0 = sim.truth();
+  run.initial = truthOnGeometry(truth0, geo, TruthSurface::Current);
+  map.fromMatrix(hid, run.initial);
+  const bool has_loose = map.hasLayer(options.loose_layer);
+  const Eigen::MatrixXf zeros = Eigen::MatrixXf::Zero(geo.size().x(), geo.size().y());
+  if (has_loose) map.fromMatrix(map.layerId(options.loose_layer), zeros);
+  const Eigen::MatrixXd bank0 = truthOnGeometryD(truth0, geo, TruthSurface::Bank);
+  const double truth_vol0 = truth0.bankVolume(), truth_lost0 = truth0.lostVolume();
+
+  Replay rp;
+  rp.swept = Eigen::MatrixXi::Zero(geo.size().x(), geo.size().y());
+  {
+    long s0 = 0;
+    if (latestSweep(engine, &s0)) rp.last_seq = s0;  // a record left from before (not ours)
+  }
+  rp.swell = options.default_swell;
+  replay(sim, engine, options, run, rp);
+  run.simulated_s = sim.time();
+  if (map.geometry() != geo)
+    throw ConfigError("the map moved during the evaluation (a stage re-centred it); the evaluation compares fixed "
+                      "cells with the truth: use a pipeline whose stages keep the map still");
+
+  run.blind = map.toMatrix(hid);
+  const Eigen::MatrixXf loose1 = has_loose ? map.toMatrix(map.layerId(options.loose_layer)) : zeros;
+  const TruthTerrain& truth1 = sim.truth();
+  const Eigen::MatrixXd truth1d = truthOnGeometryD(truth1, geo, TruthSurface::Current);
+  run.truth = truth1d.cast<float>();
+  const Eigen::MatrixXd bank1 = truthOnGeometryD(truth1, geo, TruthSurface::Bank);
+  const HeightSums sums = compareHeights(run, options, loose1, truth1d, bank0, bank1, rp.swept, rp.swell);
+
+  // Mass: the blind map's change against what it lost, the truth's against its own.
+  MassBalance& mb = run.mass;
+  const double a = geo.resolution() * geo.resolution();
+  mb.swell = rp.swell_known ? rp.swell : options.default_swell;
+  mb.blind_initial_m3 = sums.blind0 * a;
+  mb.blind_final_m3 = sums.blind1 * a;
   mb.blind_change_m3 = mb.blind_final_m3 - mb.blind_initial_m3;
   mb.blind_residual_m3 = mb.blind_change_m3 + mb.blind_lost_loose_m3 / mb.swell;
   mb.truth_change_m3 = truth1.bankVolume() - truth_vol0;
   mb.truth_lost_m3 = truth1.lostVolume() - truth_lost0;
   mb.truth_residual_m3 = mb.truth_change_m3 + mb.truth_lost_m3;
-  mb.truth_change_on_map_m3 = truth_on_map * a;
+  mb.truth_change_on_map_m3 = sums.truth_on_map * a;
   for (std::size_t i = 0; i < sim.machineCount(); ++i) mb.cut_bank_truth_m3 += sim.machineTruth(i).cut_bank_m3;
 
   run.extraction = summarizeExtraction(run.samples);

@@ -55,8 +55,9 @@ std::optional<int> parseGeoKeys(const std::vector<unsigned char>& d) {
   return projected ? projected : geographic;
 }
 
-LasHeader parseHeader(std::FILE* f, const std::string& path, std::uint64_t file_size) {
-  unsigned char h[kLas14HeaderSize] = {};
+/// Reads the public header's bytes (up to the LAS 1.4 size) and checks the signature and that
+/// the minimum header is there.
+void readSignedHeader(std::FILE* f, const std::string& path, std::uint64_t file_size, unsigned char* h) {
   const std::size_t have = static_cast<std::size_t>(std::min<std::uint64_t>(file_size, kLas14HeaderSize));
   readAt(f, path, 0, h, have);
   if (have < 4) fail(path, have, "file is " + std::to_string(file_size) + " bytes, too short for a LAS signature");
@@ -71,7 +72,10 @@ LasHeader parseHeader(std::FILE* f, const std::string& path, std::uint64_t file_
     fail(path, have, "truncated public header: the file has " + std::to_string(file_size) +
                          " bytes, a LAS header needs at least " + std::to_string(kMinHeaderSize));
   }
-  LasHeader hd;
+}
+
+/// Version, sizes and offsets, and the point format, each checked as it is read.
+void readLayoutFields(const unsigned char* h, const std::string& path, std::uint64_t file_size, LasHeader& hd) {
   hd.version_major = h[24];
   hd.version_minor = h[25];
   if (hd.version_major != 1 || hd.version_minor > 4) {
@@ -116,6 +120,10 @@ LasHeader parseHeader(std::FILE* f, const std::string& path, std::uint64_t file_
                         std::to_string(kMinRecordLength[hd.point_format]) + " bytes point format " +
                         std::to_string(hd.point_format) + " needs");
   }
+}
+
+/// Point counts, scales, offsets and bounds (the 64-bit counts of LAS 1.4 where present).
+void readCountsAndScales(const unsigned char* h, const std::string& path, LasHeader& hd) {
   hd.point_count = detail::loadU32(h + 107);
   for (int r = 0; r < 5; ++r) hd.points_by_return[r] = detail::loadU32(h + 111 + 4 * r);
   for (int a = 0; a < 3; ++a) {
@@ -141,9 +149,11 @@ LasHeader parseHeader(std::FILE* f, const std::string& path, std::uint64_t file_
     hd.point_count = count64;
     for (int r = 0; r < 5; ++r) hd.points_by_return[r] = detail::loadU64(h + 255 + 8 * r);
   }
+}
 
-  // Variable length records between the header and the points: only the GeoKeyDirectory is
-  // interpreted, but every VLR header must fit, or the point offset is not trustworthy.
+/// Variable length records between the header and the points: only the GeoKeyDirectory is
+/// interpreted, but every VLR header must fit, or the point offset is not trustworthy.
+void readVlrs(std::FILE* f, const std::string& path, LasHeader& hd) {
   std::uint64_t at = hd.header_size;
   for (std::uint32_t v = 0; v < hd.number_of_vlrs; ++v) {
     if (at + kVlrHeaderSize > hd.offset_to_points) {
@@ -168,7 +178,10 @@ LasHeader parseHeader(std::FILE* f, const std::string& path, std::uint64_t file_
     }
     at = data_at + length;
   }
+}
 
+/// Every declared point record must be in the file.
+void checkPointRecordsFit(const std::string& path, std::uint64_t file_size, const LasHeader& hd) {
   const std::uint64_t body = file_size - hd.offset_to_points;
   const std::uint64_t fits = body / hd.record_length;
   if (hd.point_count > fits) {
@@ -179,6 +192,16 @@ LasHeader parseHeader(std::FILE* f, const std::string& path, std::uint64_t file_
              "-byte records from offset " + std::to_string(hd.offset_to_points) + ", but the file ends at byte " +
              std::to_string(file_size) + ": record " + std::to_string(fits) + " is incomplete or missing");
   }
+}
+
+LasHeader parseHeader(std::FILE* f, const std::string& path, std::uint64_t file_size) {
+  unsigned char h[kLas14HeaderSize] = {};
+  readSignedHeader(f, path, file_size, h);
+  LasHeader hd;
+  readLayoutFields(h, path, file_size, hd);
+  readCountsAndScales(h, path, hd);
+  readVlrs(f, path, hd);
+  checkPointRecordsFit(path, file_size, hd);
   return hd;
 }
 

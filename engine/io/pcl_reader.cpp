@@ -109,10 +109,6 @@ std::vector<PointXYZI> convert(const pcl::PCLPointCloud2& c, const std::string& 
   return out;
 }
 
-// Checks a binary PLY's declared elements against the file size before PCL reads the body,
-// and the numbers of an ASCII PLY's vertex lines.
-// Only elements with fixed-size (non-list) properties up to and including "vertex" can be
-// checked; an earlier element with list properties makes the vertex offset data dependent.
 /// The whitespace-separated tokens of rest[i, eol) parsed as numbers, as PCL's ASCII readers
 /// would (a leading '+' allowed, out-of-range values accepted): how many parse, up to the first
 /// that does not (`bad` = its offset in `rest`, npos if none).
@@ -148,41 +144,53 @@ AsciiLine scanAsciiNumbers(const std::vector<char>& rest, std::size_t i, std::si
   return out;
 }
 
-void checkPlyBody(const std::string& path) {
-  detail::FileCloser fc{detail::openForRead(path, "PLY file")};
-  const std::uint64_t size = detail::fileSize(fc.f, path);
-  std::string header;
+/// The header of a PLY file: its text up to "end_header" and the offset of the body.
+struct PlyHeader {
+  std::string text;      // what was read, at least up to the end_header line
+  std::size_t end = 0;   // offset of "end_header"
+  std::uint64_t body = 0;
+};
+
+PlyHeader readPlyHeader(std::FILE* f, const std::string& path) {
+  PlyHeader h;
   std::vector<char> chunk(4096);
   std::size_t end = std::string::npos;
-  while (end == std::string::npos && header.size() < (1u << 20)) {
-    const std::size_t got = std::fread(chunk.data(), 1, chunk.size(), fc.f);
+  while (end == std::string::npos && h.text.size() < (1u << 20)) {
+    const std::size_t got = std::fread(chunk.data(), 1, chunk.size(), f);
     if (got == 0) break;
-    header.append(chunk.data(), got);
-    end = header.find("end_header");
+    h.text.append(chunk.data(), got);
+    end = h.text.find("end_header");
   }
-  if (header.compare(0, 3, "ply") != 0) {
+  if (h.text.compare(0, 3, "ply") != 0) {
     throw InputError("PLY file '" + path + "' at byte offset 0: missing the 'ply' magic line");
   }
   if (end == std::string::npos) {
-    throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(header.size()) +
+    throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(h.text.size()) +
                      ": no 'end_header' line");
   }
-  const std::size_t eol = header.find('\n', end);
+  const std::size_t eol = h.text.find('\n', end);
   if (eol == std::string::npos) {
-    throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(header.size()) +
+    throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(h.text.size()) +
                      ": 'end_header' line is not terminated");
   }
-  const std::uint64_t body = eol + 1;
-  std::istringstream is(header.substr(0, end));
+  h.end = end;
+  h.body = eol + 1;
+  return h;
+}
+
+struct PlyElement {
+  std::string name;
+  std::uint64_t count = 0;
+  std::uint64_t stride = 0;
+  bool fixed = true;  // no list property: every record has `stride` bytes
+};
+
+/// The declared elements, in order; `binary` tells whether the body is binary.
+std::vector<PlyElement> plyElements(const PlyHeader& h, bool& binary) {
+  std::istringstream is(h.text.substr(0, h.end));
   std::string line;
-  bool binary = false;
-  struct Element {
-    std::string name;
-    std::uint64_t count = 0;
-    std::uint64_t stride = 0;
-    bool fixed = true;
-  };
-  std::vector<Element> elements;
+  binary = false;
+  std::vector<PlyElement> elements;
   while (std::getline(is, line)) {
     std::istringstream ls(line);
     std::string key;
@@ -192,7 +200,7 @@ void checkPlyBody(const std::string& path) {
       ls >> f;
       binary = f.rfind("binary", 0) == 0;
     } else if (key == "element") {
-      Element e;
+      PlyElement e;
       ls >> e.name >> e.count;
       elements.push_back(e);
     } else if (key == "property" && !elements.empty()) {
@@ -213,50 +221,61 @@ void checkPlyBody(const std::string& path) {
       }
     }
   }
-  if (!binary) {
-    // PCL's ASCII PLY parser turns a non-numeric vertex value into NaN without an error;
-    // refuse instead (counts per line and per element PCL does check).
-    std::uint64_t skip = 0;
-    const Element* vertex = nullptr;
-    for (const Element& e : elements) {
-      if (e.name == "vertex") {
-        vertex = &e;
-        break;
-      }
-      skip += e.count;
+  return elements;
+}
+
+/// PCL's ASCII PLY parser turns a non-numeric vertex value into NaN without an error; refuse
+/// instead (counts per line and per element PCL does check).
+void checkPlyAsciiVertices(std::FILE* f, const std::string& path, std::uint64_t size, const PlyHeader& h,
+                           const std::vector<PlyElement>& elements) {
+  std::uint64_t skip = 0;
+  const PlyElement* vertex = nullptr;
+  for (const PlyElement& e : elements) {
+    if (e.name == "vertex") {
+      vertex = &e;
+      break;
     }
-    if (!vertex) return;
-    if (std::fseek(fc.f, static_cast<long>(body), SEEK_SET) != 0) return;
-    std::vector<char> rest(static_cast<std::size_t>(size > body ? size - body : 0));
-    if (!rest.empty() && std::fread(rest.data(), 1, rest.size(), fc.f) != rest.size()) {
-      throw InputError("PLY file '" + path + "': read error in the ASCII body");
-    }
-    const std::uint64_t header_lines = static_cast<std::uint64_t>(std::count(header.begin(), header.begin() + static_cast<std::ptrdiff_t>(body), '\n'));
-    std::uint64_t row = 0;
-    std::size_t i = 0;
-    for (std::uint64_t line_no = header_lines + 1; i < rest.size() && row < skip + vertex->count; ++line_no) {
-      std::size_t eol = i;
-      while (eol < rest.size() && rest[eol] != '\n') ++eol;
-      if (row >= skip) {
-        const AsciiLine line = scanAsciiNumbers(rest, i, eol);
-        if (line.bad != std::string::npos) {
-          throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(body + line.bad) + ": line " +
-                           std::to_string(line_no) + ": " + line.badText(rest));
-        }
-      }
-      ++row;
-      i = eol + 1;
-    }
-    // PCL reports a short ASCII body only on stderr and may still return success.
-    if (row < skip + vertex->count) {
-      throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(size) + ": the ASCII body ends after " +
-                       std::to_string(row > skip ? row - skip : 0) + " vertex lines, the header declares " +
-                       std::to_string(vertex->count) + " (checked before PCL)");
-    }
-    return;
+    skip += e.count;
   }
+  const std::uint64_t body = h.body;
+  if (!vertex) return;
+  if (std::fseek(f, static_cast<long>(body), SEEK_SET) != 0) return;
+  std::vector<char> rest(static_cast<std::size_t>(size > body ? size - body : 0));
+  if (!rest.empty() && std::fread(rest.data(), 1, rest.size(), f) != rest.size()) {
+    throw InputError("PLY file '" + path + "': read error in the ASCII body");
+  }
+  const std::uint64_t header_lines =
+      static_cast<std::uint64_t>(std::count(h.text.begin(), h.text.begin() + static_cast<std::ptrdiff_t>(body), '\n'));
+  std::uint64_t row = 0;
+  std::size_t i = 0;
+  for (std::uint64_t line_no = header_lines + 1; i < rest.size() && row < skip + vertex->count; ++line_no) {
+    std::size_t eol = i;
+    while (eol < rest.size() && rest[eol] != '\n') ++eol;
+    if (row >= skip) {
+      const AsciiLine line = scanAsciiNumbers(rest, i, eol);
+      if (line.bad != std::string::npos) {
+        throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(body + line.bad) + ": line " +
+                         std::to_string(line_no) + ": " + line.badText(rest));
+      }
+    }
+    ++row;
+    i = eol + 1;
+  }
+  // PCL reports a short ASCII body only on stderr and may still return success.
+  if (row < skip + vertex->count) {
+    throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(size) + ": the ASCII body ends after " +
+                     std::to_string(row > skip ? row - skip : 0) + " vertex lines, the header declares " +
+                     std::to_string(vertex->count) + " (checked before PCL)");
+  }
+}
+
+/// A binary body must hold every declared vertex. Only elements with fixed-size (non-list)
+/// properties up to and including "vertex" can be checked; an earlier element with list
+/// properties makes the vertex offset data dependent.
+void checkPlyBinaryVertices(const std::string& path, std::uint64_t size, std::uint64_t body,
+                            const std::vector<PlyElement>& elements) {
   std::uint64_t at = body;
-  for (const Element& e : elements) {
+  for (const PlyElement& e : elements) {
     if (!e.fixed) return;
     if (e.name == "vertex") {
       const std::uint64_t avail = size > at ? size - at : 0;
@@ -273,6 +292,201 @@ void checkPlyBody(const std::string& path) {
   }
 }
 
+// Checks a binary PLY's declared elements against the file size before PCL reads the body,
+// and the numbers of an ASCII PLY's vertex lines.
+void checkPlyBody(const std::string& path) {
+  detail::FileCloser fc{detail::openForRead(path, "PLY file")};
+  const std::uint64_t size = detail::fileSize(fc.f, path);
+  const PlyHeader h = readPlyHeader(fc.f, path);
+  bool binary = false;
+  const std::vector<PlyElement> elements = plyElements(h, binary);
+  if (binary) checkPlyBinaryVertices(path, size, h.body, elements);
+  else checkPlyAsciiVertices(fc.f, path, size, h, elements);
+}
+
+[[noreturn]] void pcdFail(const std::string& path, std::uint64_t offset, const std::string& msg) {
+  throw InputError("PCD file '" + path + "' at byte offset " + std::to_string(offset) + ": " + msg);
+}
+
+/// A PCD header as declared, with the byte offset of each line an error may point at.
+struct PcdHeader {
+  std::vector<std::string> fields, sizes, types, counts;
+  std::uint64_t width = 0, height = 1, points = 0;
+  bool have_width = false, have_points = false;
+  std::string data;  // ascii, binary or binary_compressed; empty until the DATA line
+  std::uint64_t sizes_at = 0, types_at = 0, counts_at = 0, points_at = 0, data_at = 0, body = 0;
+  std::size_t end = 0;  // where reading stopped
+};
+
+/// Reads the header lines up to and including DATA, refusing unknown keywords and bad counts.
+PcdHeader parsePcdHeader(const std::string& path, const std::string& text) {
+  PcdHeader h;
+  std::size_t at = 0;
+  while (at < text.size() && h.data.empty()) {
+    const std::size_t eol = text.find('\n', at);
+    if (eol == std::string::npos) pcdFail(path, at, "header line is not terminated (no DATA line within the first 64 KiB)");
+    std::string line = text.substr(at, eol - at);
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    std::istringstream ls(line);
+    std::string key;
+    ls >> key;
+    std::vector<std::string> vals;
+    for (std::string v; ls >> v;) vals.push_back(v);
+    auto integer = [&](const std::string& what) {
+      std::uint64_t v = 0;
+      if (vals.size() != 1) pcdFail(path, at, what + " needs one value");
+      const auto [ptr, ec] = std::from_chars(vals[0].data(), vals[0].data() + vals[0].size(), v);
+      if (ec != std::errc() || ptr != vals[0].data() + vals[0].size())
+        pcdFail(path, at, what + " value '" + vals[0] + "' is not a count");
+      return v;
+    };
+    if (key.empty() || key[0] == '#') {
+    } else if (key == "VERSION" || key == "VIEWPOINT") {
+    } else if (key == "FIELDS" || key == "COLUMNS") {
+      h.fields = vals;
+    } else if (key == "SIZE") {
+      h.sizes = vals;
+      h.sizes_at = at;
+    } else if (key == "TYPE") {
+      h.types = vals;
+      h.types_at = at;
+    } else if (key == "COUNT") {
+      h.counts = vals;
+      h.counts_at = at;
+    } else if (key == "WIDTH") {
+      h.width = integer("WIDTH");
+      h.have_width = true;
+    } else if (key == "HEIGHT") {
+      h.height = integer("HEIGHT");
+    } else if (key == "POINTS") {
+      h.points = integer("POINTS");
+      h.points_at = at;
+      h.have_points = true;
+    } else if (key == "DATA") {
+      if (vals.size() != 1 || (vals[0] != "ascii" && vals[0] != "binary" && vals[0] != "binary_compressed")) {
+        pcdFail(path, at, "DATA must be ascii, binary or binary_compressed");
+      }
+      h.data = vals[0];
+      h.data_at = at;
+      h.body = eol + 1;
+    } else {
+      pcdFail(path, at, "unknown header keyword '" + key.substr(0, 32) + "' (not a PCD file?)");
+    }
+    at = eol + 1;
+  }
+  h.end = at;
+  return h;
+}
+
+/// Checks that the header lines agree with each other; returns the point size in bytes and,
+/// in `step_values`, the number of values per point.
+std::uint64_t checkPcdFields(const std::string& path, PcdHeader& h, std::uint64_t& step_values) {
+  const auto& fields = h.fields;
+  if (h.data.empty()) pcdFail(path, h.end, "no DATA line in the header");
+  if (fields.empty()) pcdFail(path, h.data_at, "no FIELDS line before DATA");
+  if (h.sizes.size() != fields.size())
+    pcdFail(path, h.sizes_at, std::to_string(h.sizes.size()) + " SIZE values for " + std::to_string(fields.size()) + " FIELDS");
+  if (h.types.size() != fields.size())
+    pcdFail(path, h.types_at, std::to_string(h.types.size()) + " TYPE values for " + std::to_string(fields.size()) + " FIELDS");
+  if (!h.counts.empty() && h.counts.size() != fields.size()) {
+    pcdFail(path, h.counts_at, std::to_string(h.counts.size()) + " COUNT values for " + std::to_string(fields.size()) + " FIELDS");
+  }
+  if (!h.have_width) pcdFail(path, h.data_at, "no WIDTH line before DATA");
+  if (!h.have_points) h.points = h.width * h.height;
+  if (h.points != h.width * h.height) {
+    pcdFail(path, h.points_at, "POINTS " + std::to_string(h.points) + " differs from WIDTH x HEIGHT = " +
+                                   std::to_string(h.width * h.height));
+  }
+  std::uint64_t step = 0;
+  step_values = 0;
+  for (std::size_t k = 0; k < fields.size(); ++k) {
+    const std::string& t = h.types[k];
+    const std::string& z = h.sizes[k];
+    if ((t != "F" && t != "I" && t != "U") || (z != "1" && z != "2" && z != "4" && z != "8") ||
+        (t == "F" && z != "4" && z != "8")) {
+      pcdFail(path, h.types_at, "field '" + fields[k] + "' has TYPE " + t + " SIZE " + z +
+                                    " (need I/U of 1, 2, 4, 8 bytes or F of 4, 8)");
+    }
+    std::uint64_t count = 1;
+    if (!h.counts.empty()) {
+      const std::string& c = h.counts[k];
+      const auto [ptr, ec] = std::from_chars(c.data(), c.data() + c.size(), count);
+      if (ec != std::errc() || ptr != c.data() + c.size() || count == 0) {
+        pcdFail(path, h.counts_at, "COUNT '" + c + "' of field '" + fields[k] + "' is not a positive count");
+      }
+    }
+    step += count * static_cast<std::uint64_t>(z[0] - '0');
+    step_values += count;
+  }
+  return step;
+}
+
+/// PCL accepts short lines and non-numbers with a warning and zero-fills; refuse instead.
+void checkPcdAsciiBody(std::FILE* f, const std::string& path, std::uint64_t size, const std::string& text,
+                       const PcdHeader& h, std::uint64_t step_values) {
+  const std::uint64_t body = h.body;
+  std::vector<char> rest(static_cast<std::size_t>(size - std::min<std::uint64_t>(size, body)));
+  if (!rest.empty() && (std::fseek(f, static_cast<long>(body), SEEK_SET) != 0 ||
+                        std::fread(rest.data(), 1, rest.size(), f) != rest.size())) {
+    pcdFail(path, body, "read error in the ASCII body");
+  }
+  std::uint64_t header_lines =
+      static_cast<std::uint64_t>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(body), '\n'));
+  std::uint64_t rows = 0, line_no = header_lines;
+  std::size_t i = 0;
+  while (i < rest.size()) {
+    std::size_t eol = i;
+    while (eol < rest.size() && rest[eol] != '\n') ++eol;
+    ++line_no;
+    const AsciiLine line = scanAsciiNumbers(rest, i, eol);
+    if (line.bad != std::string::npos)
+      pcdFail(path, body + line.bad, "line " + std::to_string(line_no) + ": " + line.badText(rest));
+    const std::uint64_t values = line.values;
+    if (values != 0) {
+      if (values != step_values) {
+        pcdFail(path, body + i, "line " + std::to_string(line_no) + " has " + std::to_string(values) +
+                                    " values, expected " + std::to_string(step_values) + " (one per FIELDS x COUNT)");
+      }
+      ++rows;
+    }
+    i = eol + 1;
+  }
+  if (rows != h.points) {
+    pcdFail(path, size, "ASCII body has " + std::to_string(rows) + " points, the header declares POINTS " +
+                            std::to_string(h.points));
+  }
+}
+
+void checkPcdBinaryBody(const std::string& path, std::uint64_t size, const PcdHeader& h, std::uint64_t step) {
+  const std::uint64_t body = h.body, points = h.points;
+  const std::uint64_t avail = size > body ? size - body : 0;
+  if (points > avail / step) {
+    pcdFail(path, body + (avail / step) * step,
+            "POINTS " + std::to_string(points) + " of " + std::to_string(step) + " bytes need the body to end at byte " +
+                std::to_string(body + points * step) + " but the file has " + std::to_string(size) + " bytes (point " +
+                std::to_string(avail / step) + " is incomplete or missing)");
+  }
+}
+
+void checkPcdCompressedBody(std::FILE* f, const std::string& path, std::uint64_t size, const PcdHeader& h,
+                            std::uint64_t step) {
+  const std::uint64_t body = h.body;
+  unsigned char sz[8];
+  if (size < body + 8 || std::fseek(f, static_cast<long>(body), SEEK_SET) != 0 || std::fread(sz, 1, 8, f) != 8) {
+    pcdFail(path, body, "binary_compressed body lacks its 8-byte size prefix");
+  }
+  const std::uint64_t compressed = detail::loadU32(sz), uncompressed = detail::loadU32(sz + 4);
+  if (body + 8 + compressed > size) {
+    pcdFail(path, size, "compressed body of " + std::to_string(compressed) + " bytes from offset " +
+                            std::to_string(body + 8) + " runs past the end of the file (" + std::to_string(size) +
+                            " bytes)");
+  }
+  if (uncompressed != h.points * step) {
+    pcdFail(path, body + 4, "uncompressed size " + std::to_string(uncompressed) +
+                                " differs from POINTS x point size = " + std::to_string(h.points * step));
+  }
+}
+
 // Validates a PCD header (and, for binary data, the body size) before PCL sees the file:
 // PCL 1.13 crashes on some headerless files and reads past a short binary body, and its own
 // messages carry no byte offsets.
@@ -283,148 +497,12 @@ void checkPcdHeader(const std::string& path) {
   if (!text.empty() && std::fread(&text[0], 1, text.size(), fc.f) != text.size()) {
     throw InputError("PCD file '" + path + "': read error in the header");
   }
-  auto fail = [&](std::uint64_t offset, const std::string& msg) {
-    throw InputError("PCD file '" + path + "' at byte offset " + std::to_string(offset) + ": " + msg);
-  };
-  std::vector<std::string> fields, sizes, types, counts;
-  std::uint64_t width = 0, height = 1, points = 0;
-  bool have_width = false, have_points = false;
-  std::string data;
-  std::uint64_t sizes_at = 0, types_at = 0, counts_at = 0, points_at = 0, data_at = 0, body = 0;
-  std::size_t at = 0;
-  while (at < text.size() && data.empty()) {
-    const std::size_t eol = text.find('\n', at);
-    if (eol == std::string::npos) fail(at, "header line is not terminated (no DATA line within the first 64 KiB)");
-    std::string line = text.substr(at, eol - at);
-    if (!line.empty() && line.back() == '\r') line.pop_back();
-    std::istringstream ls(line);
-    std::string key;
-    ls >> key;
-    std::vector<std::string> vals;
-    for (std::string v; ls >> v;) vals.push_back(v);
-    auto integer = [&](const std::string& what) {
-      std::uint64_t v = 0;
-      if (vals.size() != 1) fail(at, what + " needs one value");
-      const auto [ptr, ec] = std::from_chars(vals[0].data(), vals[0].data() + vals[0].size(), v);
-      if (ec != std::errc() || ptr != vals[0].data() + vals[0].size()) fail(at, what + " value '" + vals[0] + "' is not a count");
-      return v;
-    };
-    if (key.empty() || key[0] == '#') {
-    } else if (key == "VERSION" || key == "VIEWPOINT") {
-    } else if (key == "FIELDS" || key == "COLUMNS") {
-      fields = vals;
-    } else if (key == "SIZE") {
-      sizes = vals;
-      sizes_at = at;
-    } else if (key == "TYPE") {
-      types = vals;
-      types_at = at;
-    } else if (key == "COUNT") {
-      counts = vals;
-      counts_at = at;
-    } else if (key == "WIDTH") {
-      width = integer("WIDTH");
-      have_width = true;
-    } else if (key == "HEIGHT") {
-      height = integer("HEIGHT");
-    } else if (key == "POINTS") {
-      points = integer("POINTS");
-      points_at = at;
-      have_points = true;
-    } else if (key == "DATA") {
-      if (vals.size() != 1 || (vals[0] != "ascii" && vals[0] != "binary" && vals[0] != "binary_compressed")) {
-        fail(at, "DATA must be ascii, binary or binary_compressed");
-      }
-      data = vals[0];
-      data_at = at;
-      body = eol + 1;
-    } else {
-      fail(at, "unknown header keyword '" + key.substr(0, 32) + "' (not a PCD file?)");
-    }
-    at = eol + 1;
-  }
-  if (data.empty()) fail(at, "no DATA line in the header");
-  if (fields.empty()) fail(data_at, "no FIELDS line before DATA");
-  if (sizes.size() != fields.size()) fail(sizes_at, std::to_string(sizes.size()) + " SIZE values for " + std::to_string(fields.size()) + " FIELDS");
-  if (types.size() != fields.size()) fail(types_at, std::to_string(types.size()) + " TYPE values for " + std::to_string(fields.size()) + " FIELDS");
-  if (!counts.empty() && counts.size() != fields.size()) {
-    fail(counts_at, std::to_string(counts.size()) + " COUNT values for " + std::to_string(fields.size()) + " FIELDS");
-  }
-  if (!have_width) fail(data_at, "no WIDTH line before DATA");
-  if (!have_points) points = width * height;
-  if (points != width * height) {
-    fail(points_at, "POINTS " + std::to_string(points) + " differs from WIDTH x HEIGHT = " + std::to_string(width * height));
-  }
-  std::uint64_t step = 0, step_values = 0;
-  for (std::size_t k = 0; k < fields.size(); ++k) {
-    const std::string& t = types[k];
-    const std::string& z = sizes[k];
-    if ((t != "F" && t != "I" && t != "U") || (z != "1" && z != "2" && z != "4" && z != "8") ||
-        (t == "F" && z != "4" && z != "8")) {
-      fail(types_at, "field '" + fields[k] + "' has TYPE " + t + " SIZE " + z + " (need I/U of 1, 2, 4, 8 bytes or F of 4, 8)");
-    }
-    std::uint64_t count = 1;
-    if (!counts.empty()) {
-      const auto [ptr, ec] = std::from_chars(counts[k].data(), counts[k].data() + counts[k].size(), count);
-      if (ec != std::errc() || ptr != counts[k].data() + counts[k].size() || count == 0) {
-        fail(counts_at, "COUNT '" + counts[k] + "' of field '" + fields[k] + "' is not a positive count");
-      }
-    }
-    step += count * static_cast<std::uint64_t>(z[0] - '0');
-    step_values += count;
-  }
-  if (data == "ascii") {
-    // PCL accepts short lines and non-numbers with a warning and zero-fills; refuse instead.
-    std::vector<char> rest(static_cast<std::size_t>(size - std::min<std::uint64_t>(size, body)));
-    if (!rest.empty() && (std::fseek(fc.f, static_cast<long>(body), SEEK_SET) != 0 ||
-                          std::fread(rest.data(), 1, rest.size(), fc.f) != rest.size())) {
-      fail(body, "read error in the ASCII body");
-    }
-    std::uint64_t header_lines = static_cast<std::uint64_t>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(body), '\n'));
-    std::uint64_t rows = 0, line_no = header_lines;
-    std::size_t i = 0;
-    while (i < rest.size()) {
-      std::size_t eol = i;
-      while (eol < rest.size() && rest[eol] != '\n') ++eol;
-      ++line_no;
-      const AsciiLine line = scanAsciiNumbers(rest, i, eol);
-      if (line.bad != std::string::npos) fail(body + line.bad, "line " + std::to_string(line_no) + ": " + line.badText(rest));
-      const std::uint64_t values = line.values;
-      if (values != 0) {
-        if (values != step_values) {
-          fail(body + i, "line " + std::to_string(line_no) + " has " + std::to_string(values) + " values, expected " +
-                             std::to_string(step_values) + " (one per FIELDS x COUNT)");
-        }
-        ++rows;
-      }
-      i = eol + 1;
-    }
-    if (rows != points) {
-      fail(size, "ASCII body has " + std::to_string(rows) + " points, the header declares POINTS " + std::to_string(points));
-    }
-  } else if (data == "binary") {
-    const std::uint64_t avail = size > body ? size - body : 0;
-    if (points > avail / step) {
-      fail(body + (avail / step) * step, "POINTS " + std::to_string(points) + " of " + std::to_string(step) +
-                                             " bytes need the body to end at byte " + std::to_string(body + points * step) +
-                                             " but the file has " + std::to_string(size) + " bytes (point " +
-                                             std::to_string(avail / step) + " is incomplete or missing)");
-    }
-  } else if (data == "binary_compressed") {
-    unsigned char sz[8];
-    if (size < body + 8 || std::fseek(fc.f, static_cast<long>(body), SEEK_SET) != 0 || std::fread(sz, 1, 8, fc.f) != 8) {
-      fail(body, "binary_compressed body lacks its 8-byte size prefix");
-    }
-    const std::uint64_t compressed = detail::loadU32(sz), uncompressed = detail::loadU32(sz + 4);
-    if (body + 8 + compressed > size) {
-      fail(size, "compressed body of " + std::to_string(compressed) + " bytes from offset " + std::to_string(body + 8) +
-                     " runs past the end of the file (" + std::to_string(size) + " bytes)");
-    }
-    if (uncompressed != points * step) {
-      fail(body + 4, "uncompressed size " + std::to_string(uncompressed) + " differs from POINTS x point size = " +
-                         std::to_string(points * step));
-    }
-  }
+  PcdHeader h = parsePcdHeader(path, text);
+  std::uint64_t step_values = 0;
+  const std::uint64_t step = checkPcdFields(path, h, step_values);
+  if (h.data == "ascii") checkPcdAsciiBody(fc.f, path, size, text, h, step_values);
+  else if (h.data == "binary") checkPcdBinaryBody(path, size, h, step);
+  else if (h.data == "binary_compressed") checkPcdCompressedBody(fc.f, path, size, h, step);
 }
 
 }  // namespace

@@ -124,23 +124,27 @@ SequencePoses loadSequencePoses(const std::string& path, PoseFileFormat format, 
 
 // ---- SequenceSource ---------------------------------------------------------------------------
 
-SequenceSource::SequenceSource(SequenceSpec spec, SequencePoses poses) : spec_(std::move(spec)) {
-  const std::string& folder = spec_.folder;
+namespace {
+
+/// Refuses a spec that cannot select or stamp anything; returns its extensions lower-case with
+/// a leading dot (all readable ones when it names none).
+std::vector<std::string> checkSequenceSpec(const SequenceSpec& spec) {
+  const std::string& folder = spec.folder;
   std::error_code ec;
   if (folder.empty() || !fs::is_directory(folder, ec)) {
     throw ConfigError("sequence folder '" + folder + "' does not exist or is not a directory");
   }
-  if (spec_.stride == 0) throw ConfigError("sequence '" + folder + "': stride must be >= 1");
-  if (spec_.stamps_from_file_names && (!std::isfinite(spec_.file_name_stamp_scale) || spec_.file_name_stamp_scale <= 0)) {
-    throw ConfigError("sequence '" + folder + "': file name stamp scale " + formatNumber(spec_.file_name_stamp_scale) +
+  if (spec.stride == 0) throw ConfigError("sequence '" + folder + "': stride must be >= 1");
+  if (spec.stamps_from_file_names && (!std::isfinite(spec.file_name_stamp_scale) || spec.file_name_stamp_scale <= 0)) {
+    throw ConfigError("sequence '" + folder + "': file name stamp scale " + formatNumber(spec.file_name_stamp_scale) +
                       " must be positive and finite");
   }
-  if (spec_.times_file.empty() && !spec_.stamps_from_file_names &&
-      (!std::isfinite(spec_.period_s) || spec_.period_s <= 0 || !std::isfinite(spec_.start_stamp_s))) {
-    throw ConfigError("sequence '" + folder + "': period " + formatNumber(spec_.period_s) + " s must be positive and start stamp " +
-                      formatNumber(spec_.start_stamp_s) + " s finite");
+  if (spec.times_file.empty() && !spec.stamps_from_file_names &&
+      (!std::isfinite(spec.period_s) || spec.period_s <= 0 || !std::isfinite(spec.start_stamp_s))) {
+    throw ConfigError("sequence '" + folder + "': period " + formatNumber(spec.period_s) + " s must be positive and start stamp " +
+                      formatNumber(spec.start_stamp_s) + " s finite");
   }
-  std::vector<std::string> exts = spec_.extensions.empty() ? supportedCloudExtensions() : spec_.extensions;
+  std::vector<std::string> exts = spec.extensions.empty() ? supportedCloudExtensions() : spec.extensions;
   for (auto& e : exts) {
     std::transform(e.begin(), e.end(), e.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
     if (!e.empty() && e[0] != '.') e.insert(e.begin(), '.');
@@ -150,8 +154,12 @@ SequenceSource::SequenceSource(SequenceSpec spec, SequencePoses poses) : spec_(s
                         "; supported: " + joinStrings(known));
     }
   }
+  return exts;
+}
 
-  // List and sort.
+/// The folder's files with one of `exts`, in natural order.
+std::vector<std::string> listFrameFiles(const std::string& folder, const std::vector<std::string>& exts) {
+  std::error_code ec;
   std::vector<std::string> names;
   for (const auto& entry : fs::directory_iterator(folder)) {
     if (!entry.is_regular_file(ec)) continue;
@@ -162,11 +170,14 @@ SequenceSource::SequenceSource(SequenceSpec spec, SequencePoses poses) : spec_(s
     throw ConfigError("sequence folder '" + folder + "' has no files with extension " + joinStrings(exts, ", "));
   }
   std::sort(names.begin(), names.end(), naturalLess);
+  return names;
+}
 
-  // Frame indices.
+/// Each file's frame number: its position, or the number its name is.
+std::vector<std::size_t> frameIndices(const SequenceSpec& spec, const std::vector<std::string>& names) {
   std::vector<std::size_t> index(names.size());
   for (std::size_t p = 0; p < names.size(); ++p) {
-    if (spec_.frame_index == FrameIndex::Position) {
+    if (spec.frame_index == FrameIndex::Position) {
       index[p] = p;
       continue;
     }
@@ -174,84 +185,109 @@ SequenceSource::SequenceSource(SequenceSpec spec, SequencePoses poses) : spec_(s
     std::size_t v = 0;
     const auto [ptr, err] = std::from_chars(stem.data(), stem.data() + stem.size(), v);
     if (err != std::errc() || ptr != stem.data() + stem.size()) {
-      throw InputError("sequence '" + folder + "': file name '" + names[p] + "' is not a frame number (frame index from file names)");
+      throw InputError("sequence '" + spec.folder + "': file name '" + names[p] +
+                       "' is not a frame number (frame index from file names)");
     }
     index[p] = v;
   }
+  return index;
+}
 
-  // Selection.
+/// Positions of the files emitted: from `first`, every `stride`-th, at most `max_frames`.
+std::vector<std::size_t> selectFrames(const SequenceSpec& spec, std::size_t files) {
   std::vector<std::size_t> selected;
-  for (std::size_t p = spec_.first; p < names.size() && selected.size() < spec_.max_frames; p += spec_.stride) {
+  for (std::size_t p = spec.first; p < files && selected.size() < spec.max_frames; p += spec.stride) {
     selected.push_back(p);
   }
   if (selected.empty()) {
-    throw ConfigError("sequence '" + folder + "': first = " + std::to_string(spec_.first) + " selects nothing of the " +
-                      std::to_string(names.size()) + " files");
+    throw ConfigError("sequence '" + spec.folder + "': first = " + std::to_string(spec.first) + " selects nothing of the " +
+                      std::to_string(files) + " files");
   }
+  return selected;
+}
 
-  // Stamps.
+/// The stamp a file name is, times the spec's scale.
+double stampFromFileName(const SequenceSpec& spec, const std::string& name) {
+  const std::string stem = stemOf(name);
+  const char* b = stem.data();
+  const char* e = b + stem.size();
+  // Integers (e.g. nanoseconds) are scaled in long double so 19-digit stamps keep their
+  // microseconds; the result is rounded to double once.
+  long double value = 0;
+  unsigned long long integer = 0;
+  const auto ri = std::from_chars(b, e, integer);
+  if (ri.ec == std::errc() && ri.ptr == e) {
+    value = static_cast<long double>(integer);
+  } else {
+    double d = 0;
+    const auto rd = std::from_chars(b, e, d);
+    if (rd.ec != std::errc() || rd.ptr != e || !std::isfinite(d)) {
+      throw InputError("sequence '" + spec.folder + "': file name '" + name + "' is not a stamp (stamps from file names)");
+    }
+    value = d;
+  }
+  return static_cast<double>(value * static_cast<long double>(spec.file_name_stamp_scale));
+}
+
+/// A frame's stamp: from the times file, from its name, or from the period.
+double frameStamp(const SequenceSpec& spec, const std::vector<double>& times, const std::string& name,
+                  std::size_t index) {
+  if (!spec.times_file.empty()) {
+    if (index >= times.size()) {
+      throw ConfigError("sequence '" + spec.folder + "': times file '" + spec.times_file + "' has " +
+                        std::to_string(times.size()) + " stamps, no stamp for frame " + std::to_string(index) +
+                        " ('" + name + "')");
+    }
+    return times[index];
+  }
+  if (spec.stamps_from_file_names) return stampFromFileName(spec, name);
+  return spec.start_stamp_s + static_cast<double>(index) * spec.period_s;
+}
+
+/// T_world_body of a frame at stamp s.
+Eigen::Isometry3d framePose(const SequenceSpec& spec, const SequencePoses& poses, const std::string& name,
+                            std::size_t index, double s) {
+  switch (poses.kind()) {
+    case SequencePoses::Kind::Identity:
+      break;
+    case SequencePoses::Kind::Interpolated: {
+      auto T = poses.trajectory().tryAt(s);
+      if (!T) {
+        throw InputError("sequence '" + spec.folder + "': frame '" + name + "' at stamp " + formatNumber(s) +
+                         " s is outside the trajectory '" + poses.source() + "' [" + formatNumber(poses.trajectory().startStamp()) +
+                         ", " + formatNumber(poses.trajectory().endStamp()) + "] s");
+      }
+      return *T;
+    }
+    case SequencePoses::Kind::PerFrame:
+      if (index >= poses.frames().size()) {
+        throw ConfigError("sequence '" + spec.folder + "': poses '" + poses.source() + "' have " +
+                          std::to_string(poses.frames().size()) + " frames, none for frame " + std::to_string(index) +
+                          " ('" + name + "')");
+      }
+      return poses.frames()[index];
+  }
+  return Eigen::Isometry3d::Identity();
+}
+
+}  // namespace
+
+SequenceSource::SequenceSource(SequenceSpec spec, SequencePoses poses) : spec_(std::move(spec)) {
+  const std::string& folder = spec_.folder;
+  const std::vector<std::string> exts = checkSequenceSpec(spec_);
+  const std::vector<std::string> names = listFrameFiles(folder, exts);
+  const std::vector<std::size_t> index = frameIndices(spec_, names);
+  const std::vector<std::size_t> selected = selectFrames(spec_, names.size());
   std::vector<double> times;
   if (!spec_.times_file.empty()) times = readStampFile(spec_.times_file);
   for (std::size_t p : selected) {
     const std::string path = (fs::path(folder) / names[p]).string();
-    double s;
-    if (!spec_.times_file.empty()) {
-      if (index[p] >= times.size()) {
-        throw ConfigError("sequence '" + folder + "': times file '" + spec_.times_file + "' has " +
-                          std::to_string(times.size()) + " stamps, no stamp for frame " + std::to_string(index[p]) +
-                          " ('" + names[p] + "')");
-      }
-      s = times[index[p]];
-    } else if (spec_.stamps_from_file_names) {
-      const std::string stem = stemOf(names[p]);
-      const char* b = stem.data();
-      const char* e = b + stem.size();
-      // Integers (e.g. nanoseconds) are scaled in long double so 19-digit stamps keep their
-      // microseconds; the result is rounded to double once.
-      long double value = 0;
-      unsigned long long integer = 0;
-      const auto ri = std::from_chars(b, e, integer);
-      if (ri.ec == std::errc() && ri.ptr == e) {
-        value = static_cast<long double>(integer);
-      } else {
-        double d = 0;
-        const auto rd = std::from_chars(b, e, d);
-        if (rd.ec != std::errc() || rd.ptr != e || !std::isfinite(d)) {
-          throw InputError("sequence '" + folder + "': file name '" + names[p] + "' is not a stamp (stamps from file names)");
-        }
-        value = d;
-      }
-      s = static_cast<double>(value * static_cast<long double>(spec_.file_name_stamp_scale));
-    } else {
-      s = spec_.start_stamp_s + static_cast<double>(index[p]) * spec_.period_s;
-    }
+    const double s = frameStamp(spec_, times, names[p], index[p]);
     if (!stamps_.empty() && !(s > stamps_.back())) {
       throw InputError("sequence '" + folder + "': stamp " + formatNumber(s) + " s of '" + path + "' is not after " + formatNumber(stamps_.back()) +
                        " s of '" + files_.back() + "' (files are emitted in name order)");
     }
-    Eigen::Isometry3d T_world_body = Eigen::Isometry3d::Identity();
-    switch (poses.kind()) {
-      case SequencePoses::Kind::Identity:
-        break;
-      case SequencePoses::Kind::Interpolated: {
-        auto T = poses.trajectory().tryAt(s);
-        if (!T) {
-          throw InputError("sequence '" + folder + "': frame '" + names[p] + "' at stamp " + formatNumber(s) +
-                           " s is outside the trajectory '" + poses.source() + "' [" + formatNumber(poses.trajectory().startStamp()) +
-                           ", " + formatNumber(poses.trajectory().endStamp()) + "] s");
-        }
-        T_world_body = *T;
-        break;
-      }
-      case SequencePoses::Kind::PerFrame:
-        if (index[p] >= poses.frames().size()) {
-          throw ConfigError("sequence '" + folder + "': poses '" + poses.source() + "' have " +
-                            std::to_string(poses.frames().size()) + " frames, none for frame " + std::to_string(index[p]) +
-                            " ('" + names[p] + "')");
-        }
-        T_world_body = poses.frames()[index[p]];
-        break;
-    }
+    const Eigen::Isometry3d T_world_body = framePose(spec_, poses, names[p], index[p], s);
     files_.push_back(path);
     stamps_.push_back(s);
     poses_.push_back(spec_.T_map_world * T_world_body * spec_.T_body_sensor);

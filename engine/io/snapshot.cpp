@@ -342,17 +342,21 @@ struct Decoded {
   std::unique_ptr<LayeredMap> map;  // null when only the info was asked for
 };
 
-Decoded decode(const unsigned char* p, std::size_t n, const std::string& name, bool build_map) {
-  auto err = [&](const std::string& what) { throw InputError("snapshot '" + name + "': " + what); };
-  auto truncated = [&](std::uint64_t expected, bool at_least) {
-    std::ostringstream os;
-    os << "snapshot '" << name << "' is truncated at byte " << n << ", expected " << (at_least ? "at least " : "")
-       << expected << " bytes";
-    throw InputError(os.str());
-  };
-  // 1. magic and version: what kind of file is this at all?
+[[noreturn]] void refuse(const std::string& name, const std::string& what) {
+  throw InputError("snapshot '" + name + "': " + what);
+}
+
+[[noreturn]] void refuseTruncated(const std::string& name, std::size_t n, std::uint64_t expected, bool at_least) {
+  std::ostringstream os;
+  os << "snapshot '" << name << "' is truncated at byte " << n << ", expected " << (at_least ? "at least " : "")
+     << expected << " bytes";
+  throw InputError(os.str());
+}
+
+/// Magic and version: what kind of file is this at all? Returns the version.
+std::uint32_t checkMagicAndVersion(const unsigned char* p, std::size_t n, const std::string& name) {
   if (n < 4 || std::memcmp(p, kMagic, 4) != 0) {
-    if (n == 0 || (n < 4 && std::memcmp(p, kMagic, n) == 0)) truncated(kSnapshotHeaderBytes, true);
+    if (n == 0 || (n < 4 && std::memcmp(p, kMagic, n) == 0)) refuseTruncated(name, n, kSnapshotHeaderBytes, true);
     std::ostringstream os;
     os << "'" << name << "' is not a terramap snapshot: bad magic";
     for (std::size_t i = 0; i < std::min<std::size_t>(n, 4); ++i)
@@ -360,7 +364,7 @@ Decoded decode(const unsigned char* p, std::size_t n, const std::string& name, b
     os << " at byte 0 (expected \"TMAP\" = 54 4d 41 50)";
     throw InputError(os.str());
   }
-  if (n < 8) truncated(kSnapshotHeaderBytes, true);
+  if (n < 8) refuseTruncated(name, n, kSnapshotHeaderBytes, true);
   const std::uint32_t version = getU32(p + 4);
   if (version != kSnapshotFormatVersion) {
     std::string what = "unsupported snapshot format version " + std::to_string(version) + " (this build reads version " +
@@ -370,31 +374,44 @@ Decoded decode(const unsigned char* p, std::size_t n, const std::string& name, b
     if (n >= kSnapshotHeaderBytes && getU64(p + 64) != crc64(p, 64))
       what += ", or a damaged header: header checksum mismatch: expected " + hex64(getU64(p + 64)) +
               " (stored at byte 64), found " + hex64(crc64(p, 64));
-    err(what);
+    refuse(name, what);
   }
-  if (n < kSnapshotHeaderBytes) truncated(kSnapshotHeaderBytes, true);
+  if (n < kSnapshotHeaderBytes) refuseTruncated(name, n, kSnapshotHeaderBytes, true);
+  return version;
+}
 
-  // 2. header checksum, then the length it declares, then the file checksum.
+/// Header checksum, then the length it declares, then the file checksum: nothing after this
+/// reads a byte that is not covered by a checksum that holds. Returns the file checksum.
+std::uint64_t checkLengthAndChecksums(const unsigned char* p, std::size_t n, const std::string& name) {
   const std::uint64_t header_stored = getU64(p + 64), header_found = crc64(p, 64);
   if (header_stored != header_found)
-    err("header checksum mismatch (bytes 0-63): expected " + hex64(header_stored) + " (stored at byte 64), found " +
-        hex64(header_found) + "; the file is damaged");
+    refuse(name, "header checksum mismatch (bytes 0-63): expected " + hex64(header_stored) +
+                     " (stored at byte 64), found " + hex64(header_found) + "; the file is damaged");
   const std::uint64_t length = getU64(p + 8);
   if (length < kSnapshotHeaderBytes + kTrailerBytes)
-    err("byte 8: declared file length " + std::to_string(length) + " is smaller than the " +
-        std::to_string(kSnapshotHeaderBytes + kTrailerBytes) + "-byte minimum");
-  if (n < length) truncated(length, false);
+    refuse(name, "byte 8: declared file length " + std::to_string(length) + " is smaller than the " +
+                     std::to_string(kSnapshotHeaderBytes + kTrailerBytes) + "-byte minimum");
+  if (n < length) refuseTruncated(name, n, length, false);
   if (n > length)
-    err("has " + std::to_string(n) + " bytes, expected " + std::to_string(length) + ": trailing data after byte " +
-        std::to_string(length));
+    refuse(name, "has " + std::to_string(n) + " bytes, expected " + std::to_string(length) +
+                     ": trailing data after byte " + std::to_string(length));
   const std::uint64_t file_stored = getU64(p + n - 8), file_found = crc64(p, n - 8);
   if (file_stored != file_found)
-    err("checksum mismatch (bytes 0-" + std::to_string(n - 9) + "): expected " + hex64(file_stored) +
-        " (stored at byte " + std::to_string(n - 8) + "), found " + hex64(file_found) + "; the file is damaged");
+    refuse(name, "checksum mismatch (bytes 0-" + std::to_string(n - 9) + "): expected " + hex64(file_stored) +
+                     " (stored at byte " + std::to_string(n - 8) + "), found " + hex64(file_found) +
+                     "; the file is damaged");
+  return file_stored;
+}
 
-  // 3. geometry: every field is range-checked before anything is allocated.
-  Decoder dec(p, n, name);
-  dec.setBodyEnd(n - 8);
+/// The map's shape from the header, every field range-checked before anything is allocated.
+struct MapShape {
+  Geometry geometry;
+  MapOptions options;
+  std::uint32_t layers = 0;
+  long tile_count = 0;
+};
+
+MapShape checkGeometry(const Decoder& dec, const unsigned char* p, std::uint64_t length) {
   const double res = getF64(p + 16);
   const std::int32_t R = getI32(p + 24), C = getI32(p + 28);
   const double cx = getF64(p + 32), cy = getF64(p + 40);
@@ -422,56 +439,76 @@ Decoded decode(const unsigned char* p, std::size_t n, const std::string& name, b
     dec.fail(24, "dense map of " + std::to_string(R) + "x" + std::to_string(C) + " cells and " +
                      std::to_string(layers) + " layers needs more data than the file's " + std::to_string(length) +
                      " bytes");
+  MapShape shape;
+  shape.geometry = Geometry(res, Size(R, C), Position(cx, cy));
+  shape.options.tile_size = T;
+  shape.options.sparse = sparse;
+  shape.layers = layers;
+  shape.tile_count = tile_count;
+  return shape;
+}
 
+/// One layer record: name, unit, fill, then its tiles in increasing index order (into `map`
+/// when given, else only checked and skipped). Returns the number of tiles stored.
+long decodeLayer(Decoder& dec, const MapShape& shape, SnapshotInfo& info, LayeredMap* map) {
+  const std::size_t record_at = dec.pos();
+  LayerInfo li;
+  li.name = dec.str(kMaxStringBytes, false, "layer name");
+  li.unit = dec.str(kMaxStringBytes, true, "layer unit");
+  li.fill = bitsFloat(dec.u32("fill value"));
+  for (const auto& prev : info.layers)
+    if (prev.name == li.name) dec.fail(record_at, "layer '" + li.name + "' appears twice");
+  const long tile_count = shape.tile_count;
+  const std::size_t count_at = dec.pos();
+  const std::uint32_t k_count = dec.u32("tile count");
+  if (k_count > static_cast<std::uint64_t>(tile_count))
+    dec.fail(count_at, "layer '" + li.name + "' stores " + std::to_string(k_count) + " tiles, the map has " +
+                           std::to_string(tile_count));
+  if (!shape.options.sparse && k_count != static_cast<std::uint64_t>(tile_count))
+    dec.fail(count_at, "dense layer '" + li.name + "' stores " + std::to_string(k_count) + " of " +
+                           std::to_string(tile_count) + " tiles");
+  const int T = shape.options.tile_size;
+  LayerId id = -1;
+  if (map) id = map->addLayer(li.name, li.unit, li.fill);
+  long prev_k = -1;
+  for (std::uint32_t q = 0; q < k_count; ++q) {
+    const std::size_t tile_at = dec.pos();
+    const std::uint32_t k = dec.u32("tile index");
+    if (static_cast<long>(k) >= tile_count || static_cast<long>(k) <= prev_k)
+      dec.fail(tile_at, "tile index " + std::to_string(k) + " of layer '" + li.name +
+                            "' is out of range or not increasing (previous " + std::to_string(prev_k) +
+                            ", tile count " + std::to_string(tile_count) + ")");
+    prev_k = k;
+    const CellRect r = LayeredMap::tileRectOf(shape.geometry.size(), T, static_cast<int>(k));
+    if (!map) {
+      dec.skip(static_cast<std::size_t>(r.cells()) * 4, "tile cells");
+      continue;
+    }
+    // A fresh map has start index 0, so logical tile k *is* buffer tile k.
+    float* d = map->mutableTileData(id, static_cast<int>(k));
+    for (int rr = 0; rr < r.rows; ++rr) dec.floats(d + static_cast<std::size_t>(rr) * T, static_cast<std::size_t>(r.cols));
+  }
+  info.layers.push_back(li);
+  return static_cast<long>(k_count);
+}
+
+Decoded decode(const unsigned char* p, std::size_t n, const std::string& name, bool build_map) {
+  const std::uint32_t version = checkMagicAndVersion(p, n, name);
+  const std::uint64_t checksum = checkLengthAndChecksums(p, n, name);
+  const std::uint64_t length = n;  // checkLengthAndChecksums: the declared length is the size
+  Decoder dec(p, n, name);
+  dec.setBodyEnd(n - 8);
+  const MapShape shape = checkGeometry(dec, p, length);
   Decoded out;
   SnapshotInfo& info = out.info;
   info.version = version;
   info.file_bytes = length;
-  info.checksum = file_stored;
-  info.geometry = Geometry(res, Size(R, C), Position(cx, cy));
-  info.options.tile_size = T;
-  info.options.sparse = sparse;
+  info.checksum = checksum;
+  info.geometry = shape.geometry;
+  info.options = shape.options;
   if (build_map) out.map = std::make_unique<LayeredMap>(info.geometry, info.options);
-
-  for (std::uint32_t l = 0; l < layers; ++l) {
-    const std::size_t record_at = dec.pos();
-    LayerInfo li;
-    li.name = dec.str(kMaxStringBytes, false, "layer name");
-    li.unit = dec.str(kMaxStringBytes, true, "layer unit");
-    li.fill = bitsFloat(dec.u32("fill value"));
-    for (const auto& prev : info.layers)
-      if (prev.name == li.name) dec.fail(record_at, "layer '" + li.name + "' appears twice");
-    const std::size_t count_at = dec.pos();
-    const std::uint32_t k_count = dec.u32("tile count");
-    if (k_count > static_cast<std::uint64_t>(tile_count))
-      dec.fail(count_at, "layer '" + li.name + "' stores " + std::to_string(k_count) + " tiles, the map has " +
-                             std::to_string(tile_count));
-    if (!sparse && k_count != static_cast<std::uint64_t>(tile_count))
-      dec.fail(count_at, "dense layer '" + li.name + "' stores " + std::to_string(k_count) + " of " +
-                             std::to_string(tile_count) + " tiles");
-    LayerId id = -1;
-    if (build_map) id = out.map->addLayer(li.name, li.unit, li.fill);
-    long prev_k = -1;
-    for (std::uint32_t q = 0; q < k_count; ++q) {
-      const std::size_t tile_at = dec.pos();
-      const std::uint32_t k = dec.u32("tile index");
-      if (static_cast<long>(k) >= tile_count || static_cast<long>(k) <= prev_k)
-        dec.fail(tile_at, "tile index " + std::to_string(k) + " of layer '" + li.name +
-                              "' is out of range or not increasing (previous " + std::to_string(prev_k) +
-                              ", tile count " + std::to_string(tile_count) + ")");
-      prev_k = k;
-      const CellRect r = LayeredMap::tileRectOf(info.geometry.size(), T, static_cast<int>(k));
-      if (!build_map) {
-        dec.skip(static_cast<std::size_t>(r.cells()) * 4, "tile cells");
-        continue;
-      }
-      // A fresh map has start index 0, so logical tile k *is* buffer tile k.
-      float* d = out.map->mutableTileData(id, static_cast<int>(k));
-      for (int rr = 0; rr < r.rows; ++rr) dec.floats(d + static_cast<std::size_t>(rr) * T, static_cast<std::size_t>(r.cols));
-    }
-    info.layers.push_back(li);
-    info.stored_tiles.push_back(static_cast<long>(k_count));
-  }
+  for (std::uint32_t l = 0; l < shape.layers; ++l)
+    info.stored_tiles.push_back(decodeLayer(dec, shape, info, out.map.get()));
   if (dec.pos() != dec.bodyEnd())
     dec.fail(dec.pos(), std::to_string(dec.bodyEnd() - dec.pos()) + " unexpected bytes after the last layer record");
   return out;

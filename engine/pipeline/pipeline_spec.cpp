@@ -166,14 +166,7 @@ PipelineSpec parseRoot(yaml::Diagnostics& d, const YAML::Node& root, PipelineSpe
 PipelineSpec parseText(const std::string& text, const std::string& name, const std::string& base_dir) {
   yaml::Diagnostics d;
   d.file = name;
-  YAML::Node root;
-  try {
-    root = YAML::Load(text);
-  } catch (const YAML::ParserException& e) {
-    std::ostringstream os;
-    os << name << ":" << e.mark.line + 1 << ":" << e.mark.column + 1 << ": YAML syntax error: " << e.msg;
-    throw ConfigError(os.str());
-  }
+  const YAML::Node root = yaml::load(text, name);
   PipelineSpec spec;
   spec.file = name;
   spec.base_dir = base_dir;

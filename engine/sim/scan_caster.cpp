@@ -43,6 +43,136 @@ inline float upperBound(double v) {
   return f + (std::abs(f) * 1.2e-7f + 1e-30f);
 }
 
+/// Pyramid level of the blocks: kBlockLevel, coarser while the disc within `reach` (or the
+/// grid, if smaller) holds more than kMaxBlocks blocks.
+int chooseBlockLevel(const TruthTerrain& terrain, double reach) {
+  const double res = terrain.resolution();
+  int level = std::min(kBlockLevel, terrain.pyramidLevels() - 1);
+  while (level + 1 < terrain.pyramidLevels()) {
+    const double bs = std::ldexp(res, level);
+    const double area = std::min(M_PI * reach * reach, (terrain.maxX() - terrain.originX() + bs) *
+                                                         (terrain.maxY() - terrain.originY() + bs));
+    if (area / (bs * bs) <= kMaxBlocks) break;
+    ++level;
+  }
+  return level;
+}
+
+/// What inserting blocks into the table needs: the block grid (relative to the scan origin),
+/// the table's shape and the scan's steepest downward slope.
+struct BlockGrid {
+  const float* zmax;  // block maxima, [by * W + bx]
+  int W, H;
+  double bs, gx0, gy0, gx1, gy1;  // block size; grid corners relative to the origin (m)
+  double oz, reach, min_slope;
+  int na, nr;
+  double ds, inv_ds, az_scale;
+  float* table;  // [a * nr + r]
+};
+
+/// Bins [a0, a1] (may wrap below 0 or past na) that the block whose corners have pseudo-angles
+/// c00, c10, c01, c11 can be seen in: the azimuth interval of a convex block seen from outside
+/// (< 180 deg) is spanned by its corners. Differences to one corner are wrapped into (-2, 2].
+void azimuthBins(const BlockGrid& g, double c00, double c10, double c01, double c11, int& a0, int& a1) {
+  double lo = 0, hi = 0;
+  for (const double pq : {c10, c01, c11}) {
+    double q = pq - c00;
+    if (q > 2.0) q -= 4.0;
+    else if (q <= -2.0) q += 4.0;
+    lo = std::min(lo, q);
+    hi = std::max(hi, q);
+  }
+  // floor() of values in (-2 na, 2 na) via a positive shift (std::floor is a libm call
+  // without SSE4.1).
+  a0 = static_cast<int>((c00 + lo - kAzMargin) * g.az_scale + 2 * g.na) - 2 * g.na;
+  a1 = static_cast<int>((c00 + hi + kAzMargin) * g.az_scale + 2 * g.na) - 2 * g.na;
+  if (a1 - a0 >= g.na) { a0 = 0; a1 = g.na - 1; }
+}
+
+/// Raises the table's bins [a0, a1] x [r0, r1] (azimuth bins outside [bin0, bin1) left to
+/// another task) to the slope bounds of a block dz above the origin, smin..smax away.
+void raiseBins(const BlockGrid& g, double dz, double smin, double smax, int r0, int r1, int a0, int a1, int bin0,
+               int bin1) {
+  float fv[kMaxSpan];
+  const int nrr = std::min(kMaxSpan, r1 - r0 + 1);
+  for (int q = 0; q < nrr; ++q) {
+    const int r = r0 + q;
+    double v;
+    if (dz > 0) {
+      const double s = std::max(smin, r * g.ds);
+      v = s > 0 ? dz / s : std::numeric_limits<double>::infinity();
+    } else {
+      const double s = std::min(smax, (r + 1) * g.ds);
+      v = s > 0 ? dz / s : std::numeric_limits<double>::infinity();
+    }
+    fv[q] = upperBound(v);
+  }
+  // Blocks spanning more range bins than kMaxSpan (only near a huge block) use a bound
+  // valid for all of them: the last one if the block is above the origin (the bound falls
+  // with range), dz / smax if below (it rises towards that).
+  const float tail = dz > 0 ? fv[nrr - 1] : upperBound(dz / smax);
+  for (int a = a0; a <= a1; ++a) {
+    const int aw = a < 0 ? a + g.na : (a >= g.na ? a - g.na : a);
+    if (aw < bin0 || aw >= bin1) continue;
+    float* slot = &g.table[static_cast<std::size_t>(aw) * g.nr + r0];
+    for (int q = 0; q < nrr; ++q) slot[q] = std::max(slot[q], fv[q]);
+    for (int q = nrr; q <= r1 - r0; ++q) slot[q] = std::max(slot[q], tail);
+  }
+}
+
+/// Clears the table's azimuth bins of part p (of `parts`, 1 or 4 quadrants) and inserts every
+/// block that can be seen in them. With four parts, each task writes only its own bins of the
+/// one table (no per-task tables to clear and merge) and walks only the blocks that can reach
+/// its quadrant: those on its side of the origin's row and column, plus two rows / columns of
+/// overlap (a block two blocks off an axis is at least two bins away from the neighbouring
+/// quadrant, for any reach allowed by kMaxBlocks).
+void insertBlocks(const BlockGrid& g, int p, int parts) {
+  const int W = g.W, H = g.H, quarter = g.na / 4;
+  const double bs = g.bs, gx0 = g.gx0, gy0 = g.gy0, gx1 = g.gx1, gy1 = g.gy1;
+  int by0 = 0, by1 = H, bx0 = 0, bx1 = W;
+  const int bin0 = parts == 4 ? p * quarter : 0, bin1 = parts == 4 ? (p + 1) * quarter : g.na;
+  std::fill(g.table + static_cast<std::ptrdiff_t>(bin0) * g.nr, g.table + static_cast<std::ptrdiff_t>(bin1) * g.nr,
+            kNegInf);
+  if (parts == 4) {
+    // Block (bx, by) spans [gx0 + bx bs, gx0 + (bx + 1) bs] x [gy0 + by bs, ...] around the origin.
+    const int axis_x = static_cast<int>(std::floor(-gx0 / bs)), axis_y = static_cast<int>(std::floor(-gy0 / bs));
+    const bool east = p == 0 || p == 3, north = p == 0 || p == 1;
+    if (east) bx0 = std::clamp(axis_x - 2, 0, W);
+    else bx1 = std::clamp(axis_x + 3, 0, W);
+    if (north) by0 = std::clamp(axis_y - 2, 0, H);
+    else by1 = std::clamp(axis_y + 3, 0, H);
+  }
+  std::vector<double> pa0(W + 1), pa1(W + 1);
+  for (int by = by0; by < by1; ++by) {
+    const double y0 = gy0 + by * bs, y1 = std::min(gy0 + (by + 1) * bs, gy1);
+    const double dyn = y0 > 0 ? y0 : (y1 < 0 ? -y1 : 0.0);
+    const double dyf = std::max(std::abs(y0), std::abs(y1));
+    // Pseudo-angles of this row's block corners (shared by neighbouring blocks).
+    for (int k = bx0; k <= bx1; ++k) {
+      const double x = std::min(gx0 + k * bs, gx1);
+      pa0[k] = (x != 0.0 || y0 != 0.0) ? pseudoAngle(x, y0) : 0.0;
+      pa1[k] = (x != 0.0 || y1 != 0.0) ? pseudoAngle(x, y1) : 0.0;
+    }
+    for (int bx = bx0; bx < bx1; ++bx) {
+      const double x0 = gx0 + bx * bs, x1 = std::min(gx0 + (bx + 1) * bs, gx1);
+      const double dxn = x0 > 0 ? x0 : (x1 < 0 ? -x1 : 0.0);
+      const double smin = std::sqrt(dxn * dxn + dyn * dyn);
+      if (smin > g.reach) continue;
+      const double dxf = std::max(std::abs(x0), std::abs(x1));
+      const double smax = std::sqrt(dxf * dxf + dyf * dyf);
+      const int r0 = static_cast<int>(smin * g.inv_ds);
+      const int r1 = std::min(g.nr - 1, static_cast<int>(smax * g.inv_ds));
+      int a0 = 0, a1 = g.na - 1;
+      if (smin > 1e-6) azimuthBins(g, pa0[bx], pa0[bx + 1], pa1[bx], pa1[bx + 1], a0, a1);
+      const double dz = static_cast<double>(g.zmax[static_cast<std::size_t>(by) * W + bx]) - g.oz;
+      // No ray of the scan is steep enough to come down onto a block below it whose every
+      // bound (the largest is dz / smax) is under the scan's steepest slope: leave it out.
+      if (dz <= 0 && dz < g.min_slope * smax) continue;
+      raiseBins(g, dz, smin, smax, r0, r1, a0, a1, bin0, bin1);
+    }
+  }
+}
+
 }  // namespace
 
 // prepare / prefetch / finish are `inline` so they can be inlined into castBatch despite -fPIC
@@ -60,15 +190,7 @@ void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origi
   const double reach = std::min(far, std::max(0.0, max_range_m));
   covers_grid_ = far <= max_range_m;
   top_ = terrain.pyramidMax(terrain.pyramidLevels() - 1)[0];
-  // Block level: 16 cm blocks, coarser if the disc within reach holds too many of them.
-  level_ = std::min(kBlockLevel, terrain.pyramidLevels() - 1);
-  while (level_ + 1 < terrain.pyramidLevels()) {
-    const double bs = std::ldexp(res, level_);
-    const double area = std::min(M_PI * reach * reach, (terrain.maxX() - terrain.originX() + bs) *
-                                                          (terrain.maxY() - terrain.originY() + bs));
-    if (area / (bs * bs) <= kMaxBlocks) break;
-    ++level_;
-  }
+  level_ = chooseBlockLevel(terrain, reach);
   const double bs = std::ldexp(res, level_);
   ds_ = 0.5 * bs;
   inv_ds_ = 1.0 / ds_;
@@ -76,111 +198,25 @@ void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origi
   nr_ = static_cast<int>(std::floor(reach * inv_ds_)) + 1;
   ng_ = (nr_ + kGroup - 1) / kGroup;
   const std::size_t cells = static_cast<std::size_t>(na_) * nr_;
-
-  const int W = terrain.pyramidWidth(level_), H = terrain.pyramidHeight(level_);
-  const float* zmax = terrain.pyramidMax(level_);
-  const double gx0 = terrain.originX() - o_.x(), gy0 = terrain.originY() - o_.y();
-  const double gx1 = terrain.maxX() - o_.x(), gy1 = terrain.maxY() - o_.y();
-  const double az_scale = na_ / 4.0;
-  // With several threads the table is split by azimuth into the four quadrants (pseudo-angle
-  // [q, q + 1)): each task writes only its own bins of the one table (no per-task tables to
-  // clear and merge) and walks only the blocks that can reach its quadrant: those on its side
-  // of the origin's row and column, plus two rows / columns of overlap (a block two blocks off
-  // an axis is at least two bins away from the neighbouring quadrant, for any reach allowed by
-  // kMaxBlocks). Four uneven tasks balance well enough on two threads by stealing.
-  const int parts = (exec && exec->threads() > 1 && H > 1 && W > 1) ? 4 : 1;
-  const int quarter = na_ / 4;
-  auto insertRows = [&](int p) {
-    std::vector<float>& tbl = bound_;
-    int by0 = 0, by1 = H, bx0 = 0, bx1 = W;
-    const int bin0 = parts == 4 ? p * quarter : 0, bin1 = parts == 4 ? (p + 1) * quarter : na_;
-    std::fill(tbl.begin() + static_cast<std::ptrdiff_t>(bin0) * nr_, tbl.begin() + static_cast<std::ptrdiff_t>(bin1) * nr_, kNegInf);
-    if (parts == 4) {
-      // Block (bx, by) spans [gx0 + bx bs, gx0 + (bx + 1) bs] x [gy0 + by bs, ...] around the origin.
-      const int axis_x = static_cast<int>(std::floor(-gx0 / bs)), axis_y = static_cast<int>(std::floor(-gy0 / bs));
-      const bool east = p == 0 || p == 3, north = p == 0 || p == 1;
-      if (east) bx0 = std::clamp(axis_x - 2, 0, W);
-      else bx1 = std::clamp(axis_x + 3, 0, W);
-      if (north) by0 = std::clamp(axis_y - 2, 0, H);
-      else by1 = std::clamp(axis_y + 3, 0, H);
-    }
-    std::vector<double> pa0(W + 1), pa1(W + 1);
-    for (int by = by0; by < by1; ++by) {
-      const double y0 = gy0 + by * bs, y1 = std::min(gy0 + (by + 1) * bs, gy1);
-      const double dyn = y0 > 0 ? y0 : (y1 < 0 ? -y1 : 0.0);
-      const double dyf = std::max(std::abs(y0), std::abs(y1));
-      // Pseudo-angles of this row's block corners (shared by neighbouring blocks).
-      for (int k = bx0; k <= bx1; ++k) {
-        const double x = std::min(gx0 + k * bs, gx1);
-        pa0[k] = (x != 0.0 || y0 != 0.0) ? pseudoAngle(x, y0) : 0.0;
-        pa1[k] = (x != 0.0 || y1 != 0.0) ? pseudoAngle(x, y1) : 0.0;
-      }
-      for (int bx = bx0; bx < bx1; ++bx) {
-        const double x0 = gx0 + bx * bs, x1 = std::min(gx0 + (bx + 1) * bs, gx1);
-        const double dxn = x0 > 0 ? x0 : (x1 < 0 ? -x1 : 0.0);
-        const double smin = std::sqrt(dxn * dxn + dyn * dyn);
-        if (smin > reach) continue;
-        const double dxf = std::max(std::abs(x0), std::abs(x1));
-        const double smax = std::sqrt(dxf * dxf + dyf * dyf);
-        const int r0 = static_cast<int>(smin * inv_ds_);
-        const int r1 = std::min(nr_ - 1, static_cast<int>(smax * inv_ds_));
-        int a0 = 0, a1 = na_ - 1;
-        if (smin > 1e-6) {
-          // Azimuth interval of a convex block seen from outside (< 180 deg): spanned by its
-          // corners. Differences to one corner are wrapped into (-2, 2].
-          const double pc = pa0[bx];
-          double lo = 0, hi = 0;
-          for (const double pq : {pa0[bx + 1], pa1[bx], pa1[bx + 1]}) {
-            double q = pq - pc;
-            if (q > 2.0) q -= 4.0;
-            else if (q <= -2.0) q += 4.0;
-            lo = std::min(lo, q);
-            hi = std::max(hi, q);
-          }
-          // floor() of values in (-2 na, 2 na) via a positive shift (std::floor is a libm call
-          // without SSE4.1).
-          a0 = static_cast<int>((pc + lo - kAzMargin) * az_scale + 2 * na_) - 2 * na_;
-          a1 = static_cast<int>((pc + hi + kAzMargin) * az_scale + 2 * na_) - 2 * na_;
-          if (a1 - a0 >= na_) { a0 = 0; a1 = na_ - 1; }
-        }
-        const double dz = static_cast<double>(zmax[static_cast<std::size_t>(by) * W + bx]) - o_.z();
-        // No ray of the scan is steep enough to come down onto a block below it whose every
-        // bound (the largest is dz / smax) is under the scan's steepest slope: leave it out.
-        if (dz <= 0 && dz < min_slope * smax) continue;
-        float fv[kMaxSpan];
-        const int nrr = std::min(kMaxSpan, r1 - r0 + 1);
-        for (int q = 0; q < nrr; ++q) {
-          const int r = r0 + q;
-          double v;
-          if (dz > 0) {
-            const double s = std::max(smin, r * ds_);
-            v = s > 0 ? dz / s : std::numeric_limits<double>::infinity();
-          } else {
-            const double s = std::min(smax, (r + 1) * ds_);
-            v = s > 0 ? dz / s : std::numeric_limits<double>::infinity();
-          }
-          fv[q] = upperBound(v);
-        }
-        // Blocks spanning more range bins than kMaxSpan (only near a huge block) use a bound
-        // valid for all of them: the last one if the block is above the origin (the bound falls
-        // with range), dz / smax if below (it rises towards that).
-        const float tail = dz > 0 ? fv[nrr - 1] : upperBound(dz / smax);
-        for (int a = a0; a <= a1; ++a) {
-          const int aw = a < 0 ? a + na_ : (a >= na_ ? a - na_ : a);
-          if (aw < bin0 || aw >= bin1) continue;
-          float* slot = &tbl[static_cast<std::size_t>(aw) * nr_ + r0];
-          for (int q = 0; q < nrr; ++q) slot[q] = std::max(slot[q], fv[q]);
-          for (int q = nrr; q <= r1 - r0; ++q) slot[q] = std::max(slot[q], tail);
-        }
-      }
-    }
-  };
   bound_.resize(cells);
-  if (exec && parts > 1) exec->forEach(parts, insertRows);
-  else serialForEach(parts, insertRows);
-  // Per azimuth row: the group maxima, running maxima and row maximum. Rows are independent,
-  // so this runs in blocks of rows on the executor too. The table is the same for any number
-  // of parts (each bin is a maximum over the same blocks).
+  const BlockGrid g{terrain.pyramidMax(level_), terrain.pyramidWidth(level_), terrain.pyramidHeight(level_), bs,
+                    terrain.originX() - o_.x(), terrain.originY() - o_.y(), terrain.maxX() - o_.x(),
+                    terrain.maxY() - o_.y(), o_.z(), reach, min_slope, na_, nr_, ds_, inv_ds_, na_ / 4.0,
+                    bound_.data()};
+  // With several threads the table is split by azimuth into the four quadrants (pseudo-angle
+  // [q, q + 1)); four uneven tasks balance well enough on two threads by stealing.
+  const int parts = (exec && exec->threads() > 1 && g.H > 1 && g.W > 1) ? 4 : 1;
+  auto insertPart = [&](int p) { insertBlocks(g, p, parts); };
+  if (exec && parts > 1) exec->forEach(parts, insertPart);
+  else serialForEach(parts, insertPart);
+  finishTable(exec);
+}
+
+// Per azimuth row: the group maxima, running maxima and row maximum. Rows are independent,
+// so this runs in blocks of rows on the executor too. The table is the same for any number
+// of parts (each bin is a maximum over the same blocks).
+void ScanCaster::finishTable(const Executor* exec) {
+  const std::size_t cells = static_cast<std::size_t>(na_) * nr_;
   group_.resize(static_cast<std::size_t>(na_) * ng_);
   prefix_.resize(cells);
   row_.resize(na_);

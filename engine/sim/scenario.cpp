@@ -1,5 +1,7 @@
-// Scenario YAML loading and validation (schema in docs/sim.md).
-#include "yaml_reader.hpp"
+// Scenario YAML loading and validation (schema in docs/sim.md). Every mistake is collected by
+// the shared strict reader (engine/yaml) and reported at once; a section with a wrong value goes
+// on with its default so the keys after it are still checked.
+#include "yaml/reader.hpp"
 
 #include <terramap/core/error.hpp>
 #include <terramap/core/text.hpp>
@@ -8,6 +10,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -17,7 +20,7 @@
 namespace terramap::sim {
 namespace {
 
-using detail::MapReader;
+using yaml::MapReader;
 namespace fs = std::filesystem;
 
 constexpr double kDeg = M_PI / 180.0;
@@ -25,37 +28,50 @@ constexpr double kDeg = M_PI / 180.0;
 struct Ctx {
   std::string file;
   std::string base_dir;
+  yaml::Diagnostics diag;
+  // A DEM that could not be read: thrown (as the InputError it is) only when the YAML itself has
+  // no errors, so the user first sees every mistake in the file.
+  std::exception_ptr dem_failure;
 };
 
 SoilProperties readSoil(MapReader& r) {
   const std::string fam = r.strRequired("family");
   SoilFamily f{};
-  if (!parseSoilFamily(fam, f))
-    r.fail(r.node("family"), "family", "unknown soil family '" + fam + "'" + didYouMean(fam, soilFamilyNames()) +
-                                           " (known: " + joinStrings(soilFamilyNames()) + ")");
+  if (r.has("family") && r.node("family").IsScalar() && !parseSoilFamily(fam, f))
+    r.error(r.node("family"), "family", "unknown soil family '" + fam + "'" + didYouMean(fam, soilFamilyNames()) +
+                                            " (known: " + joinStrings(soilFamilyNames()) + ")");
   const bool has_frac = r.has("relative_density"), has_pct = r.has("relative_density_pct");
   if (has_frac && has_pct)
-    r.fail(r.node("relative_density"), "relative_density", "give relative_density (0..1) or relative_density_pct, not both");
+    r.error(r.node("relative_density"), "relative_density",
+            "give relative_density (0..1) or relative_density_pct, not both");
   double id = 0.5;
   if (has_frac) id = r.num("relative_density", 0.5, 0.0, 1.0);
   else if (has_pct) id = r.num("relative_density_pct", 50.0, 0.0, 100.0) / 100.0;
-  else r.fail(r.self(), "relative_density", "missing (relative density I_d in [0, 1], or relative_density_pct)");
+  else r.error(r.self(), "relative_density", "missing (relative density I_d in [0, 1], or relative_density_pct)");
   return soilProperties(f, id);
 }
 
+/// [min, max] at `key` scaled by `scale`, inside [min_allowed, max_allowed] (already scaled);
+/// lo and hi stay as they were when the key is absent or wrong.
 void readRange(MapReader& r, const std::string& key, double& lo, double& hi, double min_allowed, double max_allowed,
                double scale = 1.0) {
   if (!r.has(key)) return;
   const YAML::Node n = r.node(key);
-  auto v = r.numList(n, key, 2);
-  lo = v[0] * scale;
-  hi = v[1] * scale;
-  if (!(lo <= hi)) r.fail(n, key, "expected [min, max] with min <= max");
-  if (lo < min_allowed || hi > max_allowed) {
+  std::vector<double> v;
+  if (!r.numList(n, key, 2, v)) return;
+  const double a = v[0] * scale, b = v[1] * scale;
+  if (!(a <= b)) {
+    r.error(n, key, "expected [min, max] with min <= max");
+    return;
+  }
+  if (a < min_allowed || b > max_allowed) {
     std::ostringstream os;
     os << "range must lie within [" << min_allowed / scale << ", " << max_allowed / scale << "]";
-    r.fail(n, key, os.str());
+    r.error(n, key, os.str());
+    return;
   }
+  lo = a;
+  hi = b;
 }
 
 RandomWalk readWalk(MapReader& parent, const std::string& key, RandomWalk def, double scale, double lo, double hi) {
@@ -65,7 +81,7 @@ RandomWalk readWalk(MapReader& parent, const std::string& key, RandomWalk def, d
   readRange(r, "range", w.min, w.max, lo, hi, scale);
   w.initial = r.num("initial", def.initial / scale, lo / scale, hi / scale) * scale;
   w.sigma = r.num("sigma", def.sigma / scale, 0.0, 1e6) * scale;
-  if (w.initial < w.min || w.initial > w.max) r.fail(r.self(), "initial", "initial value outside range");
+  if (w.initial < w.min || w.initial > w.max) r.error(r.self(), "initial", "initial value outside range");
   r.finish();
   return w;
 }
@@ -82,6 +98,30 @@ Eigen::Isometry3d readMount(MapReader& r) {
   return T;
 }
 
+void readLidar(MapReader& r, SensorSpec& s) {
+  if (r.has("preset")) {
+    const std::string p = r.strRequired("preset");
+    if (!applyLidarPreset(p, s))
+      r.error(r.node("preset"), "preset", "unknown LiDAR preset '" + p + "'" + didYouMean(p, lidarPresetNames()) +
+                                              " (known: " + joinStrings(lidarPresetNames()) + ")");
+  }
+  s.beams = r.integer("beams", s.beams, 1, 512);
+  s.columns = r.integer("columns", s.columns, 1, 8192);
+  double lo = s.vfov_min_rad, hi = s.vfov_max_rad;
+  readRange(r, "vertical_fov_deg", lo, hi, -M_PI / 2, M_PI / 2, kDeg);
+  s.vfov_min_rad = lo;
+  s.vfov_max_rad = hi;
+  s.hfov_rad = r.num("horizontal_fov_deg", s.hfov_rad / kDeg, 0.0, 360.0) * kDeg;
+  s.rate_hz = r.num("rate_hz", s.rate_hz, 0.1, 1000.0);
+  double rmin = s.min_range_m, rmax = s.max_range_m;
+  readRange(r, "range_m", rmin, rmax, 0.0, 1e4);
+  s.min_range_m = rmin;
+  s.max_range_m = rmax;
+  s.range_noise_m = r.num("range_noise_m", s.range_noise_m, 0.0, 10.0);
+  s.dropout = r.num("dropout", s.dropout, 0.0, 1.0);
+  s.keep_dropouts = r.boolean("keep_dropouts", s.keep_dropouts);
+}
+
 SensorSpec readSensor(MapReader& r) {
   SensorSpec s;
   s.id = r.strRequired("id");
@@ -90,30 +130,14 @@ SensorSpec readSensor(MapReader& r) {
   if (type == "lidar") s.type = SensorSpec::Type::Lidar;
   else if (type == "pose") s.type = SensorSpec::Type::Pose;
   else if (type == "force") s.type = SensorSpec::Type::Force;
-  else r.fail(r.node("type"), "type", "unknown sensor type '" + type + "'" + didYouMean(type, types));
+  else {
+    // The other keys depend on the type: checking them against a guess would only add noise.
+    if (r.has("type")) r.error(r.node("type"), "type", "unknown sensor type '" + type + "'" + didYouMean(type, types));
+    return s;
+  }
   s.T_base_sensor = readMount(r);
   if (s.type == SensorSpec::Type::Lidar) {
-    if (r.has("preset")) {
-      const std::string p = r.strRequired("preset");
-      if (!applyLidarPreset(p, s))
-        r.fail(r.node("preset"), "preset", "unknown LiDAR preset '" + p + "'" + didYouMean(p, lidarPresetNames()) +
-                                               " (known: " + joinStrings(lidarPresetNames()) + ")");
-    }
-    s.beams = r.integer("beams", s.beams, 1, 512);
-    s.columns = r.integer("columns", s.columns, 1, 8192);
-    double lo = s.vfov_min_rad, hi = s.vfov_max_rad;
-    readRange(r, "vertical_fov_deg", lo, hi, -M_PI / 2, M_PI / 2, kDeg);
-    s.vfov_min_rad = lo;
-    s.vfov_max_rad = hi;
-    s.hfov_rad = r.num("horizontal_fov_deg", s.hfov_rad / kDeg, 0.0, 360.0) * kDeg;
-    s.rate_hz = r.num("rate_hz", s.rate_hz, 0.1, 1000.0);
-    double rmin = s.min_range_m, rmax = s.max_range_m;
-    readRange(r, "range_m", rmin, rmax, 0.0, 1e4);
-    s.min_range_m = rmin;
-    s.max_range_m = rmax;
-    s.range_noise_m = r.num("range_noise_m", s.range_noise_m, 0.0, 10.0);
-    s.dropout = r.num("dropout", s.dropout, 0.0, 1.0);
-    s.keep_dropouts = r.boolean("keep_dropouts", s.keep_dropouts);
+    readLidar(r, s);
   } else if (s.type == SensorSpec::Type::Pose) {
     s.position_noise_m = r.num("position_noise_m", s.position_noise_m, 0.0, 100.0);
     s.yaw_noise_rad = r.angle("yaw_noise", s.yaw_noise_rad, 0.0, M_PI);
@@ -148,7 +172,9 @@ ControllerSpec readController(MapReader& r) {
     c.route_speed_mps = r.num("speed_mps", c.route_speed_mps, 0.05, 5.0);
     c.route_return_speed_mps = r.num("return_speed_mps", c.route_return_speed_mps, 0.05, 5.0);
   } else {
-    r.fail(r.node("type"), "type", "unknown controller type '" + type + "'" + didYouMean(type, {"random_walk", "route"}));
+    // As for sensors: the keys depend on the type, so they are not checked against a guess.
+    r.error(r.node("type"), "type", "unknown controller type '" + type + "'" + didYouMean(type, {"random_walk", "route"}));
+    return c;
   }
   if (r.has("stall")) {
     MapReader s = r.child("stall");
@@ -161,11 +187,71 @@ ControllerSpec readController(MapReader& r) {
   return c;
 }
 
+void readBlade(MapReader& b, MachineSpec& m) {
+  m.blade.width_m = b.num("width_m", m.blade.width_m, 0.1, 10.0);
+  m.blade.height_m = b.num("height_m", m.blade.height_m, 0.05, 5.0);
+  m.rake_rad = b.angle("rake", m.rake_rad, 30 * kDeg, 120 * kDeg);
+  m.blade_mount_x_m = b.num("mount_x_m", m.blade_mount_x_m, 0.5, 10.0);
+  m.blade_slices = b.integer("slices", m.blade_slices, 1, 1000);
+  m.edge_thickness_m = b.num("edge_thickness_m", m.edge_thickness_m, 0.0, 0.5);
+  b.finish();
+}
+
+void readVehicle(MapReader& v, MachineSpec& m) {
+  m.mass_kg = v.num("mass_kg", m.mass_kg, 100.0, 1e6);
+  m.track_gauge_m = v.num("track_gauge_m", m.track_gauge_m, 0.3, 10.0);
+  m.track_length_m = v.num("track_length_m", m.track_length_m, 0.3, 10.0);
+  m.traction_coefficient = v.num("traction_coefficient", m.traction_coefficient, 0.0, 2.0);
+  m.max_drive_force_n = v.num("max_drive_force_n", m.max_drive_force_n, 0.0, 1e7);
+  m.rolling_resistance = v.num("rolling_resistance", m.rolling_resistance, 0.0, 1.0);
+  m.max_speed_mps = v.num("max_speed_mps", m.max_speed_mps, 0.1, 20.0);
+  m.drive_time_constant_s = v.num("drive_time_constant_s", m.drive_time_constant_s, 0.0, 10.0);
+  m.yaw_time_constant_s = v.num("yaw_time_constant_s", m.yaw_time_constant_s, 0.0, 10.0);
+  m.engine_rated_rpm = v.num("engine_rated_rpm", m.engine_rated_rpm, 100.0, 1e4);
+  m.engine_droop_rpm = v.num("engine_droop_rpm", m.engine_droop_rpm, 0.0, 1e4);
+  v.finish();
+}
+
+void readJoints(MapReader& j, MachineSpec& m) {
+  readRange(j, "lift_m", m.joint_min[0], m.joint_max[0], -2.0, 3.0);
+  readRange(j, "tilt_deg", m.joint_min[1], m.joint_max[1], -M_PI / 3, M_PI / 3, kDeg);
+  readRange(j, "angle_deg", m.joint_min[2], m.joint_max[2], -M_PI / 3, M_PI / 3, kDeg);
+  if (j.has("max_rate")) {
+    const auto v = j.vec("max_rate", {}, 3);
+    if (v.size() == 3) {
+      if (!(v[0] > 0 && v[1] > 0 && v[2] > 0))
+        j.error(j.node("max_rate"), "max_rate", "rates must be > 0 ([m/s, rad/s, rad/s])");
+      else
+        for (int k = 0; k < 3; ++k) m.joint_max_rate[k] = v[k];
+    }
+  }
+  m.joint_eta = j.num("eta", m.joint_eta, 0.0, 1000.0);
+  m.joint_beta = j.num("beta", m.joint_beta, 0.0, 1000.0);
+  m.joint_tau_s = j.num("tau_s", m.joint_tau_s, 1e-3, 10.0);
+  m.lift_down_force_n = j.num("lift_down_force_n", m.lift_down_force_n, 0.0, 1e7);
+  j.finish();
+}
+
+void readSensors(MapReader& r, MachineSpec& m) {
+  const YAML::Node ss = r.node("sensors");
+  if (!ss.IsSequence()) {
+    r.error(ss, "sensors", "expected a list of sensors");
+    return;
+  }
+  std::set<std::string> ids;
+  for (std::size_t k = 0; k < ss.size(); ++k) {
+    MapReader sr(r.diagnostics(), ss[k], r.join("sensors[" + std::to_string(k) + "]"));
+    SensorSpec s = readSensor(sr);
+    if (!s.id.empty() && !ids.insert(s.id).second) sr.error(ss[k]["id"], "id", "duplicate sensor id '" + s.id + "'");
+    m.sensors.push_back(std::move(s));
+  }
+}
+
 MachineSpec readMachine(MapReader& r) {
   MachineSpec m;
   m.id = r.strRequired("id");
   const std::string type = r.str("type", "ctl");
-  if (type != "ctl") r.fail(r.node("type"), "type", "unknown machine type '" + type + "' (known: ctl)" + didYouMean(type, {"ctl"}));
+  if (type != "ctl") r.error(r.node("type"), "type", "unknown machine type '" + type + "' (known: ctl)" + didYouMean(type, {"ctl"}));
   if (r.has("pose")) {
     MapReader p = r.child("pose");
     m.x_m = p.num("x_m", 0.0);
@@ -175,46 +261,15 @@ MachineSpec readMachine(MapReader& r) {
   }
   if (r.has("blade")) {
     MapReader b = r.child("blade");
-    m.blade.width_m = b.num("width_m", m.blade.width_m, 0.1, 10.0);
-    m.blade.height_m = b.num("height_m", m.blade.height_m, 0.05, 5.0);
-    m.rake_rad = b.angle("rake", m.rake_rad, 30 * kDeg, 120 * kDeg);
-    m.blade_mount_x_m = b.num("mount_x_m", m.blade_mount_x_m, 0.5, 10.0);
-    m.blade_slices = b.integer("slices", m.blade_slices, 1, 1000);
-    m.edge_thickness_m = b.num("edge_thickness_m", m.edge_thickness_m, 0.0, 0.5);
-    b.finish();
+    readBlade(b, m);
   }
   if (r.has("vehicle")) {
     MapReader v = r.child("vehicle");
-    m.mass_kg = v.num("mass_kg", m.mass_kg, 100.0, 1e6);
-    m.track_gauge_m = v.num("track_gauge_m", m.track_gauge_m, 0.3, 10.0);
-    m.track_length_m = v.num("track_length_m", m.track_length_m, 0.3, 10.0);
-    m.traction_coefficient = v.num("traction_coefficient", m.traction_coefficient, 0.0, 2.0);
-    m.max_drive_force_n = v.num("max_drive_force_n", m.max_drive_force_n, 0.0, 1e7);
-    m.rolling_resistance = v.num("rolling_resistance", m.rolling_resistance, 0.0, 1.0);
-    m.max_speed_mps = v.num("max_speed_mps", m.max_speed_mps, 0.1, 20.0);
-    m.drive_time_constant_s = v.num("drive_time_constant_s", m.drive_time_constant_s, 0.0, 10.0);
-    m.yaw_time_constant_s = v.num("yaw_time_constant_s", m.yaw_time_constant_s, 0.0, 10.0);
-    m.engine_rated_rpm = v.num("engine_rated_rpm", m.engine_rated_rpm, 100.0, 1e4);
-    m.engine_droop_rpm = v.num("engine_droop_rpm", m.engine_droop_rpm, 0.0, 1e4);
-    v.finish();
+    readVehicle(v, m);
   }
   if (r.has("joints")) {
     MapReader j = r.child("joints");
-    readRange(j, "lift_m", m.joint_min[0], m.joint_max[0], -2.0, 3.0);
-    readRange(j, "tilt_deg", m.joint_min[1], m.joint_max[1], -M_PI / 3, M_PI / 3, kDeg);
-    readRange(j, "angle_deg", m.joint_min[2], m.joint_max[2], -M_PI / 3, M_PI / 3, kDeg);
-    if (j.has("max_rate")) {
-      const auto v = j.vec("max_rate", {}, 3);
-      for (int k = 0; k < 3; ++k) {
-        if (!(v[k] > 0)) j.fail(j.node("max_rate"), "max_rate", "rates must be > 0 ([m/s, rad/s, rad/s])");
-        m.joint_max_rate[k] = v[k];
-      }
-    }
-    m.joint_eta = j.num("eta", m.joint_eta, 0.0, 1000.0);
-    m.joint_beta = j.num("beta", m.joint_beta, 0.0, 1000.0);
-    m.joint_tau_s = j.num("tau_s", m.joint_tau_s, 1e-3, 10.0);
-    m.lift_down_force_n = j.num("lift_down_force_n", m.lift_down_force_n, 0.0, 1e7);
-    j.finish();
+    readJoints(j, m);
   }
   if (r.has("force_noise")) {
     MapReader f = r.child("force_noise");
@@ -225,24 +280,177 @@ MachineSpec readMachine(MapReader& r) {
   }
   if (r.has("controller")) {
     MapReader c = r.child("controller");
-    m.controller = readController(c);
+    if (c.valid()) m.controller = readController(c);
   }
-  if (r.has("sensors")) {
-    const YAML::Node ss = r.node("sensors");
-    if (!ss.IsSequence()) r.fail(ss, "sensors", "expected a list of sensors");
-    std::set<std::string> ids;
-    for (std::size_t k = 0; k < ss.size(); ++k) {
-      MapReader sr(ss[k], r.file(), r.join("sensors[" + std::to_string(k) + "]"));
-      SensorSpec s = readSensor(sr);
-      if (!ids.insert(s.id).second) sr.fail(ss[k]["id"], "id", "duplicate sensor id '" + s.id + "'");
-      m.sensors.push_back(std::move(s));
-    }
-  }
+  if (r.has("sensors")) readSensors(r, m);
   r.finish();
   return m;
 }
 
-void readTerrain(MapReader& r, Scenario& sc, const Ctx& ctx) {
+/// The DEM's format: explicit, else from the file's extension.
+std::string readDemFormat(MapReader& d, const fs::path& p, DemSpec& dem) {
+  std::string ext = p.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::string fmt = ext == ".tif" || ext == ".tiff" ? "geotiff" : ext == ".las" ? "las" : "esri_ascii";
+  const std::vector<std::string> formats = {"esri_ascii", "geotiff", "las"};
+  if (d.has("format")) {
+    const std::string given = d.str("format", fmt);
+    if (std::find(formats.begin(), formats.end(), given) == formats.end())
+      d.error(d.node("format"), "format", "unsupported DEM format '" + given + "' (supported: " + joinStrings(formats) +
+                                              ")" + didYouMean(given, formats));
+    else
+      fmt = given;
+  }
+  dem.format = fmt == "geotiff" ? DemFormat::GeoTiff : fmt == "las" ? DemFormat::Las : DemFormat::EsriAscii;
+  return fmt;
+}
+
+void readGeoOrigin(MapReader& d, DemSpec& dem) {
+  const YAML::Node n = d.node("geo_origin");
+  if (n.IsScalar() && n.Scalar() == "auto") {
+    dem.origin_mode = GeoOriginMode::Auto;
+    return;
+  }
+  if (!n.IsSequence() || (n.size() != 2 && n.size() != 3)) {
+    d.error(n, "geo_origin", "expected 'auto' or a list [easting, northing] or [easting, northing, height] (m)");
+    return;
+  }
+  std::vector<double> v;
+  if (!d.numList(n, "geo_origin", n.size(), v)) return;
+  if (!std::all_of(v.begin(), v.end(), [](double x) { return std::isfinite(x); })) {
+    d.error(n, "geo_origin", "coordinates must be finite");
+    return;
+  }
+  dem.origin_mode = GeoOriginMode::Explicit;
+  dem.geo_origin = Eigen::Vector3d(v[0], v[1], v.size() == 3 ? v[2] : 0.0);
+}
+
+/// The keys that apply to one format only, and the band (a 1-based number or a description).
+void readDemFormatOptions(MapReader& d, DemSpec& dem, const std::string& fmt) {
+  auto onlyFor = [&](const char* key, DemFormat f, const char* fname) {
+    if (d.has(key) && dem.format != f)
+      d.error(d.node(key), key, std::string("applies to format ") + fname + " only (format is " + fmt + ")");
+  };
+  onlyFor("band", DemFormat::GeoTiff, "geotiff");
+  onlyFor("cell_m", DemFormat::Las, "las");
+  onlyFor("statistic", DemFormat::Las, "las");
+  onlyFor("ground_class", DemFormat::Las, "las");
+  if (d.has("band")) {
+    const YAML::Node n = d.node("band");
+    long as_number = 0;
+    if (yaml::scalarLong(n, as_number)) dem.band = d.integer("band", 1, 1, 65535);
+    else if (n.IsScalar()) dem.band_name = n.Scalar();
+    else d.error(n, "band", "expected a band number (1-based) or a band description");
+  }
+  dem.cell_m = d.num("cell_m", dem.cell_m, 1e-3, 1e4);
+  if (d.has("statistic")) {
+    const std::string st = d.str("statistic", "median");
+    if (st != "median" && st != "mean")
+      d.error(d.node("statistic"), "statistic",
+              "unknown statistic '" + st + "' (median or mean)" + didYouMean(st, {"median", "mean"}));
+    dem.statistic = st == "mean" ? DemStatistic::Mean : DemStatistic::Median;
+  }
+  dem.ground_class = d.integer("ground_class", dem.ground_class, 0, 31);
+}
+
+void readDemSpec(MapReader& d, DemSpec& dem, const Ctx& ctx) {
+  const std::string file = d.strRequired("file");
+  fs::path p(file);
+  if (p.is_relative()) p = fs::path(ctx.base_dir) / p;
+  dem.path = p.lexically_normal().string();
+  const std::string fmt = readDemFormat(d, p, dem);
+  if (d.has("geo_origin")) readGeoOrigin(d, dem);
+  if (d.has("fill_holes")) dem.fill_holes = d.boolean("fill_holes", false);
+  readDemFormatOptions(d, dem, fmt);
+  d.finish();
+}
+
+/// Reads the DEM now (its extent is needed for the terrain and buildTerrain reuses the grid),
+/// unless the YAML already has errors. True when the extent is known.
+bool loadDemExtent(TerrainSpec& t, Ctx& ctx) {
+  if (ctx.diag.count() > 0) return false;  // the file is refused anyway; a LAS can take seconds
+  try {
+    auto g = std::make_shared<DemGrid>(loadDem(t.dem, &t.dem_geo_origin));  // InputError names the file
+    t.origin_x_m = g->x0_m;
+    t.origin_y_m = g->y0_m;
+    t.size_x_m = (g->nx - 1) * g->cell_m;
+    t.size_y_m = (g->ny - 1) * g->cell_m;
+    t.dem_grid = std::move(g);
+    return true;
+  } catch (const Error&) {
+    ctx.dem_failure = std::current_exception();
+    return false;
+  }
+}
+
+/// size_m / origin_m, around what a DEM gave; refuses a terrain too large to allocate.
+void readExtent(MapReader& r, TerrainSpec& t, bool dem_given, bool dem_extent) {
+  if (r.has("size_m")) {
+    const auto s = r.vec("size_m", {}, 2);
+    if (s.size() == 2 && !(s[0] > 0 && s[1] > 0)) r.error(r.node("size_m"), "size_m", "sizes must be > 0");
+    else if (s.size() == 2) {
+      t.size_x_m = s[0];
+      t.size_y_m = s[1];
+    }
+  } else if (!dem_given) {
+    r.error(r.self(), "size_m", "missing (terrain extent [x, y] in metres, or a dem)");
+  }
+  if (r.has("origin_m")) {
+    const auto o = r.vec("origin_m", {}, 2);
+    if (o.size() == 2) {
+      t.origin_x_m = o[0];
+      t.origin_y_m = o[1];
+    }
+  } else if (!dem_extent) {
+    t.origin_x_m = -t.size_x_m / 2;
+    t.origin_y_m = -t.size_y_m / 2;
+  }
+  if (dem_given && !dem_extent) return;  // the DEM's extent is unknown: nothing to measure
+  const double nodes = (t.size_x_m / t.resolution_m + 1) * (t.size_y_m / t.resolution_m + 1);
+  // ~45 bytes per node (U, Lv, Lc, H in double, the initial surface and the pyramid in float).
+  if (nodes > 5e7)
+    r.error(r.self(), "size_m", "terrain too large: " + std::to_string(static_cast<long long>(nodes)) + " nodes (~" +
+                                    std::to_string(static_cast<long long>(nodes * 45 / 1e9)) +
+                                    " GB; limit 5e7 nodes): choose a smaller size_m (and origin_m) or a coarser resolution_m" +
+                                    (t.dem.path.empty() ? "" : " (a DEM alone sets the extent to the whole file)"));
+}
+
+void readHills(MapReader& h, TerrainSpec& t, unsigned long long scenario_seed) {
+  const int count = h.integer("count", 0, 0, 100000);
+  double alo = -0.2, ahi = 0.3, slo = 1.0, shi = 4.0;
+  readRange(h, "amplitude_m", alo, ahi, -100.0, 100.0);
+  readRange(h, "sigma_m", slo, shi, 1e-3, 1e4);
+  if (slo <= 0) h.error(h.node("sigma_m"), "sigma_m", "sigma must be > 0");
+  const unsigned long long seed = h.unsignedInt("seed", scenario_seed);
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> U(0.0, 1.0);
+  for (int k = 0; k < count; ++k) {
+    GaussianBump b;
+    b.x_m = t.origin_x_m + U(rng) * t.size_x_m;
+    b.y_m = t.origin_y_m + U(rng) * t.size_y_m;
+    b.amplitude_m = alo + U(rng) * (ahi - alo);
+    b.sigma_m = slo + U(rng) * (shi - slo);
+    t.bumps.push_back(b);
+  }
+  if (h.has("list")) {
+    const YAML::Node l = h.node("list");
+    if (!l.IsSequence()) h.error(l, "list", "expected a list of {x_m, y_m, amplitude_m, sigma_m}");
+    for (std::size_t k = 0; l.IsSequence() && k < l.size(); ++k) {
+      MapReader b(h.diagnostics(), l[k], h.join("list[" + std::to_string(k) + "]"));
+      GaussianBump g;
+      g.x_m = b.numRequired("x_m", 0.0);
+      g.y_m = b.numRequired("y_m", 0.0);
+      g.amplitude_m = b.numRequired("amplitude_m", 0.0);
+      g.sigma_m = b.numRequired("sigma_m", 1.0, 1e-6, 1e6);
+      b.finish();
+      t.bumps.push_back(g);
+    }
+  }
+  h.finish();
+}
+
+/// True when the terrain's extent is known (not when a DEM could not be read).
+bool readTerrain(MapReader& r, Scenario& sc, Ctx& ctx) {
   TerrainSpec& t = sc.terrain;
   t.resolution_m = r.num("resolution_m", t.resolution_m, 1e-3, 0.02);
   t.base_height_m = r.num("base_height_m", t.base_height_m);
@@ -250,198 +458,116 @@ void readTerrain(MapReader& r, Scenario& sc, const Ctx& ctx) {
   t.slope_x = slope[0];
   t.slope_y = slope[1];
   t.snapshot_interval_s = r.num("snapshot_interval_s", t.snapshot_interval_s, 1e-3, 1e6);
-  bool have_extent = false;
-  if (r.has("dem")) {
+  const bool dem_given = r.has("dem");
+  bool dem_extent = false;
+  if (dem_given) {
     MapReader d = r.child("dem");
-    DemSpec& dem = t.dem;
-    const std::string file = d.strRequired("file");
-    fs::path p(file);
-    if (p.is_relative()) p = fs::path(ctx.base_dir) / p;
-    dem.path = p.lexically_normal().string();
-    // Format: explicit, else from the extension.
-    std::string ext = p.extension().string();
-    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
-    std::string fmt = ext == ".tif" || ext == ".tiff" ? "geotiff" : ext == ".las" ? "las" : "esri_ascii";
-    const std::vector<std::string> formats = {"esri_ascii", "geotiff", "las"};
-    if (d.has("format")) {
-      fmt = d.str("format", fmt);
-      if (std::find(formats.begin(), formats.end(), fmt) == formats.end())
-        d.fail(d.node("format"), "format", "unsupported DEM format '" + fmt + "' (supported: " + joinStrings(formats) + ")" +
-                                               didYouMean(fmt, formats));
+    if (d.valid()) {
+      readDemSpec(d, t.dem, ctx);
+      dem_extent = loadDemExtent(t, ctx);
     }
-    dem.format = fmt == "geotiff" ? DemFormat::GeoTiff : fmt == "las" ? DemFormat::Las : DemFormat::EsriAscii;
-    if (d.has("geo_origin")) {
-      const YAML::Node n = d.node("geo_origin");
-      if (n.IsScalar() && n.Scalar() == "auto") {
-        dem.origin_mode = GeoOriginMode::Auto;
-      } else {
-        if (!n.IsSequence() || (n.size() != 2 && n.size() != 3))
-          d.fail(n, "geo_origin", "expected 'auto' or a list [easting, northing] or [easting, northing, height] (m)");
-        const std::vector<double> v = d.numList(n, "geo_origin", n.size());
-        for (double x : v)
-          if (!std::isfinite(x)) d.fail(n, "geo_origin", "coordinates must be finite");
-        dem.origin_mode = GeoOriginMode::Explicit;
-        dem.geo_origin = Eigen::Vector3d(v[0], v[1], v.size() == 3 ? v[2] : 0.0);
-      }
-    }
-    if (d.has("fill_holes")) dem.fill_holes = d.boolean("fill_holes", false);
-    auto onlyFor = [&](const char* key, DemFormat f, const char* fname) {
-      if (d.has(key) && dem.format != f)
-        d.fail(d.node(key), key, std::string("applies to format ") + fname + " only (format is " + fmt + ")");
-    };
-    onlyFor("band", DemFormat::GeoTiff, "geotiff");
-    onlyFor("cell_m", DemFormat::Las, "las");
-    onlyFor("statistic", DemFormat::Las, "las");
-    onlyFor("ground_class", DemFormat::Las, "las");
-    if (d.has("band")) {
-      const YAML::Node n = d.node("band");
-      bool is_int = false;
-      try {
-        (void)n.as<long long>();
-        is_int = n.IsScalar();
-      } catch (const std::exception&) {
-      }
-      if (is_int) dem.band = d.integer("band", 1, 1, 65535);
-      else if (n.IsScalar()) dem.band_name = n.Scalar();
-      else d.fail(n, "band", "expected a band number (1-based) or a band description");
-    }
-    dem.cell_m = d.num("cell_m", dem.cell_m, 1e-3, 1e4);
-    if (d.has("statistic")) {
-      const std::string st = d.str("statistic", "median");
-      if (st != "median" && st != "mean")
-        d.fail(d.node("statistic"), "statistic", "unknown statistic '" + st + "' (median or mean)" +
-                                                    didYouMean(st, {"median", "mean"}));
-      dem.statistic = st == "mean" ? DemStatistic::Mean : DemStatistic::Median;
-    }
-    dem.ground_class = d.integer("ground_class", dem.ground_class, 0, 31);
-    d.finish();
-    // Read now: the extent is needed below, and buildTerrain reuses the grid.
-    auto g = std::make_shared<DemGrid>(loadDem(dem, &t.dem_geo_origin));  // InputError names the file
-    t.origin_x_m = g->x0_m;
-    t.origin_y_m = g->y0_m;
-    t.size_x_m = (g->nx - 1) * g->cell_m;
-    t.size_y_m = (g->ny - 1) * g->cell_m;
-    t.dem_grid = std::move(g);
-    have_extent = true;
   }
-  if (r.has("size_m")) {
-    const auto s = r.vec("size_m", {}, 2);
-    if (!(s[0] > 0 && s[1] > 0)) r.fail(r.node("size_m"), "size_m", "sizes must be > 0");
-    t.size_x_m = s[0];
-    t.size_y_m = s[1];
-  } else if (!have_extent) {
-    r.fail(r.self(), "size_m", "missing (terrain extent [x, y] in metres, or a dem)");
-  }
-  if (r.has("origin_m")) {
-    const auto o = r.vec("origin_m", {}, 2);
-    t.origin_x_m = o[0];
-    t.origin_y_m = o[1];
-  } else if (!have_extent) {
-    t.origin_x_m = -t.size_x_m / 2;
-    t.origin_y_m = -t.size_y_m / 2;
-  }
-  const double nodes = (t.size_x_m / t.resolution_m + 1) * (t.size_y_m / t.resolution_m + 1);
-  // ~45 bytes per node (U, Lv, Lc, H in double, the initial surface and the pyramid in float).
-  if (nodes > 5e7)
-    r.fail(r.self(), "size_m", "terrain too large: " + std::to_string(static_cast<long long>(nodes)) + " nodes (~" +
-                                   std::to_string(static_cast<long long>(nodes * 45 / 1e9)) +
-                                   " GB; limit 5e7 nodes): choose a smaller size_m (and origin_m) or a coarser resolution_m" +
-                                   (sc.terrain.dem.path.empty() ? "" : " (a DEM alone sets the extent to the whole file)"));
+  readExtent(r, t, dem_given, dem_extent);
   if (r.has("hills")) {
     MapReader h = r.child("hills");
-    const int count = h.integer("count", 0, 0, 100000);
-    double alo = -0.2, ahi = 0.3, slo = 1.0, shi = 4.0;
-    readRange(h, "amplitude_m", alo, ahi, -100.0, 100.0);
-    readRange(h, "sigma_m", slo, shi, 1e-3, 1e4);
-    if (slo <= 0) h.fail(h.node("sigma_m"), "sigma_m", "sigma must be > 0");
-    const unsigned long long seed = h.unsignedInt("seed", sc.seed);
-    std::mt19937_64 rng(seed);
-    std::uniform_real_distribution<double> U(0.0, 1.0);
-    for (int k = 0; k < count; ++k) {
-      GaussianBump b;
-      b.x_m = t.origin_x_m + U(rng) * t.size_x_m;
-      b.y_m = t.origin_y_m + U(rng) * t.size_y_m;
-      b.amplitude_m = alo + U(rng) * (ahi - alo);
-      b.sigma_m = slo + U(rng) * (shi - slo);
-      t.bumps.push_back(b);
-    }
-    if (h.has("list")) {
-      const YAML::Node l = h.node("list");
-      if (!l.IsSequence()) h.fail(l, "list", "expected a list of {x_m, y_m, amplitude_m, sigma_m}");
-      for (std::size_t k = 0; k < l.size(); ++k) {
-        MapReader b(l[k], ctx.file, h.join("list[" + std::to_string(k) + "]"));
-        GaussianBump g;
-        g.x_m = b.numRequired("x_m");
-        g.y_m = b.numRequired("y_m");
-        g.amplitude_m = b.numRequired("amplitude_m");
-        g.sigma_m = b.numRequired("sigma_m", 1e-6, 1e6);
-        b.finish();
-        t.bumps.push_back(g);
-      }
-    }
-    h.finish();
+    readHills(h, t, sc.seed);
   }
   r.finish();
+  return !dem_given || dem_extent;
+}
+
+void readStrip(MapReader& s, SoilZone& zone) {
+  const std::string axis = s.strRequired("axis");
+  if (axis == "x") zone.region = SoilZone::Region::StripX;
+  else if (axis == "y") zone.region = SoilZone::Region::StripY;
+  else if (s.has("axis")) s.error(s.node("axis"), "axis", "expected 'x' or 'y'");
+  double lo = 0, hi = 0;
+  if (!s.has("range_m")) s.error(s.self(), "range_m", "missing [min, max]");
+  readRange(s, "range_m", lo, hi, -1e9, 1e9);
+  zone.lo_m = lo;
+  zone.hi_m = hi;
+  s.finish();
+}
+
+void readPolygon(MapReader& z, SoilZone& zone) {
+  const YAML::Node p = z.node("polygon");
+  if (!p.IsSequence() || p.size() < 3) {
+    z.error(p, "polygon", "expected a list of at least 3 [x, y] points");
+    return;
+  }
+  for (std::size_t q = 0; q < p.size(); ++q) {
+    std::vector<double> v;
+    if (z.numList(p[q], "polygon[" + std::to_string(q) + "]", 2, v)) zone.polygon.emplace_back(v[0], v[1]);
+  }
+  zone.region = SoilZone::Region::Polygon;
+}
+
+SoilZone readZone(MapReader& z, std::size_t k) {
+  SoilZone zone;
+  zone.name = z.str("name", "zone" + std::to_string(k));
+  zone.soil = readSoil(z);
+  int regions = 0;
+  if (z.has("strip")) {
+    ++regions;
+    MapReader s = z.child("strip");
+    readStrip(s, zone);
+  }
+  if (z.has("polygon")) {
+    ++regions;
+    readPolygon(z, zone);
+  }
+  if (regions > 1) z.error(z.self(), "polygon", "give one region (strip or polygon), not both");
+  readRange(z, "depth_m", zone.depth_min_m, zone.depth_max_m, 0.0, INFINITY);
+  z.finish();
+  return zone;
 }
 
 void readSoilSection(MapReader& r, Scenario& sc) {
   if (r.has("default")) {
     MapReader d = r.child("default");
-    sc.default_soil = readSoil(d);
+    if (d.valid()) sc.default_soil = readSoil(d);
     d.finish();
   }
   if (r.has("zones")) {
     const YAML::Node zs = r.node("zones");
-    if (!zs.IsSequence()) r.fail(zs, "zones", "expected a list of zones");
-    for (std::size_t k = 0; k < zs.size(); ++k) {
-      MapReader z(zs[k], r.file(), r.join("zones[" + std::to_string(k) + "]"));
-      SoilZone zone;
-      zone.name = z.str("name", "zone" + std::to_string(k));
-      zone.soil = readSoil(z);
-      int regions = 0;
-      if (z.has("strip")) {
-        ++regions;
-        MapReader s = z.child("strip");
-        const std::string axis = s.strRequired("axis");
-        if (axis == "x") zone.region = SoilZone::Region::StripX;
-        else if (axis == "y") zone.region = SoilZone::Region::StripY;
-        else s.fail(s.node("axis"), "axis", "expected 'x' or 'y'");
-        double lo = 0, hi = 0;
-        if (!s.has("range_m")) s.fail(s.self(), "range_m", "missing [min, max]");
-        readRange(s, "range_m", lo, hi, -1e9, 1e9);
-        zone.lo_m = lo;
-        zone.hi_m = hi;
-        s.finish();
-      }
-      if (z.has("polygon")) {
-        ++regions;
-        const YAML::Node p = z.node("polygon");
-        if (!p.IsSequence() || p.size() < 3) z.fail(p, "polygon", "expected a list of at least 3 [x, y] points");
-        for (std::size_t q = 0; q < p.size(); ++q) {
-          const auto v = z.numList(p[q], "polygon[" + std::to_string(q) + "]", 2);
-          zone.polygon.emplace_back(v[0], v[1]);
-        }
-        zone.region = SoilZone::Region::Polygon;
-      }
-      if (regions > 1) z.fail(z.self(), "polygon", "give one region (strip or polygon), not both");
-      readRange(z, "depth_m", zone.depth_min_m, zone.depth_max_m, 0.0, INFINITY);
-      z.finish();
-      sc.zones.push_back(std::move(zone));
+    if (!zs.IsSequence()) r.error(zs, "zones", "expected a list of zones");
+    for (std::size_t k = 0; zs.IsSequence() && k < zs.size(); ++k) {
+      MapReader z(r.diagnostics(), zs[k], r.join("zones[" + std::to_string(k) + "]"));
+      if (z.valid()) sc.zones.push_back(readZone(z, k));
     }
   }
   r.finish();
 }
 
-Scenario parseImpl(const std::string& text, const Ctx& ctx) {
-  YAML::Node root;
-  try {
-    root = YAML::Load(text);
-  } catch (const YAML::ParserException& e) {
-    throw ConfigError(ctx.file + ":" + std::to_string(e.mark.line + 1) + ":" + std::to_string(e.mark.column + 1) +
-                      ": YAML syntax error: " + e.msg);
+void readMachines(MapReader& r, Scenario& sc, bool extent_known) {
+  const YAML::Node ms = r.node("machines");
+  if (!ms.IsDefined() || ms.IsNull()) {
+    r.error(r.self(), "machines", "missing (a list of at least one machine)");
+    return;
   }
+  if (!ms.IsSequence() || ms.size() == 0) {
+    r.error(ms, "machines", "expected a list of at least one machine");
+    return;
+  }
+  std::set<std::string> ids;
+  for (std::size_t k = 0; k < ms.size(); ++k) {
+    MapReader mr(r.diagnostics(), ms[k], "machines[" + std::to_string(k) + "]");
+    if (!mr.valid()) continue;
+    MachineSpec m = readMachine(mr);
+    if (!m.id.empty() && !ids.insert(m.id).second) mr.error(ms[k]["id"], "id", "duplicate machine id '" + m.id + "'");
+    const TerrainSpec& t = sc.terrain;
+    if (extent_known && (m.x_m < t.origin_x_m || m.x_m > t.origin_x_m + t.size_x_m || m.y_m < t.origin_y_m ||
+                         m.y_m > t.origin_y_m + t.size_y_m))
+      mr.error(ms[k]["pose"].IsDefined() ? ms[k]["pose"] : ms[k], "pose", "machine starts outside the terrain");
+    sc.machines.push_back(std::move(m));
+  }
+}
+
+Scenario parseImpl(const std::string& text, Ctx& ctx) {
+  const YAML::Node root = yaml::load(text, ctx.file);
   if (!root.IsMap()) throw ConfigError(ctx.file + ": a scenario must be a YAML mapping");
-  MapReader r(root, ctx.file, "");
+  ctx.diag.file = ctx.file;
+  MapReader r(ctx.diag, root, "");
   Scenario sc;
   sc.yaml_text = text;
   const int version = r.integer("version", 1, 1, 1);
@@ -453,39 +579,30 @@ Scenario parseImpl(const std::string& text, const Ctx& ctx) {
   sc.physics_hz = r.num("physics_hz", sc.physics_hz, 1.0, 10000.0);
   const double ratio = sc.physics_hz / sc.observation_hz;
   if (std::abs(ratio - std::round(ratio)) > 1e-9 || ratio < 1)
-    r.fail(r.node("physics_hz"), "physics_hz", "must be a whole multiple of observation_hz");
+    r.error(r.node("physics_hz"), "physics_hz", "must be a whole multiple of observation_hz");
   sc.threads = r.integer("threads", sc.threads, 1, 256);
   sc.overlap_scans = r.boolean("overlap_scans", sc.overlap_scans);
+  bool extent_known = false;
   {
     MapReader t = r.child("terrain");
-    readTerrain(t, sc, ctx);
+    if (t.valid()) extent_known = readTerrain(t, sc, ctx);
   }
   if (r.has("soil")) {
     MapReader s = r.child("soil");
     readSoilSection(s, sc);
   }
-  const YAML::Node ms = r.node("machines");
-  if (!ms.IsDefined() || ms.IsNull()) r.fail(root, "machines", "missing (a list of at least one machine)");
-  if (!ms.IsSequence() || ms.size() == 0) r.fail(ms, "machines", "expected a list of at least one machine");
-  std::set<std::string> ids;
-  for (std::size_t k = 0; k < ms.size(); ++k) {
-    MapReader mr(ms[k], ctx.file, "machines[" + std::to_string(k) + "]");
-    MachineSpec m = readMachine(mr);
-    if (!ids.insert(m.id).second) mr.fail(ms[k]["id"], "id", "duplicate machine id '" + m.id + "'");
-    const TerrainSpec& t = sc.terrain;
-    if (m.x_m < t.origin_x_m || m.x_m > t.origin_x_m + t.size_x_m || m.y_m < t.origin_y_m ||
-        m.y_m > t.origin_y_m + t.size_y_m)
-      mr.fail(ms[k]["pose"].IsDefined() ? ms[k]["pose"] : ms[k], "pose", "machine starts outside the terrain");
-    sc.machines.push_back(std::move(m));
-  }
+  readMachines(r, sc, extent_known);
   r.finish();
+  ctx.diag.throwIfAny();
+  if (ctx.dem_failure) std::rethrow_exception(ctx.dem_failure);
   return sc;
 }
 
 }  // namespace
 
 Scenario parseScenario(const std::string& yaml_text, const std::string& name_for_errors, const std::string& base_dir) {
-  return parseImpl(yaml_text, Ctx{name_for_errors, base_dir});
+  Ctx ctx{name_for_errors, base_dir, {}, nullptr};
+  return parseImpl(yaml_text, ctx);
 }
 
 Scenario loadScenario(const std::string& yaml_path) {
@@ -494,7 +611,8 @@ Scenario loadScenario(const std::string& yaml_path) {
   std::ostringstream os;
   os << in.rdbuf();
   fs::path p(yaml_path);
-  Scenario sc = parseImpl(os.str(), Ctx{yaml_path, p.has_parent_path() ? p.parent_path().string() : "."});
+  Ctx ctx{yaml_path, p.has_parent_path() ? p.parent_path().string() : ".", {}, nullptr};
+  Scenario sc = parseImpl(os.str(), ctx);
   sc.source_path = yaml_path;
   return sc;
 }

@@ -30,6 +30,31 @@ Eigen::Matrix<double, 6, 1> bodyTwist(const Eigen::Isometry3d& prev, const Eigen
   return tw;
 }
 
+/// A pose sensor's reading of T_map_base: position noise per axis, then tilt and yaw noise
+/// applied in the map frame.
+Eigen::Isometry3d noisyPose(const Eigen::Isometry3d& Tb, const SensorSpec& ps, std::mt19937_64& rng) {
+  Eigen::Isometry3d T = Tb;
+  std::normal_distribution<double> N(0.0, 1.0);
+  const Eigen::Vector3d dp(N(rng) * ps.position_noise_m, N(rng) * ps.position_noise_m,
+                           N(rng) * ps.position_noise_m);
+  const double droll = N(rng) * ps.tilt_noise_rad, dpitch = N(rng) * ps.tilt_noise_rad,
+               dyaw = N(rng) * ps.yaw_noise_rad;
+  T.translation() += dp;
+  T.linear() = (Eigen::AngleAxisd(dyaw, Eigen::Vector3d::UnitZ()) *
+                Eigen::AngleAxisd(dpitch, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(droll, Eigen::Vector3d::UnitX()))
+                   .toRotationMatrix() *
+               Tb.linear();
+  return T;
+}
+
+/// A force sensor's reading of F (base frame, N): Gaussian noise of absolute plus relative sigma.
+Eigen::Vector3d noisyForce(const Eigen::Vector3d& F, const SensorSpec& fs, std::mt19937_64& rng) {
+  const double sigma = fs.force_noise_abs_n + fs.force_noise_rel * F.norm();
+  std::normal_distribution<double> N(0.0, 1.0);
+  return F + Eigen::Vector3d(N(rng), N(rng), N(rng)) * sigma;
+}
+
 }  // namespace
 
 struct Simulator::Machine {
@@ -225,16 +250,87 @@ PointCloud Simulator::runScan(const ScanRequest& q, const TruthTerrain& terrain)
   return pc;
 }
 
-void Simulator::producePeriod(Period& rec) {
-  const double period = 1.0 / sc_.observation_hz;
-  const double dt = 1.0 / sc_.physics_hz;
+void Simulator::cutPatch(Period& rec) {
+  if (dirty_.empty()) return;
   TruthTerrain::Patch patch;
-  auto cutPatch = [&] {
-    if (dirty_.empty()) return;
-    terrain_.capturePatch(dirty_.i0, dirty_.j0, dirty_.i1, dirty_.j1, patch);
-    rec.patches.push_back(std::move(patch));
-    dirty_ = Box{};
-  };
+  terrain_.capturePatch(dirty_.i0, dirty_.j0, dirty_.i1, dirty_.j1, patch);
+  rec.patches.push_back(std::move(patch));
+  dirty_ = Box{};
+}
+
+void Simulator::scheduleScans(Period& rec, double t) {
+  for (auto& mp : machines_) {
+    Machine& m = *mp;
+    for (std::size_t li = 0; li < m.lidars.size(); ++li) {
+      auto& L = m.lidars[li];
+      const SensorSpec& ss = m.ctl.spec().sensors[L.sensor_index];
+      if (t + 1e-9 < static_cast<double>(L.next_scan) / ss.rate_hz) continue;
+      ScanRequest q;
+      q.machine = m.index;
+      q.lidar = li;
+      q.stamp = t;
+      q.T_map_sensor = m.ctl.T_map_base() * ss.T_base_sensor;
+      q.key = streamSeed(sc_.seed, 1000 + m.index * 64 + L.sensor_index, static_cast<std::uint64_t>(L.next_scan));
+      ++L.next_scan;
+      if (overlap_) {
+        // The scan is cast later on the view, brought to this instant by the patches before it.
+        cutPatch(rec);
+        q.patches_before = rec.patches.size();
+        rec.scans.push_back(q);
+      } else {
+        const auto w1 = std::chrono::steady_clock::now();
+        refreshPyramid(terrain_, dirty_);
+        rec.clouds.push_back(runScan(q, terrain_));
+        stats_.lidar_wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - w1).count();
+      }
+    }
+  }
+}
+
+void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) {
+  const double period = 1.0 / sc_.observation_hz;
+  const MachineSpec& spec = m.ctl.spec();
+  const Eigen::Isometry3d Tb = m.ctl.T_map_base(), Tbl = m.ctl.T_map_blade();
+  m.truth.T_map_base = Tb;
+  m.truth.T_map_blade = Tbl;
+  m.truth.force_base_N = Tb.linear().transpose() * m.truth.force_map_N;
+  m.truth.setpoints = m.controller.setpoints();
+  m.truth.raise_offset_m = m.controller.raiseOffset();
+  Pose pose;
+  pose.stamp = tp;
+  pose.frame = single ? "base" : spec.id + "/base";
+  pose.T_map_base = m.pose_sensor >= 0 ? noisyPose(Tb, spec.sensors[m.pose_sensor], m.pose_rng) : Tb;
+  BladePose bp;
+  bp.stamp = tp;
+  bp.machine_id = spec.id;
+  bp.T_map_blade = Tbl;
+  bp.geometry = spec.blade;
+  Observation ob;
+  ob.stamp = tp;
+  ob.machine_id = spec.id;
+  ob.T_map_base = Tb;
+  ob.twist_base = bodyTwist(m.prev_base, Tb, period);
+  ob.T_map_blade = Tbl;
+  ob.twist_blade = bodyTwist(m.prev_blade, Tbl, period);
+  ob.cylinder_length_m = m.ctl.cylinderLengths();
+  ob.cylinder_velocity_mps = m.ctl.cylinderVelocities();
+  const auto ts = m.ctl.trackSpeeds();
+  ob.track_speed_mps = {ts[0], ts[1]};
+  ob.engine_speed_rpm = m.ctl.engineRpm();
+  ob.action = {m.last_cmd.v_left, m.last_cmd.v_right, m.last_cmd.joint_rate[0], m.last_cmd.joint_rate[1],
+               m.last_cmd.joint_rate[2]};
+  if (m.force_sensor >= 0) ob.force_base_N = noisyForce(m.truth.force_base_N, spec.sensors[m.force_sensor], m.force_rng);
+  m.prev_base = Tb;
+  m.prev_blade = Tbl;
+  rec.events.emplace_back(std::move(pose));
+  rec.events.emplace_back(std::move(bp));
+  rec.events.emplace_back(std::move(ob));
+  rec.truths.push_back(m.truth);
+  if (overlap_) rec.ctls.push_back(m.ctl);
+}
+
+void Simulator::producePeriod(Period& rec) {
+  const double dt = 1.0 / sc_.physics_hz;
   for (int s = 0; s < substeps_; ++s) {
     // Loose soil relaxes once per observation period (2 Jacobi sweeps: spreads 2.4 m/s at 60 Hz
     // and 2 cm, faster than the blade moves).
@@ -242,100 +338,12 @@ void Simulator::producePeriod(Period& rec) {
     physicsStep(dt, s == substeps_ - 1);
     p_physics_wall_s_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
     ++p_phys_step_;
-    const double t = static_cast<double>(p_phys_step_) / sc_.physics_hz;
-    // LiDAR scans that are due.
-    for (auto& mp : machines_) {
-      Machine& m = *mp;
-      for (std::size_t li = 0; li < m.lidars.size(); ++li) {
-        auto& L = m.lidars[li];
-        const SensorSpec& ss = m.ctl.spec().sensors[L.sensor_index];
-        if (t + 1e-9 < static_cast<double>(L.next_scan) / ss.rate_hz) continue;
-        ScanRequest q;
-        q.machine = m.index;
-        q.lidar = li;
-        q.stamp = t;
-        q.T_map_sensor = m.ctl.T_map_base() * ss.T_base_sensor;
-        q.key = streamSeed(sc_.seed, 1000 + m.index * 64 + L.sensor_index, static_cast<std::uint64_t>(L.next_scan));
-        ++L.next_scan;
-        if (overlap_) {
-          cutPatch();
-          q.patches_before = rec.patches.size();
-          rec.scans.push_back(q);
-        } else {
-          const auto w1 = std::chrono::steady_clock::now();
-          refreshPyramid(terrain_, dirty_);
-          rec.clouds.push_back(runScan(q, terrain_));
-          stats_.lidar_wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - w1).count();
-        }
-      }
-    }
+    scheduleScans(rec, static_cast<double>(p_phys_step_) / sc_.physics_hz);
   }
   ++p_obs_step_;
   const double tp = static_cast<double>(p_phys_step_) / sc_.physics_hz;
-  if (overlap_) cutPatch();
-  const bool single = machines_.size() == 1;
-  for (auto& mp : machines_) {
-    Machine& m = *mp;
-    const MachineSpec& spec = m.ctl.spec();
-    const Eigen::Isometry3d Tb = m.ctl.T_map_base(), Tbl = m.ctl.T_map_blade();
-    m.truth.T_map_base = Tb;
-    m.truth.T_map_blade = Tbl;
-    m.truth.force_base_N = Tb.linear().transpose() * m.truth.force_map_N;
-    m.truth.setpoints = m.controller.setpoints();
-    m.truth.raise_offset_m = m.controller.raiseOffset();
-    // Pose (noisy if a pose sensor exists).
-    Pose pose;
-    pose.stamp = tp;
-    pose.frame = single ? "base" : spec.id + "/base";
-    pose.T_map_base = Tb;
-    if (m.pose_sensor >= 0) {
-      const SensorSpec& ps = spec.sensors[m.pose_sensor];
-      std::normal_distribution<double> N(0.0, 1.0);
-      const Eigen::Vector3d dp(N(m.pose_rng) * ps.position_noise_m, N(m.pose_rng) * ps.position_noise_m,
-                               N(m.pose_rng) * ps.position_noise_m);
-      const double droll = N(m.pose_rng) * ps.tilt_noise_rad, dpitch = N(m.pose_rng) * ps.tilt_noise_rad,
-                   dyaw = N(m.pose_rng) * ps.yaw_noise_rad;
-      pose.T_map_base.translation() += dp;
-      pose.T_map_base.linear() = (Eigen::AngleAxisd(dyaw, Eigen::Vector3d::UnitZ()) *
-                                  Eigen::AngleAxisd(dpitch, Eigen::Vector3d::UnitY()) *
-                                  Eigen::AngleAxisd(droll, Eigen::Vector3d::UnitX()))
-                                     .toRotationMatrix() *
-                                 Tb.linear();
-    }
-    BladePose bp;
-    bp.stamp = tp;
-    bp.machine_id = spec.id;
-    bp.T_map_blade = Tbl;
-    bp.geometry = spec.blade;
-    Observation ob;
-    ob.stamp = tp;
-    ob.machine_id = spec.id;
-    ob.T_map_base = Tb;
-    ob.twist_base = bodyTwist(m.prev_base, Tb, period);
-    ob.T_map_blade = Tbl;
-    ob.twist_blade = bodyTwist(m.prev_blade, Tbl, period);
-    ob.cylinder_length_m = m.ctl.cylinderLengths();
-    ob.cylinder_velocity_mps = m.ctl.cylinderVelocities();
-    const auto ts = m.ctl.trackSpeeds();
-    ob.track_speed_mps = {ts[0], ts[1]};
-    ob.engine_speed_rpm = m.ctl.engineRpm();
-    ob.action = {m.last_cmd.v_left, m.last_cmd.v_right, m.last_cmd.joint_rate[0], m.last_cmd.joint_rate[1],
-                 m.last_cmd.joint_rate[2]};
-    if (m.force_sensor >= 0) {
-      const SensorSpec& fs = spec.sensors[m.force_sensor];
-      const Eigen::Vector3d& F = m.truth.force_base_N;
-      const double sigma = fs.force_noise_abs_n + fs.force_noise_rel * F.norm();
-      std::normal_distribution<double> N(0.0, 1.0);
-      ob.force_base_N = F + Eigen::Vector3d(N(m.force_rng), N(m.force_rng), N(m.force_rng)) * sigma;
-    }
-    m.prev_base = Tb;
-    m.prev_blade = Tbl;
-    rec.events.emplace_back(std::move(pose));
-    rec.events.emplace_back(std::move(bp));
-    rec.events.emplace_back(std::move(ob));
-    rec.truths.push_back(m.truth);
-    if (overlap_) rec.ctls.push_back(m.ctl);
-  }
+  if (overlap_) cutPatch(rec);
+  for (auto& mp : machines_) observeMachine(*mp, rec, tp, machines_.size() == 1);
   rec.events.emplace_back(Tick{tp});
   rec.obs_step = p_obs_step_;
   rec.phys_step = p_phys_step_;

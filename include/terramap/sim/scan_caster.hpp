@@ -73,6 +73,8 @@ class ScanCaster {
   Ray prepare(const Eigen::Vector3d& d, double t_min, double t_max) const;
   void prefetch(const Eigen::Vector3d& d, const Ray& ray) const;
   double finish(const Eigen::Vector3d& d, const Ray& ray, int* cell_i, int* cell_j) const;
+  /// build()'s last step: the group, running and row maxima of bound_ (rows on `exec`).
+  void finishTable(const Executor* exec);
 
   const TruthTerrain* terrain_ = nullptr;
   Eigen::Vector3d o_ = Eigen::Vector3d::Zero();

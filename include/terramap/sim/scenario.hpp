@@ -1,9 +1,9 @@
 #pragma once
 /// \file
 /// A simulator scenario (TERA-style YAML): truth terrain, soil zones, machines with their
-/// sensors, duration and seed. `loadScenario` validates everything before a simulation starts:
-/// every error is a ConfigError "file:line:col: key.path: message", unknown keys come with a
-/// did-you-mean. The YAML schema is documented in docs/sim.md; configs/scenarios/ has examples.
+/// sensors, duration and seed. `loadScenario` validates everything before a simulation starts
+/// and reports every mistake at once: one ConfigError with a line "file:line:col: key.path:
+/// message" per mistake; unknown keys come with a did-you-mean. The YAML schema is documented in docs/sim.md; configs/scenarios/ has examples.
 /// Units: metres, seconds, radians in the structs (YAML takes *_deg keys for angles).
 #include <terramap/core/events.hpp>
 #include <terramap/sim/dem.hpp>
@@ -169,7 +169,8 @@ struct Scenario {
 };
 
 /// Loads and validates a scenario file. Relative paths inside (DEM) resolve against the
-/// file's folder. \throws ConfigError (file:line:col: key path: message) or InputError (DEM).
+/// file's folder. \throws ConfigError (every mistake of the YAML, one per line) or, when the
+/// YAML has none, InputError for a DEM that cannot be read.
 Scenario loadScenario(const std::string& yaml_path);
 /// Same from a YAML string; `name_for_errors` stands in for the file name in messages and
 /// relative paths resolve against `base_dir`.

@@ -104,7 +104,14 @@ class Simulator {
   static void refreshPyramid(TruthTerrain& terrain, Box& dirty);
   bool durationOver() const;  ///< the physics has produced every period of the duration
   void enqueueProducer();
+  /// One observation period: physics substeps with their due scans, then every machine's events.
   void producePeriod(Period& rec);
+  /// Moves the terrain changed since the last patch (dirty_) into `rec` as a patch.
+  void cutPatch(Period& rec);
+  /// The LiDAR scans due at physics time `t`: queued in `rec` (overlap) or cast now.
+  void scheduleScans(Period& rec, double t);
+  /// A machine's truth and its Pose, BladePose and Observation at period end `tp`, into `rec`.
+  void observeMachine(Machine& m, Period& rec, double tp, bool single);
   bool produceOne();
   void produceTask();
   void consume(Period& rec, std::vector<Event>& out);
