@@ -2,6 +2,7 @@
 #   make demo   install missing Debian packages, build (Release), run the embedded demo
 #   make test   install missing Debian packages, build (Release), run every test
 #   make bench  build and run the Google Benchmark programs
+#   make mutation  break the code on purpose and check the tests notice (docs/testing.md)
 #   make install PREFIX=/usr/local
 BUILD ?= build
 JOBS ?= 2
@@ -9,7 +10,7 @@ PREFIX ?= /usr/local
 CMAKE_FLAGS ?=
 OUT ?= out/demo
 
-.PHONY: all deps configure build demo test bench install clean
+.PHONY: all deps configure build demo test bench mutation install clean
 
 all: build
 
@@ -33,6 +34,9 @@ test: build
 
 bench: build
 	@for b in $(BUILD)/bin/bench_*; do echo "== $$b"; $$b --benchmark_counters_tabular=true || exit 1; done
+
+mutation:
+	bash scripts/mutation_check.sh --out docs/testing.md
 
 install: build
 	cmake --install $(BUILD)

@@ -45,11 +45,18 @@ const near = (a, b, tol) => Math.abs(a - b) <= tol;
     console.log(`done: ${s.frames} frames, ${h.events} events, grid ${h.rows}x${h.cols} (stride ${h.stride})`);
     if (s.frames < 5) fail('expected frames while the source played, got ' + s.frames);
     h.map_extent.forEach((v, k) => { if (!near(v, expected[k], 1e-9)) fail(`map extent [${h.map_extent}] != [${expected}]`); });
-    // The surface spans the sampled cell centres: within one sample spacing of the map's edges.
-    const spacing = h.resolution * h.stride;
+    // The surface spans the centres of the sampled cells: the first is half a cell inside the
+    // map's west/north edge, the last (cols - 1) * stride cells further (worked out here from the
+    // map's own extent, not from what the server says).
+    const res = h.resolution, st = h.stride;
+    const want = [expected[0] + 0.5 * res, expected[0] + (0.5 + (h.cols - 1) * st) * res,
+                  expected[3] - (0.5 + (h.rows - 1) * st) * res, expected[3] - 0.5 * res];
+    if (h.cols !== Math.ceil(Math.round((expected[1] - expected[0]) / res) / st) ||
+        h.rows !== Math.ceil(Math.round((expected[3] - expected[2]) / res) / st))
+      fail(`grid ${h.rows}x${h.cols} (stride ${st}) does not sample the map's extent [${expected}]`);
     s.meshExtent.forEach((v, k) => {
-      if (!near(v, h.extent[k], 1e-3)) fail(`mesh extent [${s.meshExtent}] != frame extent [${h.extent}]`);
-      if (!near(v, expected[k], spacing)) fail(`mesh extent [${s.meshExtent}] not within ${spacing} m of the map's [${expected}]`);
+      if (!near(v, want[k], 1e-4)) fail(`mesh extent [${s.meshExtent}] != the sampled cell centres [${want}]`);
+      if (!near(v, h.extent[k], 1e-4)) fail(`mesh extent [${s.meshExtent}] != frame extent [${h.extent}]`);
     });
     if (!h.layers.includes('variance')) fail('no variance layer offered: ' + h.layers);
     // The page's own controls: colour by variance, then pause.
