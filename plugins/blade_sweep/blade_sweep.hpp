@@ -25,7 +25,7 @@
 #include <string>
 #include <vector>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 /// Parameters of the sweep kernels (the plugin's YAML params, in SI units).
 struct SweepConfig {
@@ -137,4 +137,4 @@ class BladeSweep : public Plugin {
   long sweeps_ = 0;
 };
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins

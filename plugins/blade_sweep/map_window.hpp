@@ -14,7 +14,7 @@
 #include <cstring>
 #include <vector>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 class MapWindow {
  public:
@@ -116,4 +116,4 @@ class MapWindow {
   std::vector<int> tile_rows_, tile_cols_;  // distinct tile rows / columns met
 };
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins

@@ -5,7 +5,7 @@
 #include <cmath>
 #include <limits>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
@@ -190,4 +190,4 @@ double bladeAngle(const Eigen::Isometry3d& T, const Eigen::Vector2d& t_hat) {
   return std::atan2(v.z(), -(v.x() * p.x() + v.y() * p.y()));
 }
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins

@@ -6,7 +6,7 @@
 #include <cmath>
 #include <limits>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
@@ -461,4 +461,4 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
   return rec;
 }
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins

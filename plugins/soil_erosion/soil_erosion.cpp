@@ -7,7 +7,7 @@
 #include <limits>
 #include <sstream>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 namespace {
 constexpr double kPi = 3.14159265358979323846;
@@ -153,4 +153,4 @@ void SoilErosion::erodeAround(ProcessContext& ctx, const SweepRecord& rec) {
   ctx.addCounter("roi_cells", static_cast<double>(win.size()));
 }
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins
