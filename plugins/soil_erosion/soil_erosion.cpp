@@ -1,7 +1,7 @@
 // The soil_erosion plugin: ROI around the blade, masks from the sweep record, map I/O.
 #include "soil_erosion.hpp"
 
-#include "../blade_sweep/map_window.hpp"
+#include <terramap/core/map_window.hpp>
 
 #include <cmath>
 #include <limits>

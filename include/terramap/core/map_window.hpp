@@ -6,15 +6,22 @@
 /// less than per-cell ring-buffer arithmetic, lets the kernels compute in double precision,
 /// and writing back only changed cells keeps copy-on-write snapshots sharing untouched tiles.
 ///
+/// Units and frames: cells are *logical* indices (geometry.hpp: row i grows towards -x, column
+/// j towards -y); the dense arrays hold whatever the layer holds, converted to T (float32 →
+/// double is exact). NaN (= unknown) is copied like any value; an unallocated sparse tile reads
+/// as the layer's fill value.
+///
 /// Threading: gather() is const on the map and may run concurrently with other readers;
 /// scatterChanged() mutates the map and needs the exclusive access a plugin has in process().
+/// Throws: gather()/scatterChanged() throw LayerError on a bad layer id (LayeredMap::layerInfo);
+/// nothing else. The constructor clips instead of throwing: a window off the map is empty.
 #include <terramap/core/layered_map.hpp>
 
 #include <algorithm>
 #include <cstring>
 #include <vector>
 
-namespace terramap::plugins {
+namespace terramap {
 
 class MapWindow {
  public:
@@ -116,4 +123,4 @@ class MapWindow {
   std::vector<int> tile_rows_, tile_cols_;  // distinct tile rows / columns met
 };
 
-}  // namespace terramap::plugins
+}  // namespace terramap
