@@ -85,7 +85,7 @@ std::pair<int, int> rowInterval(const TruthTerrain& terrain, int i0, int i1, int
 /// the same pass as its fluxes (it needs only its own and its -x / -y neighbours' fluxes). The
 /// moves are applied afterwards in raster order.
 bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double back_band, double max_step, int i0,
-                int j0, int i1, int j1, NodeBox& changed) {
+                int j0, int i1, int j1, CellRect& changed) {
   const int w = i1 - i0 + 1, h = j1 - j0 + 1;
   // Scratch buffers reused across calls (per calling thread) to avoid page faults at 60 Hz.
   thread_local std::vector<unsigned char> mask;
@@ -207,7 +207,7 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
     ci0 = std::min(ci0, ri0);
     ci1 = std::max(ci1, ri1);
   }
-  if (ci1 >= ci0) changed.add(i0 + ci0, j0 + cj0, i0 + ci1, j0 + cj1);
+  if (ci1 >= ci0) changed.add(CellRect::inclusive(i0 + ci0, j0 + cj0, i0 + ci1, j0 + cj1));
   return true;
 }
 
@@ -421,7 +421,7 @@ CutResult cutAndPush(TruthTerrain& terrain, const SoilField& soil, const Eigen::
     }
   }
   if (!any) return out;
-  out.add(i0, j0, i1, j1);
+  out.add(CellRect::inclusive(i0, j0, i1, j1));
   for (int k = 0; k < slices; ++k) {
     if (acc_c[k] <= 0.0 && acc_v[k] <= 0.0) continue;
     const double lat = -f1.half_lat + (k + 0.5) * (2 * f1.half_lat / slices);
@@ -446,7 +446,7 @@ CutResult cutAndPush(TruthTerrain& terrain, const SoilField& soil, const Eigen::
     }
     terrain.addLoose(di, dj, acc_v[k], acc_c[k]);
     out.deposited_m3 += acc_c[k] * res * res;
-    out.add(di, dj, di, dj);
+    out.add(CellRect::inclusive(di, dj, di, dj));
     // The spoil runs down the front of the pile at once. Without this it stays on the one node
     // row ahead of the edge (the relaxation spreads at most ~0.6 m^2/s per metre of blade on a
     // 2 cm grid, a 0.8 m/s cut feeds 0.1 m^2/s onto 2 cm) and grows into columns metres high.
@@ -507,7 +507,7 @@ CutResult cutAndPush(TruthTerrain& terrain, const SoilField& soil, const Eigen::
     for (int m = 0; m < K; ++m) {
       if (!(fill[m] > 0.0)) continue;
       terrain.moveLoose(di, dj, line_i[m], line_j[m], fill[m] * scale);
-      out.add(line_i[m], line_j[m], line_i[m], line_j[m]);
+      out.add(CellRect::inclusive(line_i[m], line_j[m], line_i[m], line_j[m]));
     }
   }
   return out;

@@ -132,7 +132,7 @@ struct CutCell {
 
 // Lowest swept-volume (zlow) and edge-path (zedge) heights per footprint cell, NaN off it.
 struct SweptCells {
-  CellBlock fp;
+  CellRect fp;
   std::vector<double> zlow, zedge;
 };
 
@@ -201,26 +201,26 @@ SweptCells sweptCells(const std::vector<BladePose>& history, const SweepConfig& 
 
 // Window: footprint + the fit length ahead along t̂ + 2 cells (deposit cells sit at most one
 // cell outside the footprint; bilinear samples need one more).
-MapWindow sweepWindow(const LayeredMap& map, const CellBlock& fp, const SweepConfig& cfg,
+MapWindow sweepWindow(const LayeredMap& map, const CellRect& fp, const SweepConfig& cfg,
                       const Eigen::Vector2d& t_hat, double res) {
   const int reach_i = static_cast<int>(std::ceil(cfg.fit_length_m * std::abs(t_hat.x()) / res));
   const int reach_j = static_cast<int>(std::ceil(cfg.fit_length_m * std::abs(t_hat.y()) / res));
   const int ai = t_hat.x() > 0 ? reach_i : 0, bi = t_hat.x() > 0 ? 0 : reach_i;  // +x is -i
   const int aj = t_hat.y() > 0 ? reach_j : 0, bj = t_hat.y() > 0 ? 0 : reach_j;
-  return MapWindow(map, fp.i0 - ai - 2, fp.j0 - aj - 2, fp.rows + ai + bi + 4, fp.cols + aj + bj + 4);
+  return MapWindow(map, fp.r0 - ai - 2, fp.c0 - aj - 2, fp.rows + ai + bi + 4, fp.cols + aj + bj + 4);
 }
 
 // The swept mask of the record and the cells to cut, in footprint order.
 std::vector<CutCell> cutCells(const SweptCells& sc, const MapWindow& win, const std::vector<double>& H0,
                               const Geometry& geo, const SweepConfig& cfg, SweepRecord& rec) {
-  const CellBlock& fp = sc.fp;
+  const CellRect& fp = sc.fp;
   std::vector<CutCell> cuts;
   rec.mask.reserve(static_cast<size_t>(fp.rows) * static_cast<size_t>(std::max(0, fp.cols)) / 2);
   for (int r = 0; r < fp.rows; ++r)
     for (int c = 0; c < fp.cols; ++c) {
       const double zl = sc.zlow[static_cast<size_t>(r) * fp.cols + c];
       if (!std::isfinite(zl)) continue;
-      const int i = fp.i0 + r, j = fp.j0 + c;
+      const int i = fp.r0 + r, j = fp.c0 + c;
       const long w = win.local(i, j);
       const double h = H0[static_cast<size_t>(w)];
       SweepMaskCell mc;
@@ -347,7 +347,7 @@ void averageSlices(bool any_cut, double res, SweepRecord& rec) {
 void cutAndDeposit(const std::vector<CutCell>& cuts, const SweptCells& sc, const MapWindow& win,
                    const Geometry& geo, const SweepConfig& cfg, const Eigen::Vector2d& m, std::vector<double>& H,
                    std::vector<double>& L, std::vector<double>& S, SweepRecord& rec) {
-  const CellBlock& fp = sc.fp;
+  const CellRect& fp = sc.fp;
   const double res = geo.resolution(), cell = res * res;
   const double du = -m.x(), dv = -m.y();  // m̂ in grid coordinates (u = -x, v = -y)
   const double s = cfg.swell, ssv = cfg.sigma_sv_m;
