@@ -2,6 +2,7 @@
 
 #include <terramap/core/error.hpp>
 #include <terramap/core/grid_line.hpp>
+#include <terramap/core/submap_iterator.hpp>
 #include <terramap/core/text.hpp>
 
 #include <algorithm>
@@ -383,14 +384,14 @@ void LidarFusion::buildIndexTables(const LayeredMap& map) {
   col_tile_.resize(static_cast<size_t>(C));
   col_local_.resize(static_cast<size_t>(C));
   for (int i = 0; i < R; ++i) {
-    const int b = (i + s.x()) % R;
-    row_tile_[static_cast<size_t>(i)] = (b / T) * map.tileCols();
-    row_local_[static_cast<size_t>(i)] = (b % T) * T;
+    const AxisCell a = axisCell(i, s.x(), R, T);
+    row_tile_[static_cast<size_t>(i)] = a.tile * map.tileCols();
+    row_local_[static_cast<size_t>(i)] = a.offset * T;
   }
   for (int j = 0; j < C; ++j) {
-    const int b = (j + s.y()) % C;
-    col_tile_[static_cast<size_t>(j)] = b / T;
-    col_local_[static_cast<size_t>(j)] = b % T;
+    const AxisCell a = axisCell(j, s.y(), C, T);
+    col_tile_[static_cast<size_t>(j)] = a.tile;
+    col_local_[static_cast<size_t>(j)] = a.offset;
   }
   tables_start_ = s;
 }
