@@ -14,9 +14,9 @@
 // Each LidarFusion iteration fuses the whole cloud into a map that already holds it (steady
 // state, as on a vehicle), without advancing time (measured separately by TimeUpdate).
 //
-// The plugin is a MODULE library (not linkable), so its one translation unit is compiled
-// into this program directly.
-#include "lidar_fusion/lidar_fusion.cpp"
+// The plugin is a MODULE library (not linkable): this program links its kernel library,
+// lidar_fusion_kernels, built with the module's flags.
+#include "lidar_fusion.hpp"
 
 #include <terramap/io/readers.hpp>
 

@@ -208,7 +208,7 @@ bool computeFluxes(const double* Hg, const double* Lg, double max_step, SweepBox
 /// Applies the fluxes in raster order and adds the box of the nodes that moved soil (often much
 /// smaller than the sweep's box) to `changed`: what the pyramid refresh and the simulator's
 /// terrain patches have to cover.
-void applyFluxes(TruthTerrain& terrain, const SweepBox& b, NodeBox& changed) {
+void applyFluxes(TruthTerrain& terrain, const SweepBox& b, CellRect& changed) {
   const int w = b.w, h = b.h, i0 = b.i0, j0 = b.j0;
   const double* fxp = b.fx;
   const double* fyp = b.fy;
@@ -233,7 +233,7 @@ void applyFluxes(TruthTerrain& terrain, const SweepBox& b, NodeBox& changed) {
     ci0 = std::min(ci0, ri0);
     ci1 = std::max(ci1, ri1);
   }
-  if (ci1 >= ci0) changed.add(i0 + ci0, j0 + cj0, i0 + ci1, j0 + cj1);
+  if (ci1 >= ci0) changed.add(CellRect::inclusive(i0 + ci0, j0 + cj0, i0 + ci1, j0 + cj1));
 }
 
 /// One Jacobi sweep of loose-soil sliding over the node box [i0, i1] x [j0, j1]; nodes under
@@ -243,7 +243,7 @@ void applyFluxes(TruthTerrain& terrain, const SweepBox& b, NodeBox& changed) {
 /// the same pass as its fluxes (it needs only its own and its -x / -y neighbours' fluxes). The
 /// moves are applied afterwards in raster order.
 bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double back_band, double max_step, int i0,
-                int j0, int i1, int j1, NodeBox& changed) {
+                int j0, int i1, int j1, CellRect& changed) {
   SweepBox b = sweepBox(terrain, i0, j0, i1, j1);
   markUnderBlade(terrain, f, res, back_band, b);
   // Heights and loose thicknesses are read in place: no moves happen before applyFluxes.
@@ -597,7 +597,7 @@ void settleSpoil(TruthTerrain& terrain, const SoilField& soil, const BladeFrame&
   for (int m = 0; m < K; ++m) {
     if (!(fill[m] > 0.0)) continue;
     terrain.moveLoose(di, dj, line.i[m], line.j[m], fill[m] * scale);
-    out.add(line.i[m], line.j[m], line.i[m], line.j[m]);
+    out.add(CellRect::inclusive(line.i[m], line.j[m], line.i[m], line.j[m]));
   }
 }
 
@@ -617,7 +617,7 @@ void depositSlice(TruthTerrain& terrain, const SoilField& soil, const BladeFrame
   }
   terrain.addLoose(di, dj, v, c);
   out.deposited_m3 += c * res * res;
-  out.add(di, dj, di, dj);
+  out.add(CellRect::inclusive(di, dj, di, dj));
   settleSpoil(terrain, soil, f1, lat, ahead, di, dj, out);
 }
 }  // namespace
@@ -633,7 +633,7 @@ CutResult cutAndPush(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   if (!edgeBox(terrain, f0, f1, blade, i0, j0, i1, j1)) return out;
   std::vector<double> acc_v(slices, 0.0), acc_c(slices, 0.0);
   if (!carveSwept(terrain, soil, f0, f1, blade, slices, i0, j0, i1, j1, acc_v, acc_c, out)) return out;
-  out.add(i0, j0, i1, j1);
+  out.add(CellRect::inclusive(i0, j0, i1, j1));
   for (int k = 0; k < slices; ++k)
     if (!(acc_c[k] <= 0.0 && acc_v[k] <= 0.0)) depositSlice(terrain, soil, f1, k, slices, acc_v[k], acc_c[k], out);
   return out;

@@ -214,7 +214,7 @@ void Simulator::physicsStep(double dt, bool relax) {
 
 void Simulator::refreshPyramid(TruthTerrain& terrain, Box& dirty) {
   if (dirty.empty()) return;
-  terrain.refreshPyramid(dirty.i0, dirty.j0, dirty.i1, dirty.j1);
+  terrain.refreshPyramid(dirty.r0, dirty.c0, dirty.rowEnd() - 1, dirty.colEnd() - 1);
   dirty = Box{};
 }
 
@@ -253,7 +253,7 @@ PointCloud Simulator::runScan(const ScanRequest& q, const TruthTerrain& terrain)
 void Simulator::cutPatch(Period& rec) {
   if (dirty_.empty()) return;
   TruthTerrain::Patch patch;
-  terrain_.capturePatch(dirty_.i0, dirty_.j0, dirty_.i1, dirty_.j1, patch);
+  terrain_.capturePatch(dirty_.r0, dirty_.c0, dirty_.rowEnd() - 1, dirty_.colEnd() - 1, patch);
   rec.patches.push_back(std::move(patch));
   dirty_ = Box{};
 }
@@ -397,7 +397,7 @@ void Simulator::consume(Period& rec, std::vector<Event>& out) {
       for (; applied < n; ++applied) {
         const TruthTerrain::Patch& p = rec.patches[applied];
         view_->applyPatch(p);
-        view_dirty_.add(p.i0, p.j0, p.i1, p.j1);
+        view_dirty_.add(CellRect::inclusive(p.i0, p.j0, p.i1, p.j1));
         ++stats_.patches;
         stats_.patch_nodes += p.u.size();
       }

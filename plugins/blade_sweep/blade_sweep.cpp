@@ -5,7 +5,7 @@
 #include <cstdio>
 #include <sstream>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 namespace {
 constexpr double kPi = 3.14159265358979323846;
@@ -281,4 +281,4 @@ void BladeSweep::process(ProcessContext& ctx, const Event& event) {
 
 void BladeSweep::finish(ProcessContext& ctx) { machines_.clear(); }
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins

@@ -25,7 +25,7 @@
 #include <string>
 #include <vector>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 /// Parameters of the sweep kernels (the plugin's YAML params, in SI units).
 struct SweepConfig {
@@ -71,23 +71,15 @@ std::vector<Triangle> edgeSweepMesh(const std::vector<Eigen::Isometry3d>& statio
 std::vector<Eigen::Isometry3d> meshStations(const std::vector<Eigen::Isometry3d>& history, int max_stations,
                                             double max_rotation_rad);
 
-/// Axis-aligned block of logical cells.
-struct CellBlock {
-  int i0 = 0, j0 = 0, rows = 0, cols = 0;
-  bool empty() const { return rows <= 0 || cols <= 0; }
-  bool contains(int i, int j) const { return i >= i0 && j >= j0 && i < i0 + rows && j < j0 + cols; }
-  long local(int i, int j) const { return static_cast<long>(i - i0) * cols + (j - j0); }
-};
-
 /// Logical cells whose centres may lie under the triangles' footprint (clipped to the map).
-CellBlock footprintBlock(const std::vector<Triangle>& tris, const Geometry& geo);
+CellRect footprintBlock(const std::vector<Triangle>& tris, const Geometry& geo);
 
 /// For every cell centre of `block`, the lowest z where a vertical line through it meets a
 /// triangle (exact, barycentric in the horizontal projection), or NaN if none does.
 /// Vertical triangles (zero projected area) are skipped: a vertical line meets them only on a
 /// set of measure zero, and their lowest points are shared with non-vertical neighbours.
 /// Deterministic for any thread count (a min does not depend on the order).
-void lowestIntersection(const std::vector<Triangle>& tris, const Geometry& geo, const CellBlock& block,
+void lowestIntersection(const std::vector<Triangle>& tris, const Geometry& geo, const CellRect& block,
                         std::vector<double>& z_low, const Executor& ex);
 
 /// Layer ids the sweep touches.
@@ -137,4 +129,4 @@ class BladeSweep : public Plugin {
   long sweeps_ = 0;
 };
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins

@@ -5,7 +5,7 @@
 #include <cmath>
 #include <limits>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
@@ -97,8 +97,8 @@ std::vector<Eigen::Isometry3d> meshStations(const std::vector<Eigen::Isometry3d>
   return out;
 }
 
-CellBlock footprintBlock(const std::vector<Triangle>& tris, const Geometry& geo) {
-  CellBlock b;
+CellRect footprintBlock(const std::vector<Triangle>& tris, const Geometry& geo) {
+  CellRect b;
   if (tris.empty()) return b;
   const GridFrame f(geo);
   double umin = std::numeric_limits<double>::infinity(), umax = -umin, vmin = umin, vmax = -umin;
@@ -116,16 +116,16 @@ CellBlock footprintBlock(const std::vector<Triangle>& tris, const Geometry& geo)
   const int i1 = static_cast<int>(std::floor(std::min(umax - 0.5, lim))) + 1;
   const int j0 = static_cast<int>(std::floor(std::max(vmin - 0.5, -lim))) - 1;
   const int j1 = static_cast<int>(std::floor(std::min(vmax - 0.5, lim))) + 1;
-  b.i0 = std::max(0, i0);
-  b.j0 = std::max(0, j0);
-  b.rows = std::min(geo.size().x() - 1, i1) - b.i0 + 1;
-  b.cols = std::min(geo.size().y() - 1, j1) - b.j0 + 1;
+  b.r0 = std::max(0, i0);
+  b.c0 = std::max(0, j0);
+  b.rows = std::min(geo.size().x() - 1, i1) - b.r0 + 1;
+  b.cols = std::min(geo.size().y() - 1, j1) - b.c0 + 1;
   if (b.rows < 0) b.rows = 0;
   if (b.cols < 0) b.cols = 0;
   return b;
 }
 
-void lowestIntersection(const std::vector<Triangle>& tris, const Geometry& geo, const CellBlock& block,
+void lowestIntersection(const std::vector<Triangle>& tris, const Geometry& geo, const CellRect& block,
                         std::vector<double>& z_low, const Executor& ex) {
   z_low.assign(static_cast<size_t>(std::max<long>(0, static_cast<long>(block.rows) * block.cols)), kNaN);
   if (block.empty() || tris.empty()) return;
@@ -156,13 +156,13 @@ void lowestIntersection(const std::vector<Triangle>& tris, const Geometry& geo, 
   const int bands = std::min(block.rows, std::max(1, ex.threads() * 4));
   ex.forEach(bands, [&](int band) {
     const int r0 = block.rows * band / bands, r1 = block.rows * (band + 1) / bands;
-    const double ub0 = block.i0 + r0 + 0.5, ub1 = block.i0 + r1 - 0.5;
+    const double ub0 = block.r0 + r0 + 0.5, ub1 = block.r0 + r1 - 0.5;
     for (const GT& g : gts) {
       if (g.umax < ub0 - 1e-9 || g.umin > ub1 + 1e-9) continue;
-      const int ia = std::max(block.i0 + r0, static_cast<int>(std::ceil(g.umin - 0.5 - 1e-9)));
-      const int ib = std::min(block.i0 + r1 - 1, static_cast<int>(std::floor(g.umax - 0.5 + 1e-9)));
-      const int ja = std::max(block.j0, static_cast<int>(std::ceil(g.vmin - 0.5 - 1e-9)));
-      const int jb = std::min(block.j0 + block.cols - 1, static_cast<int>(std::floor(g.vmax - 0.5 + 1e-9)));
+      const int ia = std::max(block.r0 + r0, static_cast<int>(std::ceil(g.umin - 0.5 - 1e-9)));
+      const int ib = std::min(block.r0 + r1 - 1, static_cast<int>(std::floor(g.umax - 0.5 + 1e-9)));
+      const int ja = std::max(block.c0, static_cast<int>(std::ceil(g.vmin - 0.5 - 1e-9)));
+      const int jb = std::min(block.c0 + block.cols - 1, static_cast<int>(std::floor(g.vmax - 0.5 + 1e-9)));
       for (int i = ia; i <= ib; ++i) {
         const double pu = i + 0.5;
         for (int j = ja; j <= jb; ++j) {
@@ -190,4 +190,4 @@ double bladeAngle(const Eigen::Isometry3d& T, const Eigen::Vector2d& t_hat) {
   return std::atan2(v.z(), -(v.x() * p.x() + v.y() * p.y()));
 }
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins

@@ -1,12 +1,14 @@
 // One swept-volume update: intersection, FEE extraction, cut and deposit, per-step values.
 #include "blade_sweep.hpp"
-#include "map_window.hpp"
+
+#include <terramap/core/grid_line.hpp>
+#include <terramap/core/map_window.hpp>
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
@@ -114,32 +116,47 @@ std::pair<double, double> surchargeVolume(const Eigen::Isometry3d& T, const Blad
   return {vol, var};
 }
 
-}  // namespace
+// Travel, blade-normal and deposit directions of a sweep (horizontal unit vectors), the edge's
+// start point and the blade angle halfway.
+struct SweepDirections {
+  Eigen::Vector2d e0, t_hat, n_hat, m_hat;
+  double theta_mid = kNaN;
+};
 
-std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, const SweepConfig& cfg,
-                                      const std::vector<BladePose>& history, const Executor& ex) {
-  TERRAMAP_CHECK(history.size() >= 2, "runSweep needs at least two poses");
+// Cells of the footprint under the swept volume where the surface is above its bottom.
+struct CutCell {
+  int i, j;
+  long w;      // window index
+  double dh, zl, ze;  // cut, SV bottom, cutting-edge path height (NaN: not under the edge path)
+};
+
+// Lowest swept-volume (zlow) and edge-path (zedge) heights per footprint cell, NaN off it.
+struct SweptCells {
+  CellRect fp;
+  std::vector<double> zlow, zedge;
+};
+
+// The record's header: time span, poses, geometry and the configuration it was made with.
+std::shared_ptr<SweepRecord> newRecord(const std::vector<BladePose>& history, const SweepConfig& cfg, double res) {
   auto rec = std::make_shared<SweepRecord>();
-  const Geometry& geo = map.geometry();
-  const double res = geo.resolution(), cell = res * res;
-  const BladeGeometry& bg = history.front().geometry;
-  const Eigen::Isometry3d& T0 = history.front().T_map_blade;
-  const Eigen::Isometry3d& T1 = history.back().T_map_blade;
   rec->machine_id = history.front().machine_id;
   rec->t0 = history.front().stamp;
   rec->t1 = history.back().stamp;
-  rec->T_map_blade0 = T0;
-  rec->T_map_blade1 = T1;
-  rec->geometry = bg;
+  rec->T_map_blade0 = history.front().T_map_blade;
+  rec->T_map_blade1 = history.back().T_map_blade;
+  rec->geometry = history.front().geometry;
   rec->resolution_m = res;
   rec->swell = cfg.swell;
   rec->sigma_sv_m = cfg.sigma_sv_m;
   rec->fit_length_m = cfg.fit_length_m;
   rec->slice_step_m = res;
-  const double gamma_l = cfg.unit_weight_n_m3 / cfg.swell;
-  rec->loose_unit_weight_n_m3 = gamma_l;
+  rec->loose_unit_weight_n_m3 = cfg.unit_weight_n_m3 / cfg.swell;
+  return rec;
+}
 
-  // ---- directions ------------------------------------------------------------------------
+SweepDirections sweepDirections(const std::vector<BladePose>& history, const SweepConfig& cfg, SweepRecord& rec) {
+  const Eigen::Isometry3d& T0 = history.front().T_map_blade;
+  const Eigen::Isometry3d& T1 = history.back().T_map_blade;
   const Eigen::Vector2d e0 = horizontal(T0.translation()), e1 = horizontal(T1.translation());
   Eigen::Vector2d n_hat = horizontal(T0.linear().col(0));
   Eigen::Vector2d t_hat = e1 - e0;
@@ -150,79 +167,91 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
   Eigen::Vector2d m = cfg.deposit_normal_weight * n_hat + (1.0 - cfg.deposit_normal_weight) * t_hat;
   if (m.norm() < 1e-6) m = t_hat;  // blade dragged backwards with λ = 0.5: normal and travel cancel
   m.normalize();
-  rec->t_hat = t_hat;
-  rec->t_perp = Eigen::Vector2d(-t_hat.y(), t_hat.x());
-  rec->n_hat = n_hat;
-  rec->m_hat = m;
+  rec.t_hat = t_hat;
+  rec.t_perp = Eigen::Vector2d(-t_hat.y(), t_hat.x());
+  rec.n_hat = n_hat;
+  rec.m_hat = m;
   for (size_t k = 1; k < history.size(); ++k)
-    rec->travel_m += (history[k].T_map_blade.translation() - history[k - 1].T_map_blade.translation()).norm();
+    rec.travel_m += (history[k].T_map_blade.translation() - history[k - 1].T_map_blade.translation()).norm();
   const Eigen::Quaterniond q0(T0.linear()), q1(T1.linear());
-  rec->rotation_rad = q0.angularDistance(q1);
+  rec.rotation_rad = q0.angularDistance(q1);
   Eigen::Isometry3d Tmid = Eigen::Isometry3d::Identity();
   Tmid.linear() = q0.slerp(0.5, q1).toRotationMatrix();
   Tmid.translation() = 0.5 * (T0.translation() + T1.translation());
   const double theta_mid = bladeAngle(Tmid, t_hat);
-  rec->blade_angle_rad = theta_mid;
+  rec.blade_angle_rad = theta_mid;
+  return {e0, t_hat, n_hat, m, theta_mid};
+}
 
-  // ---- swept volume and its intersection with the cells (Alg. 1 l. 8-9) --------------------
+// Swept volume and its intersection with the cells (Alg. 1 l. 8-9).
+SweptCells sweptCells(const std::vector<BladePose>& history, const SweepConfig& cfg, const Geometry& geo,
+                      const Executor& ex) {
+  const BladeGeometry& bg = history.front().geometry;
   std::vector<Eigen::Isometry3d> poses;
   poses.reserve(history.size());
   for (const auto& p : history) poses.push_back(p.T_map_blade);
   const auto stations = meshStations(poses, cfg.max_stations, cfg.max_station_rotation_rad);
   const auto tris = sweptVolumeMesh(stations, bg);
-  const CellBlock fp = footprintBlock(tris, geo);
-  std::vector<double> zlow, zedge;
-  lowestIntersection(tris, geo, fp, zlow, ex);
-  lowestIntersection(edgeSweepMesh(stations, bg), geo, fp, zedge, ex);
+  SweptCells sc;
+  sc.fp = footprintBlock(tris, geo);
+  lowestIntersection(tris, geo, sc.fp, sc.zlow, ex);
+  lowestIntersection(edgeSweepMesh(stations, bg), geo, sc.fp, sc.zedge, ex);
+  return sc;
+}
 
-  // Window: footprint + the fit length ahead along t̂ + 2 cells (deposit cells sit at most one
-  // cell outside the footprint; bilinear samples need one more).
+// Window: footprint + the fit length ahead along t̂ + 2 cells (deposit cells sit at most one
+// cell outside the footprint; bilinear samples need one more).
+MapWindow sweepWindow(const LayeredMap& map, const CellRect& fp, const SweepConfig& cfg,
+                      const Eigen::Vector2d& t_hat, double res) {
   const int reach_i = static_cast<int>(std::ceil(cfg.fit_length_m * std::abs(t_hat.x()) / res));
   const int reach_j = static_cast<int>(std::ceil(cfg.fit_length_m * std::abs(t_hat.y()) / res));
   const int ai = t_hat.x() > 0 ? reach_i : 0, bi = t_hat.x() > 0 ? 0 : reach_i;  // +x is -i
   const int aj = t_hat.y() > 0 ? reach_j : 0, bj = t_hat.y() > 0 ? 0 : reach_j;
-  const MapWindow win(map, fp.i0 - ai - 2, fp.j0 - aj - 2, fp.rows + ai + bi + 4, fp.cols + aj + bj + 4);
-  std::vector<double> H0, L0, S0;
-  win.gather(map, ids.elevation, H0);
-  win.gather(map, ids.loose, L0);
-  win.gather(map, ids.sigma, S0);
-  std::vector<double> H = H0, L = L0, S = S0;
+  return MapWindow(map, fp.r0 - ai - 2, fp.c0 - aj - 2, fp.rows + ai + bi + 4, fp.cols + aj + bj + 4);
+}
 
-  struct CutCell {
-    int i, j;
-    long w;      // window index
-    double dh, zl, ze;  // cut, SV bottom, cutting-edge path height (NaN: not under the edge path)
-  };
+// The swept mask of the record and the cells to cut, in footprint order.
+std::vector<CutCell> cutCells(const SweptCells& sc, const MapWindow& win, const std::vector<double>& H0,
+                              const Geometry& geo, const SweepConfig& cfg, SweepRecord& rec) {
+  const CellRect& fp = sc.fp;
   std::vector<CutCell> cuts;
-  rec->mask.reserve(static_cast<size_t>(fp.rows) * static_cast<size_t>(std::max(0, fp.cols)) / 2);
+  rec.mask.reserve(static_cast<size_t>(fp.rows) * static_cast<size_t>(std::max(0, fp.cols)) / 2);
   for (int r = 0; r < fp.rows; ++r)
     for (int c = 0; c < fp.cols; ++c) {
-      const double zl = zlow[static_cast<size_t>(r) * fp.cols + c];
+      const double zl = sc.zlow[static_cast<size_t>(r) * fp.cols + c];
       if (!std::isfinite(zl)) continue;
-      const int i = fp.i0 + r, j = fp.j0 + c;
+      const int i = fp.r0 + r, j = fp.c0 + c;
       const long w = win.local(i, j);
       const double h = H0[static_cast<size_t>(w)];
       SweepMaskCell mc;
       mc.position = geo.positionOf(Index(i, j));
       mc.sv_bottom_m = static_cast<float>(zl);
-      ++rec->cells_under_sv;
+      ++rec.cells_under_sv;
       if (!std::isfinite(h)) {
-        ++rec->cells_unknown_under_sv;
+        ++rec.cells_unknown_under_sv;
       } else if (h - zl > cfg.min_cut_m) {
         mc.cut = true;
-        cuts.push_back({i, j, w, h - zl, zl, zedge[static_cast<size_t>(r) * fp.cols + c]});
+        cuts.push_back({i, j, w, h - zl, zl, sc.zedge[static_cast<size_t>(r) * fp.cols + c]});
       }
-      rec->mask.push_back(mc);
+      rec.mask.push_back(mc);
     }
-  rec->cells_cut = static_cast<long>(cuts.size());
+  rec.cells_cut = static_cast<long>(cuts.size());
+  return cuts;
+}
 
-  // ---- FEE extraction (Alg. 2) on the surface before the cut -------------------------------
+// FEE extraction (Alg. 2) on the surface before the cut: one fitted slice per cut cell under
+// the edge's path, in cut order.
+void extractSlices(const std::vector<CutCell>& cuts, const MapWindow& win, const std::vector<double>& H0,
+                   const std::vector<double>& L0, const Geometry& geo, const SweepConfig& cfg,
+                   const SweepDirections& dir, const Executor& ex, SweepRecord& rec) {
+  const double res = geo.resolution();
+  const Eigen::Vector2d& t_hat = dir.t_hat;
   std::vector<double> surf(H0.size());
   for (size_t k = 0; k < H0.size(); ++k) surf[k] = H0[k] - orZero(L0[k]);
   const SurfaceSampler sampler{win, surf, geo.center().x() + 0.5 * geo.length().x(),
                                geo.center().y() + 0.5 * geo.length().y(), 1.0 / res};
   const int nsamples = static_cast<int>(std::floor(cfg.fit_length_m / res + 1e-9)) + 1;
-  rec->slices.resize(cuts.size());
+  rec.slices.resize(cuts.size());
   std::vector<LineFit> fits(cuts.size());
   const int nc = static_cast<int>(cuts.size());
   const int chunks = std::min(nc, std::max(1, ex.threads() * 4));
@@ -230,11 +259,11 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
     std::vector<double> xs, zs;
     for (int k = nc * ch / chunks; k < nc * (ch + 1) / chunks; ++k) {
       const CutCell& a = cuts[static_cast<size_t>(k)];
-      SweepSlice& sl = rec->slices[static_cast<size_t>(k)];
+      SweepSlice& sl = rec.slices[static_cast<size_t>(k)];
       sl.position = geo.positionOf(Index(a.i, a.j));
       sl.cut_m = a.dh;
       sl.cut_bottom_m = a.ze;
-      sl.lateral_m = (sl.position - e0).dot(rec->t_perp);
+      sl.lateral_m = (sl.position - dir.e0).dot(rec.t_perp);
       if (!std::isfinite(a.ze)) continue;  // only under the face, not the edge's path: no slice
       xs.clear();
       zs.clear();
@@ -254,7 +283,7 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
       const double dv = f.z0 - a.ze;  // vertical depth of the edge path under the surface line
       const double dalpha_db = 1.0 / (1.0 + f.b * f.b);
       sl.alpha_rad = alpha;
-      sl.rho_rad = alpha + theta_mid;
+      sl.rho_rad = alpha + dir.theta_mid;
       sl.surface_z_m = f.z0;
       sl.d_m = std::max(0.0, dv * ca);
       sl.var_alpha = f.var_b * dalpha_db * dalpha_db;
@@ -268,56 +297,63 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
       if (!sl.valid) sl.weight = 0;
     }
   });
+}
 
-  // Weighted averages (exp(C_d d)) in slice order: deterministic.
+// The sweep's FEE values: weighted averages (exp(C_d d)) over the valid slices, in slice order
+// (deterministic).
+void averageSlices(bool any_cut, double res, SweepRecord& rec) {
+  const double cell = res * res;
   double sw = 0, sa = 0, sr = 0, sd = 0, sres = 0;
   double lat_min = std::numeric_limits<double>::infinity(), lat_max = -lat_min;
-  for (const auto& sl : rec->slices) {
+  for (const auto& sl : rec.slices) {
     lat_min = std::min(lat_min, sl.lateral_m);
     lat_max = std::max(lat_max, sl.lateral_m);
     if (!sl.valid) {
-      ++rec->slices_invalid;
+      ++rec.slices_invalid;
       continue;
     }
-    ++rec->slices_valid;
+    ++rec.slices_valid;
     sw += sl.weight;
     sa += sl.weight * sl.alpha_rad;
     sr += sl.weight * sl.rho_rad;
     sd += sl.weight * sl.d_m;
     sres += sl.weight * sl.residual_m;
   }
-  if (!cuts.empty()) {
-    rec->w_m = lat_max - lat_min + res;
-    rec->var_w = cell / 12.0;
+  if (any_cut) {
+    rec.w_m = lat_max - lat_min + res;
+    rec.var_w = cell / 12.0;
   }
   if (sw > 0) {
-    rec->alpha_rad = sa / sw;
-    rec->rho_rad = sr / sw;
-    rec->d_m = sd / sw;
-    rec->fit_residual_m = sres / sw;
+    rec.alpha_rad = sa / sw;
+    rec.rho_rad = sr / sw;
+    rec.d_m = sd / sw;
+    rec.fit_residual_m = sres / sw;
     double va = 0, vr = 0, vd = 0;
-    for (const auto& sl : rec->slices) {
+    for (const auto& sl : rec.slices) {
       if (!sl.valid) continue;
-      va += sl.weight * (sl.var_alpha + (sl.alpha_rad - rec->alpha_rad) * (sl.alpha_rad - rec->alpha_rad));
-      vr += sl.weight * (sl.var_alpha + (sl.rho_rad - rec->rho_rad) * (sl.rho_rad - rec->rho_rad));
-      vd += sl.weight * (sl.var_d + (sl.d_m - rec->d_m) * (sl.d_m - rec->d_m));
+      va += sl.weight * (sl.var_alpha + (sl.alpha_rad - rec.alpha_rad) * (sl.alpha_rad - rec.alpha_rad));
+      vr += sl.weight * (sl.var_alpha + (sl.rho_rad - rec.rho_rad) * (sl.rho_rad - rec.rho_rad));
+      vd += sl.weight * (sl.var_d + (sl.d_m - rec.d_m) * (sl.d_m - rec.d_m));
     }
-    rec->var_alpha = va / sw;
-    rec->var_rho = vr / sw;
-    rec->var_d = vd / sw;
-    rec->fee_valid = rec->d_m > 0 && std::isfinite(rec->rho_rad);
+    rec.var_alpha = va / sw;
+    rec.var_rho = vr / sw;
+    rec.var_d = vd / sw;
+    rec.fee_valid = rec.d_m > 0 && std::isfinite(rec.rho_rad);
   }
+}
 
-  // Surcharge ahead of the blade before the cut.
-  const auto vq0 = surchargeVolume(T0, bg, t_hat, cfg.fit_length_m, geo, win, L0);
-  rec->vq0_m3 = vq0.first;
-
-  // ---- cut and deposit (Alg. 3, mass-conserving) --------------------------------------------
+// Cut and deposit (Alg. 3, mass-conserving) on the window's copies H, L, S: each cut cell's soil
+// goes, swollen, to the first cell off the footprint along m̂.
+void cutAndDeposit(const std::vector<CutCell>& cuts, const SweptCells& sc, const MapWindow& win,
+                   const Geometry& geo, const SweepConfig& cfg, const Eigen::Vector2d& m, std::vector<double>& H,
+                   std::vector<double>& L, std::vector<double>& S, SweepRecord& rec) {
+  const CellRect& fp = sc.fp;
+  const double res = geo.resolution(), cell = res * res;
   const double du = -m.x(), dv = -m.y();  // m̂ in grid coordinates (u = -x, v = -y)
   const double s = cfg.swell, ssv = cfg.sigma_sv_m;
   std::vector<char> deposited(H.size(), 0);
   auto inFootprint = [&](int i, int j) {
-    return fp.contains(i, j) && std::isfinite(zlow[static_cast<size_t>(fp.local(i, j))]);
+    return fp.contains(i, j) && std::isfinite(sc.zlow[static_cast<size_t>(fp.local(i, j))]);
   };
   const int max_steps = 2 * (fp.rows + fp.cols) + 8;
   for (const CutCell& a : cuts) {
@@ -327,36 +363,27 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
     const double dh = a.dh;
     const double dh_l = std::min(la, dh);
     const double dep = dh_l + s * (dh - dh_l);
-    rec->cut_volume_m3 += dh * cell;
-    rec->cut_bank_volume_m3 += (dh - dh_l) * cell;
+    rec.cut_volume_m3 += dh * cell;
+    rec.cut_bank_volume_m3 += (dh - dh_l) * cell;
     H[wa] = a.zl;
     L[wa] = std::max(la - dh, 0.0);
     S[wa] = std::isfinite(S[wa]) ? std::max(S[wa], ssv) : ssv;
 
-    // 2D DDA (Amanatides-Woo) from the centre of a along m̂ to the first cell off the footprint.
-    int ci = a.i, cj = a.j;
-    const int si = du > 0 ? 1 : -1, sj = dv > 0 ? 1 : -1;
-    const double inf = std::numeric_limits<double>::infinity();
-    double tmi = du != 0 ? 0.5 / std::abs(du) : inf, tmj = dv != 0 ? 0.5 / std::abs(dv) : inf;
-    const double tdi = du != 0 ? 1.0 / std::abs(du) : inf, tdj = dv != 0 ? 1.0 / std::abs(dv) : inf;
+    // Walk from the centre of a along m̂ to the first cell off the footprint.
+    GridLine walk = GridLine::fromCellCentre(Index(a.i, a.j), du, dv);
     bool found = false;
     for (int step = 0; step < max_steps; ++step) {
-      if (tmi <= tmj) {
-        ci += si;
-        tmi += tdi;
-      } else {
-        cj += sj;
-        tmj += tdj;
-      }
-      if (!inFootprint(ci, cj)) {
+      walk.step();
+      if (!inFootprint(walk.row(), walk.col())) {
         found = true;
         break;
       }
     }
     TERRAMAP_CHECK(found, "deposit DDA did not leave the swept footprint");
+    const int ci = walk.row(), cj = walk.col();
     if (!geo.contains(Index(ci, cj))) {
-      rec->lost_volume_m3 += dep * cell;
-      ++rec->cells_lost;
+      rec.lost_volume_m3 += dep * cell;
+      ++rec.cells_lost;
       continue;
     }
     TERRAMAP_CHECK(win.contains(ci, cj), "deposit cell outside the sweep window");
@@ -365,8 +392,8 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
       // Unknown ground: keep the soil as loose thickness of known amount on it (its elevation
       // stays unknown until a sensor sees it), so no volume disappears.
       L[wb] = orZero(L[wb]) + dep;
-      rec->deposit_unknown_volume_m3 += dep * cell;
-      ++rec->cells_deposit_unknown;
+      rec.deposit_unknown_volume_m3 += dep * cell;
+      ++rec.cells_deposit_unknown;
       continue;
     }
     // 1σ worst case of the deposit given the uncertain surface (σ[a]) and blade (σ_SV).
@@ -380,85 +407,120 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
     L[wb] = orZero(L[wb]) + dep;
     const double sb = orZero(S[wb]);
     S[wb] = std::sqrt(sb * sb + 0.25 * dh_max * dh_max);
-    rec->deposit_volume_m3 += dep * cell;
+    rec.deposit_volume_m3 += dep * cell;
     if (!deposited[wb]) {
       deposited[wb] = 1;
-      ++rec->cells_deposit;
+      ++rec.cells_deposit;
     }
   }
+}
 
-  // Surcharge ahead of the blade at T1 after the deposit.
-  const auto vq1 = surchargeVolume(T1, bg, t_hat, cfg.fit_length_m, geo, win, L);
+// One step of the pose history (Alg. 1 l. 12): depth and width under the edge at that pose from
+// the sweep's slices; surcharge interpolated between the two ends.
+SweepStep stepValues(const std::vector<BladePose>& history, size_t k, const SweepDirections& dir, double res,
+                     const SweepRecord& rec) {
+  const double cell = res * res;
+  const double gamma_l = rec.loose_unit_weight_n_m3;
+  const double span = rec.t1 - rec.t0;
+  const Eigen::Vector2d& t_hat = dir.t_hat;
+  SweepStep st;
+  st.stamp = history[k].stamp;
+  st.tau = span > 0 ? std::clamp((st.stamp - rec.t0) / span, 0.0, 1.0) : (k + 1 == history.size() ? 1.0 : 0.0);
+  st.T_map_blade = history[k].T_map_blade;
+  const auto c = bladeCorners(st.T_map_blade, rec.geometry);
+  const double lat_r = (horizontal(c[0]) - dir.e0).dot(rec.t_perp);
+  const double lat_l = (horizontal(c[1]) - dir.e0).dot(rec.t_perp);
+  double wsum = 0, dsum = 0, cmin = std::numeric_limits<double>::infinity(), cmax = -cmin;
+  std::vector<double> dk(rec.slices.size(), kNaN);
+  if (std::abs(lat_l - lat_r) > 1e-9) {
+    const double tol = 0.5 * res / std::abs(lat_l - lat_r);
+    for (size_t a = 0; a < rec.slices.size(); ++a) {
+      const SweepSlice& sl = rec.slices[a];
+      if (!sl.valid) continue;
+      const double f = (sl.lateral_m - lat_r) / (lat_l - lat_r);  // where along the edge
+      if (f < -tol || f > 1 + tol) continue;
+      const double fc = std::clamp(f, 0.0, 1.0);
+      const Eigen::Vector3d pe = c[0] + fc * (c[1] - c[0]);
+      const double xe = (horizontal(pe) - sl.position).dot(t_hat);
+      const double zs = sl.surface_z_m + std::tan(sl.alpha_rad) * xe;
+      const double d = std::max(0.0, (zs - pe.z()) * std::cos(sl.alpha_rad));
+      dk[a] = d;
+      wsum += sl.weight;
+      dsum += sl.weight * d;
+      if (d > 0) {
+        cmin = std::min(cmin, sl.lateral_m);
+        cmax = std::max(cmax, sl.lateral_m);
+      }
+    }
+  }
+  st.alpha_rad = rec.alpha_rad;
+  st.var_alpha = rec.var_alpha;
+  st.rho_rad = rec.alpha_rad + bladeAngle(st.T_map_blade, t_hat);
+  st.var_rho = rec.var_alpha;
+  if (wsum > 0) {
+    st.d_m = dsum / wsum;
+    double v = 0;
+    for (size_t a = 0; a < rec.slices.size(); ++a)
+      if (std::isfinite(dk[a])) {
+        const auto& sl = rec.slices[a];
+        v += sl.weight * (sl.var_d + (dk[a] - st.d_m) * (dk[a] - st.d_m));
+      }
+    st.var_d = v / wsum;
+    st.w_m = cmax >= cmin ? cmax - cmin + res : 0.0;
+    st.var_w = cell / 12.0;
+  }
+  st.vq_m3 = (1 - st.tau) * rec.vq0_m3 + st.tau * rec.vq1_m3;
+  // Linear interpolation between two measured ends: 1σ error taken as τ(1-τ)|ΔV| on top of
+  // the ends' own boundary variance.
+  const double interp = st.tau * (1 - st.tau) * (rec.vq1_m3 - rec.vq0_m3);
+  st.var_vq = rec.var_vq + interp * interp;
+  st.q_n = gamma_l * st.vq_m3;
+  st.var_q = gamma_l * gamma_l * st.var_vq;
+  return st;
+}
+
+}  // namespace
+
+std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, const SweepConfig& cfg,
+                                      const std::vector<BladePose>& history, const Executor& ex) {
+  TERRAMAP_CHECK(history.size() >= 2, "runSweep needs at least two poses");
+  const Geometry& geo = map.geometry();
+  const double res = geo.resolution();
+  const BladeGeometry& bg = history.front().geometry;
+  auto rec = newRecord(history, cfg, res);
+  const SweepDirections dir = sweepDirections(history, cfg, *rec);
+  const SweptCells sc = sweptCells(history, cfg, geo, ex);
+
+  const MapWindow win = sweepWindow(map, sc.fp, cfg, dir.t_hat, res);
+  std::vector<double> H0, L0, S0;
+  win.gather(map, ids.elevation, H0);
+  win.gather(map, ids.loose, L0);
+  win.gather(map, ids.sigma, S0);
+  std::vector<double> H = H0, L = L0, S = S0;
+
+  const std::vector<CutCell> cuts = cutCells(sc, win, H0, geo, cfg, *rec);
+  extractSlices(cuts, win, H0, L0, geo, cfg, dir, ex, *rec);
+  averageSlices(!cuts.empty(), res, *rec);
+
+  // Surcharge ahead of the blade before the cut, the cut and deposit, the surcharge after.
+  const auto vq0 = surchargeVolume(rec->T_map_blade0, bg, dir.t_hat, cfg.fit_length_m, geo, win, L0);
+  rec->vq0_m3 = vq0.first;
+  cutAndDeposit(cuts, sc, win, geo, cfg, dir.m_hat, H, L, S, *rec);
+  const auto vq1 = surchargeVolume(rec->T_map_blade1, bg, dir.t_hat, cfg.fit_length_m, geo, win, L);
   rec->vq1_m3 = vq1.first;
+  const double gamma_l = rec->loose_unit_weight_n_m3;
   rec->q0_n = gamma_l * rec->vq0_m3;
   rec->q1_n = gamma_l * rec->vq1_m3;
   rec->var_vq = std::max(vq0.second, vq1.second);
 
-  // ---- per-step values over the pose history (Alg. 1 l. 12) --------------------------------
-  const double span = rec->t1 - rec->t0;
   rec->steps.reserve(history.size());
-  for (size_t k = 0; k < history.size(); ++k) {
-    SweepStep st;
-    st.stamp = history[k].stamp;
-    st.tau = span > 0 ? std::clamp((st.stamp - rec->t0) / span, 0.0, 1.0) : (k + 1 == history.size() ? 1.0 : 0.0);
-    st.T_map_blade = history[k].T_map_blade;
-    const auto c = bladeCorners(st.T_map_blade, bg);
-    const double lat_r = (horizontal(c[0]) - e0).dot(rec->t_perp);
-    const double lat_l = (horizontal(c[1]) - e0).dot(rec->t_perp);
-    double wsum = 0, dsum = 0, cmin = std::numeric_limits<double>::infinity(), cmax = -cmin;
-    std::vector<double> dk(rec->slices.size(), kNaN);
-    if (std::abs(lat_l - lat_r) > 1e-9) {
-      const double tol = 0.5 * res / std::abs(lat_l - lat_r);
-      for (size_t a = 0; a < rec->slices.size(); ++a) {
-        const SweepSlice& sl = rec->slices[a];
-        if (!sl.valid) continue;
-        const double f = (sl.lateral_m - lat_r) / (lat_l - lat_r);  // where along the edge
-        if (f < -tol || f > 1 + tol) continue;
-        const double fc = std::clamp(f, 0.0, 1.0);
-        const Eigen::Vector3d pe = c[0] + fc * (c[1] - c[0]);
-        const double xe = (horizontal(pe) - sl.position).dot(t_hat);
-        const double zs = sl.surface_z_m + std::tan(sl.alpha_rad) * xe;
-        const double d = std::max(0.0, (zs - pe.z()) * std::cos(sl.alpha_rad));
-        dk[a] = d;
-        wsum += sl.weight;
-        dsum += sl.weight * d;
-        if (d > 0) {
-          cmin = std::min(cmin, sl.lateral_m);
-          cmax = std::max(cmax, sl.lateral_m);
-        }
-      }
-    }
-    st.alpha_rad = rec->alpha_rad;
-    st.var_alpha = rec->var_alpha;
-    st.rho_rad = rec->alpha_rad + bladeAngle(st.T_map_blade, t_hat);
-    st.var_rho = rec->var_alpha;
-    if (wsum > 0) {
-      st.d_m = dsum / wsum;
-      double v = 0;
-      for (size_t a = 0; a < rec->slices.size(); ++a)
-        if (std::isfinite(dk[a])) {
-          const auto& sl = rec->slices[a];
-          v += sl.weight * (sl.var_d + (dk[a] - st.d_m) * (dk[a] - st.d_m));
-        }
-      st.var_d = v / wsum;
-      st.w_m = cmax >= cmin ? cmax - cmin + res : 0.0;
-      st.var_w = cell / 12.0;
-    }
-    st.vq_m3 = (1 - st.tau) * rec->vq0_m3 + st.tau * rec->vq1_m3;
-    // Linear interpolation between two measured ends: 1σ error taken as τ(1-τ)|ΔV| on top of
-    // the ends' own boundary variance.
-    const double interp = st.tau * (1 - st.tau) * (rec->vq1_m3 - rec->vq0_m3);
-    st.var_vq = rec->var_vq + interp * interp;
-    st.q_n = gamma_l * st.vq_m3;
-    st.var_q = gamma_l * gamma_l * st.var_vq;
-    rec->steps.push_back(st);
-  }
+  for (size_t k = 0; k < history.size(); ++k) rec->steps.push_back(stepValues(history, k, dir, res, *rec));
 
-  // ---- write back ---------------------------------------------------------------------------
+  // Write back only what changed, so snapshots keep sharing untouched tiles.
   win.scatterChanged(map, ids.elevation, H0, H);
   win.scatterChanged(map, ids.loose, L0, L);
   win.scatterChanged(map, ids.sigma, S0, S);
   return rec;
 }
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins

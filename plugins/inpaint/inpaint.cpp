@@ -1,7 +1,5 @@
 #include "inpaint.hpp"
 
-#include <terramap/plugin/abi.hpp>
-
 #include <algorithm>
 #include <cmath>
 #include <vector>
@@ -177,6 +175,3 @@ void Inpaint::finish(ProcessContext& ctx) {
 }
 
 }  // namespace terramap::plugins
-
-TERRAMAP_PLUGIN(terramap::plugins::Inpaint, "inpaint", "1.0.0",
-                "Fills unknown cells by push-pull interpolation, up to a distance from data")

@@ -1,6 +1,8 @@
 #include "lidar_fusion.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/core/grid_line.hpp>
+#include <terramap/core/submap_iterator.hpp>
 #include <terramap/core/text.hpp>
 
 #include <algorithm>
@@ -382,14 +384,14 @@ void LidarFusion::buildIndexTables(const LayeredMap& map) {
   col_tile_.resize(static_cast<size_t>(C));
   col_local_.resize(static_cast<size_t>(C));
   for (int i = 0; i < R; ++i) {
-    const int b = (i + s.x()) % R;
-    row_tile_[static_cast<size_t>(i)] = (b / T) * map.tileCols();
-    row_local_[static_cast<size_t>(i)] = (b % T) * T;
+    const AxisCell a = axisCell(i, s.x(), R, T);
+    row_tile_[static_cast<size_t>(i)] = a.tile * map.tileCols();
+    row_local_[static_cast<size_t>(i)] = a.offset * T;
   }
   for (int j = 0; j < C; ++j) {
-    const int b = (j + s.y()) % C;
-    col_tile_[static_cast<size_t>(j)] = b / T;
-    col_local_[static_cast<size_t>(j)] = b % T;
+    const AxisCell a = axisCell(j, s.y(), C, T);
+    col_tile_[static_cast<size_t>(j)] = a.tile;
+    col_local_[static_cast<size_t>(j)] = a.offset;
   }
   tables_start_ = s;
 }
@@ -686,8 +688,9 @@ void LidarFusion::driftCompensation(LayeredMap& map, const Executor& ex, const E
   st.drift_m = shift;
 }
 
-void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st) {
-  const int ntiles = map.tileCount();
+// The previous cloud's hit lists become prev_*, this cloud's are laid out; the tiles to visit
+// (task_tiles_) in task order. Returns whether there are previous lists to clear.
+bool LidarFusion::layoutHitLists(int ntiles) {
   // The previous cloud's hit lists become prev_*; this cloud's are laid out per tile with
   // room for every point of the tile (the distinct cells are at most that many).
   std::swap(hit_start_, prev_hit_start_);
@@ -713,7 +716,11 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
     const int pa = tile_points_[static_cast<size_t>(a)], pb = tile_points_[static_cast<size_t>(b)];
     return pa != pb ? pa > pb : a < b;
   });
+  return have_prev;
+}
 
+void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st) {
+  const bool have_prev = layoutHitLists(map.tileCount());
   const int nt = static_cast<int>(task_tiles_.size());
   std::vector<std::array<long, 3>> per(static_cast<size_t>(nt));
   const float k2 = static_cast<float>(config_.mahalanobis_thresh * config_.mahalanobis_thresh);
@@ -811,36 +818,63 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
 // ---- visibility cleanup ----------------------------------------------------------------------
 
 void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vector3d& S, FusionStats& st) {
-  const LidarFusionConfig& cf = config_;
+  const RayWalkView view = rayWalkView(map, S);
+  const int slots = ex.threads();
+  prepareRayTasks(slots, map.tileCount(), view.tile_cells);
+  const int nc = static_cast<int>(ray_tasks_.size());
+  ray_chunks_.resize(static_cast<size_t>(nc));
+  std::vector<std::array<long, 2>> per(static_cast<size_t>(nc));
+
+  // Phase A: walk rays (one task per fixed run of rays); reads the map only. Over unknown cells a
+  // ray lowers its slot's per-cell minimum (min is exact and order-free, so neither the
+  // chunk-to-thread assignment nor the order of rays changes the result); under stale
+  // surfaces it emits a penetration item (those are applied in ray order in phase B).
+  ex.forEach(nc, [&](int c) {
+    // forEach runs inline (on the caller, maybe outside the arena) for one thread or one task.
+    int slot = slots > 1 && nc > 1 ? tbb::this_task_arena::current_thread_index() : 0;
+    if (slot < 0 || slot >= slots)
+      throw std::logic_error("lidar_fusion: worker slot " + std::to_string(slot) + " outside the executor's " +
+                             std::to_string(slots));
+    per[static_cast<size_t>(c)] = walkRayTask(view, ray_min_[static_cast<size_t>(slot)], c);
+  });
+  for (const auto& p : per) {
+    st.rays += p[0];
+    st.ray_cells += p[1];
+  }
+  applyRayResults(map, ex, st);
+}
+
+LidarFusion::RayWalkView LidarFusion::rayWalkView(const LayeredMap& map, const Eigen::Vector3d& S) {
   const Geometry& g = map.geometry();
-  const int R = g.size().x(), C = g.size().y();
-  const double res = g.resolution();
+  RayWalkView w;
+  w.rows = g.size().x();
+  w.cols = g.size().y();
+  w.res = g.resolution();
   const Eigen::Array2d half = g.length() * 0.5;
   const double xmax = g.center().x() + half.x(), ymax = g.center().y() + half.y();
+  w.u0 = (xmax - S.x()) / w.res;
+  w.v0 = (ymax - S.y()) / w.res;
+  w.sensor_z = S.z();
   const int ntiles = map.tileCount();
-  const int tile_cells = map.tileSize() * map.tileSize();
+  w.tile_cells = map.tileSize() * map.tileSize();
   // Read-only views for phase A (the map is not written until phase B).
-  std::vector<const float*> E(static_cast<size_t>(ntiles)), V(static_cast<size_t>(ntiles)),
-      HT(static_cast<size_t>(ntiles));
+  w.elev.resize(static_cast<size_t>(ntiles));
+  w.var.resize(static_cast<size_t>(ntiles));
+  w.hits.resize(static_cast<size_t>(ntiles));
   // An unallocated (sparse) elevation tile reads as NaN: point it at a NaN tile, so the walk
   // needs no null test.
-  nan_tile_.assign(static_cast<size_t>(tile_cells), kNaN);
+  nan_tile_.assign(static_cast<size_t>(w.tile_cells), kNaN);
   for (int t = 0; t < ntiles; ++t) {
     const float* e = map.tileData(elev_, t);
-    E[static_cast<size_t>(t)] = e ? e : nan_tile_.data();
-    V[static_cast<size_t>(t)] = map.tileData(var_, t);
-    HT[static_cast<size_t>(t)] = map.tileData(hits_, t);
+    w.elev[static_cast<size_t>(t)] = e ? e : nan_tile_.data();
+    w.var[static_cast<size_t>(t)] = map.tileData(var_, t);
+    w.hits[static_cast<size_t>(t)] = map.tileData(hits_, t);
   }
-  const std::int32_t* row_tile = row_tile_.data();
-  const std::int32_t* row_local = row_local_.data();
-  const std::int32_t* col_tile = col_tile_.data();
-  const std::int32_t* col_local = col_local_.data();
-  auto elevAt = [&](int li, int lj) -> float {
-    if (li < 0 || lj < 0 || li >= R || lj >= C) return kNaN;
-    return E[static_cast<size_t>(row_tile[li] + col_tile[lj])][row_local[li] + col_local[lj]];
-  };
+  return w;
+}
+
+void LidarFusion::prepareRayTasks(int slots, int ntiles, int tile_cells) {
   // One ray-minimum buffer set per worker slot of the executor's arena (see RayMinSlot).
-  const int slots = ex.threads();
   if (ray_min_.size() != static_cast<size_t>(slots) || ray_min_[0].tiles.size() != static_cast<size_t>(ntiles) ||
       ray_min_tile_cells_ != tile_cells) {
     ray_min_.clear();
@@ -858,166 +892,161 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
     const int nr = static_cast<int>(point_chunks_[static_cast<size_t>(c)].ray_ends.size() / 3);
     for (int r0 = 0; r0 < nr; r0 += kRayTask) ray_tasks_.push_back({c, r0, std::min(nr, r0 + kRayTask)});
   }
-  const int nc = static_cast<int>(ray_tasks_.size());
-  ray_chunks_.resize(static_cast<size_t>(nc));
-  std::vector<std::array<long, 2>> per(static_cast<size_t>(nc));
-  const double k = cf.mahalanobis_thresh;
-  const double u0 = (xmax - S.x()) / res, v0 = (ymax - S.y()) / res;
+}
+
+// A known cell under the ray: a penetration item if the cell is stale (not measured by this
+// cloud), its surface is above the ray by k sigma and the ray is not grazing. Rare next to the
+// unknown-cell case: kept out of line, away from the walk's registers.
+__attribute__((noinline)) void LidarFusion::staleCell(const RayWalkView& w, int i, int j, std::int32_t tile,
+                                                      std::uint32_t off, float h, double zhi, double dirx,
+                                                      double diry, double dirz, std::vector<Item>& items) const {
+  const float* ht = w.hits[static_cast<size_t>(tile)];
+  if (ht && ht[off] > 0.0f) return;  // measured by this cloud: never cleaned by it
+  const float* vv = w.var[static_cast<size_t>(tile)];
+  const double var = vv ? vv[off] : 0.0;
+  const double k = config_.mahalanobis_thresh;
+  if (!(h - k * std::sqrt(std::max(var, 0.0)) > zhi)) return;
+  auto elevAt = [&](int li, int lj) -> float {
+    if (li < 0 || lj < 0 || li >= w.rows || lj >= w.cols) return kNaN;
+    return w.elev[static_cast<size_t>(row_tile_[static_cast<size_t>(li)] + col_tile_[static_cast<size_t>(lj)])]
+                 [row_local_[static_cast<size_t>(li)] + col_local_[static_cast<size_t>(lj)]];
+  };
+  // Surface normal from central differences (one-sided at unknown neighbours).
+  auto slope = [&](float a, float b, float m, double dist) {
+    if (!std::isnan(a) && !std::isnan(b)) return (a - b) / (2.0 * dist);
+    if (!std::isnan(a)) return (a - m) / dist;
+    if (!std::isnan(b)) return (m - b) / dist;
+    return 0.0;
+  };
+  // Row i-1 lies towards +x, column j-1 towards +y.
+  const double gx = slope(elevAt(i - 1, j), elevAt(i + 1, j), h, w.res);
+  const double gy = slope(elevAt(i, j - 1), elevAt(i, j + 1), h, w.res);
+  const double nn = std::sqrt(gx * gx + gy * gy + 1.0);
+  const double cosang = std::abs(-gx * dirx - gy * diry + dirz) / nn;
+  if (cosang >= config_.cleanup_cos_thresh) items.push_back(Item{tile, off, static_cast<float>(zhi), kRayPenetration});
+}
+
+std::array<long, 2> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& mins, int c) {
+  const LidarFusionConfig& cf = config_;
+  const int tile_cells = w.tile_cells;
   constexpr float kInf = std::numeric_limits<float>::infinity();
-
-  // Phase A: walk rays (one task per fixed run of rays); reads the map only. Over unknown cells a
-  // ray lowers its slot's per-cell minimum (min is exact and order-free, so neither the
-  // chunk-to-thread assignment nor the order of rays changes the result); under stale
-  // surfaces it emits a penetration item (those are applied in ray order in phase B).
-  ex.forEach(nc, [&](int c) {
-    // forEach runs inline (on the caller, maybe outside the arena) for one thread or one task.
-    int slot = slots > 1 && nc > 1 ? tbb::this_task_arena::current_thread_index() : 0;
-    if (slot < 0 || slot >= slots)
-      throw std::logic_error("lidar_fusion: worker slot " + std::to_string(slot) + " outside the executor's " +
-                             std::to_string(slots));
-    RayMinSlot& mins = ray_min_[static_cast<size_t>(slot)];
-    auto touch = [&](std::int32_t tile) {
-      std::unique_ptr<float[]>& buf = mins.tiles[static_cast<size_t>(tile)];
-      if (!buf) {
-        buf.reset(new float[static_cast<size_t>(tile_cells)]);
-        std::fill(buf.get(), buf.get() + tile_cells, kInf);
-      }
-      mins.active[static_cast<size_t>(tile)] = buf.get();
-      mins.list.push_back(tile);
-      return buf.get();
-    };
-    std::vector<Item>& out = ray_chunks_[static_cast<size_t>(c)];
-    out.clear();
-    const RayTask task = ray_tasks_[static_cast<size_t>(c)];
-    const std::vector<float>& ends = point_chunks_[static_cast<size_t>(task.chunk)].ray_ends;
-    // Locals for the walk loop (through the closure the compiler reloads them every step).
-    const float* const* const Et = E.data();
-    float* const* const active = mins.active.data();
-    const unsigned Ru = static_cast<unsigned>(R), Cu = static_cast<unsigned>(C);
-    const double Sz = S.z();
-    // A known cell under the ray: a penetration item if the cell is stale (not measured by
-    // this cloud), its surface is above the ray by k sigma and the ray is not grazing.
-    // Rare next to the unknown-cell case: kept out of line, away from the walk's registers.
-    auto stale = [&](int i, int j, std::int32_t tile, std::uint32_t off, float h, double zhi, double dirx,
-                     double diry, double dirz, std::vector<Item>& items) __attribute__((noinline)) {
-      const float* ht = HT[static_cast<size_t>(tile)];
-      if (ht && ht[off] > 0.0f) return;  // measured by this cloud: never cleaned by it
-      const float* vv = V[static_cast<size_t>(tile)];
-      const double var = vv ? vv[off] : 0.0;
-      if (!(h - k * std::sqrt(std::max(var, 0.0)) > zhi)) return;
-      // Surface normal from central differences (one-sided at unknown neighbours).
-      auto slope = [&](float a, float b, float m, double dist) {
-        if (!std::isnan(a) && !std::isnan(b)) return (a - b) / (2.0 * dist);
-        if (!std::isnan(a)) return (a - m) / dist;
-        if (!std::isnan(b)) return (m - b) / dist;
-        return 0.0;
-      };
-      // Row i-1 lies towards +x, column j-1 towards +y.
-      const double gx = slope(elevAt(i - 1, j), elevAt(i + 1, j), h, res);
-      const double gy = slope(elevAt(i, j - 1), elevAt(i, j + 1), h, res);
-      const double nn = std::sqrt(gx * gx + gy * gy + 1.0);
-      const double cosang = std::abs(-gx * dirx - gy * diry + dirz) / nn;
-      if (cosang >= cf.cleanup_cos_thresh) items.push_back(Item{tile, off, static_cast<float>(zhi), kRayPenetration});
-    };
-    long nrays = 0, ncells = 0;
-    for (size_t q = 3 * static_cast<size_t>(task.begin); q < 3 * static_cast<size_t>(task.end); q += 3) {
-      const double dx = ends[q], dy = ends[q + 1], dz = ends[q + 2];
-      const double L = std::sqrt(dx * dx + dy * dy + dz * dz);
-      if (!(L > 1e-9)) continue;
-      double t1 = std::min({1.0, (L - cf.cleanup_end_margin_m) / L, cf.max_ray_length_m / L});
-      if (!(t1 > 0.0)) continue;
-      ++nrays;
-      // Grid coordinates: u = (xmax - x)/res grows with the row index i (cell i = (i, i+1]).
-      const double du = -dx / res, dv = -dy / res;
-      double t0 = 0.0;
-      // Clip t to the map box u in [0, R], v in [0, C] (Liang-Barsky).
-      auto clip = [&](double p0, double dp, double hi) {
-        if (dp == 0.0) {
-          if (p0 < 0.0 || p0 > hi) t1 = -1.0;
-          return;
-        }
-        double ta = (0.0 - p0) / dp, tb = (hi - p0) / dp;
-        if (ta > tb) std::swap(ta, tb);
-        t0 = std::max(t0, ta);
-        t1 = std::min(t1, tb);
-      };
-      clip(u0, du, R);
-      clip(v0, dv, C);
-      if (!(t1 > t0)) continue;
-      // Start cell: the one containing the point just after t0.
-      const double tm = t0 + 1e-9 * (t1 - t0);
-      int i = static_cast<int>(std::ceil(u0 + tm * du)) - 1;
-      int j = static_cast<int>(std::ceil(v0 + tm * dv)) - 1;
-      i = std::clamp(i, 0, R - 1);
-      j = std::clamp(j, 0, C - 1);
-      const int si = du > 0 ? 1 : -1, sj = dv > 0 ? 1 : -1;
-      const double inf = std::numeric_limits<double>::infinity();
-      const double tdi = du != 0.0 ? 1.0 / std::abs(du) : inf;
-      const double tdj = dv != 0.0 ? 1.0 / std::abs(dv) : inf;
-      double tmi = du != 0.0 ? ((du > 0 ? i + 1 : i) - u0) / du : inf;
-      double tmj = dv != 0.0 ? ((dv > 0 ? j + 1 : j) - v0) / dv : inf;
-      double ta = t0;
-      const double dirx = dx / L, diry = dy / L, dirz = dz / L;
-      // Tile and in-tile offset of (i, j), updated per step from the axis that changed; the
-      // tile's elevation data and minimum buffer are looked up only when the tile changes.
-      std::int32_t rt = row_tile[i], rl = row_local[i], ct = col_tile[j], cl = col_local[j];
-      std::int32_t tile = rt + ct;
-      const float* e = Et[tile];
-      float* m = active[tile];
-      const bool up = dz >= 0;
-      long steps = 0;
-      while (true) {
-        const double tb = std::min(std::min(tmi, tmj), t1);
-        // Highest point of the ray inside this column: the ground under the crossing is below it.
-        const double zhi = Sz + (up ? tb : ta) * dz;
-        ++steps;
-        const std::uint32_t off = static_cast<std::uint32_t>(rl + cl);
-        const float h = e[off];
-        if (std::isnan(h)) {
-          if (!m) m = touch(tile);
-          const float z = static_cast<float>(zhi);
-          if (z < m[off]) m[off] = z;
-        } else if (h > zhi) {
-          // (Necessary for h - k sigma > zhi, as k sigma >= 0: most known cells stop here.)
-          stale(i, j, tile, off, h, zhi, dirx, diry, dirz, out);
-        }
-        if (tb >= t1) break;
-        if (tmi <= tmj) {
-          i += si;
-          tmi += tdi;
-          if (static_cast<unsigned>(i) >= Ru) break;
-          rl = row_local[i];
-          if (row_tile[i] != rt) {
-            rt = row_tile[i];
-            tile = rt + ct;
-            e = Et[tile];
-            m = active[tile];
-          }
-        } else {
-          j += sj;
-          tmj += tdj;
-          if (static_cast<unsigned>(j) >= Cu) break;
-          cl = col_local[j];
-          if (col_tile[j] != ct) {
-            ct = col_tile[j];
-            tile = rt + ct;
-            e = Et[tile];
-            m = active[tile];
-          }
-        }
-        ta = tb;
-      }
-      ncells += steps;
+  auto touch = [&](std::int32_t tile) {
+    std::unique_ptr<float[]>& buf = mins.tiles[static_cast<size_t>(tile)];
+    if (!buf) {
+      buf.reset(new float[static_cast<size_t>(tile_cells)]);
+      std::fill(buf.get(), buf.get() + tile_cells, kInf);
     }
-    per[static_cast<size_t>(c)] = {nrays, ncells};
-  });
-  for (const auto& p : per) {
-    st.rays += p[0];
-    st.ray_cells += p[1];
+    mins.active[static_cast<size_t>(tile)] = buf.get();
+    mins.list.push_back(tile);
+    return buf.get();
+  };
+  std::vector<Item>& out = ray_chunks_[static_cast<size_t>(c)];
+  out.clear();
+  const RayTask task = ray_tasks_[static_cast<size_t>(c)];
+  const std::vector<float>& ends = point_chunks_[static_cast<size_t>(task.chunk)].ray_ends;
+  // Locals for the walk loop (through a closure or `this` the compiler reloads them every step).
+  const std::int32_t* row_tile = row_tile_.data();
+  const std::int32_t* row_local = row_local_.data();
+  const std::int32_t* col_tile = col_tile_.data();
+  const std::int32_t* col_local = col_local_.data();
+  const float* const* const Et = w.elev.data();
+  float* const* const active = mins.active.data();
+  const int R = w.rows, C = w.cols;
+  const unsigned Ru = static_cast<unsigned>(R), Cu = static_cast<unsigned>(C);
+  const double res = w.res, u0 = w.u0, v0 = w.v0, Sz = w.sensor_z;
+  long nrays = 0, ncells = 0;
+  for (size_t q = 3 * static_cast<size_t>(task.begin); q < 3 * static_cast<size_t>(task.end); q += 3) {
+    const double dx = ends[q], dy = ends[q + 1], dz = ends[q + 2];
+    const double L = std::sqrt(dx * dx + dy * dy + dz * dz);
+    if (!(L > 1e-9)) continue;
+    double t1 = std::min({1.0, (L - cf.cleanup_end_margin_m) / L, cf.max_ray_length_m / L});
+    if (!(t1 > 0.0)) continue;
+    ++nrays;
+    // Grid coordinates: u = (xmax - x)/res grows with the row index i (cell i = (i, i+1]).
+    const double du = -dx / res, dv = -dy / res;
+    double t0 = 0.0;
+    // Clip t to the map box u in [0, R], v in [0, C] (Liang-Barsky).
+    auto clip = [&](double p0, double dp, double hi) {
+      if (dp == 0.0) {
+        if (p0 < 0.0 || p0 > hi) t1 = -1.0;
+        return;
+      }
+      double ta = (0.0 - p0) / dp, tb = (hi - p0) / dp;
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta);
+      t1 = std::min(t1, tb);
+    };
+    clip(u0, du, R);
+    clip(v0, dv, C);
+    if (!(t1 > t0)) continue;
+    // Start cell: the one containing the point just after t0.
+    const double tm = t0 + 1e-9 * (t1 - t0);
+    int i = static_cast<int>(std::ceil(u0 + tm * du)) - 1;
+    int j = static_cast<int>(std::ceil(v0 + tm * dv)) - 1;
+    i = std::clamp(i, 0, R - 1);
+    j = std::clamp(j, 0, C - 1);
+    GridLine line(Index(i, j), u0, v0, du, dv);
+    double ta = t0;
+    const double dirx = dx / L, diry = dy / L, dirz = dz / L;
+    // Tile and in-tile offset of (i, j), updated per step from the axis that changed; the
+    // tile's elevation data and minimum buffer are looked up only when the tile changes.
+    std::int32_t rt = row_tile[i], rl = row_local[i], ct = col_tile[j], cl = col_local[j];
+    std::int32_t tile = rt + ct;
+    const float* e = Et[tile];
+    float* m = active[tile];
+    const bool up = dz >= 0;
+    long steps = 0;
+    while (true) {
+      const double tb = std::min(line.exitParam(), t1);
+      // Highest point of the ray inside this column: the ground under the crossing is below it.
+      const double zhi = Sz + (up ? tb : ta) * dz;
+      ++steps;
+      const std::uint32_t off = static_cast<std::uint32_t>(rl + cl);
+      const float h = e[off];
+      if (std::isnan(h)) {
+        if (!m) m = touch(tile);
+        const float z = static_cast<float>(zhi);
+        if (z < m[off]) m[off] = z;
+      } else if (h > zhi) {
+        // (Necessary for h - k sigma > zhi, as k sigma >= 0: most known cells stop here.)
+        staleCell(w, i, j, tile, off, h, zhi, dirx, diry, dirz, out);
+      }
+      if (tb >= t1) break;
+      if (line.step() == GridLine::Axis::Row) {
+        i = line.row();
+        if (static_cast<unsigned>(i) >= Ru) break;
+        rl = row_local[i];
+        if (row_tile[i] != rt) {
+          rt = row_tile[i];
+          tile = rt + ct;
+          e = Et[tile];
+          m = active[tile];
+        }
+      } else {
+        j = line.col();
+        if (static_cast<unsigned>(j) >= Cu) break;
+        cl = col_local[j];
+        if (col_tile[j] != ct) {
+          ct = col_tile[j];
+          tile = rt + ct;
+          e = Et[tile];
+          m = active[tile];
+        }
+      }
+      ta = tb;
+    }
+    ncells += steps;
   }
+  return {nrays, ncells};
+}
 
-  // Phase B, one task per tile that has ray minima or penetration items: apply the minima
-  // (and reset the buffers), then the penetration items in ray order.
+// Phase B, one task per tile that has ray minima or penetration items: apply the minima
+// (and reset the buffers), then the penetration items in ray order.
+void LidarFusion::applyRayResults(LayeredMap& map, const Executor& ex, FusionStats& st) {
+  const LidarFusionConfig& cf = config_;
+  const int ntiles = map.tileCount();
+  const int tile_cells = map.tileSize() * map.tileSize();
+  constexpr float kInf = std::numeric_limits<float>::infinity();
   binItems(ex, ray_chunks_, ntiles);  // penetration items, stable by tile
   std::vector<char> mark(static_cast<size_t>(ntiles), 0);
   for (const RayMinSlot& m : ray_min_)

@@ -181,6 +181,7 @@ class LidarFusion : public Plugin {
   void driftCompensation(LayeredMap& map, const Executor& ex, const Eigen::Isometry3d& T,
                          FusionStats& st);
   void fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st);
+  bool layoutHitLists(int ntiles);
   void cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vector3d& sensor,
                FusionStats& st);
   void accumulate(const FusionStats& st);
@@ -220,6 +221,20 @@ class LidarFusion : public Plugin {
   };
   std::vector<RayTask> ray_tasks_;
   std::vector<std::vector<Item>> ray_chunks_;
+  /// What the cleanup's ray walk reads: per-tile layer views (elevation never null: an
+  /// unallocated tile points at nan_tile_), the grid size and the sensor in grid coordinates.
+  struct RayWalkView {
+    std::vector<const float*> elev, var, hits;
+    int rows = 0, cols = 0, tile_cells = 0;
+    double res = 0, u0 = 0, v0 = 0, sensor_z = 0;
+  };
+  // The steps of cleanup(): views, ray tasks, phase A per task (the walk), phase B.
+  RayWalkView rayWalkView(const LayeredMap& map, const Eigen::Vector3d& sensor);
+  void prepareRayTasks(int slots, int ntiles, int tile_cells);
+  std::array<long, 2> walkRayTask(const RayWalkView& view, RayMinSlot& mins, int task);
+  void staleCell(const RayWalkView& view, int i, int j, std::int32_t tile, std::uint32_t off, float h, double zhi,
+                 double dirx, double diry, double dirz, std::vector<Item>& items) const;
+  void applyRayResults(LayeredMap& map, const Executor& ex, FusionStats& st);
   std::vector<int> bin_start_;     // tile -> first binned item; size tiles + 1
   std::vector<Item> binned_;
   std::vector<int> ray_tiles_;     // tiles with binned ray items, ascending

@@ -1,5 +1,6 @@
 // The library's one export: the plugin record and factory (abi.hpp). Kept apart from
-// lidar_fusion.cpp so tests and benchmarks can compile the class without the C symbols.
+// the plugin's other sources so that lidar_fusion_kernels (tests, benchmarks) holds the classes
+// without the C symbols.
 #include <terramap/plugin/abi.hpp>
 
 #include "lidar_fusion.hpp"

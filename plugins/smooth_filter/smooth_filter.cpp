@@ -1,7 +1,5 @@
 #include "smooth_filter.hpp"
 
-#include <terramap/plugin/abi.hpp>
-
 #include <cmath>
 
 namespace terramap::plugins {
@@ -120,6 +118,3 @@ void SmoothFilter::run(LayeredMap& map, const Executor& ex, LayerId in, LayerId 
 }
 
 }  // namespace terramap::plugins
-
-TERRAMAP_PLUGIN(terramap::plugins::SmoothFilter, "smooth_filter", "1.0.0",
-                "NaN-aware separable Gaussian smoothing of a layer")

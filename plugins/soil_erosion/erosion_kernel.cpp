@@ -6,7 +6,7 @@
 #include <limits>
 #include <sstream>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 void ErosionGrid::resize(int r, int c) {
   rows = r;
@@ -231,4 +231,4 @@ void ErosionSolver::passSerial(ErosionGrid& g, int di, int dj) const {
       for (int pc = 0; pc < 2; ++pc) colour(g, vi, vj, pr, pc, di, dj, 0, g.rows, 0, g.cols);
 }
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins

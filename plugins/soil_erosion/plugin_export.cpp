@@ -1,11 +1,9 @@
-// The one TERRAMAP_PLUGIN of the soil_erosion library.
+// The library's one export: the plugin record and factory (abi.hpp). Kept apart from
+// the plugin's other sources so that soil_erosion_kernels (tests, benchmarks) holds the classes
+// without the C symbols.
 #include <terramap/plugin/abi.hpp>
 
 #include "soil_erosion.hpp"
 
-// Gives the info record external linkage (a namespace-scope const alone has internal linkage,
-// so abi.hpp's macro by itself would not export it).
-extern "C" __attribute__((visibility("default"))) const terramap_plugin_info_t terramap_plugin_info;
-
-TERRAMAP_PLUGIN(terramap::blind::SoilErosion, "soil_erosion", "1.0.0",
+TERRAMAP_PLUGIN(terramap::plugins::SoilErosion, "soil_erosion", "1.0.0",
                 "Mohr-Coulomb slip of loose soil around the blade after each sweep (4-colour parallel)")

@@ -1,13 +1,13 @@
 // The soil_erosion plugin: ROI around the blade, masks from the sweep record, map I/O.
 #include "soil_erosion.hpp"
 
-#include "../blade_sweep/map_window.hpp"
+#include <terramap/core/map_window.hpp>
 
 #include <cmath>
 #include <limits>
 #include <sstream>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 namespace {
 constexpr double kPi = 3.14159265358979323846;
@@ -153,4 +153,4 @@ void SoilErosion::erodeAround(ProcessContext& ctx, const SweepRecord& rec) {
   ctx.addCounter("roi_cells", static_cast<double>(win.size()));
 }
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins

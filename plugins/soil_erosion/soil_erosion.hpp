@@ -29,7 +29,7 @@
 #include <string>
 #include <vector>
 
-namespace terramap::blind {
+namespace terramap::plugins {
 
 struct ErosionConfig {
   double cohesion_pa = 25.0;       ///< c_l
@@ -112,4 +112,4 @@ class SoilErosion : public Plugin {
   long passes_run_ = 0;
 };
 
-}  // namespace terramap::blind
+}  // namespace terramap::plugins

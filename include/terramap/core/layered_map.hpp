@@ -16,6 +16,7 @@
 /// *different* tiles (mutableTileData, set on cells of different tiles) may run concurrently;
 /// everything else that mutates (addLayer, move, fill, ...) needs exclusive access.
 /// A snapshot shares no mutable state with its source and may live on another thread.
+#include <terramap/core/cell_rect.hpp>
 #include <terramap/core/error.hpp>
 #include <terramap/core/geometry.hpp>
 
@@ -33,13 +34,6 @@ struct LayerInfo {
   std::string name;
   std::string unit;   ///< SI unit, e.g. "m", "m^2", "s", "1" (dimensionless), "count"
   float fill = std::numeric_limits<float>::quiet_NaN();  ///< value of cells never written
-};
-
-/// A rectangle of buffer cells [r0, r0+rows) x [c0, c0+cols) (no wrap-around).
-struct CellRect {
-  int r0 = 0, c0 = 0, rows = 0, cols = 0;
-  long cells() const { return static_cast<long>(rows) * cols; }
-  bool empty() const { return rows <= 0 || cols <= 0; }
 };
 
 struct MapOptions {

@@ -13,6 +13,7 @@
 ///    blade but never through it. All three conserve sum(U + Lc) exactly up to rounding.
 /// Frames: map (z up); blade frame as in core/events.hpp (x = face normal forward, y along the
 /// edge to the left, z up the face). Forces in newtons, map frame, *soil on blade*.
+#include <terramap/core/cell_rect.hpp>
 #include <terramap/core/events.hpp>
 #include <terramap/core/parallel.hpp>
 #include <terramap/sim/truth_terrain.hpp>
@@ -58,26 +59,10 @@ BladeForce bladeSoilForce(const TruthTerrain& terrain, const SoilField& soil, co
                           double normal_speed_mps, double edge_vz_mps, double accel_mps2,
                           const Executor* exec = nullptr);
 
-/// An inclusive box of truth-terrain nodes [i0, i1] x [j0, j1]; empty when i1 < i0.
-struct NodeBox {
-  int i0 = 0, j0 = 0, i1 = -1, j1 = -1;
-  bool empty() const { return i1 < i0; }
-  /// Grows the box to cover [a0, a1] x [b0, b1] (nothing if that is empty).
-  void add(int a0, int b0, int a1, int b1) {
-    if (a1 < a0) return;
-    if (empty()) {
-      i0 = a0; j0 = b0; i1 = a1; j1 = b1;
-      return;
-    }
-    i0 = std::min(i0, a0); j0 = std::min(j0, b0);
-    i1 = std::max(i1, a1); j1 = std::max(j1, b1);
-  }
-  void add(const NodeBox& b) { add(b.i0, b.j0, b.i1, b.j1); }
-};
 
-/// Result of one cut-and-push step (volumes in m^3 of bank-equivalent soil) and the node box
-/// that changed (for pyramid refreshes and the simulator's terrain patches).
-struct CutResult : NodeBox {
+/// Result of one cut-and-push step (volumes in m^3 of bank-equivalent soil) and the box of
+/// truth-terrain nodes (i = x index, j = y index) that changed (for pyramid refreshes and the simulator's terrain patches).
+struct CutResult : CellRect {
   double cut_bank_m3 = 0;       ///< undisturbed soil cut
   double moved_loose_m3 = 0;    ///< loose soil (already cut) pushed again, bank-equivalent
   double deposited_m3 = 0;      ///< bank-equivalent deposited (= cut + moved - lost)

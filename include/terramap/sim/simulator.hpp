@@ -97,7 +97,7 @@ class Simulator {
   struct ScanRequest;
   struct Period;
   struct Pipe;
-  using Box = NodeBox;
+  using Box = CellRect;
   void physicsStep(double dt, bool relax);
   void markDirty(const CutResult& r) { dirty_.add(r); }
   /// Brings `terrain`'s ray-casting pyramid up to date over `dirty` and empties it.

@@ -7,7 +7,7 @@
 #include <cmath>
 #include <functional>
 
-namespace terramap::blind::test {
+namespace terramap::plugins::test {
 
 constexpr double kPi = 3.14159265358979323846;
 
@@ -76,4 +76,4 @@ struct Harness {
   Harness(LayeredMap& map, int threads) : ex(threads), ctx(map, ex, bus, stats, "blade") {}
 };
 
-}  // namespace terramap::blind::test
+}  // namespace terramap::plugins::test

@@ -5,8 +5,8 @@
 #include "sweep_test_util.hpp"
 
 using namespace terramap;
-using namespace terramap::blind;
-using namespace terramap::blind::test;
+using namespace terramap::plugins;
+using namespace terramap::plugins::test;
 
 TEST(CutDeposit, LooseSoilDoesNotSwellTwice) {
   // Flat ground at 0, 4 cm of loose soil on it, blade edge 10 cm deep moving +x by 0.25 m:

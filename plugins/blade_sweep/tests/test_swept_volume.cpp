@@ -7,8 +7,8 @@
 #include "sweep_test_util.hpp"
 
 using namespace terramap;
-using namespace terramap::blind;
-using namespace terramap::blind::test;
+using namespace terramap::plugins;
+using namespace terramap::plugins::test;
 
 namespace {
 

@@ -4,11 +4,11 @@
 
 #include <cstring>
 
-#include "../../blade_sweep/blade_sweep.hpp"
+#include "blade_sweep.hpp"
 #include "soil_erosion.hpp"
 
 using namespace terramap;
-using namespace terramap::blind;
+using namespace terramap::plugins;
 
 namespace {
 

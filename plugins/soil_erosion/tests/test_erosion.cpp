@@ -10,7 +10,7 @@
 #include "soil_erosion.hpp"
 
 using namespace terramap;
-using namespace terramap::blind;
+using namespace terramap::plugins;
 
 namespace {
 

@@ -12,11 +12,11 @@
 
 #include <terramap/sim/simulator.hpp>
 
-#include "../../blade_sweep/blade_sweep.hpp"
+#include "blade_sweep.hpp"
 #include "soil_erosion.hpp"
 
 using namespace terramap;
-using namespace terramap::blind;
+using namespace terramap::plugins;
 
 namespace {
 

@@ -6,15 +6,23 @@
 /// less than per-cell ring-buffer arithmetic, lets the kernels compute in double precision,
 /// and writing back only changed cells keeps copy-on-write snapshots sharing untouched tiles.
 ///
+/// Units and frames: cells are *logical* indices (geometry.hpp: row i grows towards -x, column
+/// j towards -y); the dense arrays hold whatever the layer holds, converted to T (float32 →
+/// double is exact). NaN (= unknown) is copied like any value; an unallocated sparse tile reads
+/// as the layer's fill value.
+///
 /// Threading: gather() is const on the map and may run concurrently with other readers;
 /// scatterChanged() mutates the map and needs the exclusive access a plugin has in process().
+/// Throws: gather()/scatterChanged() throw LayerError on a bad layer id (LayeredMap::layerInfo);
+/// nothing else. The constructor clips instead of throwing: a window off the map is empty.
 #include <terramap/core/layered_map.hpp>
+#include <terramap/core/submap_iterator.hpp>
 
 #include <algorithm>
 #include <cstring>
 #include <vector>
 
-namespace terramap::blind {
+namespace terramap {
 
 class MapWindow {
  public:
@@ -31,22 +39,21 @@ class MapWindow {
     map_tile_cols_ = map.tileCols();
     const Index start = map.startIndex();
     // Per row/column: which tile row/column (as an index into the distinct ones met) and the
-    // offset inside it. Buffer index = (logical + start) mod size (layered_map.hpp).
+    // offset inside it (axisCell, submap_iterator.hpp).
     auto build = [&](int first, int n, int size, int st, std::vector<int>& tile, std::vector<int>& off,
                      std::vector<int>& distinct) {
       tile.resize(static_cast<size_t>(n));
       off.resize(static_cast<size_t>(n));
       for (int k = 0; k < n; ++k) {
-        int b = (first + k + st) % size;
-        if (b < 0) b += size;
-        const int t = b / T_;
+        const AxisCell cell = axisCell(first + k, st, size, T_);
+        const int t = cell.tile;
         auto it = std::find(distinct.begin(), distinct.end(), t);
         if (it == distinct.end()) {
           distinct.push_back(t);
           it = distinct.end() - 1;
         }
         tile[static_cast<size_t>(k)] = static_cast<int>(it - distinct.begin());
-        off[static_cast<size_t>(k)] = b - t * T_;
+        off[static_cast<size_t>(k)] = cell.offset;
       }
     };
     build(i0_, rows_, sz.x(), start.x(), row_tile_, row_off_, tile_rows_);
@@ -116,4 +123,4 @@ class MapWindow {
   std::vector<int> tile_rows_, tile_cols_;  // distinct tile rows / columns met
 };
 
-}  // namespace terramap::blind
+}  // namespace terramap

@@ -1,3 +1,0 @@
-// Compiles blade_sweep's sweep_geometry.cpp into this test program so that the chain test can run the
-// real blade plugin before erosion (the test target builds only soil_erosion's own sources).
-#include "../../blade_sweep/sweep_geometry.cpp"
