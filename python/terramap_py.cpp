@@ -55,6 +55,8 @@ Eigen::Isometry3d isometryFrom(const py::array_t<double, py::array::c_style | py
   return T;
 }
 
+py::object jsonToPython(const std::string& text) { return py::module_::import("json").attr("loads")(text); }
+
 /// The Python face of a snapshot.
 class Map {
  public:
@@ -192,7 +194,7 @@ class PyEngine {
     if (!source_) throw py::value_error("compare_with_truth: play() the pipeline's source first");
     const TruthComparison c = eval::compareWithSourceTruth(engine_->mutableMap(), *source_);
     if (c.json.empty()) return py::none();
-    return py::module_::import("json").attr("loads")(c.json);
+    return jsonToPython(c.json);
   }
 
   Engine& engine() { return *engine_; }
@@ -205,21 +207,16 @@ class PyEngine {
   std::unique_ptr<Source> source_;
 };
 
-py::object jsonToPython(const std::string& text) { return py::module_::import("json").attr("loads")(text); }
 
-}  // namespace
-
-PYBIND11_MODULE(_terramap, m) {
-  m.doc() = "terramap's C++ engine (see the terramap package for the documentation)";
-  sim::registerSimSource();
-
+/// terramap::Error and its kinds as Python exceptions carrying the C++ message.
+void bindErrors(py::module_& m) {
   static py::exception<Error> error(m, "Error");
   static py::exception<ConfigError> config_error(m, "ConfigError", error.ptr());
   static py::exception<InputError> input_error(m, "InputError", error.ptr());
   static py::exception<PluginError> plugin_error(m, "PluginError", error.ptr());
   static py::exception<LayerError> layer_error(m, "LayerError", error.ptr());
   static py::exception<OutputError> output_error(m, "OutputError", error.ptr());
-  // Most derived first: pybind11 tries translators from the last registered.
+  // Most derived first: the first matching catch wins.
   py::register_exception_translator([](std::exception_ptr p) {
     try {
       if (p) std::rethrow_exception(p);
@@ -237,7 +234,10 @@ PYBIND11_MODULE(_terramap, m) {
       error(e.what());
     }
   });
+}
 
+/// Geometry: resolution, size, centre and the cell <-> position mapping.
+void bindGeometry(py::module_& m) {
   py::class_<Geometry>(m, "Geometry", "Grid geometry: resolution (m), size (rows, cols), centre (x, y) in the map frame.")
       .def(py::init([](double resolution, std::pair<int, int> size, std::pair<double, double> center) {
              return Geometry(resolution, Size(size.first, size.second), Position(center.first, center.second));
@@ -260,7 +260,10 @@ PYBIND11_MODULE(_terramap, m) {
             return std::make_pair(idx->x(), idx->y());
           },
           py::arg("x"), py::arg("y"), "Logical cell (i, j) holding (x, y), or None outside the map.");
+}
 
+/// Map (a snapshot) with its layers as numpy arrays, and load_snapshot.
+void bindMap(py::module_& m) {
   py::class_<Map>(m, "Map",
                   "A consistent copy-on-write snapshot of an engine's map (or a map loaded from .tmap).")
       .def_property_readonly("geometry", [](const Map& s) { return s.get().geometry(); })
@@ -287,7 +290,10 @@ PYBIND11_MODULE(_terramap, m) {
         return Map(std::move(p));
       },
       py::arg("path"));
+}
 
+/// Engine: pipelines from files, text or code; events from numpy; play, snapshots, report.
+void bindEngine(py::module_& m) {
   py::class_<PyEngine>(m, "Engine")
       .def_static(
           "from_file", [](const std::string& path, int threads) { return new PyEngine(parsePipelineFile(path), threads); },
@@ -379,7 +385,10 @@ PYBIND11_MODULE(_terramap, m) {
       .def_property_readonly("stage_names", [](PyEngine& e) { return e.engine().stageNames(); })
       .def("report", [](PyEngine& e) { return jsonToPython(reportToJson(e.engine().report())); })
       .def("compare_with_truth", &PyEngine::compareWithTruth);
+}
 
+/// run_pipeline (the whole runner) and fee (the FEE calculator).
+void bindFunctions(py::module_& m) {
   m.def(
       "run_pipeline",
       [](const std::string& path, const std::string& out, int threads) {
@@ -437,4 +446,16 @@ PYBIND11_MODULE(_terramap, m) {
       "`terramap fee` computes it: at beta_rad if given, else at beta* ('min') or Rankine's\n"
       "pi/4 - phi/2 ('nominal'). Returns beta_rad, f_N, F_N and F_total_N (x along travel, z up, N),\n"
       "the N-factors, valid and validity (the rule that failed).");
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_terramap, m) {
+  m.doc() = "terramap's C++ engine (see the terramap package for the documentation)";
+  sim::registerSimSource();
+  bindErrors(m);
+  bindGeometry(m);
+  bindMap(m);
+  bindEngine(m);
+  bindFunctions(m);
 }
