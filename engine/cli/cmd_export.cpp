@@ -139,8 +139,8 @@ int runExport(const ExportOptions& o, const std::set<std::string>& given) {
                                          : fs::path(o.out) / (safeFileStem(l) + ".png"));
   }
   for (const auto& [layer, path] : jobs) {
-    const io::Image raw = io::renderLayer(map, layer, r);
-    const io::Image img = o.raw ? raw : io::annotate(raw, map, layer, r, io::Annotation{});
+    const io::Image img =
+        io::renderPicture(map, layer, r, o.raw ? std::nullopt : std::optional<io::Annotation>(io::Annotation{}));
     io::writePng(img, path);
     std::cout << "wrote " << path.string() << " (PNG " << img.width << "x" << img.height << ", layer '" << layer
               << "', " << io::Colormap::byName(r.colormap).name() << (r.hillshade ? ", hillshaded" : "") << ")\n";

@@ -296,10 +296,21 @@ void writePng(const Image& image, const fs::path& path) {
   });
 }
 
+Image renderPicture(const LayeredMap& map, const std::string& layer, const RenderOptions& options,
+                    const std::optional<Annotation>& annotation) {
+  if (!annotation) return renderLayer(map, layer, options);
+  // The colour bar needs the range the render used: resolve it once (an automatic range sorts
+  // the whole layer). A degenerate automatic range stays automatic (a fixed one must have
+  // min < max).
+  RenderOptions o = options;
+  const ValueRange r = renderRange(map, map.layerId(layer), o);
+  if (r.min < r.max) o.range = r;
+  return annotate(renderLayer(map, layer, o), map, layer, o, *annotation);
+}
+
 void renderPng(const LayeredMap& map, const std::string& layer, const fs::path& path, const RenderOptions& options,
                const std::optional<Annotation>& annotation) {
-  const Image img = renderLayer(map, layer, options);
-  writePng(annotation ? annotate(img, map, layer, options, *annotation) : img, path);
+  writePng(renderPicture(map, layer, options, annotation), path);
 }
 
 }  // namespace terramap::io

@@ -161,8 +161,12 @@ struct AnnotatedLayout {
 Image annotate(const Image& map_image, const LayeredMap& map, const std::string& layer, const RenderOptions& options,
                const Annotation& annotation, AnnotatedLayout* layout = nullptr);
 
-/// renderLayer + writePng. With `annotation`, the picture is annotate()d first; without, the PNG
-/// is pixel for pixel the layer (it overlays the GeoTIFF).
+/// renderLayer, then annotate() when `annotation` is given (the value range is resolved once for
+/// both); without it, the picture is pixel for pixel the layer (it overlays the GeoTIFF).
+Image renderPicture(const LayeredMap& map, const std::string& layer, const RenderOptions& options,
+                    const std::optional<Annotation>& annotation);
+
+/// renderPicture + writePng.
 void renderPng(const LayeredMap& map, const std::string& layer, const std::filesystem::path& path,
                const RenderOptions& options = {}, const std::optional<Annotation>& annotation = std::nullopt);
 
