@@ -5,6 +5,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cmath>
+#include <cstdio>
 #include <limits>
 
 namespace terramap::eval {
@@ -39,7 +40,12 @@ TruthComparison compareWithSourceTruth(LayeredMap& map, const Source& source) {
                             {"median_abs_m", orZero(s.median_abs)},
                             {"p95_abs_m", orZero(s.p95_abs)},
                             {"max_abs_m", orZero(s.max_abs)}};
-  return TruthComparison{j.dump(), {"truth_elevation", "elevation_error"}};
+  char caption[256];
+  std::snprintf(caption, sizeof caption,
+                "|map - truth|: RMSE %.2f cm, median %.2f cm, p95 %.2f cm; coverage %.1f %% of %ld cells",
+                100.0 * orZero(s.rmse), 100.0 * orZero(s.median_abs), 100.0 * orZero(s.p95_abs),
+                100.0 * (truth_cells ? static_cast<double>(compared) / truth_cells : 0.0), truth_cells);
+  return TruthComparison{j.dump(), {"truth_elevation", "elevation_error"}, caption};
 }
 
 }  // namespace terramap::eval

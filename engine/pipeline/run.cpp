@@ -11,24 +11,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <cstdio>
 #include <filesystem>
 
 namespace terramap {
 
 namespace fs = std::filesystem;
-
-namespace {
-/// The statistics under a truth or error picture, from the comparison's JSON.
-std::string truthCaption(const std::string& truth_json) {
-  const nlohmann::json t = nlohmann::json::parse(truth_json);
-  char b[256];
-  std::snprintf(b, sizeof b, "|map - truth|: RMSE %.2f cm, median %.2f cm, p95 %.2f cm; coverage %.1f %% of %ld cells",
-                100.0 * t.value("rmse_m", 0.0), 100.0 * t.value("median_abs_m", 0.0), 100.0 * t.value("p95_abs_m", 0.0),
-                100.0 * t.value("coverage", 0.0), t.value("cells_with_truth", 0L));
-  return b;
-}
-}  // namespace
 
 RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   PipelineSpec spec = spec_in;
@@ -103,7 +90,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
     if (ro.hillshade) ro.ambient = 0.35;
     if (layer == "elevation_error") ro.colormap = "rdbu";  // symmetric around 0: white = no error
     io::Annotation an;
-    if (!truth.json.empty() && (layer == "elevation_error" || layer == "truth_elevation")) an.caption = truthCaption(truth.json);
+    if (std::find(truth.layers.begin(), truth.layers.end(), layer) != truth.layers.end()) an.caption = truth.caption;
     if (layer == "elevation_error") an.title = "elevation_error: map - truth [cm]";
     const fs::path p = dir / (layer + ".png");
     io::renderPng(map, layer, p, ro, an);

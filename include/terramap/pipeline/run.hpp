@@ -17,6 +17,7 @@ class Source;
 struct TruthComparison {
   std::string json;                 ///< a JSON object for report.json's "truth"; empty = none
   std::vector<std::string> layers;  ///< layers it added to the map (exported with the others)
+  std::string caption;              ///< one line of its statistics, under those layers' pictures
 };
 
 struct RunOptions {
