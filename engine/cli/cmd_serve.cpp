@@ -173,9 +173,10 @@ class Player {
     const std::shared_ptr<const LayeredMap> snap = engine_->snapshot();
     const Geometry& g = snap->geometry();
     const LayerId hid = snap->layerId("elevation"), cid = snap->layerId(colour_layer_);
-    const io::RasterF h = io::northUpRaster(*snap, hid), c = io::northUpRaster(*snap, cid);
-    const int stride = std::max(1, static_cast<int>(std::ceil(static_cast<double>(std::max(h.rows(), h.cols())) / a_.max_grid)));
-    const int rows = static_cast<int>((h.rows() + stride - 1) / stride), cols = static_cast<int>((h.cols() + stride - 1) / stride);
+    // North-up raster of the map: map_rows = the map's columns (y), map_cols = its rows (x).
+    const int map_rows = g.size().y(), map_cols = g.size().x();
+    const int stride = std::max(1, static_cast<int>(std::ceil(static_cast<double>(std::max(map_rows, map_cols)) / a_.max_grid)));
+    const int rows = (map_rows + stride - 1) / stride, cols = (map_cols + stride - 1) / stride;
     io::RenderOptions ro;
     const bool diverging = colour_layer_.find("error") != std::string::npos;
     if (diverging) ro.colormap = "rdbu";
@@ -190,8 +191,8 @@ class Player {
                         {"rows", rows},
                         {"cols", cols},
                         {"stride", stride},
-                        {"map_rows", h.rows()},
-                        {"map_cols", h.cols()},
+                        {"map_rows", map_rows},
+                        {"map_cols", map_cols},
                         {"resolution", res},
                         {"extent", {xmin + 0.5 * res, xmin + (0.5 + (cols - 1) * stride) * res,
                                     ymax - (0.5 + (rows - 1) * stride) * res, ymax - 0.5 * res}},
@@ -219,8 +220,10 @@ class Player {
     float* out = reinterpret_cast<float*>(&frame[4 + head.size() + pad]);
     for (int r = 0; r < rows; ++r)
       for (int k = 0; k < cols; ++k) {
-        out[static_cast<std::size_t>(r) * cols + k] = h(r * stride, k * stride);
-        out[cells + static_cast<std::size_t>(r) * cols + k] = c(r * stride, k * stride);
+        // Only the sampled cells are read: no whole-layer copy per frame.
+        const Index cell = io::logicalIndexOfPixel(g, r * stride, k * stride);
+        out[static_cast<std::size_t>(r) * cols + k] = snap->at(hid, cell);
+        out[cells + static_cast<std::size_t>(r) * cols + k] = snap->at(cid, cell);
       }
     server_.publish(std::move(frame));
   }
