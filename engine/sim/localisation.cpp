@@ -63,8 +63,7 @@ void PoseEstimator::addTruth(double t, const Eigen::Isometry3d& T) {
   while (history_.size() > 2 && history_[1].t <= t - spec_.latency_s) history_.pop_front();
 }
 
-Eigen::Isometry3d PoseEstimator::delayedTruth(double t) const {
-  const double td = t - spec_.latency_s;
+Eigen::Isometry3d PoseEstimator::truthAt(double td) const {
   auto pose = [](const Eigen::Vector3d& p, const Eigen::Quaterniond& q) {
     Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
     T.linear() = q.toRotationMatrix();
@@ -82,7 +81,7 @@ Eigen::Isometry3d PoseEstimator::delayedTruth(double t) const {
 
 Eigen::Isometry3d PoseEstimator::estimate(double t) {
   if (history_.empty()) throw std::logic_error("PoseEstimator::estimate before any truth");
-  if (spec_.perfect) return delayedTruth(t + spec_.latency_s);  // no delay either
+  if (spec_.perfect) return truthAt(t);  // no delay either
   const double dt = last_t_ < -1e299 ? 0.0 : std::max(0.0, t - last_t_);
   last_t_ = t;
   Eigen::Matrix<double, 6, 1> e;
@@ -92,7 +91,7 @@ Eigen::Isometry3d PoseEstimator::estimate(double t) {
     e[k] = bias_[k] + walk_[k] + normal_(rng_) * a.white;
   }
   last_error_ = e;
-  Eigen::Isometry3d T = delayedTruth(t);
+  Eigen::Isometry3d T = truthAt(t - spec_.latency_s);
   T.translation() += e.head<3>();
   T.linear() = (Eigen::AngleAxisd(e[5], Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(e[4], Eigen::Vector3d::UnitY()) *
                 Eigen::AngleAxisd(e[3], Eigen::Vector3d::UnitX()))

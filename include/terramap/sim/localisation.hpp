@@ -70,7 +70,8 @@ class PoseEstimator {
   const LocalisationSpec& spec() const { return spec_; }
 
  private:
-  Eigen::Isometry3d delayedTruth(double t) const;
+  /// The truth at time td, interpolated between the stored samples (clamped to their span).
+  Eigen::Isometry3d truthAt(double td) const;
 
   LocalisationSpec spec_;
   std::mt19937_64 rng_;
