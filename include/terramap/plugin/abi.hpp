@@ -75,8 +75,10 @@
 /// - `eigen-X.Y.Z`: Eigen's version (events and records hold Eigen types);
 /// - `eigen-align-A-S`: EIGEN_MAX_ALIGN_BYTES and EIGEN_MAX_STATIC_ALIGN_BYTES. SIMD flags
 ///   (-mavx, -march=native) raise both unless pinned, which moves members of events and
-///   records (Isometry3d becomes 32- or 64-byte aligned) and switches Eigen's heap allocator.
-///   The CMake package pins both to 16 on every target that links terramap::core;
+///   records (Isometry3d becomes 32- or 64-byte aligned). The CMake package pins both to 16 on
+///   every target that links terramap::core. Eigen's *heap* alignment still follows the CPU
+///   target (it cannot be pinned), so its allocator differs between such builds: that is why no
+///   owning Eigen object crosses the boundary (see "Memory rule of the boundary" above);
 /// - `asan`, `tsan`: built with AddressSanitizer / ThreadSanitizer;
 /// - `glibcxx-debug`: built with _GLIBCXX_DEBUG.
 /// docs/plugins.md lists the flags a plugin may differ in.
