@@ -39,12 +39,17 @@ void printRun(const eval::EvalRun& r) {
       {eval::EvalRegion::Outside, "outside the cut"},
       {eval::EvalRegion::Deposit, "  deposit (truth moved)"},
       {eval::EvalRegion::Untouched, "  untouched"},
-      {eval::EvalRegion::All, "all known cells"}};
+      {eval::EvalRegion::All, "all known cells"},
+      {eval::EvalRegion::CutByMapper, "mapper's own cut footprint"}};
   for (const auto& [reg, label] : rows) {
     const eval::RegionStats& s = r.stats(reg);
     std::printf("  %-32s %8ld %8.4f %8.4f %8.4f %9.4f %16.4f\n", label, s.cells, s.rmse_m, s.bias_m, s.p95_abs_m,
                 s.max_abs_m, s.baseline_rmse_m);
   }
+  const eval::FootprintAgreement& fp = r.footprint;
+  std::printf("cut footprint: truth (bank lowered) vs mapper (swept volume below the initial surface): %ld both, "
+              "%ld truth only, %ld mapper only, IoU %.3f\n",
+              fp.both, fp.truth_only, fp.mapper_only, fp.iou);
   const eval::MassBalance& m = r.mass;
   std::printf("\nmass balance (m^3 of bank soil; blind: sum[(H - L) + L/s], s = %.3f; truth: sum(U + Lc))\n", m.swell);
   std::printf("  blind map:  change %+.6f, lost off the map %.6f (loose %.6f), residual %+.2e\n", m.blind_change_m3,
@@ -131,7 +136,6 @@ Registrar reg{Command{"eval", [](CLI::App& app, std::function<int()>& run) {
           std::fflush(stderr);
         };
       const eval::EvalRun r = eval::runBlindEvaluation(simulator, *engine, opt);
-      engine->finish();
       if (tty) std::fprintf(stderr, "\r                     \r");
       const std::vector<std::string> files = eval::writeEvalOutputs(r, a->out);
       if (!a->quiet) {

@@ -109,6 +109,7 @@ const char* evalRegionName(EvalRegion r) {
     case EvalRegion::Cut: return "cut";
     case EvalRegion::Deposit: return "deposit";
     case EvalRegion::Untouched: return "untouched";
+    case EvalRegion::CutByMapper: return "cut_by_mapper";
     case EvalRegion::Outside: return "outside";
   }
   return "?";
@@ -264,12 +265,32 @@ ExtractionSample extractionSample(const SweepRecord& rec, const Simulator& sim, 
   return s;
 }
 
+/// Accounts the engine's latest sweep record if it is new since the last call.
+void takeNewSweep(const Simulator& sim, Engine& engine, EvalRun& run, Replay& rp,
+                  const std::map<std::string, std::size_t>& machine_index) {
+  long seq = 0;
+  const std::shared_ptr<const SweepRecord> rec = latestSweep(engine, &seq);
+  if (!rec || seq == rp.last_seq) return;
+  rp.last_seq = seq;
+  ++run.sweeps;
+  const auto mit = machine_index.find(rec->machine_id);
+  if (mit == machine_index.end())
+    throw ConfigError("sweep record " + std::to_string(rec->sweep_index) + " names machine '" + rec->machine_id +
+                      "', which the scenario '" + run.scenario + "' does not have");
+  MassBalance& mb = run.mass;
+  mb.cut_bank_blind_m3 += rec->cut_bank_volume_m3;
+  mb.blind_lost_loose_m3 += rec->lost_volume_m3;
+  rp.swell = rec->swell;
+  rp.swell_known = true;
+  markSwept(*rec, run.geometry, run.initial, rp.swept);
+  run.samples.push_back(extractionSample(*rec, sim, mit->second));
+}
+
 /// Runs the simulator to its end, pushing its events (clouds withheld if asked) into the
 /// engine; each new sweep record adds to the mass balance, the swept cells and the samples.
 void replay(Simulator& sim, Engine& engine, const EvalOptions& options, EvalRun& run, Replay& rp) {
   std::map<std::string, std::size_t> machine_index;
   for (std::size_t i = 0; i < sim.scenario().machines.size(); ++i) machine_index[sim.scenario().machines[i].id] = i;
-  MassBalance& mb = run.mass;
   std::vector<Event> events;
   while (sim.next(events)) {
     for (const Event& e : events) {
@@ -279,25 +300,14 @@ void replay(Simulator& sim, Engine& engine, const EvalOptions& options, EvalRun&
       }
       engine.push(e);
       ++run.events_pushed;
-      long seq = 0;
-      const std::shared_ptr<const SweepRecord> rec = latestSweep(engine, &seq);
-      if (!rec || seq == rp.last_seq) continue;
-      rp.last_seq = seq;
-      ++run.sweeps;
-      const auto mit = machine_index.find(rec->machine_id);
-      if (mit == machine_index.end())
-        throw ConfigError("sweep record " + std::to_string(rec->sweep_index) + " names machine '" + rec->machine_id +
-                          "', which the scenario '" + run.scenario + "' does not have");
-      mb.cut_bank_blind_m3 += rec->cut_bank_volume_m3;
-      mb.blind_lost_loose_m3 += rec->lost_volume_m3;
-      rp.swell = rec->swell;
-      rp.swell_known = true;
-      markSwept(*rec, run.geometry, run.initial, rp.swept);
-      run.samples.push_back(extractionSample(*rec, sim, mit->second));
+      takeNewSweep(sim, engine, run, rp, machine_index);
     }
     events.clear();
     if (options.on_progress) options.on_progress(sim.time(), sim.scenario().duration_s);
   }
+  // The stages' finish(): blade_sweep cuts the motion left over since its last sweep.
+  engine.finish();
+  takeNewSweep(sim, engine, run, rp, machine_index);
 }
 
 /// Sums over the map's cells for the mass balance (heights, m; times the cell area later).
@@ -305,15 +315,25 @@ struct HeightSums {
   double blind0 = 0, blind1 = 0, truth_on_map = 0;
 };
 
-/// Compares the blind map with the truth cell by cell: assigns each cell its region (cut where
-/// a sweep reached below the initial surface, deposit where the truth changed, else
-/// untouched), collects the errors per region and the removed / added volumes.
+/// The truth sampled at the cell centres, before (0) and after (1) the run.
+struct TruthGrids {
+  Eigen::MatrixXd current1;         // H now
+  Eigen::MatrixXd bank0, bank1;     // U + Lc: bank-equivalent column
+  Eigen::MatrixXd under0, under1;   // U: the bank surface, lowered only by a blade
+};
+
+/// Compares the blind map with the truth cell by cell: assigns each cell its region from the
+/// truth alone (cut where the truth's bank surface was lowered, deposit where its surface moved
+/// otherwise, else untouched), reports the mapper's own footprint beside it, collects the errors
+/// per region and the removed / added volumes.
 HeightSums compareHeights(EvalRun& run, const EvalOptions& options, const Eigen::MatrixXf& loose1,
-                          const Eigen::MatrixXd& truth1d, const Eigen::MatrixXd& bank0, const Eigen::MatrixXd& bank1,
-                          const Eigen::MatrixXi& swept, double swell) {
+                          const TruthGrids& tg, const Eigen::MatrixXi& swept, double swell) {
   const Geometry& geo = run.geometry;
   MassBalance& mb = run.mass;
+  const Eigen::MatrixXd &truth1d = tg.current1, &bank0 = tg.bank0, &bank1 = tg.bank1;
   run.region = Eigen::MatrixXi::Constant(geo.size().x(), geo.size().y(), -1);
+  run.mapper_cut = swept;
+  FootprintAgreement& fp = run.footprint;
   std::vector<double> err[kEvalRegionCount], base[kEvalRegionCount];
   auto add = [&](EvalRegion r, double e, double b) {
     err[static_cast<int>(r)].push_back(e);
@@ -333,16 +353,25 @@ HeightSums compareHeights(EvalRun& run, const EvalOptions& options, const Eigen:
       mb.added_blind_m3 += std::max(0.0, h1 - h0) * a;
       mb.removed_truth_m3 += std::max(0.0, h0 - t1) * a;
       mb.added_truth_m3 += std::max(0.0, t1 - h0) * a;
+      // Only a blade lowers the truth's bank surface U (sliding loose soil moves on top of it),
+      // so "carved" is the truth's own record of the cut, whatever the mapper believed.
+      const bool carved = tg.under1(i, j) < tg.under0(i, j) - options.cut_threshold_m;
       EvalRegion r = EvalRegion::Untouched;
-      if (swept(i, j)) r = EvalRegion::Cut;
+      if (carved) r = EvalRegion::Cut;
       else if (std::abs(t1 - h0) > options.change_threshold_m) r = EvalRegion::Deposit;
       run.region(i, j) = static_cast<int>(r);
       const double e = h1 - t1, b = h0 - t1;
       add(EvalRegion::All, e, b);
       add(r, e, b);
       if (r != EvalRegion::Cut) add(EvalRegion::Outside, e, b);
+      if (swept(i, j)) add(EvalRegion::CutByMapper, e, b);
+      fp.both += carved && swept(i, j);
+      fp.truth_only += carved && !swept(i, j);
+      fp.mapper_only += !carved && swept(i, j);
     }
   for (int r = 0; r < kEvalRegionCount; ++r) run.regions[r] = regionStats(err[r], base[r]);
+  const long any = fp.both + fp.truth_only + fp.mapper_only;
+  fp.iou = any ? static_cast<double>(fp.both) / static_cast<double>(any) : kNaN;
   return sums;
 }
 
@@ -365,7 +394,9 @@ EvalRun runBlindEvaluation(Simulator& sim, Engine& engine, const EvalOptions& op
   const bool has_loose = map.hasLayer(options.loose_layer);
   const Eigen::MatrixXf zeros = Eigen::MatrixXf::Zero(geo.size().x(), geo.size().y());
   if (has_loose) map.fromMatrix(map.layerId(options.loose_layer), zeros);
-  const Eigen::MatrixXd bank0 = truthOnGeometryD(truth0, geo, TruthSurface::Bank);
+  TruthGrids tg;
+  tg.bank0 = truthOnGeometryD(truth0, geo, TruthSurface::Bank);
+  tg.under0 = truthOnGeometryD(truth0, geo, TruthSurface::Undisturbed);
   const double truth_vol0 = truth0.bankVolume(), truth_lost0 = truth0.lostVolume();
 
   Replay rp;
@@ -384,10 +415,11 @@ EvalRun runBlindEvaluation(Simulator& sim, Engine& engine, const EvalOptions& op
   run.blind = map.toMatrix(hid);
   const Eigen::MatrixXf loose1 = has_loose ? map.toMatrix(map.layerId(options.loose_layer)) : zeros;
   const TruthTerrain& truth1 = sim.truth();
-  const Eigen::MatrixXd truth1d = truthOnGeometryD(truth1, geo, TruthSurface::Current);
-  run.truth = truth1d.cast<float>();
-  const Eigen::MatrixXd bank1 = truthOnGeometryD(truth1, geo, TruthSurface::Bank);
-  const HeightSums sums = compareHeights(run, options, loose1, truth1d, bank0, bank1, rp.swept, rp.swell);
+  tg.current1 = truthOnGeometryD(truth1, geo, TruthSurface::Current);
+  run.truth = tg.current1.cast<float>();
+  tg.bank1 = truthOnGeometryD(truth1, geo, TruthSurface::Bank);
+  tg.under1 = truthOnGeometryD(truth1, geo, TruthSurface::Undisturbed);
+  const HeightSums sums = compareHeights(run, options, loose1, tg, rp.swept, rp.swell);
 
   // Mass: the blind map's change against what it lost, the truth's against its own.
   MassBalance& mb = run.mass;
@@ -434,6 +466,10 @@ std::string evalJson(const EvalRun& run) {
         {"baseline_rmse_m", numberOrNull(s.baseline_rmse_m)}, {"baseline_bias_m", numberOrNull(s.baseline_bias_m)}};
   }
   j["height_error"] = regions;
+  j["cut_footprint"] = {{"cells_both", run.footprint.both},
+                        {"cells_truth_only", run.footprint.truth_only},
+                        {"cells_mapper_only", run.footprint.mapper_only},
+                        {"iou", numberOrNull(run.footprint.iou)}};
   const MassBalance& m = run.mass;
   j["mass"] = {{"swell", m.swell},
                {"blind_initial_m3", m.blind_initial_m3},
@@ -477,10 +513,11 @@ std::vector<std::string> writeEvalOutputs(const EvalRun& run, const std::filesys
   for (int i = 0; i < geo.size().x(); ++i)
     for (int j = 0; j < geo.size().y(); ++j)
       region(i, j) = run.region(i, j) < 0 ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(run.region(i, j));
+  const Eigen::MatrixXf mapper_cut = run.mapper_cut.size() ? run.mapper_cut.cast<float>() : Eigen::MatrixXf(region.rows(), region.cols()).setZero();
   const std::vector<std::pair<std::string, const Eigen::MatrixXf*>> layers = {
       {"blind", &run.blind}, {"truth", &run.truth}, {"initial", &run.initial},
-      {"error", &err},       {"baseline_error", &base_err}, {"region", &region}};
-  for (const auto& [name, mat] : layers) m.fromMatrix(m.addLayer(name, name == "region" ? "1" : "m"), *mat);
+      {"error", &err},       {"baseline_error", &base_err}, {"region", &region}, {"mapper_cut", &mapper_cut}};
+  for (const auto& [name, mat] : layers) m.fromMatrix(m.addLayer(name, (name == "region" || name == "mapper_cut") ? "1" : "m"), *mat);
 
   // One height colour range for the blind and truth renders, so equal colours mean equal
   // heights: the 0.1 and 99.9 percentiles of both, so a few cells of a spoil spike do not wash
@@ -518,7 +555,7 @@ std::vector<std::string> writeEvalOutputs(const EvalRun& run, const std::filesys
   io::Annotation a_truth{"truth heightmap [m] at the end", run.scenario, 0, {}, {}};
   io::Annotation a_error{"error: blind map - truth [cm]", caption, 0, {}, {}};
   io::Annotation a_base{"error of the no-update baseline: initial map - truth [cm]", caption, 0, {}, {}};
-  io::Annotation a_reg{"regions of the evaluation", run.scenario, 0, {}, {}};
+  io::Annotation a_reg{"regions of the evaluation (from the truth's own cut and moved soil)", run.scenario, 0, {}, {}};
   a_reg.categories = {{static_cast<float>(EvalRegion::Cut), "cut"},
                       {static_cast<float>(EvalRegion::Deposit), "deposit"},
                       {static_cast<float>(EvalRegion::Untouched), "untouched"}};

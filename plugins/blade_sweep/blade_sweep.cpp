@@ -260,9 +260,13 @@ void BladeSweep::process(ProcessContext& ctx, const Event& event) {
     return;
   }
 
+  sweepHistory(ctx, st, bp->machine_id, bp->stamp);
+}
+
+void BladeSweep::sweepHistory(ProcessContext& ctx, MachineState& st, const std::string& machine_id, double stamp) {
   auto rec = runSweep(ctx.map(), ids_, cfg_, st.history, ctx.executor());
   rec->sweep_index = ++sweeps_;
-  rec->machine_id = bp->machine_id;
+  rec->machine_id = machine_id;
   ctx.addCounter("sweeps", 1);
   ctx.addCounter("cells_cut", static_cast<double>(rec->cells_cut));
   ctx.addCounter("cut_volume_m3", rec->cut_volume_m3);
@@ -272,13 +276,25 @@ void BladeSweep::process(ProcessContext& ctx, const Event& event) {
   ctx.addCounter("lost_volume_m3", rec->lost_volume_m3);
   if (rec->cells_lost > 0) ctx.countDrop("deposit_off_map", rec->cells_lost);
   ctx.reportRecord(sweepRecordJson(*rec, report_steps_));
-  ctx.records().publish<SweepRecord>(SweepRecord::kType, bp->stamp, rec);
+  ctx.records().publish<SweepRecord>(SweepRecord::kType, stamp, rec);
   // T1 of this sweep is T0 of the next.
   const BladePose last = st.history.back();
   st.history.clear();
   st.history.push_back(last);
 }
 
-void BladeSweep::finish(ProcessContext& ctx) { machines_.clear(); }
+void BladeSweep::finish(ProcessContext& ctx) {
+  // The blade's last motion is shorter than a sweep's minimum travel (it stopped, or the run
+  // ended mid-motion): cut it now, or the soil it moved would never reach the map. Machines in
+  // id order (std::map), so the flush is deterministic.
+  for (auto& [id, st] : machines_) {
+    if (st.history.size() < 2) continue;
+    const BladePose &first = st.history.front(), &last = st.history.back();
+    if (first.T_map_blade.isApprox(last.T_map_blade, 0.0)) continue;  // not moved at all: nothing to cut
+    ctx.addCounter("final_partial_sweeps", 1);
+    sweepHistory(ctx, st, id, last.stamp);
+  }
+  machines_.clear();
+}
 
 }  // namespace terramap::plugins

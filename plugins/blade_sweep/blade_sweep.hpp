@@ -104,7 +104,8 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& layers
 std::string sweepRecordJson(const SweepRecord& r, bool with_steps);
 
 /// The plugin: keeps a pose history per machine_id and runs runSweep() when the blade edge has
-/// moved more than the translation threshold or rotated more than the rotation threshold.
+/// moved more than the translation threshold or rotated more than the rotation threshold, and
+/// at finish() for whatever motion is left over (counter `final_partial_sweeps`).
 class BladeSweep : public Plugin {
  public:
   ParamSchema schema() const override;
@@ -125,6 +126,9 @@ class BladeSweep : public Plugin {
   SweepConfig cfg_;
   bool report_steps_ = true;
   SweepLayers ids_;
+  /// Runs the sweep of `st.history` (>= 2 poses), reports and publishes its record, and keeps
+  /// the last pose as the next sweep's T0.
+  void sweepHistory(ProcessContext& ctx, MachineState& st, const std::string& machine_id, double stamp);
   std::map<std::string, MachineState> machines_;
   long sweeps_ = 0;
 };

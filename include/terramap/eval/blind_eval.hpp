@@ -41,6 +41,9 @@ struct EvalOptions {
   /// A cell outside the cut whose truth surface moved by more than this counts as
   /// EvalRegion::Deposit (spoil, spill, slides) rather than Untouched.
   double change_threshold_m = 0.01;
+  /// A cell is EvalRegion::Cut when the truth's bank surface U at its centre dropped by more
+  /// than this during the run (only a blade lowers U; sliding loose soil moves on top of it).
+  double cut_threshold_m = 0.001;
   /// Colour range of the error PNGs: ±this, fixed and symmetric (white = 0, red = map too low,
   /// blue = map too high), so two runs' PNGs compare by eye.
   double error_range_m = 0.10;
@@ -55,22 +58,30 @@ struct EvalOptions {
   std::function<void(double t_s, double duration_s)> on_progress;
 };
 
-/// Regions the height error is reported over. Every known cell is in exactly one of Cut,
-/// Deposit, Untouched; Outside = Deposit ∪ Untouched.
+/// Regions the height error is reported over, defined by the truth alone (the simulator's own
+/// carved and deposited soil), so a mapper whose footprint is wrong cannot move its error into
+/// another region. Every known cell is in exactly one of Cut, Deposit, Untouched;
+/// Outside = Deposit ∪ Untouched. CutByMapper is reported beside them, not used to define them.
 enum class EvalRegion {
   All,        ///< every cell where the map, its initial state and the truth are known
-  Cut,        ///< "inside the cut": under the footprint of a swept volume whose bottom h^G was
-              ///< below the *initial* surface there (the blade went through the original
-              ///< ground), from the records' masks G: a property of the blade's path, not of the
-              ///< mapper's cut decisions
+  Cut,        ///< "inside the cut": the truth's bank surface U was lowered by more than
+              ///< cut_threshold_m (a blade went through the original ground there)
   Deposit,    ///< not Cut, but the truth surface moved by more than change_threshold_m: spoil
               ///< ahead of and beside the cut, spill, slides (where the paper's Fig. 10 shows
               ///< the blind map's errors: the two soil-flow models differ)
   Untouched,  ///< neither: ground the truth did not change
   Outside,    ///< "outside the cut": Deposit ∪ Untouched
+  CutByMapper,  ///< the mapper's own idea of the cut: under a swept volume whose bottom h^G was
+                ///< below the initial surface (SweepRecord masks); overlaps the others
 };
-constexpr int kEvalRegionCount = 5;
+constexpr int kEvalRegionCount = 6;
 const char* evalRegionName(EvalRegion r);
+
+/// How the mapper's cut footprint (CutByMapper) agrees with the truth's (Cut), in cells.
+struct FootprintAgreement {
+  long both = 0, truth_only = 0, mapper_only = 0;
+  double iou = NAN;  ///< both / (both + truth_only + mapper_only); NaN when neither has a cell
+};
 
 /// Height error statistics over one region; error e = map − truth (m, > 0 = map too high).
 struct RegionStats {
@@ -176,6 +187,8 @@ struct EvalRun {
   Eigen::MatrixXf blind;    ///< the map's elevation at the end
   Eigen::MatrixXf truth;    ///< truth surface H at the end, at the cell centres
   Eigen::MatrixXi region;   ///< per cell: EvalRegion Cut/Deposit/Untouched as int, -1 = unknown
+  Eigen::MatrixXi mapper_cut;  ///< per cell: 1 = in the mapper's cut footprint (CutByMapper)
+  FootprintAgreement footprint;
   RegionStats regions[kEvalRegionCount];  ///< indexed by EvalRegion
   MassBalance mass;
   std::vector<ExtractionSample> samples;
@@ -189,7 +202,8 @@ struct EvalRun {
 
 /// Initialises the engine map's elevation from the truth (TruthSurface::Current at the cell
 /// centres; NaN outside the truth grid) and its loose layer, if any, to 0, then plays the
-/// simulator through the engine to the end and evaluates; sweeps are read from the engine's
+/// simulator through the engine to the end, finishes the engine (Engine::finish(): blade_sweep
+/// cuts the motion left since its last sweep) and evaluates; sweeps are read from the engine's
 /// RecordBus (SweepRecord::kType). `sim` must not have been stepped yet.
 /// \throws LayerError if the map has no elevation layer; ConfigError if a plugin moved the
 ///   map (the evaluation compares fixed cells) or a record names an unknown machine;

@@ -189,6 +189,35 @@ TEST(SweptVolume, UpdateThresholdsTranslationResolutionAndRotation) {
   }
 }
 
+TEST(SweptVolume, FinishCutsTheMotionLeftAfterTheLastSweep) {
+  // The blade cuts 5 cm deep and stops after 0.15 m, below the 0.2 m sweep threshold: during
+  // the run nothing is cut; finish() must cut the 0.15 m it travelled, or the soil it moved
+  // never reaches the map (the blind evaluation then blames the mapper for a cut it saw).
+  TestMap tm(0.05, 100);
+  tm.setElevation([](const Position&) { return 0.0; });
+  BladeSweep plugin = makePlugin();
+  Harness h(tm.map, 1);
+  plugin.start(h.ctx);
+  for (int k = 0; k <= 3; ++k)
+    plugin.process(h.ctx, Event(bladePose(k, Eigen::Vector3d(0.05 * k, 0, -0.05), bladeRotation(0))));
+  ASSERT_EQ(plugin.sweeps(), 0);
+  // Cells strictly between the two edge positions along x, inside the blade width: cut to -5 cm.
+  const Index probe = *tm.map.geometry().indexAt(Position(0.075, 0.0));
+  EXPECT_FLOAT_EQ(tm.H(probe.x(), probe.y()), 0.0f);
+  plugin.finish(h.ctx);
+  EXPECT_EQ(plugin.sweeps(), 1);
+  EXPECT_EQ(h.stats.counters["final_partial_sweeps"], 1.0);
+  EXPECT_NEAR(tm.H(probe.x(), probe.y()), -0.05, 1e-4);
+  // A machine that did not move since its last sweep cuts nothing more at finish().
+  BladeSweep still = makePlugin();
+  Harness h2(tm.map, 1);
+  still.start(h2.ctx);
+  still.process(h2.ctx, Event(bladePose(0, Eigen::Vector3d(1.0, 0, -0.05), bladeRotation(0))));
+  still.process(h2.ctx, Event(bladePose(1, Eigen::Vector3d(1.0, 0, -0.05), bladeRotation(0))));
+  still.finish(h2.ctx);
+  EXPECT_EQ(still.sweeps(), 0);
+}
+
 TEST(SweptVolume, BadBladeGeometryIsAnInputError) {
   TestMap tm(0.05, 40);
   BladeSweep plugin = makePlugin();
