@@ -317,9 +317,6 @@ TEST(EvalRun, BlindMapBeatsTheNoUpdateMapAndConservesMass) {
   // Blind: every scan of the single-line LiDAR was withheld, not pushed.
   EXPECT_GT(smallBermScans(), 20);
   EXPECT_EQ(r.clouds_withheld, smallBermScans());
-  // Region bookkeeping: every known cell in exactly one of cut / deposit / untouched.
-  EXPECT_EQ(r.stats(eval::EvalRegion::All).cells, cut.cells + dep.cells + unt.cells);
-  EXPECT_EQ(r.stats(eval::EvalRegion::Outside).cells, dep.cells + unt.cells);
   // The blade went through ~2.5 m x 1.85 m of ground below the initial surface (1850 cells of 5 cm).
   EXPECT_GT(cut.cells, 1000);
   // Inside the cut, blind mapping must beat a map that ignored the blade by far: the no-update
