@@ -3,6 +3,7 @@
 #include <terramap/core/error.hpp>
 #include <terramap/core/text.hpp>
 #include <terramap/io/atomic_file.hpp>
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/io/geotiff.hpp>
 
 #include <ogr_spatialref.h>
@@ -181,6 +182,13 @@ Raster readRaster(const fs::path& path) {
       if (code) out.epsg = std::atoi(code);
     }
   }
+  // Every band is read whole as float32: refuse a raster whose header asks for more than the
+  // budget before GDAL decodes anything (a compressed file can declare any size).
+  requireInputBudget(saturatingProduct({static_cast<std::uint64_t>(out.width), static_cast<std::uint64_t>(out.height),
+                                        static_cast<std::uint64_t>(std::max(ds->GetRasterCount(), 0)), 4}),
+                     "raster '" + path.string() + "': size " + std::to_string(out.width) + " x " +
+                         std::to_string(out.height) + ", " + std::to_string(ds->GetRasterCount()) + " bands",
+                     "every band read as float32");
   for (int b = 1; b <= ds->GetRasterCount(); ++b) {
     GDALRasterBand* band = ds->GetRasterBand(b);
     RasterBand rb;

@@ -2,6 +2,8 @@
 
 #include "reader_detail.hpp"
 
+#include <terramap/core/memory_budget.hpp>
+
 #include <cstring>
 #include <type_traits>
 
@@ -22,6 +24,7 @@ std::vector<PointXYZI> readKittiBin(const std::string& path) {
                      " bytes is not a multiple of 16 (float32 x, y, z, reflectance): partial record at byte offset " +
                      std::to_string(partial) + " (" + std::to_string(size - partial) + " bytes)");
   }
+  requireInputBudget(size, "KITTI scan '" + path + "'", std::to_string(size / kKittiRecordBytes) + " points x 16 bytes");
   std::vector<PointXYZI> points(size / kKittiRecordBytes);
   if (size != 0 && std::fread(points.data(), 1, size, fc.f) != size) {
     throw InputError("KITTI scan '" + path + "': read error (expected " + std::to_string(size) + " bytes)");

@@ -2,6 +2,7 @@
 // specification (1.2 R2 and 1.4 R15): public header block, variable length records (only the
 // GeoKeyDirectory is interpreted), point data records.
 #include <terramap/io/readers.hpp>
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/core/text.hpp>
 
 #include "reader_detail.hpp"
@@ -188,7 +189,7 @@ void checkPointRecordsFit(const std::string& path, std::uint64_t file_size, cons
     const std::uint64_t first_incomplete = hd.offset_to_points + fits * hd.record_length;
     fail(path, first_incomplete,
          "point count " + std::to_string(hd.point_count) + " (header) needs " +
-             std::to_string(hd.point_count * hd.record_length) + " bytes of " + std::to_string(hd.record_length) +
+             std::to_string(saturatingProduct({hd.point_count, hd.record_length})) + " bytes of " + std::to_string(hd.record_length) +
              "-byte records from offset " + std::to_string(hd.offset_to_points) + ", but the file ends at byte " +
              std::to_string(file_size) + ": record " + std::to_string(fits) + " is incomplete or missing");
   }
@@ -253,6 +254,12 @@ LasCloud readLas(const std::string& path, const LasReadOptions& options) {
   const std::size_t len = hd.record_length;
   const bool has_gps = hd.point_format == 1 || hd.point_format == 3;
 
+  // Per point: 16 (x, y, z, intensity) + 4 (class, flags, return, returns) + 8 (GPS time) + 24
+  // (double positions) bytes, refused before anything is allocated.
+  const std::uint64_t per_point = 20 + (has_gps ? 8 : 0) + (options.keep_double_positions ? 24 : 0);
+  requireInputBudget(saturatingProduct({hd.point_count, per_point}),
+                     "LAS file '" + path + "': point count " + std::to_string(hd.point_count),
+                     std::to_string(hd.point_count) + " points x " + std::to_string(per_point) + " bytes");
   cloud.points.resize(n);
   cloud.classification.resize(n);
   cloud.class_flags.resize(n);

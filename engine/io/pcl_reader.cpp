@@ -4,6 +4,8 @@
 
 #include "reader_detail.hpp"
 
+#include <terramap/core/memory_budget.hpp>
+
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
@@ -288,7 +290,7 @@ void checkPlyBinaryVertices(const std::string& path, std::uint64_t size, std::ui
       }
       return;
     }
-    at += e.count * e.stride;
+    at = std::min<std::uint64_t>(size, at + std::min<std::uint64_t>(size, saturatingProduct({e.count, e.stride})));
   }
 }
 
@@ -300,6 +302,15 @@ void checkPlyBody(const std::string& path) {
   const PlyHeader h = readPlyHeader(fc.f, path);
   bool binary = false;
   const std::vector<PlyElement> elements = plyElements(h, binary);
+  for (const PlyElement& e : elements) {
+    if (e.name != "vertex") continue;
+    // PCL holds the vertex records (>= 4 bytes per property; lists make them longer) and the
+    // conversion 16 bytes per point.
+    const std::uint64_t record = std::max<std::uint64_t>(e.stride, 4);
+    requireInputBudget(saturatingProduct({e.count, record + sizeof(PointXYZI)}),
+                       "PLY file '" + path + "': 'element vertex " + std::to_string(e.count) + "'",
+                       std::to_string(e.count) + " vertices x (" + std::to_string(record) + " + 16) bytes");
+  }
   if (binary) checkPlyBinaryVertices(path, size, h.body, elements);
   else checkPlyAsciiVertices(fc.f, path, size, h, elements);
 }
@@ -392,10 +403,12 @@ std::uint64_t checkPcdFields(const std::string& path, PcdHeader& h, std::uint64_
     pcdFail(path, h.counts_at, std::to_string(h.counts.size()) + " COUNT values for " + std::to_string(fields.size()) + " FIELDS");
   }
   if (!h.have_width) pcdFail(path, h.data_at, "no WIDTH line before DATA");
-  if (!h.have_points) h.points = h.width * h.height;
-  if (h.points != h.width * h.height) {
+  // Saturating: WIDTH x HEIGHT must not wrap round to a small POINTS.
+  const std::uint64_t wh = saturatingProduct({h.width, h.height});
+  if (!h.have_points) h.points = wh;
+  if (h.points != wh) {
     pcdFail(path, h.points_at, "POINTS " + std::to_string(h.points) + " differs from WIDTH x HEIGHT = " +
-                                   std::to_string(h.width * h.height));
+                                   (wh == UINT64_MAX ? std::string("more than 2^64") : std::to_string(wh)));
   }
   std::uint64_t step = 0;
   step_values = 0;
@@ -415,8 +428,8 @@ std::uint64_t checkPcdFields(const std::string& path, PcdHeader& h, std::uint64_
         pcdFail(path, h.counts_at, "COUNT '" + c + "' of field '" + fields[k] + "' is not a positive count");
       }
     }
-    step += count * static_cast<std::uint64_t>(z[0] - '0');
-    step_values += count;
+    step = std::min<std::uint64_t>(UINT64_MAX / 2, step + saturatingProduct({count, static_cast<std::uint64_t>(z[0] - '0')}));
+    step_values = std::min<std::uint64_t>(UINT64_MAX / 2, step_values + count);
   }
   return step;
 }
@@ -481,7 +494,7 @@ void checkPcdCompressedBody(std::FILE* f, const std::string& path, std::uint64_t
                             std::to_string(body + 8) + " runs past the end of the file (" + std::to_string(size) +
                             " bytes)");
   }
-  if (uncompressed != h.points * step) {
+  if (uncompressed != saturatingProduct({h.points, step})) {
     pcdFail(path, body + 4, "uncompressed size " + std::to_string(uncompressed) +
                                 " differs from POINTS x point size = " + std::to_string(h.points * step));
   }
@@ -500,6 +513,10 @@ void checkPcdHeader(const std::string& path) {
   PcdHeader h = parsePcdHeader(path, text);
   std::uint64_t step_values = 0;
   const std::uint64_t step = checkPcdFields(path, h, step_values);
+  // PCL holds POINTS x point size, the conversion 16 bytes per point: refuse before either.
+  requireInputBudget(saturatingProduct({h.points, step + sizeof(PointXYZI)}),
+                     "PCD file '" + path + "': POINTS " + std::to_string(h.points),
+                     std::to_string(h.points) + " points x (" + std::to_string(step) + " + 16) bytes");
   if (h.data == "ascii") checkPcdAsciiBody(fc.f, path, size, text, h, step_values);
   else if (h.data == "binary") checkPcdBinaryBody(path, size, h, step);
   else if (h.data == "binary_compressed") checkPcdCompressedBody(fc.f, path, size, h, step);

@@ -1,5 +1,7 @@
 #include "reader_detail.hpp"
 
+#include <terramap/core/memory_budget.hpp>
+
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
@@ -32,6 +34,7 @@ std::uint64_t fileSize(std::FILE* f, const std::string& path) {
 std::vector<unsigned char> readWholeFile(const std::string& path, const char* what) {
   FileCloser fc{openForRead(path, what)};
   const std::uint64_t size = fileSize(fc.f, path);
+  requireInputBudget(size, std::string(what) + " '" + path + "'", "the whole file in memory");
   std::vector<unsigned char> data(size);
   if (size != 0 && std::fread(data.data(), 1, size, fc.f) != size) {
     throw InputError("read error in '" + path + "' (expected " + std::to_string(size) + " bytes)");

@@ -1,3 +1,4 @@
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/core/error.hpp>
 #include <terramap/io/atomic_file.hpp>
 #include <terramap/io/snapshot.hpp>
@@ -435,7 +436,7 @@ MapShape checkGeometry(const Decoder& dec, const unsigned char* p, std::uint64_t
   // A dense map stores every cell, so its data must be in the file (checked up front so a
   // forged header cannot make us allocate more than the file could describe).
   const std::uint64_t cells = static_cast<std::uint64_t>(R) * static_cast<std::uint64_t>(C);
-  if (!sparse && layers > 0 && cells * 4 * layers > length)
+  if (!sparse && layers > 0 && saturatingProduct({cells, 4, layers}) > length)
     dec.fail(24, "dense map of " + std::to_string(R) + "x" + std::to_string(C) + " cells and " +
                      std::to_string(layers) + " layers needs more data than the file's " + std::to_string(length) +
                      " bytes");
@@ -523,6 +524,9 @@ std::vector<unsigned char> readWholeFile(const fs::path& path) {
   std::error_code ec;
   const auto size = fs::file_size(path, ec);
   std::vector<unsigned char> bytes;
+  // The decoded map holds at most what the file describes (dense layers are checked against the
+  // file's length, sparse tiles are stored cell by cell): the file and the map, twice its size.
+  if (!ec) requireInputBudget(saturatingProduct({size, 2}), "snapshot '" + path.string() + "'", "the file and the map decoded from it");
   if (!ec) bytes.reserve(static_cast<std::size_t>(size));
   unsigned char buf[1 << 16];
   for (;;) {

@@ -1,10 +1,12 @@
 // Truth terrain: node grid, bilinear queries, mass-moving primitives, pyramid ray casting.
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/core/error.hpp>
 #include <terramap/sim/truth_terrain.hpp>
 
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
@@ -84,6 +86,11 @@ DemGrid readEsriAscii(const std::string& path) {
     std::transform(k.begin(), k.end(), k.begin(), [](unsigned char c) { return std::tolower(c); });
     double v = 0;
     if (!(ls >> v)) throw InputError(path + ":" + std::to_string(line_no) + ": header '" + key + "' has no numeric value");
+    const std::string at = path + ":" + std::to_string(line_no) + ": header '" + key + "' ";
+    if (!std::isfinite(v) || std::abs(v) > 1e12)
+      throw InputError(at + "is " + line.substr(line.find(key) + key.size()) + ", not a finite value of a plausible magnitude");
+    if ((k == "ncols" || k == "nrows") && (v != std::floor(v) || v < 2 || v > 1e9))
+      throw InputError(at + "must be a whole number of cells >= 2 (is " + std::to_string(v) + ")");
     if (k == "ncols") g.nx = static_cast<int>(v);
     else if (k == "nrows") g.ny = static_cast<int>(v);
     else if (k == "xllcorner") { xll = v; corner_x = true; have_x = true; }
@@ -100,13 +107,26 @@ DemGrid readEsriAscii(const std::string& path) {
   g.y0_m = yll + (corner_y ? 0.5 * g.cell_m : 0.0);
   in.clear();
   in.seekg(data_start);
+  // Every value takes at least two bytes of the file (a digit and a separator): a header that
+  // declares more values than the file can hold is refused before the grid is allocated, and
+  // so is one whose grid exceeds the memory budget.
+  const std::uint64_t values = saturatingProduct({static_cast<std::uint64_t>(g.nx), static_cast<std::uint64_t>(g.ny)});
+  std::error_code ec;
+  const std::uint64_t file_bytes = std::filesystem::file_size(path, ec);
+  const std::uint64_t body = ec ? 0 : file_bytes - std::min<std::uint64_t>(file_bytes, static_cast<std::uint64_t>(data_start));
+  if (!ec && values > body / 2 + 1)
+    throw InputError(path + ": ESRI ASCII header declares ncols " + std::to_string(g.nx) + " x nrows " +
+                     std::to_string(g.ny) + " = " + std::to_string(values) + " values, but the " + std::to_string(body) +
+                     " bytes after the header can hold at most " + std::to_string(body / 2 + 1));
+  requireInputBudget(saturatingProduct({values, sizeof(double)}), path + ": ESRI ASCII grid ncols " +
+                     std::to_string(g.nx) + " x nrows " + std::to_string(g.ny), "8 bytes per value");
   g.z.assign(static_cast<std::size_t>(g.nx) * g.ny, kNaN);
   for (int r = 0; r < g.ny; ++r) {
     const int j = g.ny - 1 - r;  // first row is the northern one
     for (int i = 0; i < g.nx; ++i) {
       std::string tok;
       if (!(in >> tok))
-        throw InputError(path + ": expected " + std::to_string(g.nx * g.ny) + " values, file ends in row " +
+        throw InputError(path + ": expected " + std::to_string(values) + " values, file ends in row " +
                          std::to_string(r + 1));
       double v = 0;
       try {
