@@ -57,6 +57,15 @@ struct LidarFusionConfig {
   double ramped_height_range_a = 0.3;     ///< slope (m/m)
   double ramped_height_range_b_m = 1.0;   ///< horizontal distance where the ramp starts (m)
   double ramped_height_range_c_m = 0.2;   ///< height allowed at the sensor (m)
+  /// Variance floor (m^2) of every point and of every fused cell: no point or cell claims to
+  /// know a height better than sigma = 1 mm. Why 1 mm: it is the range resolution of common
+  /// LiDARs (Velodyne HDL-32E/64E 2 mm, Ouster OS1 1 mm; quantisation alone gives q/sqrt(12)),
+  /// so a smaller fused sigma would be a claim the sensor cannot support; it is far below the
+  /// 2 cm point noise (v_p = 4e-4), so it only binds after ~400 consistent points in one cell
+  /// without time growth. Without it a cell could freeze (v -> 0: a new point's weight
+  /// v/(v + v_p) -> 0, and a zero-noise point makes every later one an outlier) and two
+  /// zero-variance points give 0/0 = NaN. Must be > 0 (ConfigError).
+  double min_variance_m2 = 1e-6;
   double mahalanobis_thresh = 2.0;        ///< k in |z - h| > k sqrt(v + v_p)
   double outlier_variance_m2 = 0.01;      ///< added to a cell's variance per outlier (m^2)
   double max_variance_m2 = 100.0;         ///< a cell above this after an outlier is forgotten
