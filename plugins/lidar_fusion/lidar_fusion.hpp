@@ -10,13 +10,15 @@
 ///  2. motion: with follow_robot the map re-centres (ring buffer, LayeredMap::move) on the
 ///     latest Pose (base position) or, before any Pose arrived, on the sensor position;
 ///  3. gates, counted by reason: non_finite, too_close, too_far, too_high, outside_map;
-///  4. noise: range_based v = (a + b*r)^2 or depth_squared v = k*z_s^2;
+///  4. noise: range_based v = (a + b*r)^2 or depth_squared v = k*z_s^2, floored at
+///     min_variance_m2 (a noise-free model, a = b = 0 or k = 0, is a ConfigError);
 ///  5. points are binned per tile (a stable counting sort inside each fixed chunk of points;
 ///     the gates of 3-4 run as an AVX2 kernel where the CPU has it, bit-identical to the
 ///     scalar loop), one task per tile fuses its points in input order (clearing the previous
 ///     cloud's `hits` of the tile first): a Mahalanobis gate |z-h| > k*sqrt(v+v_p) marks an
-///     outlier (variance += outlier_variance), otherwise a precision-weighted update; a cell
-///     whose variance exceeds max_variance is forgotten;
+///     outlier (variance += outlier_variance), otherwise a precision-weighted update (fused
+///     variance floored at min_variance_m2); a cell whose variance exceeds max_variance is
+///     forgotten;
 ///  6. visibility cleanup: one ray every `cleanup_ray_stride` points is walked through the
 ///     grid (exact column traversal, Amanatides-Woo); valid cells not hit by this cloud whose
 ///     surface lies above the ray lose validity (cleanup_step per ray) and gain variance, unknown
@@ -24,6 +26,13 @@
 ///  7. optional drift compensation (off by default).
 ///
 /// Frames: `elevation` and `upper_bound` are map-frame z (metres). NaN = unknown.
+/// Height contract (docs/height_contract.md): the seven layers are shared. blade_sweep and
+/// soil_erosion write `variance` (their own sigma^2: replaced on a cut, added on a deposit or
+/// slip), `is_valid` (1 on a cut) and `upper_bound` wherever they change `elevation`; the gate,
+/// the update and the time growth read whatever `variance` holds, so returns after a blind cut
+/// are gated against the blade's uncertainty. A variance below min_variance_m2 is read as the
+/// floor; a finite elevation with a NaN variance is treated as unknown (re-initialised).
+/// Only this plugin writes `time_since_update` and `hits`.
 /// Determinism: every stage either writes per tile in a fixed order or reduces with exact
 /// operations (integer counts, min) over fixed chunks, so layers are bit-identical for any
 /// thread count. No float atomics. (Upper bounds are minima kept per worker thread and merged
@@ -115,7 +124,7 @@ struct FusionStats {
 /// Layer names the plugin creates.
 struct LidarFusionLayers {
   static constexpr const char* kElevation = "elevation";            ///< m, map-frame z; NaN unknown
-  static constexpr const char* kVariance = "variance";              ///< m^2; NaN unknown
+  static constexpr const char* kVariance = "variance";              ///< m^2; NaN unknown; blind writers too
   static constexpr const char* kIsValid = "is_valid";               ///< 1 valid .. 0 unknown
   static constexpr const char* kTimeSinceUpdate = "time_since_update";  ///< s; NaN never
   static constexpr const char* kUpperBound = "upper_bound";         ///< m; NaN none
