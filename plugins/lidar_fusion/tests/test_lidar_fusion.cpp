@@ -681,13 +681,15 @@ TEST(LidarFusion, MatchesAPlainSerialPerPointLoop) {
     const auto idx = g.indexAt(pm.head<2>());
     if (!idx) continue;
     const double sigma = c.range_noise_a_m + c.range_noise_b * r;
-    const float vp = float(sigma * sigma), z = float(pm.z());
+    const float vp = float(std::max(sigma * sigma, c.min_variance_m2)), z = float(pm.z());
+    const float vmin = float(c.min_variance_m2);
     Cell& cell = ref[{idx->x(), idx->y()}];
     if (std::isnan(cell.h)) {
       cell.h = z;
       cell.v = vp;
     } else {
       const float k2 = float(c.mahalanobis_thresh * c.mahalanobis_thresh);
+      cell.v = std::max(cell.v, vmin);
       if ((z - cell.h) * (z - cell.h) > k2 * (cell.v + vp)) {
         cell.v += float(c.outlier_variance_m2);
         ++outl;
@@ -695,7 +697,7 @@ TEST(LidarFusion, MatchesAPlainSerialPerPointLoop) {
       }
       const float s2 = cell.v + vp;
       cell.h = (cell.h * vp + z * cell.v) / s2;
-      cell.v = (cell.v * vp) / s2;
+      cell.v = std::max((cell.v * vp) / s2, vmin);
     }
     ++cell.hits;
     ++fused;
