@@ -198,10 +198,21 @@ std::vector<LayerSpec> BladeSweep::layers() const {
   };
 }
 
+SweepLayers SweepLayers::of(const LayeredMap& map) {
+  SweepLayers ids;
+  ids.elevation = map.layerId("elevation");
+  ids.loose = map.layerId("loose");
+  ids.sigma = map.layerId("height_sigma");
+  auto optional = [&](const char* name) { return map.hasLayer(name) ? map.layerId(name) : LayerId(-1); };
+  ids.variance = optional("variance");
+  ids.is_valid = optional("is_valid");
+  ids.upper_bound = optional("upper_bound");
+  ids.is_upper_bound = optional("is_upper_bound");
+  return ids;
+}
+
 void BladeSweep::start(ProcessContext& ctx) {
-  ids_.elevation = ctx.map().layerId("elevation");
-  ids_.loose = ctx.map().layerId("loose");
-  ids_.sigma = ctx.map().layerId("height_sigma");
+  ids_ = SweepLayers::of(ctx.map());
   const double res = ctx.map().geometry().resolution();
   if (cfg_.fit_length_m < 2.0 * res) {
     std::ostringstream os;

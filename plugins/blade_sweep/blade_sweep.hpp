@@ -15,6 +15,19 @@
 /// Layers: `elevation` (written, must be provided by the map config or an earlier plugin),
 /// `loose` (created, m, fill 0) and `height_sigma` (created, m, NaN = the blade never changed the
 /// cell). The masks erosion needs travel in the record, not in layers.
+///
+/// Height contract (docs/height_contract.md): where lidar_fusion's layers exist (bound at
+/// start(), so lidar_fusion must be an earlier stage; it always is, since it creates
+/// `elevation`), every height change keeps them consistent, so LiDAR returns after a blind cut
+/// are gated against the blade's uncertainty, not a stale one:
+///  - cut cell: `variance` = height_sigma² (replaced: the old surface is gone), `is_valid` = 1,
+///    `upper_bound` = elevation, `is_upper_bound` = 0;
+///  - deposit on known ground: `variance` += the deposit's share of height_sigma² (the buried
+///    surface is still the base), `is_valid` kept, `upper_bound` = elevation, `is_upper_bound` = 0;
+///  - deposit on unknown ground (elevation stays NaN): a ray `upper_bound` there is cleared
+///    (NaN, `is_upper_bound` = 0): the pile may now stand above it.
+/// Without a `variance` layer (blind-only pipeline) none of this is written; the layer is not
+/// created (nobody would read it, and `height_sigma` already carries the same sigma).
 #include <terramap/plugin/plugin.hpp>
 #include <terramap/plugin/records/sweep_record.hpp>
 
@@ -82,9 +95,15 @@ CellRect footprintBlock(const std::vector<Triangle>& tris, const Geometry& geo);
 void lowestIntersection(const std::vector<Triangle>& tris, const Geometry& geo, const CellRect& block,
                         std::vector<double>& z_low, const Executor& ex);
 
-/// Layer ids the sweep touches.
+/// Layer ids the sweep touches. The last four are lidar_fusion's (the height contract,
+/// docs/height_contract.md): -1 = the layer does not exist and is left alone (a blind-only
+/// pipeline has none of them; `height_sigma` is then the only uncertainty).
 struct SweepLayers {
   LayerId elevation = -1, loose = -1, sigma = -1;
+  LayerId variance = -1, is_valid = -1, upper_bound = -1, is_upper_bound = -1;
+  /// elevation, loose, height_sigma (must exist), and the contract layers the map has.
+  /// \throws LayerError if one of the first three is missing.
+  static SweepLayers of(const LayeredMap& map);
 };
 
 /// Blade angle from the horizontal in the vertical plane along `t_hat`, measured through the

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 
 namespace terramap::plugins {
@@ -342,11 +343,16 @@ void averageSlices(bool any_cut, double res, SweepRecord& rec) {
   }
 }
 
+// What cutAndDeposit did to a window cell (cut and deposit cells are disjoint: deposits land
+// off the footprint).
+constexpr std::uint8_t kChangeNone = 0, kChangeCut = 1, kChangeDeposit = 2, kChangeDepositUnknown = 3;
+
 // Cut and deposit (Alg. 3, mass-conserving) on the window's copies H, L, S: each cut cell's soil
 // goes, swollen, to the first cell off the footprint along m̂.
 void cutAndDeposit(const std::vector<CutCell>& cuts, const SweptCells& sc, const MapWindow& win,
                    const Geometry& geo, const SweepConfig& cfg, const Eigen::Vector2d& m, std::vector<double>& H,
-                   std::vector<double>& L, std::vector<double>& S, SweepRecord& rec) {
+                   std::vector<double>& L, std::vector<double>& S, std::vector<std::uint8_t>& change,
+                   SweepRecord& rec) {
   const CellRect& fp = sc.fp;
   const double res = geo.resolution(), cell = res * res;
   const double du = -m.x(), dv = -m.y();  // m̂ in grid coordinates (u = -x, v = -y)
@@ -368,6 +374,7 @@ void cutAndDeposit(const std::vector<CutCell>& cuts, const SweptCells& sc, const
     H[wa] = a.zl;
     L[wa] = std::max(la - dh, 0.0);
     S[wa] = std::isfinite(S[wa]) ? std::max(S[wa], ssv) : ssv;
+    change[wa] = kChangeCut;
 
     // Walk from the centre of a along m̂ to the first cell off the footprint.
     GridLine walk = GridLine::fromCellCentre(Index(a.i, a.j), du, dv);
@@ -392,6 +399,7 @@ void cutAndDeposit(const std::vector<CutCell>& cuts, const SweptCells& sc, const
       // Unknown ground: keep the soil as loose thickness of known amount on it (its elevation
       // stays unknown until a sensor sees it), so no volume disappears.
       L[wb] = orZero(L[wb]) + dep;
+      change[wb] = kChangeDepositUnknown;
       rec.deposit_unknown_volume_m3 += dep * cell;
       ++rec.cells_deposit_unknown;
       continue;
@@ -407,11 +415,69 @@ void cutAndDeposit(const std::vector<CutCell>& cuts, const SweptCells& sc, const
     L[wb] = orZero(L[wb]) + dep;
     const double sb = orZero(S[wb]);
     S[wb] = std::sqrt(sb * sb + 0.25 * dh_max * dh_max);
+    change[wb] = kChangeDeposit;
     rec.deposit_volume_m3 += dep * cell;
     if (!deposited[wb]) {
       deposited[wb] = 1;
       ++rec.cells_deposit;
     }
+  }
+}
+
+// The height contract (docs/height_contract.md) on the layers lidar_fusion owns, where they
+// exist. A cut sets the height to the blade's bottom: the old surface and what the LiDAR knew
+// of it are gone, so the variance is replaced by the blade's own sigma^2, and the cell is a fresh
+// estimate (is_valid = 1; rays that had penetrated the old, higher surface agreed with the cut).
+// A deposit adds soil to a surface that is still there: the variance grows by the deposit's
+// share of sigma^2 (S^2 - S0^2) and is_valid is kept (rays that penetrated the old surface speak
+// even more against the higher one). Where the height is known, upper_bound follows it (the
+// valid-cell convention); a deposit on unknown ground contradicts a ray bound taken over the old
+// surface, so the bound is cleared, not raised by the map's deposit: the real spoil need not
+// be where the map put it, and a bound must never be below the surface.
+void updateFusionLayers(LayeredMap& map, const SweepLayers& ids, const MapWindow& win,
+                        const std::vector<std::uint8_t>& change, const std::vector<double>& H,
+                        const std::vector<double>& S0, const std::vector<double>& S) {
+  const bool var = ids.variance >= 0, valid = ids.is_valid >= 0, ub = ids.upper_bound >= 0 && ids.is_upper_bound >= 0;
+  if (!var && !valid && !ub) return;
+  std::vector<double> V0, VAL0, UB0, ISUB0;
+  if (var) win.gather(map, ids.variance, V0);
+  if (valid) win.gather(map, ids.is_valid, VAL0);
+  if (ub) {
+    win.gather(map, ids.upper_bound, UB0);
+    win.gather(map, ids.is_upper_bound, ISUB0);
+  }
+  std::vector<double> V = V0, VAL = VAL0, UB = UB0, ISUB = ISUB0;
+  for (size_t k = 0; k < change.size(); ++k) {
+    const std::uint8_t c = change[k];
+    if (c == kChangeNone) continue;
+    if (c == kChangeDepositUnknown) {
+      if (ub) {
+        UB[k] = kNaN;
+        ISUB[k] = 0.0;
+      }
+      continue;
+    }
+    if (var) {
+      if (c == kChangeCut) {
+        V[k] = S[k] * S[k];
+      } else {
+        // A known height the LiDAR never measured (no variance) inherits the blind sigma so far.
+        const double s0 = orZero(S0[k]);
+        const double base = std::isfinite(V0[k]) ? V0[k] : s0 * s0;
+        V[k] = base + (S[k] * S[k] - s0 * s0);
+      }
+    }
+    if (valid && c == kChangeCut) VAL[k] = 1.0;
+    if (ub) {
+      UB[k] = H[k];
+      ISUB[k] = 0.0;
+    }
+  }
+  if (var) win.scatterChanged(map, ids.variance, V0, V);
+  if (valid) win.scatterChanged(map, ids.is_valid, VAL0, VAL);
+  if (ub) {
+    win.scatterChanged(map, ids.upper_bound, UB0, UB);
+    win.scatterChanged(map, ids.is_upper_bound, ISUB0, ISUB);
   }
 }
 
@@ -505,7 +571,8 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
   // Surcharge ahead of the blade before the cut, the cut and deposit, the surcharge after.
   const auto vq0 = surchargeVolume(rec->T_map_blade0, bg, dir.t_hat, cfg.fit_length_m, geo, win, L0);
   rec->vq0_m3 = vq0.first;
-  cutAndDeposit(cuts, sc, win, geo, cfg, dir.m_hat, H, L, S, *rec);
+  std::vector<std::uint8_t> change(H.size(), kChangeNone);
+  cutAndDeposit(cuts, sc, win, geo, cfg, dir.m_hat, H, L, S, change, *rec);
   const auto vq1 = surchargeVolume(rec->T_map_blade1, bg, dir.t_hat, cfg.fit_length_m, geo, win, L);
   rec->vq1_m3 = vq1.first;
   const double gamma_l = rec->loose_unit_weight_n_m3;
@@ -520,6 +587,7 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
   win.scatterChanged(map, ids.elevation, H0, H);
   win.scatterChanged(map, ids.loose, L0, L);
   win.scatterChanged(map, ids.sigma, S0, S);
+  updateFusionLayers(map, ids, win, change, H, S0, S);
   return rec;
 }
 

@@ -12,6 +12,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <variant>
 
 #if defined(__x86_64__) && defined(__GNUC__)
@@ -45,7 +46,7 @@ struct GateConsts {
   double r00, r01, r02, r10, r11, r12, r20, r21, r22, tx, ty, tz;
   double xmax, ymax, res, rows, cols;
   double min_r, max_r, max_h, ramp_a, ramp_b, ramp_c;
-  double noise_a, noise_b, noise_k;
+  double noise_a, noise_b, noise_k, min_var;
   bool ramp, range_based;
 };
 
@@ -103,6 +104,9 @@ inline GateCode gateOne(const PointXYZI& p, const GateConsts& k, std::int32_t& l
   } else {
     var = k.noise_k * pz * pz;
   }
+  // The floor keeps a point from claiming certainty (a horizontal beam under depth_squared has
+  // z_s = 0); (var < floor) ? floor : var, the operand order _mm256_max_pd(floor, var) matches.
+  var = std::max(var, k.min_var);
   zf = static_cast<float>(z);
   varf = static_cast<float>(var);
   return kInside;
@@ -135,6 +139,7 @@ __attribute__((target("avx2"))) void gateAvx2(const PointXYZI* pts, int n, const
   const __m256d min_r = _mm256_set1_pd(k.min_r), max_r = _mm256_set1_pd(k.max_r), max_h = _mm256_set1_pd(k.max_h);
   const __m256d ra = _mm256_set1_pd(k.ramp_a), rb = _mm256_set1_pd(k.ramp_b), rc = _mm256_set1_pd(k.ramp_c);
   const __m256d na = _mm256_set1_pd(k.noise_a), nb = _mm256_set1_pd(k.noise_b), nk = _mm256_set1_pd(k.noise_k);
+  const __m256d vfloor = _mm256_set1_pd(k.min_var);
   const __m256d zero = _mm256_setzero_pd();
   int q = 0;
   for (; q + 4 <= n; q += 4) {
@@ -178,6 +183,8 @@ __attribute__((target("avx2"))) void gateAvx2(const PointXYZI* pts, int n, const
     } else {
       var = _mm256_mul_pd(_mm256_mul_pd(nk, pz), pz);
     }
+    // max_pd(a, b) = a > b ? a : b, so (floor, var) is std::max(var, floor) bit for bit.
+    var = _mm256_max_pd(vfloor, var);
     // The first failing gate wins: apply them from the last to the first.
     const __m128i in32 = mask32(inside);
     __m128i code = _mm_blendv_epi8(_mm_set1_epi32(kOutsideMap), _mm_set1_epi32(kInside), in32);
@@ -230,6 +237,8 @@ ParamSchema lidarFusionSchema() {
       param::real("ramped_height_range_a", 0.3, 0.0, inf, "m/m", "ramp slope"),
       param::real("ramped_height_range_b_m", 1.0, 0.0, inf, "m", "horizontal distance where the ramp starts"),
       param::real("ramped_height_range_c_m", 0.2, -inf, inf, "m", "height allowed next to the sensor"),
+      param::real("min_variance_m2", 1e-6, 0.0, 1.0, "m^2",
+                  "variance floor of every point and every fused cell (must be > 0)"),
       param::real("mahalanobis_thresh", 2.0, 0.0, inf, "1",
                   "outlier if |z - h| > k*sqrt(v_cell + v_point)"),
       param::real("outlier_variance_m2", 0.01, 0.0, inf, "m^2", "added to a cell's variance per outlier"),
@@ -258,6 +267,22 @@ ParamSchema lidarFusionSchema() {
   };
 }
 
+namespace {
+// {key, message} if the noise model claims noise-free points (a point of variance 0 makes its
+// cell certain: no later point can move it, and two such points give 0/0), else {"", ""}.
+std::pair<std::string, std::string> noiseModelProblem(const LidarFusionConfig& c) {
+  if (!(c.min_variance_m2 > 0.0) || !std::isfinite(c.min_variance_m2))
+    return {"min_variance_m2", "must be > 0 and finite (got " + formatNumber(c.min_variance_m2) + ")"};
+  if (c.noise_model == NoiseModel::RangeBased && c.range_noise_a_m == 0.0 && c.range_noise_b == 0.0)
+    return {"range_noise_a_m", "range_noise_a_m = 0 and range_noise_b = 0 under sensor_noise: range_based model a "
+                               "noise-free LiDAR; give the sensor's range noise (e.g. range_noise_a_m: 0.02)"};
+  if (c.noise_model == NoiseModel::DepthSquared && c.sensor_noise_factor == 0.0)
+    return {"sensor_noise_factor", "sensor_noise_factor = 0 under sensor_noise: depth_squared models a noise-free "
+                                   "sensor; give k in v = k*z_s^2 (e.g. 0.05)"};
+  return {};
+}
+}  // namespace
+
 LidarFusionConfig lidarFusionConfigFrom(const Params& p) {
   LidarFusionConfig c;
   c.noise_model = p.getString("sensor_noise") == "depth_squared" ? NoiseModel::DepthSquared
@@ -272,6 +297,7 @@ LidarFusionConfig lidarFusionConfigFrom(const Params& p) {
   c.ramped_height_range_a = p.getDouble("ramped_height_range_a");
   c.ramped_height_range_b_m = p.getDouble("ramped_height_range_b_m");
   c.ramped_height_range_c_m = p.getDouble("ramped_height_range_c_m");
+  c.min_variance_m2 = p.getDouble("min_variance_m2");
   c.mahalanobis_thresh = p.getDouble("mahalanobis_thresh");
   c.outlier_variance_m2 = p.getDouble("outlier_variance_m2");
   c.max_variance_m2 = p.getDouble("max_variance_m2");
@@ -293,6 +319,7 @@ LidarFusionConfig lidarFusionConfigFrom(const Params& p) {
   if (!(c.min_range_m < c.max_range_m))
     p.fail("min_range_m", "must be smaller than max_range_m (" + formatNumber(c.max_range_m) + "), got " +
                               formatNumber(c.min_range_m));
+  if (const auto why = noiseModelProblem(c); !why.first.empty()) p.fail(why.first, why.second);
   return c;
 }
 
@@ -315,6 +342,7 @@ void LidarFusion::configure(const LidarFusionConfig& c) {
   finiteNonNeg("cleanup_end_margin_m", c.cleanup_end_margin_m);
   if (!(c.min_range_m < c.max_range_m))
     bad("min_range_m", "must be smaller than max_range_m (" + formatNumber(c.max_range_m) + "), got " + formatNumber(c.min_range_m));
+  if (const auto why = noiseModelProblem(c); !why.first.empty()) bad(why.first, why.second);
   if (c.cleanup_ray_stride < 1) bad("cleanup_ray_stride", "must be >= 1 (got " + formatNumber(c.cleanup_ray_stride) + ")");
   if (!(c.cleanup_step >= 0.0 && c.cleanup_step <= 1.0))
     bad("cleanup_step", "must be in [0, 1] (got " + formatNumber(c.cleanup_step) + ")");
@@ -532,6 +560,7 @@ void LidarFusion::preparePoints(const LayeredMap& map, const Executor& ex, const
   k.min_r = cf.min_range_m, k.max_r = cf.max_range_m, k.max_h = cf.max_height_above_sensor_m;
   k.ramp_a = cf.ramped_height_range_a, k.ramp_b = cf.ramped_height_range_b_m, k.ramp_c = cf.ramped_height_range_c_m;
   k.noise_a = cf.range_noise_a_m, k.noise_b = cf.range_noise_b, k.noise_k = cf.sensor_noise_factor;
+  k.min_var = cf.min_variance_m2;
   k.ramp = cf.enable_ramped_height_range;
   k.range_based = cf.noise_model == NoiseModel::RangeBased;
   const bool rays = cf.enable_visibility_cleanup;
@@ -726,6 +755,7 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
   const float k2 = static_cast<float>(config_.mahalanobis_thresh * config_.mahalanobis_thresh);
   const float ov = static_cast<float>(config_.outlier_variance_m2);
   const float vmax = static_cast<float>(config_.max_variance_m2);
+  const float vmin = static_cast<float>(config_.min_variance_m2);
   ex.forEach(nt, [&](int k) {
     const int t = task_tiles_[static_cast<size_t>(k)];
     // Clear the cells the previous cloud hit in this tile (a whole-tile fill would cost 16 KB
@@ -766,12 +796,16 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
         const float z = it->z, vp = it->var;
         const float h = E[o];
         float nh;
-        if (std::isnan(h)) {
+        // A known height without a variance breaks the height contract (docs/height_contract.md:
+        // whoever writes a finite elevation writes its variance); treat it as unknown rather than
+        // fuse with NaN weights.
+        if (std::isnan(h) || std::isnan(V[o])) {
           // Unknown cell: the first point is the estimate (an uninformative prior).
           nh = z;
           V[o] = vp;
         } else {
-          const float v = V[o];
+          // Another writer (a blind cut with sigma_sv_m = 0) may have left less than the floor.
+          const float v = std::max(V[o], vmin);
           const float r = z - h;
           const float s = v + vp;
           if (r * r > k2 * s) {
@@ -790,7 +824,9 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
             continue;
           }
           nh = (h * vp + z * v) / s;
-          V[o] = (v * vp) / s;
+          // n equal points would otherwise drive v to v_p/n -> 0 and freeze the cell; the
+          // floor also keeps s > 0 for the next point (no 0/0 with identical heights).
+          V[o] = std::max((v * vp) / s, vmin);
         }
         E[o] = nh;
         VAL[o] = 1.0f;

@@ -10,13 +10,15 @@
 ///  2. motion: with follow_robot the map re-centres (ring buffer, LayeredMap::move) on the
 ///     latest Pose (base position) or, before any Pose arrived, on the sensor position;
 ///  3. gates, counted by reason: non_finite, too_close, too_far, too_high, outside_map;
-///  4. noise: range_based v = (a + b*r)^2 or depth_squared v = k*z_s^2;
+///  4. noise: range_based v = (a + b*r)^2 or depth_squared v = k*z_s^2, floored at
+///     min_variance_m2 (a noise-free model, a = b = 0 or k = 0, is a ConfigError);
 ///  5. points are binned per tile (a stable counting sort inside each fixed chunk of points;
 ///     the gates of 3-4 run as an AVX2 kernel where the CPU has it, bit-identical to the
 ///     scalar loop), one task per tile fuses its points in input order (clearing the previous
 ///     cloud's `hits` of the tile first): a Mahalanobis gate |z-h| > k*sqrt(v+v_p) marks an
-///     outlier (variance += outlier_variance), otherwise a precision-weighted update; a cell
-///     whose variance exceeds max_variance is forgotten;
+///     outlier (variance += outlier_variance), otherwise a precision-weighted update (fused
+///     variance floored at min_variance_m2); a cell whose variance exceeds max_variance is
+///     forgotten;
 ///  6. visibility cleanup: one ray every `cleanup_ray_stride` points is walked through the
 ///     grid (exact column traversal, Amanatides-Woo); valid cells not hit by this cloud whose
 ///     surface lies above the ray lose validity (cleanup_step per ray) and gain variance, unknown
@@ -24,6 +26,13 @@
 ///  7. optional drift compensation (off by default).
 ///
 /// Frames: `elevation` and `upper_bound` are map-frame z (metres). NaN = unknown.
+/// Height contract (docs/height_contract.md): the seven layers are shared. blade_sweep and
+/// soil_erosion write `variance` (their own sigma^2: replaced on a cut, added on a deposit or
+/// slip), `is_valid` (1 on a cut) and `upper_bound` wherever they change `elevation`; the gate,
+/// the update and the time growth read whatever `variance` holds, so returns after a blind cut
+/// are gated against the blade's uncertainty. A variance below min_variance_m2 is read as the
+/// floor; a finite elevation with a NaN variance is treated as unknown (re-initialised).
+/// Only this plugin writes `time_since_update` and `hits`.
 /// Determinism: every stage either writes per tile in a fixed order or reduces with exact
 /// operations (integer counts, min) over fixed chunks, so layers are bit-identical for any
 /// thread count. No float atomics. (Upper bounds are minima kept per worker thread and merged
@@ -57,6 +66,15 @@ struct LidarFusionConfig {
   double ramped_height_range_a = 0.3;     ///< slope (m/m)
   double ramped_height_range_b_m = 1.0;   ///< horizontal distance where the ramp starts (m)
   double ramped_height_range_c_m = 0.2;   ///< height allowed at the sensor (m)
+  /// Variance floor (m^2) of every point and of every fused cell: no point or cell claims to
+  /// know a height better than sigma = 1 mm. Why 1 mm: it is the range resolution of common
+  /// LiDARs (Velodyne HDL-32E/64E 2 mm, Ouster OS1 1 mm; quantisation alone gives q/sqrt(12)),
+  /// so a smaller fused sigma would be a claim the sensor cannot support; it is far below the
+  /// 2 cm point noise (v_p = 4e-4), so it only binds after ~400 consistent points in one cell
+  /// without time growth. Without it a cell could freeze (v -> 0: a new point's weight
+  /// v/(v + v_p) -> 0, and a zero-noise point makes every later one an outlier) and two
+  /// zero-variance points give 0/0 = NaN. Must be > 0 (ConfigError).
+  double min_variance_m2 = 1e-6;
   double mahalanobis_thresh = 2.0;        ///< k in |z - h| > k sqrt(v + v_p)
   double outlier_variance_m2 = 0.01;      ///< added to a cell's variance per outlier (m^2)
   double max_variance_m2 = 100.0;         ///< a cell above this after an outlier is forgotten
@@ -106,7 +124,7 @@ struct FusionStats {
 /// Layer names the plugin creates.
 struct LidarFusionLayers {
   static constexpr const char* kElevation = "elevation";            ///< m, map-frame z; NaN unknown
-  static constexpr const char* kVariance = "variance";              ///< m^2; NaN unknown
+  static constexpr const char* kVariance = "variance";              ///< m^2; NaN unknown; blind writers too
   static constexpr const char* kIsValid = "is_valid";               ///< 1 valid .. 0 unknown
   static constexpr const char* kTimeSinceUpdate = "time_since_update";  ///< s; NaN never
   static constexpr const char* kUpperBound = "upper_bound";         ///< m; NaN none

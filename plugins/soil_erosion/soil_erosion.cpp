@@ -60,6 +60,12 @@ void SoilErosion::start(ProcessContext& ctx) {
   elevation_ = ctx.map().layerId("elevation");
   loose_ = ctx.map().layerId("loose");
   sigma_ = ctx.map().layerId("height_sigma");
+  auto optional = [&](const char* name) {
+    return ctx.map().hasLayer(name) ? ctx.map().layerId(name) : LayerId(-1);
+  };
+  variance_ = optional("variance");
+  upper_bound_ = optional("upper_bound");
+  is_upper_bound_ = optional("is_upper_bound");
   // Validates the configuration against the map resolution once, before any event.
   ErosionSolver check(cfg_, ctx.map().geometry().resolution());
   ctx.addCounter("critical_drop_m", check.criticalDrop());
@@ -148,6 +154,36 @@ void SoilErosion::erodeAround(ProcessContext& ctx, const SweepRecord& rec) {
   win.scatterChanged(map, elevation_, H0, g.H);
   win.scatterChanged(map, loose_, L0, L1);
   win.scatterChanged(map, sigma_, S0, S1);
+  // Height contract (docs/height_contract.md) on lidar_fusion's layers, where they exist. A slip
+  // moves the surface by dh relative to where it was, so the variance grows by the same
+  // (dh/2)^2 height_sigma took (a cell the LiDAR never measured starts from its blind sigma);
+  // the valid-cell convention upper_bound = elevation follows the move. is_valid is kept: the
+  // surface is the old one, shifted by at most the slip, so what rays said of it still holds.
+  if (variance_ >= 0) {
+    std::vector<double> V0, V;
+    win.gather(map, variance_, V0);
+    V = V0;
+    for (size_t k = 0; k < V.size(); ++k) {
+      if (!(std::isfinite(H0[k]) && g.H[k] != H0[k])) continue;
+      const double s0 = std::isfinite(S0[k]) ? S0[k] : 0.0;
+      const double base = std::isfinite(V0[k]) ? V0[k] : s0 * s0;
+      V[k] = base + (S1[k] * S1[k] - s0 * s0);
+    }
+    win.scatterChanged(map, variance_, V0, V);
+  }
+  if (upper_bound_ >= 0 && is_upper_bound_ >= 0) {
+    std::vector<double> U0, I0;
+    win.gather(map, upper_bound_, U0);
+    win.gather(map, is_upper_bound_, I0);
+    std::vector<double> U = U0, I = I0;
+    for (size_t k = 0; k < U.size(); ++k) {
+      if (!(std::isfinite(H0[k]) && g.H[k] != H0[k])) continue;
+      U[k] = g.H[k];
+      I[k] = 0.0;
+    }
+    win.scatterChanged(map, upper_bound_, U0, U);
+    win.scatterChanged(map, is_upper_bound_, I0, I);
+  }
   ctx.addCounter("erosion_passes", passes_);
   ctx.addCounter("eroded_volume_m3", 0.5 * moved * res * res);
   ctx.addCounter("roi_cells", static_cast<double>(win.size()));

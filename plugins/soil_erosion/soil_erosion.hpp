@@ -17,6 +17,12 @@
 ///   stable difference, Fs(α*(ΔH_c)) = 1, at least r tan(min_slope)) moves, and the pair stops there;
 /// - blade masks: no slip out of a cell under the swept volume (E), slip into one only up to
 ///   its swept-volume bottom (Z).
+/// Layers: writes `elevation`, `loose` and `height_sigma` (a cell moved by dh gets
+/// height_sigma = sqrt(sigma^2 + (dh/2)^2)). Height contract (docs/height_contract.md): where
+/// lidar_fusion's layers exist (bound at start()), a moved cell's `variance` grows by the same
+/// (dh/2)^2 (from height_sigma^2 if the LiDAR never measured it), `upper_bound` = elevation and
+/// `is_upper_bound` = 0; `is_valid` is kept. Only cells with a known elevation ever move. Without
+/// a `variance` layer nothing of this is written or created.
 /// Parallel without races: 4-colour tiling of 2x2 blocks; a cell of colour k exchanges with its
 /// neighbour along m̂ in the row direction and then in the column direction; colours run one
 /// after another. Every cell is written by exactly one owner per colour, so the result does not
@@ -108,6 +114,8 @@ class SoilErosion : public Plugin {
   bool on_tick_ = false, use_mask_ = true;
   int passes_ = 1;
   LayerId elevation_ = -1, loose_ = -1, sigma_ = -1;
+  // lidar_fusion's layers (height contract), -1 where the map has none (blind-only pipeline)
+  LayerId variance_ = -1, upper_bound_ = -1, is_upper_bound_ = -1;
   long last_sequence_ = 0;
   long passes_run_ = 0;
 };

@@ -6,6 +6,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <map>
 #include <random>
@@ -221,6 +222,107 @@ TEST(LidarFusion, ParamsAreCrossChecked) {
   LidarFusionConfig c;
   c.cleanup_ray_stride = 0;
   EXPECT_THROW(f.configure(c), ConfigError);
+}
+
+// A noise model that claims noise-free points is a configuration error, named by its keys.
+TEST(LidarFusion, NoiseFreeModelsAreRejectedAtConfiguration) {
+  auto message = [](const std::function<void()>& fn) {
+    try {
+      fn();
+    } catch (const ConfigError& e) {
+      return std::string(e.what());
+    }
+    return std::string("(no ConfigError)");
+  };
+  LidarFusion f;
+  const std::string yaml = message([&] {
+    f.configure(makeParams("lidar", lidarFusionSchema(), {{"range_noise_a_m", 0.0}, {"range_noise_b", 0.0}}));
+  });
+  EXPECT_NE(yaml.find("range_noise_a_m"), std::string::npos) << yaml;
+  EXPECT_NE(yaml.find("range_noise_b"), std::string::npos) << yaml;
+  LidarFusionConfig c;
+  c.range_noise_a_m = 0.0;
+  c.range_noise_b = 0.0;
+  const std::string direct = message([&] { f.configure(c); });
+  EXPECT_NE(direct.find("range_noise_a_m"), std::string::npos) << direct;
+  EXPECT_NE(direct.find("range_noise_b"), std::string::npos) << direct;
+  // Either term alone is a noise model.
+  c.range_noise_b = 0.001;
+  EXPECT_NO_THROW(f.configure(c));
+  c.range_noise_a_m = 0.02;
+  c.range_noise_b = 0.0;
+  EXPECT_NO_THROW(f.configure(c));
+  // a = b = 0 does not matter under depth_squared, k = 0 does.
+  c.noise_model = NoiseModel::DepthSquared;
+  c.range_noise_a_m = 0.0;
+  EXPECT_NO_THROW(f.configure(c));
+  c.sensor_noise_factor = 0.0;
+  const std::string k = message([&] { f.configure(c); });
+  EXPECT_NE(k.find("sensor_noise_factor"), std::string::npos) << k;
+  const std::string kyaml = message([&] {
+    f.configure(makeParams("lidar", lidarFusionSchema(),
+                           {{"sensor_noise", std::string("depth_squared")}, {"sensor_noise_factor", 0.0}}));
+  });
+  EXPECT_NE(kyaml.find("sensor_noise_factor"), std::string::npos) << kyaml;
+  LidarFusionConfig z;
+  z.min_variance_m2 = 0.0;
+  const std::string fl = message([&] { f.configure(z); });
+  EXPECT_NE(fl.find("min_variance_m2"), std::string::npos) << fl;
+}
+
+// A sensor that quantises heights (here every point of a cell at the same z, from horizontal
+// beams, so depth_squared gives v = k * 0^2 = 0): without a floor the first point sets v = 0 and
+// the second computes (h*0 + z*0)/0 = NaN with is_valid = 1.
+TEST(LidarFusion, IdenticalHeightsWithZeroPointVarianceStayFiniteAndFloored) {
+  LayeredMap map = makeMap();
+  LidarFusion f;
+  LidarFusionConfig c = plainConfig();
+  c.noise_model = NoiseModel::DepthSquared;  // k = 0.05
+  f.configure(c);
+  f.attach(map);
+  Executor ex(1);
+  // Sensor at z = 0.25 looking along +x: sensor-frame z = 0 for every point, map z = 0.25.
+  std::vector<PointXYZI> pts;
+  for (int k = 0; k < 200; ++k) pts.push_back({1.23f, -0.47f, 0.0f, 0});
+  const FusionStats s = f.fuse(map, ex, cloudAt({0, 0, 0.25}, pts));
+  EXPECT_EQ(s.points_fused, 200);
+  EXPECT_EQ(s.outliers, 0);
+  const Index idx = cellOf(map, 1.23, -0.47);
+  EXPECT_EQ(layerAt(map, L::kElevation, idx), 0.25f);
+  EXPECT_EQ(layerAt(map, L::kIsValid, idx), 1.0f);
+  // Every point has v = floor, so the fused variance is floor/n, floored again at the floor.
+  EXPECT_EQ(layerAt(map, L::kVariance, idx), static_cast<float>(c.min_variance_m2));
+  // And the cell is not frozen: a point 10 cm higher (sensor-frame z = 0.1, v_p = 0.05 * 0.01
+  // = 5e-4) is gated against 2 sqrt(1e-6 + 5e-4) = 4.5 cm: an outlier, which adds 0.01 m^2; the
+  // next such point then has weight 0.010001 / 0.010501 = 0.95 and moves the cell to ~0.345 m.
+  const std::vector<PointXYZI> up = {{1.23f, -0.47f, 0.1f, 0}};
+  const FusionStats s2 = f.fuse(map, ex, cloudAt({0, 0, 0.25}, up));
+  EXPECT_EQ(s2.outliers, 1);
+  const FusionStats s3 = f.fuse(map, ex, cloudAt({0, 0, 0.25}, up));
+  EXPECT_EQ(s3.points_fused, 1);
+  EXPECT_GT(layerAt(map, L::kElevation, idx), 0.34f);
+  EXPECT_TRUE(std::isfinite(layerAt(map, L::kVariance, idx)));
+}
+
+// Range-based noise with a quantising sensor: thousands of identical heights would shrink the
+// variance as v_p / n far below anything the sensor supports; the floor stops it there.
+TEST(LidarFusion, ManyIdenticalHeightsStopAtTheVarianceFloor) {
+  LayeredMap map = makeMap();
+  LidarFusion f;
+  LidarFusionConfig c = plainConfig();  // a = 0.02 m: v_p ~ 4.9e-4 m^2 at r ~ 1.4 m
+  f.configure(c);
+  f.attach(map);
+  Executor ex(2);
+  // z quantised to 1 cm: every return of the cell reads -0.50 exactly. v_p / n < 1e-6 from
+  // n = 490 on; 2000 points would give 2.5e-7 without the floor.
+  std::vector<PointXYZI> pts(2000, PointXYZI{1.23f, -0.47f, -0.5f, 0});
+  const FusionStats s = f.fuse(map, ex, cloudAt({0, 0, 0}, pts));
+  EXPECT_EQ(s.points_fused, 2000);
+  const Index idx = cellOf(map, 1.23, -0.47);
+  EXPECT_EQ(layerAt(map, L::kElevation, idx), -0.5f);
+  EXPECT_EQ(layerAt(map, L::kIsValid, idx), 1.0f);
+  EXPECT_GE(layerAt(map, L::kVariance, idx), static_cast<float>(c.min_variance_m2));
+  EXPECT_EQ(layerAt(map, L::kVariance, idx), static_cast<float>(c.min_variance_m2));
 }
 
 TEST(LidarFusion, RayUnderAStaleCellInvalidatesIt) {
@@ -579,13 +681,15 @@ TEST(LidarFusion, MatchesAPlainSerialPerPointLoop) {
     const auto idx = g.indexAt(pm.head<2>());
     if (!idx) continue;
     const double sigma = c.range_noise_a_m + c.range_noise_b * r;
-    const float vp = float(sigma * sigma), z = float(pm.z());
+    const float vp = float(std::max(sigma * sigma, c.min_variance_m2)), z = float(pm.z());
+    const float vmin = float(c.min_variance_m2);
     Cell& cell = ref[{idx->x(), idx->y()}];
     if (std::isnan(cell.h)) {
       cell.h = z;
       cell.v = vp;
     } else {
       const float k2 = float(c.mahalanobis_thresh * c.mahalanobis_thresh);
+      cell.v = std::max(cell.v, vmin);
       if ((z - cell.h) * (z - cell.h) > k2 * (cell.v + vp)) {
         cell.v += float(c.outlier_variance_m2);
         ++outl;
@@ -593,7 +697,7 @@ TEST(LidarFusion, MatchesAPlainSerialPerPointLoop) {
       }
       const float s2 = cell.v + vp;
       cell.h = (cell.h * vp + z * cell.v) / s2;
-      cell.v = (cell.v * vp) / s2;
+      cell.v = std::max((cell.v * vp) / s2, vmin);
     }
     ++cell.hits;
     ++fused;
@@ -642,6 +746,8 @@ TEST(LidarFusion, VectorAndScalarGatesAgreeBitForBit) {
   pts.push_back({0.0f, -inf, 0.0f, 0});
   pts.push_back({0.0f, 0.0f, kNaN, 0});
   pts.push_back({1e30f, 1e30f, 1e30f, 0});  // too far
+  // Horizontal beams: depth_squared gives v = 0 there, so the variance floor's lane runs too.
+  for (int i = 0; i < 21; ++i) pts.push_back({0.6f + 0.25f * i, 0.3f, 0.0f, 0});
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> u(-30.0f, 30.0f);
   for (int i = 0; i < 1003; ++i) pts.push_back({u(rng), u(rng), 0.1f * u(rng), 0});

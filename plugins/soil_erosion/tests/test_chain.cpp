@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cstring>
+#include <limits>
 
 #include "blade_sweep.hpp"
 #include "soil_erosion.hpp"
@@ -21,7 +22,12 @@ struct Chain {
   ProcessContext blade_ctx, erosion_ctx;
   BladeSweep blade;
   SoilErosion erosion;
-  Chain(int threads, double cohesion)
+  // contract: also lidar_fusion's layers (docs/height_contract.md), as the LiDAR would have
+  // left them: variance kLidarVar and is_valid kLidarValid on the known ground, upper_bound =
+  // elevation there; a patch of unseen ground ahead of the blade with a ray upper bound.
+  static constexpr float kLidarVar = 1e-4f, kLidarValid = 0.8f, kRayBound = 0.3f;
+  LayerId var = -1, valid = -1, ub = -1, isub = -1;
+  Chain(int threads, double cohesion, bool contract = false)
       : map(Geometry(0.05, Size(160, 160))),
         h(map.addLayer("elevation", "m")),
         l(map.addLayer("loose", "m", 0.0f)),
@@ -35,6 +41,27 @@ struct Chain {
         const Position p = map.geometry().positionOf(Index(i, j));
         m(i, j) = static_cast<float>(0.05 * std::sin(1.3 * p.x()) + 0.03 * std::cos(0.9 * p.y()));
       }
+    if (contract) {
+      var = map.addLayer("variance", "m^2");
+      valid = map.addLayer("is_valid", "1", 0.0f);
+      ub = map.addLayer("upper_bound", "m");
+      isub = map.addLayer("is_upper_bound", "1", 0.0f);
+      Eigen::MatrixXf v(160, 160), val(160, 160), u(160, 160), iu(160, 160);
+      for (int i = 0; i < 160; ++i)
+        for (int j = 0; j < 160; ++j) {
+          const Position p = map.geometry().positionOf(Index(i, j));
+          const bool unseen = p.x() > 0.9 && p.x() < 1.3 && std::abs(p.y()) < 0.6;
+          if (unseen) m(i, j) = std::numeric_limits<float>::quiet_NaN();
+          v(i, j) = unseen ? m(i, j) : kLidarVar;
+          val(i, j) = unseen ? 0.0f : kLidarValid;
+          u(i, j) = unseen ? kRayBound : m(i, j);
+          iu(i, j) = unseen ? 1.0f : 0.0f;
+        }
+      map.fromMatrix(var, v);
+      map.fromMatrix(valid, val);
+      map.fromMatrix(ub, u);
+      map.fromMatrix(isub, iu);
+    }
     map.fromMatrix(h, m);
     blade.configure(makeParams("blade", blade.schema()));
     erosion.configure(makeParams("erode", erosion.schema(), {{"cohesion_pa", cohesion}}));
@@ -133,4 +160,66 @@ TEST(Chain, ErosionOnTickOnlyWhenAsked) {
   ticking.start(ch.erosion_ctx);
   ticking.process(ch.erosion_ctx, Event(Tick{2.0}));
   EXPECT_EQ(ticking.passesRun(), 1);
+}
+
+// Every blind height change keeps lidar_fusion's layers consistent (docs/height_contract.md):
+// a cell cut at some point has variance = height_sigma^2 (the cut replaced it, later deposits and
+// slips added to both alike) and is_valid = 1; a known cell only deposited on or slipped has
+// variance = LiDAR variance + height_sigma^2 and keeps its is_valid; a cell never changed keeps
+// both; known cells have upper_bound = elevation; soil dropped on unseen ground clears the ray
+// bound there. Checked after 60 poses of cutting, depositing and eroding, at 1 and 2 threads
+// (bit-identical).
+TEST(Chain, HeightContractLayersFollowEveryChange) {
+  Chain a(1, 25.0, true), b(2, 25.0, true);
+  for (int k = 0; k <= 60; ++k) {
+    a.push(poseAt(k));
+    b.push(poseAt(k));
+  }
+  for (LayerId id : {a.var, a.valid, a.ub, a.isub}) {
+    const Eigen::MatrixXf ma = a.map.toMatrix(id), mb = b.map.toMatrix(id);
+    EXPECT_EQ(std::memcmp(ma.data(), mb.data(), sizeof(float) * static_cast<size_t>(ma.size())), 0);
+  }
+  const Eigen::MatrixXf H = a.map.toMatrix(a.h), L = a.map.toMatrix(a.l), S = a.map.toMatrix(a.s),
+                        V = a.map.toMatrix(a.var), VAL = a.map.toMatrix(a.valid), U = a.map.toMatrix(a.ub),
+                        IU = a.map.toMatrix(a.isub);
+  long cut = 0, added = 0, untouched = 0, cleared = 0, kept_bounds = 0;
+  for (int i = 0; i < 160; ++i)
+    for (int j = 0; j < 160; ++j) {
+      if (!std::isfinite(H(i, j))) {
+        EXPECT_TRUE(std::isnan(V(i, j)));
+        if (L(i, j) > 0) {  // soil on unseen ground: the ray bound no longer holds
+          EXPECT_TRUE(std::isnan(U(i, j)));
+          EXPECT_EQ(IU(i, j), 0.0f);
+          ++cleared;
+        } else {
+          EXPECT_EQ(U(i, j), Chain::kRayBound);
+          ++kept_bounds;
+        }
+        continue;
+      }
+      EXPECT_EQ(U(i, j), H(i, j));
+      EXPECT_EQ(IU(i, j), 0.0f);
+      if (!std::isfinite(S(i, j))) {
+        EXPECT_EQ(V(i, j), Chain::kLidarVar);
+        EXPECT_EQ(VAL(i, j), Chain::kLidarValid);
+        ++untouched;
+        continue;
+      }
+      // Both are sums of the same squared increments in double, stored as float: equal to
+      // float rounding (a relative 1e-6 of the larger term).
+      const double s2 = double(S(i, j)) * S(i, j);
+      if (VAL(i, j) == 1.0f) {
+        EXPECT_NEAR(V(i, j), s2, 1e-6 * s2 + 1e-12) << i << "," << j;
+        ++cut;
+      } else {
+        EXPECT_EQ(VAL(i, j), Chain::kLidarValid);
+        EXPECT_NEAR(V(i, j), Chain::kLidarVar + s2, 1e-6 * (Chain::kLidarVar + s2)) << i << "," << j;
+        ++added;
+      }
+    }
+  EXPECT_GT(cut, 500);
+  EXPECT_GT(added, 20);
+  EXPECT_GT(untouched, 10000);
+  EXPECT_GT(cleared, 0);
+  EXPECT_GT(kept_bounds, 0);
 }
