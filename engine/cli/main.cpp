@@ -2,10 +2,12 @@
 #include "command.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/eval/sim_source.hpp>
 
 #include <algorithm>
 #include <iostream>
+#include <new>
 
 namespace terramap::cli {
 std::vector<Command>& registry() {
@@ -23,6 +25,11 @@ int main(int argc, char** argv) {
                "7 output, 8 validation failed / invalid result."};
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string("terramap ") + "0.1.0");
+  std::string budget;
+  app.add_option("--memory-budget", budget,
+                 "most memory one map, cloud, DEM or snapshot built from the input may take (e.g. 4G; default: half "
+                 "the physical memory, at most 16G, or TERRAMAP_MEMORY_BUDGET)");
+  app.fallthrough();  // the option may also follow the subcommand
   std::function<int()> run;
   auto& cmds = registry();
   std::sort(cmds.begin(), cmds.end(), [](const Command& a, const Command& b) { return a.name < b.name; });
@@ -34,6 +41,7 @@ int main(int argc, char** argv) {
     return rc == 0 ? kOk : kUsage;
   }
   try {
+    if (!budget.empty()) setMemoryBudget(parseByteSize(budget, "--memory-budget"));
     return run ? run() : kUsage;
   } catch (const ConfigError& e) {
     std::cerr << "terramap: configuration error: " << e.what() << "\n";
@@ -52,6 +60,10 @@ int main(int argc, char** argv) {
     return kOutput;
   } catch (const Error& e) {
     std::cerr << "terramap: error: " << e.what() << "\n";
+    return kInternal;
+  } catch (const std::bad_alloc&) {
+    std::cerr << "terramap: internal error: out of memory: a size in the input or the configuration passed every "
+                 "check (docs/reliability.md) yet could not be allocated; please report it with the input\n";
     return kInternal;
   } catch (const std::exception& e) {
     std::cerr << "terramap: internal error: " << e.what() << "\n";

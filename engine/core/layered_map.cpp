@@ -1,5 +1,6 @@
 #include <terramap/core/error.hpp>
 #include <terramap/core/layered_map.hpp>
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/core/text.hpp>
 
 #include <algorithm>
@@ -40,6 +41,18 @@ LayeredMap::TilePtr LayeredMap::newTile(float fill) const {
 LayerId LayeredMap::addLayer(const std::string& name, const std::string& unit, float fill) {
   if (name.empty()) throw LayerError("layer name must not be empty");
   if (hasLayer(name)) throw LayerError("layer '" + name + "' already exists");
+  {
+    // A dense layer allocates every tile now: refuse a map the budget cannot hold before the
+    // first byte (a sparse layer allocates only its pointer table; tiles come as data does).
+    const std::uint64_t T = static_cast<std::uint64_t>(options_.tile_size);
+    const std::uint64_t per_layer = options_.sparse ? saturatingProduct({static_cast<std::uint64_t>(tileCount()), sizeof(TilePtr)})
+                                                    : saturatingProduct({static_cast<std::uint64_t>(tileCount()), T * T, sizeof(float)});
+    const std::uint64_t n = layers_.size() + 1;
+    requireConfigBudget(saturatingProduct({per_layer, n}),
+                        "map of " + std::to_string(geometry_.size().x()) + " x " + std::to_string(geometry_.size().y()) +
+                            " cells (map.size), adding layer '" + name + "'",
+                        std::to_string(n) + (options_.sparse ? " sparse layers' tile tables" : " dense layers of 4-byte cells"));
+  }
   layers_.push_back(LayerInfo{name, unit, fill});
   std::vector<TilePtr> tiles(static_cast<size_t>(tileCount()));
   if (!options_.sparse)

@@ -1,7 +1,9 @@
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 
 #include "yaml_util.hpp"
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -36,9 +38,27 @@ void parseMap(yaml::Diagnostics& d, const YAML::Node& m, PipelineSpec& spec) {
     else
       spec.size = Size(static_cast<int>(v[0]), static_cast<int>(v[1]));
   }
-  if (yaml::getDoubles(d, m, "center", "map", v, 2)) spec.center = Position(v[0], v[1]);
+  if (yaml::getDoubles(d, m, "center", "map", v, 2)) {
+    if (!std::isfinite(v[0]) || !std::isfinite(v[1]) || std::abs(v[0]) > 1e9 || std::abs(v[1]) > 1e9)
+      d.error(m["center"], "map.center", "must be finite coordinates within 1e9 m of the origin");
+    else
+      spec.center = Position(v[0], v[1]);
+  }
   yaml::getInt(d, m, "tile", "map", spec.map_options.tile_size, 8, 1024);
   yaml::getBool(d, m, "sparse", "map", spec.map_options.sparse);
+  if (m["size"] && !spec.map_options.sparse) {
+    // Every dense layer holds every cell (4 bytes, tiles padded to whole tiles): refuse here,
+    // with the line of map.size, what a stage would otherwise fail to allocate at run time.
+    const std::uint64_t T = static_cast<std::uint64_t>(spec.map_options.tile_size);
+    const std::uint64_t rows = (static_cast<std::uint64_t>(spec.size.x()) + T - 1) / T * T,
+                        cols = (static_cast<std::uint64_t>(spec.size.y()) + T - 1) / T * T;
+    const std::uint64_t bytes = saturatingProduct({rows, cols, sizeof(float)});
+    if (bytes > memoryBudget())
+      d.error(m["size"], "map.size",
+              "a dense map of " + std::to_string(spec.size.x()) + " x " + std::to_string(spec.size.y()) + " cells needs " +
+                  formatBytes(bytes) + " per layer, more than the memory budget of " + formatBytes(memoryBudget()) +
+                  " (use a smaller map, map.sparse: true, or raise --memory-budget / TERRAMAP_MEMORY_BUDGET)");
+  }
   std::string frame;
   yaml::getString(d, m, "frame", "map", frame);
   if (const YAML::Node ls = m["layers"]) {

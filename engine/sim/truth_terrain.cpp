@@ -150,6 +150,11 @@ TruthTerrain::TruthTerrain(double origin_x_m, double origin_y_m, double resoluti
     : ox_(origin_x_m), oy_(origin_y_m), res_(resolution_m), nx_(nx), ny_(ny) {
   if (!(resolution_m > 0) || nx < 2 || ny < 2)
     throw std::invalid_argument("TruthTerrain: resolution must be > 0 and the grid at least 2x2 nodes");
+  // Per node: u, lv, lc, h (double), h0 (float) and the ray-casting pyramid (< 4/3 float).
+  requireConfigBudget(saturatingProduct({static_cast<std::uint64_t>(nx), static_cast<std::uint64_t>(ny), 42}),
+                      "truth terrain of " + std::to_string(nx) + " x " + std::to_string(ny) +
+                          " nodes (terrain.size_m / terrain.resolution_m)",
+                      "42 bytes per node");
   const std::size_t n = static_cast<std::size_t>(nx) * ny;
   u_.assign(n, height_m);
   lv_.assign(n, 0.0);

@@ -213,3 +213,45 @@ TEST(Cli, WholePipelineIsBitIdenticalAtOneAndTwoThreads) {
   ASSERT_GT(a.size(), 1000u);
   EXPECT_TRUE(a == b) << "snapshots differ between 1 and 2 threads";
 }
+
+TEST(Cli, SizesBeyondTheMemoryBudgetAreConfigurationOrInputErrors) {
+  // The two ways a new user took terramap down with std::bad_alloc: a huge map.size, and an
+  // ESRI ASCII DEM whose header declares 100000 x 100000 values and holds three.
+  const fs::path d = tempDir("budget");
+  write(d / "big.yaml", R"(version: 1
+map: {resolution: 0.1, size: [100000, 100000], center: [0, 0]}
+source: {type: none}
+pipeline:
+  - {name: lidar, type: lidar_fusion}
+)");
+  Result r = sh("--memory-budget 8G validate " + (d / "big.yaml").string());
+  EXPECT_EQ(r.code, 8) << r.out;
+  EXPECT_NE(r.out.find("big.yaml:2:30: map.size: a dense map of 100000 x 100000 cells needs 37.3 GiB per layer, more "
+                       "than the memory budget of 8.0 GiB"),
+            std::string::npos)
+      << r.out;
+  r = sh("run " + (d / "big.yaml").string() + " --out " + (d / "o").string() + " --memory-budget 8G");
+  EXPECT_EQ(r.code, 3) << r.out;
+  EXPECT_NE(r.out.find("map.size"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("bad_alloc"), std::string::npos) << r.out;
+
+  write(d / "dem.asc", "ncols 100000\nnrows 100000\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 2 3\n");
+  write(d / "dem.yaml", R"(version: 1
+name: dem_bomb
+duration_s: 1
+terrain: {resolution_m: 0.02, dem: {file: dem.asc}}
+soil: {default: {family: loam, relative_density: 0.3}}
+machines:
+  - id: ctl1
+    pose: {x_m: 0, y_m: 0, yaw_deg: 0}
+    controller: {type: route, start_m: [0, 0], heading_deg: 0, length_m: 3, passes: 1, depth_m: 0.04, speed_mps: 0.5}
+)");
+  r = sh("sim " + (d / "dem.yaml").string() + " --out " + (d / "sim").string());
+  EXPECT_EQ(r.code, 4) << r.out;
+  EXPECT_NE(r.out.find("dem.asc: ESRI ASCII header declares ncols 100000 x nrows 100000"), std::string::npos) << r.out;
+
+  r = sh("--memory-budget lots validate " + (d / "big.yaml").string());
+  EXPECT_EQ(r.code, 3) << r.out;
+  EXPECT_NE(r.out.find("--memory-budget: 'lots' is not a memory size"), std::string::npos) << r.out;
+  fs::remove_all(d);
+}
