@@ -27,10 +27,10 @@ CompactTrackLoader::CompactTrackLoader(const MachineSpec& spec, const TruthTerra
   placeOnTerrain(terrain);
 }
 
-Eigen::Isometry3d CompactTrackLoader::T_base_blade() const {
+Eigen::Isometry3d CompactTrackLoader::T_base_blade(const std::array<double, 3>& q) const {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.translation() = Eigen::Vector3d(spec_.blade_mount_x_m, 0.0, q_[0]);
-  T.linear() = (Eigen::AngleAxisd(q_[2], Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(q_[1], Eigen::Vector3d::UnitX()) *
+  T.translation() = Eigen::Vector3d(spec_.blade_mount_x_m, 0.0, q[0]);
+  T.linear() = (Eigen::AngleAxisd(q[2], Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(q[1], Eigen::Vector3d::UnitX()) *
                 Eigen::AngleAxisd(-(M_PI / 2 - spec_.rake_rad), Eigen::Vector3d::UnitY()))
                    .toRotationMatrix();
   return T;
@@ -41,6 +41,14 @@ std::array<double, 3> CompactTrackLoader::cylinderLengths() const {
   for (int k = 0; k < 3; ++k) l[k] = kCylBase[k] + kCylLever[k] * q_[k];
   return l;
 }
+
+std::array<double, 3> CompactTrackLoader::jointsFromCylinders(const std::array<double, 3>& L) {
+  std::array<double, 3> q{};
+  for (int k = 0; k < 3; ++k) q[k] = (L[k] - kCylBase[k]) / kCylLever[k];
+  return q;
+}
+
+double CompactTrackLoader::cylinderLever(int k) { return kCylLever[k]; }
 
 std::array<double, 3> CompactTrackLoader::cylinderVelocities() const {
   std::array<double, 3> v{};

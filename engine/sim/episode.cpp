@@ -143,6 +143,18 @@ void writeGrid(hid_t parent, const std::string& name, const std::vector<float>& 
   H5Dclose(ds);
 }
 
+/// Estimate minus truth: position (map frame, m) and the rotation vector of R_est * R_true^T
+/// (map frame, rad; for small errors roll, pitch, yaw about the map axes).
+void poseError(const Eigen::Isometry3d& est, const Eigen::Isometry3d& truth, double* out) {
+  const Eigen::Vector3d dp = est.translation() - truth.translation();
+  const Eigen::AngleAxisd aa(est.linear() * truth.linear().transpose());
+  const Eigen::Vector3d dr = aa.axis() * aa.angle();
+  for (int k = 0; k < 3; ++k) {
+    out[k] = dp[k];
+    out[3 + k] = dr[k];
+  }
+}
+
 void rowMajor4x4(const Eigen::Isometry3d& T, double* out) {
   const Eigen::Matrix4d M = T.matrix();
   for (int r = 0; r < 4; ++r)
@@ -150,7 +162,7 @@ void rowMajor4x4(const Eigen::Isometry3d& T, double* out) {
 }
 
 struct MachineSets {
-  hid_t group = -1, truth = -1, clouds = -1;
+  hid_t group = -1, truth = -1, estimate = -1, clouds = -1;
   std::map<std::string, Appender> a;  // by dataset path
   struct Cloud { hid_t group = -1; Appender stamp, T, offset, count, points; std::uint64_t total = 0; };
   std::map<std::string, Cloud> cloud;  // by frame "<machine>/<sensor>"
@@ -195,6 +207,7 @@ struct EpisodeWriter::Impl {
       m.a.clear();
       if (m.clouds >= 0) H5Gclose(m.clouds);
       if (m.truth >= 0) H5Gclose(m.truth);
+      if (m.estimate >= 0) H5Gclose(m.estimate);
       if (m.group >= 0) H5Gclose(m.group);
     }
     machines.clear();
@@ -217,7 +230,8 @@ EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, Epis
   if (I.file < 0) throw OutputError(I.tmp_path + ": cannot create HDF5 file");
   const Scenario& sc = sim.scenario();
   attrString(I.file, "format", "terramap-sim-episode");
-  attrU64(I.file, "version", 1);
+  // Version 2: top-level poses are the truth, estimate/ holds what the mapper received.
+  attrU64(I.file, "version", 2);
   attrString(I.file, "scenario_name", sc.name);
   attrString(I.file, "scenario_yaml", sc.yaml_text);
   attrU64(I.file, "seed", sc.seed);
@@ -290,6 +304,14 @@ EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, Epis
     add(M.group, "action", "action", H5T_NATIVE_DOUBLE, {5});
     add(M.group, "force_base_N", "force_base_N", H5T_NATIVE_DOUBLE, {3});
     add(M.group, "pose_T_map_base", "pose_T_map_base", H5T_NATIVE_DOUBLE, {4, 4});
+    M.estimate = makeGroup(M.group, "estimate", I.tmp_path);
+    add(M.estimate, "e_T_map_base", "T_map_base", H5T_NATIVE_DOUBLE, {4, 4});
+    add(M.estimate, "e_twist_base", "twist_base", H5T_NATIVE_DOUBLE, {6});
+    add(M.estimate, "e_T_map_blade", "T_map_blade", H5T_NATIVE_DOUBLE, {4, 4});
+    add(M.estimate, "e_twist_blade", "twist_blade", H5T_NATIVE_DOUBLE, {6});
+    add(M.estimate, "e_cylinder_length_m", "cylinder_length_m", H5T_NATIVE_DOUBLE, {3});
+    add(M.estimate, "e_error_base", "error_base", H5T_NATIVE_DOUBLE, {6});
+    add(M.estimate, "e_error_blade", "error_blade", H5T_NATIVE_DOUBLE, {6});
     M.truth = makeGroup(M.group, "truth", I.tmp_path);
     add(M.truth, "t_force_map_N", "force_map_N", H5T_NATIVE_DOUBLE, {3});
     add(M.truth, "t_force_base_N", "force_base_N", H5T_NATIVE_DOUBLE, {3});
@@ -371,13 +393,25 @@ void EpisodeWriter::record(const Simulator& sim, const std::vector<Event>& event
       const MachineTruth& tr = sim.machineTruth(it->second);
       double T[16];
       M.a.at("stamp").append(&ob->stamp);
-      rowMajor4x4(ob->T_map_base, T);
+      rowMajor4x4(tr.T_map_base, T);
       M.a.at("T_map_base").append(T);
-      M.a.at("twist_base").append(ob->twist_base.data());
-      rowMajor4x4(ob->T_map_blade, T);
+      M.a.at("twist_base").append(tr.twist_base.data());
+      rowMajor4x4(tr.T_map_blade, T);
       M.a.at("T_map_blade").append(T);
-      M.a.at("twist_blade").append(ob->twist_blade.data());
-      M.a.at("cylinder_length_m").append(ob->cylinder_length_m.data());
+      M.a.at("twist_blade").append(tr.twist_blade.data());
+      M.a.at("cylinder_length_m").append(tr.cylinder_length_m.data());
+      rowMajor4x4(ob->T_map_base, T);
+      M.a.at("e_T_map_base").append(T);
+      M.a.at("e_twist_base").append(ob->twist_base.data());
+      rowMajor4x4(ob->T_map_blade, T);
+      M.a.at("e_T_map_blade").append(T);
+      M.a.at("e_twist_blade").append(ob->twist_blade.data());
+      M.a.at("e_cylinder_length_m").append(ob->cylinder_length_m.data());
+      double err[6];
+      poseError(ob->T_map_base, tr.T_map_base, err);
+      M.a.at("e_error_base").append(err);
+      poseError(ob->T_map_blade, tr.T_map_blade, err);
+      M.a.at("e_error_blade").append(err);
       M.a.at("cylinder_velocity_mps").append(ob->cylinder_velocity_mps.data());
       M.a.at("track_speed_mps").append(ob->track_speed_mps.data());
       M.a.at("engine_speed_rpm").append(&ob->engine_speed_rpm);
@@ -428,8 +462,21 @@ std::vector<double> readEpisodeDataset(const std::string& path, const std::strin
   if (f < 0) throw InputError(path + ": cannot open as HDF5");
   const hid_t ds = H5Dopen2(f, dataset.c_str(), H5P_DEFAULT);
   if (ds < 0) {
+    // Version 1 files predate the localisation: their top-level poses were what the mapper
+    // received (then the truth) and they have no estimate/ group.
+    std::uint64_t version = 0;
+    if (H5Aexists(f, "version") > 0) {
+      const hid_t a = H5Aopen(f, "version", H5P_DEFAULT);
+      if (a >= 0) {
+        H5Aread(a, H5T_NATIVE_UINT64, &version);
+        H5Aclose(a);
+      }
+    }
     H5Fclose(f);
-    throw InputError(path + ": no dataset '" + dataset + "'");
+    throw InputError(path + ": no dataset '" + dataset + "'" +
+                     (version == 1 ? " (an episode of format version 1, written before the localisation estimate "
+                                     "was logged: simulate the scenario again)"
+                                   : ""));
   }
   const hid_t sp = H5Dget_space(ds);
   const int nd = H5Sget_simple_extent_ndims(sp);

@@ -57,7 +57,7 @@ void PoseEstimator::addTruth(double t, const Eigen::Isometry3d& T) {
   if (!history_.empty() && t < history_.back().t)
     throw std::invalid_argument("localisation: truths must come in time order");
   if (!history_.empty() && t == history_.back().t) history_.pop_back();
-  history_.push_back(Sample{t, T.translation(), Eigen::Quaterniond(T.linear())});
+  history_.push_back(Sample{t, T, T.translation(), Eigen::Quaterniond(T.linear())});
   // Keep what a delayed look-up can still reach: everything after the first sample older
   // than newest - latency.
   while (history_.size() > 2 && history_[1].t <= t - spec_.latency_s) history_.pop_front();
@@ -70,11 +70,14 @@ Eigen::Isometry3d PoseEstimator::truthAt(double td) const {
     T.translation() = p;
     return T;
   };
-  if (td <= history_.front().t) return pose(history_.front().p, history_.front().q);
-  if (td >= history_.back().t) return pose(history_.back().p, history_.back().q);
+  // A look-up at a sample's own time (or outside the span) returns that sample untouched, so
+  // the perfect estimator is the truth bit for bit (the quaternion round trip is not).
+  if (td <= history_.front().t) return history_.front().T;
+  if (td >= history_.back().t) return history_.back().T;
   std::size_t k = 0;
   while (history_[k + 1].t <= td) ++k;  // history_[k].t <= td < history_[k + 1].t
   const Sample &a = history_[k], &b = history_[k + 1];
+  if (td == a.t) return a.T;
   const double u = (td - a.t) / (b.t - a.t);
   return pose(a.p + u * (b.p - a.p), a.q.slerp(u, b.q));
 }

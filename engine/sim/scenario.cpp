@@ -10,6 +10,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <cmath>
 #include <exception>
 #include <filesystem>
 #include <fstream>
@@ -126,11 +127,17 @@ SensorSpec readSensor(MapReader& r) {
   SensorSpec s;
   s.id = r.strRequired("id");
   const std::string type = r.strRequired("type");
-  const std::vector<std::string> types{"lidar", "pose", "force"};
+  const std::vector<std::string> types{"lidar", "force"};
   if (type == "lidar") s.type = SensorSpec::Type::Lidar;
-  else if (type == "pose") s.type = SensorSpec::Type::Pose;
   else if (type == "force") s.type = SensorSpec::Type::Force;
-  else {
+  else if (type == "pose") {
+    // Its noise was a second, inconsistent pose model (white noise on the Pose event only);
+    // refused rather than silently ignored so no scenario believes it still applies.
+    r.error(r.node("type"), "type",
+            "the 'pose' sensor was replaced by the machine's 'localisation:' key (every pose the mapper "
+            "receives comes from it; see docs/sim.md \"Localisation\"): remove this sensor");
+    return s;
+  } else {
     // The other keys depend on the type: checking them against a guess would only add noise.
     if (r.has("type")) r.error(r.node("type"), "type", "unknown sensor type '" + type + "'" + didYouMean(type, types));
     return s;
@@ -138,10 +145,6 @@ SensorSpec readSensor(MapReader& r) {
   s.T_base_sensor = readMount(r);
   if (s.type == SensorSpec::Type::Lidar) {
     readLidar(r, s);
-  } else if (s.type == SensorSpec::Type::Pose) {
-    s.position_noise_m = r.num("position_noise_m", s.position_noise_m, 0.0, 100.0);
-    s.yaw_noise_rad = r.angle("yaw_noise", s.yaw_noise_rad, 0.0, M_PI);
-    s.tilt_noise_rad = r.angle("tilt_noise", s.tilt_noise_rad, 0.0, M_PI);
   } else {
     s.force_noise_abs_n = r.num("noise_abs_n", s.force_noise_abs_n, 0.0, 1e7);
     s.force_noise_rel = r.num("noise_rel", s.force_noise_rel, 0.0, 10.0);
@@ -247,8 +250,58 @@ void readSensors(MapReader& r, MachineSpec& m) {
   }
 }
 
-MachineSpec readMachine(MapReader& r) {
+/// Three per-axis sigmas at `key` (>= 0 and finite), scaled into `out`; unchanged when absent.
+void readAxes(MapReader& r, const std::string& key, double scale, std::array<AxisError, 3>& out,
+              double AxisError::*field) {
+  if (!r.has(key)) return;
+  const std::vector<double> v = r.vec(key, {}, 3);
+  if (v.size() != 3) return;
+  for (int k = 0; k < 3; ++k) {
+    if (!(v[k] >= 0.0) || !std::isfinite(v[k])) {
+      std::ostringstream os;
+      os << "sigmas must be >= 0 and finite (got " << v[k] << " at [" << k << "])";
+      r.error(r.node(key), key, os.str());
+      return;
+    }
+  }
+  for (int k = 0; k < 3; ++k) out[k].*field = v[k] * scale;
+}
+
+/// `localisation: perfect | rtk_imu | {overrides of rtk_imu}` at `key` (`def` when absent).
+LocalisationSpec readLocalisation(MapReader& parent, const LocalisationSpec& def) {
+  const std::string key = "localisation";
+  if (!parent.has(key)) return def;
+  const YAML::Node n = parent.node(key);
+  const std::vector<std::string> presets{"perfect", "rtk_imu"};
+  if (n.IsScalar()) {
+    const std::string v = n.Scalar();
+    if (v == "perfect") return LocalisationSpec::none();
+    if (v == "rtk_imu") return LocalisationSpec::rtkImu();
+    parent.error(n, key, "unknown localisation '" + v + "'" + didYouMean(v, presets) +
+                             " (known: perfect, rtk_imu, or a map of overrides of rtk_imu)");
+    return def;
+  }
+  MapReader r = parent.child(key);
+  if (!r.valid()) return def;
+  // A map always starts from rtk_imu (not from a scenario-wide map): what a machine's key says
+  // does not depend on another section.
+  LocalisationSpec s = LocalisationSpec::rtkImu();
+  readAxes(r, "position_white_m", 1.0, s.position, &AxisError::white);
+  readAxes(r, "position_bias_m", 1.0, s.position, &AxisError::bias);
+  readAxes(r, "position_random_walk_m", 1.0, s.position, &AxisError::random_walk);
+  readAxes(r, "attitude_white_deg", kDeg, s.attitude, &AxisError::white);
+  readAxes(r, "attitude_bias_deg", kDeg, s.attitude, &AxisError::bias);
+  readAxes(r, "attitude_random_walk_deg", kDeg, s.attitude, &AxisError::random_walk);
+  s.latency_s = r.num("latency_s", s.latency_s, 0.0, 10.0);
+  s.cylinder_white_m = r.num("cylinder_white_m", s.cylinder_white_m, 0.0, 1.0);
+  s.cylinder_bias_m = r.num("cylinder_bias_m", s.cylinder_bias_m, 0.0, 1.0);
+  r.finish();
+  return s;
+}
+
+MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisation) {
   MachineSpec m;
+  m.localisation = readLocalisation(r, default_localisation);
   m.id = r.strRequired("id");
   const std::string type = r.str("type", "ctl");
   if (type != "ctl") r.error(r.node("type"), "type", "unknown machine type '" + type + "' (known: ctl)" + didYouMean(type, {"ctl"}));
@@ -553,7 +606,7 @@ void readMachines(MapReader& r, Scenario& sc, bool extent_known) {
   for (std::size_t k = 0; k < ms.size(); ++k) {
     MapReader mr(r.diagnostics(), ms[k], "machines[" + std::to_string(k) + "]");
     if (!mr.valid()) continue;
-    MachineSpec m = readMachine(mr);
+    MachineSpec m = readMachine(mr, sc.localisation);
     if (!m.id.empty() && !ids.insert(m.id).second) mr.error(ms[k]["id"], "id", "duplicate machine id '" + m.id + "'");
     const TerrainSpec& t = sc.terrain;
     if (extent_known && (m.x_m < t.origin_x_m || m.x_m > t.origin_x_m + t.size_x_m || m.y_m < t.origin_y_m ||
@@ -591,6 +644,7 @@ Scenario parseImpl(const std::string& text, Ctx& ctx) {
     MapReader s = r.child("soil");
     readSoilSection(s, sc);
   }
+  sc.localisation = readLocalisation(r, sc.localisation);
   readMachines(r, sc, extent_known);
   r.finish();
   ctx.diag.throwIfAny();

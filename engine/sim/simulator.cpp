@@ -30,24 +30,6 @@ Eigen::Matrix<double, 6, 1> bodyTwist(const Eigen::Isometry3d& prev, const Eigen
   return tw;
 }
 
-/// A pose sensor's reading of T_map_base: position noise per axis, then tilt and yaw noise
-/// applied in the map frame.
-Eigen::Isometry3d noisyPose(const Eigen::Isometry3d& Tb, const SensorSpec& ps, std::mt19937_64& rng) {
-  Eigen::Isometry3d T = Tb;
-  std::normal_distribution<double> N(0.0, 1.0);
-  const Eigen::Vector3d dp(N(rng) * ps.position_noise_m, N(rng) * ps.position_noise_m,
-                           N(rng) * ps.position_noise_m);
-  const double droll = N(rng) * ps.tilt_noise_rad, dpitch = N(rng) * ps.tilt_noise_rad,
-               dyaw = N(rng) * ps.yaw_noise_rad;
-  T.translation() += dp;
-  T.linear() = (Eigen::AngleAxisd(dyaw, Eigen::Vector3d::UnitZ()) *
-                Eigen::AngleAxisd(dpitch, Eigen::Vector3d::UnitY()) *
-                Eigen::AngleAxisd(droll, Eigen::Vector3d::UnitX()))
-                   .toRotationMatrix() *
-               Tb.linear();
-  return T;
-}
-
 /// A force sensor's reading of F (base frame, N): Gaussian noise of absolute plus relative sigma.
 Eigen::Vector3d noisyForce(const Eigen::Vector3d& F, const SensorSpec& fs, std::mt19937_64& rng) {
   const double sigma = fs.force_noise_abs_n + fs.force_noise_rel * F.norm();
@@ -67,30 +49,39 @@ struct Simulator::Machine {
   Eigen::Vector3d ou = Eigen::Vector3d::Zero();  // unit OU state per axis
   double edge_vn = 0, edge_vz = 0, edge_acc = 0;
   MachineTruth truth;
-  Eigen::Isometry3d prev_base, prev_blade;
+  Eigen::Isometry3d prev_base, prev_blade;          ///< truth at the previous period end
+  /// The localisation: fed the true base pose at every physics step (producer side, in
+  /// simulated-time order, so its draws do not depend on threads or the overlap).
+  PoseEstimator estimator;
+  Eigen::Isometry3d prev_est_base, prev_est_blade;  ///< estimates at the previous period end
   struct Lidar {
     std::size_t sensor_index;
     LidarModel model;
     long next_scan = 0;
   };
   std::vector<Lidar> lidars;
-  int pose_sensor = -1, force_sensor = -1;
-  std::mt19937_64 pose_rng, force_rng;
+  int force_sensor = -1;
+  std::mt19937_64 force_rng;
 
   Machine(std::size_t idx, const MachineSpec& spec, const TruthTerrain& terrain, std::uint64_t seed)
       : index(idx), ctl(spec, terrain), controller(spec.controller, spec, streamSeed(seed, idx, 1)),
-        noise_rng(streamSeed(seed, idx, 2)), pose_rng(streamSeed(seed, idx, 3)), force_rng(streamSeed(seed, idx, 4)) {
+        noise_rng(streamSeed(seed, idx, 2)), estimator(spec.localisation, streamSeed(seed, idx, 3)),
+        force_rng(streamSeed(seed, idx, 4)) {
     truth.id = spec.id;
     for (std::size_t s = 0; s < spec.sensors.size(); ++s) {
       const SensorSpec& ss = spec.sensors[s];
       if (ss.type == SensorSpec::Type::Lidar) lidars.push_back({s, LidarModel(ss), 0});
-      else if (ss.type == SensorSpec::Type::Pose) pose_sensor = static_cast<int>(s);
       else force_sensor = static_cast<int>(s);
     }
     prev_base = ctl.T_map_base();
     prev_blade = ctl.T_map_blade();
     truth.T_map_base = prev_base;
     truth.T_map_blade = prev_blade;
+    truth.cylinder_length_m = ctl.cylinderLengths();
+    estimator.addTruth(0.0, prev_base);
+    // The first period's twists start from the truth (no estimate exists before t = 0).
+    prev_est_base = prev_base;
+    prev_est_blade = prev_blade;
   }
 };
 
@@ -99,7 +90,8 @@ struct Simulator::ScanRequest {
   std::size_t machine = 0, lidar = 0;
   std::size_t patches_before = 0;  ///< patches of the period to apply to the view first
   double stamp = 0;
-  Eigen::Isometry3d T_map_sensor = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_true_sensor = Eigen::Isometry3d::Identity();  ///< where the rays start
+  Eigen::Isometry3d T_map_sensor = Eigen::Isometry3d::Identity();   ///< the estimate the cloud carries
   std::uint64_t key = 0;
 };
 
@@ -243,7 +235,8 @@ PointCloud Simulator::runScan(const ScanRequest& q, const TruthTerrain& terrain)
   pc.stamp = q.stamp;
   pc.frame = m.ctl.spec().id + "/" + ss.id;
   pc.T_map_sensor = q.T_map_sensor;
-  const std::size_t hits = L.model.scan(terrain, pc.T_map_sensor, q.key, &exec_, pc.points);
+  // Cast from where the sensor really is; the cloud carries where the machine thinks it is.
+  const std::size_t hits = L.model.scan(terrain, q.T_true_sensor, q.key, &exec_, pc.points);
   stats_.rays += L.model.raysPerScan();
   stats_.points += hits;
   ++stats_.scans;
@@ -269,7 +262,8 @@ void Simulator::scheduleScans(Period& rec, double t) {
       q.machine = m.index;
       q.lidar = li;
       q.stamp = t;
-      q.T_map_sensor = m.ctl.T_map_base() * ss.T_base_sensor;
+      q.T_true_sensor = m.ctl.T_map_base() * ss.T_base_sensor;
+      q.T_map_sensor = m.estimator.estimate(t) * ss.T_base_sensor;
       q.key = streamSeed(sc_.seed, 1000 + m.index * 64 + L.sensor_index, static_cast<std::uint64_t>(L.next_scan));
       ++L.next_scan;
       if (overlap_) {
@@ -293,26 +287,37 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
   const Eigen::Isometry3d Tb = m.ctl.T_map_base(), Tbl = m.ctl.T_map_blade();
   m.truth.T_map_base = Tb;
   m.truth.T_map_blade = Tbl;
+  m.truth.twist_base = bodyTwist(m.prev_base, Tb, period);
+  m.truth.twist_blade = bodyTwist(m.prev_blade, Tbl, period);
+  m.truth.cylinder_length_m = m.ctl.cylinderLengths();
   m.truth.force_base_N = Tb.linear().transpose() * m.truth.force_map_N;
   m.truth.setpoints = m.controller.setpoints();
   m.truth.raise_offset_m = m.controller.raiseOffset();
+  // What the machine itself knows: the localisation's base pose and the blade through the
+  // measured cylinder lengths and the joint kinematics. The perfect estimator keeps the joints
+  // (the inverse linkage would round them).
+  const Eigen::Isometry3d Te = m.estimator.estimate(tp);
+  const std::array<double, 3> cyl = m.estimator.cylinders(m.truth.cylinder_length_m);
+  const std::array<double, 3> q =
+      spec.localisation.perfect ? m.ctl.joints() : CompactTrackLoader::jointsFromCylinders(cyl);
+  const Eigen::Isometry3d Tble = Te * m.ctl.T_base_blade(q);
   Pose pose;
   pose.stamp = tp;
   pose.frame = single ? "base" : spec.id + "/base";
-  pose.T_map_base = m.pose_sensor >= 0 ? noisyPose(Tb, spec.sensors[m.pose_sensor], m.pose_rng) : Tb;
+  pose.T_map_base = Te;
   BladePose bp;
   bp.stamp = tp;
   bp.machine_id = spec.id;
-  bp.T_map_blade = Tbl;
+  bp.T_map_blade = Tble;
   bp.geometry = spec.blade;
   Observation ob;
   ob.stamp = tp;
   ob.machine_id = spec.id;
-  ob.T_map_base = Tb;
-  ob.twist_base = bodyTwist(m.prev_base, Tb, period);
-  ob.T_map_blade = Tbl;
-  ob.twist_blade = bodyTwist(m.prev_blade, Tbl, period);
-  ob.cylinder_length_m = m.ctl.cylinderLengths();
+  ob.T_map_base = Te;
+  ob.twist_base = bodyTwist(m.prev_est_base, Te, period);
+  ob.T_map_blade = Tble;
+  ob.twist_blade = bodyTwist(m.prev_est_blade, Tble, period);
+  ob.cylinder_length_m = cyl;
   ob.cylinder_velocity_mps = m.ctl.cylinderVelocities();
   const auto ts = m.ctl.trackSpeeds();
   ob.track_speed_mps = {ts[0], ts[1]};
@@ -322,6 +327,8 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
   if (m.force_sensor >= 0) ob.force_base_N = noisyForce(m.truth.force_base_N, spec.sensors[m.force_sensor], m.force_rng);
   m.prev_base = Tb;
   m.prev_blade = Tbl;
+  m.prev_est_base = Te;
+  m.prev_est_blade = Tble;
   rec.events.emplace_back(std::move(pose));
   rec.events.emplace_back(std::move(bp));
   rec.events.emplace_back(std::move(ob));
@@ -338,7 +345,9 @@ void Simulator::producePeriod(Period& rec) {
     physicsStep(dt, s == substeps_ - 1);
     p_physics_wall_s_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
     ++p_phys_step_;
-    scheduleScans(rec, static_cast<double>(p_phys_step_) / sc_.physics_hz);
+    const double t = static_cast<double>(p_phys_step_) / sc_.physics_hz;
+    for (auto& mp : machines_) mp->estimator.addTruth(t, mp->ctl.T_map_base());
+    scheduleScans(rec, t);
   }
   ++p_obs_step_;
   const double tp = static_cast<double>(p_phys_step_) / sc_.physics_hz;

@@ -43,7 +43,9 @@ class CompactTrackLoader {
 
   const MachineSpec& spec() const { return spec_; }
   Eigen::Isometry3d T_map_base() const { return T_map_base_; }
-  Eigen::Isometry3d T_base_blade() const;
+  Eigen::Isometry3d T_base_blade() const { return T_base_blade(q_); }
+  /// The blade pose for joints q (lift m, tilt rad, angle rad), same kinematics as above.
+  Eigen::Isometry3d T_base_blade(const std::array<double, 3>& q) const;
   Eigen::Isometry3d T_map_blade() const { return T_map_base_ * T_base_blade(); }
   double x() const { return x_; }
   double y() const { return y_; }
@@ -56,6 +58,12 @@ class CompactTrackLoader {
   std::array<double, 3> jointRates() const { return qd_; }
   std::array<double, 3> cylinderLengths() const;         ///< linearised linkage, m
   std::array<double, 3> cylinderVelocities() const;      ///< m/s
+  /// The joints (lift m, tilt rad, angle rad) whose cylinders have lengths L (m): the inverse of
+  /// cylinderLengths()'s linkage, not clamped to the joint limits (a measured length may lie
+  /// outside them). How the machine's own controller would read its blade.
+  static std::array<double, 3> jointsFromCylinders(const std::array<double, 3>& L);
+  /// d(cylinder length k)/d(joint k) (m per m for the lift, m per rad for tilt and angle).
+  static double cylinderLever(int k);
   double engineRpm() const { return rpm_; }
   bool stalled() const { return stalled_; }
   /// Commanded trackspeed mean (what the drive is trying to reach).

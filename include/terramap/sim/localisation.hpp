@@ -60,8 +60,10 @@ class PoseEstimator {
   /// Records the true pose at time t. Times must not decrease (equal times replace).
   void addTruth(double t, const Eigen::Isometry3d& T_map_base);
   /// The estimated pose at time t (>= the previous call's t): the truth at t - latency_s
-  /// (interpolated: linear in position, slerp in attitude; the oldest truth if earlier), with
-  /// the error process advanced to t. \throws std::logic_error before any truth was added.
+  /// (interpolated: linear in position, slerp in attitude; the oldest truth if earlier; a truth
+  /// added at exactly that time is returned bit for bit), with the error process advanced to t.
+  /// The perfect estimator returns the truth at t. \throws std::logic_error before any truth
+  /// was added.
   Eigen::Isometry3d estimate(double t);
   /// The error part of the last estimate as [x, y, z, roll, pitch, yaw] (bias + walk + white).
   const Eigen::Matrix<double, 6, 1>& lastError() const { return last_error_; }
@@ -83,6 +85,7 @@ class PoseEstimator {
   double last_t_ = -1e300;
   struct Sample {
     double t;
+    Eigen::Isometry3d T;  ///< as given (returned unchanged when looked up at exactly t)
     Eigen::Vector3d p;
     Eigen::Quaterniond q;
   };

@@ -7,6 +7,7 @@
 /// Units: metres, seconds, radians in the structs (YAML takes *_deg keys for angles).
 #include <terramap/core/events.hpp>
 #include <terramap/sim/dem.hpp>
+#include <terramap/sim/localisation.hpp>
 #include <terramap/soil/soil_table.hpp>
 
 #include <Eigen/Core>
@@ -95,10 +96,11 @@ struct ControllerSpec {
 };
 
 /// A sensor mounted on a machine. Pose offset T_base_sensor from `offset` (m) and
-/// `rotation_deg` (roll, pitch, yaw applied as Rz(yaw) * Ry(pitch) * Rx(roll)).
+/// `rotation_deg` (roll, pitch, yaw applied as Rz(yaw) * Ry(pitch) * Rx(roll)). There is no
+/// pose sensor: every pose the mapper receives comes from the machine's `localisation`.
 struct SensorSpec {
   std::string id;
-  enum class Type { Lidar, Pose, Force } type = Type::Lidar;
+  enum class Type { Lidar, Force } type = Type::Lidar;
   Eigen::Isometry3d T_base_sensor = Eigen::Isometry3d::Identity();
   // LiDAR: `beams` rows at elevations spread evenly over [vfov_min, vfov_max] (one beam: the
   // mean), `columns` azimuths over hfov (centred on the sensor x axis), one scan per 1/rate.
@@ -110,8 +112,6 @@ struct SensorSpec {
   double range_noise_m = 0.02;  ///< 1-sigma Gaussian range noise
   double dropout = 0.0;         ///< probability a return is lost (returned as NaN point)
   bool keep_dropouts = false;   ///< emit NaN points for misses/dropouts (organized cloud)
-  // Pose sensor noise (1 sigma).
-  double position_noise_m = 0.02, yaw_noise_rad = 0.003, tilt_noise_rad = 0.002;
   // Force sensor noise: sigma = abs + rel * |F|.
   double force_noise_abs_n = 100, force_noise_rel = 0.02;
 };
@@ -148,6 +148,9 @@ struct MachineSpec {
   double engine_rated_rpm = 2500, engine_droop_rpm = 450;
   ControllerSpec controller;
   std::vector<SensorSpec> sensors;
+  /// How the poses the mapper receives (base, each cloud's sensor, blade) differ from the truth
+  /// (YAML `localisation:`; the scenario-wide one, else RTK-GNSS + IMU, when absent).
+  LocalisationSpec localisation = LocalisationSpec::rtkImu();
 };
 
 struct Scenario {
@@ -165,6 +168,8 @@ struct Scenario {
   TerrainSpec terrain;
   SoilProperties default_soil = soilProperties(SoilFamily::Loam, 0.5);
   std::vector<SoilZone> zones;  ///< later zones override earlier ones
+  /// Top-level `localisation:`: the default of machines without their own (rtk_imu if absent).
+  LocalisationSpec localisation = LocalisationSpec::rtkImu();
   std::vector<MachineSpec> machines;
 };
 

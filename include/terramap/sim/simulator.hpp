@@ -3,13 +3,19 @@
 /// The simulator: terramap's stand-in for Vortex Studio / TERA. A pull API: each `next()`
 /// advances one observation period (1/observation_hz, 60 Hz by default) of physics sub-steps
 /// and appends that period's events in time order:
-///   PointCloud  (when a LiDAR scan completes; frame "<machine>/<sensor>", stamp = scan time)
-///   Pose        (per machine: noisy if the machine has a `pose` sensor, else the truth;
-///                frame "base" with one machine, "<machine>/base" with several)
-///   BladePose   (per machine, truth)
-///   Observation (per machine: truth kinematics, commanded actions, force sensor reading or
-///                NaN without a force sensor)
+///   PointCloud  (when a LiDAR scan completes; frame "<machine>/<sensor>", stamp = scan time;
+///                rays cast from the true sensor pose, T_map_sensor = the estimated base pose
+///                at the stamp * T_base_sensor)
+///   Pose        (per machine: the estimated base pose; frame "base" with one machine,
+///                "<machine>/base" with several)
+///   BladePose   (per machine: estimated base * blade from the measured cylinder lengths)
+///   Observation (per machine: the same estimated poses and their twists, measured cylinder
+///                lengths, true cylinder velocities and track speeds, commanded actions,
+///                force sensor reading or NaN without a force sensor)
 ///   Tick        (end of the period)
+/// The estimates come from one PoseEstimator per machine (MachineSpec::localisation), fed the
+/// true base pose at every physics step; `localisation: perfect` makes every event the truth.
+/// MachineTruth is always the truth.
 /// Everything random comes from per-stream seeded generators or counter hashes, never thread
 /// timing: the same scenario and seed give a bit-identical event stream for any thread count.
 /// Not thread-safe (one Simulator per thread); LiDAR ray casting runs on its own Executor.
@@ -27,6 +33,7 @@
 #include <terramap/sim/blade_physics.hpp>
 #include <terramap/sim/ctl.hpp>
 #include <terramap/sim/lidar.hpp>
+#include <terramap/sim/localisation.hpp>
 #include <terramap/sim/scenario.hpp>
 #include <terramap/sim/truth_terrain.hpp>
 #include <terramap/sim/world.hpp>
@@ -42,6 +49,10 @@ struct MachineTruth {
   std::string id;
   Eigen::Isometry3d T_map_base = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d T_map_blade = Eigen::Isometry3d::Identity();
+  /// Body-frame [v, omega] over the last observation period (m/s, rad/s).
+  Eigen::Matrix<double, 6, 1> twist_base = Eigen::Matrix<double, 6, 1>::Zero();
+  Eigen::Matrix<double, 6, 1> twist_blade = Eigen::Matrix<double, 6, 1>::Zero();
+  std::array<double, 3> cylinder_length_m{};  ///< true lift, tilt, angle cylinder lengths, m
   /// Soil-on-blade force of the truth physics (mobilised FEE + inertia + penetration +
   /// coloured noise), map frame and base frame, N.
   Eigen::Vector3d force_map_N = Eigen::Vector3d::Zero();

@@ -155,12 +155,33 @@ TEST(SimBlind, BlindMapTracksTheTruthAndExtractsItsGeometry) {
               "median |err| d %.4f m, alpha %.4f rad, w %.3f m\n",
               n[0], rmse_blind[0], rmse_static[0], n[1], rmse_blind[1], rmse_static[1], bs.counters["cut_bank_volume_m3"],
               sim.machineTruth(0).cut_bank_m3, err_d.size(), median(err_d), median(err_alpha), median(err_w));
-  // Bounds are regression guards set from the measured values (2026-11-22: rmse 1.4 cm vs
-  // 7.1 cm un-updated, bank volume 1.544 vs 1.597 m3, |d| error 2.3 cm, alpha 1e-4, w 0) with
-  // margin, not derived: the truth physics (TERA-like wedge, spill) is not the blind model.
-  EXPECT_LT(rmse_blind[0], 0.3 * rmse_static[0]);
+  // The blind model's own error (the truth physics, a TERA-like wedge with spill, is not the
+  // blind model) has regression guards set from measured values with margin, not derived
+  // (2026-11-22, poses perfect: rmse 1.4 cm vs 7.1 cm un-updated, bank volume 1.544 vs 1.597 m3,
+  // |d| error 2.3 cm, alpha 1e-4, w 0). The scenario has the realistic (rtk_imu) localisation,
+  // whose error adds to it. The blind surface is the estimated cutting edge, so its vertical
+  // error is the edge's: base z (white, bias, random walk over the run), the pitch error over
+  // the 1.9 m from the base to the edge, and the lift cylinder's error over its lever. It is
+  // independent of the model error, so the two add in quadrature (1-sigma of the edge error).
+  const sim::MachineSpec& ms = sim.scenario().machines[0];
+  const sim::LocalisationSpec& loc = ms.localisation;
+  ASSERT_FALSE(loc.perfect);
+  const sim::AxisError& z = loc.position[2];
+  const sim::AxisError& pitch = loc.attitude[1];
+  const double lever = sim::CompactTrackLoader::cylinderLever(0);
+  const double T = sim.scenario().duration_s;
+  const double var_z_white = z.white * z.white + std::pow(ms.blade_mount_x_m * pitch.white, 2) +
+                             std::pow(loc.cylinder_white_m / lever, 2);
+  const double var_z_slow = z.bias * z.bias + z.random_walk * z.random_walk * T / 2 +  // walk variance, mean over the run
+                            std::pow(ms.blade_mount_x_m * pitch.bias, 2) + std::pow(loc.cylinder_bias_m / lever, 2);
+  const double sigma_edge_z = std::sqrt(var_z_white + var_z_slow);  // 2.4 cm for rtk_imu
+  EXPECT_LT(rmse_blind[0], std::hypot(0.3 * rmse_static[0], sigma_edge_z));
   EXPECT_NEAR(bs.counters["cut_bank_volume_m3"], sim.machineTruth(0).cut_bank_m3, 0.1 * sim.machineTruth(0).cut_bank_m3);
   ASSERT_GT(err_d.size(), 10u);
+  // The extracted depth inherits the edge error too: the median of |N(mu, s^2)| is at most
+  // |mu| + 0.674 s, with mu the slow part (1-sigma) and s the white part, 2.7 cm for rtk_imu
+  // (with perfect poses the median is 0.03 cm): the 3 cm guard holds it unchanged.
+  EXPECT_LT(std::sqrt(var_z_slow) + 0.674 * std::sqrt(var_z_white), 0.03);
   EXPECT_LT(median(err_d), 0.03);
   EXPECT_LT(median(err_alpha), 0.05);
   EXPECT_LT(median(err_w), 0.15);

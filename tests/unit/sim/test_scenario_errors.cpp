@@ -116,3 +116,58 @@ TEST(ScenarioErrors, PipelineAndScenarioWordAMistakeAlike) {
   expectHas(pipeline_error, "p.yaml:2:10: threads: must be an integer (got 'many')");
   expectHas(scenario_error, "s.yaml:2:10: threads: must be an integer (got 'many')");
 }
+
+// ---- localisation: ---------------------------------------------------------------------------
+
+namespace {
+const char* kLocBase = R"(version: 1
+terrain: {size_m: [4, 4]}
+)";
+}  // namespace
+
+TEST(ScenarioLocalisation, AbsentIsRtkImuAndPerfectAndOverridesAreRead) {
+  // Absent everywhere: the realistic default.
+  Scenario sc = parseScenario(std::string(kLocBase) + "machines: [{id: a}]\n", "s.yaml");
+  const LocalisationSpec rtk = LocalisationSpec::rtkImu();
+  EXPECT_FALSE(sc.machines[0].localisation.perfect);
+  EXPECT_EQ(sc.machines[0].localisation.position[2].white, rtk.position[2].white);
+  EXPECT_EQ(sc.machines[0].localisation.latency_s, rtk.latency_s);
+  // Scenario-wide perfect reaches a machine without its own key; a machine's own key wins.
+  sc = parseScenario(std::string(kLocBase) + "localisation: perfect\nmachines:\n  - {id: a}\n"
+                                             "  - {id: b, localisation: {latency_s: 0.05, attitude_white_deg: [0.1, 0.1, 0.5],"
+                                             " position_bias_m: [0, 0, 0.03], cylinder_white_m: 0.002}}\n",
+                     "s.yaml");
+  EXPECT_TRUE(sc.machines[0].localisation.perfect);
+  const LocalisationSpec& b = sc.machines[1].localisation;
+  EXPECT_FALSE(b.perfect);
+  EXPECT_EQ(b.latency_s, 0.05);
+  EXPECT_DOUBLE_EQ(b.attitude[2].white, 0.5 * M_PI / 180);
+  EXPECT_EQ(b.position[2].bias, 0.03);
+  EXPECT_EQ(b.position[0].bias, 0.0);
+  EXPECT_EQ(b.cylinder_white_m, 0.002);
+  // Keys not given keep rtk_imu's values.
+  EXPECT_EQ(b.position[0].white, rtk.position[0].white);
+  EXPECT_EQ(b.cylinder_bias_m, rtk.cylinder_bias_m);
+  sc = parseScenario(std::string(kLocBase) + "localisation: perfect\nmachines: [{id: a, localisation: rtk_imu}]\n",
+                     "s.yaml");
+  EXPECT_FALSE(sc.machines[0].localisation.perfect);
+}
+
+TEST(ScenarioLocalisation, MistakesNameTheKeyAndValue) {
+  std::string e = configErrorOf(std::string(kLocBase) + "machines: [{id: a, localisation: perfekt}]\n");
+  expectHas(e, "machines[0].localisation: unknown localisation 'perfekt' (did you mean 'perfect'?)");
+  e = configErrorOf(std::string(kLocBase) + "machines: [{id: a, localisation: {position_white_m: [0.01, -0.01, 0.02]}}]\n");
+  expectHas(e, "machines[0].localisation.position_white_m: sigmas must be >= 0 and finite (got -0.01 at [1])");
+  e = configErrorOf(std::string(kLocBase) + "machines: [{id: a, localisation: {attitude_bias_deg: [0.1, 0.1]}}]\n");
+  expectHas(e, "machines[0].localisation.attitude_bias_deg: must be a list of 3 numbers");
+  e = configErrorOf(std::string(kLocBase) + "machines: [{id: a, localisation: {latency_s: -0.02}}]\n");
+  expectHas(e, "machines[0].localisation.latency_s");
+  e = configErrorOf(std::string(kLocBase) + "machines: [{id: a, localisation: {latency: 0.02}}]\n");
+  expectHas(e, "machines[0].localisation.latency: unknown key (did you mean 'latency_s'?)");
+  e = configErrorOf(std::string(kLocBase) + "localisation: [perfect]\nmachines: [{id: a}]\n");
+  expectHas(e, "localisation");
+  EXPECT_EQ(lines(e), 1u) << e;
+  // The old pose sensor is refused with the way forward, not silently ignored.
+  e = configErrorOf(std::string(kLocBase) + "machines: [{id: a, sensors: [{id: gnss, type: pose}]}]\n");
+  expectHas(e, "machines[0].sensors[0].type: the 'pose' sensor was replaced by the machine's 'localisation:' key");
+}

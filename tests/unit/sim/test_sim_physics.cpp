@@ -40,7 +40,7 @@ std::string scenarioYaml(const std::string& soil, double depth, double raise_rat
                   "soil: {default: " + soil + "}\n"
                   "machines:\n  - id: ctl1\n    controller: {type: route, start_m: [0, 0], length_m: 8, passes: 1, depth_m: " +
                   std::to_string(depth) + ", speed_mps: 0.8, stall: {raise_rate_mps: " + std::to_string(raise_rate) + "}}\n" +
-                  "    sensors:\n      - {id: force, type: force}\n      - {id: gnss, type: pose}\n";
+                  "    sensors:\n      - {id: force, type: force}\n";
   if (lidar) y += "      - {id: top, type: lidar, preset: vlp32, columns: 360, offset_m: [0, 0, 2.0]}\n"
                   "      - {id: line, type: lidar, preset: single_line, offset_m: [0.8, 0, 2.0], rotation_deg: [0, 50, 0]}\n";
   return y;
@@ -238,10 +238,15 @@ void flatten(const std::vector<Event>& ev, std::vector<double>& nums, std::vecto
       for (int k = 0; k < 16; ++k) nums.push_back(p->T_map_sensor.matrix().data()[k]);
     } else if (const auto* o = std::get_if<Observation>(&e)) {
       for (int k = 0; k < 16; ++k) nums.push_back(o->T_map_blade.matrix().data()[k]);
+      for (int k = 0; k < 16; ++k) nums.push_back(o->T_map_base.matrix().data()[k]);
+      for (int k = 0; k < 6; ++k) nums.push_back(o->twist_base[k]);
+      for (int k = 0; k < 3; ++k) nums.push_back(o->cylinder_length_m[k]);
       for (int k = 0; k < 3; ++k) nums.push_back(o->force_base_N[k]);
       nums.push_back(o->engine_speed_rpm);
     } else if (const auto* q = std::get_if<Pose>(&e)) {
       for (int k = 0; k < 16; ++k) nums.push_back(q->T_map_base.matrix().data()[k]);
+    } else if (const auto* b = std::get_if<BladePose>(&e)) {
+      for (int k = 0; k < 16; ++k) nums.push_back(b->T_map_blade.matrix().data()[k]);
     }
   }
 }
@@ -249,7 +254,8 @@ void flatten(const std::vector<Event>& ev, std::vector<double>& nums, std::vecto
 
 TEST(Simulator, SameSeedIsBitIdenticalForAnyThreadCount) {
   // Runs 0-2: 1 thread (serial), 2 threads with the physics overlapping the scans (default),
-  // 2 threads without overlap; run 3: another seed. Besides the events, what a caller reads
+  // 2 threads without overlap; run 3: another seed. The scenario has the default (rtk_imu)
+  // localisation, so the estimator's draws (cloud, base and blade poses) are part of the stream. Besides the events, what a caller reads
   // between periods (truth(), machineTruth(), machine()) must be that period's, in every mode.
   std::vector<double> n[4], views[4];
   std::vector<float> p[4];
@@ -338,10 +344,14 @@ TEST(Episode, HdfLayoutReadsBack) {
   Simulator sim(sc);
   std::vector<Event> ev;
   std::vector<Observation> obs;
+  std::vector<MachineTruth> truths;
   std::size_t top_points = 0, top_scans = 0;
   while (sim.next(ev)) {
     for (auto& e : ev) {
-      if (auto* o = std::get_if<Observation>(&e)) obs.push_back(*o);
+      if (auto* o = std::get_if<Observation>(&e)) {
+        obs.push_back(*o);
+        truths.push_back(sim.machineTruth(0));
+      }
       if (auto* p = std::get_if<PointCloud>(&e); p && p->frame == "ctl1/top") {
         top_points += p->points.size();
         ++top_scans;
@@ -356,14 +366,38 @@ TEST(Episode, HdfLayoutReadsBack) {
   const auto force = readDoubles("/machines/ctl1/force_base_N", dims);
   ASSERT_EQ(dims.size(), 2u);
   EXPECT_EQ(dims[1], 3u);
+  // Top level: the truth; estimate/: what the mapper received (the default rtk_imu
+  // localisation, so the two differ) and their difference.
   const auto Tb = readDoubles("/machines/ctl1/T_map_blade", dims);
   ASSERT_EQ(dims.size(), 3u);
+  const auto Tbe = readDoubles("/machines/ctl1/estimate/T_map_blade", dims);
+  ASSERT_EQ(dims.size(), 3u);
+  const auto Tbase = readDoubles("/machines/ctl1/T_map_base", dims);
+  const auto Tbase_e = readDoubles("/machines/ctl1/estimate/T_map_base", dims);
+  const auto cyl = readDoubles("/machines/ctl1/cylinder_length_m", dims);
+  const auto cyl_e = readDoubles("/machines/ctl1/estimate/cylinder_length_m", dims);
+  const auto err = readDoubles("/machines/ctl1/estimate/error_base", dims);
+  ASSERT_EQ(dims.size(), 2u);
+  EXPECT_EQ(dims[1], 6u);
+  double max_err = 0;
   for (std::size_t k = 0; k < obs.size(); ++k) {
     ASSERT_EQ(stamp[k], obs[k].stamp);
     for (int a = 0; a < 3; ++a) ASSERT_EQ(force[k * 3 + a], obs[k].force_base_N[a]);
     for (int r = 0; r < 4; ++r)
-      for (int c = 0; c < 4; ++c) ASSERT_EQ(Tb[k * 16 + r * 4 + c], obs[k].T_map_blade.matrix()(r, c));
+      for (int c = 0; c < 4; ++c) {
+        ASSERT_EQ(Tb[k * 16 + r * 4 + c], truths[k].T_map_blade.matrix()(r, c));
+        ASSERT_EQ(Tbe[k * 16 + r * 4 + c], obs[k].T_map_blade.matrix()(r, c));
+        ASSERT_EQ(Tbase[k * 16 + r * 4 + c], truths[k].T_map_base.matrix()(r, c));
+        ASSERT_EQ(Tbase_e[k * 16 + r * 4 + c], obs[k].T_map_base.matrix()(r, c));
+      }
+    for (int a = 0; a < 3; ++a) {
+      ASSERT_EQ(cyl[k * 3 + a], truths[k].cylinder_length_m[a]);
+      ASSERT_EQ(cyl_e[k * 3 + a], obs[k].cylinder_length_m[a]);
+      ASSERT_EQ(err[k * 6 + a], obs[k].T_map_base.translation()[a] - truths[k].T_map_base.translation()[a]);
+      max_err = std::max(max_err, std::abs(err[k * 6 + a]));
+    }
   }
+  EXPECT_GT(max_err, 0.0);
   const auto pts = readDoubles("/machines/ctl1/clouds/top/points", dims);
   EXPECT_EQ(dims[0], top_points);
   const auto cnt = readDoubles("/machines/ctl1/clouds/top/count", dims);
