@@ -84,6 +84,7 @@ double gaussianFromBits(std::uint64_t h) {
 struct LidarModel::Scratch {
   ScanCaster caster;
   std::vector<std::vector<PointXYZI>> parts;
+  std::vector<PlacedBox> boxes;  // the obstacles within reach of this scan
 };
 
 LidarModel::~LidarModel() = default;
@@ -122,7 +123,8 @@ double LidarModel::minSlope(const Eigen::Matrix3d& R_map_sensor) const {
 }
 
 std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3d& T_map_sensor, std::uint64_t noise_key,
-                             const Executor* exec, std::vector<PointXYZI>& out) const {
+                             const Executor* exec, std::vector<PointXYZI>& out,
+                             const std::vector<PlacedBox>* obstacles) const {
   const int B = spec_.beams, C = spec_.columns;
   const int chunks = (C + columns_per_chunk_ - 1) / columns_per_chunk_;
   const Eigen::Vector3d o = T_map_sensor.translation();
@@ -135,6 +137,12 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
   if (static_cast<int>(parts.size()) < chunks) parts.resize(chunks);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const ScanCaster& cast = caster;
+  // Boxes within reach of this sensor (a far machine cannot be hit).
+  std::vector<PlacedBox>& boxes = scratch_->boxes;
+  boxes.clear();
+  if (obstacles)
+    for (const PlacedBox& b : *obstacles)
+      if ((b.centre - o).norm() - b.radius <= spec_.max_range_m) boxes.push_back(b);
   auto work = [&](int ch) {
     std::vector<PointXYZI>& pts = parts[ch];
     pts.clear();
@@ -173,6 +181,13 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
         const Eigen::Vector3d& dm = dm_col[b];
         const int ci = ci_col[b], cj = cj_col[b];
         double t = t_col[b];
+        // A machine in front of the terrain hit (or in a ray that misses the terrain) wins.
+        Eigen::Vector3d n_box;
+        const double t_box = boxes.empty() ? std::numeric_limits<double>::infinity()
+                                           : firstBoxHit(boxes, o, dm, spec_.min_range_m,
+                                                         std::isnan(t) ? spec_.max_range_m : t, &n_box);
+        const bool on_machine = t_box < std::numeric_limits<double>::infinity();
+        if (on_machine) t = t_box;
         if (std::isnan(t)) {
           if (spec_.keep_dropouts) pts.push_back({nan, nan, nan, nan});
           continue;
@@ -182,11 +197,16 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
           if (spec_.keep_dropouts) pts.push_back({nan, nan, nan, nan});
           continue;
         }
-        // Lambertian intensity from the normal of the patch that was hit (noise-free point).
-        const Eigen::Vector3d p = o + dm * t;
-        const Eigen::Vector2d g = terrain.cellGradient(ci, cj, p.x(), p.y());
-        const float inten = static_cast<float>(std::abs(dm.z() - g.x() * dm.x() - g.y() * dm.y()) /
-                                               std::sqrt(1.0 + g.x() * g.x() + g.y() * g.y()));
+        // Lambertian intensity from the normal of the surface that was hit (noise-free point).
+        float inten;
+        if (on_machine) {
+          inten = static_cast<float>(std::abs(dm.dot(n_box)));
+        } else {
+          const Eigen::Vector3d p = o + dm * t;
+          const Eigen::Vector2d g = terrain.cellGradient(ci, cj, p.x(), p.y());
+          inten = static_cast<float>(std::abs(dm.z() - g.x() * dm.x() - g.y() * dm.y()) /
+                                     std::sqrt(1.0 + g.x() * g.x() + g.y() * g.y()));
+        }
         if (spec_.range_noise_m > 0) t += spec_.range_noise_m * gaussianFromBits(h);
         pts.push_back({static_cast<float>(ds.x() * t), static_cast<float>(ds.y() * t), static_cast<float>(ds.z() * t), inten});
       }

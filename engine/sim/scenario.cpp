@@ -299,6 +299,39 @@ LocalisationSpec readLocalisation(MapReader& parent, const LocalisationSpec& def
   return s;
 }
 
+/// `shape:` a list of {name, frame: base|blade, min: [x, y, z], max: [x, y, z]} replacing the
+/// default boxes ([] = a machine the LiDARs cannot see).
+void readShape(MapReader& r, MachineSpec& m) {
+  const YAML::Node list = r.node("shape");
+  if (!list.IsSequence()) {
+    r.error(list, "shape", "expected a list of boxes {name, frame: base|blade, min: [x, y, z], max: [x, y, z]}");
+    return;
+  }
+  m.shape.clear();
+  for (std::size_t k = 0; k < list.size(); ++k) {
+    MapReader b(r.diagnostics(), list[k], r.join("shape[" + std::to_string(k) + "]"));
+    if (!b.valid()) continue;
+    ShapeBox box;
+    box.name = b.str("name", "box" + std::to_string(k));
+    const std::string frame = b.str("frame", "base");
+    if (frame == "blade") box.frame = ShapeBox::Frame::Blade;
+    else if (frame != "base")
+      b.error(b.node("frame"), "frame", "must be base or blade (got '" + frame + "')" + didYouMean(frame, {"base", "blade"}));
+    const std::vector<double> lo = b.vec("min", {}, 3), hi = b.vec("max", {}, 3);
+    if (lo.size() == 3 && hi.size() == 3) {
+      box.min = Eigen::Vector3d(lo[0], lo[1], lo[2]);
+      box.max = Eigen::Vector3d(hi[0], hi[1], hi[2]);
+      if (!(box.min.array() < box.max.array()).all() || !box.min.allFinite() || !box.max.allFinite() ||
+          box.min.cwiseAbs().maxCoeff() > 100 || box.max.cwiseAbs().maxCoeff() > 100)
+        b.error(b.node("max"), "max", "every coordinate must be finite, within 100 m and larger than min's");
+    } else {
+      b.error(list[k], "min", "min and max are required, three numbers each (metres in the box's frame)");
+    }
+    b.finish();
+    m.shape.push_back(box);
+  }
+}
+
 MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisation) {
   MachineSpec m;
   m.localisation = readLocalisation(r, default_localisation);
@@ -336,6 +369,8 @@ MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisati
     if (c.valid()) m.controller = readController(c);
   }
   if (r.has("sensors")) readSensors(r, m);
+  m.shape = defaultCtlShape(m.track_gauge_m, m.track_length_m, m.blade.width_m, m.blade.height_m);
+  if (r.has("shape")) readShape(r, m);
   r.finish();
   return m;
 }
@@ -635,6 +670,7 @@ Scenario parseImpl(const std::string& text, Ctx& ctx) {
     r.error(r.node("physics_hz"), "physics_hz", "must be a whole multiple of observation_hz");
   sc.threads = r.integer("threads", sc.threads, 1, 256);
   sc.overlap_scans = r.boolean("overlap_scans", sc.overlap_scans);
+  sc.lidar_sees_machines = r.boolean("lidar_sees_machines", sc.lidar_sees_machines);
   bool extent_known = false;
   {
     MapReader t = r.child("terrain");

@@ -93,6 +93,10 @@ struct Simulator::ScanRequest {
   Eigen::Isometry3d T_true_sensor = Eigen::Isometry3d::Identity();  ///< where the rays start
   Eigen::Isometry3d T_map_sensor = Eigen::Isometry3d::Identity();   ///< the estimate the cloud carries
   std::uint64_t key = 0;
+  /// Every machine's boxes at their true poses at the scan instant (empty when the scenario
+  /// turns lidar_sees_machines off), captured here because with the overlap the physics has
+  /// moved on by the time the scan is cast.
+  std::shared_ptr<const std::vector<PlacedBox>> obstacles;
 };
 
 /// One observation period as the physics produced it.
@@ -236,7 +240,7 @@ PointCloud Simulator::runScan(const ScanRequest& q, const TruthTerrain& terrain)
   pc.frame = m.ctl.spec().id + "/" + ss.id;
   pc.T_map_sensor = q.T_map_sensor;
   // Cast from where the sensor really is; the cloud carries where the machine thinks it is.
-  const std::size_t hits = L.model.scan(terrain, q.T_true_sensor, q.key, &exec_, pc.points);
+  const std::size_t hits = L.model.scan(terrain, q.T_true_sensor, q.key, &exec_, pc.points, q.obstacles.get());
   stats_.rays += L.model.raysPerScan();
   stats_.points += hits;
   ++stats_.scans;
@@ -252,6 +256,7 @@ void Simulator::cutPatch(Period& rec) {
 }
 
 void Simulator::scheduleScans(Period& rec, double t) {
+  std::shared_ptr<std::vector<PlacedBox>> obstacles;  // built once, for the first scan due at t
   for (auto& mp : machines_) {
     Machine& m = *mp;
     for (std::size_t li = 0; li < m.lidars.size(); ++li) {
@@ -265,6 +270,12 @@ void Simulator::scheduleScans(Period& rec, double t) {
       q.T_true_sensor = m.ctl.T_map_base() * ss.T_base_sensor;
       q.T_map_sensor = m.estimator.estimate(t) * ss.T_base_sensor;
       q.key = streamSeed(sc_.seed, 1000 + m.index * 64 + L.sensor_index, static_cast<std::uint64_t>(L.next_scan));
+      if (sc_.lidar_sees_machines && !obstacles) {
+        obstacles = std::make_shared<std::vector<PlacedBox>>();
+        for (const auto& other : machines_)
+          placeShape(other->ctl.spec().shape, other->ctl.T_map_base(), other->ctl.T_map_blade(), *obstacles);
+      }
+      q.obstacles = obstacles;
       ++L.next_scan;
       if (overlap_) {
         // The scan is cast later on the view, brought to this instant by the patches before it.

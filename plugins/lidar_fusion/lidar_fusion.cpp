@@ -262,6 +262,11 @@ ParamSchema lidarFusionSchema() {
                   "sensor translation since the last cloud needed for a correction"),
       param::real("orientation_noise_thresh_rad", 0.01, 0.0, inf, "rad",
                   "or sensor rotation since the last cloud"),
+      param::reals("self_filter_base_m", {}, -1, -100.0, 100.0, "m",
+                   "self-filter boxes in the base frame, [xmin, ymin, zmin, xmax, ymax, zmax] per box"),
+      param::reals("self_filter_blade_m", {}, -1, -100.0, 100.0, "m",
+                   "self-filter boxes in the blade frame, 6 numbers per box"),
+      param::real("self_filter_margin_m", 0.1, 0.0, 10.0, "m", "self-filter boxes grown by this on every side"),
       param::boolean("follow_robot", false,
                      "re-centre the map on each Pose (or, before any Pose, on the sensor)"),
   };
@@ -316,6 +321,9 @@ LidarFusionConfig lidarFusionConfigFrom(const Params& p) {
   c.position_noise_thresh_m = p.getDouble("position_noise_thresh_m");
   c.orientation_noise_thresh_rad = p.getDouble("orientation_noise_thresh_rad");
   c.follow_robot = p.getBool("follow_robot");
+  c.self_filter_base_m = p.getDoubles("self_filter_base_m");
+  c.self_filter_blade_m = p.getDoubles("self_filter_blade_m");
+  c.self_filter_margin_m = p.getDouble("self_filter_margin_m");
   if (!(c.min_range_m < c.max_range_m))
     p.fail("min_range_m", "must be smaller than max_range_m (" + formatNumber(c.max_range_m) + "), got " +
                               formatNumber(c.min_range_m));
@@ -350,6 +358,8 @@ void LidarFusion::configure(const LidarFusionConfig& c) {
     bad("cleanup_cos_thresh", "must be in [0, 1] (got " + formatNumber(c.cleanup_cos_thresh) + ")");
   if (!(c.drift_compensation_alpha >= 0.0 && c.drift_compensation_alpha <= 1.0))
     bad("drift_compensation_alpha", "must be in [0, 1] (got " + formatNumber(c.drift_compensation_alpha) + ")");
+  self_filter_.configure(c.self_filter_base_m, c.self_filter_blade_m, c.self_filter_margin_m, "self_filter_base_m",
+                         "self_filter_blade_m");
   config_ = c;
 }
 
@@ -371,7 +381,7 @@ std::vector<LayerSpec> LidarFusion::layers() const {
 }
 
 EventMask LidarFusion::events() const {
-  return EventKind::PointCloud | EventKind::Pose | EventKind::Tick;
+  return EventKind::PointCloud | EventKind::Pose | EventKind::BladePose | EventKind::Tick;
 }
 
 void LidarFusion::bindLayers(const LayeredMap& map) {
@@ -1194,13 +1204,23 @@ void LidarFusion::process(ProcessContext& ctx, const Event& event) {
   if (const auto* pc = std::get_if<PointCloud>(&event)) {
     advanceTime(map, ctx.executor(), pc->stamp);
     if (config_.follow_robot && !have_pose_) followTo(map, pc->T_map_sensor.translation());
-    const FusionStats s = fuse(map, ctx.executor(), *pc);
+    std::size_t self_points = 0;
+    if (self_filter_.enabled() && !self_filter_.placed()) {
+      // The machine's pose is not known yet, so its own points cannot be told from the ground:
+      // fusing them would build the machine into the map. Skip the cloud, counted.
+      ctx.countDrop("self_no_pose", static_cast<long>(pc->points.size()));
+      ctx.addCounter("points_in", static_cast<double>(pc->points.size()));
+      return;
+    }
+    if (self_filter_.enabled()) self_points = self_filter_.apply(*pc, filtered_);
+    const FusionStats s = fuse(map, ctx.executor(), self_filter_.enabled() ? filtered_ : *pc);
+    ctx.countDrop("self", static_cast<long>(self_points));
     ctx.countDrop("non_finite", s.dropped_non_finite);
     ctx.countDrop("too_close", s.dropped_too_close);
     ctx.countDrop("too_far", s.dropped_too_far);
     ctx.countDrop("too_high", s.dropped_too_high);
     ctx.countDrop("outside_map", s.dropped_outside_map);
-    ctx.addCounter("points_in", static_cast<double>(s.points_in));
+    ctx.addCounter("points_in", static_cast<double>(s.points_in + self_points));
     ctx.addCounter("points_fused", static_cast<double>(s.points_fused));
     ctx.addCounter("outliers", static_cast<double>(s.outliers));
     ctx.addCounter("cells_forgotten", static_cast<double>(s.cells_forgotten));
@@ -1215,7 +1235,10 @@ void LidarFusion::process(ProcessContext& ctx, const Event& event) {
     if (!pose->T_map_base.matrix().allFinite())
       throw InputError("lidar_fusion: pose at stamp " + formatNumber(pose->stamp) + " s is not finite");
     have_pose_ = true;
+    self_filter_.setBasePose(pose->frame, pose->T_map_base);
     followTo(map, pose->T_map_base.translation());
+  } else if (const auto* bp = std::get_if<BladePose>(&event)) {
+    if (bp->T_map_blade.matrix().allFinite()) self_filter_.setBladePose(bp->machine_id, bp->T_map_blade);
   } else if (const auto* tick = std::get_if<Tick>(&event)) {
     advanceTime(map, ctx.executor(), tick->stamp);
   }

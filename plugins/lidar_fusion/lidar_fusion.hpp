@@ -39,6 +39,7 @@
 /// per tile: min is exact and order-free, so which thread walked which ray does not matter.)
 /// Threading: process() runs on the engine thread and parallelises with ctx.executor().
 #include <terramap/plugin/plugin.hpp>
+#include "self_filter.hpp"
 
 #include <array>
 #include <cstdint>
@@ -93,6 +94,11 @@ struct LidarFusionConfig {
   double position_noise_thresh_m = 0.01;  ///< sensor motion needed for a correction (m)
   double orientation_noise_thresh_rad = 0.01;  ///< or rotation needed (rad)
   bool follow_robot = false;              ///< re-centre the map on the robot (ring buffer)
+  /// Self-filter boxes (self_filter.hpp), 6 numbers per box [xmin, ymin, zmin, xmax, ymax, zmax]
+  /// in the base frame (placed with each machine's latest Pose) or the blade frame (latest
+  /// BladePose); empty = no filter. Points inside are dropped as `self`.
+  std::vector<double> self_filter_base_m, self_filter_blade_m;
+  double self_filter_margin_m = 0.1;      ///< boxes grown by this on every side (m): 3-5 sigma of range noise plus the motion since the pose
 };
 
 /// The schema (names, units, ranges, defaults) the YAML params are checked against.
@@ -137,12 +143,13 @@ class LidarFusion : public Plugin {
   LidarFusion() = default;
 
   ParamSchema schema() const override { return lidarFusionSchema(); }
-  void configure(const Params& params) override { config_ = lidarFusionConfigFrom(params); }
+  void configure(const Params& params) override { configure(lidarFusionConfigFrom(params)); }
   /// Creates the seven layers (see LidarFusionLayers) with their units and fill values.
   std::vector<LayerSpec> layers() const override;
   EventMask events() const override;
   void start(ProcessContext& ctx) override;
-  /// PointCloud: fuse; Pose: follow the robot (if enabled) and advance time; Tick: advance time.
+  /// PointCloud: drop self points (self-filter), fuse; Pose: follow the robot (if enabled),
+  /// place the base boxes, advance time; BladePose: place the blade boxes; Tick: advance time.
   /// \throws InputError on a non-finite sensor pose or a stamp that goes backwards.
   void process(ProcessContext& ctx, const Event& event) override;
   void finish(ProcessContext& ctx) override;
@@ -205,6 +212,8 @@ class LidarFusion : public Plugin {
   void accumulate(const FusionStats& st);
 
   LidarFusionConfig config_;
+  SelfFilter self_filter_;
+  PointCloud filtered_;  // the cloud without self points (reused)
   // layer ids (elevation, variance, is_valid, time, upper_bound, is_upper_bound, hits)
   LayerId elev_ = -1, var_ = -1, valid_ = -1, time_ = -1, ub_ = -1, isub_ = -1, hits_ = -1;
   const LayeredMap* bound_map_ = nullptr;

@@ -9,6 +9,7 @@
 /// thread count and chunking. Intensity = |cos(incidence)| (Lambertian, 0..1).
 #include <terramap/core/events.hpp>
 #include <terramap/core/parallel.hpp>
+#include <terramap/sim/machine_shape.hpp>
 #include <terramap/sim/scenario.hpp>
 #include <terramap/sim/truth_terrain.hpp>
 
@@ -38,12 +39,15 @@ class LidarModel {
   /// Unit ray directions in the sensor frame, in output order.
   const std::vector<Eigen::Vector3d>& directions() const { return dirs_; }
 
-  /// Casts every ray against the terrain's ray-casting view (TruthTerrain::refreshPyramid).
-  /// `noise_key` must differ per scan (e.g. hash of seed, sensor, scan index). Runs on `exec`
-  /// in fixed chunks of columns (serial if null). Returns the number of hits. One scan at a
-  /// time per model (it reuses the model's buffers); different models may scan concurrently.
+  /// Casts every ray against the terrain's ray-casting view (TruthTerrain::refreshPyramid) and
+  /// the machines' boxes (`obstacles`, map frame, may be null or empty): the nearer hit wins, so
+  /// a machine returns points on itself and hides the ground behind it. `noise_key` must differ
+  /// per scan (e.g. hash of seed, sensor, scan index). Runs on `exec` in fixed chunks of columns
+  /// (serial if null). Returns the number of hits. One scan at a time per model (it reuses the
+  /// model's buffers); different models may scan concurrently.
   std::size_t scan(const TruthTerrain& terrain, const Eigen::Isometry3d& T_map_sensor, std::uint64_t noise_key,
-                   const Executor* exec, std::vector<PointXYZI>& out) const;
+                   const Executor* exec, std::vector<PointXYZI>& out,
+                   const std::vector<PlacedBox>* obstacles = nullptr) const;
 
  private:
   /// Lower bound of d_z / |d_xy| over all rays once rotated into the map (ScanCaster input).

@@ -8,6 +8,7 @@
 #include <terramap/core/events.hpp>
 #include <terramap/sim/dem.hpp>
 #include <terramap/sim/localisation.hpp>
+#include <terramap/sim/machine_shape.hpp>
 #include <terramap/soil/soil_table.hpp>
 
 #include <Eigen/Core>
@@ -151,6 +152,9 @@ struct MachineSpec {
   /// How the poses the mapper receives (base, each cloud's sensor, blade) differ from the truth
   /// (YAML `localisation:`; the scenario-wide one, else RTK-GNSS + IMU, when absent).
   LocalisationSpec localisation = LocalisationSpec::rtkImu();
+  /// Solid boxes the simulated LiDARs see (machine_shape.hpp); defaultCtlShape() of the track
+  /// and blade dimensions unless the scenario gives `shape:`.
+  std::vector<ShapeBox> shape;
 };
 
 struct Scenario {
@@ -165,6 +169,9 @@ struct Scenario {
   /// With threads >= 2: run the physics ahead while LiDAR scans are cast (results identical;
   /// costs a second copy of the truth terrain). See Simulator.
   bool overlap_scans = true;
+  /// The LiDARs see the machines (their own and the others): rays stop on them and return
+  /// points there. `lidar_sees_machines: false` casts against the terrain only (ablation).
+  bool lidar_sees_machines = true;
   TerrainSpec terrain;
   SoilProperties default_soil = soilProperties(SoilFamily::Loam, 0.5);
   std::vector<SoilZone> zones;  ///< later zones override earlier ones

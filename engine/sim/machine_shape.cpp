@@ -1,0 +1,85 @@
+#include <terramap/sim/machine_shape.hpp>
+
+#include <algorithm>
+#include <cmath>
+
+namespace terramap::sim {
+
+std::vector<ShapeBox> defaultCtlShape(double gauge_m, double track_length_m, double blade_width_m,
+                                      double blade_height_m) {
+  using F = ShapeBox::Frame;
+  // CAT 299D3-class figures rounded from its spec sheet (height to the cab top 2.1 m, width over
+  // the tracks 2.0 m, track width 0.45 m, ground clearance 0.35 m, length without a tool
+  // 3.1 m); how they split into boxes is an estimate (docs/sim.md "Occlusion").
+  const double tw = 0.45, half_gauge = 0.5 * gauge_m, tl = 0.5 * track_length_m + 0.25;  // idler and sprocket
+  std::vector<ShapeBox> s;
+  s.push_back({"track_left", F::Base, {-tl, half_gauge - 0.5 * tw, 0.0}, {tl, half_gauge + 0.5 * tw, 0.55}});
+  s.push_back({"track_right", F::Base, {-tl, -half_gauge - 0.5 * tw, 0.0}, {tl, -half_gauge + 0.5 * tw, 0.55}});
+  s.push_back({"body", F::Base, {-1.45, -half_gauge + 0.5 * tw, 0.35}, {0.75, half_gauge - 0.5 * tw, 1.20}});
+  s.push_back({"cab", F::Base, {-0.90, -0.50, 1.20}, {0.60, 0.50, 2.05}});
+  s.push_back({"arm_left", F::Base, {-1.25, half_gauge - 0.5 * tw, 0.90}, {0.95, half_gauge + 0.5 * tw, 1.30}});
+  s.push_back({"arm_right", F::Base, {-1.25, -half_gauge - 0.5 * tw, 0.90}, {0.95, -half_gauge + 0.5 * tw, 1.30}});
+  // The blade plate behind its face (x = 0 is the face, the cutting edge at z = 0).
+  s.push_back({"blade", F::Blade, {-0.05, -0.5 * blade_width_m, 0.0}, {0.0, 0.5 * blade_width_m, blade_height_m}});
+  return s;
+}
+
+void placeShape(const std::vector<ShapeBox>& shape, const Eigen::Isometry3d& T_map_base,
+                const Eigen::Isometry3d& T_map_blade, std::vector<PlacedBox>& out) {
+  for (const ShapeBox& b : shape) {
+    const Eigen::Isometry3d& T = b.frame == ShapeBox::Frame::Base ? T_map_base : T_map_blade;
+    PlacedBox p;
+    p.centre = T * (0.5 * (b.min + b.max));
+    p.R = T.linear();
+    p.half = 0.5 * (b.max - b.min);
+    p.radius = p.half.norm();
+    out.push_back(p);
+  }
+}
+
+double firstBoxHit(const std::vector<PlacedBox>& boxes, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
+                   double t_min, double t_max, Eigen::Vector3d* normal) {
+  double best = std::numeric_limits<double>::infinity();
+  for (const PlacedBox& b : boxes) {
+    // Bounding sphere first: most rays pass far from most boxes.
+    const Eigen::Vector3d oc = b.centre - o;
+    const double tc = oc.dot(d);
+    const double miss2 = oc.squaredNorm() - tc * tc;
+    if (miss2 > b.radius * b.radius || tc + b.radius < t_min || tc - b.radius > std::min(t_max, best)) continue;
+    // Slabs in the box frame.
+    const Eigen::Vector3d ob = b.R.transpose() * (-oc), db = b.R.transpose() * d;
+    double t0 = -std::numeric_limits<double>::infinity(), t1 = std::numeric_limits<double>::infinity();
+    int axis = -1;
+    double sign = 0;
+    bool inside = true;
+    for (int k = 0; k < 3; ++k) {
+      if (std::abs(ob[k]) > b.half[k]) inside = false;
+      if (db[k] == 0.0) {
+        if (std::abs(ob[k]) > b.half[k]) {
+          t0 = 1.0;
+          t1 = 0.0;  // parallel and outside this slab: no hit
+          break;
+        }
+        continue;
+      }
+      double ta = (-b.half[k] - ob[k]) / db[k], tb = (b.half[k] - ob[k]) / db[k];
+      double s = -1.0;  // entering through the -half face
+      if (ta > tb) {
+        std::swap(ta, tb);
+        s = 1.0;
+      }
+      if (ta > t0) {
+        t0 = ta;
+        axis = k;
+        sign = s;
+      }
+      t1 = std::min(t1, tb);
+    }
+    if (inside || axis < 0 || t0 > t1 || t0 < t_min || t0 > t_max || !(t0 < best)) continue;
+    best = t0;
+    if (normal) *normal = sign * b.R.col(axis);
+  }
+  return best;
+}
+
+}  // namespace terramap::sim
