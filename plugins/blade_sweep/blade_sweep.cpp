@@ -165,6 +165,11 @@ ParamSchema BladeSweep::schema() const {
       param::real("sigma_sv_m", d.sigma_sv_m, 0.0, 10.0, "m", "1-sigma uncertainty of the blade height during a sweep"),
       param::real("min_cut_m", d.min_cut_m, 0.0, 1.0, "m", "elevation above the swept-volume bottom that counts as a cut"),
       param::boolean("report_steps", true, "write the per-step FEE values of every sweep to the run report"),
+      param::boolean("ground_anchor", true, "shift blade heights by the map under the tracks minus the pose's contact plane"),
+      param::real("track_length_m", 1.9, 0.1, 20.0, "m", "ground anchor: track contact length"),
+      param::real("track_gauge_m", 1.6, 0.1, 20.0, "m", "ground anchor: distance between the track centrelines"),
+      param::real("ground_anchor_tau_s", 2.0, 0.0, 1e4, "s", "ground anchor: low-pass time constant (0 = no filter)"),
+      param::real("ground_anchor_max_m", 0.15, 0.0, 10.0, "m", "ground anchor: larger differences are ignored"),
   };
 }
 
@@ -183,6 +188,11 @@ void BladeSweep::configure(const Params& p) {
   cfg_.sigma_sv_m = p.getDouble("sigma_sv_m");
   cfg_.min_cut_m = p.getDouble("min_cut_m");
   report_steps_ = p.getBool("report_steps");
+  anchor_cfg_.enabled = p.getBool("ground_anchor");
+  anchor_cfg_.track_length_m = p.getDouble("track_length_m");
+  anchor_cfg_.track_gauge_m = p.getDouble("track_gauge_m");
+  anchor_cfg_.tau_s = p.getDouble("ground_anchor_tau_s");
+  anchor_cfg_.max_m = p.getDouble("ground_anchor_max_m");
   if (cfg_.max_jump_m <= cfg_.min_translation_m)
     p.fail("max_jump_m", "must be larger than min_translation_m (" + std::to_string(cfg_.min_translation_m) + ")");
 }
@@ -222,9 +232,75 @@ void BladeSweep::start(ProcessContext& ctx) {
   }
 }
 
+void BladeSweep::anchorToGround(ProcessContext& ctx, const Pose& pose) {
+  if (!anchor_cfg_.enabled || !finitePose(pose.T_map_base) || !std::isfinite(pose.stamp)) return;
+  // "base" (one machine) or "<id>/base".
+  std::string id;
+  if (pose.frame != "base") {
+    const auto slash = pose.frame.rfind("/base");
+    if (slash == std::string::npos || slash + 5 != pose.frame.size()) return;
+    id = pose.frame.substr(0, slash);
+  }
+  const LayeredMap& map = ctx.map();
+  const Geometry& geo = map.geometry();
+  // Each track half rests on its highest point (5 samples along it, as the half is rigid): the
+  // map's height there minus the height of the same point on the pose's contact plane.
+  const double L = anchor_cfg_.track_length_m, B = anchor_cfg_.track_gauge_m;
+  double sum = 0;
+  for (int fr = 0; fr < 2; ++fr)
+    for (int lr = 0; lr < 2; ++lr) {
+      double best_map = -INFINITY, plane_at_best = 0;
+      for (int m = 0; m < 5; ++m) {
+        const double lx = (fr == 0 ? 1.0 : -1.0) * 0.5 * L * (m + 0.5) / 5.0, ly = (lr == 0 ? 0.5 : -0.5) * B;
+        const Eigen::Vector3d p = pose.T_map_base * Eigen::Vector3d(lx, ly, 0.0);
+        const auto idx = geo.indexAt(p.head<2>());
+        if (!idx) return;
+        const float h = map.at(ids_.elevation, *idx);
+        if (std::isnan(h)) return;  // unknown ground under a track: no anchor from this pose
+        if (h > best_map) {
+          best_map = h;
+          plane_at_best = p.z();
+        }
+      }
+      sum += best_map - plane_at_best;
+    }
+  const double diff = 0.25 * sum;
+  if (!(std::abs(diff) <= anchor_cfg_.max_m)) {
+    ctx.addCounter("ground_anchor_rejected", 1);
+    return;
+  }
+  Anchor& a = anchors_[id];
+  if (!a.init) {
+    a.offset_m = diff;
+    a.init = true;
+  } else {
+    const double dt = std::max(0.0, pose.stamp - a.stamp);
+    const double k = anchor_cfg_.tau_s > 0 ? 1.0 - std::exp(-dt / anchor_cfg_.tau_s) : 1.0;
+    a.offset_m += k * (diff - a.offset_m);
+  }
+  a.stamp = pose.stamp;
+  ctx.addCounter("ground_anchor_updates", 1);
+}
+
 void BladeSweep::process(ProcessContext& ctx, const Event& event) {
-  const auto* bp = std::get_if<BladePose>(&event);
-  if (!bp) return;
+  if (const auto* pose = std::get_if<Pose>(&event)) {
+    anchorToGround(ctx, *pose);
+    return;
+  }
+  const auto* bp_in = std::get_if<BladePose>(&event);
+  if (!bp_in) return;
+  // The blade pose shifted by its machine's ground anchor (the id's own, else the "base" one).
+  BladePose anchored;
+  const BladePose* bp = bp_in;
+  if (anchor_cfg_.enabled) {
+    auto it = anchors_.find(bp_in->machine_id);
+    if (it == anchors_.end()) it = anchors_.find("");
+    if (it != anchors_.end() && it->second.init) {
+      anchored = *bp_in;
+      anchored.T_map_blade.translation().z() += it->second.offset_m;
+      bp = &anchored;
+    }
+  }
   const BladeGeometry& g = bp->geometry;
   if (!(g.width_m > 0) || !(g.height_m >= 0) || !std::isfinite(g.width_m) || !std::isfinite(g.height_m)) {
     std::ostringstream os;

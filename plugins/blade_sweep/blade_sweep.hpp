@@ -57,6 +57,21 @@ struct SweepConfig {
   double min_cut_m = 1e-6;            ///< H - h^G above this is a cut
 };
 
+/// Ground anchoring of the blade height (docs: plugins/blade_sweep/README.md, "Ground anchor").
+/// A machine's tracks rest on the ground the map holds; GNSS/INS heights drift and carry a bias
+/// of centimetres, the map under the tracks does not move with them. So on every `Pose` the
+/// plugin compares the height the pose gives the track contact plane with the map under each
+/// track half (its highest point, where a rigid track rests), low-passes the difference
+/// (time constant `tau_s`, long against the pose's white noise, short against its drift) and
+/// shifts every later blade pose of that machine by it. Differences beyond `max_m` (unknown or
+/// stale map under the tracks) are ignored.
+struct GroundAnchorConfig {
+  bool enabled = true;
+  double track_length_m = 1.9, track_gauge_m = 1.6;  ///< contact patch of the machine (m)
+  double tau_s = 2.0;                                ///< low-pass time constant (s)
+  double max_m = 0.15;                               ///< larger differences are ignored (m)
+};
+
 /// A triangle of the swept-volume surface, map frame (m).
 struct Triangle {
   Eigen::Vector3d a, b, c;
@@ -130,7 +145,7 @@ class BladeSweep : public Plugin {
   ParamSchema schema() const override;
   void configure(const Params& params) override;
   std::vector<LayerSpec> layers() const override;
-  EventMask events() const override { return mask(EventKind::BladePose); }
+  EventMask events() const override { return mask(EventKind::BladePose) | mask(EventKind::Pose); }
   void start(ProcessContext& ctx) override;
   void process(ProcessContext& ctx, const Event& event) override;
   void finish(ProcessContext& ctx) override;
@@ -142,6 +157,14 @@ class BladeSweep : public Plugin {
   struct MachineState {
     std::vector<BladePose> history;  // T0 first
   };
+  struct Anchor {
+    bool init = false;
+    double offset_m = 0, stamp = 0;
+  };
+  /// The anchor update of one Pose (see GroundAnchorConfig).
+  void anchorToGround(ProcessContext& ctx, const Pose& pose);
+  GroundAnchorConfig anchor_cfg_;
+  std::map<std::string, Anchor> anchors_;  // by machine id ("" = the Pose frame "base")
   SweepConfig cfg_;
   bool report_steps_ = true;
   SweepLayers ids_;

@@ -11,9 +11,10 @@
 /// rotation R_err = Rz(yaw) Ry(pitch) Rx(roll) on the map side of the true attitude.
 ///
 /// Defaults (rtkImu()) are representative of a compact track loader with RTK-GNSS (fixed
-/// solution: about 1 cm horizontal and 2 cm vertical 1-sigma), a dual-antenna heading over a
-/// ~1.5 m baseline (~0.2 deg) and a MEMS IMU for roll and pitch (~0.05 deg), fused at tens of Hz
-/// with ~20 ms of latency; the blade's pose comes from the cylinder-length sensors through the
+/// solution: about 1 cm horizontal and 2 cm vertical RMS, mostly slow: bias and drift, with a few
+/// millimetres of white noise), a dual-antenna heading over a ~1.5 m baseline (~0.2 deg) and a
+/// MEMS IMU for roll and pitch (~0.05 deg), time-tagged and interpolated to each instant (2 ms
+/// of clock synchronisation left); the blade's pose comes from the cylinder-length sensors through the
 /// joint kinematics, with ~1 mm of noise and bias per cylinder. docs/sim.md ("Localisation")
 /// gives the sources of these orders of magnitude and how to change them.
 ///
