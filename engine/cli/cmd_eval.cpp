@@ -22,6 +22,7 @@ namespace {
 struct EvalArgs {
   std::string scenario, out = "out/eval", pipeline;
   bool fit_map = false, lidar = false, quiet = false;
+  std::string localisation;
   int threads = 0;
   double duration = -1, change_threshold = 0.01, error_range = 0.10;
   long long seed = -1;
@@ -100,9 +101,12 @@ Registrar reg{Command{"eval", [](CLI::App& app, std::function<int()>& run) {
       ->check(CLI::PositiveNumber);
   sub->add_flag("--lidar", a->lidar, "Pass the scenario's LiDAR clouds to the pipeline (default: withheld, blind)");
   sub->add_flag("--quiet,-q", a->quiet, "Print only the files written");
+  sub->add_option("--localisation", a->localisation,
+                  "Override every machine's localisation: perfect or rtk_imu (ablation; default: the scenario's)");
   sub->callback([&run, a] {
     run = [a]() -> int {
       sim::Scenario sc = sim::loadScenario(a->scenario);
+      sim::overrideLocalisation(sc, a->localisation, "--localisation");
       if (a->duration > 0) sc.duration_s = a->duration;
       if (a->seed >= 0) sc.seed = static_cast<std::uint64_t>(a->seed);
       const bool embedded = a->pipeline.empty();

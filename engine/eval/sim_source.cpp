@@ -48,8 +48,16 @@ class SimEventSource : public Source {
 
 std::unique_ptr<Source> makeSim(const PipelineSpec& spec) {
   const SourceSpec& s = spec.source;
-  checkSourceKeys(s, {"scenario", "max_time_s"});
-  const Scenario sc = loadScenario(spec.resolvePath(sourceString(s, "scenario", true)));
+  checkSourceKeys(s, {"scenario", "max_time_s", "localisation", "lidar_sees_machines"});
+  Scenario sc = loadScenario(spec.resolvePath(sourceString(s, "scenario", true)));
+  // Ablations of the honest reference without editing the scenario.
+  if (s.settings.count("localisation"))
+    overrideLocalisation(sc, sourceString(s, "localisation", false), s.settings.at("localisation").where + ": localisation");
+  if (const auto it = s.settings.find("lidar_sees_machines"); it != s.settings.end()) {
+    const bool* b = std::get_if<bool>(&it->second.value);
+    if (!b) throw ConfigError(it->second.where + ": lidar_sees_machines must be true or false");
+    sc.lidar_sees_machines = *b;
+  }
   const double max_t = sourceDouble(s, "max_time_s", false, INFINITY);
   if (!(max_t > 0)) throw ConfigError(s.settings.at("max_time_s").where + ": must be > 0");
   return std::make_unique<SimEventSource>(sc, max_t);

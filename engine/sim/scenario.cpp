@@ -690,6 +690,15 @@ Scenario parseImpl(const std::string& text, Ctx& ctx) {
 
 }  // namespace
 
+void overrideLocalisation(Scenario& sc, const std::string& name, const std::string& what) {
+  if (name.empty()) return;
+  LocalisationSpec spec;
+  if (name == "perfect") spec = LocalisationSpec::none();
+  else if (name == "rtk_imu") spec = LocalisationSpec::rtkImu();
+  else throw ConfigError(what + ": '" + name + "' is not a localisation (perfect or rtk_imu)" + didYouMean(name, {"perfect", "rtk_imu"}));
+  for (MachineSpec& m : sc.machines) m.localisation = spec;
+}
+
 Scenario parseScenario(const std::string& yaml_text, const std::string& name_for_errors, const std::string& base_dir) {
   Ctx ctx{name_for_errors, base_dir, {}, nullptr};
   return parseImpl(yaml_text, ctx);

@@ -168,7 +168,7 @@ ParamSchema BladeSweep::schema() const {
       param::boolean("ground_anchor", true, "shift blade heights by the map under the tracks minus the pose's contact plane"),
       param::real("track_length_m", 1.9, 0.1, 20.0, "m", "ground anchor: track contact length"),
       param::real("track_gauge_m", 1.6, 0.1, 20.0, "m", "ground anchor: distance between the track centrelines"),
-      param::real("ground_anchor_tau_s", 2.0, 0.0, 1e4, "s", "ground anchor: low-pass time constant (0 = no filter)"),
+      param::real("ground_anchor_tau_s", 10.0, 0.0, 1e4, "s", "ground anchor: low-pass time constant (0 = no filter)"),
       param::real("ground_anchor_max_m", 0.15, 0.0, 10.0, "m", "ground anchor: larger differences are ignored"),
   };
 }

@@ -68,7 +68,7 @@ struct SweepConfig {
 struct GroundAnchorConfig {
   bool enabled = true;
   double track_length_m = 1.9, track_gauge_m = 1.6;  ///< contact patch of the machine (m)
-  double tau_s = 2.0;                                ///< low-pass time constant (s)
+  double tau_s = 10.0;                               ///< low-pass time constant (s)
   double max_m = 0.15;                               ///< larger differences are ignored (m)
 };
 

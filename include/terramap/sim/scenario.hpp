@@ -183,6 +183,10 @@ struct Scenario {
 /// Loads and validates a scenario file. Relative paths inside (DEM) resolve against the
 /// file's folder. \throws ConfigError (every mistake of the YAML, one per line) or, when the
 /// YAML has none, InputError for a DEM that cannot be read.
+/// Ablations on a loaded scenario: every machine's localisation replaced by `name` ("perfect"
+/// or "rtk_imu"; "" leaves them). \throws ConfigError naming `what` on another name.
+void overrideLocalisation(Scenario& sc, const std::string& name, const std::string& what);
+
 Scenario loadScenario(const std::string& yaml_path);
 /// Same from a YAML string; `name_for_errors` stands in for the file name in messages and
 /// relative paths resolve against `base_dir`.
