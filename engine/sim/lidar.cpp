@@ -143,6 +143,17 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
   if (obstacles)
     for (const PlacedBox& b : *obstacles)
       if ((b.centre - o).norm() - b.radius <= spec_.max_range_m) boxes.push_back(b);
+  // Culling data per box: its bounding-sphere centre in the sensor frame (relative to the
+  // origin) and its highest point in the map frame. A column's rays all lie in the half-plane
+  // of its azimuth through the sensor's z axis, so a box whose sphere misses that half-plane
+  // cannot be hit by the column; an upward ray cannot hit a box whose top is below the origin.
+  const std::size_t nbox = boxes.size();
+  std::vector<Eigen::Vector3d> box_cs(nbox);
+  std::vector<double> box_top(nbox);
+  for (std::size_t q = 0; q < nbox; ++q) {
+    box_cs[q] = R.transpose() * (boxes[q].centre - o);
+    box_top[q] = boxes[q].centre.z() + boxes[q].R.row(2).cwiseAbs().dot(boxes[q].half);
+  }
   auto work = [&](int ch) {
     std::vector<PointXYZI>& pts = parts[ch];
     pts.clear();
@@ -155,7 +166,22 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
     std::vector<int> ci_may(B), cj_may(B);
     std::vector<Eigen::Vector3d> dm_may(B);
     std::vector<int> may_idx(B);
+    std::vector<int> cand(nbox), cand_up(nbox);
     for (int c = c0; c < c1; ++c) {
+      // Boxes this column's half-plane can reach; of those, the ones an upward ray can reach.
+      int n_cand = 0, n_up = 0;
+      if (nbox > 0) {
+        const Eigen::Vector3d& d0 = dirs_[static_cast<std::size_t>(c) * B];
+        const double hx = d0.x(), hy = d0.y(), hn = std::hypot(hx, hy);
+        for (std::size_t q = 0; q < nbox; ++q) {
+          const Eigen::Vector3d& cs = box_cs[q];
+          const double r = boxes[q].radius;
+          const double across = (-hy * cs.x() + hx * cs.y()) / hn, along = (hx * cs.x() + hy * cs.y()) / hn;
+          if (std::abs(across) > r || along < -r) continue;
+          cand[n_cand++] = static_cast<int>(q);
+          if (box_top[q] >= o.z()) cand_up[n_up++] = static_cast<int>(q);
+        }
+      }
       // Rays that cannot hit (upwards from above the terrain: half of a spinning LiDAR's) are
       // settled here; the rest are cast as one batch.
       int n_may = 0;
@@ -183,9 +209,11 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
         double t = t_col[b];
         // A machine in front of the terrain hit (or in a ray that misses the terrain) wins.
         Eigen::Vector3d n_box;
-        const double t_box = boxes.empty() ? std::numeric_limits<double>::infinity()
-                                           : firstBoxHit(boxes, o, dm, spec_.min_range_m,
-                                                         std::isnan(t) ? spec_.max_range_m : t, &n_box);
+        const bool up = dm.z() >= 0.0;
+        const int nc = up ? n_up : n_cand;
+        const double t_box = nc == 0 ? std::numeric_limits<double>::infinity()
+                                     : firstBoxHit(boxes.data(), up ? cand_up.data() : cand.data(), nc, o, dm,
+                                                   spec_.min_range_m, std::isnan(t) ? spec_.max_range_m : t, &n_box);
         const bool on_machine = t_box < std::numeric_limits<double>::infinity();
         if (on_machine) t = t_box;
         if (std::isnan(t)) {

@@ -39,8 +39,16 @@ void placeShape(const std::vector<ShapeBox>& shape, const Eigen::Isometry3d& T_m
 
 double firstBoxHit(const std::vector<PlacedBox>& boxes, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
                    double t_min, double t_max, Eigen::Vector3d* normal) {
+  std::vector<int> idx(boxes.size());
+  for (std::size_t k = 0; k < boxes.size(); ++k) idx[k] = static_cast<int>(k);
+  return firstBoxHit(boxes.data(), idx.data(), static_cast<int>(idx.size()), o, d, t_min, t_max, normal);
+}
+
+double firstBoxHit(const PlacedBox* boxes, const int* idx, int n, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
+                   double t_min, double t_max, Eigen::Vector3d* normal) {
   double best = std::numeric_limits<double>::infinity();
-  for (const PlacedBox& b : boxes) {
+  for (int q = 0; q < n; ++q) {
+    const PlacedBox& b = boxes[idx[q]];
     // Bounding sphere first: most rays pass far from most boxes.
     const Eigen::Vector3d oc = b.centre - o;
     const double tc = oc.dot(d);

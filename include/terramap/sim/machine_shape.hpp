@@ -48,5 +48,8 @@ void placeShape(const std::vector<ShapeBox>& shape, const Eigen::Isometry3d& T_m
 /// Thread-safe (const inputs).
 double firstBoxHit(const std::vector<PlacedBox>& boxes, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
                    double t_min, double t_max, Eigen::Vector3d* normal);
+/// The same over the boxes boxes[idx[0..n-1]] (a caller's pre-culled candidates).
+double firstBoxHit(const PlacedBox* boxes, const int* idx, int n, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
+                   double t_min, double t_max, Eigen::Vector3d* normal);
 
 }  // namespace terramap::sim
