@@ -79,7 +79,8 @@ class TERRAMAP_API Engine {
                                const std::map<std::string, RawParam>& params, const std::string& where = {});
 
   /// Appends a stage: checks its layers against the current map, creates its layers, calls
-  /// start(). \throws ConfigError / LayerError / PluginError; on throw nothing changed.
+  /// start(). \throws ConfigError / LayerError / PluginError, or the Error start() threw (same
+  /// type, stage named); on throw nothing changed.
   void addStage(PreparedStage stage);
   /// Convenience: prepare + addStage with params given as values.
   void addStage(const std::string& name, PluginHandle plugin, const std::map<std::string, ParamValue>& params = {});
@@ -88,6 +89,8 @@ class TERRAMAP_API Engine {
   /// \throws PluginError (or the Error the plugin threw, re-thrown with the stage named).
   void push(const Event& event);
   /// Calls finish() on every stage (once).
+  /// \throws the Error a plugin threw (ConfigError, InputError, LayerError, OutputError) with
+  /// the stage named, or PluginError for anything else.
   void finish();
 
   /// A consistent copy of the map (copy-on-write), safe to read on any thread.
@@ -99,6 +102,8 @@ class TERRAMAP_API Engine {
   RecordBus& records() { return bus_; }
 
   std::vector<std::string> stageNames() const;
+  /// Layer name -> LayerSpec::doc of every layer a stage created (for exports' metadata).
+  std::map<std::string, std::string> layerDocs() const;
   RunReport report() const;
   /// For sources that drop input themselves (e.g. unreadable frames they skip by design).
   void countSourceDrop(const std::string& reason, long n);
@@ -111,7 +116,7 @@ class TERRAMAP_API Engine {
   };
   static void checkLayers(const std::vector<std::string>& existing, const std::string& stage_name,
                           const std::vector<LayerSpec>& layers, std::vector<std::string>& errors,
-                          std::vector<std::string>* out_new = nullptr);
+                          std::vector<std::string>* out_new = nullptr, bool report_missing = true);
 
   mutable std::mutex mutex_;
   LayeredMap map_;

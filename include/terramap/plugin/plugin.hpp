@@ -9,8 +9,9 @@
 /// configure() must not touch any map: the host calls it while validating a pipeline.
 /// Everything runs on the engine's thread; a plugin parallelises inside process() with
 /// ctx.executor() (never with its own threads or global TBB limits).
-/// Anything a plugin throws is caught by the host and re-thrown as PluginError (or the
-/// ConfigError/InputError it was) naming the plugin instance.
+/// Anything a plugin throws is caught by the host and re-thrown naming the plugin instance: a
+/// terramap ConfigError, InputError, LayerError or OutputError keeps its type (in configure(),
+/// start(), process() and finish()), anything else becomes a PluginError.
 #include <terramap/core/events.hpp>
 #include <terramap/core/layered_map.hpp>
 #include <terramap/core/parallel.hpp>
@@ -113,17 +114,18 @@ class TERRAMAP_API Plugin {
   virtual ~Plugin();
   /// The parameters this plugin takes. Every key not listed is refused.
   virtual ParamSchema schema() const = 0;
-  /// Reads validated params; cross-parameter checks throw via params.fail().
+  /// Reads validated params; cross-parameter checks go through params.report() (all of them
+  /// reach the user at once) or params.fail() (stops at the first).
   virtual void configure(const Params& params) = 0;
   /// Layers read, written and created (may depend on params, e.g. an input layer name).
   virtual std::vector<LayerSpec> layers() const = 0;
   /// Event kinds process() takes (EventKind bits).
   virtual EventMask events() const = 0;
   /// Once, after the layers exist and before the first event: look up layer ids here.
-  virtual void start(ProcessContext& ctx) {}
+  virtual void start(ProcessContext& /*ctx*/) {}
   virtual void process(ProcessContext& ctx, const Event& event) = 0;
   /// Once, after the last event.
-  virtual void finish(ProcessContext& ctx) {}
+  virtual void finish(ProcessContext& /*ctx*/) {}
 };
 
 }  // namespace terramap
