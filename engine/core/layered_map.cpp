@@ -45,6 +45,7 @@ LayerId LayeredMap::addLayer(const std::string& name, const std::string& unit, f
   if (!options_.sparse)
     for (auto& t : tiles) t = newTile(fill);
   tiles_.push_back(std::move(tiles));
+  writes_.emplace_back(static_cast<size_t>(tileCount()), 0);
   return static_cast<LayerId>(layers_.size() - 1);
 }
 
@@ -90,6 +91,7 @@ const float* LayeredMap::tileData(LayerId id, int t) const {
 
 float* LayeredMap::mutableTileData(LayerId id, int t) {
   TilePtr& tile = tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)];
+  ++writes_[static_cast<size_t>(id)][static_cast<size_t>(t)];
   if (!tile) {
     tile = newTile(layers_[static_cast<size_t>(id)].fill);
   } else if (tile.use_count() > 1) {
@@ -102,6 +104,11 @@ float* LayeredMap::mutableTileData(LayerId id, int t) {
     tile = std::move(copy);
   }
   return tile.get();
+}
+
+std::uint64_t LayeredMap::tileWrites(LayerId id, int t) const {
+  layerInfo(id);
+  return writes_[static_cast<size_t>(id)][static_cast<size_t>(t)];
 }
 
 long LayeredMap::allocatedTiles() const {
@@ -158,6 +165,7 @@ void LayeredMap::fill(LayerId id, float value) {
   for (int t = 0; t < tileCount(); ++t) {
     if (options_.sparse && value == layers_[static_cast<size_t>(id)].fill) {
       tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)].reset();
+      ++writes_[static_cast<size_t>(id)][static_cast<size_t>(t)];
       continue;
     }
     float* d = mutableTileData(id, t);

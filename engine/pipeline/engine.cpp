@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <optional>
 #include <set>
 
 namespace terramap {
@@ -143,10 +144,12 @@ Engine::Engine(const EngineOptions& options)
 Engine::~Engine() = default;
 
 PreparedStage Engine::prepare(const std::string& name, PluginHandle plugin,
-                              const std::map<std::string, RawParam>& raw, const std::string& where) {
+                              const std::map<std::string, RawParam>& raw, const std::string& where,
+                              const Geometry* map) {
   const std::string owner = where.empty() ? name : where;
   const ParamSchema schema = schemaOf(owner, plugin);
   CheckedParams checked = checkParams(owner, plugin, schema, raw);
+  if (map) checked.params.setMapGeometry(*map);
   if (!checked.errors.empty()) throw ConfigError(joinLines(checked.errors));
   configurePlugin(owner, plugin, checked.params);
   PreparedStage st;
@@ -195,8 +198,9 @@ std::vector<std::string> Engine::validate(const PipelineSpec& spec, const Plugin
       errors.push_back(l.where + ": layer '" + l.name + "' declared twice");
     layers.push_back(l.name);
   }
+  std::optional<Geometry> geometry;
   try {
-    (void)spec.geometry();
+    geometry = spec.geometry();
     LayeredMap probe(Geometry(spec.resolution, Size(1, 1)), spec.map_options);
   } catch (const Error& e) {
     errors.push_back(spec.file + ": map: " + e.what());
@@ -221,6 +225,7 @@ std::vector<std::string> Engine::validate(const PipelineSpec& spec, const Plugin
     try {
       const ParamSchema schema = schemaOf(owner, h);
       CheckedParams checked = checkParams(owner, h, schema, s.params);
+      if (geometry) checked.params.setMapGeometry(*geometry);
       if (checked.errors.empty()) {
         configurePlugin(owner, h, checked.params);
       } else {
@@ -275,6 +280,10 @@ std::unique_ptr<Engine> Engine::fromSpec(const PipelineSpec& spec, const PluginR
   return fromValidatedSpec(spec, registry);
 }
 
+std::unique_ptr<Engine> Engine::fromSpec(const PipelineSpec& spec) {
+  return fromSpec(spec, PluginRegistry(spec.plugin_paths));
+}
+
 std::unique_ptr<Engine> Engine::fromValidatedSpec(const PipelineSpec& spec, const PluginRegistry& registry) {
   EngineOptions o;
   o.geometry = spec.geometry();
@@ -283,7 +292,7 @@ std::unique_ptr<Engine> Engine::fromValidatedSpec(const PipelineSpec& spec, cons
   o.layers = spec.layers;
   auto engine = std::make_unique<Engine>(o);
   for (const auto& s : spec.stages)
-    engine->addStage(prepare(s.name, registry.create(s.type), s.params, s.where));
+    engine->addStage(prepare(s.name, registry.create(s.type), s.params, s.where, &o.geometry));
   return engine;
 }
 
@@ -302,6 +311,7 @@ void Engine::addStage(PreparedStage stage) {
   auto st = std::make_unique<Stage>();
   st->prepared = std::move(stage);
   ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
+  ctx.setTracker(&st->tracker);
   try {
     st->prepared.plugin->start(ctx);
   } catch (const std::exception& e) {
@@ -315,7 +325,7 @@ void Engine::addStage(PreparedStage stage) {
 void Engine::addStage(const std::string& name, PluginHandle plugin, const std::map<std::string, ParamValue>& params) {
   std::map<std::string, RawParam> raw;
   for (const auto& [k, v] : params) raw[k] = RawParam{v, name + ".params." + k, false};
-  addStage(prepare(name, std::move(plugin), raw));
+  addStage(prepare(name, std::move(plugin), raw, {}, &map_.geometry()));
 }
 
 void Engine::push(const Event& event) {
@@ -331,6 +341,7 @@ void Engine::push(const Event& event) {
   for (auto& st : stages_) {
     if (!(st->prepared.events & static_cast<EventMask>(kind))) continue;
     ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
+    ctx.setTracker(&st->tracker);
     ctx.setStamp(stamp);
     const auto s0 = std::chrono::steady_clock::now();
     // The context strings are built only when something failed: this loop runs per event.
@@ -347,6 +358,7 @@ void Engine::push(const Event& event) {
     } catch (const std::exception& e) {
       throw PluginError(who() + " threw" + when() + ": " + e.what());
     }
+    st->tracker.mark(map_);
     st->stats.wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - s0).count();
     st->stats.events[kindName(kind)] += 1;
   }
@@ -359,6 +371,7 @@ void Engine::finish() {
   finished_ = true;
   for (auto& st : stages_) {
     ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
+    ctx.setTracker(&st->tracker);
     ctx.setStamp(report_.last_stamp);
     const auto s0 = std::chrono::steady_clock::now();
     try {

@@ -190,6 +190,13 @@ void Params::report(const std::string& name, const std::string& message) const {
   reported_.push_back(where(name) + ": " + message);
 }
 
+void Params::throwIfReported() const {
+  if (reported_.empty()) return;
+  std::string all;
+  for (const auto& e : reported_) all += (all.empty() ? "" : "\n") + e;
+  throw ConfigError(all);
+}
+
 void Params::set(const std::string& name, ParamValue v, std::string where) {
   // Numbers declared Double but written as integers (sigma: 1) are stored as double.
   for (const auto& s : schema_)

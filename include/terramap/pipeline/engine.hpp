@@ -66,6 +66,9 @@ class TERRAMAP_API Engine {
   /// names, a layer read before anyone writes it, a layer created twice) is collected and
   /// thrown as one ConfigError, one line each.
   static std::unique_ptr<Engine> fromSpec(const PipelineSpec& spec, const PluginRegistry& registry);
+  /// fromSpec with the registry the YAML asks for: its `plugin_paths`, then
+  /// TERRAMAP_PLUGIN_PATH, then the installed plugin folder (what `terramap run` uses).
+  static std::unique_ptr<Engine> fromSpec(const PipelineSpec& spec);
   /// fromSpec without the up-front validate(), for callers that just ran validate() and got no
   /// errors (it would only repeat the work). Still throws if building fails.
   static std::unique_ptr<Engine> fromValidatedSpec(const PipelineSpec& spec, const PluginRegistry& registry);
@@ -74,9 +77,12 @@ class TERRAMAP_API Engine {
   static std::vector<std::string> validate(const PipelineSpec& spec, const PluginRegistry& registry);
 
   /// Checks `params` against the plugin's schema and configures it. Does not touch the engine.
+  /// `map`: the geometry the stage will run on, shown to configure() (Params::mapGeometry) so
+  /// map-dependent checks fail here rather than at run time.
   /// \throws ConfigError with every parameter problem.
   static PreparedStage prepare(const std::string& name, PluginHandle plugin,
-                               const std::map<std::string, RawParam>& params, const std::string& where = {});
+                               const std::map<std::string, RawParam>& params, const std::string& where = {},
+                               const Geometry* map = nullptr);
 
   /// Appends a stage: checks its layers against the current map, creates its layers, calls
   /// start(). \throws ConfigError / LayerError / PluginError, or the Error start() threw (same
@@ -112,6 +118,7 @@ class TERRAMAP_API Engine {
   struct Stage {
     PreparedStage prepared;
     PluginStats stats;
+    ChangeTracker tracker;  // tiles the stage has not seen yet (ProcessContext::changedTiles)
     bool started = false;
   };
   static void checkLayers(const std::vector<std::string>& existing, const std::string& stage_name,

@@ -5,6 +5,7 @@
 /// the schema before anything runs: unknown keys (with did-you-mean), wrong types, values out
 /// of range or not among the choices — all reported at once with file:line:col and key path.
 #include <terramap/core/error.hpp>
+#include <terramap/core/geometry.hpp>
 
 #include <limits>
 #include <map>
@@ -81,6 +82,17 @@ class TERRAMAP_API Params {
   void report(const std::string& name, const std::string& message) const;
   /// What report() collected, in order (host side).
   const std::vector<std::string>& reported() const { return reported_; }
+  /// For callers of configure() other than the host (tests, embedders without an Engine):
+  /// \throws ConfigError with every reported line, if any.
+  void throwIfReported() const;
+
+  /// The geometry of the map the stage will run on, when the host knows it (`terramap
+  /// validate`, Engine::fromSpec, Engine::addStage): for checks that depend on the map, e.g. a
+  /// window of more cells than the map has or a radius below one cell. nullptr when unknown
+  /// (a plugin prepared on its own); such checks are then skipped, not failed.
+  const Geometry* mapGeometry() const { return map_geometry_ ? &*map_geometry_ : nullptr; }
+  /// Host side.
+  void setMapGeometry(const Geometry& g) { map_geometry_ = g; }
 
   /// Host side: store a value (already checked against the schema).
   void set(const std::string& name, ParamValue v, std::string where = {});
@@ -95,6 +107,7 @@ class TERRAMAP_API Params {
   std::map<std::string, ParamValue> values_;
   std::map<std::string, std::string> where_;
   mutable std::vector<std::string> reported_;
+  std::optional<Geometry> map_geometry_;
 };
 
 /// Fills every default of `schema` into a Params (for tests and embedders that skip YAML).
