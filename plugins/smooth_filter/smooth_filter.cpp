@@ -94,28 +94,7 @@ std::vector<float> SmoothFilter::weights(double resolution, double& w1) const {
 }
 
 std::vector<int> SmoothFilter::affectedTiles(const LayeredMap& map, const std::vector<int>& changed) const {
-  const int TR = map.tileRows(), TC = map.tileCols();
-  // A logical neighbour d cells away is the buffer cell d away modulo the ring (or cut off at
-  // the map's edge), so growing cyclically over tiles is never too small. k cells span
-  // ceil(k / T) tiles, one more when they can cross the ring's partial last tile (fewer than
-  // k cells).
-  const int k = kernelHalfWidth(map.geometry().resolution()), T = map.tileSize();
-  auto reach = [&](int cells, int tiles) {
-    const int m = (k + T - 1) / T + (cells % T != 0 && cells % T < k ? 1 : 0);
-    return std::min(m, tiles);
-  };
-  const int mr = reach(map.geometry().size().x(), TR), mc = reach(map.geometry().size().y(), TC);
-  std::vector<char> hit(static_cast<size_t>(map.tileCount()), 0);
-  for (const int t : changed) {
-    const int tr = t / TC, tc = t % TC;
-    for (int dr = -mr; dr <= mr; ++dr)
-      for (int dc = -mc; dc <= mc; ++dc)
-        hit[static_cast<size_t>(((tr + dr) % TR + TR) % TR * TC + ((tc + dc) % TC + TC) % TC)] = 1;
-  }
-  std::vector<int> out;
-  for (int t = 0; t < map.tileCount(); ++t)
-    if (hit[static_cast<size_t>(t)]) out.push_back(t);
-  return out;
+  return map.tilesWithin(changed, kernelHalfWidth(map.geometry().resolution()));
 }
 
 void SmoothFilter::finish(ProcessContext& ctx) {

@@ -17,6 +17,7 @@
 #include <terramap/plugin/plugin.hpp>
 
 #include <chrono>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -101,9 +102,17 @@ class TERRAMAP_API Engine {
 
   /// A consistent copy of the map (copy-on-write), safe to read on any thread.
   std::shared_ptr<const LayeredMap> snapshot() const;
-  /// Direct access for the engine's own thread (not while push() runs elsewhere).
+  /// Direct access for the engine's own thread (not while push() runs elsewhere, and not
+  /// while another thread may call snapshot(): use editMap() then).
   const LayeredMap& map() const { return map_; }
   LayeredMap& mutableMap() { return map_; }
+  /// Runs `edit` on the map under the engine's lock, so other threads' snapshot() calls see the
+  /// map before or after the edit, never half of it (an embedder writing a prior or clearing a
+  /// region while a planner reads snapshots). Engine thread, between push() calls.
+  void editMap(const std::function<void(LayeredMap&)>& edit) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    edit(map_);
+  }
   const Executor& executor() const { return executor_; }
   RecordBus& records() { return bus_; }
 
