@@ -2,10 +2,11 @@
 /// \file
 /// Engine: one LayeredMap, one TBB arena (Executor) and an ordered list of plugin stages.
 ///
-/// Threading: push(), addStage() and finish() must come from one thread at a time (the
-/// engine's). snapshot() may be called from any thread at any time: it waits for the event
-/// being processed to finish and returns a consistent copy-on-write copy of the map that the
-/// caller may keep and read while the engine goes on writing.
+/// Threading: push(), addStage(), editMap() and finish() must come from one thread at a time
+/// (the engine's). snapshot() may be called from any thread at any time: it waits for the
+/// event or edit in progress to finish and returns a consistent copy-on-write copy of the map
+/// that the caller may keep and read while the engine goes on writing. Exercised under
+/// ThreadSanitizer (Tsan.EngineThreadContract).
 ///
 /// Failure atomicity: addStage()/fromSpec() validate before they change anything; when they
 /// throw, the engine is exactly as it was (same stages, same layers, same data).

@@ -227,3 +227,37 @@ TEST(Engine, SnapshotIsConsistentWhileTheEngineKeepsWriting) {
   EXPECT_EQ(inconsistent.load(), 0);
   EXPECT_EQ(e.map().at(e.map().layerId("probe"), Index(100, 100)), static_cast<float>(pushed));
 }
+
+// The contract of engine.hpp: push() and editMap() on one thread, snapshot() on any. editMap()
+// rewrites the whole layer cell by cell under the engine's lock, so every snapshot still holds
+// one value everywhere. Without the lock a reader would catch a half-written layer (and
+// ThreadSanitizer, Tsan.EngineThreadContract, a data race). One engine thread so that the only
+// threads are the two the contract is about (TBB's own synchronisation is invisible to TSan).
+TEST(Engine, EditMapAndPushOnOneThreadSnapshotsOnAnother) {
+  Engine e(options(1, Size(64, 64)));
+  e.addStage("p", PluginRegistry::createFromFile(lib("test_probe")), {});
+  const LayerId id = e.map().layerId("probe");
+  std::atomic<bool> stop{false};
+  std::atomic<int> snapshots{0}, inconsistent{0};
+  std::thread reader([&] {
+    while (!stop) {
+      const auto snap = e.snapshot();
+      const Eigen::MatrixXf m = snap->toMatrix(id);
+      if ((m.array() != m(0, 0)).any()) ++inconsistent;
+      ++snapshots;
+    }
+  });
+  int rounds = 0;
+  while (rounds < 200 || snapshots.load() < 50) {
+    e.push(Tick{0.1 * rounds});
+    const float v = static_cast<float>(1000 + rounds++);
+    e.editMap([&](LayeredMap& m) {
+      for (int i = 0; i < 64; ++i)
+        for (int j = 0; j < 64; ++j) m.set(id, Index(i, j), v);
+    });
+  }
+  stop = true;
+  reader.join();
+  EXPECT_GE(snapshots.load(), 50);
+  EXPECT_EQ(inconsistent.load(), 0);
+}
