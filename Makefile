@@ -38,8 +38,9 @@ bench: build
 mutation:
 	bash scripts/mutation_check.sh --out docs/testing.md
 
+# --prefix here, not only at configure time: build/ may have been configured with another one.
 install: build
-	cmake --install $(BUILD)
+	cmake --install $(BUILD) --prefix $(PREFIX)
 
 clean:
 	rm -rf $(BUILD) out

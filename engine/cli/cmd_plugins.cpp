@@ -33,6 +33,26 @@ std::string defaultText(const ParamSpec& s) {
       *s.default_value);
 }
 
+/// The layers with every parameter at its default (they may depend on parameters, e.g. an
+/// input layer's name); a plugin with required parameters cannot be configured without them.
+void printLayers(PluginHandle& h) {
+  std::vector<LayerSpec> layers;
+  try {
+    Params p = makeParams(h.type(), h->schema());
+    h->configure(p);
+    layers = h->layers();
+  } catch (const std::exception& e) {
+    std::cout << "    layers: depend on parameters without usable defaults (" << e.what() << ")\n";
+    return;
+  }
+  std::cout << "    layers (with default parameters):\n";
+  for (const auto& l : layers) {
+    std::cout << "      " << std::setw(7) << layerAccessName(l.access) << " " << std::setw(18) << l.name;
+    if (l.access == LayerAccess::Create) std::cout << " [" << l.unit << "] " << l.doc;
+    std::cout << "\n";
+  }
+}
+
 Registrar reg{Command{"plugins", [](CLI::App& app, std::function<int()>& run) {
   auto* sub = app.add_subcommand("plugins",
       "List plugin libraries on the search path (--path, TERRAMAP_PLUGIN_PATH, then the default folder)\n"
@@ -56,10 +76,12 @@ Registrar reg{Command{"plugins", [](CLI::App& app, std::function<int()>& run) {
                   << c.description << "\n    " << c.path << "\n";
         if (*params) {
           auto h = PluginRegistry::createFromFile(c.path, c.type);
+          std::cout << "    parameters:\n";
           for (const auto& s : h->schema())
             std::cout << "      " << std::setw(26) << s.name << " " << std::setw(16) << paramTypeName(s.type) << " "
                       << std::setw(12) << defaultText(s) << " " << (s.unit.empty() ? "" : "[" + s.unit + "] ")
                       << s.doc << "\n";
+          printLayers(h);
         }
       }
       if (bad) {

@@ -58,6 +58,7 @@ LayerId LayeredMap::addLayer(const std::string& name, const std::string& unit, f
   if (!options_.sparse)
     for (auto& t : tiles) t = newTile(fill);
   tiles_.push_back(std::move(tiles));
+  writes_.emplace_back(static_cast<size_t>(tileCount()), 0);
   return static_cast<LayerId>(layers_.size() - 1);
 }
 
@@ -103,6 +104,7 @@ const float* LayeredMap::tileData(LayerId id, int t) const {
 
 float* LayeredMap::mutableTileData(LayerId id, int t) {
   TilePtr& tile = tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)];
+  ++writes_[static_cast<size_t>(id)][static_cast<size_t>(t)];
   if (!tile) {
     tile = newTile(layers_[static_cast<size_t>(id)].fill);
   } else if (tile.use_count() > 1) {
@@ -115,6 +117,34 @@ float* LayeredMap::mutableTileData(LayerId id, int t) {
     tile = std::move(copy);
   }
   return tile.get();
+}
+
+std::vector<int> LayeredMap::tilesWithin(const std::vector<int>& tiles, int cells) const {
+  const int TR = tile_rows_, TC = tile_cols_, T = options_.tile_size;
+  // A logical neighbour d cells away is the buffer cell d away modulo the ring (or cut off at
+  // the map's edge), so growing cyclically over tiles is never too small. `cells` cells span
+  // ceil(cells / T) tiles, one more when they can cross a partial last tile narrower than that.
+  auto reach = [&](int n, int count) {
+    const int m = (cells + T - 1) / T + (n % T != 0 && n % T < cells ? 1 : 0);
+    return std::min(m, count);
+  };
+  const int mr = reach(geometry_.size().x(), TR), mc = reach(geometry_.size().y(), TC);
+  std::vector<char> hit(static_cast<size_t>(tileCount()), 0);
+  for (const int t : tiles) {
+    const int tr = t / TC, tc = t % TC;
+    for (int dr = -mr; dr <= mr; ++dr)
+      for (int dc = -mc; dc <= mc; ++dc)
+        hit[static_cast<size_t>(((tr + dr) % TR + TR) % TR * TC + ((tc + dc) % TC + TC) % TC)] = 1;
+  }
+  std::vector<int> out;
+  for (int t = 0; t < tileCount(); ++t)
+    if (hit[static_cast<size_t>(t)]) out.push_back(t);
+  return out;
+}
+
+std::uint64_t LayeredMap::tileWrites(LayerId id, int t) const {
+  layerInfo(id);
+  return writes_[static_cast<size_t>(id)][static_cast<size_t>(t)];
 }
 
 long LayeredMap::allocatedTiles() const {
@@ -171,6 +201,7 @@ void LayeredMap::fill(LayerId id, float value) {
   for (int t = 0; t < tileCount(); ++t) {
     if (options_.sparse && value == layers_[static_cast<size_t>(id)].fill) {
       tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)].reset();
+      ++writes_[static_cast<size_t>(id)][static_cast<size_t>(t)];
       continue;
     }
     float* d = mutableTileData(id, t);

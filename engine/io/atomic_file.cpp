@@ -50,7 +50,15 @@ int createExclusive(const fs::path& target, fs::path& temp) {
     if (fd >= 0) return fd;
     if (errno != EEXIST) {
       const int err = errno;
-      throw OutputError(describe(target, "cannot create temporary file '" + temp.string() + "'", err));
+      // The temporary name means nothing to the user; the folder it lives in is what is wrong.
+      const fs::path folder = parentOf(target);
+      std::error_code ec;
+      if (err == ENOENT && !fs::exists(folder, ec))
+        throw OutputError(describe(target, "folder '" + folder.string() + "' does not exist (create it first)", err));
+      if (err == ENOTDIR)
+        throw OutputError(describe(target, "'" + folder.string() + "' is not a folder", err));
+      throw OutputError(describe(target, "cannot create a file in folder '" + folder.string() + "' (temporary '" +
+                                             temp.filename().string() + "')", err));
     }
   }
   throw OutputError(describe(target, "no free temporary name after 16 attempts", 0));

@@ -140,6 +140,8 @@ void writeGeoTiff(const LayeredMap& map, const std::vector<std::string>& layers,
       band->SetUnitType(info.unit.c_str());
       band->SetMetadataItem("unit", info.unit.c_str());
       band->SetMetadataItem("fill", formatNumber(info.fill).c_str());
+      if (auto d = options.layer_docs.find(info.name); d != options.layer_docs.end() && !d->second.empty())
+        band->SetMetadataItem("doc", d->second.c_str());
       band->SetNoDataValue(std::numeric_limits<double>::quiet_NaN());
       RasterF data = northUpRaster(map, ids[b]);
       if (band->RasterIO(GF_Write, 0, 0, width, height, data.data(), width, height, GDT_Float32, 0, 0, nullptr) !=

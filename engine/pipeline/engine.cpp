@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <optional>
 #include <set>
 
 namespace terramap {
@@ -44,8 +45,90 @@ bool coerce(const ParamSpec& spec, const RawParam& raw, ParamValue& out, std::st
       if (auto s = std::get_if<std::string>(&v)) { out = std::vector<std::string>{*s}; return true; }
       break;
   }
-  why = std::string("must be a ") + paramTypeName(spec.type);
+  why = "must be " + paramTypeWithArticle(spec.type) + " (got " + showParamValue(v) + ")";
   return false;
+}
+
+/// Re-throws what a plugin threw with `context` in front, keeping terramap's error type (as
+/// plugin.hpp promises); anything else becomes a PluginError.
+[[noreturn]] void rethrowFromPlugin(const std::exception& e, const std::string& context) {
+  const std::string m = context + ": " + e.what();
+  if (dynamic_cast<const ConfigError*>(&e)) throw ConfigError(m);
+  if (dynamic_cast<const InputError*>(&e)) throw InputError(m);
+  if (dynamic_cast<const LayerError*>(&e)) throw LayerError(m);
+  if (dynamic_cast<const OutputError*>(&e)) throw OutputError(m);
+  throw PluginError(m);
+}
+
+ParamSchema schemaOf(const std::string& owner, PluginHandle& plugin) {
+  try {
+    return plugin->schema();
+  } catch (const std::exception& e) {
+    throw PluginError(owner + ": plugin '" + plugin.type() + "' threw in schema(): " + e.what());
+  }
+}
+
+/// The raw YAML values checked against the schema. A bad or missing value is an error; a bad
+/// value of a parameter with a default leaves the default in `params`.
+struct CheckedParams {
+  Params params;
+  std::vector<std::string> errors;
+};
+
+CheckedParams checkParams(const std::string& owner, const PluginHandle& plugin, const ParamSchema& schema,
+                          const std::map<std::string, RawParam>& raw) {
+  std::vector<std::string> names;
+  for (const auto& s : schema) names.push_back(s.name);
+  CheckedParams out{Params(owner, schema), {}};
+  auto& errors = out.errors;
+  for (const auto& [key, r] : raw) {
+    const auto it = std::find_if(schema.begin(), schema.end(), [&](const ParamSpec& s) { return s.name == key; });
+    const std::string at = r.where.empty() ? owner + ".params." + key : r.where;
+    if (it == schema.end()) {
+      errors.push_back(at + ": unknown parameter '" + key + "' for plugin '" + plugin.type() + "'" +
+                       didYouMean(key, names) + "; known: [" + joinStrings(names) + "]");
+      continue;
+    }
+    if (r.is_map) {
+      errors.push_back(at + ": must be " + paramTypeWithArticle(it->type) + ", not a nested mapping");
+      continue;
+    }
+    ParamValue v;
+    std::string why;
+    if (!coerce(*it, r, v, why)) {
+      errors.push_back(at + ": " + why);
+      if (it->default_value) out.params.set(key, *it->default_value);
+      continue;
+    }
+    const std::string m = checkParamValue(*it, v);
+    if (!m.empty()) {
+      errors.push_back(at + ": " + m + (it->unit.empty() || it->unit == "1" ? "" : " [" + it->unit + "]"));
+      if (it->default_value) out.params.set(key, *it->default_value);
+      continue;
+    }
+    out.params.set(key, v, at);
+  }
+  for (const auto& s : schema) {
+    if (raw.count(s.name)) continue;
+    if (s.default_value) out.params.set(s.name, *s.default_value);
+    else errors.push_back(owner + ".params: required parameter '" + s.name + "' is missing (" + s.doc + ")");
+  }
+  return out;
+}
+
+/// configure() with every problem it reports (Params::report) or throws as one ConfigError.
+void configurePlugin(const std::string& owner, PluginHandle& plugin, const Params& params) {
+  std::vector<std::string> errors;
+  try {
+    plugin->configure(params);
+  } catch (const ConfigError& e) {
+    errors = params.reported();
+    errors.push_back(e.what());
+  } catch (const std::exception& e) {
+    throw PluginError(owner + ": plugin '" + plugin.type() + "' threw in configure(): " + e.what());
+  }
+  if (errors.empty()) errors = params.reported();
+  if (!errors.empty()) throw ConfigError(joinLines(errors));
 }
 
 const char* kindKey(const Event& e) { return kindName(kindOf(e)); }
@@ -61,56 +144,14 @@ Engine::Engine(const EngineOptions& options)
 Engine::~Engine() = default;
 
 PreparedStage Engine::prepare(const std::string& name, PluginHandle plugin,
-                              const std::map<std::string, RawParam>& raw, const std::string& where) {
+                              const std::map<std::string, RawParam>& raw, const std::string& where,
+                              const Geometry* map) {
   const std::string owner = where.empty() ? name : where;
-  ParamSchema schema;
-  try {
-    schema = plugin->schema();
-  } catch (const std::exception& e) {
-    throw PluginError(owner + ": plugin '" + plugin.type() + "' threw in schema(): " + e.what());
-  }
-  std::vector<std::string> names;
-  for (const auto& s : schema) names.push_back(s.name);
-  Params params(owner, schema);
-  std::vector<std::string> errors;
-  for (const auto& [key, r] : raw) {
-    const auto it = std::find_if(schema.begin(), schema.end(), [&](const ParamSpec& s) { return s.name == key; });
-    const std::string at = r.where.empty() ? owner + ".params." + key : r.where;
-    if (it == schema.end()) {
-      errors.push_back(at + ": unknown parameter '" + key + "' for plugin '" + plugin.type() + "'" +
-                       didYouMean(key, names) + "; known: [" + joinStrings(names) + "]");
-      continue;
-    }
-    if (r.is_map) {
-      errors.push_back(at + ": must be a " + std::string(paramTypeName(it->type)) + ", not a nested mapping");
-      continue;
-    }
-    ParamValue v;
-    std::string why;
-    if (!coerce(*it, r, v, why)) {
-      errors.push_back(at + ": " + why);
-      continue;
-    }
-    const std::string m = checkParamValue(*it, v);
-    if (!m.empty()) {
-      errors.push_back(at + ": " + m + (it->unit.empty() || it->unit == "1" ? "" : " [" + it->unit + "]"));
-      continue;
-    }
-    params.set(key, v, at);
-  }
-  for (const auto& s : schema) {
-    if (raw.count(s.name)) continue;
-    if (s.default_value) params.set(s.name, *s.default_value);
-    else errors.push_back(owner + ".params: required parameter '" + s.name + "' is missing (" + s.doc + ")");
-  }
-  if (!errors.empty()) throw ConfigError(joinLines(errors));
-  try {
-    plugin->configure(params);
-  } catch (const ConfigError&) {
-    throw;
-  } catch (const std::exception& e) {
-    throw PluginError(owner + ": plugin '" + plugin.type() + "' threw in configure(): " + e.what());
-  }
+  const ParamSchema schema = schemaOf(owner, plugin);
+  CheckedParams checked = checkParams(owner, plugin, schema, raw);
+  if (map) checked.params.setMapGeometry(*map);
+  if (!checked.errors.empty()) throw ConfigError(joinLines(checked.errors));
+  configurePlugin(owner, plugin, checked.params);
   PreparedStage st;
   st.name = name;
   try {
@@ -119,14 +160,14 @@ PreparedStage Engine::prepare(const std::string& name, PluginHandle plugin,
   } catch (const std::exception& e) {
     throw PluginError(owner + ": plugin '" + plugin.type() + "' threw while declaring layers/events: " + e.what());
   }
-  st.params = std::move(params);
+  st.params = std::move(checked.params);
   st.plugin = std::move(plugin);
   return st;
 }
 
 void Engine::checkLayers(const std::vector<std::string>& existing, const std::string& stage_name,
                          const std::vector<LayerSpec>& layers, std::vector<std::string>& errors,
-                         std::vector<std::string>* out_new) {
+                         std::vector<std::string>* out_new, bool report_missing) {
   std::vector<std::string> have = existing;
   std::vector<std::string> created;
   for (const auto& l : layers)
@@ -140,7 +181,7 @@ void Engine::checkLayers(const std::vector<std::string>& existing, const std::st
       }
     }
   for (const auto& l : layers) {
-    if (l.access == LayerAccess::Create) continue;
+    if (l.access == LayerAccess::Create || !report_missing) continue;
     if (std::find(have.begin(), have.end(), l.name) == have.end())
       errors.push_back("stage '" + stage_name + "' " + layerAccessName(l.access) + "s layer '" + l.name +
                        "' before any stage creates it" + didYouMean(l.name, have) +
@@ -157,41 +198,79 @@ std::vector<std::string> Engine::validate(const PipelineSpec& spec, const Plugin
       errors.push_back(l.where + ": layer '" + l.name + "' declared twice");
     layers.push_back(l.name);
   }
+  std::optional<Geometry> geometry;
   try {
-    (void)spec.geometry();
+    geometry = spec.geometry();
     LayeredMap probe(Geometry(spec.resolution, Size(1, 1)), spec.map_options);
   } catch (const Error& e) {
     errors.push_back(spec.file + ": map: " + e.what());
   }
+  // One mistake, one message. A stage whose parameters are wrong is configured once more with
+  // the defaults in place of the wrong values, only to learn its layers, so later stages that
+  // read them are not reported as reading a layer nobody creates. After a stage whose layers
+  // stay unknown (unknown type, refused library, configure() refusing), "reads layer X before
+  // any stage creates it" would be a guess: from there on only checks that stay true are made.
+  bool layers_known = true;
   for (size_t i = 0; i < spec.stages.size(); ++i) {
     const StageSpec& s = spec.stages[i];
-    const std::string owner = "pipeline[" + std::to_string(i) + "] '" + s.name + "'";
     PluginHandle h;
     try {
       h = registry.create(s.type);
     } catch (const PluginError& e) {
       errors.push_back(s.type_where + ": " + e.what());
+      layers_known = false;
       continue;
     }
+    const std::string owner = s.where.empty() ? s.name : s.where;
     try {
-      PreparedStage p = prepare(s.name, std::move(h), s.params, s.where);
+      const ParamSchema schema = schemaOf(owner, h);
+      CheckedParams checked = checkParams(owner, h, schema, s.params);
+      if (geometry) checked.params.setMapGeometry(*geometry);
+      if (checked.errors.empty()) {
+        configurePlugin(owner, h, checked.params);
+      } else {
+        errors.insert(errors.end(), checked.errors.begin(), checked.errors.end());
+        bool fallback_ok = false;
+        try {
+          h->configure(checked.params);
+          fallback_ok = checked.params.reported().empty();
+        } catch (...) {  // NOLINT: only asking whether the defaults configure; the errors are above
+        }
+        if (!fallback_ok) {
+          layers_known = false;
+          continue;
+        }
+      }
+      // A stage configured with stand-in defaults only tells which layers it creates; its own
+      // layer checks would be about values the user did not write.
+      const bool stand_in = !checked.errors.empty();
+      std::vector<LayerSpec> specs;
+      try {
+        specs = h->layers();
+      } catch (const std::exception& e) {
+        throw PluginError(owner + ": plugin '" + h.type() + "' threw while declaring layers: " + e.what());
+      }
       std::vector<std::string> created;
       std::vector<std::string> layer_errors;
-      checkLayers(layers, s.name, p.layers, layer_errors, &created);
-      for (auto& e : layer_errors) errors.push_back(s.where + ": " + e);
+      checkLayers(layers, s.name, specs, layer_errors, &created, layers_known);
+      if (!stand_in)
+        for (auto& e : layer_errors) errors.push_back(s.where + ": " + e);
       layers.insert(layers.end(), created.begin(), created.end());
     } catch (const Error& e) {
       errors.push_back(e.what());
+      layers_known = false;
     }
   }
-  for (const auto& l : spec.outputs.geotiff)
-    if (std::find(layers.begin(), layers.end(), l) == layers.end())
-      errors.push_back(spec.outputs.where + ": outputs.geotiff: no stage creates layer '" + l + "'" +
-                       didYouMean(l, layers));
-  for (const auto& l : spec.outputs.png)
-    if (std::find(layers.begin(), layers.end(), l) == layers.end())
-      errors.push_back(spec.outputs.where + ": outputs.png: no stage creates layer '" + l + "'" +
-                       didYouMean(l, layers));
+  if (layers_known) {
+    for (const auto& l : spec.outputs.geotiff)
+      if (std::find(layers.begin(), layers.end(), l) == layers.end())
+        errors.push_back(spec.outputs.where + ": outputs.geotiff: no stage creates layer '" + l + "'" +
+                         didYouMean(l, layers));
+    for (const auto& l : spec.outputs.png)
+      if (std::find(layers.begin(), layers.end(), l) == layers.end())
+        errors.push_back(spec.outputs.where + ": outputs.png: no stage creates layer '" + l + "'" +
+                         didYouMean(l, layers));
+  }
   return errors;
 }
 
@@ -199,6 +278,10 @@ std::unique_ptr<Engine> Engine::fromSpec(const PipelineSpec& spec, const PluginR
   const auto errors = validate(spec, registry);
   if (!errors.empty()) throw ConfigError(joinLines(errors));
   return fromValidatedSpec(spec, registry);
+}
+
+std::unique_ptr<Engine> Engine::fromSpec(const PipelineSpec& spec) {
+  return fromSpec(spec, PluginRegistry(spec.plugin_paths));
 }
 
 std::unique_ptr<Engine> Engine::fromValidatedSpec(const PipelineSpec& spec, const PluginRegistry& registry) {
@@ -209,7 +292,7 @@ std::unique_ptr<Engine> Engine::fromValidatedSpec(const PipelineSpec& spec, cons
   o.layers = spec.layers;
   auto engine = std::make_unique<Engine>(o);
   for (const auto& s : spec.stages)
-    engine->addStage(prepare(s.name, registry.create(s.type), s.params, s.where));
+    engine->addStage(prepare(s.name, registry.create(s.type), s.params, s.where, &o.geometry));
   return engine;
 }
 
@@ -228,15 +311,12 @@ void Engine::addStage(PreparedStage stage) {
   auto st = std::make_unique<Stage>();
   st->prepared = std::move(stage);
   ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
+  ctx.setTracker(&st->tracker);
   try {
     st->prepared.plugin->start(ctx);
   } catch (const std::exception& e) {
     map_ = std::move(before);
-    if (dynamic_cast<const Error*>(&e))
-      throw PluginError("stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() +
-                        ") failed in start(): " + e.what());
-    throw PluginError("stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() + ") threw in start(): " +
-                      e.what());
+    rethrowFromPlugin(e, "stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() + ") in start()");
   }
   st->started = true;
   stages_.push_back(std::move(st));
@@ -245,7 +325,7 @@ void Engine::addStage(PreparedStage stage) {
 void Engine::addStage(const std::string& name, PluginHandle plugin, const std::map<std::string, ParamValue>& params) {
   std::map<std::string, RawParam> raw;
   for (const auto& [k, v] : params) raw[k] = RawParam{v, name + ".params." + k, false};
-  addStage(prepare(name, std::move(plugin), raw));
+  addStage(prepare(name, std::move(plugin), raw, {}, &map_.geometry()));
 }
 
 void Engine::push(const Event& event) {
@@ -261,6 +341,7 @@ void Engine::push(const Event& event) {
   for (auto& st : stages_) {
     if (!(st->prepared.events & static_cast<EventMask>(kind))) continue;
     ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
+    ctx.setTracker(&st->tracker);
     ctx.setStamp(stamp);
     const auto s0 = std::chrono::steady_clock::now();
     // The context strings are built only when something failed: this loop runs per event.
@@ -277,6 +358,7 @@ void Engine::push(const Event& event) {
     } catch (const std::exception& e) {
       throw PluginError(who() + " threw" + when() + ": " + e.what());
     }
+    st->tracker.mark(map_);
     st->stats.wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - s0).count();
     st->stats.events[kindName(kind)] += 1;
   }
@@ -289,14 +371,14 @@ void Engine::finish() {
   finished_ = true;
   for (auto& st : stages_) {
     ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
+    ctx.setTracker(&st->tracker);
     ctx.setStamp(report_.last_stamp);
     const auto s0 = std::chrono::steady_clock::now();
     try {
       st->prepared.plugin->finish(ctx);
       st->stats.wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - s0).count();
     } catch (const std::exception& e) {
-      throw PluginError("stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() +
-                        ") threw in finish(): " + e.what());
+      rethrowFromPlugin(e, "stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() + ") in finish()");
     }
   }
 }
@@ -310,6 +392,15 @@ std::vector<std::string> Engine::stageNames() const {
   std::lock_guard<std::mutex> lock(mutex_);
   std::vector<std::string> out;
   for (const auto& s : stages_) out.push_back(s->prepared.name);
+  return out;
+}
+
+std::map<std::string, std::string> Engine::layerDocs() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::map<std::string, std::string> out;
+  for (const auto& s : stages_)
+    for (const auto& l : s->prepared.layers)
+      if (l.access == LayerAccess::Create) out[l.name] = l.doc;
   return out;
 }
 

@@ -74,6 +74,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
       go.georef.origin_easting = spec.outputs.origin[0];
       go.georef.origin_northing = spec.outputs.origin[1];
     }
+    go.layer_docs = engine->layerDocs();
     const fs::path p = dir / "map.tif";
     io::writeGeoTiff(map, spec.outputs.geotiff, p, go);
     res.files.push_back(p.string());

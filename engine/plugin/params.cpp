@@ -17,6 +17,34 @@ const char* paramTypeName(ParamType t) {
   return "?";
 }
 
+std::string paramTypeWithArticle(ParamType t) {
+  const std::string n = paramTypeName(t);
+  const bool vowel = !n.empty() && std::string("aeiou").find(n[0]) != std::string::npos;
+  return (vowel ? "an " : "a ") + n;
+}
+
+std::string showParamValue(const ParamValue& v) {
+  return std::visit(
+      [](const auto& x) -> std::string {
+        using T = std::decay_t<decltype(x)>;
+        std::ostringstream os;
+        if constexpr (std::is_same_v<T, bool>) os << (x ? "true" : "false");
+        else if constexpr (std::is_same_v<T, long> || std::is_same_v<T, double>) os << x;
+        else if constexpr (std::is_same_v<T, std::string>) os << "'" << x << "'";
+        else {
+          os << "[";
+          for (size_t i = 0; i < x.size(); ++i) {
+            if (i) os << ", ";
+            if constexpr (std::is_same_v<typename T::value_type, std::string>) os << "'" << x[i] << "'";
+            else os << x[i];
+          }
+          os << "]";
+        }
+        return os.str();
+      },
+      v);
+}
+
 namespace param {
 ParamSpec real(std::string name, double def, double min, double max, std::string unit, std::string doc) {
   ParamSpec s{std::move(name), ParamType::Double, ParamValue(def), min, max, std::move(unit), std::move(doc), {}, -1};
@@ -75,19 +103,19 @@ std::string checkChoice(const ParamSpec& s, const std::string& v) {
 std::string checkParamValue(const ParamSpec& spec, const ParamValue& v) {
   switch (spec.type) {
     case ParamType::Bool:
-      return std::holds_alternative<bool>(v) ? "" : "must be a bool (true/false)";
+      return std::holds_alternative<bool>(v) ? "" : std::string("must be a bool (true/false)") + " (got " + showParamValue(v) + ")";
     case ParamType::Int:
-      if (!std::holds_alternative<long>(v)) return "must be an integer";
+      if (!std::holds_alternative<long>(v)) return std::string("must be an integer") + " (got " + showParamValue(v) + ")";
       return checkNumber(spec, static_cast<double>(std::get<long>(v)));
     case ParamType::Double:
       if (std::holds_alternative<long>(v)) return checkNumber(spec, static_cast<double>(std::get<long>(v)));
-      if (!std::holds_alternative<double>(v)) return "must be a number";
+      if (!std::holds_alternative<double>(v)) return std::string("must be a number") + " (got " + showParamValue(v) + ")";
       return checkNumber(spec, std::get<double>(v));
     case ParamType::String:
-      if (!std::holds_alternative<std::string>(v)) return "must be a string";
+      if (!std::holds_alternative<std::string>(v)) return std::string("must be a string") + " (got " + showParamValue(v) + ")";
       return checkChoice(spec, std::get<std::string>(v));
     case ParamType::DoubleList: {
-      if (!std::holds_alternative<std::vector<double>>(v)) return "must be a list of numbers";
+      if (!std::holds_alternative<std::vector<double>>(v)) return std::string("must be a list of numbers") + " (got " + showParamValue(v) + ")";
       const auto& l = std::get<std::vector<double>>(v);
       if (spec.list_size >= 0 && static_cast<int>(l.size()) != spec.list_size)
         return "must have " + std::to_string(spec.list_size) + " items (got " + std::to_string(l.size()) + ")";
@@ -98,7 +126,7 @@ std::string checkParamValue(const ParamSpec& spec, const ParamValue& v) {
       return {};
     }
     case ParamType::StringList: {
-      if (!std::holds_alternative<std::vector<std::string>>(v)) return "must be a list of strings";
+      if (!std::holds_alternative<std::vector<std::string>>(v)) return std::string("must be a list of strings") + " (got " + showParamValue(v) + ")";
       for (const auto& s : std::get<std::vector<std::string>>(v)) {
         auto m = checkChoice(spec, s);
         if (!m.empty()) return m;
@@ -156,6 +184,17 @@ std::string Params::where(const std::string& name) const {
 
 void Params::fail(const std::string& name, const std::string& message) const {
   throw ConfigError(where(name) + ": " + message);
+}
+
+void Params::report(const std::string& name, const std::string& message) const {
+  reported_.push_back(where(name) + ": " + message);
+}
+
+void Params::throwIfReported() const {
+  if (reported_.empty()) return;
+  std::string all;
+  for (const auto& e : reported_) all += (all.empty() ? "" : "\n") + e;
+  throw ConfigError(all);
 }
 
 void Params::set(const std::string& name, ParamValue v, std::string where) {

@@ -27,3 +27,44 @@ void RecordBus::publishErased(const std::string& type, double stamp, std::shared
 }
 
 }  // namespace terramap
+
+namespace terramap {
+
+void ChangeTracker::track(LayerId id) {
+  if (tracks(id)) return;
+  Layer l;
+  l.id = id;
+  layers_.push_back(std::move(l));
+  marked_ = false;  // a new layer has no remembered state: report everything once
+}
+
+bool ChangeTracker::tracks(LayerId id) const {
+  for (const auto& l : layers_)
+    if (l.id == id) return true;
+  return false;
+}
+
+std::vector<int> ChangeTracker::changed(const LayeredMap& map, LayerId id) const {
+  std::vector<int> out;
+  const Layer* layer = nullptr;
+  for (const auto& l : layers_)
+    if (l.id == id) layer = &l;
+  const bool all = !marked_ || !layer || (map.startIndex() != start_).any() ||
+                   map.geometry().center() != center_ ||
+                   static_cast<int>(layer->writes.size()) != map.tileCount();
+  for (int t = 0; t < map.tileCount(); ++t)
+    if (all || map.tileWrites(id, t) != layer->writes[static_cast<size_t>(t)]) out.push_back(t);
+  return out;
+}
+
+void ChangeTracker::mark(const LayeredMap& map) {
+  for (auto& l : layers_) {
+    l.writes.resize(static_cast<size_t>(map.tileCount()));
+    for (int t = 0; t < map.tileCount(); ++t) l.writes[static_cast<size_t>(t)] = map.tileWrites(l.id, t);
+  }
+  start_ = map.startIndex();
+  center_ = map.geometry().center();
+  marked_ = true;
+}
+
+}  // namespace terramap

@@ -155,9 +155,20 @@ EventMask Inpaint::events() const { return events_; }
 void Inpaint::start(ProcessContext& ctx) {
   in_id_ = ctx.map().layerId(input_);
   out_id_ = ctx.map().layerId(output_);
+  ctx.trackChanges(in_id_);
+  ctx.trackChanges(out_id_);
 }
 
 void Inpaint::process(ProcessContext& ctx, const Event&) {
+  // Push-pull reaches across the whole map (its coarse levels), so a change anywhere may change
+  // any output cell: the only incremental step that keeps the bits is skipping a call when
+  // neither the input nor the output (another stage may write it) changed since the last one.
+  if (ctx.changedTiles(in_id_).empty() && ctx.changedTiles(out_id_).empty()) {
+    ctx.addCounter("cells_filled", static_cast<double>(filled_last_));  // the same cells as last time
+    ctx.addCounter("passes", 1);
+    ctx.addCounter("passes_skipped", 1);
+    return;
+  }
   const Mat in = ctx.map().toMatrix(in_id_);
   const double lim = max_distance_m_ < 0 ? -1.0 : max_distance_m_ / ctx.map().geometry().resolution();
   const Mat out = fill(in, lim, ctx.executor());

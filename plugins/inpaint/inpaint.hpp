@@ -10,6 +10,8 @@
 /// farther than `max_distance_m` from any known cell (chamfer distance) stay NaN, so a
 /// planner never sees invented terrain far from data.
 /// Deterministic: every output cell is a fixed function of the level below it.
+/// A call skips the work when no tile of the input or output layer was written since the
+/// previous call (ProcessContext::changedTiles): the output would be the same bits.
 #include <terramap/plugin/plugin.hpp>
 
 #include <Eigen/Core>

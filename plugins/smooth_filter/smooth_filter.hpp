@@ -9,6 +9,9 @@
 /// and (optionally) when the input cell itself is NaN (`fill_holes: false`).
 /// Separable: a row pass then a column pass, each tile one task, fixed summation order, so
 /// the output is bit-identical for any thread count.
+/// Incremental: each call recomputes only the output tiles within the kernel radius of an
+/// input tile written since the previous call (ProcessContext::changedTiles), with the same
+/// sums in the same order, so the output is bit-identical to smoothing the whole map.
 #include <terramap/plugin/plugin.hpp>
 
 #include <vector>
@@ -27,6 +30,10 @@ class SmoothFilter : public Plugin {
 
   /// The kernel itself, for tests and embedders: smooths `in` into `out` on `map`.
   void run(LayeredMap& map, const Executor& ex, LayerId in, LayerId out) const;
+  /// Recomputes only output tiles `tiles` (buffer-space numbers); the same bits as run() there.
+  void runTiles(LayeredMap& map, const Executor& ex, LayerId in, LayerId out, const std::vector<int>& tiles) const;
+  /// Output tiles that read an input tile of `changed`: `changed` grown by the kernel radius.
+  std::vector<int> affectedTiles(const LayeredMap& map, const std::vector<int>& changed) const;
 
  private:
   std::string input_, output_;
@@ -34,6 +41,8 @@ class SmoothFilter : public Plugin {
   bool fill_holes_ = false, on_finish_ = true;
   EventMask events_ = 0;
   LayerId in_id_ = -1, out_id_ = -1;
+  int kernelHalfWidth(double resolution) const;
+  std::vector<float> weights(double resolution, double& w1) const;
 };
 
 }  // namespace terramap::plugins

@@ -10,6 +10,11 @@ set(prefix ${WORK_DIR}/prefix)
 terramap_scratch_install(${BUILD_DIR} ${prefix})
 terramap_build_against(${prefix} ${SOURCE_DIR}/tests/embed ${WORK_DIR}/build "" "the embedding program")
 
+# The README's embedding snippet and every public header were compiled with it (-Werror).
+if(NOT EXISTS ${WORK_DIR}/build/readme_snippet)
+  message(FATAL_ERROR "the README's embedding snippet was not compiled (no '## Embedding' cpp block?)")
+endif()
+
 # The link line, as Ninja runs it.
 execute_process(COMMAND ninja -C ${WORK_DIR}/build -t commands embed OUTPUT_VARIABLE commands RESULT_VARIABLE rc)
 string(REGEX MATCH "[^\n]*-o embed[^\n]*" link_line "${commands}")

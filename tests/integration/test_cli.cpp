@@ -15,6 +15,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <regex>
 
 namespace fs = std::filesystem;
 
@@ -59,23 +60,25 @@ TEST(Cli, ValidatePrintsEveryErrorAndExitsNonZero) {
   write(d / "bad.yaml", R"(version: 1
 map: {resolution: 0.1, size: [20, 20], tile: 16}
 pipeline:
-  - {name: s, type: smooth_filtr}
   - {name: t, type: smooth_filter, params: {sigma_m: 0.1, input_layer: elevation}}
   - {name: u, type: inpaint, params: {max_distance_m: -5}}
   - {name: v, type: smooth_filter, params: {sigma: 1, input_layer: t_out}}
+  - {name: s, type: smooth_filtr}
 )");
+  // The unknown type comes last: after it nobody knows which layers exist, so "reads layer X
+  // before any stage creates it" is no longer reported for later stages (no follow-on noise).
   const Result r = sh("validate " + (d / "bad.yaml").string());
   EXPECT_EQ(r.code, 8) << r.out;
-  EXPECT_NE(r.out.find("bad.yaml:4:21: pipeline[0].type: unknown plugin type 'smooth_filtr' (did you mean "
+  EXPECT_NE(r.out.find("bad.yaml:7:21: pipeline[3].type: unknown plugin type 'smooth_filtr' (did you mean "
                        "'smooth_filter'?)"),
             std::string::npos)
       << r.out;
-  EXPECT_NE(r.out.find("bad.yaml:7:45: pipeline[3].params.sigma: unknown parameter 'sigma' for plugin "
+  EXPECT_NE(r.out.find("bad.yaml:6:45: pipeline[2].params.sigma: unknown parameter 'sigma' for plugin "
                        "'smooth_filter' (did you mean 'sigma_m'?)"),
             std::string::npos)
       << r.out;
   EXPECT_NE(r.out.find("stage 't' reads layer 'elevation' before any stage creates it"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("pipeline[2].params.max_distance_m: must be in [-1, 10000] (got -5)"), std::string::npos)
+  EXPECT_NE(r.out.find("pipeline[1].params.max_distance_m: must be in [-1, 10000] (got -5)"), std::string::npos)
       << r.out;
   EXPECT_NE(r.out.find("invalid (4 problems)"), std::string::npos) << r.out;
 
@@ -160,6 +163,14 @@ TEST(Cli, PluginsListsFoundAndRefused) {
   if (fs::exists(std::string(TERRAMAP_BINARY_DIR) + "/test_plugins/bad_sanitizer.so")) {
     EXPECT_NE(r.out.find("asan-1"), std::string::npos) << r.out;
   }
+}
+
+TEST(Cli, PluginsParamsPrintsLayersWithTheirDocs) {
+  const Result r = sh(std::string("plugins --params --path ") + TERRAMAP_BINARY_DIR + "/test_plugins");
+  EXPECT_EQ(r.code, 0) << r.out;
+  // test_probe creates its output layer ('probe' by default) with the doc "probe counter".
+  EXPECT_NE(r.out.find("layers (with default parameters):"), std::string::npos) << r.out;
+  EXPECT_TRUE(std::regex_search(r.out, std::regex("create +probe +\\[1\\] probe counter"))) << r.out;
 }
 
 TEST(Cli, EmbeddedDemoWritesGeoTiffPngAndReport) {

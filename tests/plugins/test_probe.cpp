@@ -13,7 +13,9 @@ class Probe : public terramap::Plugin {
             param::text("input_layer", "", {}, "optional layer to read (checked by the validator)"),
             param::real("increment", 1.0, -1e6, 1e6, "1", "added to every cell per event"),
             param::integer("throw_on_event", -1, -1, 1000000, "throw std::runtime_error on this event number"),
-            param::texts("events", {"tick", "point_cloud"}, "event kinds to take")};
+            param::texts("events", {"tick", "point_cloud"}, "event kinds to take"),
+            param::text("config_error_in", "", {"", "start", "finish"},
+                        "throw a terramap::ConfigError in start() or finish()")};
   }
   void configure(const terramap::Params& p) override {
     out_ = p.getString("output_layer");
@@ -22,7 +24,9 @@ class Probe : public terramap::Plugin {
     throw_on_ = p.getInt("throw_on_event");
     std::string unknown;
     mask_ = terramap::eventMaskFromNames(p.getStrings("events"), &unknown);
-    if (!unknown.empty()) p.fail("events", "unknown kind '" + unknown + "'");
+    if (!unknown.empty()) p.report("events", "unknown kind '" + unknown + "'");
+    if (in_ == out_) p.report("input_layer", "must differ from output_layer '" + out_ + "'");
+    config_error_in_ = p.getString("config_error_in");
   }
   std::vector<terramap::LayerSpec> layers() const override {
     using namespace terramap;
@@ -31,7 +35,13 @@ class Probe : public terramap::Plugin {
     return l;
   }
   terramap::EventMask events() const override { return mask_; }
-  void start(terramap::ProcessContext& ctx) override { id_ = ctx.map().layerId(out_); }
+  void start(terramap::ProcessContext& ctx) override {
+    if (config_error_in_ == "start") throw terramap::ConfigError("probe: refused in start() on purpose");
+    id_ = ctx.map().layerId(out_);
+  }
+  void finish(terramap::ProcessContext&) override {
+    if (config_error_in_ == "finish") throw terramap::ConfigError("probe: refused in finish() on purpose");
+  }
   void process(terramap::ProcessContext& ctx, const terramap::Event& e) override {
     if (count_++ == throw_on_) throw std::runtime_error("probe asked to throw on event " + std::to_string(throw_on_));
     auto& map = ctx.map();
@@ -51,7 +61,7 @@ class Probe : public terramap::Plugin {
   }
 
  private:
-  std::string out_, in_;
+  std::string out_, in_, config_error_in_;
   float inc_ = 1;
   long throw_on_ = -1, count_ = 0;
   terramap::EventMask mask_ = 0;

@@ -21,6 +21,7 @@
 #include <terramap/core/geometry.hpp>
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <limits>
 #include <memory>
 #include <string>
@@ -85,7 +86,16 @@ class TERRAMAP_API LayeredMap {
   const float* tileData(LayerId id, int t) const;
   /// Writable tile data; allocates (sparse) or un-shares (copy-on-write) as needed.
   float* mutableTileData(LayerId id, int t);
+  /// Tiles (ascending) holding a cell within `cells` cells (Chebyshev, logical) of a cell of
+  /// one of `tiles`: the output tiles a kernel of half-width `cells` reaches from changed input
+  /// tiles (ProcessContext::changedTiles). Grown cyclically over the ring buffer, one tile more
+  /// where the ring's partial last tile is narrower than `cells`; never too few, sometimes more.
+  std::vector<int> tilesWithin(const std::vector<int>& tiles, int cells) const;
   bool tileAllocated(LayerId id, int t) const { return tileData(id, t) != nullptr; }
+  /// How many times tile `t` of layer `id` was handed out for writing (mutableTileData, and
+  /// so set/fill/writeLayer/move) or reset: equal counts at two moments mean the tile was not
+  /// written in between. What ChangeTracker (plugin.hpp) compares; copied with the map.
+  std::uint64_t tileWrites(LayerId id, int t) const;
   /// Number of allocated tiles over all layers (memory = this * tileSize^2 * 4 bytes).
   long allocatedTiles() const;
 
@@ -143,6 +153,8 @@ class TERRAMAP_API LayeredMap {
   Index start_{0, 0};
   std::vector<LayerInfo> layers_;
   std::vector<std::vector<TilePtr>> tiles_;  // [layer][tile]
+  // [layer][tile]; tasks writing different tiles touch different elements, so no race.
+  std::vector<std::vector<std::uint64_t>> writes_;
 };
 
 }  // namespace terramap

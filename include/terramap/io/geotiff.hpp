@@ -37,6 +37,7 @@
 
 #include <array>
 #include <filesystem>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -54,6 +55,9 @@ struct GeoReference {
 struct GeoTiffOptions {
   GeoReference georef;
   bool compress = true;  ///< DEFLATE + floating-point predictor (lossless)
+  /// Layer name -> one line of meaning (LayerSpec::doc), written as the band's "doc" metadata
+  /// item; layers not listed (or with an empty doc) get none.
+  std::map<std::string, std::string> layer_docs;
 };
 
 /// Row-major float raster (height x width), the storage order of GeoTIFF and PNG.

@@ -2,10 +2,11 @@
 /// \file
 /// Engine: one LayeredMap, one TBB arena (Executor) and an ordered list of plugin stages.
 ///
-/// Threading: push(), addStage() and finish() must come from one thread at a time (the
-/// engine's). snapshot() may be called from any thread at any time: it waits for the event
-/// being processed to finish and returns a consistent copy-on-write copy of the map that the
-/// caller may keep and read while the engine goes on writing.
+/// Threading: push(), addStage(), editMap() and finish() must come from one thread at a time
+/// (the engine's). snapshot() may be called from any thread at any time: it waits for the
+/// event or edit in progress to finish and returns a consistent copy-on-write copy of the map
+/// that the caller may keep and read while the engine goes on writing. Exercised under
+/// ThreadSanitizer (Tsan.EngineThreadContract).
 ///
 /// Failure atomicity: addStage()/fromSpec() validate before they change anything; when they
 /// throw, the engine is exactly as it was (same stages, same layers, same data).
@@ -17,6 +18,7 @@
 #include <terramap/plugin/plugin.hpp>
 
 #include <chrono>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -66,6 +68,9 @@ class TERRAMAP_API Engine {
   /// names, a layer read before anyone writes it, a layer created twice) is collected and
   /// thrown as one ConfigError, one line each.
   static std::unique_ptr<Engine> fromSpec(const PipelineSpec& spec, const PluginRegistry& registry);
+  /// fromSpec with the registry the YAML asks for: its `plugin_paths`, then
+  /// TERRAMAP_PLUGIN_PATH, then the installed plugin folder (what `terramap run` uses).
+  static std::unique_ptr<Engine> fromSpec(const PipelineSpec& spec);
   /// fromSpec without the up-front validate(), for callers that just ran validate() and got no
   /// errors (it would only repeat the work). Still throws if building fails.
   static std::unique_ptr<Engine> fromValidatedSpec(const PipelineSpec& spec, const PluginRegistry& registry);
@@ -74,12 +79,16 @@ class TERRAMAP_API Engine {
   static std::vector<std::string> validate(const PipelineSpec& spec, const PluginRegistry& registry);
 
   /// Checks `params` against the plugin's schema and configures it. Does not touch the engine.
+  /// `map`: the geometry the stage will run on, shown to configure() (Params::mapGeometry) so
+  /// map-dependent checks fail here rather than at run time.
   /// \throws ConfigError with every parameter problem.
   static PreparedStage prepare(const std::string& name, PluginHandle plugin,
-                               const std::map<std::string, RawParam>& params, const std::string& where = {});
+                               const std::map<std::string, RawParam>& params, const std::string& where = {},
+                               const Geometry* map = nullptr);
 
   /// Appends a stage: checks its layers against the current map, creates its layers, calls
-  /// start(). \throws ConfigError / LayerError / PluginError; on throw nothing changed.
+  /// start(). \throws ConfigError / LayerError / PluginError, or the Error start() threw (same
+  /// type, stage named); on throw nothing changed.
   void addStage(PreparedStage stage);
   /// Convenience: prepare + addStage with params given as values.
   void addStage(const std::string& name, PluginHandle plugin, const std::map<std::string, ParamValue>& params = {});
@@ -88,17 +97,29 @@ class TERRAMAP_API Engine {
   /// \throws PluginError (or the Error the plugin threw, re-thrown with the stage named).
   void push(const Event& event);
   /// Calls finish() on every stage (once).
+  /// \throws the Error a plugin threw (ConfigError, InputError, LayerError, OutputError) with
+  /// the stage named, or PluginError for anything else.
   void finish();
 
   /// A consistent copy of the map (copy-on-write), safe to read on any thread.
   std::shared_ptr<const LayeredMap> snapshot() const;
-  /// Direct access for the engine's own thread (not while push() runs elsewhere).
+  /// Direct access for the engine's own thread (not while push() runs elsewhere, and not
+  /// while another thread may call snapshot(): use editMap() then).
   const LayeredMap& map() const { return map_; }
   LayeredMap& mutableMap() { return map_; }
+  /// Runs `edit` on the map under the engine's lock, so other threads' snapshot() calls see the
+  /// map before or after the edit, never half of it (an embedder writing a prior or clearing a
+  /// region while a planner reads snapshots). Engine thread, between push() calls.
+  void editMap(const std::function<void(LayeredMap&)>& edit) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    edit(map_);
+  }
   const Executor& executor() const { return executor_; }
   RecordBus& records() { return bus_; }
 
   std::vector<std::string> stageNames() const;
+  /// Layer name -> LayerSpec::doc of every layer a stage created (for exports' metadata).
+  std::map<std::string, std::string> layerDocs() const;
   RunReport report() const;
   /// For sources that drop input themselves (e.g. unreadable frames they skip by design).
   void countSourceDrop(const std::string& reason, long n);
@@ -107,11 +128,12 @@ class TERRAMAP_API Engine {
   struct Stage {
     PreparedStage prepared;
     PluginStats stats;
+    ChangeTracker tracker;  // tiles the stage has not seen yet (ProcessContext::changedTiles)
     bool started = false;
   };
   static void checkLayers(const std::vector<std::string>& existing, const std::string& stage_name,
                           const std::vector<LayerSpec>& layers, std::vector<std::string>& errors,
-                          std::vector<std::string>* out_new = nullptr);
+                          std::vector<std::string>* out_new = nullptr, bool report_missing = true);
 
   mutable std::mutex mutex_;
   LayeredMap map_;

@@ -32,7 +32,7 @@ class TERRAMAP_API Source {
   /// order (NaN where unknown) and returns true. The runner uses it to write error layers,
   /// pictures and statistics. `out` is a view so that no matrix allocated by the source is
   /// freed by the caller's build (abi.hpp, "Memory rule of the boundary").
-  virtual bool truth(const std::string& layer, const Geometry& g, Eigen::Ref<Eigen::MatrixXf> out) const {
+  virtual bool truth(const std::string& /*layer*/, const Geometry& /*g*/, Eigen::Ref<Eigen::MatrixXf> /*out*/) const {
     return false;
   }
 };

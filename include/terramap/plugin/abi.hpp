@@ -25,7 +25,9 @@
 /// Bump when Plugin, ProcessContext, LayeredMap, events or the record layout change.
 /// 2: LayeredMap hands out no owning Eigen object (readLayer/writeLayer; toMatrix is inline and
 ///    local to the caller); the fingerprint pins Eigen's alignment and names the sanitizers.
-#define TERRAMAP_PLUGIN_ABI_VERSION 2u
+/// 3: Params carries reported problems and the map geometry, ProcessContext a ChangeTracker,
+///    LayeredMap per-tile write counters.
+#define TERRAMAP_PLUGIN_ABI_VERSION 3u
 
 #define TERRAMAP_STR_(x) #x
 #define TERRAMAP_STR(x) TERRAMAP_STR_(x)

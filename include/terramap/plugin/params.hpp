@@ -5,6 +5,7 @@
 /// the schema before anything runs: unknown keys (with did-you-mean), wrong types, values out
 /// of range or not among the choices — all reported at once with file:line:col and key path.
 #include <terramap/core/error.hpp>
+#include <terramap/core/geometry.hpp>
 
 #include <limits>
 #include <map>
@@ -72,8 +73,26 @@ class TERRAMAP_API Params {
   /// Where a key was written ("pipeline.yaml:12:20: pipeline[1].params.sigma_m"), or the
   /// owner's path if it took its default. For plugins' own cross-parameter checks.
   std::string where(const std::string& name) const;
-  /// Throws ConfigError "<where(name)>: <message>".
+  /// Throws ConfigError "<where(name)>: <message>". Stops configure() at the first problem;
+  /// prefer report() for cross-parameter checks so the user sees all of them at once.
   [[noreturn]] void fail(const std::string& name, const std::string& message) const;
+  /// Records "<where(name)>: <message>" and returns: configure() goes on checking, and the host
+  /// throws one ConfigError with every reported line (plus a ConfigError configure() threw)
+  /// after configure() returns.
+  void report(const std::string& name, const std::string& message) const;
+  /// What report() collected, in order (host side).
+  const std::vector<std::string>& reported() const { return reported_; }
+  /// For callers of configure() other than the host (tests, embedders without an Engine):
+  /// \throws ConfigError with every reported line, if any.
+  void throwIfReported() const;
+
+  /// The geometry of the map the stage will run on, when the host knows it (`terramap
+  /// validate`, Engine::fromSpec, Engine::addStage): for checks that depend on the map, e.g. a
+  /// window of more cells than the map has or a radius below one cell. nullptr when unknown
+  /// (a plugin prepared on its own); such checks are then skipped, not failed.
+  const Geometry* mapGeometry() const { return map_geometry_ ? &*map_geometry_ : nullptr; }
+  /// Host side.
+  void setMapGeometry(const Geometry& g) { map_geometry_ = g; }
 
   /// Host side: store a value (already checked against the schema).
   void set(const std::string& name, ParamValue v, std::string where = {});
@@ -87,6 +106,8 @@ class TERRAMAP_API Params {
   ParamSchema schema_;
   std::map<std::string, ParamValue> values_;
   std::map<std::string, std::string> where_;
+  mutable std::vector<std::string> reported_;
+  std::optional<Geometry> map_geometry_;
 };
 
 /// Fills every default of `schema` into a Params (for tests and embedders that skip YAML).
@@ -94,6 +115,12 @@ class TERRAMAP_API Params {
 /// an override is not in the schema, or it fails the type/range/choice checks.
 TERRAMAP_API Params makeParams(const std::string& owner, const ParamSchema& schema,
                                const std::map<std::string, ParamValue>& overrides = {});
+
+/// A value as a user would have written it in YAML: 3, 0.5, true, 'abc', [1, 2], ['a'].
+TERRAMAP_API std::string showParamValue(const ParamValue& v);
+
+/// "a"/"an" + the type name, for messages ("must be an integer").
+TERRAMAP_API std::string paramTypeWithArticle(ParamType t);
 
 /// Checks one value against its spec; returns "" if fine, else a message such as
 /// "must be in [0, 10] (got 12)".

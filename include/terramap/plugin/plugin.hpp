@@ -9,8 +9,9 @@
 /// configure() must not touch any map: the host calls it while validating a pipeline.
 /// Everything runs on the engine's thread; a plugin parallelises inside process() with
 /// ctx.executor() (never with its own threads or global TBB limits).
-/// Anything a plugin throws is caught by the host and re-thrown as PluginError (or the
-/// ConfigError/InputError it was) naming the plugin instance.
+/// Anything a plugin throws is caught by the host and re-thrown naming the plugin instance: a
+/// terramap ConfigError, InputError, LayerError or OutputError keeps its type (in configure(),
+/// start(), process() and finish()), anything else becomes a PluginError.
 #include <terramap/core/events.hpp>
 #include <terramap/core/layered_map.hpp>
 #include <terramap/core/parallel.hpp>
@@ -74,6 +75,34 @@ class TERRAMAP_API RecordBus {
   std::map<std::string, Record> latest_;
 };
 
+/// Which tiles of some layers were written since a stage last ran, for plugins that update
+/// incrementally. A stage asks for it in start() (ProcessContext::trackChanges); the host then
+/// remembers every tile's write count (LayeredMap::tileWrites) of those layers at the end of
+/// each of the stage's process() calls, so a write by anyone afterwards shows.
+/// Conservative: a tile written with the same values counts as changed, and every tile counts
+/// as changed on the stage's first call and after the map moved. Engine thread only.
+class TERRAMAP_API ChangeTracker {
+ public:
+  /// Starts tracking layer `id` (idempotent).
+  void track(LayerId id);
+  bool tracks(LayerId id) const;
+  /// Buffer-space tiles of `id` (ascending) written since the last mark(): every tile before
+  /// the first mark(), after a map move, or if `id` is not tracked.
+  std::vector<int> changed(const LayeredMap& map, LayerId id) const;
+  /// Remembers the state of every tracked layer (the host calls it after each process()).
+  void mark(const LayeredMap& map);
+
+ private:
+  struct Layer {
+    LayerId id = -1;
+    std::vector<std::uint64_t> writes;
+  };
+  std::vector<Layer> layers_;
+  bool marked_ = false;
+  Index start_{0, 0};
+  Position center_{0.0, 0.0};
+};
+
 /// What a plugin sees while it runs.
 class TERRAMAP_API ProcessContext {
  public:
@@ -99,6 +128,26 @@ class TERRAMAP_API ProcessContext {
   void reportRecord(std::string json_object) { stats_.records.push_back(std::move(json_object)); }
   PluginStats& stats() { return stats_; }
 
+  /// In start(): asks the host to tell this stage which tiles of `id` changed between calls.
+  /// \throws InternalError outside a host that tracks changes (a context made by hand).
+  void trackChanges(LayerId id) {
+    TERRAMAP_CHECK(tracker_ != nullptr, "trackChanges() needs a host that tracks changes");
+    tracker_->track(id);
+  }
+  /// Buffer-space tiles of `id` written since the end of this stage's previous process()
+  /// call (its own writes in that call excluded): every tile on the first call, after a map
+  /// move, and for a layer not asked for with trackChanges(). Ascending tile numbers.
+  std::vector<int> changedTiles(LayerId id) const {
+    if (!tracker_) {
+      std::vector<int> all(static_cast<size_t>(map_.tileCount()));
+      for (int t = 0; t < map_.tileCount(); ++t) all[static_cast<size_t>(t)] = t;
+      return all;
+    }
+    return tracker_->changed(map_, id);
+  }
+  /// Host side.
+  void setTracker(ChangeTracker* tracker) { tracker_ = tracker; }
+
  private:
   LayeredMap& map_;
   const Executor& executor_;
@@ -106,6 +155,7 @@ class TERRAMAP_API ProcessContext {
   PluginStats& stats_;
   std::string name_;
   double stamp_ = 0.0;
+  ChangeTracker* tracker_ = nullptr;
 };
 
 class TERRAMAP_API Plugin {
@@ -113,17 +163,18 @@ class TERRAMAP_API Plugin {
   virtual ~Plugin();
   /// The parameters this plugin takes. Every key not listed is refused.
   virtual ParamSchema schema() const = 0;
-  /// Reads validated params; cross-parameter checks throw via params.fail().
+  /// Reads validated params; cross-parameter checks go through params.report() (all of them
+  /// reach the user at once) or params.fail() (stops at the first).
   virtual void configure(const Params& params) = 0;
   /// Layers read, written and created (may depend on params, e.g. an input layer name).
   virtual std::vector<LayerSpec> layers() const = 0;
   /// Event kinds process() takes (EventKind bits).
   virtual EventMask events() const = 0;
   /// Once, after the layers exist and before the first event: look up layer ids here.
-  virtual void start(ProcessContext& ctx) {}
+  virtual void start(ProcessContext& /*ctx*/) {}
   virtual void process(ProcessContext& ctx, const Event& event) = 0;
   /// Once, after the last event.
-  virtual void finish(ProcessContext& ctx) {}
+  virtual void finish(ProcessContext& /*ctx*/) {}
 };
 
 }  // namespace terramap

@@ -84,3 +84,40 @@ TEST(Inpaint, RunsInAnEngineAtFinishAndCountsFilledCells) {
   // corners (corner chamfer distance 8/3 > 2.5) = 21, minus the known cell itself = 20.
   EXPECT_EQ(e.report().stages[0].stats.counters.at("cells_filled"), 20.0);
 }
+
+// A call with no input or output tile written since the previous one is skipped; any write
+// (here one cell, or another stage's write into the output) brings the whole pass back.
+TEST(Inpaint, SkipsACallOnlyWhenNothingChanged) {
+  EngineOptions o;
+  o.geometry = Geometry(0.1, Size(48, 40));
+  o.map.tile_size = 16;
+  o.layers = {LayerDecl{"elevation", "m", std::numeric_limits<float>::quiet_NaN(), ""}};
+  Engine e(o);
+  for (int i = 0; i < 48; i += 5)
+    for (int j = 0; j < 40; j += 7) e.mutableMap().set(0, Index(i, j), 0.01f * static_cast<float>(i * j));
+  e.addStage("f", PluginRegistry::createFromFile(std::string(TERRAMAP_PLUGIN_DIR) + "/inpaint.so"),
+             {{"run_on", std::vector<std::string>{"tick"}}, {"max_distance_m", -1.0}});
+  auto skipped = [&] {
+    const auto& c = e.report().stages[0].stats.counters;
+    return c.count("passes_skipped") ? c.at("passes_skipped") : 0.0;
+  };
+  auto expectFullPass = [&](const char* when) {
+    const Eigen::MatrixXf want = Inpaint::fill(e.map().toMatrix(0), -1.0, Executor(1));
+    const Eigen::MatrixXf got = e.map().toMatrix(e.map().layerId("elevation_inpainted"));
+    EXPECT_EQ(std::memcmp(want.data(), got.data(), sizeof(float) * want.size()), 0) << when;
+  };
+  e.push(Tick{0});
+  EXPECT_EQ(skipped(), 0.0);
+  expectFullPass("first call");
+  e.push(Tick{0.1});
+  EXPECT_EQ(skipped(), 1.0);
+  expectFullPass("nothing changed");
+  e.mutableMap().set(0, Index(47, 39), 5.0f);
+  e.push(Tick{0.2});
+  EXPECT_EQ(skipped(), 1.0);
+  expectFullPass("one input cell written");
+  e.mutableMap().set(e.map().layerId("elevation_inpainted"), Index(0, 0), -3.0f);
+  e.push(Tick{0.3});
+  EXPECT_EQ(skipped(), 1.0);
+  expectFullPass("output overwritten by someone else");
+}

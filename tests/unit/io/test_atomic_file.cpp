@@ -105,6 +105,9 @@ TEST_F(AtomicFileTest, MissingFolderNamesPathAndErrno) {
     const std::string msg = e.what();
     EXPECT_NE(msg.find(target.string()), std::string::npos) << msg;
     EXPECT_NE(msg.find("No such file or directory"), std::string::npos) << msg;
+    // The folder is what the user must fix; the temporary file's name means nothing to them.
+    EXPECT_NE(msg.find("folder '" + (dir_ / "no_such_dir").string() + "' does not exist"), std::string::npos) << msg;
+    EXPECT_EQ(msg.find(".tmp."), std::string::npos) << msg;
   }
 }
 

@@ -93,7 +93,7 @@ TEST_F(GeoTiffTest, EveryCellLandsWhereItsPositionSaysByGeoTransform) {
     for (int j = 0; j < 7; ++j) m.set(e, Index(i, j), static_cast<float>(100 * i + j));
   const tio::GeoReference geo{32633, 400000.0, 6000000.0};
   const fs::path p = dir_ / "moved.tif";
-  tio::writeGeoTiff(m, {"elevation"}, p, tio::GeoTiffOptions{geo, true});
+  tio::writeGeoTiff(m, {"elevation"}, p, tio::GeoTiffOptions{geo, true, {}});
   const tio::Raster r = tio::readRaster(p);
   ASSERT_TRUE(r.geotransform.has_value());
   const auto& gt = *r.geotransform;
@@ -132,9 +132,21 @@ TEST_F(GeoTiffTest, BandDescriptionUnitNodataAndLocalCrs) {
   EXPECT_EQ(listing(), std::vector<std::string>{"meta.tif"});  // no temp, no .aux.xml
 }
 
+TEST_F(GeoTiffTest, LayerDocIsBandMetadata) {
+  const fs::path p = dir_ / "doc.tif";
+  tio::GeoTiffOptions o;
+  o.layer_docs = {{"elevation", "height of the ground above the map frame's z = 0 [m]; NaN = unseen"}};
+  tio::writeGeoTiff(smallMap(), {"count", "elevation"}, p, o);
+  const tio::Raster r = tio::readRaster(p);
+  ASSERT_EQ(r.bands.size(), 2u);
+  const auto& md = r.bands[1].metadata;
+  EXPECT_NE(std::find(md.begin(), md.end(), "doc=" + o.layer_docs["elevation"]), md.end());
+  for (const auto& item : r.bands[0].metadata) EXPECT_NE(item.rfind("doc=", 0), 0u) << item;  // none given
+}
+
 TEST_F(GeoTiffTest, EpsgAndOriginPlaceTheRaster) {
   const fs::path p = dir_ / "utm.tif";
-  tio::writeGeoTiff(smallMap(), {"elevation"}, p, tio::GeoTiffOptions{{32632, 500000.0, 5200000.0}, true});
+  tio::writeGeoTiff(smallMap(), {"elevation"}, p, tio::GeoTiffOptions{{32632, 500000.0, 5200000.0}, true, {}});
   const tio::Raster r = tio::readRaster(p);
   EXPECT_TRUE(r.crs_projected);
   EXPECT_FALSE(r.crs_local);
@@ -181,7 +193,7 @@ TEST_F(GeoTiffTest, RefusesBadRequests) {
   EXPECT_THROW(tio::writeGeoTiff(m, {"count", "count"}, p), ConfigError);
   auto epsgError = [&](int code) {
     try {
-      tio::writeGeoTiff(m, {"elevation"}, p, tio::GeoTiffOptions{{code, 0.0, 0.0}, true});
+      tio::writeGeoTiff(m, {"elevation"}, p, tio::GeoTiffOptions{{code, 0.0, 0.0}, true, {}});
     } catch (const ConfigError& e) {
       return std::string(e.what());
     }
@@ -190,7 +202,7 @@ TEST_F(GeoTiffTest, RefusesBadRequests) {
   EXPECT_NE(epsgError(4326).find("not a projected CRS"), std::string::npos);
   EXPECT_NE(epsgError(999999).find("unknown EPSG code 999999"), std::string::npos);
   EXPECT_NE(epsgError(2227).find("not metres"), std::string::npos);  // California zone 3, US feet
-  EXPECT_THROW(tio::writeGeoTiff(m, {"elevation"}, p, tio::GeoTiffOptions{{0, kNaN, 0.0}, true}), ConfigError);
+  EXPECT_THROW(tio::writeGeoTiff(m, {"elevation"}, p, tio::GeoTiffOptions{{0, kNaN, 0.0}, true, {}}), ConfigError);
   EXPECT_TRUE(listing().empty());
 }
 
