@@ -23,6 +23,7 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <limits>
+#include <atomic>
 #include <memory>
 #include <string>
 #include <vector>
@@ -142,6 +143,16 @@ class TERRAMAP_API LayeredMap {
   /// A consistent copy sharing tiles copy-on-write; O(layers x tiles) pointer copies.
   LayeredMap snapshot() const { return *this; }
 
+  /// Copies share every tile; after a copy both maps treat all their tiles as shared and copy
+  /// each one before its first write (the copy-on-write is decided by generations this map owns,
+  /// never by a reference count another thread may be dropping: that would be a data race with
+  /// the other thread's last reads). Taking the copy must not overlap this map's writes.
+  LayeredMap(const LayeredMap& other);
+  LayeredMap& operator=(const LayeredMap& other);
+  LayeredMap(LayeredMap&& other) noexcept;
+  LayeredMap& operator=(LayeredMap&& other) noexcept;
+  ~LayeredMap() = default;
+
  private:
   using TilePtr = std::shared_ptr<float[]>;
   TilePtr newTile(float fill) const;
@@ -155,6 +166,12 @@ class TERRAMAP_API LayeredMap {
   std::vector<std::vector<TilePtr>> tiles_;  // [layer][tile]
   // [layer][tile]; tasks writing different tiles touch different elements, so no race.
   std::vector<std::vector<std::uint64_t>> writes_;
+  // Copy-on-write bookkeeping: a tile is this map's own (writable in place) when owned_ equals
+  // generation_; every copy of the map (snapshot) bumps the generation of both, so all tiles
+  // then count as shared. [layer][tile], like writes_.
+  // Atomic because copying a const map (two readers copying one shared snapshot) bumps it.
+  mutable std::atomic<std::uint64_t> generation_{1};
+  std::vector<std::vector<std::uint64_t>> owned_;
 };
 
 }  // namespace terramap
