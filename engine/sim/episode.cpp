@@ -1,5 +1,6 @@
 // HDF5 episode writer (C API). Layout: docs/sim.md.
 #include <terramap/core/error.hpp>
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/sim/episode.hpp>
 
 #include <hdf5.h>
@@ -482,8 +483,19 @@ std::vector<double> readEpisodeDataset(const std::string& path, const std::strin
   const int nd = H5Sget_simple_extent_ndims(sp);
   std::vector<hsize_t> d(static_cast<std::size_t>(std::max(nd, 0)));
   H5Sget_simple_extent_dims(sp, d.data(), nullptr);
-  hsize_t n = 1;
-  for (hsize_t x : d) n *= x;
+  std::uint64_t n = 1;
+  for (hsize_t x : d) n = saturatingProduct({n, static_cast<std::uint64_t>(x)});
+  // A dataset can declare (chunked, compressed) far more elements than the file holds: refuse
+  // before allocating what its header asks for.
+  try {
+    requireInputBudget(saturatingProduct({n, sizeof(double)}), path + ": dataset '" + dataset + "' of " +
+                       std::to_string(n) + " values", "read as doubles");
+  } catch (...) {
+    H5Sclose(sp);
+    H5Dclose(ds);
+    H5Fclose(f);
+    throw;
+  }
   std::vector<double> v(n);
   const herr_t rc = n ? H5Dread(ds, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data()) : 0;
   H5Sclose(sp);

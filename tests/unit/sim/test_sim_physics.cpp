@@ -4,6 +4,7 @@
 
 #include <terramap/core/error.hpp>
 #include <terramap/soil/fee.hpp>
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/sim/blade_physics.hpp>
 #include <terramap/sim/episode.hpp>
 #include <terramap/sim/simulator.hpp>
@@ -410,6 +411,19 @@ TEST(Episode, HdfLayoutReadsBack) {
   const auto c = readDoubles("/soil/c_pa", dims);
   EXPECT_NEAR(c[0], soilProperties(SoilFamily::Loam, 0.4).fee.c_pa, 1e-2);
   EXPECT_THROW(readEpisodeDataset(path, "/nope", dims), InputError);
+  {
+    // The terrain dataset (3 x 301 x 701 doubles, 5.1 MB) over a 1 MB memory budget: refused
+    // before it is allocated, naming the file and the dataset.
+    const std::uint64_t saved = memoryBudget();
+    setMemoryBudget(1u << 20);
+    try {
+      readEpisodeDataset(path, "/terrain/height", dims);
+      ADD_FAILURE() << "expected an InputError";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("dataset '/terrain/height' of 633003 values"), std::string::npos) << e.what();
+    }
+    setMemoryBudget(saved);
+  }
   // No temporary files are left behind.
   int files = 0;
   for (const auto& e : std::filesystem::directory_iterator(dir)) files += e.is_regular_file();
