@@ -1214,7 +1214,7 @@ void LidarFusion::process(ProcessContext& ctx, const Event& event) {
     }
     if (self_filter_.enabled()) self_points = self_filter_.apply(*pc, filtered_);
     const FusionStats s = fuse(map, ctx.executor(), self_filter_.enabled() ? filtered_ : *pc);
-    ctx.countDrop("self", static_cast<long>(self_points));
+    if (self_filter_.enabled()) ctx.countDrop("self", static_cast<long>(self_points));
     ctx.countDrop("non_finite", s.dropped_non_finite);
     ctx.countDrop("too_close", s.dropped_too_close);
     ctx.countDrop("too_far", s.dropped_too_far);
