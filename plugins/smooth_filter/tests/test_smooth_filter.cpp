@@ -31,6 +31,17 @@ SmoothFilter configured(std::map<std::string, ParamValue> p = {}) {
 }  // namespace
 
 TEST(SmoothFilter, ConstantFieldStaysConstantAndLinearFieldIsPreservedInside) {
+  {
+    // The kernel is normalised over the cells it covers, so a constant stays that constant
+    // everywhere, the border and the corners included (a kernel normalised over its full
+    // footprint would pull border cells towards 0 by the missing weight).
+    Fixture fx(40, 30);
+    fx.map.fill(fx.in, 1.7f);
+    auto f = configured({{"sigma_m", 0.1}, {"radius_m", 0.3}});
+    f.run(fx.map, Executor(1), fx.in, fx.out);
+    for (int i = 0; i < 40; ++i)
+      for (int j = 0; j < 30; ++j) EXPECT_NEAR(fx.map.at(fx.out, Index(i, j)), 1.7f, 2e-6f) << i << " " << j;
+  }
   Fixture fx(40, 30);
   for (int i = 0; i < 40; ++i)
     for (int j = 0; j < 30; ++j) fx.map.set(fx.in, Index(i, j), 0.5f + 0.01f * i - 0.02f * j);
