@@ -172,9 +172,16 @@ std::string fileBytes(const std::string& path) {
 }  // namespace
 
 TEST(PluginLoader, EveryPluginCarriesItsFingerprintInTheAbiSection) {
-  const auto note = detail::readElfSection(lib("test_probe"), TERRAMAP_PLUGIN_ABI_SECTION);
-  ASSERT_TRUE(note.has_value());
-  EXPECT_STREQ(note->c_str(), TERRAMAP_BUILD_FINGERPRINT);
+  // Every built-in plugin module and the test probe.
+  std::vector<std::string> modules = {lib("test_probe")};
+  for (const auto& e : std::filesystem::directory_iterator(TERRAMAP_PLUGIN_DIR))
+    if (e.path().extension() == ".so") modules.push_back(e.path().string());
+  ASSERT_GE(modules.size(), 6u);  // blade_sweep, inpaint, lidar_fusion, smooth_filter, soil_erosion + probe
+  for (const std::string& m : modules) {
+    const auto note = detail::readElfSection(m, TERRAMAP_PLUGIN_ABI_SECTION);
+    ASSERT_TRUE(note.has_value()) << m;
+    EXPECT_STREQ(note->c_str(), TERRAMAP_BUILD_FINGERPRINT) << m;
+  }
   // The host pins Eigen's alignment (CMake package) and says so in the fingerprint.
   EXPECT_NE(std::string(TERRAMAP_BUILD_FINGERPRINT).find(";eigen-align-16-16;"), std::string::npos);
 }
