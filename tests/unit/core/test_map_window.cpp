@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstring>
 #include <random>
+#include <set>
 #include <vector>
 
 using namespace terramap;
@@ -94,7 +95,21 @@ TEST(MapWindow, ScatterWritesChangedCellsOnlyAndKeepsSnapshotsSharing) {
       if ((i == 11 && j == 21) || (i == 34 && j == 49) || (i == 12 && j == 22)) continue;
       EXPECT_TRUE(sameBits(m.at(id, Index(i, j)), snap.at(id, Index(i, j)))) << i << "," << j;
     }
-  // Only the tiles holding (34, 49) and (11, 21) could be new: nothing else got allocated.
+  // Only the tiles holding the written cells were copied or allocated; every other tile is still
+  // the snapshot's own memory (shared, not copied).
+  std::set<int> written;
+  for (const Index& c : {Index(11, 21), Index(34, 49), Index(12, 22)}) {
+    const Index b = m.bufferIndex(c);
+    written.insert(m.tileOfBuffer(b.x(), b.y()));
+  }
+  int differing = 0;
+  for (int t = 0; t < m.tileCount(); ++t) {
+    if (written.count(t)) continue;
+    EXPECT_EQ(m.tileData(id, t), snap.tileData(id, t)) << "tile " << t << " was copied or allocated";
+    differing += m.tileData(id, t) != snap.tileData(id, t);
+  }
+  EXPECT_EQ(differing, 0);
+  for (int t : written) EXPECT_NE(m.tileData(id, t), snap.tileData(id, t)) << "written tile " << t << " still shared";
   EXPECT_LE(m.allocatedTiles(), allocated + 2);
   EXPECT_EQ(w.scatterChanged(m, id, after, after), 0);
 }
