@@ -147,15 +147,23 @@ TEST(FeeWedge, ClosedFormEqualsIndependentForcePolygon) {
 }
 
 TEST(FeeWedge, ForceIsLinearInTheLoadParameters) {
-  // f is linear in (gamma, c, Q, ca) with the N-factors as coefficients.
+  // f is linear in the loads (gamma, c, Q, ca) at a fixed failure angle: evaluated, the force
+  // of the summed loads is the sum of the forces, and scaling the loads scales it.
   const Soil s = soil(8000, 0.5, 17000, 3000, 0.3);
   const Geometry g = geom(0.1, 1.2, 0.3, 1.7, 900);
   const double beta = 0.6;
   const Result r = evaluate(s, g, beta);
   const Factors n = factors(s, g, beta);
   const double d = g.d_m, w = g.w_m;
-  EXPECT_DOUBLE_EQ(r.f_N, s.gamma_n_m3 * d * d * w * n.N_gamma + s.c_pa * d * w * n.N_c + g.q_n * n.N_Q +
-                              s.ca_pa * d * w * n.N_ca);
+  const Soil s1 = soil(3000, 0.5, 5000, 1000, 0.3), s2 = soil(5000, 0.5, 12000, 2000, 0.3);
+  const Geometry g1 = geom(0.1, 1.2, 0.3, 1.7, 400), g2 = geom(0.1, 1.2, 0.3, 1.7, 500);
+  const double f1 = evaluate(s1, g1, beta).f_N, f2 = evaluate(s2, g2, beta).f_N;
+  EXPECT_NEAR(r.f_N, f1 + f2, 1e-9 * std::abs(r.f_N));
+  EXPECT_NEAR(evaluate(soil(16000, 0.5, 34000, 6000, 0.3), geom(0.1, 1.2, 0.3, 1.7, 1800), beta).f_N, 2 * r.f_N,
+              1e-9 * std::abs(r.f_N));
+  // Each load alone contributes its own term: with only gamma the force is gamma d^2 w N_gamma.
+  EXPECT_NEAR(evaluate(soil(0, 0.5, 17000, 0, 0.3), geom(0.1, 1.2, 0.3, 1.7, 0), beta).f_N,
+              s.gamma_n_m3 * d * d * w * n.N_gamma, 1e-9 * std::abs(r.f_N));
   // Hand values at this point (computed from the formulas of ALGORITHMS.md §E by hand/calculator):
   // eta = 0.3 + 1.2 + 0.5 + 0.6 = 2.6
   EXPECT_DOUBLE_EQ(n.eta_rad, 2.6);
