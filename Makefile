@@ -10,7 +10,7 @@ PREFIX ?= /usr/local
 CMAKE_FLAGS ?=
 OUT ?= out/demo
 
-.PHONY: all deps configure build demo test bench mutation install clean
+.PHONY: all deps configure build demo test test-asan test-tsan bench mutation install clean
 
 all: build
 
@@ -31,6 +31,28 @@ demo: build
 
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS) --timeout 900
+
+# Every test under AddressSanitizer + UndefinedBehaviorSanitizer in its own tree (build-asan).
+# Python and the web view are off there (an uninstrumented interpreter or browser cannot load an
+# instrumented module); the ASan-host and TSan sub-builds are tests of the plain build.
+SAN_FLAGS = -DTERRAMAP_WITH_PYTHON=OFF -DTERRAMAP_WITH_WEB=OFF -DTERRAMAP_TEST_SANITIZED_HOST=OFF \
+            -DTERRAMAP_TEST_TSAN_ENGINE=OFF -DTERRAMAP_BUILD_BENCHMARKS=OFF
+test-asan: deps
+	cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRAMAP_SANITIZE=address,undefined $(SAN_FLAGS)
+	cmake --build build-asan -j $(JOBS)
+	cd build-asan && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
+	  ctest --output-on-failure -j $(JOBS) --timeout 1800 $(CTEST_ARGS)
+
+# The threading tests under ThreadSanitizer (build-tsan): the engine's push/snapshot contract,
+# the snapshot readers, the simulator's overlap and the executor. TBB from Debian is not
+# instrumented, so its internal synchronisation is invisible to TSan: scripts/tsan.supp
+# suppresses reports whose stacks are inside libtbb only.
+test-tsan: deps
+	cmake -S . -B build-tsan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRAMAP_SANITIZE=thread $(SAN_FLAGS)
+	cmake --build build-tsan -j $(JOBS)
+	cd build-tsan && TSAN_OPTIONS=halt_on_error=1:suppressions=$(CURDIR)/scripts/tsan.supp \
+	  ctest --output-on-failure -j $(JOBS) --timeout 1800 -R '$(TSAN_TESTS)'
+TSAN_TESTS ?= Engine|Snapshot|LayeredMap|Executor|Parallel|Simulator|SimLocalisation|MachineShape|Live|Web
 
 bench: build
 	@for b in $(BUILD)/bin/bench_*; do echo "== $$b"; $$b --benchmark_counters_tabular=true || exit 1; done

@@ -104,7 +104,8 @@ TEST(Inpaint, SkipsACallOnlyWhenNothingChanged) {
   e.addStage("f", PluginRegistry::createFromFile(std::string(TERRAMAP_PLUGIN_DIR) + "/inpaint.so"),
              {{"run_on", std::vector<std::string>{"tick"}}, {"max_distance_m", -1.0}});
   auto skipped = [&] {
-    const auto& c = e.report().stages[0].stats.counters;
+    const RunReport r = e.report();  // a copy: report() returns by value
+    const auto& c = r.stages[0].stats.counters;
     return c.count("passes_skipped") ? c.at("passes_skipped") : 0.0;
   };
   auto expectFullPass = [&](const char* when) {

@@ -16,6 +16,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <cstdlib>
 #include <filesystem>
 #include <functional>
@@ -38,15 +39,20 @@ LayeredMap mapOf(float v) {
   LayeredMap m(Geometry(0.1, Size(256, 256), Position(100.0, 200.0)));
   const LayerId id = m.addLayer("elevation", "m");
   m.fill(id, v);
-  m.set(id, Index(3, 5), -v);  // not only a constant: position matters too
+  m.set(id, Index(3, 5), -v - 1.0f);  // not only a constant (and never equal to v): position matters too
   return m;
 }
 
-/// Forks a child that runs `write(version)` for versions 1, 2, 3, ... until it is killed after
-/// a random delay in [0, max_delay_us]; returns how many kills happened while it was writing
-/// (the child still alive at the kill).
-void killDuringWrites(int kills, int max_delay_us, std::uint32_t seed, const std::function<void(int)>& write,
+/// Forks a child that runs `write(version)` for versions 1, 2, 3, ... and kills it after a random
+/// delay in [0, 3 x the time of one write] (timed here first, so a slow build, e.g. under a
+/// sanitizer, still has kills before, during and after the first writes); `check_target` runs
+/// after every kill.
+void killDuringWrites(int kills, std::uint32_t seed, const std::function<void(int)>& write,
                       const std::function<void()>& check_target) {
+  const auto t0 = std::chrono::steady_clock::now();
+  write(0);
+  const double once_us = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
+  const int max_delay_us = std::max(100, static_cast<int>(3.0 * once_us));
   std::mt19937 rng(seed);
   std::uniform_int_distribution<int> delay(0, max_delay_us);
   for (int k = 0; k < kills; ++k) {
@@ -72,14 +78,14 @@ TEST_F(CrashSafety, KilledSnapshotWritersLeaveTheLastCompleteFile) {
   io::saveSnapshot(mapOf(0.0f), target);
   std::set<float> seen;
   killDuringWrites(
-      450, 6000, 1, [&](int v) { io::saveSnapshot(mapOf(static_cast<float>(v)), target); },
+      450, 1, [&](int v) { io::saveSnapshot(mapOf(static_cast<float>(v)), target); },
       [&] {
         // loadSnapshot checks the length and checksums: a torn file throws.
         const LayeredMap m = io::loadSnapshot(target);
         const LayerId id = m.layerId("elevation");
         const float v = m.at(id, Index(0, 0));
         EXPECT_EQ(m.at(id, Index(255, 255)), v);
-        EXPECT_EQ(m.at(id, Index(3, 5)), -v);
+        EXPECT_EQ(m.at(id, Index(3, 5)), -v - 1.0f);
         seen.insert(v);
       });
   // The kills hit every phase: some writes completed between kills, some were cut short.
@@ -92,14 +98,14 @@ TEST_F(CrashSafety, KilledGeoTiffWritersLeaveTheLastCompleteFile) {
   io::writeGeoTiff(mapOf(0.0f), {"elevation"}, target);
   std::set<float> seen;
   killDuringWrites(
-      450, 8000, 2, [&](int v) { io::writeGeoTiff(mapOf(static_cast<float>(v)), {"elevation"}, target); },
+      450, 2, [&](int v) { io::writeGeoTiff(mapOf(static_cast<float>(v)), {"elevation"}, target); },
       [&] {
         const io::Raster r = io::readRaster(target);
         ASSERT_EQ(r.bands.size(), 1u);
         const Eigen::MatrixXf& b = r.bands[0].values;
         ASSERT_EQ(b.rows() * b.cols(), 256 * 256);
         // Every cell one version's (no mix of an old and a new half, no zeros of a short file):
-        // all cells but the marked one equal, the marked one its negative.
+        // all cells but the marked one equal, the marked one -v - 1.
         const float v = b(0, 0);
         long other = 0;
         for (Eigen::Index k = 0; k < b.size(); ++k) other += b.data()[k] != v;
@@ -129,7 +135,7 @@ machines:
   const std::uint64_t obs = dims[0];  // observations of the 0.2 s run
   ASSERT_GT(obs, 5u);
   killDuringWrites(
-      100, 60000, 3,
+      100, 3,
       [&](int v) {
         sim::Scenario s = sc;
         s.seed = static_cast<std::uint64_t>(v);
