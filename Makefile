@@ -1,6 +1,7 @@
 # terramap: the two commands of the README, plus a few helpers.
 #   make demo   install missing Debian packages, build (Release), run the embedded demo
 #   make test   install missing Debian packages, build (Release), run every test
+#   make test-asan  every test under AddressSanitizer + UndefinedBehaviorSanitizer
 #   make bench  build and run the Google Benchmark programs
 #   make mutation  break the code on purpose and check the tests notice (docs/testing.md)
 #   make install PREFIX=/usr/local
@@ -10,7 +11,7 @@ PREFIX ?= /usr/local
 CMAKE_FLAGS ?=
 OUT ?= out/demo
 
-.PHONY: all deps configure build demo test test-asan test-tsan bench mutation install clean
+.PHONY: all deps configure build demo test test-asan bench mutation install clean
 
 all: build
 
@@ -42,17 +43,6 @@ test-asan: deps
 	cmake --build build-asan -j $(JOBS)
 	cd build-asan && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
 	  ctest --output-on-failure -j $(JOBS) --timeout 1800 $(CTEST_ARGS)
-
-# The threading tests under ThreadSanitizer (build-tsan): the engine's push/snapshot contract,
-# the snapshot readers, the simulator's overlap and the executor. TBB from Debian is not
-# instrumented, so its internal synchronisation is invisible to TSan: scripts/tsan.supp
-# suppresses reports whose stacks are inside libtbb only.
-test-tsan: deps
-	cmake -S . -B build-tsan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRAMAP_SANITIZE=thread $(SAN_FLAGS)
-	cmake --build build-tsan -j $(JOBS)
-	cd build-tsan && TSAN_OPTIONS=halt_on_error=1:suppressions=$(CURDIR)/scripts/tsan.supp \
-	  ctest --output-on-failure -j $(JOBS) --timeout 1800 -R '$(TSAN_TESTS)'
-TSAN_TESTS ?= Engine|Snapshot|LayeredMap|Executor|Parallel|Simulator|SimLocalisation|MachineShape|Live|Web
 
 bench: build
 	@for b in $(BUILD)/bin/bench_*; do echo "== $$b"; $$b --benchmark_counters_tabular=true || exit 1; done
