@@ -81,10 +81,69 @@ double gaussianFromBits(std::uint64_t h) {
   }
 }
 
+namespace {
+
+/// The machines' boxes one scan can hit, with what culls them cheaply. A column's rays all lie
+/// in the half-plane of its azimuth through the sensor's z axis, so a box whose bounding sphere
+/// misses that half-plane cannot be hit by the column; an upward ray cannot hit a box whose top
+/// is below the origin.
+class ScanObstacles {
+ public:
+  /// Keeps the boxes within `max_range` of `o` (buffers reused from scan to scan).
+  void prepare(const std::vector<PlacedBox>* obstacles, const Eigen::Vector3d& o, const Eigen::Matrix3d& R,
+               double max_range) {
+    boxes_.clear();
+    cs_.clear();
+    top_.clear();
+    if (!obstacles) return;
+    for (const PlacedBox& b : *obstacles) {
+      if ((b.centre - o).norm() - b.radius > max_range) continue;
+      boxes_.push_back(b);
+      cs_.push_back(R.transpose() * (b.centre - o));  // sphere centre, sensor frame, origin-relative
+      top_.push_back(b.centre.z() + b.R.row(2).cwiseAbs().dot(b.half));
+    }
+    oz_ = o.z();
+  }
+  std::size_t size() const { return boxes_.size(); }
+
+  /// The candidates of the column whose first sensor-frame ray is `d0`: all rays (`all`) and
+  /// upward rays (`up`); each sized size().
+  void column(const Eigen::Vector3d& d0, std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up) const {
+    n_all = n_up = 0;
+    const double hx = d0.x(), hy = d0.y(), hn = std::hypot(hx, hy);
+    for (std::size_t q = 0; q < boxes_.size(); ++q) {
+      const Eigen::Vector3d& cs = cs_[q];
+      const double r = boxes_[q].radius;
+      const double across = (-hy * cs.x() + hx * cs.y()) / hn, along = (hx * cs.x() + hy * cs.y()) / hn;
+      if (std::abs(across) > r || along < -r) continue;
+      all[n_all++] = static_cast<int>(q);
+      if (top_[q] >= oz_) up[n_up++] = static_cast<int>(q);
+    }
+  }
+
+  /// First box entry of the ray o + t dm in [t_min, t_max] among the column's candidates;
+  /// +inf when none.
+  double hit(const Eigen::Vector3d& o, const Eigen::Vector3d& dm, double t_min, double t_max, const std::vector<int>& all,
+             int n_all, const std::vector<int>& up, int n_up, Eigen::Vector3d* normal) const {
+    const bool upward = dm.z() >= 0.0;
+    const int n = upward ? n_up : n_all;
+    if (n == 0) return std::numeric_limits<double>::infinity();
+    return firstBoxHit(boxes_.data(), upward ? up.data() : all.data(), n, o, dm, t_min, t_max, normal);
+  }
+
+ private:
+  std::vector<PlacedBox> boxes_;
+  std::vector<Eigen::Vector3d> cs_;
+  std::vector<double> top_;
+  double oz_ = 0;
+};
+
+}  // namespace
+
 struct LidarModel::Scratch {
   ScanCaster caster;
   std::vector<std::vector<PointXYZI>> parts;
-  std::vector<PlacedBox> boxes;  // the obstacles within reach of this scan
+  ScanObstacles obstacles;  // the machines' boxes within reach of this scan
 };
 
 LidarModel::~LidarModel() = default;
@@ -137,23 +196,9 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
   if (static_cast<int>(parts.size()) < chunks) parts.resize(chunks);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const ScanCaster& cast = caster;
-  // Boxes within reach of this sensor (a far machine cannot be hit).
-  std::vector<PlacedBox>& boxes = scratch_->boxes;
-  boxes.clear();
-  if (obstacles)
-    for (const PlacedBox& b : *obstacles)
-      if ((b.centre - o).norm() - b.radius <= spec_.max_range_m) boxes.push_back(b);
-  // Culling data per box: its bounding-sphere centre in the sensor frame (relative to the
-  // origin) and its highest point in the map frame. A column's rays all lie in the half-plane
-  // of its azimuth through the sensor's z axis, so a box whose sphere misses that half-plane
-  // cannot be hit by the column; an upward ray cannot hit a box whose top is below the origin.
+  ScanObstacles& boxes = scratch_->obstacles;
+  boxes.prepare(obstacles, o, R, spec_.max_range_m);
   const std::size_t nbox = boxes.size();
-  std::vector<Eigen::Vector3d> box_cs(nbox);
-  std::vector<double> box_top(nbox);
-  for (std::size_t q = 0; q < nbox; ++q) {
-    box_cs[q] = R.transpose() * (boxes[q].centre - o);
-    box_top[q] = boxes[q].centre.z() + boxes[q].R.row(2).cwiseAbs().dot(boxes[q].half);
-  }
   auto work = [&](int ch) {
     std::vector<PointXYZI>& pts = parts[ch];
     pts.clear();
@@ -170,18 +215,7 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
     for (int c = c0; c < c1; ++c) {
       // Boxes this column's half-plane can reach; of those, the ones an upward ray can reach.
       int n_cand = 0, n_up = 0;
-      if (nbox > 0) {
-        const Eigen::Vector3d& d0 = dirs_[static_cast<std::size_t>(c) * B];
-        const double hx = d0.x(), hy = d0.y(), hn = std::hypot(hx, hy);
-        for (std::size_t q = 0; q < nbox; ++q) {
-          const Eigen::Vector3d& cs = box_cs[q];
-          const double r = boxes[q].radius;
-          const double across = (-hy * cs.x() + hx * cs.y()) / hn, along = (hx * cs.x() + hy * cs.y()) / hn;
-          if (std::abs(across) > r || along < -r) continue;
-          cand[n_cand++] = static_cast<int>(q);
-          if (box_top[q] >= o.z()) cand_up[n_up++] = static_cast<int>(q);
-        }
-      }
+      if (nbox > 0) boxes.column(dirs_[static_cast<std::size_t>(c) * B], cand, n_cand, cand_up, n_up);
       // Rays that cannot hit (upwards from above the terrain: half of a spinning LiDAR's) are
       // settled here; the rest are cast as one batch.
       int n_may = 0;
@@ -209,11 +243,8 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
         double t = t_col[b];
         // A machine in front of the terrain hit (or in a ray that misses the terrain) wins.
         Eigen::Vector3d n_box;
-        const bool up = dm.z() >= 0.0;
-        const int nc = up ? n_up : n_cand;
-        const double t_box = nc == 0 ? std::numeric_limits<double>::infinity()
-                                     : firstBoxHit(boxes.data(), up ? cand_up.data() : cand.data(), nc, o, dm,
-                                                   spec_.min_range_m, std::isnan(t) ? spec_.max_range_m : t, &n_box);
+        const double t_box = boxes.hit(o, dm, spec_.min_range_m, std::isnan(t) ? spec_.max_range_m : t, cand, n_cand,
+                                       cand_up, n_up, &n_box);
         const bool on_machine = t_box < std::numeric_limits<double>::infinity();
         if (on_machine) t = t_box;
         if (std::isnan(t)) {

@@ -37,55 +37,74 @@ void placeShape(const std::vector<ShapeBox>& shape, const Eigen::Isometry3d& T_m
   }
 }
 
+namespace {
+
+/// Entry of the ray o + t d into box b if it is in [t_min, t_max] (the ray starting outside);
+/// +inf otherwise. On a hit, *normal is the outward normal of the face entered.
+double enterBox(const PlacedBox& b, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min, double t_max,
+                Eigen::Vector3d* normal) {
+  const double none = std::numeric_limits<double>::infinity();
+  // Bounding sphere first: most rays pass far from most boxes.
+  const Eigen::Vector3d oc = b.centre - o;
+  const double tc = oc.dot(d);
+  const double miss2 = oc.squaredNorm() - tc * tc;
+  if (miss2 > b.radius * b.radius || tc + b.radius < t_min || tc - b.radius > t_max) return none;
+  // Slabs in the box frame.
+  const Eigen::Vector3d ob = b.R.transpose() * (-oc), db = b.R.transpose() * d;
+  double t0 = -std::numeric_limits<double>::infinity(), t1 = std::numeric_limits<double>::infinity();
+  int axis = -1;
+  double sign = 0;
+  bool inside = true;
+  for (int k = 0; k < 3; ++k) {
+    if (std::abs(ob[k]) > b.half[k]) inside = false;
+    if (db[k] == 0.0) {
+      if (std::abs(ob[k]) > b.half[k]) return none;  // parallel to and outside this slab
+      continue;
+    }
+    double ta = (-b.half[k] - ob[k]) / db[k], tb = (b.half[k] - ob[k]) / db[k];
+    double s = -1.0;  // entering through the -half face
+    if (ta > tb) {
+      std::swap(ta, tb);
+      s = 1.0;
+    }
+    if (ta > t0) {
+      t0 = ta;
+      axis = k;
+      sign = s;
+    }
+    t1 = std::min(t1, tb);
+  }
+  if (inside || axis < 0 || t0 > t1 || t0 < t_min || t0 > t_max) return none;
+  if (normal) *normal = sign * b.R.col(axis);
+  return t0;
+}
+
+}  // namespace
+
 double firstBoxHit(const std::vector<PlacedBox>& boxes, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
                    double t_min, double t_max, Eigen::Vector3d* normal) {
-  std::vector<int> idx(boxes.size());
-  for (std::size_t k = 0; k < boxes.size(); ++k) idx[k] = static_cast<int>(k);
-  return firstBoxHit(boxes.data(), idx.data(), static_cast<int>(idx.size()), o, d, t_min, t_max, normal);
+  double best = std::numeric_limits<double>::infinity();
+  for (const PlacedBox& b : boxes) {
+    Eigen::Vector3d n;
+    const double t = enterBox(b, o, d, t_min, std::min(t_max, best), &n);
+    if (t < best) {
+      best = t;
+      if (normal) *normal = n;
+    }
+  }
+  return best;
 }
 
 double firstBoxHit(const PlacedBox* boxes, const int* idx, int n, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
                    double t_min, double t_max, Eigen::Vector3d* normal) {
   double best = std::numeric_limits<double>::infinity();
   for (int q = 0; q < n; ++q) {
-    const PlacedBox& b = boxes[idx[q]];
-    // Bounding sphere first: most rays pass far from most boxes.
-    const Eigen::Vector3d oc = b.centre - o;
-    const double tc = oc.dot(d);
-    const double miss2 = oc.squaredNorm() - tc * tc;
-    if (miss2 > b.radius * b.radius || tc + b.radius < t_min || tc - b.radius > std::min(t_max, best)) continue;
-    // Slabs in the box frame.
-    const Eigen::Vector3d ob = b.R.transpose() * (-oc), db = b.R.transpose() * d;
-    double t0 = -std::numeric_limits<double>::infinity(), t1 = std::numeric_limits<double>::infinity();
-    int axis = -1;
-    double sign = 0;
-    bool inside = true;
-    for (int k = 0; k < 3; ++k) {
-      if (std::abs(ob[k]) > b.half[k]) inside = false;
-      if (db[k] == 0.0) {
-        if (std::abs(ob[k]) > b.half[k]) {
-          t0 = 1.0;
-          t1 = 0.0;  // parallel and outside this slab: no hit
-          break;
-        }
-        continue;
-      }
-      double ta = (-b.half[k] - ob[k]) / db[k], tb = (b.half[k] - ob[k]) / db[k];
-      double s = -1.0;  // entering through the -half face
-      if (ta > tb) {
-        std::swap(ta, tb);
-        s = 1.0;
-      }
-      if (ta > t0) {
-        t0 = ta;
-        axis = k;
-        sign = s;
-      }
-      t1 = std::min(t1, tb);
+    Eigen::Vector3d nq;
+    const double t = enterBox(boxes[idx[q]], o, d, t_min, std::min(t_max, best), &nq);
+    if (t < best) {
+      best = t;
+      if (normal) *normal = nq;
     }
-    if (inside || axis < 0 || t0 > t1 || t0 < t_min || t0 > t_max || !(t0 < best)) continue;
-    best = t0;
-    if (normal) *normal = sign * b.R.col(axis);
   }
   return best;
 }
