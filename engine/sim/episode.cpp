@@ -218,7 +218,92 @@ struct EpisodeWriter::Impl {
     if (file >= 0) H5Fclose(file);
     file = -1;
   }
+  void writeSoilMaps(const Simulator& sim, const EpisodeOptions& options);
+  void openMachine(hid_t mg, const MachineSpec& spec, std::size_t mi, const EpisodeOptions& options);
 };
+
+/// The surface soil maps (depth 0 below the initial surface) and the zone index, /soil.
+void EpisodeWriter::Impl::writeSoilMaps(const Simulator& sim, const EpisodeOptions& options) {
+  Impl& I = *this;
+  const TruthTerrain& t = sim.truth();
+  const hid_t soil = makeGroup(I.file, "soil", I.tmp_path);
+  const char* names[] = {"c_pa", "phi_rad", "gamma_n_m3", "ca_pa", "delta_rad", "relative_density", "zone"};
+  std::vector<std::vector<float>> maps(7, std::vector<float>(static_cast<std::size_t>(I.nx) * I.ny));
+  for (int j = 0; j < I.ny; ++j)
+    for (int i = 0; i < I.nx; ++i) {
+      const Eigen::Vector2d p = t.nodePosition(i, j);
+      const int z = sim.soil().zoneAt(p.x(), p.y(), 0.0);
+      const SoilProperties& s = sim.soil().at(p.x(), p.y(), 0.0);
+      const std::size_t k = static_cast<std::size_t>(j) * I.nx + i;
+      maps[0][k] = static_cast<float>(s.fee.c_pa);
+      maps[1][k] = static_cast<float>(s.fee.phi_rad);
+      maps[2][k] = static_cast<float>(s.fee.gamma_n_m3);
+      maps[3][k] = static_cast<float>(s.fee.ca_pa);
+      maps[4][k] = static_cast<float>(s.fee.delta_rad);
+      maps[5][k] = static_cast<float>(s.relative_density);
+      maps[6][k] = static_cast<float>(z);
+    }
+  for (int m = 0; m < 7; ++m) writeGrid(soil, names[m], maps[m], I.nx, I.ny, std::max(1, options.compression), I.tmp_path);
+  H5Gclose(soil);
+}
+
+/// One machine's group: its per-observation datasets (truth at top level, estimate/, truth/)
+/// and, with clouds, one group per LiDAR.
+void EpisodeWriter::Impl::openMachine(hid_t mg, const MachineSpec& spec, std::size_t mi, const EpisodeOptions& options) {
+  Impl& I = *this;
+  MachineSets& M = I.machines[mi];
+  I.machine_index[spec.id] = mi;
+  M.group = makeGroup(mg, spec.id, I.tmp_path);
+  attrDouble(M.group, "blade_width_m", spec.blade.width_m);
+  attrDouble(M.group, "blade_height_m", spec.blade.height_m);
+  auto add = [&](hid_t parent, const std::string& key, const std::string& name, hid_t type, std::vector<hsize_t> row) {
+    M.a.emplace(key, Appender(parent, name, type, std::move(row), 0, I.tmp_path));
+  };
+  add(M.group, "stamp", "stamp", H5T_NATIVE_DOUBLE, {});
+  add(M.group, "T_map_base", "T_map_base", H5T_NATIVE_DOUBLE, {4, 4});
+  add(M.group, "twist_base", "twist_base", H5T_NATIVE_DOUBLE, {6});
+  add(M.group, "T_map_blade", "T_map_blade", H5T_NATIVE_DOUBLE, {4, 4});
+  add(M.group, "twist_blade", "twist_blade", H5T_NATIVE_DOUBLE, {6});
+  add(M.group, "cylinder_length_m", "cylinder_length_m", H5T_NATIVE_DOUBLE, {3});
+  add(M.group, "cylinder_velocity_mps", "cylinder_velocity_mps", H5T_NATIVE_DOUBLE, {3});
+  add(M.group, "track_speed_mps", "track_speed_mps", H5T_NATIVE_DOUBLE, {2});
+  add(M.group, "engine_speed_rpm", "engine_speed_rpm", H5T_NATIVE_DOUBLE, {});
+  add(M.group, "action", "action", H5T_NATIVE_DOUBLE, {5});
+  add(M.group, "force_base_N", "force_base_N", H5T_NATIVE_DOUBLE, {3});
+  add(M.group, "pose_T_map_base", "pose_T_map_base", H5T_NATIVE_DOUBLE, {4, 4});
+  M.estimate = makeGroup(M.group, "estimate", I.tmp_path);
+  add(M.estimate, "e_T_map_base", "T_map_base", H5T_NATIVE_DOUBLE, {4, 4});
+  add(M.estimate, "e_twist_base", "twist_base", H5T_NATIVE_DOUBLE, {6});
+  add(M.estimate, "e_T_map_blade", "T_map_blade", H5T_NATIVE_DOUBLE, {4, 4});
+  add(M.estimate, "e_twist_blade", "twist_blade", H5T_NATIVE_DOUBLE, {6});
+  add(M.estimate, "e_cylinder_length_m", "cylinder_length_m", H5T_NATIVE_DOUBLE, {3});
+  add(M.estimate, "e_error_base", "error_base", H5T_NATIVE_DOUBLE, {6});
+  add(M.estimate, "e_error_blade", "error_blade", H5T_NATIVE_DOUBLE, {6});
+  M.truth = makeGroup(M.group, "truth", I.tmp_path);
+  add(M.truth, "t_force_map_N", "force_map_N", H5T_NATIVE_DOUBLE, {3});
+  add(M.truth, "t_force_base_N", "force_base_N", H5T_NATIVE_DOUBLE, {3});
+  add(M.truth, "t_fee", "fee", H5T_NATIVE_DOUBLE, {6});
+  add(M.truth, "t_soil", "soil", H5T_NATIVE_DOUBLE, {5});
+  add(M.truth, "t_stalled", "stalled", H5T_NATIVE_UINT8, {});
+  add(M.truth, "t_setpoints", "setpoints", H5T_NATIVE_DOUBLE, {5});
+  add(M.truth, "t_cut", "cut_bank_m3", H5T_NATIVE_DOUBLE, {});
+  if (options.clouds) {
+    M.clouds = makeGroup(M.group, "clouds", I.tmp_path);
+    for (const SensorSpec& s : spec.sensors) {
+      if (s.type != SensorSpec::Type::Lidar) continue;
+      MachineSets::Cloud c;
+      c.group = makeGroup(M.clouds, s.id, I.tmp_path);
+      attrU64(c.group, "beams", static_cast<std::uint64_t>(s.beams));
+      attrU64(c.group, "columns", static_cast<std::uint64_t>(s.columns));
+      c.stamp = Appender(c.group, "stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, 256);
+      c.T = Appender(c.group, "T_map_sensor", H5T_NATIVE_DOUBLE, {4, 4}, 0, I.tmp_path, 256);
+      c.offset = Appender(c.group, "offset", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, 256);
+      c.count = Appender(c.group, "count", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, 256);
+      c.points = Appender(c.group, "points", H5T_NATIVE_FLOAT, {4}, options.compression, I.tmp_path, 65536);
+      M.cloud.emplace(spec.id + "/" + s.id, std::move(c));
+    }
+  }
+}
 
 EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, EpisodeOptions options)
     : impl_(std::make_unique<Impl>()) {
@@ -258,86 +343,11 @@ EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, Epis
   I.snap_height = Appender(I.terrain, "height", H5T_NATIVE_FLOAT, grid, options.compression, I.tmp_path, 1);
   I.snap_loose = Appender(I.terrain, "loose", H5T_NATIVE_FLOAT, grid, options.compression, I.tmp_path, 1);
   I.snapshot_interval = sc.terrain.snapshot_interval_s;
-  // Surface soil maps (depth 0 below the initial surface) and the zone index.
-  {
-    const hid_t soil = makeGroup(I.file, "soil", I.tmp_path);
-    const char* names[] = {"c_pa", "phi_rad", "gamma_n_m3", "ca_pa", "delta_rad", "relative_density", "zone"};
-    std::vector<std::vector<float>> maps(7, std::vector<float>(g.size()));
-    for (int j = 0; j < I.ny; ++j)
-      for (int i = 0; i < I.nx; ++i) {
-        const Eigen::Vector2d p = t.nodePosition(i, j);
-        const int z = sim.soil().zoneAt(p.x(), p.y(), 0.0);
-        const SoilProperties& s = sim.soil().at(p.x(), p.y(), 0.0);
-        const std::size_t k = static_cast<std::size_t>(j) * I.nx + i;
-        maps[0][k] = static_cast<float>(s.fee.c_pa);
-        maps[1][k] = static_cast<float>(s.fee.phi_rad);
-        maps[2][k] = static_cast<float>(s.fee.gamma_n_m3);
-        maps[3][k] = static_cast<float>(s.fee.ca_pa);
-        maps[4][k] = static_cast<float>(s.fee.delta_rad);
-        maps[5][k] = static_cast<float>(s.relative_density);
-        maps[6][k] = static_cast<float>(z);
-      }
-    for (int m = 0; m < 7; ++m) writeGrid(soil, names[m], maps[m], I.nx, I.ny, std::max(1, options.compression), I.tmp_path);
-    H5Gclose(soil);
-  }
+  I.writeSoilMaps(sim, options);
   // Machines.
   const hid_t mg = makeGroup(I.file, "machines", I.tmp_path);
   I.machines.resize(sim.machineCount());
-  for (std::size_t mi = 0; mi < sim.machineCount(); ++mi) {
-    const MachineSpec& spec = sc.machines[mi];
-    MachineSets& M = I.machines[mi];
-    I.machine_index[spec.id] = mi;
-    M.group = makeGroup(mg, spec.id, I.tmp_path);
-    attrDouble(M.group, "blade_width_m", spec.blade.width_m);
-    attrDouble(M.group, "blade_height_m", spec.blade.height_m);
-    auto add = [&](hid_t parent, const std::string& key, const std::string& name, hid_t type, std::vector<hsize_t> row) {
-      M.a.emplace(key, Appender(parent, name, type, std::move(row), 0, I.tmp_path));
-    };
-    add(M.group, "stamp", "stamp", H5T_NATIVE_DOUBLE, {});
-    add(M.group, "T_map_base", "T_map_base", H5T_NATIVE_DOUBLE, {4, 4});
-    add(M.group, "twist_base", "twist_base", H5T_NATIVE_DOUBLE, {6});
-    add(M.group, "T_map_blade", "T_map_blade", H5T_NATIVE_DOUBLE, {4, 4});
-    add(M.group, "twist_blade", "twist_blade", H5T_NATIVE_DOUBLE, {6});
-    add(M.group, "cylinder_length_m", "cylinder_length_m", H5T_NATIVE_DOUBLE, {3});
-    add(M.group, "cylinder_velocity_mps", "cylinder_velocity_mps", H5T_NATIVE_DOUBLE, {3});
-    add(M.group, "track_speed_mps", "track_speed_mps", H5T_NATIVE_DOUBLE, {2});
-    add(M.group, "engine_speed_rpm", "engine_speed_rpm", H5T_NATIVE_DOUBLE, {});
-    add(M.group, "action", "action", H5T_NATIVE_DOUBLE, {5});
-    add(M.group, "force_base_N", "force_base_N", H5T_NATIVE_DOUBLE, {3});
-    add(M.group, "pose_T_map_base", "pose_T_map_base", H5T_NATIVE_DOUBLE, {4, 4});
-    M.estimate = makeGroup(M.group, "estimate", I.tmp_path);
-    add(M.estimate, "e_T_map_base", "T_map_base", H5T_NATIVE_DOUBLE, {4, 4});
-    add(M.estimate, "e_twist_base", "twist_base", H5T_NATIVE_DOUBLE, {6});
-    add(M.estimate, "e_T_map_blade", "T_map_blade", H5T_NATIVE_DOUBLE, {4, 4});
-    add(M.estimate, "e_twist_blade", "twist_blade", H5T_NATIVE_DOUBLE, {6});
-    add(M.estimate, "e_cylinder_length_m", "cylinder_length_m", H5T_NATIVE_DOUBLE, {3});
-    add(M.estimate, "e_error_base", "error_base", H5T_NATIVE_DOUBLE, {6});
-    add(M.estimate, "e_error_blade", "error_blade", H5T_NATIVE_DOUBLE, {6});
-    M.truth = makeGroup(M.group, "truth", I.tmp_path);
-    add(M.truth, "t_force_map_N", "force_map_N", H5T_NATIVE_DOUBLE, {3});
-    add(M.truth, "t_force_base_N", "force_base_N", H5T_NATIVE_DOUBLE, {3});
-    add(M.truth, "t_fee", "fee", H5T_NATIVE_DOUBLE, {6});
-    add(M.truth, "t_soil", "soil", H5T_NATIVE_DOUBLE, {5});
-    add(M.truth, "t_stalled", "stalled", H5T_NATIVE_UINT8, {});
-    add(M.truth, "t_setpoints", "setpoints", H5T_NATIVE_DOUBLE, {5});
-    add(M.truth, "t_cut", "cut_bank_m3", H5T_NATIVE_DOUBLE, {});
-    if (options.clouds) {
-      M.clouds = makeGroup(M.group, "clouds", I.tmp_path);
-      for (const SensorSpec& s : spec.sensors) {
-        if (s.type != SensorSpec::Type::Lidar) continue;
-        MachineSets::Cloud c;
-        c.group = makeGroup(M.clouds, s.id, I.tmp_path);
-        attrU64(c.group, "beams", static_cast<std::uint64_t>(s.beams));
-        attrU64(c.group, "columns", static_cast<std::uint64_t>(s.columns));
-        c.stamp = Appender(c.group, "stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, 256);
-        c.T = Appender(c.group, "T_map_sensor", H5T_NATIVE_DOUBLE, {4, 4}, 0, I.tmp_path, 256);
-        c.offset = Appender(c.group, "offset", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, 256);
-        c.count = Appender(c.group, "count", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, 256);
-        c.points = Appender(c.group, "points", H5T_NATIVE_FLOAT, {4}, options.compression, I.tmp_path, 65536);
-        M.cloud.emplace(spec.id + "/" + s.id, std::move(c));
-      }
-    }
-  }
+  for (std::size_t mi = 0; mi < sim.machineCount(); ++mi) I.openMachine(mg, sc.machines[mi], mi, options);
   H5Gclose(mg);
   I.snapshot(sim);
   I.next_snapshot = I.snapshot_interval;
