@@ -31,43 +31,6 @@ LayeredMap::LayeredMap(const Geometry& geometry, MapOptions options)
   tile_cols_ = (geometry_.size().y() + T - 1) / T;
 }
 
-LayeredMap::LayeredMap(const LayeredMap& other)
-    : geometry_(other.geometry_), options_(other.options_), tile_rows_(other.tile_rows_), tile_cols_(other.tile_cols_),
-      start_(other.start_), layers_(other.layers_), tiles_(other.tiles_), writes_(other.writes_),
-      owned_(other.owned_) {
-  // Both maps now treat every tile as shared: the source's generation moves past every stamp
-  // it handed out, and the copy starts past them too.
-  generation_.store(other.generation_.fetch_add(1, std::memory_order_relaxed) + 1, std::memory_order_relaxed);
-}
-
-LayeredMap& LayeredMap::operator=(const LayeredMap& other) {
-  if (this != &other) {
-    LayeredMap copy(other);
-    *this = std::move(copy);
-  }
-  return *this;
-}
-
-LayeredMap::LayeredMap(LayeredMap&& other) noexcept
-    : geometry_(std::move(other.geometry_)), options_(other.options_), tile_rows_(other.tile_rows_),
-      tile_cols_(other.tile_cols_), start_(other.start_), layers_(std::move(other.layers_)),
-      tiles_(std::move(other.tiles_)), writes_(std::move(other.writes_)),
-      generation_(other.generation_.load(std::memory_order_relaxed)), owned_(std::move(other.owned_)) {}
-
-LayeredMap& LayeredMap::operator=(LayeredMap&& other) noexcept {
-  geometry_ = std::move(other.geometry_);
-  options_ = other.options_;
-  tile_rows_ = other.tile_rows_;
-  tile_cols_ = other.tile_cols_;
-  start_ = other.start_;
-  layers_ = std::move(other.layers_);
-  tiles_ = std::move(other.tiles_);
-  writes_ = std::move(other.writes_);
-  generation_.store(other.generation_.load(std::memory_order_relaxed), std::memory_order_relaxed);
-  owned_ = std::move(other.owned_);
-  return *this;
-}
-
 LayeredMap::TilePtr LayeredMap::newTile(float fill) const {
   const size_t n = static_cast<size_t>(options_.tile_size) * options_.tile_size;
   TilePtr t(new float[n]);
@@ -95,7 +58,7 @@ LayerId LayeredMap::addLayer(const std::string& name, const std::string& unit, f
   if (!options_.sparse)
     for (auto& t : tiles) t = newTile(fill);
   tiles_.push_back(std::move(tiles));
-  owned_.emplace_back(static_cast<size_t>(tileCount()), generation_.load(std::memory_order_relaxed));
+  owned_.emplace_back(static_cast<size_t>(tileCount()), generation_.get());
   writes_.emplace_back(static_cast<size_t>(tileCount()), 0);
   return static_cast<LayerId>(layers_.size() - 1);
 }
@@ -146,8 +109,8 @@ float* LayeredMap::mutableTileData(LayerId id, int t) {
   std::uint64_t& owned = owned_[static_cast<size_t>(id)][static_cast<size_t>(t)];
   if (!tile) {
     tile = newTile(layers_[static_cast<size_t>(id)].fill);
-    owned = generation_.load(std::memory_order_relaxed);
-  } else if (owned != generation_.load(std::memory_order_relaxed)) {
+    owned = generation_.get();
+  } else if (owned != generation_.get()) {
     // Possibly shared with a copy taken since this map last made the tile its own: copy before
     // writing. (A snapshot already dropped costs one needless copy; reading its reference
     // count instead would race with the thread dropping it.)
@@ -155,7 +118,7 @@ float* LayeredMap::mutableTileData(LayerId id, int t) {
     TilePtr copy(new float[n]);
     std::copy(tile.get(), tile.get() + n, copy.get());
     tile = std::move(copy);
-    owned = generation_.load(std::memory_order_relaxed);
+    owned = generation_.get();
   }
   return tile.get();
 }

@@ -147,10 +147,10 @@ class TERRAMAP_API LayeredMap {
   /// each one before its first write (the copy-on-write is decided by generations this map owns,
   /// never by a reference count another thread may be dropping: that would be a data race with
   /// the other thread's last reads). Taking the copy must not overlap this map's writes.
-  LayeredMap(const LayeredMap& other);
-  LayeredMap& operator=(const LayeredMap& other);
-  LayeredMap(LayeredMap&& other) noexcept;
-  LayeredMap& operator=(LayeredMap&& other) noexcept;
+  LayeredMap(const LayeredMap& other) = default;
+  LayeredMap& operator=(const LayeredMap& other) = default;
+  LayeredMap(LayeredMap&& other) noexcept = default;
+  LayeredMap& operator=(LayeredMap&& other) noexcept = default;
   ~LayeredMap() = default;
 
  private:
@@ -169,8 +169,25 @@ class TERRAMAP_API LayeredMap {
   // Copy-on-write bookkeeping: a tile is this map's own (writable in place) when owned_ equals
   // generation_; every copy of the map (snapshot) bumps the generation of both, so all tiles
   // then count as shared. [layer][tile], like writes_.
-  // Atomic because copying a const map (two readers copying one shared snapshot) bumps it.
-  mutable std::atomic<std::uint64_t> generation_{1};
+  /// The map's copy-on-write generation. Copying it (copying the map) moves the source past
+  /// every stamp it handed out and starts the copy past them too; atomic because copying a
+  /// const map (two readers copying one shared snapshot) bumps it.
+  struct Generation {
+    mutable std::atomic<std::uint64_t> value{1};
+    Generation() = default;
+    Generation(const Generation& o) : value(o.value.fetch_add(1, std::memory_order_relaxed) + 1) {}
+    Generation& operator=(const Generation& o) {
+      value.store(o.value.fetch_add(1, std::memory_order_relaxed) + 1, std::memory_order_relaxed);
+      return *this;
+    }
+    Generation(Generation&& o) noexcept : value(o.value.load(std::memory_order_relaxed)) {}
+    Generation& operator=(Generation&& o) noexcept {
+      value.store(o.value.load(std::memory_order_relaxed), std::memory_order_relaxed);
+      return *this;
+    }
+    std::uint64_t get() const { return value.load(std::memory_order_relaxed); }
+  };
+  Generation generation_;
   std::vector<std::vector<std::uint64_t>> owned_;
 };
 
