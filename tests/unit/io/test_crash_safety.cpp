@@ -44,15 +44,16 @@ LayeredMap mapOf(float v) {
 }
 
 /// Forks a child that runs `write(version)` for versions 1, 2, 3, ... and kills it after a random
-/// delay in [0, 3 x the time of one write] (timed here first, so a slow build, e.g. under a
-/// sanitizer, still has kills before, during and after the first writes); `check_target` runs
-/// after every kill.
+/// delay in [0, 6 x the time of one write] (timed here first, so a slow build, e.g. under a
+/// sanitizer, still has kills before, during and after the first writes; 6x leaves room for a
+/// child slowed by a loaded machine to complete a few versions); `check_target` runs after every
+/// kill.
 void killDuringWrites(int kills, std::uint32_t seed, const std::function<void(int)>& write,
                       const std::function<void()>& check_target) {
   const auto t0 = std::chrono::steady_clock::now();
   write(0);
   const double once_us = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
-  const int max_delay_us = std::max(100, static_cast<int>(3.0 * once_us));
+  const int max_delay_us = std::max(100, static_cast<int>(6.0 * once_us));
   std::mt19937 rng(seed);
   std::uniform_int_distribution<int> delay(0, max_delay_us);
   for (int k = 0; k < kills; ++k) {
