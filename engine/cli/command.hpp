@@ -1,6 +1,11 @@
 #pragma once
 // Subcommands register themselves here so each lives in its own file (cmd_<name>.cpp).
+#include <terramap/core/error.hpp>
+
 #include <CLI/CLI.hpp>
+
+#include <iostream>
+#include <new>
 
 #include <functional>
 #include <string>
@@ -32,5 +37,40 @@ std::vector<Command>& registry();
 struct Registrar {
   explicit Registrar(Command c) { registry().push_back(std::move(c)); }
 };
+
+/// Runs `body` and maps what escapes it to the documented exit code, with one line on stderr
+/// prefixed by `prog` (shared by `terramap` and `terramap-soil`).
+template <class Body>
+int runMapped(const char* prog, Body&& body) {
+  const std::string p(prog);
+  try {
+    return body();
+  } catch (const ConfigError& e) {
+    std::cerr << p << ": configuration error: " << e.what() << "\n";
+    return kConfig;
+  } catch (const InputError& e) {
+    std::cerr << p << ": input error: " << e.what() << "\n";
+    return kInput;
+  } catch (const PluginError& e) {
+    std::cerr << p << ": plugin error: " << e.what() << "\n";
+    return kPlugin;
+  } catch (const LayerError& e) {
+    std::cerr << p << ": layer error: " << e.what() << "\n";
+    return kLayer;
+  } catch (const OutputError& e) {
+    std::cerr << p << ": output error: " << e.what() << "\n";
+    return kOutput;
+  } catch (const Error& e) {
+    std::cerr << p << ": error: " << e.what() << "\n";
+    return kInternal;
+  } catch (const std::bad_alloc&) {
+    std::cerr << p << ": internal error: out of memory: a size in the input or the configuration passed every "
+                      "check (docs/reliability.md) yet could not be allocated; please report it with the input\n";
+    return kInternal;
+  } catch (const std::exception& e) {
+    std::cerr << p << ": internal error: " << e.what() << "\n";
+    return kInternal;
+  }
+}
 
 }  // namespace terramap::cli

@@ -40,33 +40,8 @@ int main(int argc, char** argv) {
     const int rc = app.exit(e);
     return rc == 0 ? kOk : kUsage;
   }
-  try {
+  return runMapped("terramap", [&] {
     if (!budget.empty()) setMemoryBudget(parseByteSize(budget, "--memory-budget"));
     return run ? run() : kUsage;
-  } catch (const ConfigError& e) {
-    std::cerr << "terramap: configuration error: " << e.what() << "\n";
-    return kConfig;
-  } catch (const InputError& e) {
-    std::cerr << "terramap: input error: " << e.what() << "\n";
-    return kInput;
-  } catch (const PluginError& e) {
-    std::cerr << "terramap: plugin error: " << e.what() << "\n";
-    return kPlugin;
-  } catch (const LayerError& e) {
-    std::cerr << "terramap: layer error: " << e.what() << "\n";
-    return kLayer;
-  } catch (const OutputError& e) {
-    std::cerr << "terramap: output error: " << e.what() << "\n";
-    return kOutput;
-  } catch (const Error& e) {
-    std::cerr << "terramap: error: " << e.what() << "\n";
-    return kInternal;
-  } catch (const std::bad_alloc&) {
-    std::cerr << "terramap: internal error: out of memory: a size in the input or the configuration passed every "
-                 "check (docs/reliability.md) yet could not be allocated; please report it with the input\n";
-    return kInternal;
-  } catch (const std::exception& e) {
-    std::cerr << "terramap: internal error: " << e.what() << "\n";
-    return kInternal;
-  }
+  });
 }

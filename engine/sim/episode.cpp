@@ -3,6 +3,8 @@
 #include <terramap/core/memory_budget.hpp>
 #include <terramap/sim/episode.hpp>
 
+#include "h5_detail.hpp"
+
 #include <hdf5.h>
 #include <unistd.h>
 
@@ -15,6 +17,10 @@ namespace terramap::sim {
 namespace {
 
 namespace fs = std::filesystem;
+using h5detail::attrDouble;
+using h5detail::attrString;
+using h5detail::attrU64;
+using h5detail::makeGroup;
 
 /// An HDF5 dataset growing along its first dimension, with rows buffered in memory.
 class Appender {
@@ -90,38 +96,6 @@ class Appender {
   std::vector<char> buf_;
   std::string path_, name_;
 };
-
-hid_t makeGroup(hid_t parent, const std::string& name, const std::string& path) {
-  const hid_t g = H5Gcreate2(parent, name.c_str(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-  if (g < 0) throw OutputError(path + ": cannot create group '" + name + "'");
-  return g;
-}
-
-void attrDouble(hid_t obj, const char* name, double v) {
-  const hid_t s = H5Screate(H5S_SCALAR);
-  const hid_t a = H5Acreate2(obj, name, H5T_NATIVE_DOUBLE, s, H5P_DEFAULT, H5P_DEFAULT);
-  H5Awrite(a, H5T_NATIVE_DOUBLE, &v);
-  H5Aclose(a);
-  H5Sclose(s);
-}
-void attrU64(hid_t obj, const char* name, std::uint64_t v) {
-  const hid_t s = H5Screate(H5S_SCALAR);
-  const hid_t a = H5Acreate2(obj, name, H5T_NATIVE_UINT64, s, H5P_DEFAULT, H5P_DEFAULT);
-  H5Awrite(a, H5T_NATIVE_UINT64, &v);
-  H5Aclose(a);
-  H5Sclose(s);
-}
-void attrString(hid_t obj, const char* name, const std::string& v) {
-  const hid_t t = H5Tcopy(H5T_C_S1);
-  H5Tset_size(t, std::max<std::size_t>(1, v.size()));
-  H5Tset_strpad(t, H5T_STR_NULLPAD);
-  const hid_t s = H5Screate(H5S_SCALAR);
-  const hid_t a = H5Acreate2(obj, name, t, s, H5P_DEFAULT, H5P_DEFAULT);
-  H5Awrite(a, t, v.empty() ? " " : v.c_str());
-  H5Aclose(a);
-  H5Sclose(s);
-  H5Tclose(t);
-}
 
 void writeGrid(hid_t parent, const std::string& name, const std::vector<float>& data, int nx, int ny, int gzip,
                const std::string& path) {

@@ -17,34 +17,10 @@
 #include <fstream>
 #include <regex>
 
+#include "cli_util.hpp"
+
 namespace fs = std::filesystem;
-
-namespace {
-const std::string kBin = std::string(TERRAMAP_BINARY_DIR) + "/bin/terramap";
-
-struct Result {
-  int code = -1;
-  std::string out;  // stdout + stderr
-};
-Result sh(const std::string& args) {
-  Result r;
-  const std::string cmd = "TERRAMAP_PLUGIN_PATH= " + kBin + " " + args + " 2>&1";
-  FILE* p = popen(cmd.c_str(), "r");
-  std::array<char, 4096> buf{};
-  size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
-  const int st = pclose(p);
-  r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-  return r;
-}
-fs::path tempDir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / ("terramap_cli_" + name + "_" + std::to_string(getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
-void write(const fs::path& p, const std::string& s) { std::ofstream(p) << s; }
-}  // namespace
+using namespace terramap_test;
 
 TEST(Cli, HelpEverywhere) {
   for (const char* sub : {"", "run", "validate", "plugins", "export", "fee", "sim", "eval"}) {

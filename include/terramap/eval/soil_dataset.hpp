@@ -1,0 +1,143 @@
+#pragma once
+/// \file
+/// The soil estimator's training data (paper §3.1; ALGORITHMS.md §F), the library behind
+/// `terramap dataset CONFIG --out DIR` (MPI ranks via `mpirun -np N terramap dataset ...`).
+///
+/// An episode is one simulator run of `duration_s` with one compact track loader on a uniform
+/// soil (family × I_d), randomized hills and dips, random-walk set-points and a blade rake, played
+/// through the mapping pipeline (LiDAR fusion, blade_sweep, erosion on the *mapped* terrain, with
+/// the scenario's realistic localisation). Every SweepRecord the pipeline publishes gives one
+/// sample (soil/pinn_sample.hpp); the truth soil at the cut is logged beside it for evaluation
+/// only. Episodes are planned from (seed, index) alone, so which rank runs an episode, and how
+/// many ranks there are, never changes its content.
+///
+/// Splits: the first `episodes` are in-distribution, assigned to train/validation/test by a hash
+/// of (seed, index); the next `held_out.episodes` (their own numbering and random stream, so
+/// either count can change without changing the other set's episodes) draw their soil family and I_d range and their
+/// blade rake from the `held_out` block, which the in-distribution episodes never draw (the
+/// held-out family's I_d range is excluded for it; the held-out rake lies outside `rake_deg`).
+///
+/// Layout of DIR: `episodes/ep_NNNNN.h5` and `held_NNNNN.h5` (one per episode, written atomically, so a killed run
+/// resumes by skipping the files that exist), `manifest.json` (config hash, counts per split and
+/// skip reason), `config.yaml` (the config as given). Units: SI (Pa, rad, N/m³, m, N, s).
+/// Threading: planning and reading are pure; runEpisode() drives its own Simulator and Engine.
+#include <terramap/core/export.hpp>
+#include <terramap/soil/pinn_sample.hpp>
+#include <terramap/soil/soil_table.hpp>
+
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+namespace terramap::eval {
+
+enum class DatasetSplit : int { Train = 0, Validation = 1, Test = 2, HeldOut = 3 };
+TERRAMAP_API const char* datasetSplitName(DatasetSplit s);
+
+struct Range {
+  double lo = 0, hi = 0;
+};
+
+/// `terramap dataset` configuration (configs/dataset/pinn.yaml documents every key).
+struct SoilDatasetConfig {
+  std::string file;          ///< where it was loaded from ("" from a string)
+  std::string yaml_text;     ///< verbatim
+  std::string config_hash;   ///< FNV-1a 64 of yaml_text, hex
+  std::uint64_t seed = 1;
+  int episodes = 300;        ///< in-distribution episodes
+  double duration_s = 10;
+  double validation_fraction = 0.15, test_fraction = 0.15;
+  int history_T = 60;        ///< observations per sample (the trainer may use a suffix)
+  int horizon_P = 20;        ///< horizon steps per sample (the trainer may use a suffix)
+  std::vector<soil::SoilFamily> families{soil::SoilFamily::Clay, soil::SoilFamily::Loam,
+                                         soil::SoilFamily::Sand, soil::SoilFamily::Gravel};
+  Range relative_density{0.01, 1.0};
+  Range rake_rad{76 * 3.14159265358979323846 / 180, 84 * 3.14159265358979323846 / 180};
+  // Held-out set: a soil (family, I_d range) and a rake never drawn in-distribution.
+  int held_out_episodes = 32;
+  soil::SoilFamily held_out_family = soil::SoilFamily::Gravel;
+  Range held_out_relative_density{0.7, 1.0};
+  double held_out_rake_rad = 70 * 3.14159265358979323846 / 180;
+  // Terrain: hills and dips per episode (mixture of Gaussians).
+  Range hill_count{5, 25};
+  Range hill_amplitude_m{-0.25, 0.3};
+  Range hill_sigma_m{1.0, 4.0};
+  /// Base scenario (machine, sensors, controller ranges, terrain size); per episode the soil,
+  /// seed, duration, hills, rake and the controller's initial set-points are replaced.
+  std::string scenario;
+  /// Mapping pipeline (its map is fitted to the terrain; its source is ignored).
+  std::string pipeline;
+};
+
+/// Loads and validates (every error at once, file:line:col). Relative paths resolve against the
+/// config's folder. \throws ConfigError.
+TERRAMAP_API SoilDatasetConfig loadSoilDatasetConfig(const std::string& path);
+TERRAMAP_API SoilDatasetConfig parseSoilDatasetConfig(const std::string& yaml_text, const std::string& name,
+                                                      const std::string& base_dir);
+
+/// What makes episode `index` what it is (drawn from (seed, index) only).
+struct EpisodePlan {
+  int index = 0;       ///< in [0, episodeCount): in-distribution first, then held-out
+  int file_index = 0;  ///< index within its set (in-distribution or held-out): the file's number
+  DatasetSplit split = DatasetSplit::Train;
+  std::uint64_t seed = 0;  ///< the scenario's seed
+  soil::SoilFamily family = soil::SoilFamily::Loam;
+  double relative_density = 0.5;
+  double rake_rad = 80 * 3.14159265358979323846 / 180;
+  int hills = 0;
+  std::uint64_t hill_seed = 0;
+  std::array<double, 5> initial_setpoints{};  ///< speed, depth, roll, yaw, heading
+};
+TERRAMAP_API int episodeCount(const SoilDatasetConfig& cfg);
+/// \throws std::out_of_range when index is not in [0, episodeCount(cfg)).
+TERRAMAP_API EpisodePlan planEpisode(const SoilDatasetConfig& cfg, int index);
+
+/// One episode's samples and bookkeeping.
+struct EpisodeData {
+  EpisodePlan plan;
+  std::vector<soil::PinnSample> samples;
+  std::vector<std::array<float, 5>> truth;  ///< per sample: c, phi, ca, delta, gamma at the cut
+  long sweeps = 0;                           ///< SweepRecords seen
+  std::map<std::string, long> skipped;       ///< by soil::sampleSkipName
+  double simulated_s = 0, wall_s = 0;
+};
+
+/// Runs episode `plan` through the simulator and the mapping pipeline.
+/// `threads` > 0 overrides the simulator's ray-casting threads and the pipeline's threads
+/// (results do not depend on either). `on_progress(t, duration)` is called after each
+/// observation period. \throws ConfigError / InputError from the scenario or the pipeline,
+/// PluginError.
+TERRAMAP_API EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& plan, int threads = 0,
+                                           const std::function<void(double, double)>& on_progress = {});
+
+/// Episode file name in DIR/episodes: ep_NNNNN.h5 (in-distribution) or held_NNNNN.h5.
+TERRAMAP_API std::string episodeFileName(const EpisodePlan& plan);
+/// Writes one episode file atomically (HDF5: obs [N,T,34] f32, theta_k [N,P,6], force [N,P,2],
+/// truth [N,5], anchor [N] f64 stamps; attributes: plan, T, P, feature names, config hash).
+/// \throws OutputError.
+TERRAMAP_API void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, const EpisodeData& ep);
+
+/// A dataset in memory (what the trainer reads), samples of all episodes in episode order.
+struct SoilDataset {
+  int T = 0, P = 0;
+  std::string config_hash;
+  std::vector<float> obs, theta_k, force, truth;  ///< N*T*34, N*P*6, N*P*2, N*5
+  std::vector<int> episode;                        ///< N
+  std::vector<std::uint8_t> split;                 ///< N (DatasetSplit)
+  std::vector<std::uint8_t> family;                ///< N (soil::SoilFamily)
+  std::vector<float> relative_density, rake_rad;   ///< N
+  std::size_t size() const { return episode.size(); }
+};
+/// Reads every episode file of DIR/episodes (in index order). \throws InputError naming the file
+/// and dataset on a malformed or inconsistent file (T, P or config hash differing), OutputError never.
+TERRAMAP_API SoilDataset readSoilDataset(const std::string& dir);
+
+/// Summary of DIR's episode files as JSON (what `manifest.json` holds): config hash, episodes
+/// and samples per split, per family, sweeps and skip reasons, simulated seconds.
+/// \throws InputError on a malformed file.
+TERRAMAP_API std::string datasetManifestJson(const std::string& dir);
+
+}  // namespace terramap::eval

@@ -1,0 +1,165 @@
+// The soil estimator's dataset (eval/soil_dataset.hpp): planning, held-out separation,
+// determinism across thread counts, and the HDF5 round trip of a real (short) episode.
+#include <terramap/core/error.hpp>
+#include <terramap/eval/soil_dataset.hpp>
+#include <terramap/soil/soil_table.hpp>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <unistd.h>
+
+using namespace terramap;
+using namespace terramap::eval;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string configText(int episodes, int held, double duration, const std::string& extra = "") {
+  const std::string dir = std::string(TERRAMAP_SOURCE_DIR) + "/configs/dataset/";
+  return "version: 1\nseed: 5\nepisodes: " + std::to_string(episodes) + "\nduration_s: " + std::to_string(duration) +
+         "\nhistory: {T: 30, P: 10}\nheld_out: {episodes: " + std::to_string(held) +
+         ", family: gravel, relative_density: [0.7, 1.0], rake_deg: 68}\n"
+         "scenario: " + dir + "pinn_episode.yaml\npipeline: " + dir + "pinn_pipeline.yaml\n" + extra;
+}
+
+SoilDatasetConfig config(int episodes, int held, double duration, const std::string& extra = "") {
+  return parseSoilDatasetConfig(configText(episodes, held, duration, extra), "test.yaml", ".");
+}
+
+}  // namespace
+
+TEST(SoilDataset, HeldOutSoilAndRakeAreNeverDrawnInDistribution) {
+  const SoilDatasetConfig cfg = config(4000, 200, 10);
+  int gravel = 0, counts[3] = {0, 0, 0};
+  for (int i = 0; i < cfg.episodes; ++i) {
+    const EpisodePlan p = planEpisode(cfg, i);
+    ASSERT_NE(p.split, DatasetSplit::HeldOut);
+    ++counts[static_cast<int>(p.split)];
+    EXPECT_GE(p.rake_rad, 75 * M_PI / 180 - 1e-12);
+    EXPECT_LE(p.rake_rad, 85 * M_PI / 180 + 1e-12);
+    if (p.family == soil::SoilFamily::Gravel) {
+      ++gravel;
+      EXPECT_TRUE(p.relative_density < 0.7 || p.relative_density > 1.0) << p.relative_density;
+    }
+    EXPECT_GE(p.relative_density, 0.01);
+    EXPECT_LE(p.relative_density, 1.0);
+  }
+  EXPECT_GT(gravel, 800);  // a quarter of 4000, give or take sampling (sd ~ 27)
+  // 15 % validation and test each: 600 expected, binomial sd ~ 23.
+  EXPECT_NEAR(counts[1], 600, 5 * 23);
+  EXPECT_NEAR(counts[2], 600, 5 * 23);
+  for (int i = cfg.episodes; i < episodeCount(cfg); ++i) {
+    const EpisodePlan p = planEpisode(cfg, i);
+    EXPECT_EQ(p.split, DatasetSplit::HeldOut);
+    EXPECT_EQ(p.family, soil::SoilFamily::Gravel);
+    EXPECT_GE(p.relative_density, 0.7);
+    EXPECT_NEAR(p.rake_rad, 68 * M_PI / 180, 1e-12);
+  }
+  EXPECT_THROW(planEpisode(cfg, episodeCount(cfg)), std::out_of_range);
+}
+
+TEST(SoilDataset, AnEpisodesPlanDependsOnlyOnTheSeedAndItsIndex) {
+  const SoilDatasetConfig a = config(10, 5, 10), b = config(300, 50, 10);
+  for (int i = 0; i < 10; ++i) {
+    const EpisodePlan pa = planEpisode(a, i), pb = planEpisode(b, i);
+    EXPECT_EQ(pa.seed, pb.seed);
+    EXPECT_EQ(pa.relative_density, pb.relative_density);
+    EXPECT_EQ(episodeFileName(pa), episodeFileName(pb));
+  }
+  // Held-out episode j is the same whatever the number of in-distribution episodes.
+  for (int j = 0; j < 5; ++j) {
+    const EpisodePlan pa = planEpisode(a, 10 + j), pb = planEpisode(b, 300 + j);
+    EXPECT_EQ(pa.seed, pb.seed);
+    EXPECT_EQ(pa.relative_density, pb.relative_density);
+    EXPECT_EQ(episodeFileName(pa), episodeFileName(pb));
+    EXPECT_EQ(episodeFileName(pa).rfind("held_", 0), 0u);
+  }
+  // Another seed, other episodes.
+  const SoilDatasetConfig c = parseSoilDatasetConfig(
+      [&] { std::string t = configText(10, 5, 10); t.replace(t.find("seed: 5"), 7, "seed: 6"); return t; }(), "c.yaml", ".");
+  EXPECT_NE(planEpisode(c, 0).seed, planEpisode(a, 0).seed);
+}
+
+TEST(SoilDataset, ConfigErrorsNameTheFileLineAndKey) {
+  try {
+    parseSoilDatasetConfig(configText(10, 2, 10, "rake_deg: [60, 75]\nhistory_typo: 1\n"), "bad.yaml", ".");
+    FAIL() << "no error";
+  } catch (const ConfigError& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("bad.yaml:"), std::string::npos) << m;
+    EXPECT_NE(m.find("held_out.rake_deg"), std::string::npos) << m;  // 68 lies inside [60, 75]
+    EXPECT_NE(m.find("history_typo"), std::string::npos) << m;
+  }
+  EXPECT_THROW(parseSoilDatasetConfig(
+                   [] { std::string t = configText(10, 2, 10); t.replace(t.find("P: 10"), 5, "P: 40"); return t; }(),
+                   "p.yaml", "."),
+               ConfigError);
+}
+
+// One short real episode through the simulator and the mapping pipeline: samples exist, their
+// truth is the episode's soil, the forces are finite and push forward, and the result is the
+// same bits with 1 and 2 threads.
+TEST(SoilDataset, ShortEpisodeIsDeterministicAndRoundTripsThroughHdf5) {
+  const SoilDatasetConfig cfg = config(1, 0, 6.0);
+  const EpisodePlan plan = planEpisode(cfg, 0);
+  const EpisodeData one = runDatasetEpisode(cfg, plan, 1);
+  const EpisodeData two = runDatasetEpisode(cfg, plan, 2);
+  std::string why;
+  for (const auto& [k, v] : one.skipped) why += " " + k + "=" + std::to_string(v);
+  ASSERT_GT(one.samples.size(), 2u) << "sweeps " << one.sweeps << ", skipped:" << why;
+  ASSERT_EQ(one.samples.size(), two.samples.size());
+  for (std::size_t i = 0; i < one.samples.size(); ++i) {
+    EXPECT_EQ(one.samples[i].obs, two.samples[i].obs);
+    EXPECT_EQ(one.samples[i].theta_k, two.samples[i].theta_k);
+    EXPECT_EQ(one.samples[i].force, two.samples[i].force);
+  }
+  const soil::SoilProperties truth = soil::soilProperties(plan.family, plan.relative_density);
+  for (std::size_t i = 0; i < one.samples.size(); ++i) {
+    EXPECT_FLOAT_EQ(one.truth[i][1], static_cast<float>(truth.fee.phi_rad));
+    EXPECT_FLOAT_EQ(one.truth[i][4], static_cast<float>(truth.fee.gamma_n_m3));
+    for (float f : one.samples[i].force) EXPECT_TRUE(std::isfinite(f));
+  }
+  // While cutting the blade pushes the soil forward: the mean force along t_hat is positive.
+  double fx = 0;
+  for (const auto& s : one.samples) fx += s.force[0];
+  EXPECT_GT(fx / static_cast<double>(one.samples.size()), 0.0);
+
+  const fs::path dir = fs::temp_directory_path() / ("terramap_soil_dataset_" + std::to_string(::getpid()));
+  fs::create_directories(dir / "episodes");
+  writeEpisodeFile((dir / "episodes" / episodeFileName(plan)).string(), cfg, one);
+  const SoilDataset d = readSoilDataset(dir.string());
+  ASSERT_EQ(d.size(), one.samples.size());
+  EXPECT_EQ(d.T, 30);
+  EXPECT_EQ(d.P, 10);
+  EXPECT_EQ(d.config_hash, cfg.config_hash);
+  for (std::size_t i = 0; i < d.size(); ++i) {
+    const auto& s = one.samples[i];
+    EXPECT_TRUE(std::equal(s.obs.begin(), s.obs.end(), d.obs.begin() + static_cast<long>(i * s.obs.size())));
+    EXPECT_TRUE(std::equal(s.force.begin(), s.force.end(), d.force.begin() + static_cast<long>(i * s.force.size())));
+    EXPECT_EQ(d.split[i], static_cast<std::uint8_t>(plan.split));
+  }
+  const std::string manifest = datasetManifestJson(dir.string());
+  EXPECT_NE(manifest.find("\"samples\": " + std::to_string(one.samples.size())), std::string::npos) << manifest;
+  fs::remove_all(dir);
+}
+
+TEST(SoilDataset, ReadingRefusesEpisodesOfAnotherConfiguration) {
+  const fs::path dir = fs::temp_directory_path() / ("terramap_soil_dataset_mix_" + std::to_string(::getpid()));
+  fs::create_directories(dir / "episodes");
+  SoilDatasetConfig a = config(2, 0, 10), b = config(2, 0, 10, "relative_density: [0.2, 0.9]\n");
+  EpisodeData ep;
+  ep.plan = planEpisode(a, 0);
+  writeEpisodeFile((dir / "episodes" / "ep_00000.h5").string(), a, ep);
+  ep.plan = planEpisode(b, 1);
+  writeEpisodeFile((dir / "episodes" / "ep_00001.h5").string(), b, ep);
+  try {
+    readSoilDataset(dir.string());
+    FAIL() << "mixed configurations read";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("ep_00001.h5"), std::string::npos) << e.what();
+  }
+  fs::remove_all(dir);
+}
