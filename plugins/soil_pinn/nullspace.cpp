@@ -1,6 +1,8 @@
 // Paper Eq. 7 with a truncated SVD (see nullspace.hpp for why max, not min).
 #include "nullspace.hpp"
 
+#include "model.hpp"
+
 #include <stdexcept>
 #include <tuple>
 
@@ -36,6 +38,24 @@ at::Tensor inflateVariances(const at::Tensor& var_theta, const at::Tensor& sigma
 at::Tensor stackHorizon(const at::Tensor& J_steps) {
   if (J_steps.dim() != 4) throw std::invalid_argument("stackHorizon: expected [B,P,2,K]");
   return J_steps.reshape({J_steps.size(0), J_steps.size(1) * J_steps.size(2), J_steps.size(3)});
+}
+
+at::Tensor soilVariances(const at::Tensor& J_steps, const at::Tensor& log_var, const at::Tensor& sigma_a,
+                         const NullspaceTolerances& tol) {
+  if (J_steps.dim() != 4 || J_steps.size(-1) < kSoilCount || log_var.dim() != 2 || log_var.size(1) < kSoilCount)
+    throw std::invalid_argument("soilVariances: expected J [B,P,2,K>=5] and log_var [B,K>=5]");
+  const at::Tensor J = stackHorizon(J_steps.narrow(-1, 0, kSoilCount));
+  const at::Tensor var = at::exp(log_var.narrow(1, 0, kSoilCount).to(at::kDouble));
+  return inflateVariances(var, nullspaceCovariance(J, sigma_a, tol));
+}
+
+at::Tensor defaultAmbiguityVariance() {
+  at::Tensor v = at::empty({kSoilCount}, at::kDouble);
+  for (int k = 0; k < kSoilCount; ++k) {
+    const double span = kSoilRanges[k].hi - kSoilRanges[k].lo;
+    v[k] = span * span / 12.0;
+  }
+  return v;
 }
 
 }  // namespace terramap::pinn

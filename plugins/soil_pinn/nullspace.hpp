@@ -13,7 +13,11 @@
 /// unknown; its stated intent is to inflate (ALGORITHMS.md §F).
 /// Units: J in N per parameter unit (SoilCol order), variances in parameter units squared.
 /// Note a_tol = 1500 compares singular values of columns with mixed units (N/Pa vs N/rad),
-/// exactly as the paper does; the tolerances are its values.
+/// exactly as the paper does; the tolerances are its values. Consequence in SI units: for a
+/// typical cut (d 0.15 m, w 1.8 m) the c, ca and gamma columns are about 1.3 N/Pa, 0.3 N/Pa and
+/// 0.08 N/(N/m^3), far below 1500, while phi and delta are ~5e4 N/rad; so c, ca and gamma
+/// always land in the "null space" and always take the ambiguity variance. Scaling the
+/// columns (e.g. by each parameter's range) before the SVD would change that; not done here.
 /// All in float64; batched over any leading dimensions. Threading: ATen ops only.
 #include <ATen/ATen.h>
 
@@ -37,5 +41,18 @@ at::Tensor inflateVariances(const at::Tensor& var_theta, const at::Tensor& sigma
 
 /// Stacks a per-step Jacobian [B,P,2,K] over the horizon into [B,2P,K] (rows Fx_0, Fz_0, Fx_1, ...).
 at::Tensor stackHorizon(const at::Tensor& J_steps);
+
+/// The inference path in one call: the network's soil variances exp(S) inflated by Eq. 7 over
+/// the horizon. J_steps [B,P,2,K >= 5] (PinnOutput::J: its first five columns are the soil
+/// parameters; steps where the FEE is invalid have zero rows and so add no information),
+/// log_var [B, K' >= 5] (PinnOutput::log_var), sigma_a [5] or [5,5]. Returns [B,5] float64
+/// variances in SoilCol units squared.
+at::Tensor soilVariances(const at::Tensor& J_steps, const at::Tensor& log_var, const at::Tensor& sigma_a,
+                         const NullspaceTolerances& tol = {});
+
+/// A default ambiguity covariance (the paper does not publish its value): diagonal, each
+/// parameter's variance of a uniform distribution over its squashing range (model.hpp's
+/// kSoilRanges), (hi - lo)^2 / 12 -- "nothing known but the range". [5] float64.
+at::Tensor defaultAmbiguityVariance();
 
 }  // namespace terramap::pinn

@@ -2,12 +2,14 @@
 // dataset made here from the C++ FEE, bit-identical reruns, and the save/load round trip.
 #include "loss.hpp"
 #include "model.hpp"
+#include "nullspace.hpp"
 
 #include <terramap/core/error.hpp>
 #include <terramap/soil/fee.hpp>
 
 #include <ATen/Parallel.h>
 #include <gtest/gtest.h>
+#include <torch/csrc/autograd/grad_mode.h>
 #include <torch/optim/adam.h>
 #include <torch/serialize/archive.h>
 
@@ -143,6 +145,21 @@ TEST_F(PinnModel, PhysicsLayerMatchesCppFee) {
   }
   EXPECT_TRUE(o.Sigma_F.requires_grad());
   EXPECT_FALSE(o.J.requires_grad());
+}
+
+TEST_F(PinnModel, InferenceWithoutGradAndInflatedVariances) {
+  // Inference runs under NoGradGuard; the Jacobian (autograd inside) must still be computed.
+  PinnNet net(PinnConfig{kT, kP, kDo, {8}, 5});
+  const Dataset& ds = dataset();
+  const PinnOutput with_grad = net->forward(ds.obs, ds.theta_k);
+  torch::NoGradGuard no_grad;
+  const PinnOutput o = net->forward(ds.obs, ds.theta_k);
+  EXPECT_TRUE(at::equal(o.J, with_grad.J));
+  EXPECT_TRUE(at::equal(o.Sigma_F, with_grad.Sigma_F.detach()));
+  const at::Tensor v = soilVariances(o.J, o.log_var, defaultAmbiguityVariance());
+  ASSERT_EQ(v.sizes(), (at::IntArrayRef{ds.obs.size(0), kSoilCount}));
+  EXPECT_TRUE(at::isfinite(v).all().item<bool>());
+  EXPECT_TRUE((v >= at::exp(o.log_var.narrow(1, 0, kSoilCount).to(at::kDouble))).all().item<bool>());
 }
 
 TEST_F(PinnModel, OutputsStayInTheirRanges) {

@@ -76,6 +76,19 @@ TEST_F(Nullspace, InflatesWithMaximumAndBatches) {
   EXPECT_TRUE(at::allclose(inflated[1], at::tensor({1.0, 1.0, 1.0, 20.0, 9.0}, at::kDouble), 0, 1e-12));
 }
 
+TEST_F(Nullspace, SoilVariancesUseTheSoilColumnsOverTheWholeHorizon) {
+  // Step 0 sees c (Fx) and phi (Fz); step 1 is an invalid step (zero rows); columns 5 and 6
+  // (d_res, beta_res) are large but are not soil parameters and must not count.
+  at::Tensor J = at::zeros({1, 2, 2, 7}, at::kDouble);
+  J[0][0][0][0] = 3000;
+  J[0][0][1][1] = 2000;
+  J[0][0][0][5] = J[0][0][1][6] = J[0][1][0][5] = 1e6;
+  const at::Tensor lv = at::zeros({1, 7}, at::kDouble);  // network variance 1 everywhere
+  const at::Tensor v = soilVariances(J, lv, at::full({5}, 9.0, at::kDouble));
+  EXPECT_TRUE(at::allclose(v, at::tensor({1.0, 1.0, 9.0, 9.0, 9.0}, at::kDouble).unsqueeze(0), 0, 1e-12));
+  EXPECT_THROW(soilVariances(J.narrow(-1, 0, 4), lv, at::ones({5})), std::invalid_argument);
+}
+
 TEST_F(Nullspace, StackHorizonOrdersRowsByStep) {
   const at::Tensor Js = at::arange(2 * 3 * 2 * 5, at::kDouble).reshape({2, 3, 2, 5});
   const at::Tensor S = stackHorizon(Js);
