@@ -17,7 +17,9 @@
 /// at::set_num_threads(1) (docs/plugins.md). A module must not be used by two threads at once.
 /// Determinism: the constructor seeds torch's global generator with PinnConfig::seed before
 /// initialising the weights (libtorch's initialisers take no generator), so equal configs
-/// give bit-identical initial weights.
+/// give bit-identical initial weights, and then restores the generator's previous state
+/// (construction, loadPinn() included, does not disturb the caller's random stream). Do not
+/// construct while another thread draws from torch's global CPU generator.
 #include "fee_torch.hpp"
 
 #include <torch/nn/module.h>

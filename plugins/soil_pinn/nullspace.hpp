@@ -19,6 +19,7 @@
 /// always land in the "null space" and always take the ambiguity variance. Scaling the
 /// columns (e.g. by each parameter's range) before the SVD would change that; not done here.
 /// All in float64; batched over any leading dimensions. Threading: ATen ops only.
+/// Shapes other than documented throw std::invalid_argument (or c10::Error from ATen).
 #include <ATen/ATen.h>
 
 namespace terramap::pinn {

@@ -13,6 +13,7 @@
 #include <torch/optim/adam.h>
 #include <torch/serialize/archive.h>
 
+#include <cstdio>
 #include <fstream>
 #include <random>
 #include <unistd.h>
@@ -160,6 +161,16 @@ TEST_F(PinnModel, InferenceWithoutGradAndInflatedVariances) {
   ASSERT_EQ(v.sizes(), (at::IntArrayRef{ds.obs.size(0), kSoilCount}));
   EXPECT_TRUE(at::isfinite(v).all().item<bool>());
   EXPECT_TRUE((v >= at::exp(o.log_var.narrow(1, 0, kSoilCount).to(at::kDouble))).all().item<bool>());
+}
+
+TEST_F(PinnModel, ConstructionSeedsFromConfigAndLeavesTheGlobalGeneratorAlone) {
+  at::manual_seed(99);
+  const at::Tensor want = at::rand({4});
+  at::manual_seed(99);
+  PinnNet a(PinnConfig{kT, kP, kDo, {8}, 1});
+  EXPECT_TRUE(at::equal(at::rand({4}), want));
+  PinnNet b(PinnConfig{kT, kP, kDo, {8}, 1});
+  EXPECT_TRUE(at::equal(a->headTheta()->weight, b->headTheta()->weight));
 }
 
 TEST_F(PinnModel, OutputsStayInTheirRanges) {
