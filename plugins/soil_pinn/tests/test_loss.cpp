@@ -187,6 +187,26 @@ TEST_F(PinnLoss, NllGradientReachesLogVariancesOnly) {
   EXPECT_GT(gradNorm(c.net->headLogVar()), 0.0);
 }
 
+TEST_F(PinnLoss, RealNetworkIgnoresASampleCutAboveTheSurface) {
+  // Sample 1 gets d = -0.2 m, so d + d_res < 0 (|d_res| <= 0.05): the FEE is invalid at both
+  // steps. Without the F^r term its loss is zero, so the two-sample loss is half the loss of
+  // sample 0 alone, and every gradient stays finite.
+  NetCase c;
+  c.theta_k[1].select(1, kKD).fill_(-0.2f);
+  LossWeights w;
+  w.lambda_Fr = 0;
+  const PinnOutput both = c.net->forward(c.obs.narrow(0, 0, 2), c.theta_k.narrow(0, 0, 2));
+  EXPECT_TRUE(both.valid[0].all().item<bool>());
+  EXPECT_FALSE(both.valid[1].any().item<bool>());
+  const LossTerms t2 = pinnLoss(both, c.force.narrow(0, 0, 2), w);
+  const PinnOutput one = c.net->forward(c.obs.narrow(0, 0, 1), c.theta_k.narrow(0, 0, 1));
+  const LossTerms t1 = pinnLoss(one, c.force.narrow(0, 0, 1), w);
+  EXPECT_NEAR(t2.total.item<double>(), t1.total.item<double>() / 2, 1e-12 * t1.total.item<double>());
+  t2.total.backward();
+  for (const auto& p : c.net->named_parameters())
+    EXPECT_TRUE(at::isfinite(p.value().grad()).all().item<bool>()) << p.key();
+}
+
 TEST_F(PinnLoss, ForceGradientReachesThetaNotLogVariances) {
   NetCase c;
   const PinnOutput out = c.net->forward(c.obs, c.theta_k);
