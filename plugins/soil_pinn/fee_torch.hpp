@@ -1,0 +1,61 @@
+#pragma once
+/// \file
+/// The paper's FEE force F (not F_total; see terramap/soil/fee.hpp) as a differentiable torch
+/// layer for the PINN (ALGORITHMS.md §E, §F; paper Eq. 1, 2, 9). Same formulas and validity
+/// rules as terramap::fee, evaluated element-wise over a batch B and a horizon P.
+///
+/// Precision: every input is cast to float64 and all physics runs in float64; the outputs are
+/// cast back to the dtype of `soil` (pass float64 soil to keep float64 end to end).
+/// Invalid entries: where a validity rule fails, the formulas are evaluated at a fixed
+/// admissible stand-in configuration instead (the "double where" trick), and F, the factors
+/// and dN_gamma/dbeta are set to 0 there. So nothing is NaN or infinite, and the gradient of
+/// any masked loss w.r.t. the inputs of an invalid entry is exactly 0 (a NaN from a pole
+/// would otherwise leak through where()'s backward as 0 * inf).
+/// Threading: plain ATen ops; the caller sets at::set_num_threads (1 inside engine tasks).
+/// Throws c10::Error (from ATen) or std::invalid_argument on inconsistent shapes.
+#include <ATen/ATen.h>
+
+namespace terramap::pinn {
+
+/// Columns of the soil tensor, everywhere in soil_pinn.
+enum SoilCol : int { kSoilC = 0, kSoilPhi, kSoilCa, kSoilDelta, kSoilGamma, kSoilCount };
+
+/// Output of feeForward(). Shapes with B the batch, P the horizon; dtype of `soil` unless noted.
+struct FeeOut {
+  at::Tensor F;              ///< [B,P,2] N, paper's F = f [sin(rho+delta-alpha), cos(..)]; 0 where invalid
+  at::Tensor valid;          ///< [B,P] bool, true where fee::check() would return Valid
+  at::Tensor N_gamma, N_c, N_Q, N_ca;  ///< [B,P] dimensionless N-factors; 0 where invalid
+  at::Tensor eta;            ///< [B,P] rad, delta + rho + phi + beta (computed everywhere)
+  at::Tensor beta;           ///< [B,P] rad, the failure angle used (broadcast input)
+};
+
+/// Evaluates the FEE. soil [B,5] in SoilCol order (Pa, rad, Pa, rad, N/m^3); rho, alpha (rad),
+/// w, d (m), q (N) [B,P]; beta (rad) [B] or [B,P]. Differentiable w.r.t. every input (autograd).
+FeeOut feeForward(const at::Tensor& soil, const at::Tensor& rho, const at::Tensor& alpha, const at::Tensor& w,
+                  const at::Tensor& d, const at::Tensor& q, const at::Tensor& beta);
+
+/// Nominal (Rankine) failure angle pi/4 - phi/2 (paper Eq. 9), element-wise, same dtype.
+at::Tensor betaNominal(const at::Tensor& phi);
+
+/// Analytic dN_gamma/dbeta (the formula of fee::dNgammaDbeta), element-wise over broadcastable
+/// tensors of angles in rad. No masking: infinite/NaN at the poles (beta, rho, eta = 0 or pi);
+/// mask the inputs first (where(valid, x, stand-in)) when it feeds a loss.
+at::Tensor dNgammaDbeta(const at::Tensor& phi, const at::Tensor& delta, const at::Tensor& alpha,
+                        const at::Tensor& rho, const at::Tensor& beta);
+
+/// The validity rules of fee::check() (NotFinite and every range rule), element-wise:
+/// true where all hold. Inputs as for feeForward() with beta already broadcast to [B,P].
+at::Tensor feeValid(const at::Tensor& soil, const at::Tensor& rho, const at::Tensor& alpha, const at::Tensor& w,
+                    const at::Tensor& d, const at::Tensor& q, const at::Tensor& beta);
+
+/// Columns of feeJacobian(): the soil parameters, then depth and failure angle.
+enum JacCol : int { kJacC = 0, kJacPhi, kJacCa, kJacDelta, kJacGamma, kJacD, kJacBeta, kJacCount };
+
+/// dF/d[c, phi, ca, delta, gamma, d, beta] per entry, beta held independent (as
+/// fee::jacobianF): [B,P,2,7] float64, rows [Fx, Fz], N per parameter unit. Computed by
+/// autograd on detached copies of the inputs, so the result carries no graph (the NLL needs it
+/// detached anyway) and works under torch::NoGradGuard. 0 where invalid.
+at::Tensor feeJacobian(const at::Tensor& soil, const at::Tensor& rho, const at::Tensor& alpha, const at::Tensor& w,
+                       const at::Tensor& d, const at::Tensor& q, const at::Tensor& beta);
+
+}  // namespace terramap::pinn

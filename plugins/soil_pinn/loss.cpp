@@ -1,0 +1,71 @@
+// Paper Eq. 8 (see loss.hpp for each term's definition and normalisation).
+#include "loss.hpp"
+
+#include <stdexcept>
+
+namespace terramap::pinn {
+namespace {
+
+/// Range penalty of x [B] against [lo, hi], in spans.
+at::Tensor outside(const at::Tensor& x, double lo, double hi) {
+  const double span = hi - lo;
+  return at::relu((x - hi) / span) + at::relu((lo - x) / span);
+}
+
+/// Eq. 3 per entry for 2x2 covariances, closed form; entries where !m use the stand-in
+/// Sigma = I, r = 0 so no division by a zero determinant ever happens.
+at::Tensor nll2(const at::Tensor& r, const at::Tensor& Sigma, const at::Tensor& m, double floor_n2) {
+  auto sel = [&](int i, int j) { return Sigma.select(-2, i).select(-1, j); };
+  const at::Tensor one = at::ones_like(m, at::kDouble), zero = at::zeros_like(m, at::kDouble);
+  const at::Tensor a = at::where(m, sel(0, 0) + floor_n2, one), b = at::where(m, sel(0, 1), zero);
+  const at::Tensor c = at::where(m, sel(1, 0), zero), d = at::where(m, sel(1, 1) + floor_n2, one);
+  const at::Tensor r0 = at::where(m, r.select(-1, 0), zero), r1 = at::where(m, r.select(-1, 1), zero);
+  const at::Tensor det = a * d - b * c;
+  const at::Tensor quad = (d * r0 * r0 - (b + c) * r0 * r1 + a * r1 * r1) / det;
+  return at::where(m, 0.5 * (quad + at::log(det)), zero);
+}
+
+}  // namespace
+
+LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWeights& w) {
+  if (!out.F.defined() || force.sizes() != out.F.sizes())
+    throw std::invalid_argument("pinnLoss: force must be [B,P,2] like the prediction, got " + c10::str(force.sizes()));
+  const int64_t B = out.F.size(0), P = out.F.size(1);
+  const double N = static_cast<double>(B * P);
+  const at::Tensor m = out.valid;
+  const at::Tensor mf = m.to(at::kDouble);
+  const at::Tensor valid_frac = mf.mean(1);  // [B]: per-sample terms count once per valid step
+  const at::Tensor wxz = at::tensor({w.w_xz[0], w.w_xz[1]}, at::kDouble);
+  const at::Tensor Fm = force.to(at::kDouble);
+
+  LossTerms t;
+  const at::Tensor err = at::where(m.unsqueeze(-1), Fm - out.F, at::zeros_like(out.F));
+  t.force_mae = (at::abs(err) * wxz).sum() / N;
+
+  const at::Tensor r = Fm - out.F.detach();
+  t.nll = nll2(r, out.Sigma_F, m, w.sigma_floor_n2).sum() / N;
+
+  t.dngamma = (mf * at::abs(out.dNgamma_dbeta)).sum() / N;
+
+  at::Tensor range = at::zeros({B}, at::kDouble);
+  const at::Tensor th = out.theta_u.to(at::kDouble), lv = out.log_var.to(at::kDouble);
+  for (int k = 0; k < kSoilCount; ++k) range = range + outside(th.select(1, k), kSoilRanges[k].lo, kSoilRanges[k].hi);
+  range = range + outside(out.d_res.to(at::kDouble), -kDResMaxM, kDResMaxM);
+  range = range + outside(out.beta_res.to(at::kDouble), -kBetaResMaxRad, kBetaResMaxRad);
+  for (int k = 0; k < kLogVarCount; ++k) {
+    const at::Tensor s = lv.select(1, k);
+    range = range + at::relu(s - logVarHi(k)) + at::relu(logVarLo(k) - s);
+  }
+  t.range = (valid_frac * range).mean();
+
+  const at::Tensor dr = out.d_res.to(at::kDouble), br = out.beta_res.to(at::kDouble);
+  t.residual = (valid_frac * (dr * dr + br * br)).mean();
+
+  t.force_res = (at::abs(out.F_r.to(at::kDouble)) * wxz).sum() / static_cast<double>(B);
+
+  t.total = w.lambda_F * t.force_mae + w.lambda_NLL * t.nll + w.lambda_beta * t.dngamma +
+            w.lambda_range * t.range + w.lambda_res * t.residual + w.lambda_Fr * t.force_res;
+  return t;
+}
+
+}  // namespace terramap::pinn

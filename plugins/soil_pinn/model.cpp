@@ -1,0 +1,222 @@
+// The PINN network and its physics layer (paper §2.1 Eq. 1, 5, 6; ALGORITHMS.md §F).
+#include "model.hpp"
+
+#include <terramap/core/error.hpp>
+
+#include <ATen/CPUGeneratorImpl.h>
+#include <nlohmann/json.hpp>
+#include <torch/nn/modules/activation.h>
+#include <torch/serialize/archive.h>
+
+#include <cmath>
+#include <cstdio>
+#include <stdexcept>
+
+namespace terramap::pinn {
+namespace {
+
+constexpr int kFormatVersion = 1;
+constexpr const char* kFormat = "terramap.soil_pinn";
+constexpr const char* kMetadataKey = "terramap_metadata";
+
+nlohmann::json configJson(const PinnConfig& c) {
+  return {{"T", c.T}, {"P", c.P}, {"D_o", c.D_o}, {"hidden", c.hidden}, {"seed", c.seed}};
+}
+
+std::vector<double> toVector(const at::Tensor& t) {
+  const at::Tensor d = t.detach().to(at::kDouble).contiguous();
+  return std::vector<double>(d.data_ptr<double>(), d.data_ptr<double>() + d.numel());
+}
+
+/// where(valid, x, stand-in) for the dN_gamma/dbeta term (fee_torch.hpp: invalid entries).
+at::Tensor pick(const at::Tensor& valid, const at::Tensor& x, double standin) {
+  return at::where(valid, x, at::full_like(x, standin));
+}
+
+}  // namespace
+
+double logVarSpan(int k) {
+  if (k >= 0 && k < kSoilCount) return kSoilRanges[k].hi - kSoilRanges[k].lo;
+  if (k == kLvDRes) return kDResMaxM;
+  if (k == kLvBetaRes) return kBetaResMaxRad;
+  throw std::out_of_range("logVarSpan: column " + std::to_string(k));
+}
+double logVarLo(int k) { return 2 * std::log(1e-3 * logVarSpan(k)); }
+double logVarHi(int k) { return 2 * std::log(logVarSpan(k)); }
+double logVarInit(int k) { return 2 * std::log(0.1 * logVarSpan(k)); }
+
+std::string configHash(const PinnConfig& cfg) {
+  std::uint64_t h = 1469598103934665603ull;
+  for (unsigned char ch : configJson(cfg).dump()) {
+    h ^= ch;
+    h *= 1099511628211ull;
+  }
+  char buf[17];
+  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
+  return buf;
+}
+
+PinnNetImpl::PinnNetImpl(PinnConfig cfg) : cfg_(std::move(cfg)) {
+  if (cfg_.P < 1 || cfg_.T < cfg_.P || cfg_.D_o < 1)
+    throw std::invalid_argument("PinnConfig: need 1 <= P <= T and D_o >= 1");
+  for (int h : cfg_.hidden)
+    if (h < 1) throw std::invalid_argument("PinnConfig: hidden widths must be >= 1");
+  // Initialise from cfg.seed, then give the global generator its state back so building a
+  // network (or loading one) does not disturb anyone else's random stream.
+  at::Generator gen = at::detail::getDefaultCPUGenerator();
+  const at::Tensor saved_state = gen.get_state();
+  gen.set_current_seed(static_cast<std::uint64_t>(cfg_.seed));
+  int64_t width = static_cast<int64_t>(cfg_.T) * cfg_.D_o + static_cast<int64_t>(cfg_.P) * kThetaKCount;
+  encoder_ = register_module("encoder", torch::nn::Sequential());
+  for (int h : cfg_.hidden) {
+    encoder_->push_back(torch::nn::Linear(width, h));
+    encoder_->push_back(torch::nn::Tanh());
+    width = h;
+  }
+  head_theta_ = register_module("head_theta", torch::nn::Linear(width, kSoilCount));
+  head_logvar_ = register_module("head_log_var", torch::nn::Linear(width, kLogVarCount));
+  head_res_ = register_module("head_res", torch::nn::Linear(width, 2));
+  head_fr_ = register_module("head_force_res", torch::nn::Linear(width, 2));
+  gen.set_state(saved_state);
+  theta_mean_ = register_buffer("theta_k_mean", at::zeros({kThetaKCount}, at::kFloat));
+  theta_std_ = register_buffer("theta_k_std", at::ones({kThetaKCount}, at::kFloat));
+  std::vector<float> off(kLogVarCount);
+  for (int k = 0; k < kLogVarCount; ++k) off[k] = static_cast<float>(logVarInit(k));
+  logvar_offset_ = at::tensor(off);
+}
+
+void PinnNetImpl::setThetaNormalisation(const at::Tensor& mean, const at::Tensor& std) {
+  if (mean.numel() != kThetaKCount || std.numel() != kThetaKCount)
+    throw std::invalid_argument("setThetaNormalisation: mean and std need 6 values");
+  if (!(std.gt(0).all().item<bool>()) || !at::isfinite(mean).all().item<bool>())
+    throw std::invalid_argument("setThetaNormalisation: std must be > 0 and mean finite");
+  at::NoGradGuard no_grad;
+  theta_mean_.copy_(mean.reshape({kThetaKCount}));
+  theta_std_.copy_(std.reshape({kThetaKCount}));
+}
+
+PinnOutput PinnNetImpl::forward(const at::Tensor& obs, const at::Tensor& theta_k) {
+  if (obs.dim() != 3 || obs.size(1) != cfg_.T || obs.size(2) != cfg_.D_o)
+    throw std::invalid_argument("PinnNet::forward: obs must be [B," + std::to_string(cfg_.T) + "," +
+                                std::to_string(cfg_.D_o) + "], got " + c10::str(obs.sizes()));
+  const int64_t B = obs.size(0), P = cfg_.P;
+  if (theta_k.dim() != 3 || theta_k.size(0) != B || theta_k.size(1) != P || theta_k.size(2) != kThetaKCount)
+    throw std::invalid_argument("PinnNet::forward: theta_k must be [B," + std::to_string(P) + ",6], got " +
+                                c10::str(theta_k.sizes()));
+  // Encoder over [flatten(obs), flatten(normalised theta_k)].
+  const at::Tensor tk = theta_k.to(at::kFloat);
+  at::Tensor h = at::cat({obs.to(at::kFloat).reshape({B, -1}), ((tk - theta_mean_) / theta_std_).reshape({B, -1})}, 1);
+  if (!encoder_->is_empty()) h = encoder_->forward(h);
+
+  PinnOutput out;
+  std::vector<float> lo(kSoilCount), span(kSoilCount);
+  for (int k = 0; k < kSoilCount; ++k) {
+    lo[k] = static_cast<float>(kSoilRanges[k].lo);
+    span[k] = static_cast<float>(kSoilRanges[k].hi - kSoilRanges[k].lo);
+  }
+  out.theta_u = at::tensor(lo) + at::tensor(span) * at::sigmoid(head_theta_(h));
+  out.log_var = head_logvar_(h) + logvar_offset_;
+  const at::Tensor res = at::tanh(head_res_(h));
+  out.d_res = kDResMaxM * res.select(1, 0);
+  out.beta_res = kBetaResMaxRad * res.select(1, 1);
+  out.F_r = kForceResScaleN * head_fr_(h);
+
+  // Physics layer in float64.
+  const at::Tensor soil = out.theta_u.to(at::kDouble);
+  const at::Tensor k = tk.to(at::kDouble);
+  const at::Tensor rho = k.select(2, kKRho), alpha = k.select(2, kKAlpha), w = k.select(2, kKW), q = k.select(2, kKQ);
+  const at::Tensor d = k.select(2, kKD) + out.d_res.to(at::kDouble).unsqueeze(1);
+  const at::Tensor phi = soil.select(1, kSoilPhi);
+  out.beta = betaNominal(phi) + out.beta_res.to(at::kDouble);
+  const FeeOut fee = feeForward(soil, rho, alpha, w, d, q, out.beta);
+  out.valid = fee.valid;
+  out.F = fee.F + out.F_r.to(at::kDouble).unsqueeze(1);
+
+  // Eq. 5/6 with beta = betaNominal(phi) + beta_res chained into the phi column.
+  at::Tensor J = feeJacobian(soil, rho, alpha, w, d, q, out.beta);
+  J.select(-1, kJacPhi).sub_(0.5 * J.select(-1, kJacBeta));
+  out.J = J;  // columns already [c, phi, ca, delta, gamma, d(_res), beta(_res)] = LogVarCol
+  const at::Tensor var = at::exp(out.log_var.to(at::kDouble)).reshape({B, 1, 1, kLogVarCount});
+  out.Sigma_F = at::matmul(J * var, J.transpose(-2, -1));
+
+  // Eq. 8's dN_gamma/dbeta term: gradient only into beta (through beta_res).
+  const at::Tensor& v = fee.valid;
+  auto perStep = [&](const at::Tensor& x) { return x.unsqueeze(1).expand({B, P}); };
+  const at::Tensor phi_d = perStep(phi.detach()), delta_d = perStep(soil.select(1, kSoilDelta).detach());
+  const at::Tensor beta_g = perStep(betaNominal(phi).detach() + out.beta_res.to(at::kDouble));
+  const at::Tensor dng = dNgammaDbeta(pick(v, phi_d, 0.5), pick(v, delta_d, 0.3), pick(v, alpha, 0.0),
+                                      pick(v, rho, 1.2), pick(v, beta_g, 0.5));
+  out.dNgamma_dbeta = at::where(v, dng, at::zeros_like(dng));
+  return out;
+}
+
+std::string PinnNetImpl::metadataJson() const {
+  nlohmann::json j;
+  j["format"] = kFormat;
+  j["version"] = kFormatVersion;
+  j["config"] = configJson(cfg_);
+  j["config_hash"] = configHash(cfg_);
+  j["theta_k_columns"] = {"rho_rad", "alpha_rad", "w_m", "d_m", "q_n", "v_m_s"};
+  j["theta_k_mean"] = toVector(theta_mean_);
+  j["theta_k_std"] = toVector(theta_std_);
+  return j.dump();
+}
+
+void savePinn(PinnNet& net, const std::string& path) {
+  torch::serialize::OutputArchive ar;
+  net->save(ar);
+  ar.write(kMetadataKey, c10::IValue(net->metadataJson()));
+  const std::string tmp = path + ".tmp";
+  try {
+    ar.save_to(tmp);
+  } catch (const std::exception& e) {
+    std::remove(tmp.c_str());
+    throw OutputError(path + ": cannot write the soil_pinn model: " + e.what());
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    throw OutputError(path + ": cannot rename " + tmp + " into place");
+  }
+}
+
+PinnNet loadPinn(const std::string& path) {
+  torch::serialize::InputArchive ar;
+  try {
+    ar.load_from(path);
+  } catch (const std::exception& e) {
+    const std::string what = e.what();
+    throw InputError(path + ": not a readable soil_pinn model: " + what.substr(0, what.find('\n')));
+  }
+  c10::IValue meta;
+  if (!ar.try_read(kMetadataKey, meta) || !meta.isString())
+    throw InputError(path + ": torch archive without soil_pinn metadata");
+  PinnConfig cfg;
+  try {
+    const nlohmann::json j = nlohmann::json::parse(meta.toStringRef());
+    if (j.at("format").get<std::string>() != kFormat) throw InputError(path + ": format is not " + kFormat);
+    const int version = j.at("version").get<int>();
+    if (version > kFormatVersion)
+      throw InputError(path + ": soil_pinn model version " + std::to_string(version) + " is newer than this build (" +
+                       std::to_string(kFormatVersion) + ")");
+    const nlohmann::json& c = j.at("config");
+    cfg.T = c.at("T").get<int>();
+    cfg.P = c.at("P").get<int>();
+    cfg.D_o = c.at("D_o").get<int>();
+    cfg.hidden = c.at("hidden").get<std::vector<int>>();
+    cfg.seed = c.at("seed").get<int64_t>();
+    if (configHash(cfg) != j.at("config_hash").get<std::string>())
+      throw InputError(path + ": config_hash does not match the stored config");
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError(path + ": bad soil_pinn metadata: " + e.what());
+  }
+  PinnNet net(cfg);
+  try {
+    net->load(ar);
+  } catch (const std::exception& e) {
+    const std::string what = e.what();
+    throw InputError(path + ": parameters do not fit the stored config: " + what.substr(0, what.find('\n')));
+  }
+  return net;
+}
+
+}  // namespace terramap::pinn

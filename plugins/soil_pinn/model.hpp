@@ -1,0 +1,153 @@
+#pragma once
+/// \file
+/// The PINN soil estimator's network (paper §2.1, ALGORITHMS.md §F): an MLP encoder over the
+/// observation history and the known FEE parameters, heads for the soil parameters, their
+/// log-variances, the residuals d_res and beta_res and a residual force, and the FEE physics
+/// layer (fee_torch.hpp) that turns them into a predicted force with a covariance.
+///
+/// Tensor layout (fixed; the training dataset produces exactly this):
+///  - obs     [B,T,D_o] float32, already normalised by the caller.
+///  - theta_k [B,P,6]   float32, RAW physical units, columns ThetaKCol: rho (rad), alpha (rad),
+///            w (m), d (m), Q (N), v (m/s). The horizon is the last P steps of the T history.
+///            The encoder sees (theta_k - mean) / std with per-column mean and std kept as
+///            buffers ("theta_k_mean", "theta_k_std", default 0 and 1) that the caller sets
+///            from dataset statistics with setThetaNormalisation(); they are saved with the model.
+///  - soil vectors everywhere in SoilCol order [c (Pa), phi (rad), ca (Pa), delta (rad), gamma (N/m^3)].
+/// Threading: forward() is ordinary libtorch; callers inside engine tasks set
+/// at::set_num_threads(1) (docs/plugins.md). A module must not be used by two threads at once.
+/// Determinism: the constructor seeds torch's global generator with PinnConfig::seed before
+/// initialising the weights (libtorch's initialisers take no generator), so equal configs
+/// give bit-identical initial weights, and then restores the generator's previous state
+/// (construction, loadPinn() included, does not disturb the caller's random stream). Do not
+/// construct while another thread draws from torch's global CPU generator.
+#include "fee_torch.hpp"
+
+#include <torch/nn/module.h>
+#include <torch/nn/modules/container/sequential.h>
+#include <torch/nn/modules/linear.h>
+#include <torch/nn/pimpl.h>
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace terramap::pinn {
+
+/// Columns of theta_k.
+enum ThetaKCol : int { kKRho = 0, kKAlpha, kKW, kKD, kKQ, kKV, kThetaKCount };
+
+/// Columns of the log-variance output: the five soil parameters (SoilCol order), then the two
+/// residuals.
+enum LogVarCol : int { kLvDRes = kSoilCount, kLvBetaRes, kLogVarCount };
+
+/// A physical range.
+struct ParamRange {
+  const char* name;
+  const char* unit;
+  double lo, hi;
+};
+
+/// The ranges theta_u is squashed into by a sigmoid (theta = lo + (hi - lo) sigmoid(z)),
+/// SoilCol order. Wide enough for the four soil families of the simulator (loose sand to
+/// dense clay); the range penalty of the loss uses the same table.
+inline constexpr double kDeg = 3.14159265358979323846 / 180.0;
+inline constexpr ParamRange kSoilRanges[kSoilCount] = {
+    {"c", "Pa", 0.0, 60e3},
+    {"phi", "rad", 10 * kDeg, 50 * kDeg},
+    {"ca", "Pa", 0.0, 30e3},
+    {"delta", "rad", 5 * kDeg, 40 * kDeg},
+    {"gamma", "N/m^3", 12e3, 22e3},
+};
+/// d_res = kDResMaxM tanh(z) (m); beta_res = kBetaResMaxRad tanh(z) (rad).
+inline constexpr double kDResMaxM = 0.05;
+inline constexpr double kBetaResMaxRad = 0.2;
+/// F_r = kForceResScaleN * z (N), so a unit network output is a force of the order of the
+/// measured ones and F_r can act from the first step.
+inline constexpr double kForceResScaleN = 1000.0;
+
+/// Span of the parameter behind log-variance column k (hi - lo, or the residual's bound).
+double logVarSpan(int k);
+/// Allowed range of log-variance k: [2 ln(1e-3 span), 2 ln(span)], i.e. a standard deviation
+/// between 0.1 % and 100 % of the parameter's span (used by the loss's range penalty).
+double logVarLo(int k);
+double logVarHi(int k);
+/// Offset added to the raw log-variance output: 2 ln(0.1 span), so an untrained network
+/// starts at a 10 % standard deviation instead of 1 in mixed units.
+double logVarInit(int k);
+
+struct PinnConfig {
+  int T = 8;                     ///< history length (steps), >= P
+  int P = 4;                     ///< prediction horizon (steps)
+  int D_o = 1;                   ///< observation features per step
+  std::vector<int> hidden{64, 64};  ///< encoder layer widths (tanh after each)
+  int64_t seed = 0;              ///< weight initialisation seed
+};
+
+/// What forward() returns. B batch, P horizon.
+struct PinnOutput {
+  at::Tensor theta_u;   ///< [B,5] float32, soil estimate in physical units (SoilCol order)
+  at::Tensor log_var;   ///< [B,7] float32, S: ln variances of theta_u, d_res (m^2), beta_res (rad^2)
+  at::Tensor d_res;     ///< [B] float32, m
+  at::Tensor beta_res;  ///< [B] float32, rad
+  at::Tensor F_r;       ///< [B,2] float32, N, residual force (constant over the horizon)
+  at::Tensor beta;      ///< [B] float64, rad, betaNominal(phi) + beta_res
+  /// [B,P,2] float64, N: FEE(theta_u; rho, alpha, w, d + d_res, Q, beta) + F_r; only F_r where
+  /// the FEE is invalid.
+  at::Tensor F;
+  at::Tensor valid;     ///< [B,P] bool, FEE validity (includes d + d_res > 0)
+  /// [B,P,2,7] float64, detached: dF/d[theta_u, d_res, beta_res] (LogVarCol order), with beta's
+  /// dependence on phi chained in (column phi = dF/dphi - dF/dbeta / 2); 0 where invalid.
+  at::Tensor J;
+  /// [B,P,2,2] float64, N^2: J diag(exp(S)) J^T (paper Eq. 6); differentiable w.r.t. S only.
+  at::Tensor Sigma_F;
+  /// [B,P] float64: dN_gamma/dbeta at beta with every other angle detached, so its gradient
+  /// reaches beta_res only (Eq. 8's beta-arrow); 0 where invalid.
+  at::Tensor dNgamma_dbeta;
+};
+
+class PinnNetImpl : public torch::nn::Module {
+ public:
+  /// \throws std::invalid_argument if T < P, P < 1, D_o < 1 or a hidden width < 1.
+  explicit PinnNetImpl(PinnConfig cfg);
+
+  /// obs [B,T,D_o], theta_k [B,P,6] (float32, other dtypes are cast).
+  /// \throws std::invalid_argument on a shape that does not match the config.
+  PinnOutput forward(const at::Tensor& obs, const at::Tensor& theta_k);
+
+  /// Sets the theta_k input normalisation, mean and std [6] in theta_k units (std > 0).
+  /// \throws std::invalid_argument otherwise.
+  void setThetaNormalisation(const at::Tensor& mean, const at::Tensor& std);
+
+  const PinnConfig& config() const { return cfg_; }
+  /// The metadata stored with the model (see savePinn()).
+  std::string metadataJson() const;
+
+  /// The heads, exposed for tests and for freezing parts in training.
+  torch::nn::Linear headTheta() const { return head_theta_; }
+  torch::nn::Linear headLogVar() const { return head_logvar_; }
+
+ private:
+  PinnConfig cfg_;
+  torch::nn::Sequential encoder_{nullptr};
+  torch::nn::Linear head_theta_{nullptr}, head_logvar_{nullptr}, head_res_{nullptr}, head_fr_{nullptr};
+  at::Tensor theta_mean_, theta_std_, logvar_offset_;
+};
+TORCH_MODULE(PinnNet);
+
+/// Writes the model to `path` as one torch archive: the module's parameters and buffers plus
+/// a key "terramap_metadata" holding JSON {format "terramap.soil_pinn", version, config,
+/// theta_k normalisation, config_hash}. Written to path + ".tmp" and renamed, so a reader
+/// never sees a partial file.
+/// \throws terramap::OutputError if the file cannot be written.
+void savePinn(PinnNet& net, const std::string& path);
+
+/// Reads a file written by savePinn(): rebuilds the network from the stored config and loads
+/// its parameters and buffers.
+/// \throws terramap::InputError on a missing/unreadable file, a foreign format, a newer
+/// version or a config hash that does not match the stored config.
+PinnNet loadPinn(const std::string& path);
+
+/// FNV-1a 64 of the config's canonical JSON, as 16 hex digits.
+std::string configHash(const PinnConfig& cfg);
+
+}  // namespace terramap::pinn

@@ -1,0 +1,212 @@
+// fee_torch against the C++ FEE (terramap::fee): forces, factors, dN_gamma/dbeta, the
+// autograd Jacobian against the hand-derived fee::jacobianF, and the validity mask rule by rule.
+#include "fee_torch.hpp"
+
+#include <terramap/soil/fee.hpp>
+
+#include <ATen/Parallel.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+namespace terramap::pinn {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+struct Case {
+  fee::Soil s;
+  fee::Geometry g;
+  double beta = 0;
+};
+
+/// A batch [B,P] of cases as the tensors feeForward() takes (soil per sample, the rest per step).
+struct Batch {
+  at::Tensor soil, rho, alpha, w, d, q, beta;
+};
+
+Batch toTensors(const std::vector<Case>& cases, int64_t B, int64_t P) {
+  Batch t;
+  t.soil = at::empty({B, 5}, at::kDouble);
+  for (at::Tensor* x : {&t.rho, &t.alpha, &t.w, &t.d, &t.q, &t.beta}) *x = at::empty({B, P}, at::kDouble);
+  for (int64_t b = 0; b < B; ++b) {
+    const fee::Soil& s = cases[b * P].s;
+    const double soil[5] = {s.c_pa, s.phi_rad, s.ca_pa, s.delta_rad, s.gamma_n_m3};
+    for (int k = 0; k < 5; ++k) t.soil[b][k] = soil[k];
+    for (int64_t p = 0; p < P; ++p) {
+      const Case& c = cases[b * P + p];
+      t.rho[b][p] = c.g.rho_rad;
+      t.alpha[b][p] = c.g.alpha_rad;
+      t.w[b][p] = c.g.w_m;
+      t.d[b][p] = c.g.d_m;
+      t.q[b][p] = c.g.q_n;
+      t.beta[b][p] = c.beta;
+    }
+  }
+  return t;
+}
+
+/// B samples of P valid steps each: one soil per sample, random slope/geometry/beta per step.
+std::vector<Case> randomValidCases(int B, int P, unsigned seed) {
+  std::mt19937 rng(seed);
+  auto U = [&](double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng); };
+  std::vector<Case> out;
+  while (static_cast<int>(out.size()) < B * P) {
+    fee::Soil s{U(0, 50e3), U(0.1, 0.8), U(12e3, 22e3), U(0, 20e3), U(0.05, 0.6)};
+    std::vector<Case> sample;
+    for (int tries = 0; static_cast<int>(sample.size()) < P && tries < 100; ++tries) {
+      fee::Geometry g{U(-0.4, 0.4), U(0.5, 2.2), U(0.02, 0.4), U(0.5, 2.0), U(0, 5000)};
+      const double beta = fee::betaNominal(s) + U(-0.2, 0.2);
+      if (fee::check(s, g, beta) == fee::Validity::Valid) sample.push_back({s, g, beta});
+    }
+    if (static_cast<int>(sample.size()) == P) out.insert(out.end(), sample.begin(), sample.end());
+  }
+  return out;
+}
+
+class FeeTorch : public ::testing::Test {
+ protected:
+  void SetUp() override { at::set_num_threads(1); }
+};
+
+TEST_F(FeeTorch, ForcesAndFactorsMatchCppFee) {
+  const int B = 64, P = 3;
+  const auto cases = randomValidCases(B, P, 7);
+  const Batch t = toTensors(cases, B, P);
+  const FeeOut o = feeForward(t.soil, t.rho, t.alpha, t.w, t.d, t.q, t.beta);
+  ASSERT_EQ(o.F.sizes(), (at::IntArrayRef{B, P, 2}));
+  ASSERT_EQ(o.F.scalar_type(), at::kDouble);
+  for (int b = 0; b < B; ++b)
+    for (int p = 0; p < P; ++p) {
+      const Case& c = cases[b * P + p];
+      const fee::Result r = fee::evaluate(c.s, c.g, c.beta);
+      ASSERT_TRUE(o.valid[b][p].item<bool>());
+      const double scale = r.F_N.norm();
+      EXPECT_NEAR(o.F[b][p][0].item<double>(), r.F_N.x(), 1e-6 * scale) << b << "," << p;
+      EXPECT_NEAR(o.F[b][p][1].item<double>(), r.F_N.y(), 1e-6 * scale) << b << "," << p;
+      EXPECT_NEAR(o.N_gamma[b][p].item<double>(), r.n.N_gamma, 1e-6 * std::abs(r.n.N_gamma));
+      EXPECT_NEAR(o.N_c[b][p].item<double>(), r.n.N_c, 1e-6 * std::abs(r.n.N_c));
+      EXPECT_NEAR(o.N_Q[b][p].item<double>(), r.n.N_Q, 1e-6 * std::abs(r.n.N_Q));
+      EXPECT_NEAR(o.N_ca[b][p].item<double>(), r.n.N_ca, 1e-6 * std::abs(r.n.N_ca) + 1e-12);
+      EXPECT_NEAR(o.eta[b][p].item<double>(), r.n.eta_rad, 1e-12);
+      const double dn = fee::dNgammaDbeta(c.s, c.g, c.beta);
+      const double dt = dNgammaDbeta(t.soil[b][1], t.soil[b][3], t.alpha[b][p], t.rho[b][p], t.beta[b][p]).item<double>();
+      EXPECT_NEAR(dt, dn, 1e-6 * std::abs(dn) + 1e-12);
+    }
+}
+
+TEST_F(FeeTorch, BetaPerSampleBroadcastsAndDtypeFollowsSoil) {
+  const int B = 8, P = 2;
+  const auto cases = randomValidCases(B, P, 11);
+  Batch t = toTensors(cases, B, P);
+  const at::Tensor beta_b = betaNominal(t.soil.select(1, kSoilPhi));  // [B]
+  const FeeOut o1 = feeForward(t.soil, t.rho, t.alpha, t.w, t.d, t.q, beta_b);
+  const FeeOut o2 = feeForward(t.soil, t.rho, t.alpha, t.w, t.d, t.q, beta_b.unsqueeze(1).expand({B, P}));
+  EXPECT_TRUE(at::equal(o1.F, o2.F));
+  const FeeOut of = feeForward(t.soil.to(at::kFloat), t.rho.to(at::kFloat), t.alpha, t.w, t.d, t.q, beta_b);
+  EXPECT_EQ(of.F.scalar_type(), at::kFloat);
+  EXPECT_THROW(feeForward(t.soil, t.rho, t.alpha.narrow(1, 0, 1), t.w, t.d, t.q, beta_b), std::invalid_argument);
+}
+
+TEST_F(FeeTorch, AutogradJacobianMatchesAnalytic) {
+  const int B = 32, P = 2;
+  const auto cases = randomValidCases(B, P, 3);
+  const Batch t = toTensors(cases, B, P);
+  const at::Tensor J = feeJacobian(t.soil, t.rho, t.alpha, t.w, t.d, t.q, t.beta);
+  ASSERT_EQ(J.sizes(), (at::IntArrayRef{B, P, 2, kJacCount}));
+  const int cols[kJacCount] = {fee::kC, fee::kPhi, fee::kCa, fee::kDelta, fee::kGamma, fee::kD, fee::kBeta};
+  for (int b = 0; b < B; ++b)
+    for (int p = 0; p < P; ++p) {
+      const Case& c = cases[b * P + p];
+      const fee::Jacobian Ja = fee::jacobianF(c.s, c.g, c.beta);
+      for (int j = 0; j < kJacCount; ++j) {
+        // Relative to the column's norm: a component that cancels to ~0 has no relative scale of its own.
+        const double scale = Ja.col(cols[j]).norm();
+        for (int i = 0; i < 2; ++i)
+          EXPECT_NEAR(J[b][p][i][j].item<double>(), Ja(i, cols[j]), 1e-6 * scale) << b << "," << p << " col " << j;
+      }
+    }
+}
+
+TEST_F(FeeTorch, ValidityMaskMatchesEveryRule) {
+  using V = fee::Validity;
+  const fee::Soil s0{10e3, 0.5, 16e3, 5e3, 0.3};
+  const fee::Geometry g0{0.05, 1.2, 0.15, 1.8, 500};
+  const double b0 = 0.5;
+  const double nan = std::numeric_limits<double>::quiet_NaN(), inf = std::numeric_limits<double>::infinity();
+  struct Mod {
+    V expect;
+    fee::Soil s;
+    fee::Geometry g;
+    double beta;
+  };
+  std::vector<Mod> mods;
+  auto add = [&](V v, auto edit) {
+    Mod m{v, s0, g0, b0};
+    edit(m);
+    mods.push_back(m);
+  };
+  add(V::Valid, [](Mod&) {});
+  add(V::NotFinite, [&](Mod& m) { m.s.c_pa = nan; });
+  add(V::NotFinite, [&](Mod& m) { m.g.q_n = inf; });
+  add(V::NotFinite, [&](Mod& m) { m.beta = nan; });
+  add(V::DepthNotPositive, [](Mod& m) { m.g.d_m = 0; });
+  add(V::DepthNotPositive, [](Mod& m) { m.g.d_m = -0.05; });
+  add(V::WidthNotPositive, [](Mod& m) { m.g.w_m = 0; });
+  add(V::NegativeCohesion, [](Mod& m) { m.s.c_pa = -1; });
+  add(V::NegativeAdhesion, [](Mod& m) { m.s.ca_pa = -1; });
+  add(V::NegativeUnitWeight, [](Mod& m) { m.s.gamma_n_m3 = -1; });
+  add(V::NegativeSurcharge, [](Mod& m) { m.g.q_n = -1; });
+  add(V::PhiOutOfRange, [](Mod& m) { m.s.phi_rad = -0.1; });
+  add(V::PhiOutOfRange, [](Mod& m) { m.s.phi_rad = kPi / 2; });
+  add(V::DeltaOutOfRange, [](Mod& m) { m.s.delta_rad = -0.1; });
+  add(V::AlphaOutOfRange, [](Mod& m) { m.g.alpha_rad = 1.6; });
+  add(V::RhoOutOfRange, [](Mod& m) { m.g.rho_rad = 0; });
+  add(V::RhoOutOfRange, [](Mod& m) { m.g.rho_rad = 3.2; });
+  add(V::BetaOutOfRange, [](Mod& m) { m.beta = 0; });
+  add(V::BetaOutOfRange, [](Mod& m) { m.beta = 1.6; });
+  add(V::RhoPlusBetaTooLarge, [](Mod& m) { m.g.rho_rad = 2.8; });
+  add(V::EtaOutOfRange, [](Mod& m) { m.g.rho_rad = 2.0; });  // eta = 0.3 + 2.0 + 0.5 + 0.5 = 3.3
+  add(V::AlphaPhiBetaOutOfRange, [](Mod& m) {
+    m.g.alpha_rad = -1.2;
+    m.s.phi_rad = 0.1;
+    m.beta = 0.3;
+  });
+  std::vector<Case> cases;
+  for (const Mod& m : mods) {
+    ASSERT_EQ(fee::check(m.s, m.g, m.beta), m.expect) << fee::validityName(m.expect) << " case does not hit its rule";
+    cases.push_back({m.s, m.g, m.beta});
+  }
+  const int64_t B = static_cast<int64_t>(cases.size());
+  Batch t = toTensors(cases, B, 1);
+  t.soil.requires_grad_(true);
+  t.beta.requires_grad_(true);
+  const FeeOut o = feeForward(t.soil, t.rho, t.alpha, t.w, t.d, t.q, t.beta);
+  const at::Tensor mask = feeValid(t.soil, t.rho, t.alpha, t.w, t.d, t.q, t.beta);
+  for (int64_t b = 0; b < B; ++b) {
+    const bool want = mods[b].expect == V::Valid;
+    EXPECT_EQ(o.valid[b][0].item<bool>(), want) << fee::validityName(mods[b].expect);
+    EXPECT_EQ(mask[b][0].item<bool>(), want) << fee::validityName(mods[b].expect);
+    if (!want) {
+      EXPECT_EQ(o.F[b][0].abs().sum().item<double>(), 0.0);
+    }
+  }
+  // Invalid entries (poles included) give finite outputs and exactly zero gradients.
+  EXPECT_TRUE(at::isfinite(o.F).all().item<bool>());
+  o.F.sum().backward();
+  EXPECT_TRUE(at::isfinite(t.beta.grad()).all().item<bool>());
+  for (int64_t b = 1; b < B; ++b) {
+    if (mods[b].expect == V::NotFinite) continue;  // a NaN input's own gradient slot is still 0
+    EXPECT_EQ(t.beta.grad()[b][0].item<double>(), 0.0) << fee::validityName(mods[b].expect);
+  }
+  EXPECT_NE(t.beta.grad()[0][0].item<double>(), 0.0);
+  const at::Tensor gs = t.soil.grad();
+  EXPECT_TRUE(at::isfinite(gs).all().item<bool>());
+  EXPECT_EQ(gs.narrow(0, 1, B - 1).abs().sum().item<double>(), 0.0);
+}
+
+}  // namespace
+}  // namespace terramap::pinn
