@@ -42,6 +42,12 @@ void addForwarded(CLI::App& app, std::function<int()>& run, const std::string& n
 Registrar reg_dataset{Command{"dataset", [](CLI::App& app, std::function<int()>& run) {
   addForwarded(app, run, "dataset", "Generate the soil estimator's training episodes (MPI ranks via mpirun)");
 }}};
+Registrar reg_eval_soil{Command{"eval-soil", [](CLI::App& app, std::function<int()>& run) {
+  addForwarded(app, run, "eval-soil", "Evaluate the soil estimator against the simulator's truth");
+}}};
+Registrar reg_train{Command{"train", [](CLI::App& app, std::function<int()>& run) {
+  addForwarded(app, run, "train", "Train the soil estimator's ensemble (libtorch)");
+}}};
 
 }  // namespace
 }  // namespace terramap::cli

@@ -162,10 +162,14 @@ std::string PinnNetImpl::metadataJson() const {
   return j.dump();
 }
 
-void savePinn(PinnNet& net, const std::string& path) {
-  torch::serialize::OutputArchive ar;
+void savePinnTo(PinnNet& net, torch::serialize::OutputArchive& ar) {
   net->save(ar);
   ar.write(kMetadataKey, c10::IValue(net->metadataJson()));
+}
+
+void savePinn(PinnNet& net, const std::string& path) {
+  torch::serialize::OutputArchive ar;
+  savePinnTo(net, ar);
   const std::string tmp = path + ".tmp";
   try {
     ar.save_to(tmp);
@@ -187,6 +191,10 @@ PinnNet loadPinn(const std::string& path) {
     const std::string what = e.what();
     throw InputError(path + ": not a readable soil_pinn model: " + what.substr(0, what.find('\n')));
   }
+  return loadPinnFrom(ar, path);
+}
+
+PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path) {
   c10::IValue meta;
   if (!ar.try_read(kMetadataKey, meta) || !meta.isString())
     throw InputError(path + ": torch archive without soil_pinn metadata");

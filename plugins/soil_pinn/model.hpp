@@ -26,6 +26,7 @@
 #include <torch/nn/modules/container/sequential.h>
 #include <torch/nn/modules/linear.h>
 #include <torch/nn/pimpl.h>
+#include <torch/serialize/archive.h>
 
 #include <cstdint>
 #include <string>
@@ -146,6 +147,11 @@ void savePinn(PinnNet& net, const std::string& path);
 /// \throws terramap::InputError on a missing/unreadable file, a foreign format, a newer
 /// version or a config hash that does not match the stored config.
 PinnNet loadPinn(const std::string& path);
+
+/// The same into / out of an archive the caller owns (e.g. one member of an ensemble file).
+/// `path` only names the file in messages. \throws as loadPinn().
+void savePinnTo(PinnNet& net, torch::serialize::OutputArchive& ar);
+PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path);
 
 /// FNV-1a 64 of the config's canonical JSON, as 16 hex digits.
 std::string configHash(const PinnConfig& cfg);

@@ -1,0 +1,82 @@
+#pragma once
+/// \file
+/// The deployed soil estimator: a deep ensemble of PinnNet members (the epistemic uncertainty
+/// the paper names as its open failure, ALGORITHMS.md §F) with the observation normalisation
+/// they were trained with, in one model file.
+///
+/// Per sample it returns, in SoilCol order [c (Pa), phi (rad), ca (Pa), delta (rad), gamma (N/m^3)]:
+///  - mean: the members' mean estimate;
+///  - var_aleatoric: the members' mean predicted variance exp(S) (the paper's Σ_Θ);
+///  - var_nullspace: max(var_aleatoric, diag Σ_n) with Σ_n of Eq. 7 per member, averaged;
+///  - var_epistemic: the spread of the members' estimates (population variance);
+///  - var_total = var_nullspace + var_epistemic (what the Bayesian layers fuse).
+/// F^r and the predicted force are the members' means; `valid` is false when a majority of the
+/// members found the FEE invalid at every horizon step (then the estimate must not be fused).
+///
+/// Threading: estimate() runs ATen on the calling thread; call at::set_num_threads(1) first
+/// inside engine tasks (docs/plugins.md). One estimator must not be used by two threads at once.
+/// Units as above; forces in N ([x along travel, z up], blade on soil).
+#include "model.hpp"
+#include "nullspace.hpp"
+
+#include <terramap/soil/pinn_sample.hpp>
+
+#include <array>
+#include <string>
+#include <vector>
+
+namespace terramap::pinn {
+
+struct SoilEstimate {
+  std::array<double, kSoilCount> mean{}, var_aleatoric{}, var_nullspace{}, var_epistemic{}, var_total{};
+  std::array<double, 2> F_r{};  ///< N
+  std::vector<std::array<double, 2>> F;  ///< predicted force per horizon step (members' mean), N
+  double d_res_m = 0, beta_res_rad = 0;
+  int valid_members = 0;        ///< members with at least one valid horizon step
+  bool valid = false;
+};
+
+class SoilEstimator {
+ public:
+  SoilEstimator() = default;
+  /// `members` share one PinnConfig; obs_mean / obs_std [D_o] (std > 0).
+  /// \throws std::invalid_argument on an empty ensemble, mixed configs or bad normalisation.
+  SoilEstimator(std::vector<PinnNet> members, std::vector<float> obs_mean, std::vector<float> obs_std,
+                std::string training_json = "{}");
+
+  int T() const { return members_.front()->config().T; }
+  int P() const { return members_.front()->config().P; }
+  std::size_t size() const { return members_.size(); }
+  const std::vector<PinnNet>& members() const { return members_; }
+  /// JSON with what made the model (training config, dataset hash, epochs): stored in the file.
+  const std::string& trainingJson() const { return training_json_; }
+  const std::vector<float>& obsMean() const { return obs_mean_; }
+  const std::vector<float>& obsStd() const { return obs_std_; }
+
+  /// Normalised observation tensor [B, T, D_o] from raw features (the last T steps of each
+  /// sample's history; NaN features become 0, the training mean).
+  at::Tensor normaliseObs(const float* raw, long batch, int T_stored) const;
+
+  /// Estimates for a batch: obs_raw [B * T_stored * D_o] (row-major), theta_k [B * P_stored * 6];
+  /// the last T and P steps are used. \throws std::invalid_argument if T_stored < T or
+  /// P_stored < P.
+  std::vector<SoilEstimate> estimate(const float* obs_raw, const float* theta_k, long batch, int T_stored,
+                                     int P_stored, const NullspaceTolerances& tol = {}) const;
+  /// One sample built by soil::buildSample with at least T history and P horizon steps.
+  SoilEstimate estimate(const soil::PinnSample& s, const NullspaceTolerances& tol = {}) const;
+
+ private:
+  std::vector<PinnNet> members_;
+  std::vector<float> obs_mean_, obs_std_;
+  std::string training_json_;
+};
+
+/// One file: a torch archive with a sub-archive per member (savePinnTo) and the key
+/// "terramap_estimator" holding JSON {format "terramap.soil_estimator", version, members,
+/// obs_mean, obs_std, obs_features, training}. Atomic (temp + rename). \throws OutputError.
+void saveEstimator(const SoilEstimator& e, const std::string& path);
+/// \throws InputError naming the file on anything that is not such a model (or a newer version,
+/// or observation features other than this build's soil::obsFeatureNames()).
+SoilEstimator loadEstimator(const std::string& path);
+
+}  // namespace terramap::pinn

@@ -1,0 +1,204 @@
+#include "evaluation.hpp"
+
+#include <terramap/soil/soil_table.hpp>
+
+#include <ATen/ATen.h>
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <sstream>
+
+namespace terramap::pinn {
+namespace {
+
+// Display units per property: kPa, deg, kPa, deg, kN/m^3.
+constexpr double kDisplayScale[kSoilCount] = {1e-3, 180 / 3.14159265358979323846, 1e-3, 180 / 3.14159265358979323846, 1e-3};
+constexpr const char* kDisplayUnit[kSoilCount] = {"kPa", "deg", "kPa", "deg", "kN/m^3"};
+constexpr const char* kName[kSoilCount] = {"c", "phi", "ca", "delta", "gamma"};
+
+// Truth columns of the dataset are [c, phi, ca, delta, gamma] (eval::SoilDataset), SoilCol order.
+struct Accum {
+  SplitMetrics m;
+  double ferr = 0, fnorm = 0;
+};
+
+}  // namespace
+
+SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& data) {
+  const long n = data.size();
+  const int T = static_cast<int>(data.obs_raw.size(1)), P = static_cast<int>(data.theta_k.size(1));
+  const long batch = 256;
+  std::map<int, Accum> acc;
+  std::map<std::pair<int, int>, Fig11Bin> bins;
+  const float* obs = data.obs_raw.data_ptr<float>();
+  const float* th = data.theta_k.data_ptr<float>();
+  const float* f = data.force.data_ptr<float>();
+  const float* tr = data.truth.data_ptr<float>();
+  for (long b0 = 0; b0 < n; b0 += batch) {
+    const long len = std::min(batch, n - b0);
+    const std::vector<SoilEstimate> es =
+        est.estimate(obs + b0 * T * soil::kObsFeatures, th + b0 * P * 6, len, T, P);
+    for (long i = 0; i < len; ++i) {
+      const long r = b0 + i;
+      const int split = data.split[static_cast<std::size_t>(r)];
+      Accum& a = acc[split];
+      ++a.m.samples;
+      const SoilEstimate& e = es[static_cast<std::size_t>(i)];
+      if (!e.valid) continue;
+      ++a.m.valid;
+      const int p0 = P - est.P();
+      for (int p = 0; p < est.P(); ++p) {
+        const double fx = f[(r * P + p0 + p) * 2], fz = f[(r * P + p0 + p) * 2 + 1];
+        a.ferr += std::hypot(e.F[static_cast<std::size_t>(p)][0] - fx, e.F[static_cast<std::size_t>(p)][1] - fz);
+        a.fnorm += std::hypot(fx, fz);
+      }
+      const bool fig = split == static_cast<int>(eval::DatasetSplit::Test) ||
+                       split == static_cast<int>(eval::DatasetSplit::HeldOut);
+      Fig11Bin* bin = nullptr;
+      if (fig) {
+        const int fam = data.family[static_cast<std::size_t>(r)];
+        const int idb = std::min(9, static_cast<int>(data.relative_density[static_cast<std::size_t>(r)] * 10));
+        bin = &bins[{fam, idb}];
+        bin->family = fam;
+        bin->bin = idb;
+        ++bin->samples;
+      }
+      for (int k = 0; k < kSoilCount; ++k) {
+        const double truth = tr[r * 5 + k], err = e.mean[k] - truth;
+        a.m.mae[k] += std::abs(err);
+        a.m.bias[k] += err;
+        a.m.coverage_aleatoric[k] += std::abs(err) <= std::sqrt(e.var_aleatoric[k]);
+        a.m.coverage_nullspace[k] += std::abs(err) <= std::sqrt(e.var_nullspace[k]);
+        a.m.coverage_total[k] += std::abs(err) <= std::sqrt(e.var_total[k]);
+        a.m.mean_var_aleatoric[k] += e.var_aleatoric[k];
+        a.m.mean_var_epistemic[k] += e.var_epistemic[k];
+        a.m.mean_var_total[k] += e.var_total[k];
+        if (bin) {
+          bin->truth[k] += truth;
+          bin->mean[k] += e.mean[k];
+          bin->sigma[k] += e.var_total[k];
+        }
+      }
+    }
+  }
+  SoilEvaluation out;
+  for (auto& [split, a] : acc) {
+    SplitMetrics m = a.m;
+    m.split = eval::datasetSplitName(static_cast<eval::DatasetSplit>(split));
+    const double v = static_cast<double>(std::max<long>(1, m.valid));
+    m.force_error_pct = a.fnorm > 0 ? 100.0 * a.ferr / a.fnorm : NAN;
+    for (int k = 0; k < kSoilCount; ++k) {
+      for (auto* x : {&m.mae, &m.bias, &m.coverage_aleatoric, &m.coverage_nullspace, &m.coverage_total,
+                      &m.mean_var_aleatoric, &m.mean_var_epistemic, &m.mean_var_total})
+        (*x)[k] /= v;
+    }
+    out.splits.push_back(m);
+  }
+  for (auto& [key, b] : bins) {
+    for (int k = 0; k < kSoilCount; ++k) {
+      b.truth[k] /= static_cast<double>(b.samples);
+      b.mean[k] /= static_cast<double>(b.samples);
+      b.sigma[k] = std::sqrt(b.sigma[k] / static_cast<double>(b.samples));
+    }
+    out.fig11.push_back(b);
+  }
+  const SplitMetrics* test = nullptr;
+  const SplitMetrics* held = nullptr;
+  for (const auto& m : out.splits) {
+    if (m.split == "test") test = &m;
+    if (m.split == "held_out") held = &m;
+  }
+  for (int k = 0; k < kSoilCount; ++k)
+    out.epistemic_ratio[k] = test && held && test->mean_var_epistemic[k] > 0
+                                 ? held->mean_var_epistemic[k] / test->mean_var_epistemic[k]
+                                 : NAN;
+  return out;
+}
+
+std::string evaluationJson(const SoilEvaluation& e) {
+  nlohmann::ordered_json j;
+  for (const auto& m : e.splits) {
+    nlohmann::ordered_json s;
+    s["samples"] = m.samples;
+    s["valid"] = m.valid;
+    s["force_error_pct"] = m.force_error_pct;
+    for (int k = 0; k < kSoilCount; ++k) {
+      nlohmann::ordered_json p;
+      p["mae"] = m.mae[k];
+      p["bias"] = m.bias[k];
+      p["coverage_1sigma_aleatoric"] = m.coverage_aleatoric[k];
+      p["coverage_1sigma_nullspace"] = m.coverage_nullspace[k];
+      p["coverage_1sigma_total"] = m.coverage_total[k];
+      p["mean_var_aleatoric"] = m.mean_var_aleatoric[k];
+      p["mean_var_epistemic"] = m.mean_var_epistemic[k];
+      p["mean_var_total"] = m.mean_var_total[k];
+      s["properties"][kName[k]] = p;
+    }
+    j["splits"][m.split] = s;
+  }
+  for (int k = 0; k < kSoilCount; ++k)
+    j["epistemic_variance_ratio_held_out_over_test"][kName[k]] =
+        std::isfinite(e.epistemic_ratio[k]) ? nlohmann::ordered_json(e.epistemic_ratio[k]) : nlohmann::ordered_json();
+  return j.dump(2);
+}
+
+std::string evaluationMarkdown(const SoilEvaluation& e) {
+  std::ostringstream os;
+  char buf[256];
+  os << "| split | samples (valid) | force error % |";
+  for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " MAE (" << kDisplayUnit[k] << ") |";
+  os << "\n|---|---|---|";
+  for (int k = 0; k < kSoilCount; ++k) os << "---|";
+  os << "\n";
+  for (const auto& m : e.splits) {
+    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f |", m.split.c_str(), m.samples, m.valid, m.force_error_pct);
+    os << buf;
+    for (int k = 0; k < kSoilCount; ++k) {
+      std::snprintf(buf, sizeof buf, " %.2f |", m.mae[k] * kDisplayScale[k]);
+      os << buf;
+    }
+    os << "\n";
+  }
+  os << "\nFraction of truth within ±1σ (aleatoric / nullspace-inflated / total with epistemic):\n\n| split |";
+  for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " |";
+  os << "\n|---|";
+  for (int k = 0; k < kSoilCount; ++k) os << "---|";
+  os << "\n";
+  for (const auto& m : e.splits) {
+    os << "| " << m.split << " |";
+    for (int k = 0; k < kSoilCount; ++k) {
+      std::snprintf(buf, sizeof buf, " %.2f / %.2f / %.2f |", m.coverage_aleatoric[k], m.coverage_nullspace[k],
+                    m.coverage_total[k]);
+      os << buf;
+    }
+    os << "\n";
+  }
+  os << "\nEpistemic variance, held-out over test:";
+  for (int k = 0; k < kSoilCount; ++k) {
+    std::snprintf(buf, sizeof buf, " %s %.2f", kName[k], e.epistemic_ratio[k]);
+    os << buf;
+  }
+  os << "\n";
+  return os.str();
+}
+
+std::string fig11Csv(const SoilEvaluation& e) {
+  std::ostringstream os;
+  os << "family,id_bin,samples";
+  for (int k = 0; k < kSoilCount; ++k) os << "," << kName[k] << "_truth," << kName[k] << "_mean," << kName[k] << "_sigma";
+  os << "\n";
+  char buf[64];
+  for (const auto& b : e.fig11) {
+    os << soil::soilFamilyName(static_cast<soil::SoilFamily>(b.family)) << "," << b.bin << "," << b.samples;
+    for (int k = 0; k < kSoilCount; ++k) {
+      std::snprintf(buf, sizeof buf, ",%.6g,%.6g,%.6g", b.truth[k], b.mean[k], b.sigma[k]);
+      os << buf;
+    }
+    os << "\n";
+  }
+  return os.str();
+}
+
+}  // namespace terramap::pinn

@@ -1,0 +1,50 @@
+#pragma once
+/// \file
+/// How good the soil estimator is on a dataset split (`terramap eval-soil`; paper Fig. 11 and
+/// §3.1): force error, soil-property errors against the simulator's truth, calibration of each
+/// kind of variance, and the epistemic spread that should grow on the held-out soil and rake.
+#include "estimator.hpp"
+#include "trainer.hpp"
+
+#include <array>
+#include <string>
+#include <vector>
+
+namespace terramap::pinn {
+
+struct SplitMetrics {
+  std::string split;
+  long samples = 0, valid = 0;  ///< samples, and those the estimator called valid
+  /// 100 Σ‖F̂ − F‖ / Σ‖F‖ over valid samples and horizon steps (F measured, F̂ predicted).
+  double force_error_pct = 0;
+  std::array<double, kSoilCount> mae{};        ///< |mean − truth|, SI units
+  std::array<double, kSoilCount> bias{};       ///< mean − truth
+  /// Fraction of valid samples whose truth lies within ±1σ, per variance kind.
+  std::array<double, kSoilCount> coverage_aleatoric{}, coverage_nullspace{}, coverage_total{};
+  std::array<double, kSoilCount> mean_var_aleatoric{}, mean_var_epistemic{}, mean_var_total{};
+};
+
+/// One row of the Fig. 11 analogue: estimates binned by family and I_d (10 bins of 0.1).
+struct Fig11Bin {
+  int family = 0;      ///< soil::SoilFamily
+  int bin = 0;         ///< I_d in [bin/10, (bin+1)/10)
+  long samples = 0;
+  std::array<double, kSoilCount> truth{}, mean{}, sigma{};  ///< averages over the bin; sigma = sqrt(mean var_total)
+};
+
+struct SoilEvaluation {
+  std::vector<SplitMetrics> splits;  ///< one per split present (test, held_out, validation, train)
+  std::vector<Fig11Bin> fig11;       ///< over the test and held-out splits
+  /// mean_var_epistemic(held_out) / mean_var_epistemic(test), per property (NaN without both).
+  std::array<double, kSoilCount> epistemic_ratio{};
+};
+
+/// Runs the estimator over every sample of `data` in batches. Single-threaded ATen.
+SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& data);
+std::string evaluationJson(const SoilEvaluation& e);
+/// Markdown tables (force error, errors in display units, calibration, epistemic ratio).
+std::string evaluationMarkdown(const SoilEvaluation& e);
+/// CSV of the Fig. 11 bins: family,id_bin,samples, then truth/mean/sigma per property.
+std::string fig11Csv(const SoilEvaluation& e);
+
+}  // namespace terramap::pinn

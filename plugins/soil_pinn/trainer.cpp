@@ -1,0 +1,305 @@
+#include "trainer.hpp"
+
+#include <terramap/core/error.hpp>
+
+#include <ATen/CPUGeneratorImpl.h>
+#include <nlohmann/json.hpp>
+#include <torch/optim/adam.h>
+#include <torch/serialize.h>
+#include <torch/torch.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+
+namespace terramap::pinn {
+namespace fs = std::filesystem;
+
+std::vector<long> TrainingData::indices(eval::DatasetSplit s) const {
+  std::vector<long> out;
+  for (std::size_t i = 0; i < split.size(); ++i)
+    if (split[i] == static_cast<std::uint8_t>(s)) out.push_back(static_cast<long>(i));
+  return out;
+}
+
+TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
+  if (T > d.T || P > d.P || P > T || P < 1)
+    throw InputError("the dataset stores T = " + std::to_string(d.T) + ", P = " + std::to_string(d.P) +
+                     " steps; training asks for T = " + std::to_string(T) + ", P = " + std::to_string(P) +
+                     " (need 1 <= P <= T, T <= stored T, P <= stored P)");
+  const long n = static_cast<long>(d.size());
+  const int D = soil::kObsFeatures;
+  std::vector<long> keep;
+  TrainingData out;
+  for (long i = 0; i < n; ++i) {
+    bool ok = true;
+    for (int p = d.P - P; p < d.P && ok; ++p)
+      for (int k = 0; k < 2; ++k) ok = ok && std::isfinite(d.force[static_cast<std::size_t>((i * d.P + p) * 2 + k)]);
+    for (int p = d.P - P; p < d.P && ok; ++p)
+      for (int k = 0; k < soil::kThetaK; ++k)
+        ok = ok && std::isfinite(d.theta_k[static_cast<std::size_t>((i * d.P + p) * soil::kThetaK + k)]);
+    if (ok) keep.push_back(i);
+    else ++out.dropped_nonfinite;
+  }
+  const long m = static_cast<long>(keep.size());
+  out.obs_raw = at::empty({m, T, D}, at::kFloat);
+  out.theta_k = at::empty({m, P, soil::kThetaK}, at::kFloat);
+  out.force = at::empty({m, P, 2}, at::kFloat);
+  out.truth = at::empty({m, 5}, at::kFloat);
+  float* o = out.obs_raw.data_ptr<float>();
+  float* th = out.theta_k.data_ptr<float>();
+  float* f = out.force.data_ptr<float>();
+  float* tr = out.truth.data_ptr<float>();
+  for (long r = 0; r < m; ++r) {
+    const long i = keep[static_cast<std::size_t>(r)];
+    std::copy_n(d.obs.data() + (i * d.T + (d.T - T)) * D, static_cast<long>(T) * D, o + r * T * D);
+    std::copy_n(d.theta_k.data() + (i * d.P + (d.P - P)) * soil::kThetaK, static_cast<long>(P) * soil::kThetaK,
+                th + r * P * soil::kThetaK);
+    std::copy_n(d.force.data() + (i * d.P + (d.P - P)) * 2, static_cast<long>(P) * 2, f + r * P * 2);
+    std::copy_n(d.truth.data() + i * 5, 5, tr + r * 5);
+    out.split.push_back(d.split[static_cast<std::size_t>(i)]);
+    out.family.push_back(d.family[static_cast<std::size_t>(i)]);
+    out.relative_density.push_back(d.relative_density[static_cast<std::size_t>(i)]);
+  }
+  return out;
+}
+
+std::string trainConfigHash(const TrainConfig& c) {
+  nlohmann::json j;
+  j["T"] = c.T;
+  j["P"] = c.P;
+  j["hidden"] = c.hidden;
+  j["members"] = c.members;
+  j["seed"] = c.seed;
+  j["batch"] = c.batch;
+  j["max_epochs"] = c.max_epochs;
+  j["patience"] = c.patience;
+  j["learning_rate"] = c.learning_rate;
+  const LossWeights& w = c.weights;
+  j["weights"] = {w.lambda_F, w.lambda_NLL, w.lambda_beta, w.lambda_range, w.lambda_res, w.lambda_Fr, w.w_xz[0],
+                  w.w_xz[1], w.sigma_floor_n2};
+  const std::string s = j.dump();
+  std::uint64_t h = 1469598103934665603ull;
+  for (unsigned char ch : s) {
+    h ^= ch;
+    h *= 1099511628211ull;
+  }
+  char buf[17];
+  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
+  return buf;
+}
+
+namespace {
+
+// Mean and std per feature over the rows `idx` (NaN ignored); a feature that never varies
+// keeps std 1 so it normalises to a constant 0 rather than dividing by ~0.
+void featureStats(const at::Tensor& x /*[N, ..., D]*/, const std::vector<long>& idx, std::vector<float>& mean,
+                  std::vector<float>& stdv) {
+  const long D = x.size(-1);
+  const long per_row = x.numel() / x.size(0);
+  const float* p = x.data_ptr<float>();
+  std::vector<double> s(static_cast<std::size_t>(D), 0), s2(static_cast<std::size_t>(D), 0), n(static_cast<std::size_t>(D), 0);
+  for (long i : idx)
+    for (long k = 0; k < per_row; ++k) {
+      const double v = p[i * per_row + k];
+      if (!std::isfinite(v)) continue;
+      const std::size_t f = static_cast<std::size_t>(k % D);
+      s[f] += v;
+      s2[f] += v * v;
+      n[f] += 1;
+    }
+  mean.assign(static_cast<std::size_t>(D), 0.0f);
+  stdv.assign(static_cast<std::size_t>(D), 1.0f);
+  for (std::size_t f = 0; f < static_cast<std::size_t>(D); ++f) {
+    if (n[f] < 2) continue;
+    const double m = s[f] / n[f];
+    const double var = std::max(0.0, s2[f] / n[f] - m * m);
+    mean[f] = static_cast<float>(m);
+    const double sd = std::sqrt(var);
+    stdv[f] = sd > 1e-6 * std::max(1.0, std::abs(m)) ? static_cast<float>(sd) : 1.0f;
+  }
+}
+
+at::Tensor rows(const at::Tensor& x, const std::vector<long>& idx) {
+  return x.index_select(0, at::tensor(idx, at::kLong));
+}
+
+void copyInto(PinnNet& dst, PinnNet& src) {
+  torch::NoGradGuard g;
+  auto dp = dst->named_parameters(), sp = src->named_parameters();
+  for (auto& kv : sp) dp[kv.key()].copy_(kv.value());
+  auto db = dst->named_buffers(), sb = src->named_buffers();
+  for (auto& kv : sb) db[kv.key()].copy_(kv.value());
+}
+
+struct MemberState {
+  int epoch = 0, best_epoch = 0, stale = 0;
+  double best_val = INFINITY, last_train = 0;
+  bool done = false;
+};
+
+fs::path checkpointPath(const TrainConfig& cfg, int member) {
+  const fs::path dir = cfg.checkpoint_dir.empty() ? fs::path(cfg.out + ".ckpt") : fs::path(cfg.checkpoint_dir);
+  return dir / ("member_" + std::to_string(member) + ".pt");
+}
+
+void saveCheckpoint(const fs::path& path, const std::string& hash, PinnNet& net, PinnNet& best,
+                    torch::optim::Adam& opt, const MemberState& st) {
+  torch::serialize::OutputArchive ar, net_ar, best_ar, opt_ar;
+  savePinnTo(net, net_ar);
+  savePinnTo(best, best_ar);
+  opt.save(opt_ar);
+  ar.write("net", net_ar);
+  ar.write("best", best_ar);
+  ar.write("optimizer", opt_ar);
+  nlohmann::json j{{"hash", hash},          {"epoch", st.epoch}, {"best_epoch", st.best_epoch}, {"stale", st.stale},
+                   {"best_val", st.best_val}, {"last_train", st.last_train}, {"done", st.done}};
+  ar.write("state", c10::IValue(j.dump()));
+  const std::string tmp = path.string() + ".tmp";
+  ar.save_to(tmp);
+  fs::rename(tmp, path);
+}
+
+bool loadCheckpoint(const fs::path& path, const std::string& hash, PinnNet& net, PinnNet& best,
+                    torch::optim::Adam& opt, MemberState& st) {
+  if (!fs::exists(path)) return false;
+  torch::serialize::InputArchive ar, net_ar, best_ar, opt_ar;
+  try {
+    ar.load_from(path.string());
+  } catch (const std::exception&) {
+    return false;  // not ours or damaged: train from scratch (it is rewritten atomically)
+  }
+  c10::IValue state;
+  if (!ar.try_read("state", state) || !state.isString()) return false;
+  const nlohmann::json j = nlohmann::json::parse(state.toStringRef());
+  if (j.value("hash", "") != hash) return false;  // another config: start over
+  ar.read("net", net_ar);
+  ar.read("best", best_ar);
+  ar.read("optimizer", opt_ar);
+  PinnNet n = loadPinnFrom(net_ar, path.string()), b = loadPinnFrom(best_ar, path.string());
+  copyInto(net, n);
+  copyInto(best, b);
+  opt.load(opt_ar);
+  st.epoch = j.at("epoch");
+  st.best_epoch = j.at("best_epoch");
+  st.stale = j.at("stale");
+  st.best_val = j.at("best_val");
+  st.last_train = j.at("last_train");
+  st.done = j.at("done");
+  return true;
+}
+
+}  // namespace
+
+TrainReport trainEnsemble(const TrainConfig& cfg,
+                          const std::function<void(int, int, double, double, double)>& on_progress) {
+  const auto wall0 = std::chrono::steady_clock::now();
+  at::set_num_threads(1);  // the same bits on any machine: no reduction split across threads
+  const eval::SoilDataset ds = eval::readSoilDataset(cfg.dataset);
+  const TrainingData data = makeTrainingData(ds, cfg.T, cfg.P);
+  const std::vector<long> train_idx = data.indices(eval::DatasetSplit::Train);
+  const std::vector<long> val_idx = data.indices(eval::DatasetSplit::Validation);
+  if (train_idx.empty() || val_idx.empty())
+    throw InputError(cfg.dataset + ": needs train and validation samples (has " + std::to_string(train_idx.size()) +
+                     " and " + std::to_string(val_idx.size()) + ")");
+  std::vector<float> obs_mean, obs_std, th_mean, th_std;
+  featureStats(data.obs_raw, train_idx, obs_mean, obs_std);
+  featureStats(data.theta_k, train_idx, th_mean, th_std);
+  // Normalise once; the estimator applies the same mean/std at inference.
+  const at::Tensor om = at::tensor(obs_mean), os = at::tensor(obs_std);
+  const at::Tensor obs = at::nan_to_num((data.obs_raw - om) / os, 0.0, 0.0, 0.0);
+  const at::Tensor obs_tr = rows(obs, train_idx), th_tr = rows(data.theta_k, train_idx), f_tr = rows(data.force, train_idx);
+  const at::Tensor obs_va = rows(obs, val_idx), th_va = rows(data.theta_k, val_idx), f_va = rows(data.force, val_idx);
+  const std::string hash = trainConfigHash(cfg) + "-" + ds.config_hash;
+  std::error_code ec;
+  fs::create_directories(checkpointPath(cfg, 0).parent_path(), ec);
+  if (ec) throw OutputError(checkpointPath(cfg, 0).parent_path().string() + ": cannot create: " + ec.message());
+
+  TrainReport report;
+  report.train_samples = static_cast<long>(train_idx.size());
+  report.validation_samples = static_cast<long>(val_idx.size());
+  std::vector<PinnNet> best_members;
+  for (int m = 0; m < cfg.members; ++m) {
+    const std::int64_t seed = cfg.seed * 1000 + m;
+    PinnNet net(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed});
+    net->setThetaNormalisation(at::tensor(th_mean), at::tensor(th_std));
+    PinnNet best(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed});
+    copyInto(best, net);
+    torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(cfg.learning_rate));
+    MemberState st;
+    MemberReport mr;
+    const fs::path ck = checkpointPath(cfg, m);
+    mr.resumed = loadCheckpoint(ck, hash, net, best, opt, st);
+    double val_force_mae = 0;
+    auto validation = [&] {
+      torch::NoGradGuard g;
+      double sum = 0, fsum = 0;
+      long n = 0;
+      for (long b0 = 0; b0 < obs_va.size(0); b0 += cfg.batch) {
+        const long len = std::min<long>(cfg.batch, obs_va.size(0) - b0);
+        const LossTerms t = pinnLoss(net->forward(obs_va.narrow(0, b0, len), th_va.narrow(0, b0, len)),
+                                     f_va.narrow(0, b0, len), cfg.weights);
+        sum += t.total.item<double>() * static_cast<double>(len);
+        fsum += t.force_mae.item<double>() * static_cast<double>(len);
+        n += len;
+      }
+      val_force_mae = fsum / static_cast<double>(n);
+      return sum / static_cast<double>(n);
+    };
+    while (!st.done && st.epoch < cfg.max_epochs) {
+      // Batch order from (seed, epoch) alone, so a resumed run draws the same batches.
+      auto gen = at::make_generator<at::CPUGeneratorImpl>(static_cast<std::uint64_t>(seed) * 7919u + st.epoch);
+      const at::Tensor perm = at::randperm(obs_tr.size(0), gen, at::kLong);
+      double sum = 0;
+      long n = 0;
+      net->train();
+      for (long b0 = 0; b0 < perm.size(0); b0 += cfg.batch) {
+        const long len = std::min<long>(cfg.batch, perm.size(0) - b0);
+        const at::Tensor idx = perm.narrow(0, b0, len);
+        const LossTerms t = pinnLoss(net->forward(obs_tr.index_select(0, idx), th_tr.index_select(0, idx)),
+                                     f_tr.index_select(0, idx), cfg.weights);
+        opt.zero_grad();
+        t.total.backward();
+        opt.step();
+        sum += t.total.item<double>() * static_cast<double>(len);
+        n += len;
+      }
+      net->eval();
+      st.last_train = sum / static_cast<double>(n);
+      const double val = validation();
+      ++st.epoch;
+      if (val < st.best_val) {
+        st.best_val = val;
+        st.best_epoch = st.epoch;
+        st.stale = 0;
+        copyInto(best, net);
+      } else if (++st.stale >= cfg.patience) {
+        st.done = true;
+      }
+      if (st.epoch >= cfg.max_epochs) st.done = true;
+      saveCheckpoint(ck, hash, net, best, opt, st);
+      if (on_progress) on_progress(m, st.epoch, st.last_train, val, val_force_mae);
+    }
+    mr.epochs = st.epoch;
+    mr.best_epoch = st.best_epoch;
+    mr.best_validation_loss = st.best_val;
+    mr.final_train_loss = st.last_train;
+    report.members.push_back(mr);
+    best_members.push_back(best);
+  }
+  nlohmann::json tj;
+  tj["train_config_hash"] = trainConfigHash(cfg);
+  tj["dataset_config_hash"] = ds.config_hash;
+  tj["dataset"] = cfg.dataset;
+  tj["train_samples"] = report.train_samples;
+  tj["validation_samples"] = report.validation_samples;
+  for (const MemberReport& r : report.members)
+    tj["members"].push_back({{"epochs", r.epochs}, {"best_epoch", r.best_epoch}, {"best_validation_loss", r.best_validation_loss}});
+  const SoilEstimator est(best_members, obs_mean, obs_std, tj.dump());
+  saveEstimator(est, cfg.out);
+  report.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  return report;
+}
+
+}  // namespace terramap::pinn
