@@ -1,5 +1,6 @@
 #include "evaluation.hpp"
 
+#include <terramap/soil/fee.hpp>
 #include <terramap/soil/soil_table.hpp>
 
 #include <ATen/ATen.h>
@@ -7,6 +8,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <map>
 #include <sstream>
 
@@ -21,7 +23,10 @@ constexpr const char* kName[kSoilCount] = {"c", "phi", "ca", "delta", "gamma"};
 // Truth columns of the dataset are [c, phi, ca, delta, gamma] (eval::SoilDataset), SoilCol order.
 struct Accum {
   SplitMetrics m;
-  double ferr = 0, fnorm = 0;
+  double ferr = 0, fnorm = 0, ferr_truth = 0;
+  double fsum[2] = {0, 0};
+  long fn = 0;
+  std::vector<std::array<double, 2>> forces;  // for the constant-force baseline
 };
 
 }  // namespace
@@ -53,6 +58,20 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
         const double fx = f[(r * P + p0 + p) * 2], fz = f[(r * P + p0 + p) * 2 + 1];
         a.ferr += std::hypot(e.F[static_cast<std::size_t>(p)][0] - fx, e.F[static_cast<std::size_t>(p)][1] - fz);
         a.fnorm += std::hypot(fx, fz);
+        a.forces.push_back({fx, fz});
+        const float* g = th + (r * P + p0 + p) * 6;
+        fee::Soil soil;
+        soil.c_pa = tr[r * 5 + 0];
+        soil.phi_rad = tr[r * 5 + 1];
+        soil.ca_pa = tr[r * 5 + 2];
+        soil.delta_rad = tr[r * 5 + 3];
+        soil.gamma_n_m3 = tr[r * 5 + 4];
+        const fee::Geometry geo{g[1], g[0], g[3], g[2], g[4]};
+        const fee::Result fr = fee::evaluateAtBetaNominal(soil, geo);
+        if (std::getenv("TM_DEBUG_FEE") && p == est.P() - 1 && r % 50 == 0)
+          std::fprintf(stderr, "r %ld split %d meas (%.0f, %.0f) truthFEE (%.0f, %.0f) valid %d rho %.3f alpha %.3f w %.2f d %.3f q %.0f v %.2f phi %.3f c %.0f\n",
+                       r, split, fx, fz, fr.F_N.x(), fr.F_N.y(), fr.valid(), g[0], g[1], g[2], g[3], g[4], g[5], soil.phi_rad, soil.c_pa);
+        a.ferr_truth += fr.valid() ? std::hypot(fr.F_N.x() - fx, fr.F_N.y() - fz) : std::hypot(fx, fz);
       }
       const bool fig = split == static_cast<int>(eval::DatasetSplit::Test) ||
                        split == static_cast<int>(eval::DatasetSplit::HeldOut);
@@ -89,6 +108,16 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
     m.split = eval::datasetSplitName(static_cast<eval::DatasetSplit>(split));
     const double v = static_cast<double>(std::max<long>(1, m.valid));
     m.force_error_pct = a.fnorm > 0 ? 100.0 * a.ferr / a.fnorm : NAN;
+    m.force_error_truth_fee_pct = a.fnorm > 0 ? 100.0 * a.ferr_truth / a.fnorm : NAN;
+    double mx = 0, mz = 0, em = 0;
+    for (const auto& fv : a.forces) {
+      mx += fv[0];
+      mz += fv[1];
+    }
+    mx /= static_cast<double>(std::max<std::size_t>(1, a.forces.size()));
+    mz /= static_cast<double>(std::max<std::size_t>(1, a.forces.size()));
+    for (const auto& fv : a.forces) em += std::hypot(fv[0] - mx, fv[1] - mz);
+    m.force_error_mean_pct = a.fnorm > 0 ? 100.0 * em / a.fnorm : NAN;
     for (int k = 0; k < kSoilCount; ++k) {
       for (auto* x : {&m.mae, &m.bias, &m.coverage_aleatoric, &m.coverage_nullspace, &m.coverage_total,
                       &m.mean_var_aleatoric, &m.mean_var_epistemic, &m.mean_var_total})
@@ -124,6 +153,8 @@ std::string evaluationJson(const SoilEvaluation& e) {
     s["samples"] = m.samples;
     s["valid"] = m.valid;
     s["force_error_pct"] = m.force_error_pct;
+    s["force_error_truth_soil_fee_pct"] = m.force_error_truth_fee_pct;
+    s["force_error_constant_mean_pct"] = m.force_error_mean_pct;
     for (int k = 0; k < kSoilCount; ++k) {
       nlohmann::ordered_json p;
       p["mae"] = m.mae[k];
@@ -147,13 +178,14 @@ std::string evaluationJson(const SoilEvaluation& e) {
 std::string evaluationMarkdown(const SoilEvaluation& e) {
   std::ostringstream os;
   char buf[256];
-  os << "| split | samples (valid) | force error % |";
+  os << "| split | samples (valid) | force error % | FEE with truth soil % | constant force % |";
   for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " MAE (" << kDisplayUnit[k] << ") |";
-  os << "\n|---|---|---|";
+  os << "\n|---|---|---|---|---|";
   for (int k = 0; k < kSoilCount; ++k) os << "---|";
   os << "\n";
   for (const auto& m : e.splits) {
-    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f |", m.split.c_str(), m.samples, m.valid, m.force_error_pct);
+    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f | %.1f | %.1f |", m.split.c_str(), m.samples, m.valid,
+                  m.force_error_pct, m.force_error_truth_fee_pct, m.force_error_mean_pct);
     os << buf;
     for (int k = 0; k < kSoilCount; ++k) {
       std::snprintf(buf, sizeof buf, " %.2f |", m.mae[k] * kDisplayScale[k]);

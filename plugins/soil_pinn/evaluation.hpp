@@ -17,6 +17,10 @@ struct SplitMetrics {
   long samples = 0, valid = 0;  ///< samples, and those the estimator called valid
   /// 100 Σ‖F̂ − F‖ / Σ‖F‖ over valid samples and horizon steps (F measured, F̂ predicted).
   double force_error_pct = 0;
+  /// The same error of the FEE evaluated with the TRUTH soil on the sample's extracted geometry
+  /// (paper's F, Rankine beta, no residuals): how much of the force the physics layer could
+  /// explain with perfect soil knowledge; and of a constant force (the split's mean).
+  double force_error_truth_fee_pct = 0, force_error_mean_pct = 0;
   std::array<double, kSoilCount> mae{};        ///< |mean − truth|, SI units
   std::array<double, kSoilCount> bias{};       ///< mean − truth
   /// Fraction of valid samples whose truth lies within ±1σ, per variance kind.

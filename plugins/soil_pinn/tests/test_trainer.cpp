@@ -1,0 +1,164 @@
+// Training and evaluating the ensemble (trainer.hpp, evaluation.hpp) on a small synthetic dataset
+// written in the dataset's own HDF5 format: forces from the C++ FEE with known soils, and
+// observations that carry the soil (so a network can learn it).
+#include "evaluation.hpp"
+#include "trainer.hpp"
+
+#include <terramap/core/error.hpp>
+#include <terramap/soil/fee.hpp>
+#include <terramap/soil/soil_table.hpp>
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+#include <random>
+
+using namespace terramap;
+using namespace terramap::pinn;
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr int kT = 6, kP = 3;
+
+// Episodes of one soil each; every sample a random cut geometry, force = the paper's F of the
+// truth soil (Rankine beta), constant over the horizon. Observation feature k < 5 is the soil
+// property k scaled to about [-1, 1] plus noise; the rest are zero.
+fs::path makeDataset(const std::string& name, int episodes, int samples_per_episode) {
+  const fs::path dir = fs::temp_directory_path() / ("terramap_trainer_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "episodes");
+  eval::SoilDatasetConfig cfg;
+  cfg.history_T = kT;
+  cfg.horizon_P = kP;
+  cfg.config_hash = "synthetic";
+  std::mt19937_64 rng(42);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (int e = 0; e < episodes; ++e) {
+    eval::EpisodeData ep;
+    ep.plan.index = ep.plan.file_index = e;
+    ep.plan.split = e % 5 == 3 ? eval::DatasetSplit::Validation : e % 5 == 4 ? eval::DatasetSplit::Test
+                                                                             : eval::DatasetSplit::Train;
+    ep.plan.family = static_cast<soil::SoilFamily>(e % 4);
+    ep.plan.relative_density = 0.05 + 0.9 * u(rng);
+    const soil::SoilProperties sp = soil::soilProperties(ep.plan.family, ep.plan.relative_density);
+    const double props[5] = {sp.fee.c_pa / 30e3 - 1, sp.fee.phi_rad / 0.5 - 1, sp.fee.ca_pa / 15e3 - 1,
+                             sp.fee.delta_rad / 0.4 - 1, sp.fee.gamma_n_m3 / 17e3 - 1};
+    for (int s = 0; s < samples_per_episode; ++s) {
+      soil::PinnSample smp;
+      smp.T = kT;
+      smp.P = kP;
+      smp.obs.assign(static_cast<std::size_t>(kT) * soil::kObsFeatures, 0.0f);
+      for (int t = 0; t < kT; ++t)
+        for (int k = 0; k < 5; ++k) smp.obs[static_cast<std::size_t>(t * soil::kObsFeatures + k)] = static_cast<float>(props[k] + 0.05 * (u(rng) - 0.5));
+      const fee::Geometry g{0.04 * (u(rng) - 0.5), 1.30 + 0.15 * u(rng), 0.05 + 0.15 * u(rng), 1.0 + 0.8 * u(rng), 3000 * u(rng)};
+      const fee::Result r = fee::evaluateAtBetaNominal(sp.fee, g);
+      for (int p = 0; p < kP; ++p) {
+        smp.theta_k.insert(smp.theta_k.end(), {static_cast<float>(g.rho_rad), static_cast<float>(g.alpha_rad),
+                                               static_cast<float>(g.w_m), static_cast<float>(g.d_m),
+                                               static_cast<float>(g.q_n), 0.8f});
+        smp.force.insert(smp.force.end(), {static_cast<float>(r.F_N.x()), static_cast<float>(r.F_N.y())});
+      }
+      ep.samples.push_back(smp);
+      ep.truth.push_back({static_cast<float>(sp.fee.c_pa), static_cast<float>(sp.fee.phi_rad),
+                          static_cast<float>(sp.fee.ca_pa), static_cast<float>(sp.fee.delta_rad),
+                          static_cast<float>(sp.fee.gamma_n_m3)});
+    }
+    eval::writeEpisodeFile((dir / "episodes" / eval::episodeFileName(ep.plan)).string(), cfg, ep);
+  }
+  return dir;
+}
+
+TrainConfig smallConfig(const fs::path& data, const fs::path& out) {
+  TrainConfig c;
+  c.dataset = data.string();
+  c.out = out.string();
+  c.T = kT;
+  c.P = kP;
+  c.hidden = {16};
+  c.members = 2;
+  c.seed = 3;
+  c.batch = 20;
+  c.max_epochs = 6;
+  c.patience = 100;
+  c.learning_rate = 3e-3;
+  return c;
+}
+
+std::vector<SoilEstimate> estimates(const fs::path& model, const TrainingData& d) {
+  const SoilEstimator e = loadEstimator(model.string());
+  return e.estimate(d.obs_raw.data_ptr<float>(), d.theta_k.data_ptr<float>(), d.size(), kT, kP);
+}
+
+}  // namespace
+
+TEST(Trainer, LearnsTheForceBetterThanAConstantAndReproducesBitForBit) {
+  const fs::path data = makeDataset("learn", 20, 12);
+  const fs::path dir = data / "runs";
+  fs::create_directories(dir);
+  std::vector<double> val;
+  TrainConfig c = smallConfig(data, dir / "a.pt");
+  c.max_epochs = 25;
+  const TrainReport rep = trainEnsemble(c, [&](int m, int, double, double v, double) { if (m == 0) val.push_back(v); });
+  ASSERT_EQ(rep.members.size(), 2u);
+  ASSERT_EQ(val.size(), 25u);
+  EXPECT_LT(val.back(), 0.5 * val.front()) << "validation loss " << val.front() << " -> " << val.back();
+  const TrainingData td = makeTrainingData(eval::readSoilDataset(data.string()), kT, kP);
+  const SoilEvaluation ev = evaluateEstimator(loadEstimator(c.out), td);
+  for (const SplitMetrics& m : ev.splits) {
+    // Forces were made by the FEE of the truth soil: that baseline is exact (float rounding).
+    EXPECT_LT(m.force_error_truth_fee_pct, 0.01) << m.split;
+    if (m.split == "train") {
+      EXPECT_LT(m.force_error_pct, 0.6 * m.force_error_mean_pct) << m.force_error_pct;
+    }
+  }
+  // Same config, another output: the same bits.
+  TrainConfig c2 = c;
+  c2.out = (dir / "b.pt").string();
+  trainEnsemble(c2);
+  const auto ea = estimates(c.out, td), eb = estimates(c2.out, td);
+  for (std::size_t i = 0; i < ea.size(); ++i) {
+    EXPECT_EQ(ea[i].mean, eb[i].mean);
+    EXPECT_EQ(ea[i].var_total, eb[i].var_total);
+  }
+  fs::remove_all(data);
+}
+
+TEST(Trainer, AKilledRunResumesFromItsCheckpointsToTheSameModel) {
+  const fs::path data = makeDataset("resume", 10, 8);
+  const TrainConfig whole = smallConfig(data, data / "whole.pt");
+  trainEnsemble(whole);
+  // Interrupted in the second member's third epoch (the callback throws like a kill would stop it).
+  TrainConfig part = smallConfig(data, data / "part.pt");
+  struct Killed {};
+  EXPECT_THROW(trainEnsemble(part, [](int m, int epoch, double, double, double) { if (m == 1 && epoch == 3) throw Killed{}; }),
+               Killed);
+  EXPECT_FALSE(fs::exists(part.out));
+  const TrainReport rep = trainEnsemble(part);
+  EXPECT_TRUE(rep.members[0].resumed);
+  EXPECT_TRUE(rep.members[1].resumed);
+  const TrainingData td = makeTrainingData(eval::readSoilDataset(data.string()), kT, kP);
+  const auto a = estimates(whole.out, td), b = estimates(part.out, td);
+  for (std::size_t i = 0; i < a.size(); ++i) EXPECT_EQ(a[i].mean, b[i].mean);
+  fs::remove_all(data);
+}
+
+TEST(Trainer, TrainingDataTakesTheEndOfTheHistoryAndDropsNonFiniteForces) {
+  const fs::path data = makeDataset("slice", 5, 4);
+  eval::SoilDataset ds = eval::readSoilDataset(data.string());
+  ds.force[0] = std::nanf("");  // sample 0, first horizon step
+  const TrainingData td = makeTrainingData(ds, 4, 2);
+  EXPECT_EQ(td.dropped_nonfinite, 0);  // step 0 lies outside the last 2 of 3 horizon steps
+  EXPECT_EQ(td.size(), 20);
+  ds.force[static_cast<std::size_t>((kP - 1) * 2)] = std::nanf("");  // sample 0, last step
+  const TrainingData td2 = makeTrainingData(ds, 4, 2);
+  EXPECT_EQ(td2.dropped_nonfinite, 1);
+  EXPECT_EQ(td2.size(), 19);
+  // The history kept is the last 4 of 6 steps.
+  EXPECT_EQ(td.obs_raw[1][0][0].item<float>(), ds.obs[static_cast<std::size_t>((1 * kT + 2) * soil::kObsFeatures)]);
+  EXPECT_THROW(makeTrainingData(ds, kT + 1, 2), InputError);
+  EXPECT_THROW(makeTrainingData(ds, kT, kP + 1), InputError);
+  fs::remove_all(data);
+}
