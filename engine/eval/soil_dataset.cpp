@@ -23,6 +23,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -300,6 +301,14 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
       out.truth.push_back({static_cast<float>(truth.fee.c_pa), static_cast<float>(truth.fee.phi_rad),
                            static_cast<float>(truth.fee.ca_pa), static_cast<float>(truth.fee.delta_rad),
                            static_cast<float>(truth.fee.gamma_n_m3)});
+      const sim::FeeTruth* ft = nullptr;
+      for (std::size_t mi = 0; mi < simulator.machineCount(); ++mi)
+        if (simulator.machineTruth(mi).id == rec->machine_id) ft = &simulator.machineTruth(mi).fee;
+      const float nan = std::numeric_limits<float>::quiet_NaN();
+      out.truth_geometry.push_back(ft ? std::array<float, 5>{static_cast<float>(ft->alpha_rad), static_cast<float>(ft->rho_rad),
+                                                            static_cast<float>(ft->depth_m), static_cast<float>(ft->width_m),
+                                                            static_cast<float>(ft->q_n)}
+                                      : std::array<float, 5>{nan, nan, nan, nan, nan});
       out.samples.push_back(std::move(s));
     }
     pending.clear();
@@ -359,7 +368,7 @@ std::string readAttrString(hid_t obj, const char* name, const std::string& path)
 void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, const EpisodeData& ep) {
   const hsize_t n = ep.samples.size();
   const hsize_t T = static_cast<hsize_t>(cfg.history_T), P = static_cast<hsize_t>(cfg.horizon_P);
-  std::vector<float> obs, theta, force, truth;
+  std::vector<float> obs, theta, force, truth, truth_geo;
   std::vector<double> anchor;
   std::vector<long long> sweep;
   obs.reserve(n * T * soil::kObsFeatures);
@@ -369,6 +378,8 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
     theta.insert(theta.end(), s.theta_k.begin(), s.theta_k.end());
     force.insert(force.end(), s.force.begin(), s.force.end());
     truth.insert(truth.end(), ep.truth[i].begin(), ep.truth[i].end());
+    if (i < ep.truth_geometry.size()) truth_geo.insert(truth_geo.end(), ep.truth_geometry[i].begin(), ep.truth_geometry[i].end());
+    else truth_geo.insert(truth_geo.end(), 5, std::numeric_limits<float>::quiet_NaN());
     anchor.push_back(s.anchor_stamp);
     sweep.push_back(s.sweep_index);
   }
@@ -399,6 +410,8 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
       writeArray(f, "theta_k", H5T_NATIVE_FLOAT, theta.data(), {n, P, static_cast<hsize_t>(soil::kThetaK)}, 4, path);
       writeArray(f, "force", H5T_NATIVE_FLOAT, force.data(), {n, P, 2}, 4, path);
       writeArray(f, "truth", H5T_NATIVE_FLOAT, truth.data(), {n, 5}, 4, path);
+      writeArray(f, "truth_geometry", H5T_NATIVE_FLOAT, truth_geo.data(), {n, 5}, 4, path);
+      attrString(f, "truth_geometry", "alpha_rad,rho_rad,d_m,w_m,q_n");
       writeArray(f, "anchor_stamp", H5T_NATIVE_DOUBLE, anchor.data(), {n}, 4, path);
       writeArray(f, "sweep_index", H5T_NATIVE_LLONG, sweep.data(), {n}, 4, path);
     } catch (...) {
@@ -526,6 +539,15 @@ SoilDataset readSoilDataset(const std::string& dir) {
     d.theta_k.insert(d.theta_k.end(), theta.begin(), theta.end());
     d.force.insert(d.force.end(), force.begin(), force.end());
     d.truth.insert(d.truth.end(), truth.begin(), truth.end());
+    // Files of the first layout have no truth geometry: NaN (diagnosis only, never trained on).
+    try {
+      const std::vector<double> tg = sim::readEpisodeDataset(path, "truth_geometry", dims);
+      if (dims.size() != 2 || dims[0] != n || dims[1] != 5) throw InputError(path + ": dataset 'truth_geometry' must be [N, 5]");
+      d.truth_geometry.insert(d.truth_geometry.end(), tg.begin(), tg.end());
+    } catch (const InputError& e) {
+      if (std::string(e.what()).find("no dataset") == std::string::npos) throw;
+      d.truth_geometry.insert(d.truth_geometry.end(), n * 5, std::numeric_limits<float>::quiet_NaN());
+    }
     for (std::size_t i = 0; i < n; ++i) {
       d.episode.push_back(static_cast<int>(plan[0]));
       d.split.push_back(static_cast<std::uint8_t>(plan[1]));

@@ -8,7 +8,6 @@
 
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <map>
 #include <sstream>
 
@@ -23,7 +22,8 @@ constexpr const char* kName[kSoilCount] = {"c", "phi", "ca", "delta", "gamma"};
 // Truth columns of the dataset are [c, phi, ca, delta, gamma] (eval::SoilDataset), SoilCol order.
 struct Accum {
   SplitMetrics m;
-  double ferr = 0, fnorm = 0, ferr_truth = 0;
+  double ferr = 0, fnorm = 0, ferr_truth = 0, ferr_tg = 0, fnorm_tg = 0;
+  long tg_samples = 0;
   double fsum[2] = {0, 0};
   long fn = 0;
   std::vector<std::array<double, 2>> forces;  // for the constant-force baseline
@@ -41,6 +41,7 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
   const float* th = data.theta_k.data_ptr<float>();
   const float* f = data.force.data_ptr<float>();
   const float* tr = data.truth.data_ptr<float>();
+  const float* tgeo = data.truth_geometry.data_ptr<float>();
   for (long b0 = 0; b0 < n; b0 += batch) {
     const long len = std::min(batch, n - b0);
     const std::vector<SoilEstimate> es =
@@ -68,10 +69,14 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
         soil.gamma_n_m3 = tr[r * 5 + 4];
         const fee::Geometry geo{g[1], g[0], g[3], g[2], g[4]};
         const fee::Result fr = fee::evaluateAtBetaNominal(soil, geo);
-        if (std::getenv("TM_DEBUG_FEE") && p == est.P() - 1 && r % 50 == 0)
-          std::fprintf(stderr, "r %ld split %d meas (%.0f, %.0f) truthFEE (%.0f, %.0f) valid %d rho %.3f alpha %.3f w %.2f d %.3f q %.0f v %.2f phi %.3f c %.0f\n",
-                       r, split, fx, fz, fr.F_N.x(), fr.F_N.y(), fr.valid(), g[0], g[1], g[2], g[3], g[4], g[5], soil.phi_rad, soil.c_pa);
         a.ferr_truth += fr.valid() ? std::hypot(fr.F_N.x() - fx, fr.F_N.y() - fz) : std::hypot(fx, fz);
+        const float* tg = tgeo + r * 5;
+        if (std::isfinite(tg[0]) && std::isfinite(tg[2]) && tg[2] > 0) {
+          const fee::Result ft = fee::evaluateAtBetaNominal(soil, fee::Geometry{tg[0], tg[1], tg[2], tg[3], tg[4]});
+          a.ferr_tg += ft.valid() ? std::hypot(ft.F_N.x() - fx, ft.F_N.y() - fz) : std::hypot(fx, fz);
+          a.fnorm_tg += std::hypot(fx, fz);
+          a.tg_samples += p == 0;
+        }
       }
       const bool fig = split == static_cast<int>(eval::DatasetSplit::Test) ||
                        split == static_cast<int>(eval::DatasetSplit::HeldOut);
@@ -109,6 +114,8 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
     const double v = static_cast<double>(std::max<long>(1, m.valid));
     m.force_error_pct = a.fnorm > 0 ? 100.0 * a.ferr / a.fnorm : NAN;
     m.force_error_truth_fee_pct = a.fnorm > 0 ? 100.0 * a.ferr_truth / a.fnorm : NAN;
+    m.force_error_truth_geometry_pct = a.fnorm_tg > 0 ? 100.0 * a.ferr_tg / a.fnorm_tg : NAN;
+    m.truth_geometry_samples = a.tg_samples;
     double mx = 0, mz = 0, em = 0;
     for (const auto& fv : a.forces) {
       mx += fv[0];
@@ -155,6 +162,8 @@ std::string evaluationJson(const SoilEvaluation& e) {
     s["force_error_pct"] = m.force_error_pct;
     s["force_error_truth_soil_fee_pct"] = m.force_error_truth_fee_pct;
     s["force_error_constant_mean_pct"] = m.force_error_mean_pct;
+    s["force_error_truth_soil_truth_geometry_pct"] = m.force_error_truth_geometry_pct;
+    s["truth_geometry_samples"] = m.truth_geometry_samples;
     for (int k = 0; k < kSoilCount; ++k) {
       nlohmann::ordered_json p;
       p["mae"] = m.mae[k];
@@ -178,14 +187,14 @@ std::string evaluationJson(const SoilEvaluation& e) {
 std::string evaluationMarkdown(const SoilEvaluation& e) {
   std::ostringstream os;
   char buf[256];
-  os << "| split | samples (valid) | force error % | FEE with truth soil % | constant force % |";
+  os << "| split | samples (valid) | force error % | FEE with truth soil % | ... and truth geometry % | constant force % |";
   for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " MAE (" << kDisplayUnit[k] << ") |";
-  os << "\n|---|---|---|---|---|";
+  os << "\n|---|---|---|---|---|---|";
   for (int k = 0; k < kSoilCount; ++k) os << "---|";
   os << "\n";
   for (const auto& m : e.splits) {
-    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f | %.1f | %.1f |", m.split.c_str(), m.samples, m.valid,
-                  m.force_error_pct, m.force_error_truth_fee_pct, m.force_error_mean_pct);
+    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f | %.1f | %.1f | %.1f |", m.split.c_str(), m.samples, m.valid,
+                  m.force_error_pct, m.force_error_truth_fee_pct, m.force_error_truth_geometry_pct, m.force_error_mean_pct);
     os << buf;
     for (int k = 0; k < kSoilCount; ++k) {
       std::snprintf(buf, sizeof buf, " %.2f |", m.mae[k] * kDisplayScale[k]);

@@ -21,6 +21,11 @@ struct SplitMetrics {
   /// (paper's F, Rankine beta, no residuals): how much of the force the physics layer could
   /// explain with perfect soil knowledge; and of a constant force (the split's mean).
   double force_error_truth_fee_pct = 0, force_error_mean_pct = 0;
+  /// And with the truth soil on the simulator's own geometry of the cut (sim::FeeTruth), over the
+  /// samples where it is known: what is left is the simulator's force beyond the paper's F
+  /// (adhesion on the face, inertia, penetration, mobilisation, noise).
+  double force_error_truth_geometry_pct = 0;
+  long truth_geometry_samples = 0;
   std::array<double, kSoilCount> mae{};        ///< |mean − truth|, SI units
   std::array<double, kSoilCount> bias{};       ///< mean − truth
   /// Fraction of valid samples whose truth lies within ±1σ, per variance kind.

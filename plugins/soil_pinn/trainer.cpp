@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <limits>
 
 namespace terramap::pinn {
 namespace fs = std::filesystem;
@@ -47,6 +48,8 @@ TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
   out.theta_k = at::empty({m, P, soil::kThetaK}, at::kFloat);
   out.force = at::empty({m, P, 2}, at::kFloat);
   out.truth = at::empty({m, 5}, at::kFloat);
+  out.truth_geometry = at::full({m, 5}, std::numeric_limits<float>::quiet_NaN(), at::kFloat);
+  float* tg = out.truth_geometry.data_ptr<float>();
   float* o = out.obs_raw.data_ptr<float>();
   float* th = out.theta_k.data_ptr<float>();
   float* f = out.force.data_ptr<float>();
@@ -58,6 +61,7 @@ TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
                 th + r * P * soil::kThetaK);
     std::copy_n(d.force.data() + (i * d.P + (d.P - P)) * 2, static_cast<long>(P) * 2, f + r * P * 2);
     std::copy_n(d.truth.data() + i * 5, 5, tr + r * 5);
+    if (d.truth_geometry.size() == d.truth.size()) std::copy_n(d.truth_geometry.data() + i * 5, 5, tg + r * 5);
     out.split.push_back(d.split[static_cast<std::size_t>(i)]);
     out.family.push_back(d.family[static_cast<std::size_t>(i)]);
     out.relative_density.push_back(d.relative_density[static_cast<std::size_t>(i)]);

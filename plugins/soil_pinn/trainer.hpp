@@ -46,6 +46,7 @@ struct TrainingData {
   at::Tensor theta_k;    ///< [N, P, 6] float32
   at::Tensor force;      ///< [N, P, 2] float32
   at::Tensor truth;      ///< [N, 5] float32 (evaluation only)
+  at::Tensor truth_geometry;  ///< [N, 5] float32 simulator's alpha, rho, d, w, q (diagnosis only; NaN if unknown)
   std::vector<std::uint8_t> split, family;
   std::vector<float> relative_density;
   long dropped_nonfinite = 0;  ///< samples without a finite force (no sensor, NaN features)

@@ -100,6 +100,10 @@ struct EpisodeData {
   EpisodePlan plan;
   std::vector<soil::PinnSample> samples;
   std::vector<std::array<float, 5>> truth;  ///< per sample: c, phi, ca, delta, gamma at the cut
+  /// Per sample, for diagnosis only (how far the mapped Θ_k is from the simulator's): the
+  /// simulator's own FEE geometry of the cut at the end of the sweep's observation period
+  /// (sim::FeeTruth: alpha, rho, depth, width, surcharge q), NaN when it was not cutting.
+  std::vector<std::array<float, 5>> truth_geometry;
   long sweeps = 0;                           ///< SweepRecords seen
   std::map<std::string, long> skipped;       ///< by soil::sampleSkipName
   double simulated_s = 0, wall_s = 0;
@@ -116,7 +120,8 @@ TERRAMAP_API EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const E
 /// Episode file name in DIR/episodes: ep_NNNNN.h5 (in-distribution) or held_NNNNN.h5.
 TERRAMAP_API std::string episodeFileName(const EpisodePlan& plan);
 /// Writes one episode file atomically (HDF5: obs [N,T,34] f32, theta_k [N,P,6], force [N,P,2],
-/// truth [N,5], anchor [N] f64 stamps; attributes: plan, T, P, feature names, config hash).
+/// truth [N,5], truth_geometry [N,5], anchor [N] f64 stamps; attributes: plan, T, P, feature
+/// names, config hash).
 /// \throws OutputError.
 TERRAMAP_API void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, const EpisodeData& ep);
 
@@ -125,6 +130,7 @@ struct SoilDataset {
   int T = 0, P = 0;
   std::string config_hash;
   std::vector<float> obs, theta_k, force, truth;  ///< N*T*34, N*P*6, N*P*2, N*5
+  std::vector<float> truth_geometry;               ///< N*5 (EpisodeData::truth_geometry; NaN in v1 files)
   std::vector<int> episode;                        ///< N
   std::vector<std::uint8_t> split;                 ///< N (DatasetSplit)
   std::vector<std::uint8_t> family;                ///< N (soil::SoilFamily)
