@@ -23,7 +23,7 @@ namespace fs = std::filesystem;
 using namespace terramap_test;
 
 TEST(Cli, HelpEverywhere) {
-  for (const char* sub : {"", "run", "validate", "plugins", "export", "fee", "sim", "eval"}) {
+  for (const char* sub : {"", "run", "validate", "plugins", "export", "fee", "sim", "eval", "dataset", "train", "eval-soil"}) {
     const Result r = sh(std::string(sub) + " --help");
     EXPECT_EQ(r.code, 0) << sub << "\n" << r.out;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub;
