@@ -1,27 +1,9 @@
-// The library's one export. A skeleton for now: it declares its parameter and the events it
-// will need (observations for the history, blade poses for the FEE geometry) and only counts
-// them; the estimator logic (model.hpp, loss.hpp, nullspace.hpp) is wired in later.
+// The library's one export: the plugin record and factory (abi.hpp). Kept apart from the
+// plugin's other sources so that soil_pinn_kernels (tests, benchmarks) holds the classes
+// without the C symbols.
 #include <terramap/plugin/abi.hpp>
 
-namespace {
+#include "soil_pinn_plugin.hpp"
 
-class SoilPinn : public terramap::Plugin {
- public:
-  terramap::ParamSchema schema() const override {
-    return {terramap::param::text("model", "", {}, "path of a trained soil_pinn model file (empty: none yet)")};
-  }
-  void configure(const terramap::Params& p) override { model_path_ = p.getString("model"); }
-  std::vector<terramap::LayerSpec> layers() const override { return {}; }
-  terramap::EventMask events() const override {
-    return terramap::EventKind::Observation | terramap::EventKind::BladePose;
-  }
-  void start(terramap::ProcessContext&) override {}
-  void process(terramap::ProcessContext& ctx, const terramap::Event&) override { ctx.addCounter("events", 1); }
-
- private:
-  std::string model_path_;
-};
-
-}  // namespace
-
-TERRAMAP_PLUGIN(SoilPinn, "soil_pinn", "0.0.1", "PINN soil estimator (skeleton: counts its events)")
+TERRAMAP_PLUGIN(terramap::plugins::SoilPinn, "soil_pinn", "0.1.0",
+                "PINN soil estimator: per-sweep soil parameters with variances from the observation history and the FEE geometry")

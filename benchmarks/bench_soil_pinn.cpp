@@ -1,0 +1,172 @@
+// Latency of one soil estimate, what the soil_pinn plugin spends per blade sweep
+// (ALGORITHMS.md §F; issue 12 goal: <= 1 ms on 1 thread, ensemble included).
+//
+//   BM_SoilPinn: SoilEstimator::estimate(sample) for ONE sample (batch 1) with a deep ensemble
+//     of 5 PinnNet members, T = 30 history steps x 34 observation features, P = 10 horizon
+//     steps, encoder hidden {128, 128}; one intra-op thread (at::set_num_threads(1), as the
+//     plugin runs it). Each iteration is the whole estimate: observation normalisation, the
+//     five forward passes with the FEE physics layer and its autograd Jacobian, Eq. 7 nullspace
+//     inflation (SVD per horizon step), and the ensemble's means and variances.
+//     Time per iteration = latency per estimate.
+//   Counters: estimates_per_s (iterations per second of wall time), members (ensemble size),
+//     valid_members (members whose FEE was valid at some horizon step for this sample: the
+//     Jacobian and nullspace work is done for valid steps, so a sample the FEE rejects would
+//     be cheaper and not representative; it must be 5).
+// The weights are untrained (seeded), which costs the same as trained ones. The sample is a
+// fixed synthetic one: seeded N(0, 1) observation features (the model's normalisation is mean
+// 0, std 1) and a plausible cut (rho 1.45 rad, alpha 0.02 rad, w 1.8 m, d 0.08 m, Q 1500 N,
+// v 0.5 m/s).
+//
+// soil_pinn is a MODULE library (not linkable): this program links its kernel library,
+// soil_pinn_kernels, built with the module's flags.
+#include "estimator.hpp"
+
+#include <terramap/soil/fee.hpp>
+
+#include <ATen/Parallel.h>
+#include <torch/torch.h>
+#include <benchmark/benchmark.h>
+
+#include <random>
+
+using namespace terramap;
+
+namespace {
+
+constexpr int kMembers = 5, kT = 30, kP = 10;
+
+const pinn::SoilEstimator& estimator() {
+  static const pinn::SoilEstimator e = [] {
+    std::vector<pinn::PinnNet> members;
+    for (int m = 0; m < kMembers; ++m)
+      members.emplace_back(pinn::PinnConfig{kT, kP, soil::kObsFeatures, {128, 128}, 100 + m});
+    return pinn::SoilEstimator(std::move(members), std::vector<float>(soil::kObsFeatures, 0.0f),
+                               std::vector<float>(soil::kObsFeatures, 1.0f));
+  }();
+  return e;
+}
+
+soil::PinnSample sample() {
+  soil::PinnSample s;
+  s.T = kT;
+  s.P = kP;
+  std::mt19937 rng(7);
+  std::normal_distribution<float> n01(0.0f, 1.0f);
+  s.obs.resize(static_cast<std::size_t>(kT) * soil::kObsFeatures);
+  for (float& v : s.obs) v = n01(rng);
+  for (int p = 0; p < kP; ++p) {
+    const float row[soil::kThetaK] = {1.45f, 0.02f, 1.8f, 0.08f + 0.002f * p, 1500.0f + 50.0f * p, 0.5f};
+    s.theta_k.insert(s.theta_k.end(), row, row + soil::kThetaK);
+  }
+  s.force.assign(static_cast<std::size_t>(kP) * 2, 0.0f);
+  return s;
+}
+
+void BM_SoilPinn(benchmark::State& state) {
+  at::set_num_threads(1);
+  const pinn::SoilEstimator& est = estimator();
+  const soil::PinnSample s = sample();
+  int valid_members = 0;
+  for (auto _ : state) {
+    pinn::SoilEstimate e = est.estimate(s);
+    valid_members = e.valid_members;
+    benchmark::DoNotOptimize(e);
+  }
+  state.counters["estimates_per_s"] = benchmark::Counter(static_cast<double>(state.iterations()), benchmark::Counter::kIsRate);
+  state.counters["members"] = kMembers;
+  state.counters["valid_members"] = valid_members;
+}
+BENCHMARK(BM_SoilPinn)->Unit(benchmark::kMicrosecond)->UseRealTime();
+
+// Where BM_SoilPinn's time goes, per member (x5 in BM_SoilPinn), same sample, same thread rule:
+//   BM_SoilPinn_MemberForward: PinnNet::forward (encoder, heads, FEE layer, its autograd
+//     Jacobian, Sigma_F) under NoGradGuard;
+//   BM_SoilPinn_MemberFeeJacobian: feeJacobian alone on that member's inputs (B = 1, P = 10);
+//   BM_SoilPinn_MemberNullspace: soilVariances (Eq. 7, one SVD of the stacked [2P x 5] Jacobian);
+//   BM_SoilPinn_CppFeeJacobian: for comparison, the same P = 10 forces and Jacobians with the
+//     analytic C++ FEE (terramap::fee::evaluate + fee::jacobianF), what a torch-free inference
+//     path could cost.
+struct MemberInputs {
+  at::Tensor obs, theta_k;
+  pinn::PinnOutput out;
+};
+const MemberInputs& memberInputs() {
+  static const MemberInputs m = [] {
+    at::set_num_threads(1);
+    torch::NoGradGuard no_grad;
+    const soil::PinnSample s = sample();
+    MemberInputs r;
+    r.obs = estimator().normaliseObs(s.obs.data(), 1, kT);
+    r.theta_k = at::from_blob(const_cast<float*>(s.theta_k.data()), {1, kP, 6}, at::kFloat).clone();
+    pinn::PinnNet net = estimator().members().front();
+    r.out = net->forward(r.obs, r.theta_k);
+    return r;
+  }();
+  return m;
+}
+
+void BM_SoilPinn_MemberForward(benchmark::State& state) {
+  at::set_num_threads(1);
+  const MemberInputs& in = memberInputs();
+  pinn::PinnNet net = estimator().members().front();
+  torch::NoGradGuard no_grad;
+  for (auto _ : state) benchmark::DoNotOptimize(net->forward(in.obs, in.theta_k));
+}
+BENCHMARK(BM_SoilPinn_MemberForward)->Unit(benchmark::kMicrosecond)->UseRealTime();
+
+void BM_SoilPinn_MemberFeeJacobian(benchmark::State& state) {
+  at::set_num_threads(1);
+  const MemberInputs& in = memberInputs();
+  torch::NoGradGuard no_grad;
+  const at::Tensor soil = in.out.theta_u.to(at::kDouble);
+  const at::Tensor k = in.theta_k.to(at::kDouble);
+  const at::Tensor d = k.select(2, pinn::kKD) + in.out.d_res.to(at::kDouble).unsqueeze(1);
+  for (auto _ : state)
+    benchmark::DoNotOptimize(pinn::feeJacobian(soil, k.select(2, pinn::kKRho), k.select(2, pinn::kKAlpha),
+                                               k.select(2, pinn::kKW), d, k.select(2, pinn::kKQ), in.out.beta));
+}
+BENCHMARK(BM_SoilPinn_MemberFeeJacobian)->Unit(benchmark::kMicrosecond)->UseRealTime();
+
+void BM_SoilPinn_MemberNullspace(benchmark::State& state) {
+  at::set_num_threads(1);
+  const MemberInputs& in = memberInputs();
+  torch::NoGradGuard no_grad;
+  const at::Tensor sigma_a = pinn::defaultAmbiguityVariance();
+  const at::Tensor lv = in.out.log_var.to(at::kDouble);
+  for (auto _ : state) benchmark::DoNotOptimize(pinn::soilVariances(in.out.J, lv, sigma_a));
+}
+BENCHMARK(BM_SoilPinn_MemberNullspace)->Unit(benchmark::kMicrosecond)->UseRealTime();
+
+void BM_SoilPinn_CppFeeJacobian(benchmark::State& state) {
+  const MemberInputs& in = memberInputs();
+  fee::Soil soil;
+  const auto th = in.out.theta_u.accessor<float, 2>();
+  soil.c_pa = th[0][pinn::kSoilC];
+  soil.phi_rad = th[0][pinn::kSoilPhi];
+  soil.ca_pa = th[0][pinn::kSoilCa];
+  soil.delta_rad = th[0][pinn::kSoilDelta];
+  soil.gamma_n_m3 = th[0][pinn::kSoilGamma];
+  const double beta = in.out.beta[0].item<double>(), d_res = in.out.d_res[0].item<double>();
+  const auto k = in.theta_k.accessor<float, 3>();
+  std::vector<fee::Geometry> steps(kP);
+  for (int p = 0; p < kP; ++p)
+    steps[p] = {k[0][p][pinn::kKAlpha], k[0][p][pinn::kKRho], k[0][p][pinn::kKD] + d_res, k[0][p][pinn::kKW],
+                k[0][p][pinn::kKQ]};
+  int valid = 0;
+  for (auto _ : state) {
+    valid = 0;
+    for (const fee::Geometry& g : steps) {
+      const fee::Result r = fee::evaluate(soil, g, beta);
+      benchmark::DoNotOptimize(r);
+      if (!r.valid()) continue;
+      ++valid;
+      benchmark::DoNotOptimize(fee::jacobianF(soil, g, beta));
+    }
+  }
+  state.counters["valid_steps"] = valid;
+}
+BENCHMARK(BM_SoilPinn_CppFeeJacobian)->Unit(benchmark::kMicrosecond)->UseRealTime();
+
+}  // namespace
+
+BENCHMARK_MAIN();

@@ -1,0 +1,204 @@
+#include "soil_pinn_plugin.hpp"
+
+#include <terramap/core/error.hpp>
+#include <terramap/soil/fee.hpp>
+
+#include <ATen/Parallel.h>
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+
+namespace terramap::plugins {
+
+namespace {
+
+nlohmann::json num(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
+
+template <std::size_t N>
+nlohmann::json nums(const std::array<double, N>& a) {
+  nlohmann::json j = nlohmann::json::array();
+  for (double v : a) j.push_back(num(v));
+  return j;
+}
+
+}  // namespace
+
+SoilEstimateRecord soilEstimateRecord(const SweepRecord& sweep, const soil::PinnSample& sample,
+                                      const pinn::SoilEstimate& e, int members) {
+  SoilEstimateRecord r;
+  r.sweep_index = sweep.sweep_index;
+  r.machine_id = sweep.machine_id;
+  r.t0 = sweep.t0;
+  r.t1 = sweep.t1;
+  r.stamp = sample.anchor_stamp;
+  r.history_T = sample.T;
+  r.horizon_P = sample.P;
+  r.T_map_blade1 = sweep.T_map_blade1;
+  r.t_hat = sweep.t_hat;
+  r.alpha_rad = sweep.alpha_rad;
+  r.rho_rad = sweep.rho_rad;
+  r.d_m = sweep.d_m;
+  r.w_m = sweep.w_m;
+  r.d_res_m = e.d_res_m;
+  r.beta_res_rad = e.beta_res_rad;
+  fee::Soil s;
+  s.phi_rad = e.mean[pinn::kSoilPhi];
+  r.beta_rad = fee::betaNominal(s) + e.beta_res_rad;
+  bool finite = true;
+  for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
+    r.mean[k] = e.mean[k];
+    r.var_total[k] = e.var_total[k];
+    r.var_aleatoric[k] = e.var_aleatoric[k];
+    r.var_nullspace[k] = e.var_nullspace[k];
+    r.var_epistemic[k] = e.var_epistemic[k];
+    finite = finite && std::isfinite(r.mean[k]) && std::isfinite(r.var_total[k]);
+  }
+  r.F_r = e.F_r;
+  if (!e.F.empty()) r.F_pred = e.F.back();
+  if (sample.P > 0 && sample.force.size() >= static_cast<std::size_t>(2 * sample.P)) {
+    const std::size_t last = static_cast<std::size_t>(sample.P - 1) * 2;
+    r.F_measured = {sample.force[last], sample.force[last + 1]};
+  }
+  r.members = members;
+  r.valid_members = e.valid_members;
+  if (!e.valid)
+    r.invalid_reason = "fee_invalid_majority";
+  else if (!finite)
+    r.invalid_reason = "non_finite_output";
+  r.valid = r.invalid_reason.empty();
+  return r;
+}
+
+std::string soilEstimateRecordJson(const SoilEstimateRecord& r) {
+  nlohmann::json j;
+  j["type"] = SoilEstimateRecord::kType;
+  j["sweep_index"] = r.sweep_index;
+  j["machine_id"] = r.machine_id;
+  j["t1"] = num(r.t1);
+  j["stamp"] = num(r.stamp);
+  j["valid"] = r.valid;
+  if (!r.valid) j["invalid_reason"] = r.invalid_reason;
+  j["valid_members"] = r.valid_members;
+  j["mean"] = nums(r.mean);
+  std::array<double, SoilEstimateRecord::kCount> sd{};
+  for (int k = 0; k < SoilEstimateRecord::kCount; ++k) sd[k] = std::sqrt(r.var_total[k]);
+  j["sd_total"] = nums(sd);
+  j["F_r"] = nums(r.F_r);
+  j["F_pred"] = nums(r.F_pred);
+  j["F_measured"] = nums(r.F_measured);
+  return j.dump();
+}
+
+ParamSchema SoilPinn::schema() const {
+  ParamSpec model = param::text("model", "", {}, "path of a trained soil estimator file (saveEstimator; required)");
+  model.default_value.reset();  // required
+  const pinn::NullspaceTolerances d;
+  return {model,
+          param::real("nullspace_a_tol", d.a_tol, 0.0, 1e12, "1",
+                      "Eq. 7 absolute singular-value threshold of the force Jacobian (SI units)"),
+          param::real("nullspace_r_tol", d.r_tol, 0.0, 1.0, "1",
+                      "Eq. 7 singular-value threshold relative to the largest"),
+          param::integer("history_capacity", 0, 0, 1000000,
+                         "observations kept per machine; 0: the model's T + 64 (what the dataset keeps); else >= T")};
+}
+
+void SoilPinn::configure(const Params& p) {
+  model_path_ = p.getString("model");
+  tol_.a_tol = p.getDouble("nullspace_a_tol");
+  tol_.r_tol = p.getDouble("nullspace_r_tol");
+  if (model_path_.empty()) p.fail("model", "the path of a trained soil estimator file is required");
+  try {
+    estimator_ = std::make_shared<const pinn::SoilEstimator>(pinn::loadEstimator(model_path_));
+  } catch (const Error& ex) {  // loadEstimator's InputError names the file
+    p.fail("model", std::string("cannot load the soil estimator: ") + ex.what());
+  } catch (const std::exception& ex) {  // anything libtorch throws past loadEstimator
+    p.fail("model", std::string("cannot load the soil estimator '") + model_path_ + "': " + ex.what());
+  }
+  const int T = estimator_->T();
+  if (estimator_->P() > T)
+    p.fail("model", "'" + model_path_ + "': horizon P " + std::to_string(estimator_->P()) + " exceeds history T " +
+                        std::to_string(T));
+  const long cap = p.getInt("history_capacity");
+  if (cap != 0 && cap < T)
+    p.fail("history_capacity", "must be 0 or at least the model's T (" + std::to_string(T) + ")");
+  history_capacity_ = cap == 0 ? static_cast<std::size_t>(T) + 64 : static_cast<std::size_t>(cap);
+}
+
+void SoilPinn::start(ProcessContext& ctx) {
+  // A sweep published before this stage existed is not ours to estimate.
+  const Record* r = ctx.records().latest(SweepRecord::kType);
+  last_sequence_ = r ? r->sequence : 0;
+  ctx.addCounter("model_members", static_cast<double>(estimator_->size()));
+}
+
+void SoilPinn::collectSweep(ProcessContext& ctx) {
+  const Record* r = ctx.records().latest(SweepRecord::kType);
+  if (r == nullptr || r->sequence == last_sequence_) return;
+  // The bus keeps only the latest record: more than one publish since our last look means
+  // sweeps we never saw (blade_sweep is not directly before us, or published twice in one event).
+  if (r->sequence > last_sequence_ + 1) ctx.countDrop("sweep_missed", r->sequence - last_sequence_ - 1);
+  last_sequence_ = r->sequence;
+  pending_.push_back(std::static_pointer_cast<const SweepRecord>(r->payload));
+  ctx.addCounter("sweeps", 1);
+}
+
+void SoilPinn::buildPending(ProcessContext& ctx, bool all) {
+  std::vector<std::shared_ptr<const SweepRecord>> keep;
+  for (auto& rec : pending_) {
+    bool ready = all;
+    if (!ready) {
+      auto it = histories_.find(rec->machine_id);
+      ready = it != histories_.end() && !it->second.rows().empty() && it->second.rows().back().stamp >= rec->t1;
+    }
+    if (ready)
+      estimateSweep(ctx, *rec);
+    else
+      keep.push_back(std::move(rec));
+  }
+  pending_ = std::move(keep);
+}
+
+void SoilPinn::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
+  soil::PinnSample sample;
+  auto it = histories_.find(sweep.machine_id);
+  const soil::SampleSkip why = it == histories_.end()
+      ? soil::SampleSkip::ShortHistory
+      : soil::buildSample(it->second, sweep, estimator_->T(), estimator_->P(), sample);
+  if (why != soil::SampleSkip::None) {
+    ctx.countDrop(std::string("sweep_") + soil::sampleSkipName(why));
+    return;
+  }
+  // On the calling (engine) thread, one intra-op thread: OpenMP's count is per thread, so set
+  // it before every estimate (README, "Threading").
+  at::set_num_threads(1);
+  const pinn::SoilEstimate e = estimator_->estimate(sample, tol_);
+  auto rec = std::make_shared<const SoilEstimateRecord>(
+      soilEstimateRecord(sweep, sample, e, static_cast<int>(estimator_->size())));
+  ctx.addCounter("estimates", 1);
+  if (!rec->valid) {
+    ctx.addCounter("estimates_invalid", 1);
+    ctx.countDrop("estimate_" + rec->invalid_reason);
+  }
+  ctx.reportRecord(soilEstimateRecordJson(*rec));
+  ctx.records().publish<SoilEstimateRecord>(SoilEstimateRecord::kType, rec->stamp, rec);
+}
+
+void SoilPinn::process(ProcessContext& ctx, const Event& event) {
+  if (const auto* o = std::get_if<Observation>(&event)) {
+    auto it = histories_.try_emplace(o->machine_id, history_capacity_).first;
+    if (it->second.push(*o))
+      ctx.addCounter("observations", 1);
+    else
+      ctx.countDrop("observation_out_of_order");
+  }
+  collectSweep(ctx);
+  if (!pending_.empty()) buildPending(ctx, false);
+}
+
+void SoilPinn::finish(ProcessContext& ctx) {
+  collectSweep(ctx);  // blade_sweep's finish() may have cut the last partial sweep
+  if (!pending_.empty()) ctx.addCounter("sweeps_pending_at_finish", static_cast<double>(pending_.size()));
+  buildPending(ctx, true);
+}
+
+}  // namespace terramap::plugins
