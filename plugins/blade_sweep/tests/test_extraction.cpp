@@ -156,3 +156,57 @@ TEST(Extraction, PerStepDepthFollowsTheEdgeAndSurchargeIsMeasured) {
   EXPECT_NEAR(r->steps[2].vq_m3, 0.5 * r->vq1_m3, 1e-12);
   EXPECT_NEAR(r->q1_n, r->vq1_m3 * 14636.0 / 1.2, 1e-6);
 }
+
+// V_Q against a hand count on a hand-built map. The blade passes 0.5 m above flat ground (no
+// cut, no deposit: the loose layer is the same before and after) from x = -1.0 to -0.8 along +x,
+// upright, so the region ahead of the edge is the rectangle x in [edge, edge + fit_length_m = 1],
+// |y| <= 0.925 (half the 1.85 m width). Loose patches, every cell centre at least a cell from
+// the region's boundaries (so none is a boundary coin flip and var_vq = 0):
+//   P1 x in [-0.70, -0.30], |y| < 0.5, 0.10 m: 0.4 x 1.0 x 0.10 = 0.040 m^3, ahead of both edges;
+//   P2 x in [-0.95, -0.85], |y| < 0.3, 0.20 m: 0.1 x 0.6 x 0.20 = 0.012 m^3, ahead of the T0
+//      edge, behind the T1 edge;
+//   P3 x in [ 0.05,  0.15], |y| < 0.5, 0.05 m: 0.1 x 1.0 x 0.05 = 0.005 m^3, more than 1 m
+//      ahead of the T0 edge, within 1 m of the T1 edge;
+//   P4 x in [-0.70, -0.30], y in [1.0, 1.2], 0.30 m: beside the blade, in neither.
+// So V_Q(T0) = 0.040 + 0.012 = 0.052 m^3, V_Q(T1) = 0.040 + 0.005 = 0.045 m^3, and Q = gamma/s V_Q.
+TEST(Extraction, SurchargeIsTheLooseVolumeAheadOfTheEdgeCountedByHand) {
+  const double res = 0.05;
+  TestMap tm(res, 160);  // x, y in [-4, 4), cell edges on multiples of 5 cm
+  tm.setElevation([](const Position&) { return 0.0; });
+  struct Patch { double x0, x1, y0, y1, l; };
+  const Patch patches[] = {{-0.70, -0.30, -0.5, 0.5, 0.10},
+                           {-0.95, -0.85, -0.3, 0.3, 0.20},
+                           {0.05, 0.15, -0.5, 0.5, 0.05},
+                           {-0.70, -0.30, 1.0, 1.2, 0.30}};
+  int loaded = 0;
+  for (int i = 0; i < 160; ++i)
+    for (int j = 0; j < 160; ++j) {
+      const Position p = tm.map.geometry().positionOf(Index(i, j));
+      for (const Patch& q : patches)
+        if (p.x() > q.x0 && p.x() < q.x1 && p.y() > q.y0 && p.y() < q.y1) {
+          tm.map.set(tm.ids.loose, Index(i, j), static_cast<float>(q.l));
+          tm.map.set(tm.ids.elevation, Index(i, j), static_cast<float>(q.l));
+          ++loaded;
+        }
+    }
+  // 8 x 20 + 2 x 12 + 2 x 20 + 8 x 4 cells.
+  ASSERT_EQ(loaded, 160 + 24 + 40 + 32);
+  std::vector<BladePose> hist;
+  for (int k = 0; k <= 2; ++k) hist.push_back(bladePose(k * 0.5, Eigen::Vector3d(-1.0 + 0.1 * k, 0, 0.5), bladeRotation(0)));
+  const auto r = runSweep(tm.map, tm.ids, SweepConfig{}, hist, Executor(1));
+  EXPECT_FALSE(r->fee_valid);  // nothing cut
+  EXPECT_NEAR(r->deposit_volume_m3, 0.0, 1e-12);
+  // Loose thicknesses are floats (relative error ~6e-8 of each cell's volume).
+  EXPECT_NEAR(r->vq0_m3, 0.052, 1e-8);
+  EXPECT_NEAR(r->vq1_m3, 0.045, 1e-8);
+  EXPECT_NEAR(r->var_vq, 0.0, 1e-15);
+  const double gamma_l = 14636.0 / 1.2;  // SweepConfig: unit weight and swell defaults
+  EXPECT_NEAR(r->q0_n, gamma_l * 0.052, 1e-4);
+  EXPECT_NEAR(r->q1_n, gamma_l * 0.045, 1e-4);
+  // Per step, linear in time between the ends: tau = 0.5 halfway, 1-sigma tau (1-tau) |dV|.
+  ASSERT_EQ(r->steps.size(), 3u);
+  EXPECT_NEAR(r->steps[0].vq_m3, 0.052, 1e-8);
+  EXPECT_NEAR(r->steps[1].vq_m3, 0.0485, 1e-8);
+  EXPECT_NEAR(r->steps[2].vq_m3, 0.045, 1e-8);
+  EXPECT_NEAR(r->steps[1].var_vq, std::pow(0.25 * 0.007, 2), 1e-12);
+}

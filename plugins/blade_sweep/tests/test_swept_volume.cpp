@@ -2,6 +2,7 @@
 // and yaw, thresholds, determinism across thread counts.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstring>
 
 #include "sweep_test_util.hpp"
@@ -120,22 +121,61 @@ TEST(SweptVolume, ExactFootprintForAnyHeadingRollAndYaw) {
 }
 
 TEST(SweptVolume, LoweringRotatingBladeCutsToTheLowestEnvelope) {
-  // Blade pitched forward and back while translating: the bottom is the minimum over the
-  // stations, so no cell ends above the edge height it saw at any intermediate pose.
+  // Blade pitched forward and back (lean 0.1 sin k rad) while it translates and dips: station k
+  // has its edge along y at x_k = -0.4 + 0.1 k, z_k = 0.2 - 0.3 sin(pi k / 8) (down to -0.1 at
+  // x = 0). Hand-computed swept region: the edge's path is the piecewise-linear ribbon through
+  // the stations (slerp stations in between move the edge along the same segments), and it is
+  // the lowest part of the swept volume over every column it passes: the leaning face rises
+  // from the edge at 1 / tan(0.1) ~ 10 m per m of lean, the path at most 0.3 pi / 0.8 ~ 1.2 m/m,
+  // so every face, top and side triangle lies above the path. Hence on the 0.5 m ground:
+  //  - cells with centres strictly inside x in (-0.4, 0.4), |y| < 0.925 end at z_path(x);
+  //  - every other cell is not cut (>= 0.5; spoil is put outside the footprint and only raises).
+  // The floor is sampled at cell centres, so z_path is exact there: the slack is the float
+  // storage of the elevation layer (half an ulp at 0.5 m: 3e-8 m) plus the barycentric
+  // arithmetic (1e-12 of the 5 cm cell): 1e-6 m. Centres on the blade's side lines (|y| =
+  // 0.925: a resolution multiple) are boundary cases either way and not judged.
   TestMap tm(0.05, 100);
   tm.setElevation([](const Position&) { return 0.5; });
   std::vector<BladePose> hist;
+  auto zk = [](int k) { return 0.2 - 0.3 * std::sin(kPi * k / 8.0); };
   for (int k = 0; k <= 8; ++k) {
     const double x = -0.4 + 0.1 * k;
-    const double z = 0.2 - 0.3 * std::sin(kPi * k / 8.0);  // dips to -0.1 mid-sweep
-    hist.push_back(bladePose(k * 0.1, Eigen::Vector3d(x, 0.0, z), bladeRotation(0.0, 0.0, 0.1 * std::sin(k))));
+    hist.push_back(bladePose(k * 0.1, Eigen::Vector3d(x, 0.0, zk(k)), bladeRotation(0.0, 0.0, 0.1 * std::sin(k))));
   }
-  runSweep(tm.map, tm.ids, SweepConfig{}, hist, Executor(1));
-  // The cell under the edge at the dip (x = 0) is cut at least to -0.1 (+ the edge's own
-  // rake-induced offset, none at the edge).
+  const auto rec = runSweep(tm.map, tm.ids, SweepConfig{}, hist, Executor(1));
+  auto zPath = [&](double x) {
+    const double f = (x + 0.4) / 0.1;
+    const int k = std::clamp(static_cast<int>(std::floor(f)), 0, 7);
+    return zk(k) + (f - k) * (zk(k + 1) - zk(k));
+  };
+  long inside = 0, wrong_inside = 0, wrong_outside = 0;
+  double max_err = 0;
+  for (int i = 0; i < 100; ++i)
+    for (int j = 0; j < 100; ++j) {
+      const Position c = tm.map.geometry().positionOf(Index(i, j));
+      if (std::abs(std::abs(c.y()) - 0.925) < 1e-6) continue;
+      const double h = tm.H(i, j);
+      if (c.x() > -0.4 + 1e-6 && c.x() < 0.4 - 1e-6 && std::abs(c.y()) < 0.925) {
+        ++inside;
+        const double err = std::abs(h - zPath(c.x()));
+        max_err = std::max(max_err, err);
+        if (err > 1e-6) ++wrong_inside;
+      } else if (h < 0.5f) {
+        ++wrong_outside;
+      }
+    }
+  EXPECT_EQ(inside, 16L * 36L);  // 16 centres along x, 18 per side strictly inside |y| < 0.925
+  EXPECT_EQ(wrong_inside, 0) << "largest error " << max_err << " m";
+  EXPECT_EQ(wrong_outside, 0);
+  // The dip itself: the cells either side of x = 0 end 5.7 mm above the -0.1 m low point
+  // (the path at x = 0.025 is z_4 + 0.25 (z_5 - z_4), z_5 - z_4 = 0.3 (1 - sin(5 pi/8))).
   const auto idx = tm.map.geometry().indexAt(Position(0.001, 0.001));
   ASSERT_TRUE(idx.has_value());
-  EXPECT_LE(tm.H(idx->x(), idx->y()), -0.1 + 0.02);
+  EXPECT_NEAR(tm.H(idx->x(), idx->y()), -0.1 + 0.25 * 0.3 * (1 - std::sin(5 * kPi / 8)), 1e-6);
+  // Cut cells = those with centres under the swept volume (all start above it here), counted
+  // by the record too.
+  EXPECT_EQ(rec->cells_cut, rec->cells_under_sv);
+  EXPECT_GE(rec->cells_cut, inside);
 }
 
 TEST(SweptVolume, UpdateThresholdsTranslationResolutionAndRotation) {

@@ -155,6 +155,46 @@ TEST(LidarFusion, MahalanobisOutlierAddsVariance) {
   EXPECT_EQ(layerAt(map, L::kHits, idx), 0.0f);
 }
 
+// The gate's edge: a residual is an outlier iff |z - h| > k sqrt(v + v_p) (the Mahalanobis
+// distance of the residual, whose variance is v + v_p). With v = v_p = a^2 = 0.0025 the edge is
+// k * 0.0707 m. Residuals 5 % inside and 5 % outside it, for k = 1, 2, 3, one cell each: a gate
+// that compares r^2 with k^2 sigma (sigma where the variance is meant: edge k (v + v_p)^(1/4) =
+// k * 0.27 m) or |r| with k v (elevation_mapping_cupy's form: edge k * 0.005 m) puts one of each
+// pair on the wrong side.
+// 5 % is far above float rounding (~1e-7 relative) of the residuals and the threshold.
+TEST(LidarFusion, MahalanobisGateEdgeIsKSigmaOfTheCombinedVariance) {
+  for (const double k : {1.0, 2.0, 3.0}) {
+    for (const double f : {0.95, 1.05}) {
+      LayeredMap map = makeMap();
+      LidarFusion fu;
+      LidarFusionConfig c = plainConfig();
+      c.range_noise_a_m = 0.05;
+      c.range_noise_b = 0.0;  // v_p = 0.0025 at any range
+      c.mahalanobis_thresh = k;
+      fu.configure(c);
+      fu.attach(map);
+      Executor ex(1);
+      const double edge = k * std::sqrt(0.0025 + 0.0025);
+      const float dz = static_cast<float>(f * edge);
+      const FusionStats s = fu.fuse(map, ex, cloudAt({0, 0, 0}, {{1.0f, 0.0f, 0.0f, 0}, {1.0f, 0.0f, dz, 0}}));
+      const Index idx = cellOf(map, 1.0, 0.0);
+      if (f < 1.0) {
+        // Inside: fused; equal variances -> the mean, variance halved.
+        EXPECT_EQ(s.outliers, 0) << "k " << k << " residual " << dz;
+        EXPECT_EQ(s.points_fused, 2) << "k " << k;
+        EXPECT_NEAR(layerAt(map, L::kElevation, idx), dz / 2, 1e-6) << "k " << k;
+        EXPECT_NEAR(layerAt(map, L::kVariance, idx), 0.00125, 1e-9) << "k " << k;
+      } else {
+        // Outside: rejected, the cell keeps the first point and gains the outlier variance.
+        EXPECT_EQ(s.outliers, 1) << "k " << k << " residual " << dz;
+        EXPECT_EQ(s.points_fused, 1) << "k " << k;
+        EXPECT_FLOAT_EQ(layerAt(map, L::kElevation, idx), 0.0f) << "k " << k;
+        EXPECT_NEAR(layerAt(map, L::kVariance, idx), 0.0025 + c.outlier_variance_m2, 1e-8) << "k " << k;
+      }
+    }
+  }
+}
+
 TEST(LidarFusion, OutlierAboveMaxVarianceForgetsTheCell) {
   LayeredMap map = makeMap();
   LidarFusion f;

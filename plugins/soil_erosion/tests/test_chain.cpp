@@ -2,8 +2,11 @@
 // conserved through cut, deposit and erosion, masks respected, bit-identical at 1 and 2 threads.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <limits>
+#include <utility>
 
 #include "blade_sweep.hpp"
 #include "soil_erosion.hpp"
@@ -96,6 +99,56 @@ BladePose poseAt(int k) {
   return p;
 }
 
+/// The critical drop of the Coulomb wedge between two cells r apart (README, "Model"): the
+/// smallest drop dh whose wedge fails, min over the failure angle a of
+/// Fs(a) = (c r^2 / cos a + W cos a tan phi) / (W sin a), W = gamma r^2 (dh - r tan a) / 2,
+/// reaches 1. Brute force (a on a fine grid, then bisection in dh), not the plugin's closed
+/// form; c = 0 gives r tan phi.
+double criticalDrop(double c, double phi, double gamma, double r) {
+  auto minFs = [&](double dh) {
+    double best = INFINITY;
+    const double amax = std::atan(dh / r);
+    for (int k = 1; k < 20000; ++k) {
+      const double a = amax * k / 20000.0;
+      const double W = 0.5 * gamma * r * r * (dh - r * std::tan(a));
+      if (!(W > 0)) continue;
+      best = std::min(best, (c * r * r / std::cos(a) + W * std::cos(a) * std::tan(phi)) / (W * std::sin(a)));
+    }
+    return best;
+  };
+  if (c == 0.0) return r * std::tan(phi);
+  double lo = 0.0, hi = r;
+  while (minFs(hi) >= 1.0) hi *= 2.0;
+  for (int k = 0; k < 60; ++k) (minFs(0.5 * (lo + hi)) >= 1.0 ? lo : hi) = 0.5 * (lo + hi);
+  return hi;
+}
+
+/// Largest min(drop, loose on the higher cell) over pairs of 4-neighbours whose cells lie
+/// 0.1 m inside the erosion's ROI (defaults roi_along_m 3, roi_margin_m 2: +-3 m along the
+/// blade normal at the sweep's T1, +-(2 + width)/2 across, centred on its edge).
+double restExcess(const Chain& ch, const SweepRecord& rec) {
+  const Eigen::MatrixXf H = ch.map.toMatrix(ch.h), L = ch.map.toMatrix(ch.l);
+  const Eigen::Vector2d c = rec.T_map_blade1.translation().head<2>();
+  const Eigen::Vector2d a = rec.T_map_blade1.linear().col(0).head<2>().normalized(), b(-a.y(), a.x());
+  const double ha = 3.0 - 0.1, hb = 0.5 * (2.0 + rec.geometry.width_m) - 0.1;
+  auto in = [&](int i, int j) {
+    const Eigen::Vector2d p = ch.map.geometry().positionOf(Index(i, j)) - c;
+    return std::abs(p.dot(a)) <= ha && std::abs(p.dot(b)) <= hb;
+  };
+  double worst = 0;
+  for (int i = 0; i < 160; ++i)
+    for (int j = 0; j < 160; ++j)
+      for (const auto& [i2, j2] : {std::pair{i + 1, j}, std::pair{i, j + 1}}) {
+        if (i2 >= 160 || j2 >= 160 || !in(i, j) || !in(i2, j2)) continue;
+        if (!std::isfinite(H(i, j)) || !std::isfinite(H(i2, j2))) continue;
+        const bool first_higher = H(i, j) > H(i2, j2);
+        const double drop = std::abs(static_cast<double>(H(i, j)) - H(i2, j2));
+        const double lh = first_higher ? L(i, j) : L(i2, j2);
+        worst = std::max(worst, std::min(drop, std::isfinite(lh) ? lh : 0.0));
+      }
+  return worst;
+}
+
 }  // namespace
 
 TEST(Chain, MassConservedThroughCutDepositAndErosion) {
@@ -111,19 +164,29 @@ TEST(Chain, MassConservedThroughCutDepositAndErosion) {
     EXPECT_GT(ch.erosion_stats.counters["eroded_volume_m3"], 0.001);
     EXPECT_NEAR(ch.mass(1.2) + lost / 1.2, m0, 160 * 160 * 1e-7 * 0.0025) << c;
     // While the blade stands, the surcharge rests against it (masked cells). Lift the blade
-    // away (erode on Tick without the masks) and the deposit wall collapses: no neighbour pair
-    // differs by more than 0.25 m (the trench walls are undisturbed soil and stay).
+    // away (erode on Tick without the masks) and the deposit wall collapses to the model's rest
+    // state (README, "Model"): a pair stops when its drop is within the critical drop dH_c, or
+    // when the loose soil on its higher cell (all that may slip) is (the trench walls are
+    // undisturbed soil and stay). So at rest every pair of 4-neighbours inside the erosion's
+    // ROI has min(drop, L_high) <= dH_c; dH_c solves Fs = 1 for the Coulomb wedge, computed
+    // here by brute force (criticalDrop; r tan(min_slope_rad) = 2.5 mm is below it). Slack:
+    // heights and loose depths are stored as floats (metre-scale: an ulp is 1.2e-7 m, so a
+    // drop is off by at most ~2.4e-7 m) plus the kernel's rounding margin (1e-9 relative):
+    // 1e-6 m, four orders below dH_c (13 mm at c = 0, 46 mm at 25 Pa).
+    const auto rec = ch.bus.latestAs<SweepRecord>(SweepRecord::kType);
+    ASSERT_TRUE(rec);
+    const double dhc = criticalDrop(c, 0.26, 12197.0, 0.05);  // the plugin's default phi_l, gamma_l
+    // With the blade down the wall stands far above the rest state (the check is not vacuous).
+    EXPECT_GT(restExcess(ch, *rec), dhc + 0.25) << c;
+    // 100 passes = 200 s of slip: how long settling takes is not the claim (this wall is at rest
+    // after ~60), the state it settles to is.
     SoilErosion lifted;
     lifted.configure(makeParams("lifted", lifted.schema(),
-                                {{"cohesion_pa", c}, {"blade_mask", false}, {"trigger", std::string("sweep_and_tick")}, {"passes", 20L}}));
+                                {{"cohesion_pa", c}, {"blade_mask", false}, {"trigger", std::string("sweep_and_tick")}, {"passes", 100L}}));
     lifted.start(ch.erosion_ctx);
     lifted.process(ch.erosion_ctx, Event(Tick{100.0}));
     EXPECT_NEAR(ch.mass(1.2) + lost / 1.2, m0, 160 * 160 * 1e-7 * 0.0025) << c;
-    const Eigen::MatrixXf H = ch.map.toMatrix(ch.h);
-    float worst = 0;
-    for (int i = 0; i + 1 < 160; ++i)
-      for (int j = 0; j < 160; ++j) worst = std::max(worst, std::abs(H(i, j) - H(i + 1, j)));
-    EXPECT_LT(worst, 0.25f);
+    EXPECT_LE(restExcess(ch, *rec), dhc + 1e-6) << "cohesion " << c << " Pa, dH_c " << dhc;
   }
 }
 

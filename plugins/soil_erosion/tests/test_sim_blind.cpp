@@ -87,7 +87,7 @@ TEST(SimBlind, BlindMapTracksTheTruthAndExtractsItsGeometry) {
   blade.start(bctx);
   erosion.start(ectx);
 
-  std::vector<double> err_d, err_alpha, err_w;
+  std::vector<double> err_d, err_alpha, err_w, dz_edge;
   long seen = 0;
   std::vector<Event> events;
   while (sim.next(events)) {
@@ -102,6 +102,10 @@ TEST(SimBlind, BlindMapTracksTheTruthAndExtractsItsGeometry) {
       const sim::FeeTruth& ft = sim.machineTruth(0).fee;
       if (rec->fee_valid && ft.cutting_slices > 0 && std::isfinite(ft.depth_m) && !rec->steps.empty()) {
         err_d.push_back(rec->steps.back().d_m - ft.depth_m);
+        // The realised vertical error of the edge the mapper was given (estimated - true) at
+        // the sweep's end pose, the one its last step's depth is measured from.
+        dz_edge.push_back(std::get<BladePose>(e).T_map_blade.translation().z() -
+                          sim.machineTruth(0).T_map_blade.translation().z());
         err_alpha.push_back(rec->alpha_rad - ft.alpha_rad);
         err_w.push_back(rec->steps.back().w_m - ft.width_m);
       }
@@ -178,11 +182,24 @@ TEST(SimBlind, BlindMapTracksTheTruthAndExtractsItsGeometry) {
   EXPECT_LT(rmse_blind[0], std::hypot(0.3 * rmse_static[0], sigma_edge_z));
   EXPECT_NEAR(bs.counters["cut_bank_volume_m3"], sim.machineTruth(0).cut_bank_m3, 0.1 * sim.machineTruth(0).cut_bank_m3);
   ASSERT_GT(err_d.size(), 10u);
-  // The extracted depth inherits the edge error too: the median of |N(mu, s^2)| is at most
-  // |mu| + 0.674 s, with mu the slow part (1-sigma) and s the white part, 2.7 cm for rtk_imu
-  // (with perfect poses the median is 0.03 cm): the 3 cm guard holds it unchanged.
-  EXPECT_LT(std::sqrt(var_z_slow) + 0.674 * std::sqrt(var_z_white), 0.03);
-  EXPECT_LT(median(err_d), 0.03);
+  // The extracted depth inherits the edge error: a blade estimated dz too high measures the cut
+  // dz too shallow. With that realisation of the noise taken out (dz_edge, every sweep along the
+  // whole route), what remains is the extraction's own error: the surface ahead is a weighted
+  // line fit (weights exp(-C_x x), C_x = 3 /m), whose intercept on a surface of curvature k is
+  // off by k / C_x^2; the scenario's hills (amplitude <= 0.08 m, sigma >= 1.5 m) curve by at
+  // most A / sigma^2 = 0.036 /m each: 4 mm for one hill (the median), 16 mm were all four to
+  // pile up at one place (the worst sweep), plus 1 mm for the truth's own fit of the surface
+  // ahead (unweighted over 0.05-0.5 m).
+  ASSERT_EQ(dz_edge.size(), err_d.size());
+  std::vector<double> depth_residual(err_d.size());
+  for (size_t k = 0; k < err_d.size(); ++k) depth_residual[k] = err_d[k] + dz_edge[k];
+  const double k_hill = 0.08 / (1.5 * 1.5), cx2 = 3.0 * 3.0;
+  EXPECT_LT(median(depth_residual), k_hill / cx2);
+  double worst_residual = 0;
+  for (double r : depth_residual) worst_residual = std::max(worst_residual, std::abs(r));
+  EXPECT_LT(worst_residual, 4 * k_hill / cx2 + 0.001);
+  std::printf("[ sim-blind ] depth error - realised edge error: median %.4f m, worst %.4f m (edge error median %.4f m)\n",
+              median(depth_residual), worst_residual, median(dz_edge));
   EXPECT_LT(median(err_alpha), 0.05);
   EXPECT_LT(median(err_w), 0.15);
 }

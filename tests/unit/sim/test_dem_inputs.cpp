@@ -212,38 +212,114 @@ TEST(DemInputs, LasGroundPointsGiveMediansPerCellAndFilledHoles) {
   io::LasReadOptions ro;
   ro.keep_double_positions = true;
   const io::LasCloud cloud = io::readLas(kLas, ro);
-  int checked = 0, holes = 0;
-  for (int cy = -8; cy <= 8; cy += 4)
-    for (int cx = -12; cx <= 12; cx += 4) {
-      std::vector<double> z;
-      double zmin = INFINITY, zmax = -INFINITY;  // data within 14 m (bounds a filled hole)
-      for (std::size_t k = 0; k < cloud.size(); ++k) {
-        if (cloud.classification[k] != 2) continue;
-        const Eigen::Vector3d p = cloud.positions[k] - o;
-        if (std::abs(p.x() - cx) < 2.0 && std::abs(p.y() - cy) < 2.0) z.push_back(p.z());
-        if (std::abs(p.x() - cx) < 14.0 && std::abs(p.y() - cy) < 14.0) {
-          zmin = std::min(zmin, p.z());
-          zmax = std::max(zmax, p.z());
-        }
+  // The holes of the whole file's grid, unfilled, against the points: a cell with a ground
+  // return strictly inside it has a value; a cell with none inside or on its border is NaN
+  // (NaN marks "no ground returns"; a point exactly on a border may go either way, so cells
+  // whose only points lie on a border are not judged).
+  DemSpec raw_spec = sc.terrain.dem;
+  raw_spec.fill_holes = false;
+  const DemGrid raw = loadDem(raw_spec);
+  const DemGrid filled = loadDem(sc.terrain.dem);
+  ASSERT_EQ(raw.nx, filled.nx);
+  ASSERT_EQ(raw.ny, filled.ny);
+  ASSERT_NEAR(raw.x0_m, filled.x0_m, 0.0);
+  std::vector<int> inside(raw.z.size(), 0), near(raw.z.size(), 0);
+  for (std::size_t k = 0; k < cloud.size(); ++k) {
+    if (cloud.classification[k] != 2) continue;
+    const Eigen::Vector3d p = cloud.positions[k] - o;
+    // The cells whose centres are within a cell of the point (judged by distance below).
+    const int ci = static_cast<int>(std::lround((p.x() - raw.x0_m) / raw.cell_m));
+    const int cj = static_cast<int>(std::lround((p.y() - raw.y0_m) / raw.cell_m));
+    for (int gj = std::max(0, cj - 1); gj <= std::min(raw.ny - 1, cj + 1); ++gj)
+      for (int gi = std::max(0, ci - 1); gi <= std::min(raw.nx - 1, ci + 1); ++gi) {
+        const double dx = std::abs(p.x() - (raw.x0_m + gi * raw.cell_m)), dy = std::abs(p.y() - (raw.y0_m + gj * raw.cell_m));
+        const std::size_t c = static_cast<std::size_t>(gj) * raw.nx + gi;
+        if (dx < 0.5 * raw.cell_m - 1e-9 && dy < 0.5 * raw.cell_m - 1e-9) ++inside[c];
+        if (dx <= 0.5 * raw.cell_m + 1e-9 && dy <= 0.5 * raw.cell_m + 1e-9) ++near[c];
       }
-      int i = 0, j = 0;
-      t.nearestNode(cx, cy, i, j);
-      ASSERT_TRUE(t.inside(i, j));
-      ASSERT_NEAR(t.nodePosition(i, j).x(), cx, 1e-9);
-      if (z.empty()) {
-        // Filled hole: a weighted mean of nearby data, so within their range.
-        EXPECT_GE(t.height(i, j), zmin - 1e-9);
-        EXPECT_LE(t.height(i, j), zmax + 1e-9);
-        ++holes;
+  }
+  int raw_holes = 0, raw_data = 0;
+  for (std::size_t c = 0; c < raw.z.size(); ++c) {
+    if (inside[c] > 0) {
+      EXPECT_FALSE(std::isnan(raw.z[c])) << "cell " << c << " has " << inside[c] << " ground returns";
+      ++raw_data;
+    } else if (near[c] == 0) {
+      EXPECT_TRUE(std::isnan(raw.z[c])) << "cell " << c << " has no ground return but height " << raw.z[c];
+      ++raw_holes;
+    }
+  }
+  EXPECT_GT(raw_holes, 0);  // the sample has gaps (buildings, water, sparse returns)
+  EXPECT_GT(raw_data, raw_holes);
+  // Filling changes the holes only, and each hole that sees data along one of the 8 grid
+  // directions takes an inverse-distance mean of the first data cells seen, so it lies within
+  // their range (holes seeing none are filled in later passes from filled cells: finite).
+  for (int gj = 0; gj < raw.ny; ++gj)
+    for (int gi = 0; gi < raw.nx; ++gi) {
+      const std::size_t c = static_cast<std::size_t>(gj) * raw.nx + gi;
+      if (!std::isnan(raw.z[c])) {
+        EXPECT_EQ(filled.z[c], raw.z[c]);
         continue;
       }
-      std::sort(z.begin(), z.end());
-      const std::size_t n = z.size();
-      const double median = n % 2 ? z[n / 2] : 0.5 * (z[n / 2 - 1] + z[n / 2]);
-      EXPECT_NEAR(t.height(i, j), median, 1e-9) << cx << " " << cy << " n " << n;
-      ++checked;
+      ASSERT_TRUE(std::isfinite(filled.z[c]));
+      double lo = INFINITY, hi = -INFINITY;
+      for (int di = -1; di <= 1; ++di)
+        for (int dj = -1; dj <= 1; ++dj) {
+          if (di == 0 && dj == 0) continue;
+          for (int a = gi + di, b = gj + dj; a >= 0 && b >= 0 && a < raw.nx && b < raw.ny; a += di, b += dj) {
+            const double v = raw.z[static_cast<std::size_t>(b) * raw.nx + a];
+            if (std::isnan(v)) continue;
+            lo = std::min(lo, v);
+            hi = std::max(hi, v);
+            break;
+          }
+        }
+      if (lo > hi) continue;  // sees no data cell: a later pass
+      EXPECT_GE(filled.z[c], lo - 1e-9) << gi << " " << gj;
+      EXPECT_LE(filled.z[c], hi + 1e-9) << gi << " " << gj;
     }
-  EXPECT_GT(checked, 20);
+  // The truth terrain at the cell centres, over the extent above (all data) and over one across
+  // the north-east edge of the sample's hull (holes: the 4 m cells at (40, 32), (44, 32), ...).
+  int checked = 0, holes = 0;
+  auto checkNodes = [&](const TruthTerrain& t, int x0, int y0, int x1, int y1) {
+    for (int cy = y0; cy <= y1; cy += 4)
+      for (int cx = x0; cx <= x1; cx += 4) {
+        std::vector<double> z;
+        for (std::size_t k = 0; k < cloud.size(); ++k) {
+          if (cloud.classification[k] != 2) continue;
+          const Eigen::Vector3d p = cloud.positions[k] - o;
+          if (std::abs(p.x() - cx) < 2.0 && std::abs(p.y() - cy) < 2.0) z.push_back(p.z());
+        }
+        int i = 0, j = 0;
+        t.nearestNode(cx, cy, i, j);
+        ASSERT_TRUE(t.inside(i, j)) << cx << " " << cy;
+        ASSERT_NEAR(t.nodePosition(i, j).x(), cx, 1e-9);
+        ASSERT_NEAR(t.nodePosition(i, j).y(), cy, 1e-9);
+        if (z.empty()) {
+          // Filled hole: the node sits on the cell centre, so it is the filled cell's value (whose
+          // range against the data cells it sees is checked above), and the unfilled grid has NaN.
+          const int gi = static_cast<int>(std::lround((cx - filled.x0_m) / 4.0));
+          const int gj = static_cast<int>(std::lround((cy - filled.y0_m) / 4.0));
+          EXPECT_TRUE(std::isnan(raw.z[static_cast<std::size_t>(gj) * raw.nx + gi])) << cx << " " << cy;
+          EXPECT_NEAR(t.height(i, j), filled.z[static_cast<std::size_t>(gj) * filled.nx + gi], 1e-9) << cx << " " << cy;
+          ++holes;
+          continue;
+        }
+        std::sort(z.begin(), z.end());
+        const std::size_t n = z.size();
+        const double median = n % 2 ? z[n / 2] : 0.5 * (z[n / 2 - 1] + z[n / 2]);
+        EXPECT_NEAR(t.height(i, j), median, 1e-9) << cx << " " << cy << " n " << n;
+        ++checked;
+      }
+  };
+  checkNodes(t, -12, -8, 12, 8);
+  EXPECT_EQ(checked, 7 * 5);  // the sample is dense around its centre: no hole
+  std::string yaml_edge = scenarioWithDem("{file: " + kLas + ", cell_m: 4}", "size_m: [24, 16], origin_m: [36, 28], ");
+  yaml_edge.replace(yaml_edge.find("  - id: m1"), 10, "  - {id: m1, pose: {x_m: 48, y_m: 36}}");
+  const TruthTerrain t_edge = buildTerrain(parseScenario(yaml_edge, "s.yaml").terrain);
+  checkNodes(t_edge, 36, 28, 60, 44);
+  EXPECT_EQ(checked + holes, 2 * 7 * 5);
+  EXPECT_GT(holes, 5);           // the edge extent has both: holes
+  EXPECT_GT(checked, 7 * 5);     // and data cells
   // Between cell centres the surface is the bilinear blend of the four cells.
   const double a = t.height(50, 50);
   EXPECT_TRUE(std::isfinite(a));
@@ -255,7 +331,6 @@ TEST(DemInputs, LasGroundPointsGiveMediansPerCellAndFilledHoles) {
   const std::string e2 = errorOf(scenarioWithDem("{file: " + kLas + ", ground_class: 9}", "size_m: [4, 4], "));
   EXPECT_NE(e2.find("no points of class 9"), std::string::npos) << e2;
   EXPECT_NE(e2.find("hexbin-crop.las"), std::string::npos) << e2;
-  (void)holes;
 }
 
 TEST(DemInputs, LasMeanStatisticAndExplicitOrigin) {
