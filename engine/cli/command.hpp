@@ -4,6 +4,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
 #include <iostream>
 #include <new>
 
@@ -71,6 +72,26 @@ int runMapped(const char* prog, Body&& body) {
     std::cerr << p << ": internal error: " << e.what() << "\n";
     return kInternal;
   }
+}
+
+/// Sets up every registered command (in name order) on `app`, parses argv and runs the chosen
+/// command through runMapped(); `before()` runs first inside the mapping (global options).
+template <class Before>
+int runApp(CLI::App& app, int argc, char** argv, const char* prog, Before&& before) {
+  std::function<int()> run;
+  auto& cmds = registry();
+  std::sort(cmds.begin(), cmds.end(), [](const Command& a, const Command& b) { return a.name < b.name; });
+  for (auto& c : cmds) c.setup(app, run);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int rc = app.exit(e);
+    return rc == 0 ? kOk : kUsage;
+  }
+  return runMapped(prog, [&] {
+    before();
+    return run ? run() : kUsage;
+  });
 }
 
 }  // namespace terramap::cli

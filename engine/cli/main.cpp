@@ -30,18 +30,7 @@ int main(int argc, char** argv) {
                  "most memory one map, cloud, DEM or snapshot built from the input may take (e.g. 4G; default: half "
                  "the physical memory, at most 16G, or TERRAMAP_MEMORY_BUDGET)");
   app.fallthrough();  // the option may also follow the subcommand
-  std::function<int()> run;
-  auto& cmds = registry();
-  std::sort(cmds.begin(), cmds.end(), [](const Command& a, const Command& b) { return a.name < b.name; });
-  for (auto& c : cmds) c.setup(app, run);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    const int rc = app.exit(e);
-    return rc == 0 ? kOk : kUsage;
-  }
-  return runMapped("terramap", [&] {
+  return runApp(app, argc, argv, "terramap", [&] {
     if (!budget.empty()) setMemoryBudget(parseByteSize(budget, "--memory-budget"));
-    return run ? run() : kUsage;
   });
 }

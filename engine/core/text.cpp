@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <numeric>
+#include <cstdint>
+#include <cstdio>
 #include <sstream>
 
 namespace terramap {
@@ -50,6 +52,17 @@ std::string joinStrings(const std::vector<std::string>& items, const std::string
     out += items[i];
   }
   return out;
+}
+
+std::string fnv1a64Hex(const std::string& bytes) {
+  std::uint64_t h = 1469598103934665603ull;
+  for (unsigned char c : bytes) {
+    h ^= c;
+    h *= 1099511628211ull;
+  }
+  char buf[17];
+  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
+  return buf;
 }
 
 std::string formatNumber(double v) {

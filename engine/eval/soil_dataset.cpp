@@ -2,6 +2,7 @@
 #include <terramap/eval/soil_dataset.hpp>
 
 #include <terramap/core/error.hpp>
+#include <terramap/core/text.hpp>
 #include <terramap/io/atomic_file.hpp>
 #include <terramap/pipeline/engine.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
@@ -45,16 +46,6 @@ namespace {
 
 constexpr double kDeg = 3.14159265358979323846 / 180.0;
 
-std::string fnv1aHex(const std::string& s) {
-  std::uint64_t h = 1469598103934665603ull;
-  for (unsigned char c : s) {
-    h ^= c;
-    h *= 1099511628211ull;
-  }
-  char buf[17];
-  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
-  return buf;
-}
 
 // A stateless stream of draws: splitmix64 over (key, counter). Used instead of <random>'s
 // distributions, whose outputs the standard leaves to the library: the plan of an episode must
@@ -107,7 +98,7 @@ SoilDatasetConfig parseSoilDatasetConfig(const std::string& text, const std::str
   SoilDatasetConfig c;
   c.file = name;
   c.yaml_text = text;
-  c.config_hash = fnv1aHex(text);
+  c.config_hash = fnv1a64Hex(text);
   MapReader r(d, root, "");
   r.integer("version", 1, 1, 1);
   c.seed = r.unsignedInt("seed", c.seed);
@@ -343,11 +334,6 @@ std::string episodeFileName(const EpisodePlan& plan) {
 
 namespace {
 
-std::string joined(const std::vector<std::string>& v) {
-  std::string s;
-  for (const auto& x : v) s += (s.empty() ? "" : ",") + x;
-  return s;
-}
 
 std::string readAttrString(hid_t obj, const char* name, const std::string& path) {
   if (H5Aexists(obj, name) <= 0) throw InputError(path + ": no attribute '" + std::string(name) + "'");
@@ -397,8 +383,8 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
       using namespace h5detail;
       attrU64(f, "version", 1);
       attrString(f, "config_hash", cfg.config_hash);
-      attrString(f, "obs_features", joined(soil::obsFeatureNames()));
-      attrString(f, "theta_k", joined(soil::thetaKNames()));
+      attrString(f, "obs_features", joinStrings(soil::obsFeatureNames(), ","));
+      attrString(f, "theta_k", joinStrings(soil::thetaKNames(), ","));
       attrString(f, "truth", "c_pa,phi_rad,ca_pa,delta_rad,gamma_n_m3");
       attrString(f, "plan", "index,split,family,relative_density,rake_rad,hills,seed,simulated_s");
       attrString(f, "split", datasetSplitName(p.split));

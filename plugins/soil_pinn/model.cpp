@@ -2,6 +2,7 @@
 #include "model.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/core/text.hpp>
 
 #include <ATen/CPUGeneratorImpl.h>
 #include <nlohmann/json.hpp>
@@ -45,16 +46,7 @@ double logVarLo(int k) { return 2 * std::log(1e-3 * logVarSpan(k)); }
 double logVarHi(int k) { return 2 * std::log(logVarSpan(k)); }
 double logVarInit(int k) { return 2 * std::log(0.1 * logVarSpan(k)); }
 
-std::string configHash(const PinnConfig& cfg) {
-  std::uint64_t h = 1469598103934665603ull;
-  for (unsigned char ch : configJson(cfg).dump()) {
-    h ^= ch;
-    h *= 1099511628211ull;
-  }
-  char buf[17];
-  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
-  return buf;
-}
+std::string configHash(const PinnConfig& cfg) { return fnv1a64Hex(configJson(cfg).dump()); }
 
 PinnNetImpl::PinnNetImpl(PinnConfig cfg) : cfg_(std::move(cfg)) {
   if (cfg_.P < 1 || cfg_.T < cfg_.P || cfg_.D_o < 1)

@@ -1,6 +1,7 @@
 #include "trainer.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/core/text.hpp>
 
 #include <ATen/CPUGeneratorImpl.h>
 #include <nlohmann/json.hpp>
@@ -83,15 +84,7 @@ std::string trainConfigHash(const TrainConfig& c) {
   const LossWeights& w = c.weights;
   j["weights"] = {w.lambda_F, w.lambda_NLL, w.lambda_beta, w.lambda_range, w.lambda_res, w.lambda_Fr, w.w_xz[0],
                   w.w_xz[1], w.sigma_floor_n2};
-  const std::string s = j.dump();
-  std::uint64_t h = 1469598103934665603ull;
-  for (unsigned char ch : s) {
-    h ^= ch;
-    h *= 1099511628211ull;
-  }
-  char buf[17];
-  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
-  return buf;
+  return fnv1a64Hex(j.dump());
 }
 
 namespace {

@@ -4,7 +4,6 @@
 
 #include <terramap/eval/sim_source.hpp>
 
-#include <algorithm>
 
 namespace terramap::cli {
 std::vector<Command>& registry() {
@@ -18,15 +17,5 @@ int main(int argc, char** argv) {
   terramap::sim::registerSimSource();
   CLI::App app{"terramap-soil: the soil estimator's dataset, training and evaluation (run as `terramap <command>`)"};
   app.require_subcommand(1);
-  std::function<int()> run;
-  auto& cmds = registry();
-  std::sort(cmds.begin(), cmds.end(), [](const Command& a, const Command& b) { return a.name < b.name; });
-  for (auto& c : cmds) c.setup(app, run);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    const int rc = app.exit(e);
-    return rc == 0 ? kOk : kUsage;
-  }
-  return runMapped("terramap", [&] { return run ? run() : kUsage; });
+  return runApp(app, argc, argv, "terramap", [] {});
 }

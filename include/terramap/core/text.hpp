@@ -15,6 +15,9 @@ std::vector<std::string> closestMatches(const std::string& word, const std::vect
 std::string didYouMean(const std::string& word, const std::vector<std::string>& candidates);
 /// "a, b, c"
 std::string joinStrings(const std::vector<std::string>& items, const std::string& sep = ", ");
+/// FNV-1a 64-bit hash of `bytes` as 16 lower-case hex digits: a stable fingerprint of a
+/// configuration's text (not a cryptographic hash).
+std::string fnv1a64Hex(const std::string& bytes);
 /// A double with 17 significant digits (round-trips exactly), for messages and metadata.
 std::string formatNumber(double v);
 

@@ -43,29 +43,42 @@ LayeredMap mapOf(float v) {
   return m;
 }
 
-/// Forks a child that runs `write(version)` for versions 1, 2, 3, ... and kills it after a random
-/// delay in [0, 6 x the time of one write] (timed here first, so a slow build, e.g. under a
-/// sanitizer, still has kills before, during and after the first writes; 6x leaves room for a
-/// child slowed by a loaded machine to complete a few versions); `check_target` runs after every
-/// kill.
+/// Forks a child that runs `write(version)` for versions 1, 2, 3, ... and reports each finished
+/// write through a pipe; the parent waits for a random number (0-3) of finished writes, then a
+/// random delay in [0, 1.5 x the time of one write] (timed here first), and kills it. Waiting on
+/// the child's own progress rather than on the clock keeps kills before, during and after writes
+/// however slowly a loaded machine runs the child. `check_target` runs after every kill.
 void killDuringWrites(int kills, std::uint32_t seed, const std::function<void(int)>& write,
                       const std::function<void()>& check_target) {
   const auto t0 = std::chrono::steady_clock::now();
   write(0);
   const double once_us = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
-  const int max_delay_us = std::max(100, static_cast<int>(6.0 * once_us));
+  const int max_delay_us = std::max(100, static_cast<int>(1.5 * once_us));
   std::mt19937 rng(seed);
-  std::uniform_int_distribution<int> delay(0, max_delay_us);
+  std::uniform_int_distribution<int> delay(0, max_delay_us), finished(0, 3);
   for (int k = 0; k < kills; ++k) {
+    int fds[2];
+    ASSERT_EQ(pipe(fds), 0);
     const pid_t pid = fork();
     ASSERT_GE(pid, 0);
     if (pid == 0) {
-      for (int v = 1;; ++v) write(v);  // killed from outside
+      close(fds[0]);
+      for (int v = 1;; ++v) {  // killed from outside
+        write(v);
+        const char done = 1;
+        if (::write(fds[1], &done, 1) != 1) _exit(3);
+      }
+    }
+    close(fds[1]);
+    for (int j = finished(rng); j > 0; --j) {
+      char c;
+      if (read(fds[0], &c, 1) != 1) break;
     }
     usleep(static_cast<useconds_t>(delay(rng)));
     kill(pid, SIGKILL);
     int status = 0;
     waitpid(pid, &status, 0);
+    close(fds[0]);
     ASSERT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL) << "writer did not die by SIGKILL";
     check_target();
     if (::testing::Test::HasFatalFailure() || ::testing::Test::HasFailure()) return;
