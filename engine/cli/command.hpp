@@ -34,7 +34,11 @@ struct Command {
   std::function<void(CLI::App& app, std::function<int()>& run)> setup;
 };
 
-std::vector<Command>& registry();
+/// The program's commands (each program that includes this header has its own list).
+inline std::vector<Command>& registry() {
+  static std::vector<Command> r;
+  return r;
+}
 struct Registrar {
   explicit Registrar(Command c) { registry().push_back(std::move(c)); }
 };

@@ -9,12 +9,6 @@
 #include <iostream>
 #include <new>
 
-namespace terramap::cli {
-std::vector<Command>& registry() {
-  static std::vector<Command> r;
-  return r;
-}
-}  // namespace terramap::cli
 
 int main(int argc, char** argv) {
   using namespace terramap;

@@ -4,14 +4,6 @@
 
 #include <terramap/eval/sim_source.hpp>
 
-
-namespace terramap::cli {
-std::vector<Command>& registry() {
-  static std::vector<Command> r;
-  return r;
-}
-}  // namespace terramap::cli
-
 int main(int argc, char** argv) {
   using namespace terramap::cli;
   terramap::sim::registerSimSource();
