@@ -97,6 +97,7 @@ std::vector<SoilEstimate> SoilEstimator::estimate(const float* obs_raw, const fl
   auto mean_a = mean.accessor<double, 2>(), va_a = va.accessor<double, 2>(), vn_a = vn.accessor<double, 2>(),
        epi_a = epi.accessor<double, 2>(), fr_a = fr.accessor<double, 2>();
   auto nv = nvalid.accessor<int64_t, 1>();
+  auto dres_a = dres.accessor<double, 1>(), bres_a = bres.accessor<double, 1>();
   for (long b = 0; b < batch; ++b) {
     SoilEstimate& e = res[static_cast<std::size_t>(b)];
     for (int k = 0; k < kSoilCount; ++k) {
@@ -108,8 +109,8 @@ std::vector<SoilEstimate> SoilEstimator::estimate(const float* obs_raw, const fl
     }
     e.F_r = {fr_a[b][0], fr_a[b][1]};
     for (int p = 0; p < P; ++p) e.F.push_back({fp_a[b][p][0], fp_a[b][p][1]});
-    e.d_res_m = dres[b].item<double>();
-    e.beta_res_rad = bres[b].item<double>();
+    e.d_res_m = dres_a[b];
+    e.beta_res_rad = bres_a[b];
     e.valid_members = static_cast<int>(nv[b]);
     e.valid = 2 * e.valid_members > M;
   }
@@ -137,17 +138,7 @@ void saveEstimator(const SoilEstimator& e, const std::string& path) {
   j["obs_features"] = soil::obsFeatureNames();
   j["training"] = nlohmann::json::parse(e.trainingJson());
   root.write(kEstimatorKey, c10::IValue(j.dump()));
-  const std::string tmp = path + ".tmp";
-  try {
-    root.save_to(tmp);
-  } catch (const std::exception& ex) {
-    std::remove(tmp.c_str());
-    throw OutputError(path + ": cannot write the soil estimator: " + ex.what());
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    std::remove(tmp.c_str());
-    throw OutputError(path + ": cannot rename " + tmp + " into place");
-  }
+  saveArchiveAtomically(root, path, "the soil estimator");
 }
 
 SoilEstimator loadEstimator(const std::string& path) {

@@ -3,6 +3,7 @@
 
 #include <terramap/core/error.hpp>
 #include <terramap/core/text.hpp>
+#include <terramap/io/atomic_file.hpp>
 
 #include <ATen/CPUGeneratorImpl.h>
 #include <nlohmann/json.hpp>
@@ -11,6 +12,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <stdexcept>
 
 namespace terramap::pinn {
@@ -154,6 +156,16 @@ std::string PinnNetImpl::metadataJson() const {
   return j.dump();
 }
 
+void saveArchiveAtomically(torch::serialize::OutputArchive& ar, const std::string& path, const std::string& what) {
+  try {
+    io::replaceFileAtomically(path, [&](const std::filesystem::path& tmp) { ar.save_to(tmp.string()); });
+  } catch (const OutputError&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw OutputError(path + ": cannot write " + what + ": " + e.what());
+  }
+}
+
 void savePinnTo(PinnNet& net, torch::serialize::OutputArchive& ar) {
   net->save(ar);
   ar.write(kMetadataKey, c10::IValue(net->metadataJson()));
@@ -162,17 +174,7 @@ void savePinnTo(PinnNet& net, torch::serialize::OutputArchive& ar) {
 void savePinn(PinnNet& net, const std::string& path) {
   torch::serialize::OutputArchive ar;
   savePinnTo(net, ar);
-  const std::string tmp = path + ".tmp";
-  try {
-    ar.save_to(tmp);
-  } catch (const std::exception& e) {
-    std::remove(tmp.c_str());
-    throw OutputError(path + ": cannot write the soil_pinn model: " + e.what());
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    std::remove(tmp.c_str());
-    throw OutputError(path + ": cannot rename " + tmp + " into place");
-  }
+  saveArchiveAtomically(ar, path, "the soil_pinn model");
 }
 
 PinnNet loadPinn(const std::string& path) {

@@ -148,6 +148,9 @@ void savePinn(PinnNet& net, const std::string& path);
 /// version or a config hash that does not match the stored config.
 PinnNet loadPinn(const std::string& path);
 
+/// Writes `ar` to `path` through io::replaceFileAtomically (temp file, fsync, rename), so a
+/// reader never sees a partial file. `what` names the content in messages. \throws OutputError.
+void saveArchiveAtomically(torch::serialize::OutputArchive& ar, const std::string& path, const std::string& what);
 /// The same into / out of an archive the caller owns (e.g. one member of an ensemble file).
 /// `path` only names the file in messages. \throws as loadPinn().
 void savePinnTo(PinnNet& net, torch::serialize::OutputArchive& ar);

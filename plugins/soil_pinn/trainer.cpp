@@ -153,9 +153,7 @@ void saveCheckpoint(const fs::path& path, const std::string& hash, PinnNet& net,
   nlohmann::json j{{"hash", hash},          {"epoch", st.epoch}, {"best_epoch", st.best_epoch}, {"stale", st.stale},
                    {"best_val", st.best_val}, {"last_train", st.last_train}, {"done", st.done}};
   ar.write("state", c10::IValue(j.dump()));
-  const std::string tmp = path.string() + ".tmp";
-  ar.save_to(tmp);
-  fs::rename(tmp, path);
+  saveArchiveAtomically(ar, path.string(), "a training checkpoint");
 }
 
 bool loadCheckpoint(const fs::path& path, const std::string& hash, PinnNet& net, PinnNet& best,
