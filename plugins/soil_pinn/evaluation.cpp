@@ -6,6 +6,7 @@
 #include <ATen/ATen.h>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <map>
@@ -22,18 +23,112 @@ constexpr const char* kName[kSoilCount] = {"c", "phi", "ca", "delta", "gamma"};
 // Truth columns of the dataset are [c, phi, ca, delta, gamma] (eval::SoilDataset), SoilCol order.
 struct Accum {
   SplitMetrics m;
-  double ferr = 0, fnorm = 0, ferr_truth = 0, ferr_tg = 0, fnorm_tg = 0;
-  long tg_samples = 0;
-  double fsum[2] = {0, 0};
-  long fn = 0;
+  // Σ‖F̂ − F‖ of the estimator and of each baseline, Σ‖F‖ over the same steps.
+  double ferr = 0, fnorm = 0, ferr_truth = 0, ferr_tg = 0, ferr_sim = 0, fnorm_tg = 0;
   std::vector<std::array<double, 2>> forces;  // for the constant-force baseline
+  std::vector<double> q_ratio;                // mapped Q / simulator's q, per sample
 };
+
+// One sample's view of the dataset arrays (row r, the model's last P horizon steps).
+struct SampleView {
+  const float* theta;   // [P_model][6], raw
+  const float* force;   // [P_model][2]
+  fee::Soil soil;       // truth
+  const float* truth_geometry;  // alpha, rho, d, w, q (NaN when unknown)
+  bool has_truth_geometry() const {
+    return std::isfinite(truth_geometry[0]) && std::isfinite(truth_geometry[2]) && truth_geometry[2] > 0;
+  }
+};
+
+double missBy(const Eigen::Vector2d& pred, double fx, double fz, bool valid) {
+  return valid ? std::hypot(pred.x() - fx, pred.y() - fz) : std::hypot(fx, fz);
+}
+
+// The estimator's force error and the physics baselines over the horizon.
+void addForceErrors(Accum& a, const SampleView& v, const SoilEstimate& e, int P) {
+  const bool tg_known = v.has_truth_geometry();
+  const float* tg = v.truth_geometry;
+  const fee::Geometry truth_geo{tg[0], tg[1], tg[2], tg[3], tg[4]};
+  // Constant over the horizon: the simulator's geometry is logged once per sample.
+  const fee::Result paper_tg = tg_known ? fee::evaluateAtBetaNominal(v.soil, truth_geo) : fee::Result{};
+  const fee::Result sim_tg = tg_known ? fee::evaluateAtBetaMin(v.soil, truth_geo) : fee::Result{};
+  for (int p = 0; p < P; ++p) {
+    const double fx = v.force[p * 2], fz = v.force[p * 2 + 1];
+    a.ferr += std::hypot(e.F[static_cast<std::size_t>(p)][0] - fx, e.F[static_cast<std::size_t>(p)][1] - fz);
+    a.fnorm += std::hypot(fx, fz);
+    a.forces.push_back({fx, fz});
+    const float* g = v.theta + p * 6;
+    const fee::Result fr = fee::evaluateAtBetaNominal(v.soil, fee::Geometry{g[1], g[0], g[3], g[2], g[4]});
+    a.ferr_truth += missBy(fr.F_N, fx, fz, fr.valid());
+    if (tg_known) {
+      a.ferr_tg += missBy(paper_tg.F_N, fx, fz, paper_tg.valid());
+      a.ferr_sim += missBy(sim_tg.F_total_N, fx, fz, sim_tg.valid());
+      a.fnorm_tg += std::hypot(fx, fz);
+    }
+  }
+  if (tg_known) {
+    ++a.m.truth_geometry_samples;
+    if (tg[4] > 0) a.q_ratio.push_back(v.theta[(P - 1) * 6 + 4] / tg[4]);
+  }
+}
+
+void addSoilErrors(Accum& a, Fig11Bin* bin, const fee::Soil& truth_soil, const SoilEstimate& e) {
+  const double truth[kSoilCount] = {truth_soil.c_pa, truth_soil.phi_rad, truth_soil.ca_pa, truth_soil.delta_rad,
+                                    truth_soil.gamma_n_m3};
+  for (int k = 0; k < kSoilCount; ++k) {
+    const double err = e.mean[k] - truth[k];
+    a.m.mae[k] += std::abs(err);
+    a.m.bias[k] += err;
+    a.m.coverage_aleatoric[k] += std::abs(err) <= std::sqrt(e.var_aleatoric[k]);
+    a.m.coverage_nullspace[k] += std::abs(err) <= std::sqrt(e.var_nullspace[k]);
+    a.m.coverage_total[k] += std::abs(err) <= std::sqrt(e.var_total[k]);
+    a.m.mean_var_aleatoric[k] += e.var_aleatoric[k];
+    a.m.mean_var_epistemic[k] += e.var_epistemic[k];
+    a.m.mean_var_total[k] += e.var_total[k];
+    if (bin) {
+      bin->truth[k] += truth[k];
+      bin->mean[k] += e.mean[k];
+      bin->sigma[k] += e.var_total[k];
+    }
+  }
+}
+
+SplitMetrics finishSplit(int split, Accum& a) {
+  SplitMetrics m = a.m;
+  m.split = eval::datasetSplitName(static_cast<eval::DatasetSplit>(split));
+  auto pct = [](double err, double norm) { return norm > 0 ? 100.0 * err / norm : NAN; };
+  m.force_error_pct = pct(a.ferr, a.fnorm);
+  m.force_error_truth_fee_pct = pct(a.ferr_truth, a.fnorm);
+  m.force_error_truth_geometry_pct = pct(a.ferr_tg, a.fnorm_tg);
+  m.force_error_simulator_model_pct = pct(a.ferr_sim, a.fnorm_tg);
+  double mx = 0, mz = 0, em = 0;
+  for (const auto& fv : a.forces) {
+    mx += fv[0];
+    mz += fv[1];
+  }
+  mx /= static_cast<double>(std::max<std::size_t>(1, a.forces.size()));
+  mz /= static_cast<double>(std::max<std::size_t>(1, a.forces.size()));
+  for (const auto& fv : a.forces) em += std::hypot(fv[0] - mx, fv[1] - mz);
+  m.force_error_mean_pct = pct(em, a.fnorm);
+  if (!a.q_ratio.empty()) {
+    auto mid = a.q_ratio.begin() + static_cast<long>(a.q_ratio.size() / 2);
+    std::nth_element(a.q_ratio.begin(), mid, a.q_ratio.end());
+    m.surcharge_ratio_median = *mid;
+  }
+  const double v = static_cast<double>(std::max<long>(1, m.valid));
+  for (int k = 0; k < kSoilCount; ++k)
+    for (auto* x : {&m.mae, &m.bias, &m.coverage_aleatoric, &m.coverage_nullspace, &m.coverage_total,
+                    &m.mean_var_aleatoric, &m.mean_var_epistemic, &m.mean_var_total})
+      (*x)[k] /= v;
+  return m;
+}
 
 }  // namespace
 
 SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& data) {
   const long n = data.size();
   const int T = static_cast<int>(data.obs_raw.size(1)), P = static_cast<int>(data.theta_k.size(1));
+  const int p0 = P - est.P();  // the model's horizon is the end of the stored one
   const long batch = 256;
   std::map<int, Accum> acc;
   std::map<std::pair<int, int>, Fig11Bin> bins;
@@ -44,94 +139,37 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
   const float* tgeo = data.truth_geometry.data_ptr<float>();
   for (long b0 = 0; b0 < n; b0 += batch) {
     const long len = std::min(batch, n - b0);
-    const std::vector<SoilEstimate> es =
-        est.estimate(obs + b0 * T * soil::kObsFeatures, th + b0 * P * 6, len, T, P);
+    const std::vector<SoilEstimate> es = est.estimate(obs + b0 * T * soil::kObsFeatures, th + b0 * P * 6, len, T, P);
     for (long i = 0; i < len; ++i) {
       const long r = b0 + i;
-      const int split = data.split[static_cast<std::size_t>(r)];
+      const std::size_t ru = static_cast<std::size_t>(r);
+      const int split = data.split[ru];
       Accum& a = acc[split];
       ++a.m.samples;
       const SoilEstimate& e = es[static_cast<std::size_t>(i)];
       if (!e.valid) continue;
       ++a.m.valid;
-      const int p0 = P - est.P();
-      for (int p = 0; p < est.P(); ++p) {
-        const double fx = f[(r * P + p0 + p) * 2], fz = f[(r * P + p0 + p) * 2 + 1];
-        a.ferr += std::hypot(e.F[static_cast<std::size_t>(p)][0] - fx, e.F[static_cast<std::size_t>(p)][1] - fz);
-        a.fnorm += std::hypot(fx, fz);
-        a.forces.push_back({fx, fz});
-        const float* g = th + (r * P + p0 + p) * 6;
-        fee::Soil soil;
-        soil.c_pa = tr[r * 5 + 0];
-        soil.phi_rad = tr[r * 5 + 1];
-        soil.ca_pa = tr[r * 5 + 2];
-        soil.delta_rad = tr[r * 5 + 3];
-        soil.gamma_n_m3 = tr[r * 5 + 4];
-        const fee::Geometry geo{g[1], g[0], g[3], g[2], g[4]};
-        const fee::Result fr = fee::evaluateAtBetaNominal(soil, geo);
-        a.ferr_truth += fr.valid() ? std::hypot(fr.F_N.x() - fx, fr.F_N.y() - fz) : std::hypot(fx, fz);
-        const float* tg = tgeo + r * 5;
-        if (std::isfinite(tg[0]) && std::isfinite(tg[2]) && tg[2] > 0) {
-          const fee::Result ft = fee::evaluateAtBetaNominal(soil, fee::Geometry{tg[0], tg[1], tg[2], tg[3], tg[4]});
-          a.ferr_tg += ft.valid() ? std::hypot(ft.F_N.x() - fx, ft.F_N.y() - fz) : std::hypot(fx, fz);
-          a.fnorm_tg += std::hypot(fx, fz);
-          a.tg_samples += p == 0;
-        }
-      }
-      const bool fig = split == static_cast<int>(eval::DatasetSplit::Test) ||
-                       split == static_cast<int>(eval::DatasetSplit::HeldOut);
+      SampleView v{th + (r * P + p0) * 6, f + (r * P + p0) * 2, {}, tgeo + r * 5};
+      v.soil.c_pa = tr[r * 5 + 0];
+      v.soil.phi_rad = tr[r * 5 + 1];
+      v.soil.ca_pa = tr[r * 5 + 2];
+      v.soil.delta_rad = tr[r * 5 + 3];
+      v.soil.gamma_n_m3 = tr[r * 5 + 4];
+      addForceErrors(a, v, e, est.P());
       Fig11Bin* bin = nullptr;
-      if (fig) {
-        const int fam = data.family[static_cast<std::size_t>(r)];
-        const int idb = std::min(9, static_cast<int>(data.relative_density[static_cast<std::size_t>(r)] * 10));
+      if (split == static_cast<int>(eval::DatasetSplit::Test) || split == static_cast<int>(eval::DatasetSplit::HeldOut)) {
+        const int fam = data.family[ru];
+        const int idb = std::min(9, static_cast<int>(data.relative_density[ru] * 10));
         bin = &bins[{fam, idb}];
         bin->family = fam;
         bin->bin = idb;
         ++bin->samples;
       }
-      for (int k = 0; k < kSoilCount; ++k) {
-        const double truth = tr[r * 5 + k], err = e.mean[k] - truth;
-        a.m.mae[k] += std::abs(err);
-        a.m.bias[k] += err;
-        a.m.coverage_aleatoric[k] += std::abs(err) <= std::sqrt(e.var_aleatoric[k]);
-        a.m.coverage_nullspace[k] += std::abs(err) <= std::sqrt(e.var_nullspace[k]);
-        a.m.coverage_total[k] += std::abs(err) <= std::sqrt(e.var_total[k]);
-        a.m.mean_var_aleatoric[k] += e.var_aleatoric[k];
-        a.m.mean_var_epistemic[k] += e.var_epistemic[k];
-        a.m.mean_var_total[k] += e.var_total[k];
-        if (bin) {
-          bin->truth[k] += truth;
-          bin->mean[k] += e.mean[k];
-          bin->sigma[k] += e.var_total[k];
-        }
-      }
+      addSoilErrors(a, bin, v.soil, e);
     }
   }
   SoilEvaluation out;
-  for (auto& [split, a] : acc) {
-    SplitMetrics m = a.m;
-    m.split = eval::datasetSplitName(static_cast<eval::DatasetSplit>(split));
-    const double v = static_cast<double>(std::max<long>(1, m.valid));
-    m.force_error_pct = a.fnorm > 0 ? 100.0 * a.ferr / a.fnorm : NAN;
-    m.force_error_truth_fee_pct = a.fnorm > 0 ? 100.0 * a.ferr_truth / a.fnorm : NAN;
-    m.force_error_truth_geometry_pct = a.fnorm_tg > 0 ? 100.0 * a.ferr_tg / a.fnorm_tg : NAN;
-    m.truth_geometry_samples = a.tg_samples;
-    double mx = 0, mz = 0, em = 0;
-    for (const auto& fv : a.forces) {
-      mx += fv[0];
-      mz += fv[1];
-    }
-    mx /= static_cast<double>(std::max<std::size_t>(1, a.forces.size()));
-    mz /= static_cast<double>(std::max<std::size_t>(1, a.forces.size()));
-    for (const auto& fv : a.forces) em += std::hypot(fv[0] - mx, fv[1] - mz);
-    m.force_error_mean_pct = a.fnorm > 0 ? 100.0 * em / a.fnorm : NAN;
-    for (int k = 0; k < kSoilCount; ++k) {
-      for (auto* x : {&m.mae, &m.bias, &m.coverage_aleatoric, &m.coverage_nullspace, &m.coverage_total,
-                      &m.mean_var_aleatoric, &m.mean_var_epistemic, &m.mean_var_total})
-        (*x)[k] /= v;
-    }
-    out.splits.push_back(m);
-  }
+  for (auto& [split, a] : acc) out.splits.push_back(finishSplit(split, a));
   for (auto& [key, b] : bins) {
     for (int k = 0; k < kSoilCount; ++k) {
       b.truth[k] /= static_cast<double>(b.samples);
@@ -163,7 +201,9 @@ std::string evaluationJson(const SoilEvaluation& e) {
     s["force_error_truth_soil_fee_pct"] = m.force_error_truth_fee_pct;
     s["force_error_constant_mean_pct"] = m.force_error_mean_pct;
     s["force_error_truth_soil_truth_geometry_pct"] = m.force_error_truth_geometry_pct;
+    s["force_error_truth_soil_simulator_model_pct"] = m.force_error_simulator_model_pct;
     s["truth_geometry_samples"] = m.truth_geometry_samples;
+    s["mapped_over_simulator_surcharge_median"] = m.surcharge_ratio_median;
     for (int k = 0; k < kSoilCount; ++k) {
       nlohmann::ordered_json p;
       p["mae"] = m.mae[k];
@@ -187,14 +227,15 @@ std::string evaluationJson(const SoilEvaluation& e) {
 std::string evaluationMarkdown(const SoilEvaluation& e) {
   std::ostringstream os;
   char buf[256];
-  os << "| split | samples (valid) | force error % | FEE with truth soil % | ... and truth geometry % | constant force % |";
+  os << "| split | samples (valid) | force error % | FEE with truth soil % | ... and truth geometry % | simulator's F_total at β* % | constant force % | mapped Q / sim. Q (median) |";
   for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " MAE (" << kDisplayUnit[k] << ") |";
-  os << "\n|---|---|---|---|---|---|";
+  os << "\n|---|---|---|---|---|---|---|---|";
   for (int k = 0; k < kSoilCount; ++k) os << "---|";
   os << "\n";
   for (const auto& m : e.splits) {
-    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f | %.1f | %.1f | %.1f |", m.split.c_str(), m.samples, m.valid,
-                  m.force_error_pct, m.force_error_truth_fee_pct, m.force_error_truth_geometry_pct, m.force_error_mean_pct);
+    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f | %.1f | %.1f | %.1f | %.1f | %.2f |", m.split.c_str(), m.samples,
+                  m.valid, m.force_error_pct, m.force_error_truth_fee_pct, m.force_error_truth_geometry_pct,
+                  m.force_error_simulator_model_pct, m.force_error_mean_pct, m.surcharge_ratio_median);
     os << buf;
     for (int k = 0; k < kSoilCount; ++k) {
       std::snprintf(buf, sizeof buf, " %.2f |", m.mae[k] * kDisplayScale[k]);

@@ -7,6 +7,7 @@
 #include "trainer.hpp"
 
 #include <array>
+#include <cmath>
 #include <string>
 #include <vector>
 
@@ -25,7 +26,12 @@ struct SplitMetrics {
   /// samples where it is known: what is left is the simulator's force beyond the paper's F
   /// (adhesion on the face, inertia, penetration, mobilisation, noise).
   double force_error_truth_geometry_pct = 0;
+  /// The simulator's own force model on that geometry: F_total at beta* (what the simulator
+  /// computes before inertia, penetration, mobilisation and noise).
+  double force_error_simulator_model_pct = 0;
   long truth_geometry_samples = 0;
+  /// Median of the mapped surcharge Q over the simulator's at the same sweep (NaN without any).
+  double surcharge_ratio_median = NAN;
   std::array<double, kSoilCount> mae{};        ///< |mean − truth|, SI units
   std::array<double, kSoilCount> bias{};       ///< mean − truth
   /// Fraction of valid samples whose truth lies within ±1σ, per variance kind.
