@@ -16,6 +16,7 @@ Ctrl-C (each file is written back from memory in a finally block).
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -33,7 +34,9 @@ def configure():
         return
     r = run(["cmake", "-S", ".", "-B", BUILD, "-G", "Ninja", "-DCMAKE_BUILD_TYPE=Release",
              "-DTERRAMAP_BUILD_BENCHMARKS=OFF", "-DTERRAMAP_TEST_SANITIZED_HOST=OFF",
-             "-DTERRAMAP_WITH_PYTHON=OFF", "-DTERRAMAP_WITH_WEB=OFF"])
+             "-DTERRAMAP_WITH_PYTHON=OFF", "-DTERRAMAP_WITH_WEB=OFF"] +
+            # Every mutant is restored afterwards, so most of a rebuild is the same objects again.
+            (["-DCMAKE_CXX_COMPILER_LAUNCHER=ccache"] if shutil.which("ccache") else []))
     if r.returncode:
         sys.exit("configuring build-mutation failed:\n" + r.stdout + r.stderr)
 
