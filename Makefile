@@ -2,6 +2,7 @@
 #   make demo   install missing Debian packages, build (Release), run the embedded demo
 #   make test   install missing Debian packages, build (Release), run every test
 #   make test-asan  every test under AddressSanitizer + UndefinedBehaviorSanitizer
+#   make test-tsan  every test under ThreadSanitizer (docs/reliability.md)
 #   make bench  build and run the Google Benchmark programs
 #   make mutation  break the code on purpose and check the tests notice (docs/testing.md)
 #   make install PREFIX=/usr/local
@@ -11,7 +12,7 @@ PREFIX ?= /usr/local
 CMAKE_FLAGS ?=
 OUT ?= out/demo
 
-.PHONY: all deps configure build demo test test-asan bench mutation install clean
+.PHONY: all deps configure build demo test test-asan test-tsan bench mutation install clean
 
 all: build
 
@@ -43,6 +44,16 @@ test-asan: deps
 	cmake --build build-asan -j $(JOBS)
 	cd build-asan && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
 	  ctest --output-on-failure -j $(JOBS) --timeout 1800 $(CTEST_ARGS)
+
+# Every test under ThreadSanitizer in its own tree (build-tsan). Executor and the simulator run
+# their tasks on std::threads there (Debian's TBB is not instrumented; docs/reliability.md);
+# libtorch is not instrumented either and keeps its own thread pool, so the torch plugins are off.
+test-tsan: deps
+	cmake -S . -B build-tsan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRAMAP_SANITIZE=thread \
+	  -DTERRAMAP_WITH_TORCH=OFF $(SAN_FLAGS)
+	cmake --build build-tsan -j $(JOBS)
+	cd build-tsan && TSAN_OPTIONS=halt_on_error=1:second_deadlock_stack=1:suppressions=$(CURDIR)/scripts/tsan.supp \
+	  ctest --output-on-failure -j $(JOBS) --timeout 3600 $(CTEST_ARGS)
 
 bench: build
 	@for b in $(BUILD)/bin/bench_*; do echo "== $$b"; $$b --benchmark_counters_tabular=true || exit 1; done

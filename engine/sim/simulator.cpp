@@ -12,6 +12,7 @@
 #include <exception>
 #include <limits>
 #include <mutex>
+#include <thread>
 
 namespace terramap::sim {
 namespace {
@@ -126,11 +127,15 @@ struct Simulator::Pipe {
   bool finished = false;  ///< the end (or an error) is in the ring
   bool stopping = false;  ///< the destructor is waiting
   tbb::task_group tasks;  ///< the producer tasks (the destructor waits for them in the arena)
+  // The kThreads executor (ThreadSanitizer builds): one producer thread runs the tasks that the
+  // TBB backend would enqueue in the arena, one at a time, in request order.
+  std::thread producer;
+  int requested = 0;      ///< producer tasks asked for and not yet started (guarded by mu)
 };
 
-Simulator::Simulator(const Scenario& scenario)
+Simulator::Simulator(const Scenario& scenario, Executor::Backend backend)
     : sc_(scenario), terrain_(buildTerrain(scenario.terrain)), soil_(scenario.default_soil, scenario.zones),
-      exec_(scenario.threads) {
+      exec_(scenario.threads, backend) {
   substeps_ = static_cast<int>(std::llround(sc_.physics_hz / sc_.observation_hz));
   if (substeps_ < 1) throw ConfigError(sc_.source_path + ": physics_hz must be >= observation_hz");
   double min_rate = std::numeric_limits<double>::infinity();
@@ -157,6 +162,11 @@ Simulator::~Simulator() {
   {
     std::lock_guard<std::mutex> lk(pipe_->mu);
     pipe_->stopping = true;
+  }
+  if (exec_.backend() == Executor::Backend::kThreads) {
+    pipe_->cv.notify_all();
+    if (pipe_->producer.joinable()) pipe_->producer.join();
+    return;
   }
   // A producer task may still be running, or queued with no worker free to take it: wait in
   // the arena, where this thread runs a queued one itself (it sees `stopping` and returns).
@@ -218,7 +228,31 @@ bool Simulator::durationOver() const {
   return static_cast<double>(p_obs_step_) * (1.0 / sc_.observation_hz) >= sc_.duration_s - 1e-9;
 }
 
-void Simulator::enqueueProducer() { exec_.arena().enqueue(pipe_->tasks.defer([this] { produceTask(); })); }
+// Called with pipe_->mu held.
+void Simulator::enqueueProducer() {
+  if (exec_.backend() == Executor::Backend::kTbb) {
+    exec_.arena().enqueue(pipe_->tasks.defer([this] { produceTask(); }));
+    return;
+  }
+  ++pipe_->requested;
+  pipe_->cv.notify_all();
+  if (pipe_->producer.joinable()) return;
+  pipe_->producer = std::thread([this] {
+    std::unique_lock<std::mutex> lk(pipe_->mu);
+    for (;;) {
+      pipe_->cv.wait(lk, [this] { return pipe_->requested > 0 || pipe_->stopping; });
+      if (pipe_->stopping) {
+        pipe_->queued = false;
+        pipe_->cv.notify_all();
+        return;
+      }
+      --pipe_->requested;
+      lk.unlock();
+      produceTask();  // takes pipe_->mu itself at its end
+      lk.lock();
+    }
+  });
+}
 
 const TruthTerrain& Simulator::truth() const {
   // The ray-casting pyramid is brought up to date lazily (only scans and callers need it).

@@ -877,7 +877,7 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
   // surfaces it emits a penetration item (those are applied in ray order in phase B).
   ex.forEach(nc, [&](int c) {
     // forEach runs inline (on the caller, maybe outside the arena) for one thread or one task.
-    int slot = slots > 1 && nc > 1 ? tbb::this_task_arena::current_thread_index() : 0;
+    int slot = slots > 1 && nc > 1 ? Executor::currentSlot() : 0;
     if (slot < 0 || slot >= slots)
       throw std::logic_error("lidar_fusion: worker slot " + std::to_string(slot) + " outside the executor's " +
                              std::to_string(slots));

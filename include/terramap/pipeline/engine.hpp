@@ -6,7 +6,7 @@
 /// (the engine's). snapshot() may be called from any thread at any time: it waits for the
 /// event or edit in progress to finish and returns a consistent copy-on-write copy of the map
 /// that the caller may keep and read while the engine goes on writing. Exercised under
-/// ThreadSanitizer (Tsan.EngineThreadContract).
+/// ThreadSanitizer (Tsan.ThreadingContracts).
 ///
 /// Failure atomicity: addStage()/fromSpec() validate before they change anything; when they
 /// throw, the engine is exactly as it was (same stages, same layers, same data).

@@ -66,8 +66,10 @@ struct MachineTruth {
 
 class Simulator {
  public:
-  /// Builds the world. \throws InputError (DEM) or ConfigError (inconsistent scenario).
-  explicit Simulator(const Scenario& scenario);
+  /// Builds the world. `backend` runs the scans' chunks and, with overlap_scans, the physics
+  /// ahead of the caller (Executor::Backend; the events are the same bits either way).
+  /// \throws InputError (DEM) or ConfigError (inconsistent scenario).
+  explicit Simulator(const Scenario& scenario, Executor::Backend backend = Executor::kDefaultBackend);
   ~Simulator();
   Simulator(const Simulator&) = delete;
   Simulator& operator=(const Simulator&) = delete;

@@ -4,7 +4,12 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <atomic>
+#include <chrono>
+#include <stdexcept>
+#include <thread>
+#include <vector>
 #include <dlfcn.h>
 #include <cmath>
 #include <cstring>
@@ -182,7 +187,7 @@ TEST(LayeredMap, SnapshotIsCopyOnWrite) {
 
 TEST(LayeredMap, TileKernelIsBitIdenticalAtOneAndTwoThreads) {
   // A kernel with real floating-point work per cell; each tile writes only its own cells.
-  auto runKernel = [](int threads) {
+  auto runKernel = [](int threads, Executor::Backend backend = Executor::kDefaultBackend) {
     LayeredMap m(Geometry(0.04, Size(300, 257), Position(1.3, -0.7)), MapOptions{64, false});
     const LayerId a = m.addLayer("a", "m");
     const LayerId b = m.addLayer("b", "m");
@@ -193,7 +198,7 @@ TEST(LayeredMap, TileKernelIsBitIdenticalAtOneAndTwoThreads) {
       for (int j = 0; j < in.cols(); ++j) in(i, j) = n(rng);
     m.fromMatrix(a, in);
     m.move(Position(2.0, 0.3));  // exercise the ring buffer too
-    Executor ex(threads);
+    Executor ex(threads, backend);
     const int T = m.tileSize();
     for (int pass = 0; pass < 3; ++pass)
       ex.forEach(m.tileCount(), [&](int t) {
@@ -213,16 +218,70 @@ TEST(LayeredMap, TileKernelIsBitIdenticalAtOneAndTwoThreads) {
   EXPECT_TRUE(sameBits(one, two));
   // And the serial twin gives the same as well.
   EXPECT_TRUE(sameBits(one, runKernel(4)));
+  EXPECT_TRUE(sameBits(one, runKernel(2, Executor::Backend::kThreads)));
 }
 
+namespace {
+// Debian's TBB is not instrumented: under ThreadSanitizer only the std::thread backend means
+// anything (parallel.hpp), so the TBB runs are left out there.
+std::vector<Executor::Backend> testedBackends() {
+  if (TERRAMAP_THREAD_SANITIZER) return {Executor::Backend::kThreads};
+  return {Executor::Backend::kTbb, Executor::Backend::kThreads};
+}
+}  // namespace
+
 TEST(Executor, ForEachVisitsEveryIndexOnce) {
-  Executor ex(2);
-  std::vector<std::atomic<int>> hits(1000);
-  ex.forEach(1000, [&](int i) { hits[static_cast<size_t>(i)]++; });
-  for (auto& h : hits) EXPECT_EQ(h.load(), 1);
+  for (auto backend : testedBackends()) {
+    Executor ex(2, backend);
+    std::vector<std::atomic<int>> hits(1000);
+    ex.forEach(1000, [&](int i) { hits[static_cast<size_t>(i)]++; });
+    for (auto& h : hits) EXPECT_EQ(h.load(), 1);
+  }
   int n = 0;
   serialForEach(17, [&](int) { ++n; });
   EXPECT_EQ(n, 17);
+}
+
+TEST(Executor, SlotsAreDistinctAmongConcurrentTasksOnBothBackends) {
+  // Per-slot scratch buffers (lidar_fusion's ray minima) rely on it: two tasks running at once
+  // never share a slot, and every slot is in [0, threads). Each task holds its slot until a
+  // task on another slot has started too, so both threads take part whatever the scheduling.
+  for (auto backend : testedBackends()) {
+    Executor ex(2, backend);
+    std::array<std::atomic<int>, 2> busy{};
+    std::atomic<int> bad{0}, started{0};
+    ex.forEach(2, [&](int) {
+      const int s = Executor::currentSlot();
+      if (s < 0 || s >= 2) {
+        ++bad;
+        return;
+      }
+      if (busy[static_cast<size_t>(s)].fetch_add(1) != 0) ++bad;
+      ++started;
+      const auto t0 = std::chrono::steady_clock::now();
+      while (started.load() < 2 && std::chrono::steady_clock::now() - t0 < std::chrono::seconds(5))
+        std::this_thread::yield();
+      busy[static_cast<size_t>(s)].fetch_sub(1);
+    });
+    EXPECT_EQ(bad.load(), 0);
+    EXPECT_EQ(started.load(), 2);
+  }
+}
+
+TEST(Executor, ThreadsBackendRethrowsATasksExceptionAfterTheOthersFinish) {
+  Executor ex(2, Executor::Backend::kThreads);
+  std::atomic<int> finished{0};
+  EXPECT_THROW(ex.forEach(64,
+                          [&](int i) {
+                            if (i == 5) throw std::runtime_error("task 5");
+                            ++finished;
+                          }),
+               std::runtime_error);
+  // Still usable, and the thrown call left nothing running behind it.
+  const int after = finished.load();
+  ex.forEach(8, [&](int) { ++finished; });
+  EXPECT_EQ(finished.load(), after + 8);
+  EXPECT_THROW(ex.arena(), std::logic_error);
 }
 
 TEST(LayeredMap, ManyMovesMatchAPlainShiftedMatrix) {

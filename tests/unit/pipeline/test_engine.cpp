@@ -231,7 +231,7 @@ TEST(Engine, SnapshotIsConsistentWhileTheEngineKeepsWriting) {
 // The contract of engine.hpp: push() and editMap() on one thread, snapshot() on any. editMap()
 // rewrites the whole layer cell by cell under the engine's lock, so every snapshot still holds
 // one value everywhere. Without the lock a reader would catch a half-written layer (and
-// ThreadSanitizer, Tsan.EngineThreadContract, a data race). One engine thread so that the only
+// ThreadSanitizer, Tsan.ThreadingContracts, a data race). One engine thread so that the only
 // threads are the two the contract is about (TBB's own synchronisation is invisible to TSan).
 TEST(Engine, EditMapAndPushOnOneThreadSnapshotsOnAnother) {
   Engine e(options(1, Size(64, 64)));

@@ -397,16 +397,17 @@ void flatten(const std::vector<Event>& ev, std::vector<double>& nums, std::vecto
 
 TEST(Simulator, SameSeedIsBitIdenticalForAnyThreadCount) {
   // Runs 0-2: 1 thread (serial), 2 threads with the physics overlapping the scans (default),
-  // 2 threads without overlap; run 3: another seed. The scenario has the default (rtk_imu)
+  // 2 threads without overlap; run 3: another seed; run 4: 2 threads overlapping on the
+  // std::thread executor (ThreadSanitizer builds' default). The scenario has the default (rtk_imu)
   // localisation, so the estimator's draws (cloud, base and blade poses) are part of the stream. Besides the events, what a caller reads
   // between periods (truth(), machineTruth(), machine()) must be that period's, in every mode.
-  std::vector<double> n[4], views[4];
-  std::vector<float> p[4];
-  for (int run = 0; run < 4; ++run) {
-    Scenario sc = parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.5, run == 1 || run == 2 ? 2 : 1, true), "s.yaml");
+  std::vector<double> n[5], views[5];
+  std::vector<float> p[5];
+  for (int run = 0; run < 5; ++run) {
+    Scenario sc = parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.5, run == 0 || run == 3 ? 1 : 2, true), "s.yaml");
     if (run == 2) sc.overlap_scans = false;
     if (run == 3) sc.seed = 10;
-    Simulator sim(sc);
+    Simulator sim(sc, run == 4 ? Executor::Backend::kThreads : Executor::kDefaultBackend);
     std::vector<Event> ev;
     while (sim.next(ev)) {
       if (sim.step() % 7 != 3) continue;
@@ -425,7 +426,7 @@ TEST(Simulator, SameSeedIsBitIdenticalForAnyThreadCount) {
     views[run].insert(views[run].end(), t.undisturbedData().begin(), t.undisturbedData().end());
     views[run].insert(views[run].end(), t.looseData().begin(), t.looseData().end());
   }
-  for (int run = 1; run < 3; ++run) {
+  for (int run : {1, 2, 4}) {
     ASSERT_EQ(n[0].size(), n[run].size());
     ASSERT_EQ(p[0].size(), p[run].size());
     ASSERT_EQ(views[0].size(), views[run].size());
@@ -439,13 +440,18 @@ TEST(Simulator, SameSeedIsBitIdenticalForAnyThreadCount) {
 
 TEST(Simulator, StopsCleanlyWhileThePhysicsRunsAhead) {
   // Destroyed a few periods in, while producer tasks may be queued or running (a sanitizer
-  // or a hang would show a task outliving the simulator).
-  for (int k = 1; k < 6; ++k) {
-    Simulator sim(parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.5, 2, true), "s.yaml"));
-    std::vector<Event> ev;
-    for (int i = 0; i < k; ++i) ASSERT_TRUE(sim.next(ev));
-    EXPECT_EQ(sim.step(), k);
-  }
+  // or a hang would show a task outliving the simulator), on either executor backend.
+  // (TBB is not instrumented, so ThreadSanitizer builds run the std::thread backend only.)
+  for (auto backend : TERRAMAP_THREAD_SANITIZER ? std::vector<Executor::Backend>{Executor::Backend::kThreads}
+                                                : std::vector<Executor::Backend>{Executor::Backend::kTbb,
+                                                                                 Executor::Backend::kThreads})
+    for (int k = 1; k < 6; ++k) {
+      Simulator sim(parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.5, 2, true), "s.yaml"),
+                    backend);
+      std::vector<Event> ev;
+      for (int i = 0; i < k; ++i) ASSERT_TRUE(sim.next(ev));
+      EXPECT_EQ(sim.step(), k);
+    }
   // Run to the end: next() stays false after the last period.
   Simulator sim(parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 0.2, 2, true), "s.yaml"));
   std::vector<Event> ev;
