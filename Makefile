@@ -2,6 +2,7 @@
 #   make demo   install missing Debian packages, build (Release), run the embedded demo
 #   make test   install missing Debian packages, build (Release), run every test
 #   make test-asan  every test under AddressSanitizer + UndefinedBehaviorSanitizer
+#   make fuzz   libFuzzer on every reader, FUZZ_SECONDS (600) each; FUZZ_TARGETS="fuzz_pcd ..." for some
 #   make bench  build and run the Google Benchmark programs
 #   make mutation  break the code on purpose and check the tests notice (docs/testing.md)
 #   make install PREFIX=/usr/local
@@ -11,7 +12,7 @@ PREFIX ?= /usr/local
 CMAKE_FLAGS ?=
 OUT ?= out/demo
 
-.PHONY: all deps configure build demo test test-asan bench mutation install clean
+.PHONY: all deps configure build demo test test-asan fuzz bench mutation install clean
 
 all: build
 
@@ -43,6 +44,15 @@ test-asan: deps
 	cmake --build build-asan -j $(JOBS)
 	cd build-asan && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
 	  ctest --output-on-failure -j $(JOBS) --timeout 1800 $(CTEST_ARGS)
+
+# One libFuzzer target per reader (fuzz/), built with clang in build-fuzz/; findings are kept in
+# build-fuzz/artifacts/<target>/ and fail the run (docs/reliability.md, "Fuzzing").
+FUZZ_SECONDS ?= 600
+FUZZ_JOBS ?= 1
+FUZZ_TARGETS ?=
+fuzz:
+	@bash scripts/install_deps.sh fuzz
+	FUZZ_SECONDS=$(FUZZ_SECONDS) FUZZ_JOBS=$(FUZZ_JOBS) FUZZ_TARGETS="$(FUZZ_TARGETS)" JOBS=$(JOBS) bash scripts/fuzz.sh
 
 bench: build
 	@for b in $(BUILD)/bin/bench_*; do echo "== $$b"; $$b --benchmark_counters_tabular=true || exit 1; done
