@@ -185,6 +185,8 @@ struct PlyElement {
   std::uint64_t count = 0;
   std::uint64_t stride = 0;
   bool fixed = true;  // no list property: every record has `stride` bytes
+  std::string list;   // the first list property's name, if any
+  std::uint64_t list_at = 0;  // byte offset of its header line
 };
 
 /// The declared elements, in order; `binary` tells whether the body is binary.
@@ -193,7 +195,10 @@ std::vector<PlyElement> plyElements(const PlyHeader& h, bool& binary) {
   std::string line;
   binary = false;
   std::vector<PlyElement> elements;
+  std::uint64_t next_line_at = 0;
   while (std::getline(is, line)) {
+    const std::uint64_t line_at = next_line_at;
+    next_line_at += line.size() + 1;
     std::istringstream ls(line);
     std::string key;
     ls >> key;
@@ -218,6 +223,12 @@ std::vector<PlyElement> plyElements(const PlyHeader& h, bool& binary) {
       }
       if (type == "list" || sz == 0) {
         elements.back().fixed = false;
+        if (type == "list" && elements.back().list.empty()) {
+          std::string count_type, item_type, name;
+          ls >> count_type >> item_type >> name;
+          elements.back().list = name;
+          elements.back().list_at = line_at;
+        }
       } else {
         elements.back().stride += sz;
       }
@@ -304,6 +315,12 @@ void checkPlyBody(const std::string& path) {
   const std::vector<PlyElement> elements = plyElements(h, binary);
   for (const PlyElement& e : elements) {
     if (e.name != "vertex") continue;
+    // PCL sizes a vertex list field by the first vertex's list and asserts (or, built without
+    // assertions, writes past the cloud) on a longer one; terramap reads only scalars anyway.
+    if (!e.list.empty()) {
+      throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(e.list_at) + ": vertex property '" +
+                       e.list + "' is a list; vertex lists are not supported (only scalar x, y, z, intensity are read)");
+    }
     // PCL holds the vertex records (>= 4 bytes per property; lists make them longer) and the
     // conversion 16 bytes per point.
     const std::uint64_t record = std::max<std::uint64_t>(e.stride, 4);
@@ -337,10 +354,16 @@ PcdHeader parsePcdHeader(const std::string& path, const std::string& text) {
     const std::size_t eol = text.find('\n', at);
     if (eol == std::string::npos) pcdFail(path, at, "header line is not terminated (no DATA line within the first 64 KiB)");
     std::string line = text.substr(at, eol - at);
+    const bool empty = line.empty();
     if (!line.empty() && line.back() == '\r') line.pop_back();
     std::istringstream ls(line);
     std::string key;
     ls >> key;
+    // PCL skips only truly empty lines; one holding nothing but whitespace (a lone "\r" of a
+    // CRLF file too) ends its header, so it reads no fields (PCL 1.13 then dereferences null
+    // when it is the first line) or silently drops the rest of the header.
+    if (key.empty() && !empty)
+      pcdFail(path, at, "header line holds only whitespace (PCL ends the header there); remove it");
     std::vector<std::string> vals;
     for (std::string v; ls >> v;) vals.push_back(v);
     auto integer = [&](const std::string& what) {

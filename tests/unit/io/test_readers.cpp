@@ -473,6 +473,41 @@ TEST(PlyReader, AsciiWithFewerVerticesThanDeclaredIsRefused) {
   expectErrorWith([&] { readPly(p); }, {p, "byte offset 0", "'ply' magic"});
 }
 
+// Found by fuzz_ply (docs/reliability.md, "Fuzzing"): PCL sizes a vertex list property by the
+// first vertex's list and aborts on an assertion when a later list is longer.
+TEST(PlyReader, VertexListPropertiesAreRefusedBeforePclSeesThem) {
+  TempDir dir("ply_list");
+  const std::string p = dir.file("list.ply");
+  // The fuzzer's input, minimised: the second vertex's list (64 ints) outgrows the first (0).
+  const unsigned char minimised[] = "ply\nformat binary_big_endian 1.0\nelement vertex 6\n"
+                                    "property list uchar int e\nend_header\n\x00\x40\x00\x00\x00\x00";
+  spit(p, std::vector<unsigned char>(minimised, minimised + sizeof minimised - 1));
+  expectErrorWith([&] { readPly(p); }, {p, "byte offset 50", "vertex property 'e' is a list"});
+  spitText(p, "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+              "property list uchar float n\nend_header\n1 2 3 1 0.5\n4 5 6 3 1 2 3\n");
+  expectErrorWith([&] { readPly(p); }, {p, "byte offset 89", "vertex property 'n' is a list"});
+  // Lists on other elements (faces) are PCL's business and stay accepted.
+  spitText(p, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+              "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
+  EXPECT_EQ(readPly(p).size(), 3u);
+}
+
+// Found by fuzz_pcd: PCL skips only empty header lines; one of whitespace ends its header, so
+// as the first line PCL 1.13 reads no fields and dereferences null (SEGV), and further down it
+// silently drops the rest of the header (an empty cloud where the header declares points).
+TEST(PcdReader, WhitespaceOnlyHeaderLinesAreRefused) {
+  TempDir dir("pcd_ws");
+  const std::string p = dir.file("ws.pcd");
+  spitText(p, "\r\nFIELDS x y z n\nSIZE 4 2 2 1\nTYPE I I I U\nWIDTH 2\nDATA ascii\n4 5 6 1\n4 5 6 1");  // minimised
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset 0", "only whitespace"});
+  const std::string head = "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\n";
+  spitText(p, head + " \nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n4 5 6\n");
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset " + std::to_string(head.size()), "only whitespace"});
+  // Empty lines are skipped by PCL as well, so they stay accepted.
+  spitText(p, "\n" + head + "\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n4 5 6\n");
+  EXPECT_EQ(readPcd(p).size(), 1u);
+}
+
 // ---- dispatch + throughput --------------------------------------------------------------------
 
 TEST(ReadPointCloud, DispatchesByExtension) {
