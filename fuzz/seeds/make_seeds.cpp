@@ -133,6 +133,11 @@ void ply() {
   append(pre, 1.0f);
   for (int k = 0; k < 2; ++k) { append(pre, double(kPoints[k].x)); append(pre, double(kPoints[k].y)); append(pre, double(kPoints[k].z)); }
   put("fuzz_ply", "binary_element_before_vertex.ply", pre);
+  // Organised (obj_info num_cols x num_rows) and CRLF line ends, which PCL reads differently.
+  put("fuzz_ply", "ascii_organised_crlf.ply",
+      "ply\r\nformat ascii 1.0\r\nobj_info num_cols 3\r\nobj_info num_rows 2\r\nelement vertex 6\r\n"
+      "property float x\r\nproperty float y\r\nproperty float z\r\nend_header\r\n"
+      "1 2 3\r\n4 5 6\r\n7 8 9\r\n1 1 1\r\n2 2 2\r\n3 3 3\r\n");
 }
 
 void kittiBin() {
