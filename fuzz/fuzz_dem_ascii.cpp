@@ -14,6 +14,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const std::string& path = file.write(data, size);
   using namespace terramap;
   fuzz::expectInputErrorsOnly([&] {
+    const fuzz::BudgetScope budget(fuzz::kDemBudgetBytes);
     sim::DemSpec spec;
     spec.path = path;
     spec.format = sim::DemFormat::EsriAscii;

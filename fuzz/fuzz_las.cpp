@@ -22,6 +22,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     if (cloud.size() != header.point_count) __builtin_trap();
   });
   fuzz::expectInputErrorsOnly([&] {
+    const fuzz::BudgetScope budget(fuzz::kDemBudgetBytes);
     sim::DemSpec spec;
     spec.path = path;
     spec.format = sim::DemFormat::Las;
