@@ -11,6 +11,10 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
   // HDF5 prints an error stack for every failed call; readEpisodeDataset turns them off too,
   // but only once it is first called.
   H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+  // HDF5 keeps freed blocks on free lists for reuse. libFuzzer takes more mallocs than frees
+  // in a run for a possible leak and runs LeakSanitizer over the whole heap after it, which
+  // made every input ~20x slower; with no free lists, blocks go back to malloc at once.
+  H5set_free_list_limits(0, 0, 0, 0, 0, 0);
   return 0;
 }
 
@@ -18,10 +22,12 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   static terramap::fuzz::ScratchFile file("episode", ".h5");
   const std::string& path = file.write(data, size);
   using namespace terramap;
-  // Datasets the evaluation tools read (docs/sim.md), of different ranks and types; the seeds
-  // carry them (fuzz/seeds/make_seeds.cpp).
-  static const char* const kDatasets[] = {"/terrain/height", "/machines/ctl1/T_map_base", "/terrain/snapshot_stamp",
-                                          "/machines/ctl1/truth/stalled"};
+  // Two datasets the evaluation tools read (docs/sim.md): float32 3-D written whole, and float64
+  // rows appended over time (unlimited first dimension); the seeds carry them, chunked and
+  // gzipped in one (fuzz/seeds/make_seeds.cpp). Two, not more: each is a separate H5Fopen, and
+  // HDF5 1.10.8 allocates and clears up to 256 MiB while opening a damaged file, ~1 s each
+  // under ASan (docs/reliability.md, "Fuzzing").
+  static const char* const kDatasets[] = {"/terrain/height", "/machines/ctl1/T_map_base"};
   for (const char* name : kDatasets) {
     fuzz::expectInputErrorsOnly([&] {
       std::vector<std::uint64_t> dims;

@@ -26,6 +26,8 @@ FUZZ_JOBS=${FUZZ_JOBS:-1}
 LIMITS=(-rss_limit_mb=2048 -malloc_limit_mb=512 -timeout=10)
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1:symbolize=1}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
+# Leaks inside libraries terramap cannot fix, each explained in the file.
+export LSAN_OPTIONS=${LSAN_OPTIONS:-suppressions=$ROOT/fuzz/lsan.supp:print_suppressions=0}
 
 configure_and_build() {
   if [[ ! -f $BUILD/build.ninja ]]; then
