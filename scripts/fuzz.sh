@@ -45,6 +45,17 @@ all_targets() {
   for f in fuzz/fuzz_*.cpp; do basename "$f" .cpp; done
 }
 
+# HDF5 1.10.8 takes allocation sizes from a damaged file as they are (8 EiB seen) and handles
+# malloc returning NULL; ASan would abort at its 1 TiB maximum instead, so for the episode
+# target it returns NULL as glibc does. Requests between -malloc_limit_mb and 1 TiB are still
+# reported.
+asan_options_of() {
+  case $1 in
+    fuzz_episode_h5) echo "$ASAN_OPTIONS:allocator_may_return_null=1" ;;
+    *) echo "$ASAN_OPTIONS" ;;
+  esac
+}
+
 dict_of() {
   case $1 in
     fuzz_trajectory_*) echo fuzz/dict/fuzz_trajectory.dict ;;
@@ -95,7 +106,7 @@ run_target() {
   before=$(ls "$artifacts" | wc -l)
   start=$(date +%s)
   echo "== $t: $BUILD/bin/$t ${opts[*]} $corpus" >&2
-  "$BUILD/bin/$t" "${opts[@]}" "$corpus" >"$log" 2>&1 || rc=$?
+  ASAN_OPTIONS=$(asan_options_of "$t") "$BUILD/bin/$t" "${opts[@]}" "$corpus" >"$log" 2>&1 || rc=$?
   local took=$(( $(date +%s) - start ))
   local execs
   execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)
@@ -111,7 +122,8 @@ run_target() {
 
 minimize() {
   local t=$1 input=$2 out=${2}.min
-  "$BUILD/bin/$t" "${LIMITS[@]}" -minimize_crash=1 -runs=20000 -exact_artifact_path="$out" "$input" || true
+  ASAN_OPTIONS=$(asan_options_of "$t") "$BUILD/bin/$t" "${LIMITS[@]}" -minimize_crash=1 -runs=20000 \
+    -exact_artifact_path="$out" "$input" || true
   echo "minimised input: $out ($(stat -c %s "$out") bytes)"
 }
 
