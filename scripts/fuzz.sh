@@ -45,13 +45,15 @@ all_targets() {
   for f in fuzz/fuzz_*.cpp; do basename "$f" .cpp; done
 }
 
-# HDF5 1.10.8 takes allocation sizes from a damaged file as they are (8 EiB seen) and handles
-# malloc returning NULL; ASan would abort at its 1 TiB maximum instead, so for the episode
-# target it returns NULL as glibc does. Requests between -malloc_limit_mb and 1 TiB are still
-# reported.
+# HDF5 1.10.8 sizes its metadata cache entries from a damaged file as they are (4 GiB and
+# 8 EiB seen, inside H5Fopen, before terramap can check anything) and handles malloc returning
+# NULL. For the episode target, malloc above 512 MiB returns NULL (as glibc does for the absurd
+# sizes) instead of being a finding: HDF5 then fails and terramap says "cannot open as HDF5".
+# terramap's own allocations go through operator new, which still reports them.
+# docs/reliability.md ("Fuzzing") lists this as a known limit.
 asan_options_of() {
   case $1 in
-    fuzz_episode_h5) echo "$ASAN_OPTIONS:allocator_may_return_null=1" ;;
+    fuzz_episode_h5) echo "$ASAN_OPTIONS:allocator_may_return_null=1:max_allocation_size_mb=512" ;;
     *) echo "$ASAN_OPTIONS" ;;
   esac
 }
