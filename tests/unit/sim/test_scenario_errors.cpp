@@ -111,6 +111,14 @@ TEST(ScenarioErrors, KeysThatAreNotNamesAreReported) {
   expectHas(e, "s.yaml:5:5: machines[0]: a key must be a name, not a mapping");
 }
 
+// Found by fuzz_scenario_yaml: the node count of a terrain too large for the message was
+// converted to long long, undefined beyond 9.2e18 (UBSan stopped there; plain builds printed
+// -9223372036854775808 nodes).
+TEST(ScenarioErrors, HugeTerrainIsRefusedWithItsSizeInScientificNotation) {
+  const std::string e = configErrorOf("terrain:\n size_m: [1111111111111111,5]\n");  // minimised
+  expectHas(e, "s.yaml:2:2: terrain.size_m: terrain too large: 1.39e+19 nodes");
+}
+
 TEST(ScenarioErrors, PipelineAndScenarioWordAMistakeAlike) {
   std::string pipeline_error;
   try {
