@@ -3,6 +3,7 @@
 #   make test   install missing Debian packages, build (Release), run every test
 #   make test-asan  every test under AddressSanitizer + UndefinedBehaviorSanitizer
 #   make test-tsan  every test under ThreadSanitizer (docs/reliability.md)
+#   make fuzz   libFuzzer on every reader, FUZZ_SECONDS (600) each; FUZZ_TARGETS="fuzz_pcd ..." for some
 #   make bench  build and run the Google Benchmark programs
 #   make mutation  break the code on purpose and check the tests notice (docs/testing.md)
 #   make install PREFIX=/usr/local
@@ -12,7 +13,7 @@ PREFIX ?= /usr/local
 CMAKE_FLAGS ?=
 OUT ?= out/demo
 
-.PHONY: all deps configure build demo test test-asan test-tsan bench mutation install clean
+.PHONY: all deps configure build demo test test-asan test-tsan fuzz bench mutation install clean
 
 all: build
 
@@ -54,6 +55,15 @@ test-tsan: deps
 	cmake --build build-tsan -j $(JOBS)
 	cd build-tsan && TSAN_OPTIONS=halt_on_error=1:second_deadlock_stack=1:suppressions=$(CURDIR)/scripts/tsan.supp \
 	  ctest --output-on-failure -j $(JOBS) --timeout 3600 $(CTEST_ARGS)
+
+# One libFuzzer target per reader (fuzz/), built with clang in build-fuzz/; findings are kept in
+# build-fuzz/artifacts/<target>/ and fail the run (docs/reliability.md, "Fuzzing").
+FUZZ_SECONDS ?= 600
+FUZZ_JOBS ?= 1
+FUZZ_TARGETS ?=
+fuzz:
+	@bash scripts/install_deps.sh fuzz
+	FUZZ_SECONDS=$(FUZZ_SECONDS) FUZZ_JOBS=$(FUZZ_JOBS) FUZZ_TARGETS="$(FUZZ_TARGETS)" JOBS=$(JOBS) bash scripts/fuzz.sh
 
 bench: build
 	@for b in $(BUILD)/bin/bench_*; do echo "== $$b"; $$b --benchmark_counters_tabular=true || exit 1; done

@@ -8,6 +8,8 @@ PKGS=(build-essential cmake ninja-build pkg-config
   libtorch-dev libopenblas0-openmp nlohmann-json3-dev libcli11-dev libopenmpi-dev openmpi-bin
   pybind11-dev python3-dev python3-numpy python3-pytest python3-matplotlib
   libfreetype-dev fonts-dejavu-core chromium)
+# `install_deps.sh fuzz` (make fuzz): Debian's clang and its libFuzzer/sanitizer runtimes too.
+if [ "${1:-}" = fuzz ]; then PKGS+=(clang libclang-rt-14-dev); fi
 missing=()
 for p in "${PKGS[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -14,7 +14,10 @@
 #include <cctype>
 #include <charconv>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <limits>
+#include <map>
 #include <sstream>
 
 namespace terramap::io {
@@ -91,12 +94,19 @@ std::vector<PointXYZI> convert(const pcl::PCLPointCloud2& c, const std::string& 
                        " which does not fit the " + std::to_string(c.point_step) + "-byte point");
     }
   }
-  const std::size_t n = static_cast<std::size_t>(c.width) * c.height;
-  if (c.height > 0 && static_cast<std::size_t>(c.row_step) * c.height > c.data.size()) {
+  // In 64 bits: PCL keeps width, height and row_step in 32 (a PLY's obj_info num_cols / num_rows
+  // set them directly), so row_step may have wrapped round below width x point_step.
+  const std::uint64_t width = c.width, height = c.height, step = c.point_step, row = c.row_step;
+  const std::uint64_t n = saturatingProduct({width, height});
+  const std::uint64_t last_row = n > 0 ? saturatingProduct({height - 1, row}) : 0, row_bytes = width * step;
+  const std::uint64_t needed = last_row > UINT64_MAX - row_bytes ? UINT64_MAX : last_row + row_bytes;
+  if (n > 0 && (row_bytes > row || needed > c.data.size())) {
     throw InputError(std::string(format) + " file '" + path + "': " + std::to_string(n) + " points declared but only " +
                      std::to_string(c.data.size()) + " bytes of point data were read");
   }
-  std::vector<PointXYZI> out(n);
+  requireInputBudget(saturatingProduct({n, sizeof(PointXYZI)}), std::string(format) + " file '" + path + "'",
+                     std::to_string(n) + " points x 16 bytes");
+  std::vector<PointXYZI> out(static_cast<std::size_t>(n));
   const float nan = std::numeric_limits<float>::quiet_NaN();
   for (std::size_t r = 0; r < c.height; ++r) {
     for (std::size_t col = 0; col < c.width; ++col) {
@@ -147,37 +157,52 @@ AsciiLine scanAsciiNumbers(const std::vector<char>& rest, std::size_t i, std::si
 }
 
 /// The header of a PLY file: its text up to "end_header" and the offset of the body.
-struct PlyHeader {
-  std::string text;      // what was read, at least up to the end_header line
-  std::size_t end = 0;   // offset of "end_header"
-  std::uint64_t body = 0;
+/// One header line as PCL's PLY parser sees it, and its first word.
+struct PlyLine {
+  std::uint64_t at = 0;
+  std::string text, keyword;
 };
 
-PlyHeader readPlyHeader(std::FILE* f, const std::string& path) {
+/// The header of a PLY file, split into lines the way PCL 1.13's ply_parser does, so that what
+/// terramap checks is what PCL acts on: the magic is the first four bytes whatever the fourth
+/// is ("plyX" passes, and the rest of that line is a header line); a '\r' there makes '\r' the
+/// line delimiter, with the byte after each one skipped. The header ends at the first line
+/// whose first word is end_header, wherever else that text occurs.
+struct PlyHeader {
+  std::string text;             // the first MiB of the file at most
+  std::vector<PlyLine> lines;   // after the magic, up to but excluding end_header
+  std::uint64_t body = 0;       // where the body starts
+};
+
+PlyHeader readPlyHeader(std::FILE* f, const std::string& path, std::uint64_t size) {
   PlyHeader h;
-  std::vector<char> chunk(4096);
-  std::size_t end = std::string::npos;
-  while (end == std::string::npos && h.text.size() < (1u << 20)) {
-    const std::size_t got = std::fread(chunk.data(), 1, chunk.size(), f);
-    if (got == 0) break;
-    h.text.append(chunk.data(), got);
-    end = h.text.find("end_header");
+  h.text.resize(static_cast<std::size_t>(std::min<std::uint64_t>(size, 1u << 20)));
+  if (!h.text.empty() && std::fread(&h.text[0], 1, h.text.size(), f) != h.text.size()) {
+    throw InputError("PLY file '" + path + "': read error in the header");
   }
-  if (h.text.compare(0, 3, "ply") != 0) {
+  const std::string& t = h.text;
+  if (t.compare(0, 3, "ply") != 0 || t.size() < 4) {
     throw InputError("PLY file '" + path + "' at byte offset 0: missing the 'ply' magic line");
   }
-  if (end == std::string::npos) {
-    throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(h.text.size()) +
-                     ": no 'end_header' line");
+  const bool cr = t[3] == '\r';
+  const char delim = cr ? '\r' : '\n';
+  for (std::size_t at = cr ? 5 : 4; at < t.size();) {
+    const std::size_t eol = t.find(delim, at);
+    if (eol == std::string::npos) break;
+    PlyLine line;
+    line.at = at;
+    line.text = t.substr(at, eol - at);
+    std::istringstream ls(line.text);
+    ls >> line.keyword;
+    at = eol + 1 + (cr ? 1 : 0);
+    if (line.keyword == "end_header") {
+      h.body = at;
+      return h;
+    }
+    h.lines.push_back(std::move(line));
   }
-  const std::size_t eol = h.text.find('\n', end);
-  if (eol == std::string::npos) {
-    throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(h.text.size()) +
-                     ": 'end_header' line is not terminated");
-  }
-  h.end = end;
-  h.body = eol + 1;
-  return h;
+  throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(t.size()) +
+                   ": no terminated 'end_header' line" + (t.size() < size ? " within the first MiB" : ""));
 }
 
 struct PlyElement {
@@ -185,18 +210,24 @@ struct PlyElement {
   std::uint64_t count = 0;
   std::uint64_t stride = 0;
   bool fixed = true;  // no list property: every record has `stride` bytes
+  std::string list;   // the first list property's name, if any
+  std::uint64_t list_at = 0;  // byte offset of its header line
 };
 
 /// The declared elements, in order; `binary` tells whether the body is binary.
-std::vector<PlyElement> plyElements(const PlyHeader& h, bool& binary) {
-  std::istringstream is(h.text.substr(0, h.end));
-  std::string line;
+std::vector<PlyElement> plyElements(const PlyHeader& h, const std::string& path, bool& binary) {
   binary = false;
   std::vector<PlyElement> elements;
-  while (std::getline(is, line)) {
-    std::istringstream ls(line);
+  for (const PlyLine& line : h.lines) {
+    const std::uint64_t line_at = line.at;
+    std::istringstream ls(line.text);
     std::string key;
     ls >> key;
+    // PCL hands the whole line to a callback that asserts it starts with the word itself.
+    if (key == "obj_info" && line.text.compare(0, 8, "obj_info") != 0) {
+      throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(line_at) +
+                       ": 'obj_info' does not start its line (PCL aborts on that)");
+    }
     if (key == "format") {
       std::string f;
       ls >> f;
@@ -218,6 +249,12 @@ std::vector<PlyElement> plyElements(const PlyHeader& h, bool& binary) {
       }
       if (type == "list" || sz == 0) {
         elements.back().fixed = false;
+        if (type == "list" && elements.back().list.empty()) {
+          std::string count_type, item_type, name;
+          ls >> count_type >> item_type >> name;
+          elements.back().list = name;
+          elements.back().list_at = line_at;
+        }
       } else {
         elements.back().stride += sz;
       }
@@ -246,8 +283,8 @@ void checkPlyAsciiVertices(std::FILE* f, const std::string& path, std::uint64_t 
   if (!rest.empty() && std::fread(rest.data(), 1, rest.size(), f) != rest.size()) {
     throw InputError("PLY file '" + path + "': read error in the ASCII body");
   }
-  const std::uint64_t header_lines =
-      static_cast<std::uint64_t>(std::count(h.text.begin(), h.text.begin() + static_cast<std::ptrdiff_t>(body), '\n'));
+  const std::uint64_t header_lines = static_cast<std::uint64_t>(
+      std::count(h.text.begin(), h.text.begin() + static_cast<std::ptrdiff_t>(std::min<std::uint64_t>(body, h.text.size())), '\n'));
   std::uint64_t row = 0;
   std::size_t i = 0;
   for (std::uint64_t line_no = header_lines + 1; i < rest.size() && row < skip + vertex->count; ++line_no) {
@@ -296,14 +333,61 @@ void checkPlyBinaryVertices(const std::string& path, std::uint64_t size, std::ui
 
 // Checks a binary PLY's declared elements against the file size before PCL reads the body,
 // and the numbers of an ASCII PLY's vertex lines.
+/// `obj_info num_cols C` / `num_rows R` make PCL size its buffer C x R x the record, not by the
+/// vertex count, and write vertex k at k x the record, asserting when that is past the end. The
+/// dimensions are followed in header order as PCL does (a vertex element sets cols = its count,
+/// rows = 1 unless both were given before it); they must multiply to the vertex count.
+void checkPlyOrganisedDims(const PlyHeader& h, const std::string& path) {
+  std::uint64_t cols = 0, rows = 0, vertices = 0;
+  bool have_vertex = false, have_dims = false;
+  std::uint64_t dims_at = 0;
+  for (const PlyLine& line : h.lines) {
+    std::istringstream ls(line.text);
+    std::string key, what, value;
+    ls >> key >> what >> value;
+    if (key == "element" && what == "vertex") {
+      std::uint64_t n = 0;
+      std::from_chars(value.data(), value.data() + value.size(), n);
+      vertices = n;
+      have_vertex = true;
+      if (cols == 0 || rows == 0) {
+        cols = n;
+        rows = 1;
+      }
+    } else if (key == "obj_info" && (what == "num_cols" || what == "num_rows")) {
+      std::uint32_t v = 0;
+      const auto [ptr, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
+      if (ec != std::errc() || ptr != value.data() + value.size() || v > static_cast<std::uint32_t>(INT32_MAX)) {
+        throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(line.at) + ": obj_info " + what +
+                         " '" + value.substr(0, 32) + "' is not a whole number of points");
+      }
+      (what == "num_cols" ? cols : rows) = v;
+      have_dims = true;
+      dims_at = line.at;
+    }
+  }
+  if (have_vertex && have_dims && saturatingProduct({cols, rows}) != vertices) {
+    throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(dims_at) + ": obj_info num_cols x num_rows = " +
+                     std::to_string(cols) + " x " + std::to_string(rows) + " differs from the " + std::to_string(vertices) +
+                     " vertices of the header");
+  }
+}
+
 void checkPlyBody(const std::string& path) {
   detail::FileCloser fc{detail::openForRead(path, "PLY file")};
   const std::uint64_t size = detail::fileSize(fc.f, path);
-  const PlyHeader h = readPlyHeader(fc.f, path);
+  const PlyHeader h = readPlyHeader(fc.f, path, size);
   bool binary = false;
-  const std::vector<PlyElement> elements = plyElements(h, binary);
+  const std::vector<PlyElement> elements = plyElements(h, path, binary);
+  checkPlyOrganisedDims(h, path);
   for (const PlyElement& e : elements) {
     if (e.name != "vertex") continue;
+    // PCL sizes a vertex list field by the first vertex's list and asserts (or, built without
+    // assertions, writes past the cloud) on a longer one; terramap reads only scalars anyway.
+    if (!e.list.empty()) {
+      throw InputError("PLY file '" + path + "' at byte offset " + std::to_string(e.list_at) + ": vertex property '" +
+                       e.list + "' is a list; vertex lists are not supported (only scalar x, y, z, intensity are read)");
+    }
     // PCL holds the vertex records (>= 4 bytes per property; lists make them longer) and the
     // conversion 16 bytes per point.
     const std::uint64_t record = std::max<std::uint64_t>(e.stride, 4);
@@ -332,15 +416,31 @@ struct PcdHeader {
 /// Reads the header lines up to and including DATA, refusing unknown keywords and bad counts.
 PcdHeader parsePcdHeader(const std::string& path, const std::string& text) {
   PcdHeader h;
+  std::map<std::string, std::size_t> seen;  // keyword -> offset of its line
   std::size_t at = 0;
   while (at < text.size() && h.data.empty()) {
     const std::size_t eol = text.find('\n', at);
     if (eol == std::string::npos) pcdFail(path, at, "header line is not terminated (no DATA line within the first 64 KiB)");
     std::string line = text.substr(at, eol - at);
+    const bool empty = line.empty();
     if (!line.empty() && line.back() == '\r') line.pop_back();
     std::istringstream ls(line);
     std::string key;
     ls >> key;
+    // PCL skips only truly empty lines; one holding nothing but whitespace (a lone "\r" of a
+    // CRLF file too) ends its header, so it reads no fields (PCL 1.13 then dereferences null
+    // when it is the first line) or silently drops the rest of the header.
+    if (key.empty() && !empty)
+      pcdFail(path, at, "header line holds only whitespace (PCL ends the header there); remove it");
+    // PCL acts on every occurrence (each POINTS line resizes its buffer), terramap would check
+    // only the last: a repeated keyword is refused.
+    if (!key.empty() && key[0] != '#') {
+      const std::string canonical = key == "COLUMNS" ? "FIELDS" : key;
+      const auto [it, first] = seen.emplace(canonical, at);
+      if (!first)
+        pcdFail(path, at, "header keyword '" + key.substr(0, 32) + "' appears again (first at byte offset " +
+                              std::to_string(it->second) + ")");
+    }
     std::vector<std::string> vals;
     for (std::string v; ls >> v;) vals.push_back(v);
     auto integer = [&](const std::string& what) {
@@ -387,6 +487,33 @@ PcdHeader parsePcdHeader(const std::string& path, const std::string& text) {
   }
   h.end = at;
   return h;
+}
+
+/// PCL's header loop does not stop at DATA: it goes on reading lines as long as they are
+/// empty, comments or start with a header keyword (prefixes count: "POINTSX" is POINTS to it),
+/// so a body whose first line looks like one is read as more header (a later POINTS resizes
+/// PCL's buffer to whatever it says, a later DATA moves the body). Refused, at that line.
+void checkBodyDoesNotContinueHeader(const std::string& path, const std::string& text, const PcdHeader& h) {
+  static const char* const kKeywords[] = {"VERSION", "FIELDS", "COLUMNS", "SIZE",   "TYPE", "COUNT",
+                                          "WIDTH",   "HEIGHT", "VIEWPOINT", "POINTS", "DATA"};
+  if (h.data.empty()) return;  // no DATA line: refused by checkPcdFields
+  for (std::size_t at = h.body; at < text.size();) {
+    std::size_t eol = text.find('\n', at);
+    if (eol == std::string::npos) eol = text.size();
+    std::istringstream ls(text.substr(at, eol - at));
+    std::string word;
+    ls >> word;
+    if (eol == at || (!word.empty() && word[0] == '#')) {  // PCL skips these and reads on
+      at = eol + 1;
+      continue;
+    }
+    for (const char* k : kKeywords) {
+      if (word.compare(0, std::strlen(k), k) == 0)
+        pcdFail(path, at, std::string("the body after DATA starts with '") + k +
+                              "...', which PCL reads as another header line");
+    }
+    return;
+  }
 }
 
 /// Checks that the header lines agree with each other; returns the point size in bytes and,
@@ -511,6 +638,7 @@ void checkPcdHeader(const std::string& path) {
     throw InputError("PCD file '" + path + "': read error in the header");
   }
   PcdHeader h = parsePcdHeader(path, text);
+  checkBodyDoesNotContinueHeader(path, text, h);
   std::uint64_t step_values = 0;
   const std::uint64_t step = checkPcdFields(path, h, step_values);
   // PCL holds POINTS x point size, the conversion 16 bytes per point: refuse before either.

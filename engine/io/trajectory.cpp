@@ -8,8 +8,10 @@
 #include <cerrno>
 #include <charconv>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 namespace terramap::io {
@@ -268,10 +270,14 @@ std::vector<RelativePose> readRelativePoses(const std::string& path, const Traje
       };
       rp.prev = index(tok[0].substr(0, arrow));
       rp.cur = index(tok[0].substr(arrow + 2));
-      if (rp.cur != rp.prev + 1) lr.fail("label '" + tok[0] + "' must relate consecutive frames (cur = prev + 1)");
+      // In 64 bits: prev + 1 overflows an int for the largest frame number a label can hold.
+      if (std::int64_t{rp.cur} != std::int64_t{rp.prev} + 1)
+        lr.fail("label '" + tok[0] + "' must relate consecutive frames (cur = prev + 1)");
       first = 1;
     } else {
       rp.prev = out.empty() ? 0 : out.back().cur;
+      if (rp.prev == std::numeric_limits<int>::max())
+        lr.fail("frame " + std::to_string(rp.prev) + " is the last frame number a row can have; no row may follow it");
       rp.cur = rp.prev + 1;
     }
     std::size_t count = 0;
@@ -299,7 +305,7 @@ std::vector<Eigen::Isometry3d> chainRelativePoses(const std::vector<RelativePose
   out.reserve(rel.size() + 1);
   out.push_back(Eigen::Isometry3d::Identity());
   for (std::size_t k = 0; k < rel.size(); ++k) {
-    if (rel[k].cur != rel[k].prev + 1 || (k > 0 && rel[k].prev != rel[k - 1].cur)) {
+    if (std::int64_t{rel[k].cur} != std::int64_t{rel[k].prev} + 1 || (k > 0 && rel[k].prev != rel[k - 1].cur)) {
       throw InputError("relative pose " + std::to_string(k) + " relates frames " + std::to_string(rel[k].prev) + "->" +
                        std::to_string(rel[k].cur) + ": rows must be consecutive frames to be chained");
     }

@@ -82,7 +82,9 @@ CheckedParams checkParams(const std::string& owner, const PluginHandle& plugin, 
   CheckedParams out{Params(owner, schema), {}};
   auto& errors = out.errors;
   for (const auto& [key, r] : raw) {
-    const auto it = std::find_if(schema.begin(), schema.end(), [&](const ParamSpec& s) { return s.name == key; });
+    // A named copy of the binding: C++17 lambdas cannot capture structured bindings (clang refuses).
+    const std::string& name = key;
+    const auto it = std::find_if(schema.begin(), schema.end(), [&](const ParamSpec& s) { return s.name == name; });
     const std::string at = r.where.empty() ? owner + ".params." + key : r.where;
     if (it == schema.end()) {
       errors.push_back(at + ": unknown parameter '" + key + "' for plugin '" + plugin.type() + "'" +

@@ -141,8 +141,8 @@ PipelineSpec parseRoot(yaml::Diagnostics& d, const YAML::Node& root, PipelineSpe
     } else {
       if (!yaml::getString(d, s, "type", "source", spec.source.type)) d.error(s, "source.type", "is required");
       for (const auto& kv : s) {
-        const std::string k = kv.first.as<std::string>();
-        if (k == "type") continue;
+        std::string k;
+        if (!yaml::keyName(d, kv.first, "source", k) || k == "type") continue;
         RawParam r = yaml::toRaw(d, kv.second, "source." + k);
         spec.source.settings[k] = r;
       }

@@ -49,7 +49,8 @@ std::map<std::string, RawParam> toRawMap(Diagnostics& d, const YAML::Node& n, co
     return out;
   }
   for (const auto& kv : n) {
-    const std::string k = kv.first.as<std::string>();
+    std::string k;
+    if (!keyName(d, kv.first, path, k)) continue;
     RawParam r = toRaw(d, kv.second, subPath(path, k));
     r.where = d.at(kv.first, subPath(path, k));  // the key's position: what a reader looks for
     out[k] = r;

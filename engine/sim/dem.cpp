@@ -1,5 +1,6 @@
 // DEM inputs of the truth terrain: ESRI ASCII, GeoTIFF (GDAL via terramap_io), LAS ground points.
 #include <terramap/core/error.hpp>
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/io/geotiff.hpp>
 #include <terramap/io/readers.hpp>
 #include <terramap/sim/dem.hpp>
@@ -31,8 +32,15 @@ DemGrid loadLas(const DemSpec& spec, Eigen::Vector3d& origin) {
     origin = spec.geo_origin;
   }
   std::vector<Eigen::Vector3d> ground;
-  for (std::size_t k = 0; k < cloud.size(); ++k)
-    if (cloud.classification[k] == spec.ground_class) ground.push_back(cloud.positions[k] - origin);
+  for (std::size_t k = 0; k < cloud.size(); ++k) {
+    if (cloud.classification[k] != spec.ground_class) continue;
+    // A header scale or offset near the double range makes int x scale + offset overflow.
+    if (!cloud.positions[k].allFinite())
+      throw InputError(spec.path + ": ground point " + std::to_string(k) + " has a non-finite coordinate (" +
+                       fmtNum(cloud.positions[k].x()) + ", " + fmtNum(cloud.positions[k].y()) + ", " +
+                       fmtNum(cloud.positions[k].z()) + "): the header's scale or offset overflows");
+    ground.push_back(cloud.positions[k] - origin);
+  }
   if (ground.empty())
     throw InputError(spec.path + ": no points of class " + std::to_string(spec.ground_class) + " (ground) among " +
                      std::to_string(cloud.size()) + " points; set dem.ground_class");
@@ -41,14 +49,23 @@ DemGrid loadLas(const DemSpec& spec, Eigen::Vector3d& origin) {
     xmin = std::min(xmin, p.x()); xmax = std::max(xmax, p.x());
     ymin = std::min(ymin, p.y()); ymax = std::max(ymax, p.y());
   }
-  // Cell centres on multiples of cell_m in the map frame; at least 2 x 2 cells.
+  // Cell centres on multiples of cell_m in the map frame; at least 2 x 2 cells. Sized in double
+  // first: converting a cell index beyond the range of long is undefined.
   const double c = spec.cell_m;
-  const long i0 = static_cast<long>(std::floor(xmin / c + 0.5)), i1 = static_cast<long>(std::floor(xmax / c + 0.5));
-  const long j0 = static_cast<long>(std::floor(ymin / c + 0.5)), j1 = static_cast<long>(std::floor(ymax / c + 0.5));
-  const long nx = std::max(2L, i1 - i0 + 1), ny = std::max(2L, j1 - j0 + 1);
-  if (static_cast<double>(nx) * ny > 2e8)
-    throw InputError(spec.path + ": gridding the ground points at cell_m " + fmtNum(c) + " m gives " + std::to_string(nx) +
-                     " x " + std::to_string(ny) + " cells; use a larger dem.cell_m");
+  const double fi0 = std::floor(xmin / c + 0.5), fi1 = std::floor(xmax / c + 0.5);
+  const double fj0 = std::floor(ymin / c + 0.5), fj1 = std::floor(ymax / c + 0.5);
+  const double fnx = std::max(2.0, fi1 - fi0 + 1), fny = std::max(2.0, fj1 - fj0 + 1);
+  if (!(fnx * fny <= 2e8) || !(std::max({std::abs(fi0), std::abs(fi1), std::abs(fj0), std::abs(fj1)}) < 1e15))
+    throw InputError(spec.path + ": gridding the ground points at cell_m " + fmtNum(c) + " m gives " + fmtNum(fnx) +
+                     " x " + fmtNum(fny) + " cells; use a larger dem.cell_m");
+  const long i0 = static_cast<long>(fi0), j0 = static_cast<long>(fj0);
+  const long nx = static_cast<long>(fnx), ny = static_cast<long>(fny);
+  // The grid (8 bytes a cell) and the sorted (cell, z) pairs (16 bytes a ground point).
+  requireInputBudget(saturatingProduct({static_cast<std::uint64_t>(nx), static_cast<std::uint64_t>(ny), 8}) +
+                         saturatingProduct({ground.size(), 16}),
+                     spec.path + ": the ground points gridded at cell_m " + fmtNum(c) + " m (" + std::to_string(nx) +
+                         " x " + std::to_string(ny) + " cells, " + std::to_string(ground.size()) + " points)",
+                     "8 bytes per cell, 16 per point");
   DemGrid g = gridPoints(ground, i0 * c, j0 * c, c, static_cast<int>(nx), static_cast<int>(ny), spec.statistic);
   if (spec.fill_holes.value_or(true)) fillDemHoles(g, spec.path + ": ground points");
   return g;
@@ -168,32 +185,51 @@ std::size_t fillDemHoles(DemGrid& grid, const std::string& what) {
   std::size_t filled = 0, holes = 0;
   for (double v : grid.z) holes += std::isnan(v) ? 1 : 0;
   if (holes == grid.z.size()) throw InputError(what + ": no cell has data, nothing to interpolate from");
+  if (holes == 0) return 0;
+  // Per cell: the previous pass, and the weight and weighted sum being gathered.
+  requireInputBudget(saturatingProduct({grid.z.size(), 3 * sizeof(double)}),
+                     what + ": filling the holes of a " + std::to_string(nx) + " x " + std::to_string(ny) + " grid",
+                     "3 doubles per cell");
   static const int kDir[8][2] = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}, {1, 1}, {1, -1}, {-1, 1}, {-1, -1}};
+  std::vector<double> sw(grid.z.size()), sz(grid.z.size());
+  auto index = [nx](long i, long j) { return static_cast<std::size_t>(j) * static_cast<std::size_t>(nx) + static_cast<std::size_t>(i); };
   while (holes > 0) {
     const std::vector<double> prev = grid.z;  // each pass reads only the previous pass
-    std::size_t now = 0;
-    for (int j = 0; j < ny; ++j) {
-      for (int i = 0; i < nx; ++i) {
-        const std::size_t k = static_cast<std::size_t>(j) * nx + i;
-        if (!std::isnan(prev[k])) continue;
-        double sw = 0, sz = 0;
-        for (const auto& d : kDir) {
-          int a = i + d[0], b = j + d[1], steps = 1;
-          while (a >= 0 && b >= 0 && a < nx && b < ny) {
-            const double v = prev[static_cast<std::size_t>(b) * nx + a];
-            if (!std::isnan(v)) {
+    std::fill(sw.begin(), sw.end(), 0.0);
+    std::fill(sz.begin(), sz.end(), 0.0);
+    // Direction by direction, each grid line walked once against the direction, carrying the
+    // first data cell ahead: linear in the cells per direction, where searching from every hole
+    // was cells x line length (hours on a sparse grid of 10^7 cells). The weights are added to
+    // each hole in the order of kDir, as before, so the sums are bit for bit the same.
+    for (const auto& d : kDir) {
+      for (int j0 = 0; j0 < ny; ++j0) {
+        for (int i0 = 0; i0 < nx; ++i0) {
+          const long ia = i0 + d[0], ja = j0 + d[1];
+          if (ia >= 0 && ja >= 0 && ia < nx && ja < ny) continue;  // not the last cell of its line
+          double ahead = 0;
+          long steps = 0;  // 0: no data cell ahead yet
+          for (long i = i0, j = j0; i >= 0 && j >= 0 && i < nx && j < ny; i -= d[0], j -= d[1]) {
+            const std::size_t k = index(i, j);
+            if (steps > 0 && std::isnan(prev[k])) {
               const double dist2 = static_cast<double>(steps) * steps * (d[0] != 0 && d[1] != 0 ? 2.0 : 1.0);
-              sw += 1.0 / dist2;
-              sz += v / dist2;
-              break;
+              sw[k] += 1.0 / dist2;
+              sz[k] += ahead / dist2;
             }
-            a += d[0]; b += d[1]; ++steps;
+            if (!std::isnan(prev[k])) {
+              ahead = prev[k];
+              steps = 1;
+            } else if (steps > 0) {
+              ++steps;
+            }
           }
         }
-        if (sw > 0) {
-          grid.z[k] = sz / sw;
-          ++now;
-        }
+      }
+    }
+    std::size_t now = 0;
+    for (std::size_t k = 0; k < grid.z.size(); ++k) {
+      if (std::isnan(prev[k]) && sw[k] > 0) {
+        grid.z[k] = sz[k] / sw[k];
+        ++now;
       }
     }
     if (now == 0) throw InputError(what + ": holes cannot be filled (no data cell reachable)");  // not reachable

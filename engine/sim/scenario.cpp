@@ -11,6 +11,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <exception>
 #include <filesystem>
 #include <fstream>
@@ -471,6 +472,14 @@ bool loadDemExtent(TerrainSpec& t, Ctx& ctx) {
   }
 }
 
+/// A count for a message: digits while the double holds a whole number exactly, else
+/// scientific notation (1.39e+64 nodes); converting such a double to an integer is undefined.
+std::string countText(double v) {
+  char b[48];
+  std::snprintf(b, sizeof b, std::abs(v) < 9.0e15 ? "%.0f" : "%.3g", v);
+  return b;
+}
+
 /// size_m / origin_m, around what a DEM gave; refuses a terrain too large to allocate.
 void readExtent(MapReader& r, TerrainSpec& t, bool dem_given, bool dem_extent) {
   if (r.has("size_m")) {
@@ -497,8 +506,7 @@ void readExtent(MapReader& r, TerrainSpec& t, bool dem_given, bool dem_extent) {
   const double nodes = (t.size_x_m / t.resolution_m + 1) * (t.size_y_m / t.resolution_m + 1);
   // ~45 bytes per node (U, Lv, Lc, H in double, the initial surface and the pyramid in float).
   if (nodes > 5e7)
-    r.error(r.self(), "size_m", "terrain too large: " + std::to_string(static_cast<long long>(nodes)) + " nodes (~" +
-                                    std::to_string(static_cast<long long>(nodes * 45 / 1e9)) +
+    r.error(r.self(), "size_m", "terrain too large: " + countText(nodes) + " nodes (~" + countText(nodes * 45 / 1e9) +
                                     " GB; limit 5e7 nodes): choose a smaller size_m (and origin_m) or a coarser resolution_m" +
                                     (t.dem.path.empty() ? "" : " (a DEM alone sets the extent to the whole file)"));
 }

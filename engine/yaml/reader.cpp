@@ -96,11 +96,21 @@ std::string showBound(double v) {
   return os.str();
 }
 
+bool keyName(Diagnostics& d, const YAML::Node& key, const std::string& path, std::string& out) {
+  if (!key.IsScalar()) {
+    d.error(key, path, "a key must be a name, not " + (key.IsNull() ? std::string("empty") : show(key)));
+    return false;
+  }
+  out = key.Scalar();
+  return true;
+}
+
 void checkKeys(Diagnostics& d, const YAML::Node& map, const std::string& path,
                const std::vector<std::string>& known) {
   if (!map.IsMap()) return;
   for (const auto& kv : map) {
-    const std::string k = kv.first.as<std::string>();
+    std::string k;
+    if (!keyName(d, kv.first, path, k)) continue;
     bool ok = false;
     for (const auto& n : known) ok = ok || n == k;
     if (!ok)
@@ -364,7 +374,8 @@ void MapReader::finish() const {
   if (!valid_) return;
   const std::vector<std::string> known(asked_.begin(), asked_.end());
   for (const auto& kv : node_) {
-    const std::string k = kv.first.Scalar();
+    std::string k;
+    if (!keyName(d_, kv.first, path_, k)) continue;
     if (!asked_.count(k))
       error(kv.first, k, "unknown key" + didYouMean(k, known) + "; known keys: " + joinStrings(known));
   }

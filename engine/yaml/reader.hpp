@@ -53,6 +53,11 @@ std::string rangeMessage(const std::string& lo, const std::string& hi, const std
 /// A bound as messages show it (ostream's default precision: 0.0001, 1e+06, inf).
 std::string showBound(double v);
 
+/// The key of a mapping entry as a name. A key can be any YAML node (`{}: 1`, `? [a]`, an empty
+/// `: 1`), and yaml-cpp's as<std::string>() throws YAML::BadConversion on those: they are
+/// reported at `path` as an error instead and false is returned.
+bool keyName(Diagnostics& d, const YAML::Node& key, const std::string& path, std::string& out);
+
 /// Reports keys of `map` not in `known`, with did-you-mean and the known keys.
 void checkKeys(Diagnostics& d, const YAML::Node& map, const std::string& path,
                const std::vector<std::string>& known);

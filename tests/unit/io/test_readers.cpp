@@ -473,6 +473,88 @@ TEST(PlyReader, AsciiWithFewerVerticesThanDeclaredIsRefused) {
   expectErrorWith([&] { readPly(p); }, {p, "byte offset 0", "'ply' magic"});
 }
 
+// Found by fuzz_ply (docs/reliability.md, "Fuzzing"): PCL sizes a vertex list property by the
+// first vertex's list and aborts on an assertion when a later list is longer.
+TEST(PlyReader, VertexListPropertiesAreRefusedBeforePclSeesThem) {
+  TempDir dir("ply_list");
+  const std::string p = dir.file("list.ply");
+  // The fuzzer's input, minimised: the second vertex's list (64 ints) outgrows the first (0).
+  const unsigned char minimised[] = "ply\nformat binary_big_endian 1.0\nelement vertex 6\n"
+                                    "property list uchar int e\nend_header\n\x00\x40\x00\x00\x00\x00";
+  spit(p, std::vector<unsigned char>(minimised, minimised + sizeof minimised - 1));
+  expectErrorWith([&] { readPly(p); }, {p, "byte offset 50", "vertex property 'e' is a list"});
+  spitText(p, "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+              "property list uchar float n\nend_header\n1 2 3 1 0.5\n4 5 6 3 1 2 3\n");
+  expectErrorWith([&] { readPly(p); }, {p, "byte offset 89", "vertex property 'n' is a list"});
+  // Lists on other elements (faces) are PCL's business and stay accepted.
+  spitText(p, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+              "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
+  EXPECT_EQ(readPly(p).size(), 3u);
+}
+
+// Found by fuzz_ply: the header is split into lines as PCL splits it. PCL takes the first four
+// bytes as the magic whatever the fourth is, so "plyr obj_info" holds an obj_info line, and
+// PCL's obj_info callback asserts that the line starts with the word (here a space).
+TEST(PlyReader, HeaderIsReadAsPclReadsIt) {
+  TempDir dir("ply_hdr");
+  const std::string p = dir.file("h.ply");
+  spitText(p, "plyr obj_info\nend_header\n");  // minimised
+  expectErrorWith([&] { readPly(p); }, {p, "byte offset 4", "'obj_info' does not start its line"});
+  // The header ends at the first line whose first word is end_header, not at the first
+  // occurrence of the text: the vertex element after this comment is checked.
+  const std::string vertex3 = "element vertex 2\nproperty float x\nproperty float y\nproperty float z\n";
+  spitText(p, "ply\nformat ascii 1.0\ncomment not the end_header\n" + vertex3 + "end_header\n1 2 3\n4 x 6\n");
+  expectErrorWith([&] { readPly(p); }, {p, "'x' is not a number"});
+  // obj_info num_cols x num_rows sizes PCL's buffer (51 GB here, for 3 vertices): it must be the
+  // vertex count.
+  spitText(p, "ply\nformat ascii 1.0\nobj_info num_cols 1431655766\nobj_info num_rows 3\n" + vertex3 +
+                  "end_header\n1 2 3\n4 5 6\n");
+  expectErrorWith([&] { readPly(p); }, {p, "byte offset 50", "1431655766 x 3 differs from the 2 vertices"});
+  spitText(p, "ply\nformat ascii 1.0\nobj_info num_cols 2\nobj_info num_rows 1\n" + vertex3 + "end_header\n1 2 3\n4 5 6\n");
+  EXPECT_EQ(readPly(p).size(), 2u);
+  spitText(p, "ply\r\nformat ascii 1.0\r\nelement vertex 2\r\nproperty float x\r\nproperty float y\r\n"
+              "property float z\r\nend_header\r\n1 2 3\r\n4 5 6\r\n");  // CRLF, as PCL reads it
+  EXPECT_EQ(readPly(p).size(), 2u);
+}
+
+// Found by fuzz_pcd: PCL acts on every occurrence of a header keyword (each POINTS resizes its
+// buffer: 44073700 x 29 bytes here, 443 GB in the fuzzer's first find) and goes on reading
+// header lines after DATA, so the body's first line can be more header.
+TEST(PcdReader, RepeatedKeywordsAndHeaderLinesAfterDataAreRefused) {
+  TempDir dir("pcd_dup");
+  const std::string p = dir.file("dup.pcd");
+  const char repeated[] =
+      "FIELDS x y z \x00 0\nPOINTS 44073700\nSIZE 8 8 8 4 1\nTYPE F F F F U\nWIDTH 2\nPOINTS 2\nDATA binary\n"
+      "\x00?/\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\x00\x00\x00\x00\x00\x00\x00\x0f"
+      "\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7\xb7NNNNNNWINscWIDT5\nPON";  // minimised
+  spit(p, std::vector<unsigned char>(repeated, repeated + sizeof repeated - 1));
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset 71", "'POINTS' appears again (first at byte offset 17)"});
+  const char after_data[] = "FIELDS x y z i\nSIZE 4 4 4 4\nTYPE F F F F\nWIDTH 2\nDATA binary\nDATA\xcd\xcc .\n"
+                            "POINTS 184467407@\x9a\xffVNT\n";  // minimised
+  spit(p, std::vector<unsigned char>(after_data, after_data + sizeof after_data - 1));
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset 61", "starts with 'DATA...'"});
+  // A comment line after DATA is skipped by PCL too, so the check looks past it.
+  const std::string head = "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 1\nPOINTS 1\nDATA ascii\n";
+  spitText(p, head + "# c\nPOINTS 9\n");
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset " + std::to_string(head.size() + 4), "starts with 'POINTS...'"});
+}
+
+// Found by fuzz_pcd: PCL skips only empty header lines; one of whitespace ends its header, so
+// as the first line PCL 1.13 reads no fields and dereferences null (SEGV), and further down it
+// silently drops the rest of the header (an empty cloud where the header declares points).
+TEST(PcdReader, WhitespaceOnlyHeaderLinesAreRefused) {
+  TempDir dir("pcd_ws");
+  const std::string p = dir.file("ws.pcd");
+  spitText(p, "\r\nFIELDS x y z n\nSIZE 4 2 2 1\nTYPE I I I U\nWIDTH 2\nDATA ascii\n4 5 6 1\n4 5 6 1");  // minimised
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset 0", "only whitespace"});
+  const std::string head = "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\n";
+  spitText(p, head + " \nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n4 5 6\n");
+  expectErrorWith([&] { readPcd(p); }, {p, "byte offset " + std::to_string(head.size()), "only whitespace"});
+  // Empty lines are skipped by PCL as well, so they stay accepted.
+  spitText(p, "\n" + head + "\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n4 5 6\n");
+  EXPECT_EQ(readPcd(p).size(), 1u);
+}
+
 // ---- dispatch + throughput --------------------------------------------------------------------
 
 TEST(ReadPointCloud, DispatchesByExtension) {

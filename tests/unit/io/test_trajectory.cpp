@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 namespace terramap::io {
@@ -234,6 +235,25 @@ TEST(RelativePoses, UnlabelledAndMalformedRows) {
   b.prev = 5;
   b.cur = 6;
   expectErrorWith([&] { chainRelativePoses({a, b}); }, {"consecutive"});
+}
+
+// Found by fuzz_trajectory_relative (docs/reliability.md, "Fuzzing"): prev + 1 overflowed an int
+// for the largest label (undefined behaviour; UBSan stops there), and a row after frame
+// 2147483647 wrapped round to frame -2147483648 and was accepted.
+TEST(RelativePoses, FrameNumbersAtTheTopOfTheIntRangeAreRefusedNotWrapped) {
+  TempDir dir("rel");
+  const std::string p = dir.file("rel.txt");
+  spitText(p, "2147483647->0");  // the fuzzer's input, minimised
+  expectErrorWith([&] { readRelativePoses(p); }, {p + ":1:", "cur = prev + 1"});
+  const std::string row = " 1 0 0 0 0 1 0 0 0 0 1 0\n";
+  spitText(p, "2147483647->2147483648" + row);
+  expectErrorWith([&] { readRelativePoses(p); }, {p + ":1:", "not of the form"});
+  spitText(p, "2147483646->2147483647" + row + row);
+  expectErrorWith([&] { readRelativePoses(p); }, {p + ":2:", "frame 2147483647 is the last"});
+  RelativePose a;
+  a.prev = std::numeric_limits<int>::max();
+  a.cur = std::numeric_limits<int>::min();
+  expectErrorWith([&] { chainRelativePoses({a}); }, {"consecutive"});
 }
 
 }  // namespace

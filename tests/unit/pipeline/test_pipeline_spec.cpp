@@ -70,6 +70,19 @@ pipelin: []
   expectHas(m, "pipeline: is required");
 }
 
+// Found by fuzz_pipeline_yaml (docs/reliability.md, "Fuzzing"): a key that is not a name
+// (empty, a mapping, a list) made yaml-cpp throw YAML::BadConversion out of the parser
+// instead of a ConfigError.
+TEST(PipelineSpec, KeysThatAreNotNamesAreConfigErrors) {
+  expectHas(errorOf(":\n{}"), "p.yaml:1:1: a key must be a name, not empty");  // minimised
+  expectHas(errorOf("version: 1\nmap: {resolution: 0.1, [a]: 2}\npipeline: []\n"),
+            "p.yaml:2:24: map: a key must be a name, not a list");
+  expectHas(errorOf("version: 1\nsource: {type: kitti, {x: 1}: 2}\npipeline: []\n"),
+            "p.yaml:2:23: source: a key must be a name, not a mapping");
+  expectHas(errorOf("version: 1\npipeline:\n  - {name: a, type: smooth_filter, params: {[1]: 2}}\n"),
+            "pipeline[0].params: a key must be a name, not a list");
+}
+
 TEST(PipelineSpec, DuplicateStageNamesAreRefused) {
   const auto m = errorOf(R"(version: 1
 pipeline:

@@ -104,6 +104,21 @@ TEST(ScenarioErrors, UnreadableDemComesAfterTheYamlMistakes) {
 }
 
 // One reader: the same mistake reads the same in a pipeline and in a scenario.
+// Keys that are not names: the pipeline's parser threw YAML::BadConversion on them
+// (fuzz_pipeline_yaml); the scenario's reported an unknown key ''. Both now say what is wrong.
+TEST(ScenarioErrors, KeysThatAreNotNamesAreReported) {
+  const std::string e = configErrorOf("version: 1\nterrain: {size_m: [4, 4], resolution_m: 0.02}\nmachines:\n  - id: m1\n    {}: 3\n");
+  expectHas(e, "s.yaml:5:5: machines[0]: a key must be a name, not a mapping");
+}
+
+// Found by fuzz_scenario_yaml: the node count of a terrain too large for the message was
+// converted to long long, undefined beyond 9.2e18 (UBSan stopped there; plain builds printed
+// -9223372036854775808 nodes).
+TEST(ScenarioErrors, HugeTerrainIsRefusedWithItsSizeInScientificNotation) {
+  const std::string e = configErrorOf("terrain:\n size_m: [1111111111111111,5]\n");  // minimised
+  expectHas(e, "s.yaml:2:2: terrain.size_m: terrain too large: 1.39e+19 nodes");
+}
+
 TEST(ScenarioErrors, PipelineAndScenarioWordAMistakeAlike) {
   std::string pipeline_error;
   try {

@@ -484,6 +484,23 @@ TEST(Simulator, ProgressesWhenTheExecutorsWorkerIsBusyElsewhere) {
   EXPECT_EQ(periods.load(), 60);
 }
 
+// Found by fuzz_episode_h5 (docs/reliability.md, "Fuzzing"): asked for a dataset this damaged
+// file lacks, the reader probed the root's "version" attribute for its hint, and libhdf5
+// 1.10.8 read past its buffer decoding the damaged attribute (SEGV). The hint now comes from the
+// dataset's name; the attributes are never decoded.
+TEST(Episode, DamagedFileIsAnInputErrorWithoutDecodingAttributes) {
+  const std::string path = std::string(TERRAMAP_SOURCE_DIR) + "/tests/data/fuzz/episode_damaged_attributes.h5";
+  std::vector<std::uint64_t> dims;
+  for (const char* name : {"/terrain/height", "/machines/ctl1/T_map_base"})
+    EXPECT_THROW(readEpisodeDataset(path, name, dims), InputError) << name;
+  try {
+    readEpisodeDataset(path, "/machines/ctl1/estimate/T_map_base", dims);
+    ADD_FAILURE() << "expected an InputError";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("format version 1"), std::string::npos) << e.what();
+  }
+}
+
 TEST(Episode, HdfLayoutReadsBack) {
   const std::string dir = std::string(TERRAMAP_BINARY_DIR) + "/sim_test_episode";
   std::filesystem::remove_all(dir);
