@@ -171,6 +171,7 @@ ControllerSpec readController(MapReader& r) {
     c.route_length_m = r.num("length_m", c.route_length_m, 0.5, 1e4);
     c.route_spacing_m = r.num("spacing_m", c.route_spacing_m, -100.0, 100.0);
     c.route_passes = r.integer("passes", c.route_passes, 1, 1000);
+    c.route_loop = r.boolean("loop", c.route_loop);
     c.route_depth_m = r.num("depth_m", c.route_depth_m, -1.0, 1.0);
     c.route_speed_mps = r.num("speed_mps", c.route_speed_mps, 0.05, 5.0);
     c.route_return_speed_mps = r.num("return_speed_mps", c.route_return_speed_mps, 0.05, 5.0);

@@ -349,6 +349,49 @@ TEST(Ctl, SpeedControllerRaisesTheBladeWhenTrackingFails) {
   EXPECT_GT(sim.machine(0).x(), x_rest + 1.0);  // it got going again and kept going
 }
 
+namespace {
+/// The lane (0, 1, ..) of every forward pass a route drives, from the true base position while
+/// the controller drives forward with its blade down, one entry per pass; and whether the
+/// controller was still driving at the end.
+struct LaneLog {
+  std::vector<int> lanes;
+  bool driving_at_end = false;
+};
+LaneLog forwardLanes(bool loop, double duration_s) {
+  const std::string yaml =
+      "version: 1\nseed: 4\nduration_s: " + std::to_string(duration_s) +
+      "\nthreads: 1\nterrain: {size_m: [12, 8], origin_m: [-4, -3], resolution_m: 0.02}\n"
+      "soil: {default: {family: sand, relative_density: 0.1}}\n"
+      "machines:\n  - id: ctl1\n    controller: {type: route, start_m: [0, 0], length_m: 1.5, spacing_m: 1.2, passes: 2, "
+      "depth_m: 0.0, speed_mps: 0.8, loop: " + std::string(loop ? "true" : "false") + "}\n";
+  Simulator sim(noiseFree(parseScenario(yaml, "loop.yaml")));
+  std::vector<Event> ev;
+  LaneLog log;
+  bool in_pass = false;
+  while (sim.next(ev)) {
+    ev.clear();
+    const MachineTruth& m = sim.machineTruth(0);
+    const bool forward = m.setpoints[0] > 0 && m.twist_base[0] > 0.2;
+    if (forward && !in_pass) log.lanes.push_back(static_cast<int>(std::lround(m.T_map_base.translation().y() / 1.2)));
+    in_pass = forward;
+    log.driving_at_end = m.setpoints[0] > 0;
+  }
+  return log;
+}
+}  // namespace
+
+TEST(Ctl, LoopingRouteGoesBackAndForthOverItsLanesAndNeverEnds) {
+  // Two lanes, 1.5 m long: without `loop` the route ends after lane 1; with it, the lanes
+  // are driven 0, 1, 0, 1, .. for as long as the episode runs (a soak drives one for an hour).
+  const LaneLog once = forwardLanes(false, 40.0);
+  EXPECT_EQ(once.lanes, (std::vector<int>{0, 1}));
+  EXPECT_FALSE(once.driving_at_end);
+  const LaneLog looped = forwardLanes(true, 40.0);
+  ASSERT_GE(looped.lanes.size(), 5u) << "a pass of 1.5 m and the return take well under 8 s";
+  for (size_t k = 0; k < looped.lanes.size(); ++k) EXPECT_EQ(looped.lanes[k], static_cast<int>(k % 2)) << "pass " << k;
+  EXPECT_TRUE(looped.driving_at_end);
+}
+
 TEST(Simulator, EventsAreTimeOrderedAndMassIsConserved) {
   Simulator sim(parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 2.0, 2, true), "s.yaml"));
   const double m0 = sim.truth().bankVolume();
