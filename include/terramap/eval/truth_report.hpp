@@ -18,4 +18,10 @@ namespace terramap::eval {
 /// RunOptions::compare_truth. \throws LayerError only if the map changes under it.
 TERRAMAP_API TruthComparison compareWithSourceTruth(LayeredMap& map, const Source& source);
 
+/// The same statistics as compareWithSourceTruth's JSON, of the map as it is now, without
+/// touching it (no layers added): what `terramap run` records once per `outputs.series_interval_s`
+/// (RunOptions::truth_stats). Empty when the map has no `elevation` or the source no truth of it.
+/// Engine thread (reads the map), between events. \throws nothing of its own.
+TERRAMAP_API std::string truthStatsJson(const LayeredMap& map, const Source& source);
+
 }  // namespace terramap::eval
