@@ -106,8 +106,8 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
     }
     if (options.on_progress) options.on_progress(source->progress(), n);
   }
-  // The end of the events, unless a boundary entry just recorded it.
-  if (every > 0 && std::isfinite(last_t) && (series.empty() || series.back()["t_s"].get<double>() != last_t)) sample(last_t);
+  // The end of the events, unless the last boundary entry came after the last event.
+  if (every > 0 && std::isfinite(last_t) && (series.empty() || series.back()["events"].get<long>() != n)) sample(last_t);
   engine->finish();
   for (const auto& [reason, count] : source->dropped()) engine->countSourceDrop(reason, count);
   const double run_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
