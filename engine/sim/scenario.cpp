@@ -294,6 +294,7 @@ LocalisationSpec readLocalisation(MapReader& parent, const LocalisationSpec& def
   readAxes(r, "attitude_bias_deg", kDeg, s.attitude, &AxisError::bias);
   readAxes(r, "attitude_random_walk_deg", kDeg, s.attitude, &AxisError::random_walk);
   s.latency_s = r.num("latency_s", s.latency_s, 0.0, 10.0);
+  s.drift_time_constant_s = r.num("drift_time_constant_s", s.drift_time_constant_s, 1e-3, INFINITY);
   s.cylinder_white_m = r.num("cylinder_white_m", s.cylinder_white_m, 0.0, 1.0);
   s.cylinder_bias_m = r.num("cylinder_bias_m", s.cylinder_bias_m, 0.0, 1.0);
   r.finish();
