@@ -224,7 +224,9 @@ CtlCommand CtlController::update(double dt, const CompactTrackLoader& m) {
         heading_ = std::atan2(P.y() - p.y(), P.x() - p.x());
         v_cmd = spec_.route_speed_mps;
         depth_ = spec_.route_depth_m;
-        if (along >= spec_.route_length_m) {
+        // Stuck (at a pile of its own spoil, the blade already raised): back off and go on.
+        const bool give_up = spec_.stall_give_up_s > 0 && slow_time_ > spec_.stall_give_up_s;
+        if (along >= spec_.route_length_m || give_up) {
           if (!spec_.route_loop && pass_ + 1 >= spec_.route_passes) finished_ = true;
           else reversing_ = true;
         }

@@ -184,6 +184,7 @@ ControllerSpec readController(MapReader& r) {
     MapReader s = r.child("stall");
     c.stall_ratio = s.num("ratio", c.stall_ratio, 0.0, 1.0);
     c.stall_time_s = s.num("time_s", c.stall_time_s, 0.0, 100.0);
+    c.stall_give_up_s = s.num("give_up_s", c.stall_give_up_s, 0.0, 1e6);
     c.raise_rate_mps = s.num("raise_rate_mps", c.raise_rate_mps, 0.0, 5.0);
     s.finish();
   }

@@ -97,6 +97,10 @@ struct ControllerSpec {
   /// Raise the blade when the measured speed stays below `stall_ratio` * set-point for
   /// `stall_time_s` (speed tracking failed): rate of the raise, m/s.
   double stall_ratio = 0.5, stall_time_s = 0.3, raise_rate_mps = 0.15;
+  /// Route only: after this long (s) of failed speed tracking in a forward pass, the pass is
+  /// given up (the machine reverses and takes the next lane), as an operator backs off a pile the
+  /// machine cannot push; 0 (the default) = never, the machine keeps pushing.
+  double stall_give_up_s = 0.0;
 };
 
 /// A sensor mounted on a machine. Pose offset T_base_sensor from `offset` (m) and

@@ -392,6 +392,38 @@ TEST(Ctl, LoopingRouteGoesBackAndForthOverItsLanesAndNeverEnds) {
   EXPECT_TRUE(looped.driving_at_end);
 }
 
+TEST(Ctl, RouteGivesUpAPassItIsStuckInAndTakesTheNextLane) {
+  // A 0.6 m berm of dense clay across both lanes (1.2 m apart) at x = 5, a shallow cut and a
+  // blade that never rises: the machine stalls at the berm for good. With stall.give_up_s = 2 it
+  // backs off after 2 s stuck, reverses onto lane 1 and drives it up to the berm; without, it
+  // stays at the berm in lane 0 for the whole episode (as the one-hour soak's machine did at a
+  // pile of its own spoil, the map frozen with it).
+  auto run = [](double give_up_s) {
+    const std::string yaml =
+        "version: 1\nseed: 9\nduration_s: 25\nthreads: 1\n"
+        "terrain: {size_m: [14, 8], origin_m: [-3, -3], resolution_m: 0.02, hills: {list: ["
+        "{x_m: 5, y_m: -1, amplitude_m: 0.6, sigma_m: 0.5}, {x_m: 5, y_m: 0, amplitude_m: 0.6, sigma_m: 0.5}, "
+        "{x_m: 5, y_m: 1, amplitude_m: 0.6, sigma_m: 0.5}, {x_m: 5, y_m: 2, amplitude_m: 0.6, sigma_m: 0.5}]}}\n"
+        "soil: {default: {family: clay, relative_density: 1.0}}\n"
+        "machines:\n  - id: ctl1\n    controller: {type: route, start_m: [0, 0], length_m: 8, spacing_m: 1.2, passes: 2, "
+        "depth_m: 0.02, speed_mps: 0.8, stall: {raise_rate_mps: 0.0, give_up_s: " + std::to_string(give_up_s) + "}}\n";
+    Simulator sim(noiseFree(parseScenario(yaml, "berm.yaml")));
+    std::vector<Event> ev;
+    double max_x = -1e9, max_y = -1e9;
+    while (sim.next(ev)) {
+      ev.clear();
+      max_x = std::max(max_x, sim.machine(0).x());
+      max_y = std::max(max_y, sim.machine(0).y());
+    }
+    return std::make_pair(max_x, max_y);
+  };
+  const auto stuck = run(0.0), gave_up = run(2.0);
+  EXPECT_LT(stuck.first, 3.0) << "the berm stops the machine well before the 8 m lane ends";
+  EXPECT_LT(stuck.second, 0.3) << "without give_up_s it never leaves lane 0";
+  EXPECT_GT(gave_up.second, 1.1) << "with it, it drove lane 1 (y = 1.2 m)";
+  EXPECT_LT(gave_up.first, 3.0) << "and stopped at the berm there too";
+}
+
 TEST(Simulator, EventsAreTimeOrderedAndMassIsConserved) {
   Simulator sim(parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 2.0, 2, true), "s.yaml"));
   const double m0 = sim.truth().bankVolume();
