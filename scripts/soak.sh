@@ -20,7 +20,9 @@
 #      localisation drift alone differ by up to about that; an unbounded drift would add ~9 cm
 #      over the hour). The first minutes are not compared: they map a terrain the machine has
 #      not cut yet. With less than 20 minutes after the warm-up, each window is half of it;
-#   3. every event accounted for: the identities of report.json hold (events by kind sum to the
+#   3. the map moves with the machine: between consecutive series entries after the warm-up its
+#      centre moved by at least 1 m (a machine stuck at a pile would freeze it: it did once);
+#   4. every event accounted for: the identities of report.json hold (events by kind sum to the
 #      events pushed; every point lidar_fusion took in was fused, rejected as an outlier or
 #      dropped by a named reason; its summary record agrees with its counters; one blade record
 #      per sweep; dropped_total is the sum of the drops; every record the stages reported is in
@@ -139,7 +141,22 @@ else:
                         f"{span / 60:.0f} min vs {100 * err['first_mean_median_abs_m']:.2f} cm over the first after the "
                         f"warm-up (+{100 * grew:.2f} cm > {100 * error_tol_m:.2f} cm)")
 
-# ---- 3. accounting ------------------------------------------------------------------------
+# ---- 3. the map moves -----------------------------------------------------------------------
+moves = []
+after = [e for e in series if e["t_s"] >= warm["t_s"]]
+for a, b in zip(after, after[1:]):
+    if b["t_s"] - a["t_s"] < 30:  # the end-of-events entry right after a boundary one
+        continue
+    d = ((b["map_center_m"][0] - a["map_center_m"][0]) ** 2 + (b["map_center_m"][1] - a["map_center_m"][1]) ** 2) ** 0.5
+    moves.append((b["t_s"], d))
+still = [(t, d) for t, d in moves if d < 1.0]
+motion = {"intervals": len(moves), "min_move_m": min((d for _, d in moves), default=0.0),
+          "intervals_below_1m": len(still)}
+if still:
+    failures.append(f"the map stood (nearly) still in {len(still)} of {len(moves)} minutes after the warm-up, first "
+                    f"ending at {still[0][0]:.0f} s ({still[0][1]:.2f} m): the machine stopped")
+
+# ---- 4. accounting ------------------------------------------------------------------------
 checks = []
 def check(name, ok, detail):
     checks.append({"identity": name, "ok": bool(ok), "detail": detail})
@@ -220,6 +237,9 @@ if err:
         f"{err['first_mean_coverage']:.3f} -> {err['last_mean_coverage']:.3f}")
     say(f"final map: median |e| {100 * report['truth']['median_abs_m']:.2f} cm, RMSE {100 * report['truth']['rmse_m']:.2f} cm, "
         f"max {100 * report['truth']['max_abs_m']:.1f} cm, coverage {report['truth']['coverage']:.3f}")
+if moves:
+    say(f"map motion: its centre moved {motion['min_move_m']:.1f} m or more in each of the {motion['intervals']} minutes after "
+        f"the warm-up ({motion['intervals_below_1m']} below 1 m)")
 for s in report["stages"]:
     say(f"{s['name']:6s} {s['type']:13s} events {sum(s['events'].values()):7d}  dropped "
         + (", ".join(f"{k} {v}" for k, v in sorted(s["dropped"].items()) if v) or "none")
@@ -230,6 +250,7 @@ say("soak: PASSED" if not failures else "soak: FAILED:\n  " + "\n  ".join(failur
 
 summary = {"command": command, "simulated_s": end_t, "wall_s": report["run_wall_s"], "events_total": report["events_total"],
            "rss_after_warmup": rss, "rss_series_after_warmup": rss_series, "rss_peak_mb": peak / mb, "truth_error": err,
+           "map_motion": motion,
            "final_truth": report.get("truth", {}), "accounting": checks, "failures": failures, "passed": not failures,
            "series": series}
 def atomic(name, text):

@@ -85,6 +85,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
         {"dropped", dropped},
         {"records_total", records},
         {"map_tiles_allocated", engine->map().allocatedTiles()},
+        {"map_center_m", {engine->map().geometry().center().x(), engine->map().geometry().center().y()}},
         {"rss_bytes", residentBytes()}};
     if (options.truth_stats) {
       const std::string truth = options.truth_stats(engine->map(), *source);
