@@ -13,13 +13,21 @@
 #   1. memory flat: over the wall-clock samples taken between the end of the warm-up
 #      (SOAK_WARMUP_S simulated seconds: 300, or a quarter of a run shorter than 20 minutes)
 #      and the last event, (max - min) / min of VmRSS is at most 5 %;
-#   2. error not growing: the per-minute median |map - truth| (the typical cell's error; the
-#      RMSE is printed too, but a handful of cells at the spoil decide it), averaged over the
-#      last 10 simulated minutes, exceeds its average over the first 10 minutes after the
-#      warm-up by at most SOAK_ERROR_TOL_M (1 cm: the 10-minute means of the bounded
-#      localisation drift alone differ by up to about that; an unbounded drift would add ~9 cm
-#      over the hour). The first minutes are not compared: they map a terrain the machine has
-#      not cut yet. With less than 20 minutes after the warm-up, each window is half of it;
+#   2. error not growing, in two parts, each per simulated minute against the truth (e = map -
+#      truth over the cells both know):
+#      a. the map's shape, median |e - median e| (the typical cell's error once one offset of
+#         the whole map is taken out), averaged over the last 10 minutes, exceeds its average
+#         over the first 10 minutes after the warm-up by at most SOAK_SHAPE_TOL_M (0.5 cm). The
+#         first minutes are not compared: they map a terrain not cut yet. With less than 20
+#         minutes after the warm-up, each window is half of it;
+#      b. the map's offset |median e| stays within SOAK_OFFSET_MAX_M (6 cm: three times the 2 cm
+#         vertical RMS of the scenario's localisation, which moves the whole map up and down at
+#         random; the unbounded drift of the default rtk_imu reached 6.8 cm in 20 minutes).
+#      The offset is judged apart because it is the localisation's: with perfect poses the same
+#      hour keeps it under 0.15 cm. (A first version compared the plain median |e|, +1 cm
+#      allowed; the recorded hour exceeded that by 0.03 cm through the offset alone: the 10-minute
+#      means of the localisation's bounded drift differ by that much by chance.) The RMSE and
+#      p95 are printed too; a handful of cells at the spoil in front of the blade decide them;
 #   3. the map moves with the machine: between consecutive series entries after the warm-up its
 #      centre moved by at least 1 m (a machine stuck at a pile would freeze it: it did once);
 #   4. every event accounted for: the identities of report.json hold (events by kind sum to the
@@ -32,8 +40,9 @@
 # Usage: scripts/soak.sh                       # the hour (~20-30 min wall on 2 busy cores)
 #        SOAK_SECONDS=300 scripts/soak.sh      # a short one, for trying
 # Environment: SOAK_SECONDS (3600), SOAK_THREADS (2: the pipeline's and the simulator's threads),
-# SOAK_OUT (out/soak), SOAK_WARMUP_S (300), SOAK_SAMPLE_S (2), SOAK_ERROR_TOL_M (0.01),
-# TERRAMAP (build/bin/terramap).
+# SOAK_OUT (out/soak), SOAK_WARMUP_S (300), SOAK_SAMPLE_S (2), SOAK_SHAPE_TOL_M (0.005),
+# SOAK_OFFSET_MAX_M (0.06),
+# SOAK_LOCALISATION (unset; `perfect` for the ablation with true poses), TERRAMAP (build/bin/terramap).
 # Writes SOAK_OUT/{pipeline.yaml, scenario.yaml, run.log, rss_samples.txt, report.json, soak_summary.json,
 # soak_summary.txt} and the run's outputs; the summary files are written atomically.
 set -euo pipefail
@@ -46,7 +55,8 @@ threads=${SOAK_THREADS:-2}
 out=${SOAK_OUT:-$root/out/soak}
 warmup_s=${SOAK_WARMUP_S:-$(( sim_s >= 1200 ? 300 : sim_s / 4 ))}
 sample_s=${SOAK_SAMPLE_S:-2}
-error_tol_m=${SOAK_ERROR_TOL_M:-0.01}
+shape_tol_m=${SOAK_SHAPE_TOL_M:-0.005}
+offset_max_m=${SOAK_OFFSET_MAX_M:-0.06}
 
 [[ -x $bin ]] || { echo "soak: $bin not found (build it: cmake --build build --target terramap lidar_fusion blade_sweep soil_erosion)" >&2; exit 2; }
 mkdir -p "$out"
@@ -55,9 +65,11 @@ rm -f "$out/report.json" "$out/soak_summary.json" "$out/soak_summary.txt"
 
 # Copies of the pipeline and its scenario in the output folder, with the run's length and the
 # thread count (pipeline and simulator alike: SOAK_THREADS=1 when another job has a core).
-sed -e "s|max_time_s: 3600|max_time_s: $sim_s|" "$root/configs/soak/pipeline.yaml" > "$out/pipeline.yaml"
+# SOAK_LOCALISATION=perfect is the ablation: the same run with poses that are the truth.
+loc=${SOAK_LOCALISATION:+, localisation: $SOAK_LOCALISATION}
+sed -e "s|max_time_s: 3600|max_time_s: $sim_s$loc|" "$root/configs/soak/pipeline.yaml" > "$out/pipeline.yaml"
 sed -e "s|^threads: 2$|threads: $threads|" "$root/configs/soak/scenario.yaml" > "$out/scenario.yaml"
-grep -q "max_time_s: $sim_s}" "$out/pipeline.yaml" || { echo "soak: could not set max_time_s in the pipeline copy" >&2; exit 2; }
+grep -q "max_time_s: $sim_s$loc}" "$out/pipeline.yaml" || { echo "soak: could not set max_time_s in the pipeline copy" >&2; exit 2; }
 grep -q "^threads: $threads$" "$out/scenario.yaml" || { echo "soak: could not set threads in the scenario copy" >&2; exit 2; }
 
 cmd=("$bin" run "$out/pipeline.yaml" --out "$out" --threads "$threads" --no-progress)
@@ -80,10 +92,11 @@ if [[ $rc -ne 0 ]]; then
   exit 1
 fi
 
-python3 - "$out" "$warmup_s" "${cmd[*]}" "$error_tol_m" <<'PY'
+python3 - "$out" "$warmup_s" "${cmd[*]}" "$shape_tol_m" "$offset_max_m" <<'PY'
 import json, os, sys, tempfile
 
-out, warmup_s, command, error_tol_m = sys.argv[1], float(sys.argv[2]), sys.argv[3], float(sys.argv[4])
+out, warmup_s, command = sys.argv[1], float(sys.argv[2]), sys.argv[3]
+shape_tol_m, offset_max_m = float(sys.argv[4]), float(sys.argv[5])
 report = json.load(open(os.path.join(out, "report.json")))
 series = report.get("series", [])
 samples = [tuple(map(float, l.split())) for l in open(os.path.join(out, "rss_samples.txt")) if l.strip()]
@@ -132,14 +145,20 @@ if not first or not last:
 else:
     mean = lambda xs, k: sum(x[k] for x in xs) / len(xs)
     err = {"window_s": span, "first_window_from_s": t0, "first_entries": len(first), "last_entries": len(last),
-           "tolerance_m": error_tol_m}
-    for k in ("median_abs_m", "rmse_m", "p95_abs_m", "coverage"):
-        err["first_mean_" + k], err["last_mean_" + k] = mean(first, k), mean(last, k)
-    grew = err["last_mean_median_abs_m"] - err["first_mean_median_abs_m"]
-    if grew > error_tol_m:
-        failures.append(f"truth error grew: median |map - truth| {100 * err['last_mean_median_abs_m']:.2f} cm over the last "
-                        f"{span / 60:.0f} min vs {100 * err['first_mean_median_abs_m']:.2f} cm over the first after the "
-                        f"warm-up (+{100 * grew:.2f} cm > {100 * error_tol_m:.2f} cm)")
+           "shape_tolerance_m": shape_tol_m, "offset_max_m": offset_max_m}
+    for k in ("median_abs_about_median_m", "median_abs_m", "median_m", "rmse_m", "p95_abs_m", "coverage"):
+        if all(k in x for x in first + last):
+            err["first_mean_" + k], err["last_mean_" + k] = mean(first, k), mean(last, k)
+    grew = err["last_mean_median_abs_about_median_m"] - err["first_mean_median_abs_about_median_m"]
+    if grew > shape_tol_m:
+        failures.append(f"truth error grew: the map's shape error (median |e - median e|) {100 * err['last_mean_median_abs_about_median_m']:.2f} cm "
+                        f"over the last {span / 60:.0f} min vs {100 * err['first_mean_median_abs_about_median_m']:.2f} cm over the first "
+                        f"after the warm-up (+{100 * grew:.2f} cm > {100 * shape_tol_m:.2f} cm)")
+    offsets = [(e["t_s"], e["truth"]["median_m"]) for e in series if "truth" in e and e["t_s"] >= t0 - 1e-6]
+    worst = max(offsets, key=lambda x: abs(x[1]))
+    err["max_abs_offset_m"], err["max_abs_offset_at_s"] = abs(worst[1]), worst[0]
+    if abs(worst[1]) > offset_max_m:
+        failures.append(f"the map's offset (median e) reached {100 * worst[1]:+.2f} cm at {worst[0]:.0f} s (limit {100 * offset_max_m:.0f} cm)")
 
 # ---- 3. the map moves -----------------------------------------------------------------------
 moves = []
@@ -215,13 +234,15 @@ check("series: its last entry's drops are the report's", last_e["dropped"] == st
 say(f"soak: {command}")
 say(f"simulated {end_t:.0f} s in {report['run_wall_s']:.0f} s wall ({end_t / max(report['run_wall_s'], 1e-9):.1f}x real time), "
     f"{report['events_total']} events, {report['threads']} threads")
-say("per simulated minute:  t [s]  median|e| [cm]  RMSE [cm]  p95 [cm]  coverage  RSS [MB]  tiles   events     dropped")
+say("per simulated minute (errors in cm: median e, median |e|, median |e - median e|, RMSE, p95 |e|):")
+say("   t [s]  med e  med|e|  shape   RMSE    p95  coverage  RSS [MB]  tiles   events      dropped")
 nan = float("nan")
 for e in series:
     t = e.get("truth", {})
-    say(f"                     {e['t_s']:6.0f}  {100 * t.get('median_abs_m', nan):13.2f}  {100 * t.get('rmse_m', nan):9.2f}"
-        f"  {100 * t.get('p95_abs_m', nan):8.2f}  {t.get('coverage', nan):8.3f}  {e['rss_bytes'] / mb:8.1f}"
-        f"  {e['map_tiles_allocated']:5d}  {e['events']:7d}  {sum(e['dropped'].values()):10d}")
+    say(f"  {e['t_s']:6.0f}  {100 * t.get('median_m', nan):5.2f}  {100 * t.get('median_abs_m', nan):6.2f}"
+        f"  {100 * t.get('median_abs_about_median_m', nan):5.2f}  {100 * t.get('rmse_m', nan):5.2f}"
+        f"  {100 * t.get('p95_abs_m', nan):5.2f}  {t.get('coverage', nan):8.3f}  {e['rss_bytes'] / mb:8.1f}"
+        f"  {e['map_tiles_allocated']:5d}  {e['events']:7d}  {sum(e['dropped'].values()):11d}")
 if rss:
     say(f"RSS after the warm-up ({warm['t_s']:.0f} s simulated) to the last event: {rss['samples']} samples, "
         f"min {rss['min_mb']:.1f} MB, max {rss['max_mb']:.1f} MB, spread {rss['spread_pct']:.2f} % (limit 5 %)")
@@ -230,11 +251,15 @@ if rss_series:
         f"spread {rss_series['spread_pct']:.2f} %; peak over the whole process (outputs included) {peak / mb:.1f} MB")
 if err:
     w = err["window_s"] / 60
-    say(f"truth error, mean of the per-minute figures, first {w:.0f} min after the warm-up -> last {w:.0f} min: median |e| "
-        f"{100 * err['first_mean_median_abs_m']:.2f} -> {100 * err['last_mean_median_abs_m']:.2f} cm (limit +{100 * error_tol_m:.2f} cm), "
-        f"RMSE {100 * err['first_mean_rmse_m']:.2f} -> {100 * err['last_mean_rmse_m']:.2f} cm, p95 "
+    say(f"truth error, mean of the per-minute figures, first {w:.0f} min after the warm-up -> last {w:.0f} min: shape "
+        f"(median |e - median e|) {100 * err['first_mean_median_abs_about_median_m']:.2f} -> "
+        f"{100 * err['last_mean_median_abs_about_median_m']:.2f} cm (limit +{100 * shape_tol_m:.2f} cm); median |e| "
+        f"{100 * err['first_mean_median_abs_m']:.2f} -> {100 * err['last_mean_median_abs_m']:.2f} cm, RMSE "
+        f"{100 * err['first_mean_rmse_m']:.2f} -> {100 * err['last_mean_rmse_m']:.2f} cm, p95 "
         f"{100 * err['first_mean_p95_abs_m']:.2f} -> {100 * err['last_mean_p95_abs_m']:.2f} cm, coverage "
         f"{err['first_mean_coverage']:.3f} -> {err['last_mean_coverage']:.3f}")
+    say(f"the map's offset (median e) after the warm-up: largest {100 * err['max_abs_offset_m']:.2f} cm at "
+        f"{err['max_abs_offset_at_s']:.0f} s (limit {100 * offset_max_m:.0f} cm)")
     say(f"final map: median |e| {100 * report['truth']['median_abs_m']:.2f} cm, RMSE {100 * report['truth']['rmse_m']:.2f} cm, "
         f"max {100 * report['truth']['max_abs_m']:.1f} cm, coverage {report['truth']['coverage']:.3f}")
 if moves:
@@ -259,6 +284,7 @@ def atomic(name, text):
         f.write(text)
         f.flush()
         os.fsync(f.fileno())
+    os.chmod(tmp, 0o644)  # mkstemp makes it private
     os.replace(tmp, os.path.join(out, name))
 atomic("soak_summary.json", json.dumps(summary, indent=2) + "\n")
 atomic("soak_summary.txt", "\n".join(lines) + "\n")

@@ -4,6 +4,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -40,14 +41,22 @@ bool compare(const LayeredMap& map, const Source& source, Compared& c) {
 
 nlohmann::json statsJson(std::vector<double> errors, long truth_cells) {
   const std::size_t compared = errors.size();
-  const ErrorStats s = errorStats(std::move(errors));
+  const ErrorStats s = errorStats(errors);
+  // The error about its median: what is left once one offset of the whole map (a vertical
+  // pose error shifts every cell alike) is taken out, i.e. the map's shape against the truth.
+  for (double& e : errors) e = std::abs(e - s.p50);
+  std::sort(errors.begin(), errors.end());
+  const double mad = percentileSorted(errors, 50.0);
   auto orZero = [&](double v) { return compared ? v : 0.0; };
   return {{"layer", "elevation"},
           {"cells_with_truth", truth_cells},
           {"cells_compared", compared},
           {"coverage", truth_cells ? static_cast<double>(compared) / truth_cells : 0.0},
           {"rmse_m", orZero(s.rmse)},
+          {"bias_m", orZero(s.bias)},
+          {"median_m", orZero(s.p50)},
           {"median_abs_m", orZero(s.median_abs)},
+          {"median_abs_about_median_m", orZero(mad)},
           {"p95_abs_m", orZero(s.p95_abs)},
           {"max_abs_m", orZero(s.max_abs)}};
 }
