@@ -37,7 +37,7 @@
 #      the file; the series' last entry agrees with the totals).
 # A failed run (terramap's exit code not 0) fails the soak.
 #
-# Usage: scripts/soak.sh                       # the hour (~20-30 min wall on 2 busy cores)
+# Usage: scripts/soak.sh                       # the hour (12 min wall on one idle core, 16-18 busy)
 #        SOAK_SECONDS=300 scripts/soak.sh      # a short one, for trying
 # Environment: SOAK_SECONDS (3600), SOAK_THREADS (2: the pipeline's and the simulator's threads),
 # SOAK_OUT (out/soak), SOAK_WARMUP_S (300), SOAK_SAMPLE_S (2), SOAK_SHAPE_TOL_M (0.005),
