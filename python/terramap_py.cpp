@@ -396,6 +396,7 @@ void bindFunctions(py::module_& m) {
         o.out_dir = out;
         o.threads = threads;
         o.compare_truth = eval::compareWithSourceTruth;
+        o.truth_stats = eval::truthStatsJson;
         const PipelineSpec spec = parsePipelineFile(path);
         RunResult r;
         {

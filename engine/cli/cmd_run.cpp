@@ -71,6 +71,7 @@ Registrar reg{Command{"run", [](CLI::App& app, std::function<int()>& run) {
       o.out_dir = a->out;
       o.threads = a->threads;
       o.compare_truth = eval::compareWithSourceTruth;
+      o.truth_stats = eval::truthStatsJson;
       ProgressBar bar(!a->quiet && !a->no_progress);
       o.on_progress = [&bar](double f, long n) { bar.update(f, n); };
       const RunResult r = runPipeline(spec, o);

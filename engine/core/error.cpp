@@ -17,6 +17,7 @@ TERRAMAP_ERROR_KIND(PluginError, "plugin")
 TERRAMAP_ERROR_KIND(LayerError, "layer")
 TERRAMAP_ERROR_KIND(OutputError, "output")
 #undef TERRAMAP_ERROR_KIND
+TileBudgetError::~TileBudgetError() = default;
 InternalError::~InternalError() = default;
 
 }  // namespace terramap

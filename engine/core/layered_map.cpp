@@ -53,13 +53,15 @@ LayerId LayeredMap::addLayer(const std::string& name, const std::string& unit, f
                             " cells (map.size), adding layer '" + name + "'",
                         std::to_string(n) + (options_.sparse ? " sparse layers' tile tables" : " dense layers of 4-byte cells"));
   }
-  layers_.push_back(LayerInfo{name, unit, fill});
   std::vector<TilePtr> tiles(static_cast<size_t>(tileCount()));
   if (!options_.sparse)
     for (auto& t : tiles) t = newTile(fill);
+  layers_.push_back(LayerInfo{name, unit, fill});
   tiles_.push_back(std::move(tiles));
   owned_.emplace_back(static_cast<size_t>(tileCount()), generation_.get());
   writes_.emplace_back(static_cast<size_t>(tileCount()), 0);
+  written_.emplace_back(static_cast<size_t>(tileCount()), Extent{0, 0, 0, 0});
+  if (!options_.sparse) allocated_.value.fetch_add(tileCount(), std::memory_order_relaxed);
   return static_cast<LayerId>(layers_.size() - 1);
 }
 
@@ -103,12 +105,85 @@ const float* LayeredMap::tileData(LayerId id, int t) const {
   return tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)].get();
 }
 
+bool LayeredMap::reserveTiles(long n) {
+  const std::uint64_t limit = memoryBudget() / tileBytes();
+  long cur = allocated_.get();
+  do {
+    if (static_cast<std::uint64_t>(cur + n) > limit) return false;
+  } while (!allocated_.value.compare_exchange_weak(cur, cur + n, std::memory_order_relaxed));
+  return true;
+}
+
+bool LayeredMap::tryAllocateTile(int t, std::initializer_list<LayerId> ids) {
+  long missing = 0;
+  for (auto it = ids.begin(); it != ids.end(); ++it) {
+    if (*it < 0) continue;
+    layerInfo(*it);
+    if (tiles_[static_cast<size_t>(*it)][static_cast<size_t>(t)]) continue;
+    if (std::find(ids.begin(), it, *it) == it) ++missing;  // a layer named twice is one tile
+  }
+  if (missing == 0) return true;
+  if (!reserveTiles(missing)) return false;
+  long made = 0;
+  try {
+    for (const LayerId id : ids) {
+      if (id < 0) continue;
+      TilePtr& tile = tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)];
+      if (tile) continue;
+      tile = newTile(layers_[static_cast<size_t>(id)].fill);
+      ++made;
+      owned_[static_cast<size_t>(id)][static_cast<size_t>(t)] = generation_.get();
+      written_[static_cast<size_t>(id)][static_cast<size_t>(t)] = Extent{0, 0, 0, 0};  // all fill
+    }
+  } catch (...) {
+    allocated_.value.fetch_sub(missing - made, std::memory_order_relaxed);
+    throw;
+  }
+  return true;
+}
+
+TileBudgetError LayeredMap::budgetError(LayerId id, long more) const {
+  std::ostringstream os;
+  os << "sparse map of " << geometry_.size().x() << " x " << geometry_.size().y() << " cells: " << more
+     << " more tile" << (more == 1 ? "" : "s") << " of layer '" << layers_[static_cast<size_t>(id)].name
+     << "' would take it to " << allocatedTiles() + more << " tiles of " << tileBytes()
+     << " bytes, more than the memory budget of " << formatBytes(memoryBudget())
+     << " holds (raise --memory-budget / TERRAMAP_MEMORY_BUDGET, or use a smaller map or fewer layers)";
+  return TileBudgetError(os.str());
+}
+
+void LayeredMap::allocateLayer(LayerId id) {
+  std::vector<TilePtr>& tiles = tiles_[static_cast<size_t>(id)];
+  const long missing = static_cast<long>(std::count(tiles.begin(), tiles.end(), nullptr));
+  if (missing == 0) return;
+  if (!reserveTiles(missing)) throw budgetError(id, missing);
+  long made = 0;
+  try {
+    for (int t = 0; t < tileCount(); ++t) {
+      TilePtr& tile = tiles[static_cast<size_t>(t)];
+      if (tile) continue;
+      tile = newTile(layers_[static_cast<size_t>(id)].fill);
+      ++made;
+      owned_[static_cast<size_t>(id)][static_cast<size_t>(t)] = generation_.get();
+      written_[static_cast<size_t>(id)][static_cast<size_t>(t)] = Extent{0, 0, 0, 0};
+    }
+  } catch (...) {
+    allocated_.value.fetch_sub(missing - made, std::memory_order_relaxed);
+    throw;
+  }
+}
+
 float* LayeredMap::mutableTileData(LayerId id, int t) {
   TilePtr& tile = tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)];
-  ++writes_[static_cast<size_t>(id)][static_cast<size_t>(t)];
   std::uint64_t& owned = owned_[static_cast<size_t>(id)][static_cast<size_t>(t)];
   if (!tile) {
-    tile = newTile(layers_[static_cast<size_t>(id)].fill);
+    if (!reserveTiles(1)) throw budgetError(id, 1);
+    try {
+      tile = newTile(layers_[static_cast<size_t>(id)].fill);
+    } catch (...) {
+      allocated_.value.fetch_sub(1, std::memory_order_relaxed);
+      throw;
+    }
     owned = generation_.get();
   } else if (owned != generation_.get()) {
     // Possibly shared with a copy taken since this map last made the tile its own: copy before
@@ -120,6 +195,10 @@ float* LayeredMap::mutableTileData(LayerId id, int t) {
     tile = std::move(copy);
     owned = generation_.get();
   }
+  ++writes_[static_cast<size_t>(id)][static_cast<size_t>(t)];
+  const CellRect r = tileRect(t);
+  written_[static_cast<size_t>(id)][static_cast<size_t>(t)] =
+      Extent{0, static_cast<std::int16_t>(r.rows), 0, static_cast<std::int16_t>(r.cols)};
   return tile.get();
 }
 
@@ -149,13 +228,6 @@ std::vector<int> LayeredMap::tilesWithin(const std::vector<int>& tiles, int cell
 std::uint64_t LayeredMap::tileWrites(LayerId id, int t) const {
   layerInfo(id);
   return writes_[static_cast<size_t>(id)][static_cast<size_t>(t)];
-}
-
-long LayeredMap::allocatedTiles() const {
-  long n = 0;
-  for (const auto& layer : tiles_)
-    for (const auto& t : layer) n += t ? 1 : 0;
-  return n;
 }
 
 Index LayeredMap::bufferIndex(const Index& logical) const {
@@ -201,10 +273,15 @@ void LayeredMap::set(LayerId id, const Index& logical, float value) {
 }
 
 void LayeredMap::fill(LayerId id, float value) {
-  layerInfo(id);
+  const float fill_value = layerInfo(id).fill;
+  const bool to_fill = value == fill_value || (std::isnan(value) && std::isnan(fill_value));
+  // Every tile or none: a sparse layer filled with another value needs all its tiles.
+  if (options_.sparse && !to_fill) allocateLayer(id);
   for (int t = 0; t < tileCount(); ++t) {
-    if (options_.sparse && value == layers_[static_cast<size_t>(id)].fill) {
-      tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)].reset();
+    if (options_.sparse && to_fill) {
+      TilePtr& tile = tiles_[static_cast<size_t>(id)][static_cast<size_t>(t)];
+      if (tile) allocated_.value.fetch_sub(1, std::memory_order_relaxed);
+      tile.reset();
       ++writes_[static_cast<size_t>(id)][static_cast<size_t>(t)];
       continue;
     }
@@ -243,6 +320,7 @@ void LayeredMap::readLayer(LayerId id, float* dst, long rows, long cols) const {
 
 void LayeredMap::writeLayer(LayerId id, const float* src, long rows, long cols) {
   checkLayerBuffer(layerInfo(id), geometry_.size(), rows, cols);
+  allocateLayer(id);  // every tile or none (a sparse map at its budget stays as it was)
   const int R = geometry_.size().x(), C = geometry_.size().y(), T = options_.tile_size;
   const Eigen::Map<const Eigen::MatrixXf> m(src, R, C);
   for (int t = 0; t < tileCount(); ++t) {
@@ -275,13 +353,35 @@ void LayeredMap::resetLogicalRect(const CellRect& logical) {
           const int t = tr * tile_cols_ + tc;
           const int r_lo = std::max(br, tr * T), r_hi = std::min(br + nr, (tr + 1) * T);
           const int c_lo = std::max(bc, tc * T), c_hi = std::min(bc + nc, (tc + 1) * T);
+          // The reset rectangle relative to the tile.
+          const int a_r0 = r_lo - tr * T, a_r1 = r_hi - tr * T, a_c0 = c_lo - tc * T, a_c1 = c_hi - tc * T;
           for (size_t l = 0; l < layers_.size(); ++l) {
             // Unallocated sparse tiles already read as the fill: do not allocate them.
-            if (!tiles_[l][static_cast<size_t>(t)]) continue;
+            TilePtr& tile = tiles_[l][static_cast<size_t>(t)];
+            if (!tile) continue;
+            Extent w = written_[l][static_cast<size_t>(t)];
+            const bool covers_rows = a_r0 <= w[0] && a_r1 >= w[1], covers_cols = a_c0 <= w[2] && a_c1 >= w[3];
+            if (options_.sparse && ((covers_rows && covers_cols) || w[0] >= w[1] || w[2] >= w[3])) {
+              // Nothing but the fill left in it: give the memory back (it reads the same).
+              tile.reset();
+              allocated_.value.fetch_sub(1, std::memory_order_relaxed);
+              ++writes_[l][static_cast<size_t>(t)];
+              continue;
+            }
             float* d = mutableTileData(static_cast<LayerId>(l), t);
             for (int r = r_lo; r < r_hi; ++r)
               std::fill(d + (r - tr * T) * T + (c_lo - tc * T), d + (r - tr * T) * T + (c_hi - tc * T),
                         layers_[l].fill);
+            // A move resets whole rows or columns of the map, so a band reaching across the part
+            // still written and over one of its edges trims it to a smaller rectangle.
+            if (covers_cols) {
+              if (a_r0 <= w[0] && a_r1 > w[0]) w[0] = static_cast<std::int16_t>(a_r1);
+              else if (a_r1 >= w[1] && a_r0 < w[1]) w[1] = static_cast<std::int16_t>(a_r0);
+            } else if (covers_rows) {
+              if (a_c0 <= w[2] && a_c1 > w[2]) w[2] = static_cast<std::int16_t>(a_c1);
+              else if (a_c1 >= w[3] && a_c0 < w[3]) w[3] = static_cast<std::int16_t>(a_c0);
+            }
+            written_[l][static_cast<size_t>(t)] = w;
           }
         }
     }

@@ -322,6 +322,7 @@ void Engine::addStage(PreparedStage stage) {
   }
   st->started = true;
   stages_.push_back(std::move(st));
+  drainRecords(stages_.size() - 1, *stages_.back());
 }
 
 void Engine::addStage(const std::string& name, PluginHandle plugin, const std::map<std::string, ParamValue>& params) {
@@ -340,7 +341,8 @@ void Engine::push(const Event& event) {
   any_event_ = true;
   report_.last_stamp = stamp;
   report_.events[kindKey(event)] += 1;
-  for (auto& st : stages_) {
+  for (std::size_t si = 0; si < stages_.size(); ++si) {
+    Stage* st = stages_[si].get();
     if (!(st->prepared.events & static_cast<EventMask>(kind))) continue;
     ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
     ctx.setTracker(&st->tracker);
@@ -363,6 +365,7 @@ void Engine::push(const Event& event) {
     st->tracker.mark(map_);
     st->stats.wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - s0).count();
     st->stats.events[kindName(kind)] += 1;
+    drainRecords(si, *st);
   }
   report_.wall_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -371,7 +374,8 @@ void Engine::finish() {
   std::lock_guard<std::mutex> lock(mutex_);
   if (finished_) return;
   finished_ = true;
-  for (auto& st : stages_) {
+  for (std::size_t si = 0; si < stages_.size(); ++si) {
+    Stage* st = stages_[si].get();
     ProcessContext ctx(map_, executor_, bus_, st->stats, st->prepared.name);
     ctx.setTracker(&st->tracker);
     ctx.setStamp(report_.last_stamp);
@@ -382,7 +386,30 @@ void Engine::finish() {
     } catch (const std::exception& e) {
       rethrowFromPlugin(e, "stage '" + st->prepared.name + "' (" + st->prepared.plugin.type() + ") in finish()");
     }
+    drainRecords(si, *st);
   }
+}
+
+void Engine::setRecordSink(RecordSink sink) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  record_sink_ = std::move(sink);
+  for (std::size_t si = 0; si < stages_.size(); ++si) drainRecords(si, *stages_[si]);
+}
+
+void Engine::drainRecords(std::size_t index, Stage& st) {
+  if (!record_sink_) return;
+  std::vector<std::string>& held = st.stats.records;
+  std::size_t k = 0;
+  try {
+    for (; k < held.size(); ++k) {
+      record_sink_(index, held[k]);
+      ++st.records_sunk;
+    }
+  } catch (...) {
+    held.erase(held.begin(), held.begin() + static_cast<std::ptrdiff_t>(k));  // each record goes out once
+    throw;
+  }
+  held.clear();
 }
 
 std::shared_ptr<const LayeredMap> Engine::snapshot() const {
@@ -410,7 +437,8 @@ RunReport Engine::report() const {
   std::lock_guard<std::mutex> lock(mutex_);
   RunReport r = report_;
   for (const auto& s : stages_)
-    r.stages.push_back(StageReport{s->prepared.name, s->prepared.plugin.type(), s->prepared.plugin.version(), s->stats});
+    r.stages.push_back(StageReport{s->prepared.name, s->prepared.plugin.type(), s->prepared.plugin.version(), s->stats,
+                                   s->records_sunk + static_cast<long>(s->stats.records.size())});
   return r;
 }
 

@@ -97,10 +97,10 @@ void parseOutputs(yaml::Diagnostics& d, const YAML::Node& o, PipelineSpec& spec)
   OutputSpec& out = spec.outputs;
   out.where = d.at(o, "outputs");
   if (!o.IsMap()) {
-    d.error(o, "outputs", "must be a mapping {dir, geotiff, png, snapshot, report, epsg, origin}");
+    d.error(o, "outputs", "must be a mapping {dir, geotiff, png, snapshot, report, epsg, origin, series_interval_s}");
     return;
   }
-  yaml::checkKeys(d, o, "outputs", {"dir", "geotiff", "png", "snapshot", "report", "epsg", "origin"});
+  yaml::checkKeys(d, o, "outputs", {"dir", "geotiff", "png", "snapshot", "report", "epsg", "origin", "series_interval_s"});
   if (yaml::getString(d, o, "dir", "outputs", out.dir)) out.dir = spec.resolvePath(out.dir);
   yaml::getStrings(d, o, "geotiff", "outputs", out.geotiff);
   if (yaml::getStrings(d, o, "png", "outputs", out.png)) {
@@ -113,6 +113,7 @@ void parseOutputs(yaml::Diagnostics& d, const YAML::Node& o, PipelineSpec& spec)
   yaml::getBool(d, o, "report", "outputs", out.report);
   yaml::getInt(d, o, "epsg", "outputs", out.epsg, 1024, 999999);
   yaml::getDoubles(d, o, "origin", "outputs", out.origin, 2);
+  yaml::getDouble(d, o, "series_interval_s", "outputs", out.series_interval_s, 0.0, 1e9);
   if (!out.origin.empty() && out.epsg == 0)
     d.error(o["origin"], "outputs.origin", "is only meaningful with outputs.epsg");
 }

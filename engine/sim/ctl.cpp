@@ -190,6 +190,16 @@ double CtlController::walk(const RandomWalk& w, double x, double dt) {
   return std::clamp(x, w.min, w.max);
 }
 
+int CtlController::laneOf(int pass) const {
+  const int n = spec_.route_passes;
+  if (!spec_.route_loop || n < 2) return spec_.route_loop ? 0 : pass;
+  // Back and forth over the lanes, so consecutive passes stay one spacing apart (a jump from
+  // the last lane back to the first would drive the machine across every lane cutting).
+  const int period = 2 * (n - 1);
+  const int k = pass % period;
+  return k < n ? k : period - k;
+}
+
 CtlCommand CtlController::update(double dt, const CompactTrackLoader& m) {
   double omega_cmd = 0, v_cmd = 0;
   const Eigen::Vector2d p(m.x(), m.y());
@@ -206,7 +216,7 @@ CtlCommand CtlController::update(double dt, const CompactTrackLoader& m) {
     const Eigen::Vector2d dir(std::cos(spec_.route_heading_rad), std::sin(spec_.route_heading_rad));
     const Eigen::Vector2d left(-dir.y(), dir.x());
     if (!finished_) {
-      const int lane = reversing_ ? pass_ + 1 : pass_;
+      const int lane = laneOf(reversing_ ? pass_ + 1 : pass_);
       const Eigen::Vector2d A = spec_.route_start + left * (spec_.route_spacing_m * lane);
       const double along = (p - A).dot(dir);
       if (!reversing_) {
@@ -214,8 +224,10 @@ CtlCommand CtlController::update(double dt, const CompactTrackLoader& m) {
         heading_ = std::atan2(P.y() - p.y(), P.x() - p.x());
         v_cmd = spec_.route_speed_mps;
         depth_ = spec_.route_depth_m;
-        if (along >= spec_.route_length_m) {
-          if (pass_ + 1 >= spec_.route_passes) finished_ = true;
+        // Stuck (at a pile of its own spoil, the blade already raised): back off and go on.
+        const bool give_up = spec_.stall_give_up_s > 0 && slow_time_ > spec_.stall_give_up_s;
+        if (along >= spec_.route_length_m || give_up) {
+          if (!spec_.route_loop && pass_ + 1 >= spec_.route_passes) finished_ = true;
           else reversing_ = true;
         }
       } else {

@@ -47,6 +47,8 @@ PoseEstimator::PoseEstimator(const LocalisationSpec& spec, std::uint64_t seed) :
       checkSigma(a->random_walk, "random_walk");
     }
   }
+  if (!(spec.drift_time_constant_s > 0.0))
+    throw std::invalid_argument("localisation: drift_time_constant_s must be > 0 (infinity: a random walk)");
   checkSigma(spec.cylinder_white_m, "cylinder_white_m");
   checkSigma(spec.cylinder_bias_m, "cylinder_bias_m");
   if (spec.perfect) return;
@@ -92,9 +94,15 @@ Eigen::Isometry3d PoseEstimator::estimate(double t) {
   const double dt = last_t_ < -1e299 ? 0.0 : std::max(0.0, t - last_t_);
   last_t_ = t;
   Eigen::Matrix<double, 6, 1> e;
+  const double tau = spec_.drift_time_constant_s;
+  // Exact discretisation of the Gauss-Markov drift (any dt); the walk keeps its own expression so
+  // the default stays bit for bit what it was. The same draws either way.
+  const double decay = std::isinf(tau) ? 1.0 : std::exp(-dt / tau);
+  const double step_sd = std::isinf(tau) ? std::sqrt(dt) : std::sqrt(0.5 * tau * (1.0 - decay * decay));
   for (int k = 0; k < 6; ++k) {
     const AxisError& a = k < 3 ? spec_.position[k] : spec_.attitude[k - 3];
-    walk_[k] += normal_(rng_) * a.random_walk * std::sqrt(dt);
+    if (std::isinf(tau)) walk_[k] += normal_(rng_) * a.random_walk * step_sd;
+    else walk_[k] = walk_[k] * decay + normal_(rng_) * a.random_walk * step_sd;
     e[k] = bias_[k] + walk_[k] + normal_(rng_) * a.white;
   }
   last_error_ = e;

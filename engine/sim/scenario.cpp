@@ -172,6 +172,7 @@ ControllerSpec readController(MapReader& r) {
     c.route_length_m = r.num("length_m", c.route_length_m, 0.5, 1e4);
     c.route_spacing_m = r.num("spacing_m", c.route_spacing_m, -100.0, 100.0);
     c.route_passes = r.integer("passes", c.route_passes, 1, 1000);
+    c.route_loop = r.boolean("loop", c.route_loop);
     c.route_depth_m = r.num("depth_m", c.route_depth_m, -1.0, 1.0);
     c.route_speed_mps = r.num("speed_mps", c.route_speed_mps, 0.05, 5.0);
     c.route_return_speed_mps = r.num("return_speed_mps", c.route_return_speed_mps, 0.05, 5.0);
@@ -184,6 +185,7 @@ ControllerSpec readController(MapReader& r) {
     MapReader s = r.child("stall");
     c.stall_ratio = s.num("ratio", c.stall_ratio, 0.0, 1.0);
     c.stall_time_s = s.num("time_s", c.stall_time_s, 0.0, 100.0);
+    c.stall_give_up_s = s.num("give_up_s", c.stall_give_up_s, 0.0, 1e6);
     c.raise_rate_mps = s.num("raise_rate_mps", c.raise_rate_mps, 0.0, 5.0);
     s.finish();
   }
@@ -294,6 +296,7 @@ LocalisationSpec readLocalisation(MapReader& parent, const LocalisationSpec& def
   readAxes(r, "attitude_bias_deg", kDeg, s.attitude, &AxisError::bias);
   readAxes(r, "attitude_random_walk_deg", kDeg, s.attitude, &AxisError::random_walk);
   s.latency_s = r.num("latency_s", s.latency_s, 0.0, 10.0);
+  s.drift_time_constant_s = r.num("drift_time_constant_s", s.drift_time_constant_s, 1e-3, INFINITY);
   s.cylinder_white_m = r.num("cylinder_white_m", s.cylinder_white_m, 0.0, 1.0);
   s.cylinder_bias_m = r.num("cylinder_bias_m", s.cylinder_bias_m, 0.0, 1.0);
   r.finish();

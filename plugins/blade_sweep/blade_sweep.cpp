@@ -352,6 +352,15 @@ void BladeSweep::process(ProcessContext& ctx, const Event& event) {
 
 void BladeSweep::sweepHistory(ProcessContext& ctx, MachineState& st, const std::string& machine_id, double stamp) {
   auto rec = runSweep(ctx.map(), ids_, cfg_, st.history, ctx.executor());
+  if (!rec) {
+    // No room in a sparse map's memory budget for the tiles under the sweep: it is dropped,
+    // and the next sweep starts from this pose.
+    ctx.countDrop("tile_budget");
+    const BladePose last = st.history.back();
+    st.history.clear();
+    st.history.push_back(last);
+    return;
+  }
   rec->sweep_index = ++sweeps_;
   rec->machine_id = machine_id;
   ctx.addCounter("sweeps", 1);

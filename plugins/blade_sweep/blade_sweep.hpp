@@ -129,7 +129,9 @@ double bladeAngle(const Eigen::Isometry3d& T_map_blade, const Eigen::Vector2d& t
 /// One complete swept-volume update on `map` (Alg. 1 lines 8-15 and Alg. 3): mesh, intersection,
 /// FEE extraction, cut and deposit, per-step interpolation. `history` holds the poses from T0
 /// (first) to T1 (last), at least two. Mutates the three layers; returns the record
-/// (sweep_index and machine_id are left for the caller).
+/// (sweep_index and machine_id are left for the caller), or nullptr with the map unchanged when
+/// a sparse map cannot allocate the tiles under the sweep within the memory budget
+/// (LayeredMap::tryAllocateTile; the plugin counts it as dropped, reason "tile_budget").
 std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& layers, const SweepConfig& cfg,
                                       const std::vector<BladePose>& history, const Executor& ex);
 

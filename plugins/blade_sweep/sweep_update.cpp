@@ -558,6 +558,11 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
   const SweptCells sc = sweptCells(history, cfg, geo, ex);
 
   const MapWindow win = sweepWindow(map, sc.fp, cfg, dir.t_hat, res);
+  // A sparse map at its memory budget: the sweep is dropped whole (the caller counts it) rather
+  // than written in part.
+  if (!win.tryAllocate(map, {ids.elevation, ids.loose, ids.sigma, ids.variance, ids.is_valid, ids.upper_bound,
+                             ids.is_upper_bound}))
+    return nullptr;
   std::vector<double> H0, L0, S0;
   win.gather(map, ids.elevation, H0);
   win.gather(map, ids.loose, L0);

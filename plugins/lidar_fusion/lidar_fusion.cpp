@@ -761,11 +761,20 @@ bool LidarFusion::layoutHitLists(int ntiles) {
 void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st) {
   const bool have_prev = layoutHitLists(map.tileCount());
   const int nt = static_cast<int>(task_tiles_.size());
-  std::vector<std::array<long, 3>> per(static_cast<size_t>(nt));
+  std::vector<std::array<long, 4>> per(static_cast<size_t>(nt));
   const float k2 = static_cast<float>(config_.mahalanobis_thresh * config_.mahalanobis_thresh);
   const float ov = static_cast<float>(config_.outlier_variance_m2);
   const float vmax = static_cast<float>(config_.max_variance_m2);
   const float vmin = static_cast<float>(config_.min_variance_m2);
+  // A sparse map at its memory budget cannot take every new tile: which ones it gets is decided
+  // here, serially in tile order, so the result does not depend on the thread count; the points
+  // of a refused tile are dropped, counted, rather than the run failing half-way through a cloud.
+  std::vector<char> refused;
+  if (map.options().sparse) {
+    refused.assign(static_cast<size_t>(map.tileCount()), 0);
+    for (const int t : active_tiles_)
+      refused[static_cast<size_t>(t)] = !map.tryAllocateTile(t, {elev_, var_, valid_, time_, ub_, isub_, hits_});
+  }
   ex.forEach(nt, [&](int k) {
     const int t = task_tiles_[static_cast<size_t>(k)];
     // Clear the cells the previous cloud hit in this tile (a whole-tile fill would cost 16 KB
@@ -776,7 +785,12 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
       for (int q = 0; q < prev_hit_count_[static_cast<size_t>(t)]; ++q) H[o[q]] = 0.0f;
     }
     if (tile_points_[static_cast<size_t>(t)] == 0) {
-      per[static_cast<size_t>(k)] = {0, 0, 0};
+      per[static_cast<size_t>(k)] = {0, 0, 0, 0};
+      return;
+    }
+    if (!refused.empty() && refused[static_cast<size_t>(t)]) {
+      hit_count_[static_cast<size_t>(t)] = 0;
+      per[static_cast<size_t>(k)] = {0, 0, 0, tile_points_[static_cast<size_t>(t)]};
       return;
     }
     // mutableTileData inside the tile's own task: distinct tiles may be un-shared/allocated
@@ -850,12 +864,14 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
       }
     }
     hit_count_[static_cast<size_t>(t)] = nhit;
-    per[static_cast<size_t>(k)] = {fused, outl, forgot};
+    per[static_cast<size_t>(k)] = {fused, outl, forgot, 0};
   });
   for (int k = 0; k < nt; ++k) {
     st.points_fused += per[static_cast<size_t>(k)][0];
     st.outliers += per[static_cast<size_t>(k)][1];
     st.cells_forgotten += per[static_cast<size_t>(k)][2];
+    st.dropped_tile_budget += per[static_cast<size_t>(k)][3];
+    st.tile_budget_refusals += per[static_cast<size_t>(k)][3] > 0 ? 1 : 0;
   }
   for (int t : active_tiles_) tile_known_[static_cast<size_t>(t)] = 1;
   st.tiles_touched = static_cast<long>(active_tiles_.size());
@@ -1102,9 +1118,25 @@ void LidarFusion::applyRayResults(LayeredMap& map, const Executor& ex, FusionSta
   for (int t = 0; t < ntiles; ++t)
     if (mark[static_cast<size_t>(t)]) tiles.push_back(t);
   const int na = static_cast<int>(tiles.size());
-  std::vector<std::array<long, 3>> res3(static_cast<size_t>(na));
+  std::vector<std::array<long, 4>> res3(static_cast<size_t>(na));
   const float step = static_cast<float>(cf.cleanup_step);
   const float ov = static_cast<float>(cf.outlier_variance_m2);
+  // As in fuseTiles: a sparse map's tiles are allocated here, serially in tile order (tiles is
+  // ascending), for the bounds (upper_bound, is_upper_bound) and the penetration items (which
+  // lie over valid cells: elevation exists, the other layers may not). 1 = no room for bounds,
+  // 2 = none for items.
+  std::vector<char> refused(static_cast<size_t>(na), 0);
+  if (map.options().sparse)
+    for (int q = 0; q < na; ++q) {
+      const int t = tiles[static_cast<size_t>(q)];
+      bool bounds = false;
+      for (const RayMinSlot& m : ray_min_) bounds = bounds || m.active[static_cast<size_t>(t)] != nullptr;
+      char& r = refused[static_cast<size_t>(q)];
+      if (bounds && !map.tryAllocateTile(t, {ub_, isub_})) r |= 1;
+      if (bin_start_[static_cast<size_t>(t) + 1] > bin_start_[static_cast<size_t>(t)] &&
+          !map.tryAllocateTile(t, {elev_, var_, valid_, ub_, isub_}))
+        r |= 2;
+    }
   ex.forEach(na, [&](int q) {
     const int t = tiles[static_cast<size_t>(q)];
     long pen = 0, inv = 0, ubs = 0;
@@ -1115,7 +1147,11 @@ void LidarFusion::applyRayResults(LayeredMap& map, const Executor& ex, FusionSta
       a = nullptr;
     }
     const int nb = static_cast<int>(bufs.size());
-    if (nb > 0) {
+    const char no_room = refused[static_cast<size_t>(q)];
+    if (nb > 0 && (no_room & 1)) {
+      // No room for this tile's upper bounds: skip them, with the buffers reset for the next cloud.
+      for (float* b : bufs) std::fill(b, b + tile_cells, kInf);
+    } else if (nb > 0) {
       // Cells that were unknown in phase A (and still are: phase B changes valid cells only).
       float* UB = map.mutableTileData(ub_, t);
       float* ISUB = map.mutableTileData(isub_, t);
@@ -1133,7 +1169,7 @@ void LidarFusion::applyRayResults(LayeredMap& map, const Executor& ex, FusionSta
       }
     }
     const int b0 = bin_start_[static_cast<size_t>(t)], b1 = bin_start_[static_cast<size_t>(t) + 1];
-    if (b1 > b0) {
+    if (b1 > b0 && !(no_room & 2)) {
       float* Ew = map.mutableTileData(elev_, t);
       float* Vw = map.mutableTileData(var_, t);
       float* VAL = map.mutableTileData(valid_, t);
@@ -1162,13 +1198,14 @@ void LidarFusion::applyRayResults(LayeredMap& map, const Executor& ex, FusionSta
         }
       }
     }
-    res3[static_cast<size_t>(q)] = {pen, inv, ubs};
+    res3[static_cast<size_t>(q)] = {pen, inv, ubs, no_room ? 1 : 0};
   });
   for (RayMinSlot& m : ray_min_) m.list.clear();
   for (int q = 0; q < na; ++q) {
     st.cells_penetrated += res3[static_cast<size_t>(q)][0];
     st.cells_invalidated += res3[static_cast<size_t>(q)][1];
     st.upper_bounds += res3[static_cast<size_t>(q)][2];
+    st.tile_budget_refusals += res3[static_cast<size_t>(q)][3];
     tile_known_[static_cast<size_t>(tiles[static_cast<size_t>(q)])] = 1;
   }
 }
@@ -1183,6 +1220,8 @@ void LidarFusion::accumulate(const FusionStats& s) {
   t.dropped_too_far += s.dropped_too_far;
   t.dropped_too_high += s.dropped_too_high;
   t.dropped_outside_map += s.dropped_outside_map;
+  t.dropped_tile_budget += s.dropped_tile_budget;
+  t.tile_budget_refusals += s.tile_budget_refusals;
   t.points_fused += s.points_fused;
   t.outliers += s.outliers;
   t.cells_forgotten += s.cells_forgotten;
@@ -1210,6 +1249,7 @@ void LidarFusion::process(ProcessContext& ctx, const Event& event) {
       // fusing them would build the machine into the map. Skip the cloud, counted.
       ctx.countDrop("self_no_pose", static_cast<long>(pc->points.size()));
       ctx.addCounter("points_in", static_cast<double>(pc->points.size()));
+      ctx.addCounter("clouds_no_pose", 1);  // so clouds fused + these = clouds received
       return;
     }
     if (self_filter_.enabled()) self_points = self_filter_.apply(*pc, filtered_);
@@ -1220,6 +1260,8 @@ void LidarFusion::process(ProcessContext& ctx, const Event& event) {
     ctx.countDrop("too_far", s.dropped_too_far);
     ctx.countDrop("too_high", s.dropped_too_high);
     ctx.countDrop("outside_map", s.dropped_outside_map);
+    if (s.dropped_tile_budget) ctx.countDrop("tile_budget", s.dropped_tile_budget);
+    if (s.tile_budget_refusals) ctx.addCounter("tile_budget_refusals", static_cast<double>(s.tile_budget_refusals));
     ctx.addCounter("points_in", static_cast<double>(s.points_in + self_points));
     ctx.addCounter("points_fused", static_cast<double>(s.points_fused));
     ctx.addCounter("outliers", static_cast<double>(s.outliers));
@@ -1251,7 +1293,8 @@ void LidarFusion::finish(ProcessContext& ctx) {
      << ",\"points_fused\":" << t.points_fused << ",\"outliers\":" << t.outliers
      << ",\"dropped\":{\"non_finite\":" << t.dropped_non_finite << ",\"too_close\":" << t.dropped_too_close
      << ",\"too_far\":" << t.dropped_too_far << ",\"too_high\":" << t.dropped_too_high
-     << ",\"outside_map\":" << t.dropped_outside_map << "},\"cells_forgotten\":" << t.cells_forgotten
+     << ",\"outside_map\":" << t.dropped_outside_map << ",\"tile_budget\":" << t.dropped_tile_budget
+     << "},\"tile_budget_refusals\":" << t.tile_budget_refusals << ",\"cells_forgotten\":" << t.cells_forgotten
      << ",\"rays\":" << t.rays << ",\"cells_penetrated\":" << t.cells_penetrated
      << ",\"cells_invalidated\":" << t.cells_invalidated << ",\"upper_bound_updates\":" << t.upper_bounds
      << ",\"drift_total_m\":" << formatNumber(t.drift_m) << "}";

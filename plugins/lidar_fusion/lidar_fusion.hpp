@@ -112,6 +112,7 @@ struct FusionStats {
   long points_in = 0;
   long dropped_non_finite = 0, dropped_too_close = 0, dropped_too_far = 0, dropped_too_high = 0,
        dropped_outside_map = 0;
+  long dropped_tile_budget = 0;  ///< points in a tile a sparse map could not allocate (memory budget)
   long points_fused = 0;     ///< points that updated a cell (including cell initialisations)
   long outliers = 0;         ///< points rejected by the Mahalanobis gate
   long cells_forgotten = 0;  ///< cells reset because their variance exceeded max_variance
@@ -125,6 +126,7 @@ struct FusionStats {
   bool drift_applied = false;
   double drift_m = 0.0;      ///< correction added to the map's elevations (m)
   long drift_inliers = 0;
+  long tile_budget_refusals = 0;  ///< tiles not written (points or ray bounds): the budget held no more
 };
 
 /// Layer names the plugin creates.

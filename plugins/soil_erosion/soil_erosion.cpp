@@ -111,6 +111,11 @@ void SoilErosion::erodeAround(ProcessContext& ctx, const SweepRecord& rec) {
     ctx.addCounter("passes_outside_map", 1);
     return;
   }
+  // A sparse map at its memory budget: skip the slide whole (counted) rather than write half.
+  if (!win.tryAllocate(map, {elevation_, loose_, sigma_, variance_, upper_bound_, is_upper_bound_})) {
+    ctx.countDrop("tile_budget");
+    return;
+  }
   std::vector<double> H0, L0, S0;
   win.gather(map, elevation_, H0);
   win.gather(map, loose_, L0);

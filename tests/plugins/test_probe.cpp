@@ -15,7 +15,8 @@ class Probe : public terramap::Plugin {
             param::integer("throw_on_event", -1, -1, 1000000, "throw std::runtime_error on this event number"),
             param::texts("events", {"tick", "point_cloud"}, "event kinds to take"),
             param::text("config_error_in", "", {"", "start", "finish"},
-                        "throw a terramap::ConfigError in start() or finish()")};
+                        "throw a terramap::ConfigError in start() or finish()"),
+            param::boolean("records", false, "report a record per event (and one in finish())")};
   }
   void configure(const terramap::Params& p) override {
     out_ = p.getString("output_layer");
@@ -27,6 +28,7 @@ class Probe : public terramap::Plugin {
     if (!unknown.empty()) p.report("events", "unknown kind '" + unknown + "'");
     if (in_ == out_) p.report("input_layer", "must differ from output_layer '" + out_ + "'");
     config_error_in_ = p.getString("config_error_in");
+    records_ = p.getBool("records");
   }
   std::vector<terramap::LayerSpec> layers() const override {
     using namespace terramap;
@@ -39,8 +41,9 @@ class Probe : public terramap::Plugin {
     if (config_error_in_ == "start") throw terramap::ConfigError("probe: refused in start() on purpose");
     id_ = ctx.map().layerId(out_);
   }
-  void finish(terramap::ProcessContext&) override {
+  void finish(terramap::ProcessContext& ctx) override {
     if (config_error_in_ == "finish") throw terramap::ConfigError("probe: refused in finish() on purpose");
+    if (records_) ctx.reportRecord("{\"type\":\"probe.finish\",\"events\":" + std::to_string(count_) + "}");
   }
   void process(terramap::ProcessContext& ctx, const terramap::Event& e) override {
     if (count_++ == throw_on_) throw std::runtime_error("probe asked to throw on event " + std::to_string(throw_on_));
@@ -53,6 +56,7 @@ class Probe : public terramap::Plugin {
         for (int j = 0; j < r.cols; ++j) d[i * T + j] += inc_;
     });
     ctx.addCounter("events", 1);
+    if (records_) ctx.reportRecord("{\"type\":\"probe\",\"event\":" + std::to_string(count_ - 1) + "}");
     if (std::holds_alternative<terramap::PointCloud>(e)) {
       long nan = 0;
       for (const auto& p : std::get<terramap::PointCloud>(e).points) nan += !std::isfinite(p.x);
@@ -63,6 +67,7 @@ class Probe : public terramap::Plugin {
  private:
   std::string out_, in_, config_error_in_;
   float inc_ = 1;
+  bool records_ = false;
   long throw_on_ = -1, count_ = 0;
   terramap::EventMask mask_ = 0;
   terramap::LayerId id_ = -1;

@@ -36,6 +36,16 @@ class TERRAMAP_API InputError : public Error {
   const char* kind() const noexcept override;
 };
 
+/// A sparse map was asked for a tile it cannot allocate within the memory budget
+/// (LayeredMap::mutableTileData): the data arriving needs more of the map than the budget holds.
+/// An InputError (exit code 4); kernels that can drop data ask LayeredMap::tryAllocateTile
+/// first and count the refusal instead (docs/reliability.md, "Sparse maps' tiles").
+class TERRAMAP_API TileBudgetError : public InputError {
+ public:
+  using InputError::InputError;
+  ~TileBudgetError() override;
+};
+
 /// A plugin library that cannot be loaded, has the wrong ABI, or threw while running.
 class TERRAMAP_API PluginError : public Error {
  public:

@@ -11,6 +11,13 @@
 ///   a shared tile copies it (copy-on-write), so a snapshot stays consistent while the owner
 ///   keeps writing, and costs memory only for the tiles that change.
 /// - Sparse mode: tiles are allocated on first write; an unallocated tile reads as the fill.
+///   The tiles a sparse map holds count against the memory budget (memory_budget.hpp): at most
+///   memoryBudget() / tileBytes() tiles over all layers. Past that, mutableTileData() throws
+///   TileBudgetError and tryAllocateTile() returns false, so a kernel can drop what it cannot
+///   store (lidar_fusion, blade_sweep and soil_erosion count it as "tile_budget") instead of the
+///   process running out of memory. A tile that a move() resets completely, with no write to it
+///   since, is freed again, so a sparse map moving with a machine holds the tiles near its data,
+///   not every tile it ever touched. (Dense maps are checked once, in addLayer().)
 ///
 /// Threading: const member functions may run concurrently with each other. Mutations of
 /// *different* tiles (mutableTileData, set on cells of different tiles) may run concurrently;
@@ -21,7 +28,9 @@
 #include <terramap/core/geometry.hpp>
 
 #include <Eigen/Core>
+#include <array>
 #include <cstdint>
+#include <initializer_list>
 #include <limits>
 #include <atomic>
 #include <memory>
@@ -86,7 +95,21 @@ class TERRAMAP_API LayeredMap {
   /// in which case every cell reads as the layer's fill.
   const float* tileData(LayerId id, int t) const;
   /// Writable tile data; allocates (sparse) or un-shares (copy-on-write) as needed.
+  /// \throws TileBudgetError when allocating the tile would take the map past the memory
+  /// budget (sparse maps); nothing changes then.
   float* mutableTileData(LayerId id, int t);
+  /// Allocates tile `t` of each of `layers` that is not allocated yet, all or none: true when
+  /// they fit the memory budget with the tiles the map already holds (or need nothing), false,
+  /// allocating none, when they do not. A kernel that writes tile `t` of these layers calls it
+  /// first and drops the tile's data on false; its mutableTileData() calls then allocate nothing.
+  /// Newly allocated tiles hold the layer's fill (reading them is unchanged). Threading: as
+  /// mutableTileData (different tiles concurrently). Negative ids (a layer the caller's map
+  /// does not have) are skipped. \throws LayerError on an id >= layerCount().
+  bool tryAllocateTile(int t, std::initializer_list<LayerId> layers);
+  /// Bytes of one tile of one layer: tileSize()^2 x 4.
+  std::uint64_t tileBytes() const {
+    return static_cast<std::uint64_t>(options_.tile_size) * static_cast<std::uint64_t>(options_.tile_size) * sizeof(float);
+  }
   /// Tiles (ascending) holding a cell within `cells` cells (Chebyshev, logical) of a cell of
   /// one of `tiles`: the output tiles a kernel of half-width `cells` reaches from changed input
   /// tiles (ProcessContext::changedTiles). Grown cyclically over the ring buffer, one tile more
@@ -97,8 +120,9 @@ class TERRAMAP_API LayeredMap {
   /// so set/fill/writeLayer/move) or reset: equal counts at two moments mean the tile was not
   /// written in between. What ChangeTracker (plugin.hpp) compares; copied with the map.
   std::uint64_t tileWrites(LayerId id, int t) const;
-  /// Number of allocated tiles over all layers (memory = this * tileSize^2 * 4 bytes).
-  long allocatedTiles() const;
+  /// Number of allocated tiles over all layers (memory = this * tileBytes()). Tiles a snapshot
+  /// still shares after this map replaced them (copy-on-write) are the snapshot's, not counted.
+  long allocatedTiles() const { return allocated_.get(); }
 
   // ---- index mapping -----------------------------------------------------------------------
   const Index& startIndex() const { return start_; }
@@ -111,6 +135,9 @@ class TERRAMAP_API LayeredMap {
   void set(LayerId id, const Index& logical, float value);
 
   // ---- whole layers ------------------------------------------------------------------------
+  /// Sets every cell. In a sparse map, filling with the layer's fill value frees its tiles;
+  /// another value needs all of them (\throws TileBudgetError beyond the memory budget, the
+  /// layer unchanged).
   void fill(LayerId id, float value);
   /// Copies layer `id` into `dst`, a caller-owned column-major buffer of rows x cols floats in
   /// logical order: dst[i + j * rows] is cell (i, j). `rows`, `cols` must equal geometry().size().
@@ -118,7 +145,8 @@ class TERRAMAP_API LayeredMap {
   /// \throws LayerError on a bad id or a size that differs from the geometry.
   void readLayer(LayerId id, float* dst, long rows, long cols) const;
   /// Writes `src` (same layout as readLayer) into layer `id`.
-  /// \throws LayerError on a bad id or a size that differs from the geometry.
+  /// \throws LayerError on a bad id or a size that differs from the geometry; TileBudgetError
+  /// when a sparse map cannot hold every tile of the layer (the layer unchanged).
   void writeLayer(LayerId id, const float* src, long rows, long cols);
   /// Layer as a rows x cols matrix in logical order (row i, column j). Inline and local to the
   /// calling library or plugin (TERRAMAP_LOCAL): the matrix is allocated by the build that
@@ -157,6 +185,11 @@ class TERRAMAP_API LayeredMap {
   using TilePtr = std::shared_ptr<float[]>;
   TilePtr newTile(float fill) const;
   void resetLogicalRect(const CellRect& logical);
+  /// Counts `n` more tiles if the budget holds them (false otherwise). Thread-safe.
+  bool reserveTiles(long n);
+  /// Allocates every missing tile of layer `id`, or none. \throws TileBudgetError.
+  void allocateLayer(LayerId id);
+  TileBudgetError budgetError(LayerId id, long more) const;
 
   Geometry geometry_;
   MapOptions options_;
@@ -189,6 +222,30 @@ class TERRAMAP_API LayeredMap {
   };
   Generation generation_;
   std::vector<std::vector<std::uint64_t>> owned_;
+  /// Allocated tiles over all layers; atomic because tasks allocating different tiles add to it
+  /// concurrently. Copies take the value (a copy holds the same tiles).
+  struct TileCount {
+    std::atomic<long> value{0};
+    TileCount() = default;
+    TileCount(const TileCount& o) : value(o.get()) {}
+    TileCount& operator=(const TileCount& o) {
+      value.store(o.get(), std::memory_order_relaxed);
+      return *this;
+    }
+    TileCount(TileCount&& o) noexcept : value(o.get()) {}
+    TileCount& operator=(TileCount&& o) noexcept {
+      value.store(o.get(), std::memory_order_relaxed);
+      return *this;
+    }
+    long get() const { return value.load(std::memory_order_relaxed); }
+  };
+  TileCount allocated_;
+  /// Per [layer][tile], the part of the tile (rows r0..r1, columns c0..c1, tile-relative,
+  /// half-open) that may hold something other than the fill: the whole tile once handed out for
+  /// writing, shrunk as move() resets rows or columns from its edges; empty = the tile can be
+  /// freed. Only sparse maps free tiles. Tasks writing different tiles touch different elements.
+  using Extent = std::array<std::int16_t, 4>;
+  std::vector<std::vector<Extent>> written_;
 };
 
 }  // namespace terramap

@@ -14,7 +14,8 @@
 /// Threading: gather() is const on the map and may run concurrently with other readers;
 /// scatterChanged() mutates the map and needs the exclusive access a plugin has in process().
 /// Throws: gather()/scatterChanged() throw LayerError on a bad layer id (LayeredMap::layerInfo);
-/// nothing else. The constructor clips instead of throwing: a window off the map is empty.
+/// scatterChanged() throws TileBudgetError when a sparse map cannot allocate a tile it needs
+/// (ask tryAllocate() first); nothing else. The constructor clips instead of throwing: a window off the map is empty.
 #include <terramap/core/layered_map.hpp>
 #include <terramap/core/submap_iterator.hpp>
 
@@ -89,6 +90,18 @@ class MapWindow {
         dst[c] = static_cast<T>(t ? t[ro + col_off_[static_cast<size_t>(c)]] : fill);
       }
     }
+  }
+
+  /// LayeredMap::tryAllocateTile(t, layers) for every tile the window touches: true when all of
+  /// them hold (or could allocate) those layers' tiles within the memory budget. On false some
+  /// may have been allocated (holding the fill, so reads do not change). What a plugin that
+  /// scatters into a sparse map asks before it changes anything, to drop the update whole
+  /// rather than half of it. Needs the exclusive access scatterChanged() does.
+  bool tryAllocate(LayeredMap& map, std::initializer_list<LayerId> layers) const {
+    for (const int tr : tile_rows_)
+      for (const int tc : tile_cols_)
+        if (!map.tryAllocateTile(tr * map_tile_cols_ + tc, layers)) return false;
+    return true;
   }
 
   /// Writes `after` into layer `id` for every cell whose float32 value differs (bitwise, so a

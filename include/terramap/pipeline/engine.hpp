@@ -45,7 +45,8 @@ struct PreparedStage {
 /// Everything the run report carries (written as JSON by writeReport in report.hpp).
 struct StageReport {
   std::string name, type, version;
-  PluginStats stats;
+  PluginStats stats;  ///< stats.records: the records still held (none with a record sink)
+  long records_total = 0;  ///< every record the stage reported, held or handed to the sink
 };
 struct RunReport {
   std::vector<StageReport> stages;
@@ -124,13 +125,26 @@ class TERRAMAP_API Engine {
   /// For sources that drop input themselves (e.g. unreadable frames they skip by design).
   void countSourceDrop(const std::string& reason, long n);
 
+  /// Where the stages' report records (ProcessContext::reportRecord) go instead of being held
+  /// in memory: `sink(stage_index, json_object)` is called, in order, right after the start(),
+  /// process() or finish() call that reported them, and the engine keeps only their count
+  /// (StageReport::records_total). A run of hours reports tens of thousands of per-sweep records
+  /// (~5 kB each); held, they grow the process by tens of MB an hour (docs/reliability.md,
+  /// "Soak"). Unset (the default): records are held and returned by report(). Engine thread;
+  /// set before the first event. What the sink throws propagates out of push()/finish().
+  using RecordSink = std::function<void(std::size_t stage_index, const std::string& json_object)>;
+  void setRecordSink(RecordSink sink);
+
  private:
   struct Stage {
     PreparedStage prepared;
     PluginStats stats;
     ChangeTracker tracker;  // tiles the stage has not seen yet (ProcessContext::changedTiles)
     bool started = false;
+    long records_sunk = 0;  // records handed to the sink (the held ones are in stats.records)
   };
+  /// Hands the records `st` holds to the sink, if there is one.
+  void drainRecords(std::size_t index, Stage& st);
   static void checkLayers(const std::vector<std::string>& existing, const std::string& stage_name,
                           const std::vector<LayerSpec>& layers, std::vector<std::string>& errors,
                           std::vector<std::string>* out_new = nullptr, bool report_missing = true);
@@ -141,6 +155,7 @@ class TERRAMAP_API Engine {
   std::vector<std::unique_ptr<Stage>> stages_;
   RecordBus bus_;  // after stages_: records are destroyed before the plugins that made them
   RunReport report_;
+  RecordSink record_sink_;
   bool finished_ = false;
   bool any_event_ = false;
 };

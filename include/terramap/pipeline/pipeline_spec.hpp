@@ -61,6 +61,10 @@ struct OutputSpec {
   bool report = true;
   int epsg = 0;                      ///< 0 = local metric CRS
   std::vector<double> origin;        ///< easting, northing of the map frame origin (with epsg)
+  /// report.json's "series": one entry per this many seconds of event time (0 = none): events,
+  /// drops, records, allocated tiles, the map's centre, resident memory and, when the source knows the truth, the
+  /// map's error against it at that moment (docs/reliability.md, "Soak").
+  double series_interval_s = 0.0;
   std::string where;
 };
 

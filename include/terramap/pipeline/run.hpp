@@ -33,6 +33,10 @@ struct RunOptions {
   /// terramap::eval::compareWithSourceTruth (eval/truth_report.hpp); unset = no comparison, so
   /// the pipeline library needs no evaluation code. Runs on the calling thread.
   std::function<TruthComparison(LayeredMap& map, const Source& source)> compare_truth;
+  /// For report.json's "series" (outputs.series_interval_s): the map's error against the
+  /// source's truth now, as a JSON object text, without changing the map; empty = none. The
+  /// CLI sets it to terramap::eval::truthStatsJson. Runs on the calling thread, between events.
+  std::function<std::string(const LayeredMap& map, const Source& source)> truth_stats;
 };
 
 struct RunResult {
@@ -41,6 +45,9 @@ struct RunResult {
   std::string out_dir;
 };
 
+/// Memory stays bounded over long runs: the stages' report records are spooled to an anonymous
+/// temporary file (RecordSpool) and written into report.json at the end, so RunResult::report
+/// holds their counts (StageReport::records_total), not the records.
 /// \throws ConfigError (invalid pipeline: every problem at once), InputError (bad data),
 ///   PluginError, LayerError, OutputError. Outputs are written only after a complete run.
 TERRAMAP_API RunResult runPipeline(const PipelineSpec& spec, const RunOptions& options = {});

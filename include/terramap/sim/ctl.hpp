@@ -97,6 +97,8 @@ class CtlController {
 
  private:
   double walk(const RandomWalk& w, double x, double dt);
+  /// Route lane of pass `pass` (0-based): the pass itself, or with route_loop back and forth.
+  int laneOf(int pass) const;
   ControllerSpec spec_;
   double gauge_;
   double heading0_;

@@ -86,14 +86,21 @@ struct ControllerSpec {
   RandomWalk heading_rad{0, -0.5, 0.5, 0.1};      ///< chassis heading relative to the start
   // Route (type Route): parallel passes; each pass drives forward from its start along
   // `heading` for `length` with the blade at `depth`, then reverses with the blade raised and
-  // shifts by `spacing` (to the left of the heading) for the next pass.
+  // shifts by `spacing` (to the left of the heading) for the next pass. With `route_loop` the
+  // passes never end: after the last lane the lanes are taken in reverse order, then forward
+  // again (lanes 0, 1, .., n-1, n-2, .., 1, 0, 1, ..), so a long run stays on the terrain.
   Eigen::Vector2d route_start{0, 0};
   double route_heading_rad = 0, route_length_m = 10, route_spacing_m = 1.6;
   int route_passes = 3;
+  bool route_loop = false;
   double route_depth_m = 0.1, route_speed_mps = 0.8, route_return_speed_mps = 1.2;
   /// Raise the blade when the measured speed stays below `stall_ratio` * set-point for
   /// `stall_time_s` (speed tracking failed): rate of the raise, m/s.
   double stall_ratio = 0.5, stall_time_s = 0.3, raise_rate_mps = 0.15;
+  /// Route only: after this long (s) of failed speed tracking in a forward pass, the pass is
+  /// given up (the machine reverses and takes the next lane), as an operator backs off a pile the
+  /// machine cannot push; 0 (the default) = never, the machine keeps pushing.
+  double stall_give_up_s = 0.0;
 };
 
 /// A sensor mounted on a machine. Pose offset T_base_sensor from `offset` (m) and

@@ -2,6 +2,8 @@
 // expectation for the arithmetic).
 #include "lidar_fusion.hpp"
 
+#include <terramap/core/memory_budget.hpp>
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -679,6 +681,105 @@ TEST(LidarFusion, BitIdenticalAtOneAndTwoThreads) {
     EXPECT_GT((a.layers[0].array() == a.layers[0].array()).count(), 5000);
     EXPECT_GT((a.layers[5].array() == 1.0f).count(), 10);
   }
+}
+
+namespace {
+class BudgetGuard {
+ public:
+  explicit BudgetGuard(std::uint64_t bytes) : old_(memoryBudget()) { setMemoryBudget(bytes); }
+  ~BudgetGuard() { setMemoryBudget(old_); }
+  BudgetGuard(const BudgetGuard&) = delete;
+  BudgetGuard& operator=(const BudgetGuard&) = delete;
+
+ private:
+  std::uint64_t old_;
+};
+}  // namespace
+
+TEST(LidarFusion, SparseMapAtItsMemoryBudgetDropsTheTilesItCannotHoldCounted) {
+  // A sparse 40 x 40 map in tiles of 8 (25 per layer, 7 layers, 256 bytes a tile) with a budget
+  // of 14 tiles: room for the 7 layers of two tiles. One cloud over four tiles: the two lowest
+  // tile numbers (decided in tile order, whatever the thread count) are fused, the points of
+  // the other two are dropped as "tile_budget", and nothing throws.
+  for (int threads : {1, 2}) {
+    LayeredMap map = makeMap(8, true);
+    LidarFusion f;
+    f.configure(plainConfig());
+    f.attach(map);
+    ASSERT_EQ(map.layerCount(), 7);
+    BudgetGuard budget(14 * map.tileBytes());
+    RecordBus bus;
+    PluginStats stats;
+    Executor ex(threads);
+    ProcessContext ctx(map, ex, bus, stats, "lidar");
+    // Rows i = 4, 14, 24, 34 (x = 1.55, 0.55, -0.45, -1.45): tile rows 0, 1, 3, 4; columns
+    // 17..20 (y = 0.25 .. -0.05): tile column 2. Tiles 2, 7, 17, 22 with 3, 2, 4, 1 points.
+    std::vector<PointXYZI> pts;
+    auto add = [&](float x, std::initializer_list<float> ys) {
+      for (float y : ys) pts.push_back({x, y, -0.5f, 0});
+    };
+    add(-0.45f, {0.05f, -0.05f, 0.15f, 0.25f});
+    add(1.55f, {0.05f, -0.05f, 0.15f});
+    add(-1.45f, {0.05f});
+    add(0.55f, {0.05f, -0.05f});
+    f.process(ctx, Event(cloudAt({0, 0, 0}, pts)));
+    EXPECT_EQ(stats.dropped["tile_budget"], 5) << threads << " threads";
+    EXPECT_EQ(stats.counters["points_fused"], 5.0);
+    EXPECT_EQ(stats.counters["tile_budget_refusals"], 2.0);
+    long dropped = 0;
+    for (const auto& [k, v] : stats.dropped) dropped += v;
+    EXPECT_EQ(stats.counters["points_in"], stats.counters["points_fused"] + stats.counters["outliers"] + dropped);
+    EXPECT_EQ(map.allocatedTiles(), 14);
+    EXPECT_FLOAT_EQ(layerAt(map, L::kElevation, cellOf(map, 1.55, 0.05)), -0.5f);
+    EXPECT_FLOAT_EQ(layerAt(map, L::kElevation, cellOf(map, 0.55, -0.05)), -0.5f);
+    EXPECT_TRUE(std::isnan(layerAt(map, L::kElevation, cellOf(map, -0.45, 0.05))));
+    EXPECT_TRUE(std::isnan(layerAt(map, L::kElevation, cellOf(map, -1.45, 0.05))));
+    // The tiles it holds keep taking points.
+    f.process(ctx, Event(cloudAt({0, 0, 0}, {{1.55f, 0.05f, -0.5f, 0}, {-1.45f, 0.05f, -0.4f, 0}}, 0.1)));
+    EXPECT_EQ(stats.counters["points_fused"], 6.0);
+    EXPECT_EQ(stats.dropped["tile_budget"], 6);
+    f.finish(ctx);
+    ASSERT_EQ(stats.records.size(), 1u);
+    EXPECT_NE(stats.records[0].find("\"tile_budget\":6"), std::string::npos) << stats.records[0];
+  }
+}
+
+TEST(LidarFusion, SparseMapAtItsMemoryBudgetIsBitIdenticalAtOneAndTwoThreads) {
+  // The full plugin (cleanup with ray bounds and penetration, drift, following the sensor) on
+  // a sparse map whose budget holds less than the scans cover: which tiles exist and what they
+  // hold do not depend on the thread count, and the map never exceeds the budget.
+  LidarFusionConfig c;
+  c.enable_drift_compensation = true;
+  c.follow_robot = true;
+  c.cleanup_ray_stride = 2;
+  auto run = [&](int threads, PluginStats& stats) {
+    LayeredMap map(Geometry(0.1, Size(200, 200)), MapOptions{32, true});
+    LidarFusion f;
+    f.configure(c);
+    f.attach(map);
+    BudgetGuard budget(100 * map.tileBytes());
+    Executor ex(threads);
+    RecordBus bus;
+    ProcessContext ctx(map, ex, bus, stats, "lidar");
+    for (int k = 0; k < 4; ++k) {
+      PointCloud pc;
+      pc.stamp = 0.1 * k;
+      pc.T_map_sensor = Eigen::Translation3d(0.4 * k, 0.1 * k, 1.8) * Eigen::AngleAxisd(0.05 * k, Eigen::Vector3d::UnitZ());
+      pc.points = syntheticScan(42 + k);
+      f.process(ctx, Event(pc));
+      EXPECT_LE(map.allocatedTiles(), 100);
+    }
+    std::vector<Eigen::MatrixXf> layers;
+    for (const auto& name : map.layerNames()) layers.push_back(map.toMatrix(map.layerId(name)));
+    return layers;
+  };
+  PluginStats s1, s2;
+  const auto a = run(1, s1), b = run(2, s2);
+  for (size_t l = 0; l < a.size(); ++l) EXPECT_TRUE(sameBits(a[l], b[l])) << "layer " << l;
+  EXPECT_GT(s1.dropped["tile_budget"], 0);
+  EXPECT_EQ(s1.dropped, s2.dropped);
+  EXPECT_EQ(s1.counters, s2.counters);
+  EXPECT_GT((a[0].array() == a[0].array()).count(), 1000);  // it still maps what it holds
 }
 
 TEST(LidarFusion, MatchesAPlainSerialPerPointLoop) {

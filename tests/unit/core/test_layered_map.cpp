@@ -1,5 +1,6 @@
 #include <terramap/core/error.hpp>
 #include <terramap/core/layered_map.hpp>
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/core/parallel.hpp>
 
 #include <gtest/gtest.h>
@@ -170,6 +171,103 @@ TEST(LayeredMap, SparseAllocatesOnFirstWriteOnly) {
   // Moving does not allocate the regions that come in.
   m.move(Position(1.0, 0.0));
   EXPECT_LE(m.allocatedTiles(), 1);
+}
+
+namespace {
+/// Sets the process's memory budget for one test and puts the old one back.
+class BudgetGuard {
+ public:
+  explicit BudgetGuard(std::uint64_t bytes) : old_(memoryBudget()) { setMemoryBudget(bytes); }
+  ~BudgetGuard() { setMemoryBudget(old_); }
+  BudgetGuard(const BudgetGuard&) = delete;
+  BudgetGuard& operator=(const BudgetGuard&) = delete;
+
+ private:
+  std::uint64_t old_;
+};
+}  // namespace
+
+TEST(LayeredMap, SparseTilesStayWithinTheMemoryBudget) {
+  // 160 x 160 cells in tiles of 16: 100 tiles per layer, two layers, 1 KiB a tile; the budget
+  // holds 10 tiles. Writes over more tiles than that: the first 10 tiles are allocated, the
+  // next write is refused with a TileBudgetError (an InputError) that leaves the map as it was,
+  // never std::bad_alloc or a map past its budget.
+  LayeredMap m(Geometry(0.1, Size(160, 160)), MapOptions{16, true});
+  const LayerId a = m.addLayer("a", "m");
+  const LayerId b = m.addLayer("b", "m");
+  ASSERT_EQ(m.tileBytes(), 1024u);
+  BudgetGuard budget(10 * 1024);
+  for (int k = 0; k < 10; ++k) m.set(a, Index(16 * k, 3), static_cast<float>(k));
+  EXPECT_EQ(m.allocatedTiles(), 10);
+  try {
+    m.set(a, Index(5, 40), 1.0f);
+    FAIL() << "an 11th tile was allocated";
+  } catch (const TileBudgetError& e) {
+    EXPECT_NE(std::string(e.what()).find("memory budget"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("layer 'a'"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(m.allocatedTiles(), 10);
+  EXPECT_TRUE(std::isnan(m.at(a, Index(5, 40))));
+  EXPECT_THROW(m.mutableTileData(b, 0), InputError);  // the same budget for every layer
+  // Writing into tiles it holds needs nothing more.
+  m.set(a, Index(16 * 3 + 2, 7), 9.0f);
+  EXPECT_EQ(m.at(a, Index(16 * 3 + 2, 7)), 9.0f);
+  EXPECT_EQ(m.at(a, Index(16 * 3, 3)), 3.0f);
+
+  // tryAllocateTile: all or none, and true without allocating when the tiles exist.
+  m.fill(a, std::numeric_limits<float>::quiet_NaN());  // frees a's tiles (they read NaN again)
+  EXPECT_EQ(m.allocatedTiles(), 0);
+  for (int t = 0; t < 9; ++t) ASSERT_TRUE(m.tryAllocateTile(t, {a}));
+  EXPECT_EQ(m.allocatedTiles(), 9);
+  EXPECT_FALSE(m.tryAllocateTile(50, {a, b}));  // needs 2, 1 left: nothing allocated
+  EXPECT_EQ(m.allocatedTiles(), 9);
+  EXPECT_FALSE(m.tileAllocated(a, 50));
+  EXPECT_TRUE(m.tryAllocateTile(50, {a, a, -1}));  // one tile: a layer named twice, -1 skipped
+  EXPECT_EQ(m.allocatedTiles(), 10);
+  EXPECT_TRUE(m.tryAllocateTile(3, {a}));  // exists already
+  EXPECT_FALSE(m.tryAllocateTile(51, {a}));
+  EXPECT_TRUE(std::isnan(m.at(a, Index(16 * 5, 16 * 0))));  // allocated tiles hold the fill
+  // A dense map was checked when its layers were added; its tiles are all there.
+  LayeredMap dense(Geometry(0.1, Size(32, 32)), MapOptions{16, false});
+  const LayerId d = dense.addLayer("d", "m");
+  EXPECT_EQ(dense.allocatedTiles(), 4);
+  EXPECT_TRUE(dense.tryAllocateTile(3, {d}));
+  dense.set(d, Index(31, 31), 1.0f);
+}
+
+TEST(LayeredMap, SparseMapMovingAwayFromItsDataFreesTheTilesItLeaves) {
+  // A sparse map that moves with a machine frees a tile once move() has reset all of it with
+  // no write since: memory follows the data, and the tile budget is not used up by the
+  // tiles a long drive once touched. Moves of one cell at a time (a map following a machine)
+  // reset one row per move; the tile goes when its 16th row does.
+  LayeredMap m(Geometry(0.1, Size(64, 64)), MapOptions{16, true});
+  const LayerId a = m.addLayer("a", "m");
+  m.set(a, Index(3, 5), 1.0f);  // tile row 0 (logical rows 0..15 are buffer rows 0..15 now)
+  ASSERT_EQ(m.allocatedTiles(), 1);
+  // Towards -x: logical row 0 (the +x edge) leaves first.
+  auto step = [&] { m.move(m.geometry().center() - Position(0.1, 0.0)); };
+  for (int k = 0; k < 15; ++k) step();
+  EXPECT_EQ(m.allocatedTiles(), 1) << "rows of the tile are still unreset";
+  step();
+  EXPECT_EQ(m.allocatedTiles(), 0);
+  for (int i = 0; i < 64; ++i)
+    for (int j = 0; j < 64; ++j) ASSERT_TRUE(std::isnan(m.at(a, Index(i, j))));
+
+  // A write between the resets keeps the tile, and its value.
+  LayeredMap w(Geometry(0.1, Size(64, 64)), MapOptions{16, true});
+  const LayerId wa = w.addLayer("a", "m");
+  w.set(wa, Index(3, 5), 1.0f);  // buffer row 3: tile row 0
+  auto stepW = [&] { w.move(w.geometry().center() - Position(0.1, 0.0)); };
+  for (int k = 0; k < 8; ++k) stepW();  // buffer rows 0..7 reset (the 1.0 left the map)
+  w.set(wa, Index(58, 5), 5.0f);        // logical 58 = buffer row (58 + 8) % 64 = 2, reset before
+  for (int k = 0; k < 8; ++k) stepW();  // buffer rows 8..15: every row of the tile reset once
+  EXPECT_EQ(w.allocatedTiles(), 1);
+  EXPECT_EQ(w.at(wa, Index(50, 5)), 5.0f);  // the same cell, 8 rows on
+  // A dense map never frees a tile.
+  LayeredMap dense(Geometry(0.1, Size(64, 64)), MapOptions{16, false});
+  dense.addLayer("a", "m");
+  for (int k = 0; k < 40; ++k) dense.move(dense.geometry().center() - Position(0.1, 0.0));
+  EXPECT_EQ(dense.allocatedTiles(), 16);
 }
 
 TEST(LayeredMap, SnapshotIsCopyOnWrite) {

@@ -103,6 +103,33 @@ TEST(Localisation, RandomWalkVarianceGrowsLinearlyWithTime) {
   }
 }
 
+TEST(Localisation, BoundedDriftSettlesAtItsStationaryVariance) {
+  // With drift_time_constant_s tau the drift is Gauss-Markov: Var w(T) = rw^2 tau/2 (1 - e^(-2T/tau))
+  // whatever the step. rw = 0.01 m/sqrt(s), tau = 2 s: 0.982e-4 m^2 at T = 4 s and 1e-4 at 20 s,
+  // where the walk above has 4e-4 and 2e-3 (an hour-long soak drifts no further than this).
+  for (const double hz : {100.0, 25.0}) {
+    double v4 = 0, v20 = 0;
+    const int seeds = 1500;
+    for (int seed = 0; seed < seeds; ++seed) {
+      LocalisationSpec spec = only(1, AxisError{0, 0, 0.01});
+      spec.drift_time_constant_s = 2.0;
+      PoseEstimator est(spec, 1000 + seed);
+      for (int k = 0; k <= static_cast<int>(20 * hz); ++k) {
+        const double t = k / hz;
+        est.addTruth(t, along(t));
+        const double e = est.estimate(t).translation().y() - 0.2 * t;
+        if (k == static_cast<int>(4 * hz)) v4 += e * e;
+        if (k == static_cast<int>(20 * hz)) v20 += e * e;
+      }
+    }
+    v4 /= seeds;
+    v20 /= seeds;
+    const double e4 = 1e-4 * (1 - std::exp(-4.0)), e20 = 1e-4 * (1 - std::exp(-20.0));
+    EXPECT_NEAR(v4, e4, 0.15 * e4) << hz << " Hz";  // as above: 15 % is 4 sigma of 1500 samples
+    EXPECT_NEAR(v20, e20, 0.15 * e20) << hz << " Hz";
+  }
+}
+
 TEST(Localisation, SameSeedSameErrorsOtherSeedOtherErrors) {
   auto run = [](std::uint64_t seed) {
     PoseEstimator est(LocalisationSpec::rtkImu(), seed);
@@ -138,6 +165,9 @@ TEST(Localisation, BadSettingsAreRefused) {
   EXPECT_THROW(PoseEstimator(s, 1), std::invalid_argument);
   s = LocalisationSpec{};
   s.attitude[2].white = NAN;
+  EXPECT_THROW(PoseEstimator(s, 1), std::invalid_argument);
+  s = LocalisationSpec{};
+  s.drift_time_constant_s = 0.0;
   EXPECT_THROW(PoseEstimator(s, 1), std::invalid_argument);
   PoseEstimator ok(LocalisationSpec::rtkImu(), 1);
   EXPECT_THROW(ok.estimate(0.0), std::logic_error);

@@ -349,6 +349,81 @@ TEST(Ctl, SpeedControllerRaisesTheBladeWhenTrackingFails) {
   EXPECT_GT(sim.machine(0).x(), x_rest + 1.0);  // it got going again and kept going
 }
 
+namespace {
+/// The lane (0, 1, ..) of every forward pass a route drives, from the true base position while
+/// the controller drives forward with its blade down, one entry per pass; and whether the
+/// controller was still driving at the end.
+struct LaneLog {
+  std::vector<int> lanes;
+  bool driving_at_end = false;
+};
+LaneLog forwardLanes(bool loop, double duration_s) {
+  const std::string yaml =
+      "version: 1\nseed: 4\nduration_s: " + std::to_string(duration_s) +
+      "\nthreads: 1\nterrain: {size_m: [12, 8], origin_m: [-4, -3], resolution_m: 0.02}\n"
+      "soil: {default: {family: sand, relative_density: 0.1}}\n"
+      "machines:\n  - id: ctl1\n    controller: {type: route, start_m: [0, 0], length_m: 1.5, spacing_m: 1.2, passes: 2, "
+      "depth_m: 0.0, speed_mps: 0.8, loop: " + std::string(loop ? "true" : "false") + "}\n";
+  Simulator sim(noiseFree(parseScenario(yaml, "loop.yaml")));
+  std::vector<Event> ev;
+  LaneLog log;
+  bool in_pass = false;
+  while (sim.next(ev)) {
+    ev.clear();
+    const MachineTruth& m = sim.machineTruth(0);
+    const bool forward = m.setpoints[0] > 0 && m.twist_base[0] > 0.2;
+    if (forward && !in_pass) log.lanes.push_back(static_cast<int>(std::lround(m.T_map_base.translation().y() / 1.2)));
+    in_pass = forward;
+    log.driving_at_end = m.setpoints[0] > 0;
+  }
+  return log;
+}
+}  // namespace
+
+TEST(Ctl, LoopingRouteGoesBackAndForthOverItsLanesAndNeverEnds) {
+  // Two lanes, 1.5 m long: without `loop` the route ends after lane 1; with it, the lanes
+  // are driven 0, 1, 0, 1, .. for as long as the episode runs (a soak drives one for an hour).
+  const LaneLog once = forwardLanes(false, 40.0);
+  EXPECT_EQ(once.lanes, (std::vector<int>{0, 1}));
+  EXPECT_FALSE(once.driving_at_end);
+  const LaneLog looped = forwardLanes(true, 40.0);
+  ASSERT_GE(looped.lanes.size(), 5u) << "a pass of 1.5 m and the return take well under 8 s";
+  for (size_t k = 0; k < looped.lanes.size(); ++k) EXPECT_EQ(looped.lanes[k], static_cast<int>(k % 2)) << "pass " << k;
+  EXPECT_TRUE(looped.driving_at_end);
+}
+
+TEST(Ctl, RouteGivesUpAPassItIsStuckInAndTakesTheNextLane) {
+  // A 0.6 m berm of dense clay across both lanes (1.2 m apart) at x = 5, a shallow cut and a
+  // blade that never rises: the machine stalls at the berm for good. With stall.give_up_s = 2 it
+  // backs off after 2 s stuck, reverses onto lane 1 and drives it up to the berm; without, it
+  // stays at the berm in lane 0 for the whole episode (as the one-hour soak's machine did at a
+  // pile of its own spoil, the map frozen with it).
+  auto run = [](double give_up_s) {
+    const std::string yaml =
+        "version: 1\nseed: 9\nduration_s: 25\nthreads: 1\n"
+        "terrain: {size_m: [14, 8], origin_m: [-3, -3], resolution_m: 0.02, hills: {list: ["
+        "{x_m: 5, y_m: -1, amplitude_m: 0.6, sigma_m: 0.5}, {x_m: 5, y_m: 0, amplitude_m: 0.6, sigma_m: 0.5}, "
+        "{x_m: 5, y_m: 1, amplitude_m: 0.6, sigma_m: 0.5}, {x_m: 5, y_m: 2, amplitude_m: 0.6, sigma_m: 0.5}]}}\n"
+        "soil: {default: {family: clay, relative_density: 1.0}}\n"
+        "machines:\n  - id: ctl1\n    controller: {type: route, start_m: [0, 0], length_m: 8, spacing_m: 1.2, passes: 2, "
+        "depth_m: 0.02, speed_mps: 0.8, stall: {raise_rate_mps: 0.0, give_up_s: " + std::to_string(give_up_s) + "}}\n";
+    Simulator sim(noiseFree(parseScenario(yaml, "berm.yaml")));
+    std::vector<Event> ev;
+    double max_x = -1e9, max_y = -1e9;
+    while (sim.next(ev)) {
+      ev.clear();
+      max_x = std::max(max_x, sim.machine(0).x());
+      max_y = std::max(max_y, sim.machine(0).y());
+    }
+    return std::make_pair(max_x, max_y);
+  };
+  const auto stuck = run(0.0), gave_up = run(2.0);
+  EXPECT_LT(stuck.first, 3.0) << "the berm stops the machine well before the 8 m lane ends";
+  EXPECT_LT(stuck.second, 0.3) << "without give_up_s it never leaves lane 0";
+  EXPECT_GT(gave_up.second, 1.1) << "with it, it drove lane 1 (y = 1.2 m)";
+  EXPECT_LT(gave_up.first, 3.0) << "and stopped at the berm there too";
+}
+
 TEST(Simulator, EventsAreTimeOrderedAndMassIsConserved) {
   Simulator sim(parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 2.0, 2, true), "s.yaml"));
   const double m0 = sim.truth().bankVolume();
