@@ -36,6 +36,13 @@ const char* sampleSkipName(SampleSkip s) {
   return "unknown";
 }
 
+bool stalledRow(const float* f) {
+  // Indices of base_vx_mps, track_left_mps, track_right_mps in obsFeatureNames().
+  constexpr int kBaseVx = 0, kTrackLeft = 26, kTrackRight = 27;
+  const float track = 0.5f * (f[kTrackLeft] + f[kTrackRight]);
+  return track > 0.1f && f[kBaseVx] < 0.2f * track;
+}
+
 namespace {
 
 // Roll, pitch, yaw of R = Rz(yaw) Ry(pitch) Rx(roll) (the scenario's sensor convention).

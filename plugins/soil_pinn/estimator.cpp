@@ -71,6 +71,7 @@ std::vector<SoilEstimate> SoilEstimator::estimate(const float* obs_raw, const fl
   at::Tensor fr = at::zeros({batch, 2}, at::kDouble);
   at::Tensor fpred = at::zeros({batch, P, 2}, at::kDouble);
   at::Tensor dres = at::zeros({batch}, at::kDouble), bres = at::zeros({batch}, at::kDouble);
+  at::Tensor beta_last = at::zeros({batch}, at::kDouble);
   at::Tensor member_valid = at::empty({M, batch}, at::kBool);
   for (long m = 0; m < M; ++m) {
     PinnNet net = members_[static_cast<std::size_t>(m)];
@@ -82,6 +83,7 @@ std::vector<SoilEstimate> SoilEstimator::estimate(const float* obs_raw, const fl
     fpred += out.F.to(at::kDouble);
     dres += out.d_res.to(at::kDouble);
     bres += out.beta_res.to(at::kDouble);
+    beta_last += out.beta.select(1, P - 1).to(at::kDouble);
     member_valid[m] = out.valid.any(1);
   }
   const at::Tensor mean = means.mean(0);
@@ -92,6 +94,8 @@ std::vector<SoilEstimate> SoilEstimator::estimate(const float* obs_raw, const fl
   auto fp_a = fpred.accessor<double, 3>();
   dres /= static_cast<double>(M);
   bres /= static_cast<double>(M);
+  beta_last /= static_cast<double>(M);
+  auto beta_a = beta_last.accessor<double, 1>();
   const at::Tensor nvalid = member_valid.to(at::kLong).sum(0);
   std::vector<SoilEstimate> res(static_cast<std::size_t>(batch));
   auto mean_a = mean.accessor<double, 2>(), va_a = va.accessor<double, 2>(), vn_a = vn.accessor<double, 2>(),
@@ -111,6 +115,7 @@ std::vector<SoilEstimate> SoilEstimator::estimate(const float* obs_raw, const fl
     for (int p = 0; p < P; ++p) e.F.push_back({fp_a[b][p][0], fp_a[b][p][1]});
     e.d_res_m = dres_a[b];
     e.beta_res_rad = bres_a[b];
+    e.beta_rad = beta_a[b];
     e.valid_members = static_cast<int>(nv[b]);
     e.valid = 2 * e.valid_members > M;
   }

@@ -32,6 +32,7 @@ struct SoilEstimate {
   std::array<double, 2> F_r{};  ///< N
   std::vector<std::array<double, 2>> F;  ///< predicted force per horizon step (members' mean), N
   double d_res_m = 0, beta_res_rad = 0;
+  double beta_rad = 0;          ///< failure angle at the last horizon step (members' mean), rad
   int valid_members = 0;        ///< members with at least one valid horizon step
   bool valid = false;
 };

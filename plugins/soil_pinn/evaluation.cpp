@@ -25,6 +25,8 @@ struct Accum {
   SplitMetrics m;
   // Σ‖F̂ − F‖ of the estimator and of each baseline, Σ‖F‖ over the same steps.
   double ferr = 0, fnorm = 0, ferr_truth = 0, ferr_tg = 0, ferr_sim = 0, fnorm_tg = 0;
+  double ferr_truth_min = 0, ferr_moving = 0, fnorm_moving = 0;
+  long rows = 0, stalled_rows = 0;
   std::vector<std::array<double, 2>> forces;  // for the constant-force baseline
   std::vector<double> q_ratio;                // mapped Q / simulator's q, per sample
 };
@@ -33,6 +35,7 @@ struct Accum {
 struct SampleView {
   const float* theta;   // [P_model][6], raw
   const float* force;   // [P_model][2]
+  const bool* moving;   // [P_model]
   fee::Soil soil;       // truth
   const float* truth_geometry;  // alpha, rho, d, w, q (NaN when unknown)
   bool has_truth_geometry() const {
@@ -57,9 +60,19 @@ void addForceErrors(Accum& a, const SampleView& v, const SoilEstimate& e, int P)
     a.ferr += std::hypot(e.F[static_cast<std::size_t>(p)][0] - fx, e.F[static_cast<std::size_t>(p)][1] - fz);
     a.fnorm += std::hypot(fx, fz);
     a.forces.push_back({fx, fz});
+    ++a.rows;
+    if (v.moving[p]) {
+      a.ferr_moving += std::hypot(e.F[static_cast<std::size_t>(p)][0] - fx, e.F[static_cast<std::size_t>(p)][1] - fz);
+      a.fnorm_moving += std::hypot(fx, fz);
+    } else {
+      ++a.stalled_rows;
+    }
     const float* g = v.theta + p * 6;
-    const fee::Result fr = fee::evaluateAtBetaNominal(v.soil, fee::Geometry{g[1], g[0], g[3], g[2], g[4]});
+    const fee::Geometry mapped{g[1], g[0], g[3], g[2], g[4]};
+    const fee::Result fr = fee::evaluateAtBetaNominal(v.soil, mapped);
     a.ferr_truth += missBy(fr.F_N, fx, fz, fr.valid());
+    const fee::Result fm = fee::evaluateAtBetaMin(v.soil, mapped);
+    a.ferr_truth_min += missBy(fm.F_N, fx, fz, fm.valid());
     if (tg_known) {
       a.ferr_tg += missBy(paper_tg.F_N, fx, fz, paper_tg.valid());
       a.ferr_sim += missBy(sim_tg.F_total_N, fx, fz, sim_tg.valid());
@@ -99,6 +112,9 @@ SplitMetrics finishSplit(int split, Accum& a) {
   auto pct = [](double err, double norm) { return norm > 0 ? 100.0 * err / norm : NAN; };
   m.force_error_pct = pct(a.ferr, a.fnorm);
   m.force_error_truth_fee_pct = pct(a.ferr_truth, a.fnorm);
+  m.force_error_truth_fee_min_pct = pct(a.ferr_truth_min, a.fnorm);
+  m.force_error_moving_pct = pct(a.ferr_moving, a.fnorm_moving);
+  m.stalled_row_fraction = a.rows > 0 ? static_cast<double>(a.stalled_rows) / static_cast<double>(a.rows) : NAN;
   m.force_error_truth_geometry_pct = pct(a.ferr_tg, a.fnorm_tg);
   m.force_error_simulator_model_pct = pct(a.ferr_sim, a.fnorm_tg);
   double mx = 0, mz = 0, em = 0;
@@ -137,6 +153,7 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
   const float* f = data.force.data_ptr<float>();
   const float* tr = data.truth.data_ptr<float>();
   const float* tgeo = data.truth_geometry.data_ptr<float>();
+  const bool* mv = data.moving.data_ptr<bool>();
   for (long b0 = 0; b0 < n; b0 += batch) {
     const long len = std::min(batch, n - b0);
     const std::vector<SoilEstimate> es = est.estimate(obs + b0 * T * soil::kObsFeatures, th + b0 * P * 6, len, T, P);
@@ -149,7 +166,7 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
       const SoilEstimate& e = es[static_cast<std::size_t>(i)];
       if (!e.valid) continue;
       ++a.m.valid;
-      SampleView v{th + (r * P + p0) * 6, f + (r * P + p0) * 2, {}, tgeo + r * 5};
+      SampleView v{th + (r * P + p0) * 6, f + (r * P + p0) * 2, mv + r * P + p0, {}, tgeo + r * 5};
       v.soil.c_pa = tr[r * 5 + 0];
       v.soil.phi_rad = tr[r * 5 + 1];
       v.soil.ca_pa = tr[r * 5 + 2];
@@ -198,7 +215,10 @@ std::string evaluationJson(const SoilEvaluation& e) {
     s["samples"] = m.samples;
     s["valid"] = m.valid;
     s["force_error_pct"] = m.force_error_pct;
+    s["force_error_moving_rows_pct"] = m.force_error_moving_pct;
+    s["stalled_row_fraction"] = m.stalled_row_fraction;
     s["force_error_truth_soil_fee_pct"] = m.force_error_truth_fee_pct;
+    s["force_error_truth_soil_fee_beta_min_pct"] = m.force_error_truth_fee_min_pct;
     s["force_error_constant_mean_pct"] = m.force_error_mean_pct;
     s["force_error_truth_soil_truth_geometry_pct"] = m.force_error_truth_geometry_pct;
     s["force_error_truth_soil_simulator_model_pct"] = m.force_error_simulator_model_pct;
@@ -227,14 +247,16 @@ std::string evaluationJson(const SoilEvaluation& e) {
 std::string evaluationMarkdown(const SoilEvaluation& e) {
   std::ostringstream os;
   char buf[256];
-  os << "| split | samples (valid) | force error % | FEE with truth soil % | ... and truth geometry % | simulator's F_total at β* % | constant force % | mapped Q / sim. Q (median) |";
+  os << "| split | samples (valid) | force error % | ... moving rows % (stalled rows) | FEE with truth soil % | ... at β* % | ... and truth geometry % | simulator's F_total at β* % | constant force % | mapped Q / sim. Q (median) |";
   for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " MAE (" << kDisplayUnit[k] << ") |";
-  os << "\n|---|---|---|---|---|---|---|---|";
+  os << "\n|---|---|---|---|---|---|---|---|---|---|";
   for (int k = 0; k < kSoilCount; ++k) os << "---|";
   os << "\n";
   for (const auto& m : e.splits) {
-    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f | %.1f | %.1f | %.1f | %.1f | %.2f |", m.split.c_str(), m.samples,
-                  m.valid, m.force_error_pct, m.force_error_truth_fee_pct, m.force_error_truth_geometry_pct,
+    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f | %.1f (%.1f %%) | %.1f | %.1f | %.1f | %.1f | %.1f | %.2f |",
+                  m.split.c_str(), m.samples, m.valid, m.force_error_pct, m.force_error_moving_pct,
+                  100.0 * m.stalled_row_fraction, m.force_error_truth_fee_pct, m.force_error_truth_fee_min_pct,
+                  m.force_error_truth_geometry_pct,
                   m.force_error_simulator_model_pct, m.force_error_mean_pct, m.surcharge_ratio_median);
     os << buf;
     for (int k = 0; k < kSoilCount; ++k) {

@@ -22,6 +22,13 @@ struct SplitMetrics {
   /// (paper's F, Rankine beta, no residuals): how much of the force the physics layer could
   /// explain with perfect soil knowledge; and of a constant force (the split's mean).
   double force_error_truth_fee_pct = 0, force_error_mean_pct = 0;
+  /// The estimator's force error over the horizon rows where the machine was moving (not
+  /// soil::stalledRow), the rows training fits; and the share of rows left out.
+  double force_error_moving_pct = 0, stalled_row_fraction = 0;
+  /// As force_error_truth_fee_pct but the paper's F at beta* (the angle the simulator's wedge
+  /// fails at, the physics layer's default base angle): what the layer could explain with the
+  /// truth soil and no residuals.
+  double force_error_truth_fee_min_pct = 0;
   /// And with the truth soil on the simulator's own geometry of the cut (sim::FeeTruth), over the
   /// samples where it is known: what is left is the simulator's force beyond the paper's F
   /// (adhesion on the face, inertia, penetration, mobilisation, noise).

@@ -6,6 +6,7 @@
 #include <torch/csrc/autograd/autograd.h>
 
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -111,6 +112,50 @@ FeeOut feeForward(const at::Tensor& soil, const at::Tensor& rho, const at::Tenso
 
 at::Tensor betaNominal(const at::Tensor& phi) { return kPi / 4 - phi / 2; }
 
+BetaMinOut betaMinTorch(const at::Tensor& phi_in, const at::Tensor& delta_in, const at::Tensor& alpha_in,
+                        const at::Tensor& rho_in, const at::Tensor& fallback) {
+  const std::vector<at::Tensor> bc =
+      at::broadcast_tensors({phi_in.to(at::kDouble), delta_in.to(at::kDouble), alpha_in.to(at::kDouble),
+                             rho_in.to(at::kDouble), fallback.to(at::kDouble)});
+  const at::Tensor &phi0 = bc[0], &delta0 = bc[1], &alpha0 = bc[2], &rho0 = bc[3], &fb = bc[4];
+  // fee.cpp checkAngles(): outside these the closed form means nothing.
+  const at::Tensor angles_ok = at::isfinite(phi0) & at::isfinite(delta0) & at::isfinite(alpha0) &
+                               at::isfinite(rho0) & (phi0 >= 0) & (phi0 < kHalfPi) & (delta0 >= 0) &
+                               (delta0 < kHalfPi) & (at::abs(alpha0) < kHalfPi) & (rho0 > 0) & (rho0 < kPi);
+  // Stand-ins where the angles are out of range (the "double where" trick of the header).
+  const at::Tensor phi = pick(angles_ok, phi0, 0.5), delta = pick(angles_ok, delta0, 0.3);
+  const at::Tensor alpha = pick(angles_ok, alpha0, 0.0), rho = pick(angles_ok, rho0, 1.2);
+  const at::Tensor K1 = at::sin(delta + rho - alpha), K2 = at::sin(rho);
+  const at::Tensor E = alpha + delta + rho + 2.0 * phi;
+  const at::Tensor a = K1 * at::cos(rho) - K2 * at::cos(E);
+  const at::Tensor b = -K1 * at::sin(rho) + K2 * at::sin(E);
+  const at::Tensor R2 = a * a + b * b;
+  const at::Tensor rhs = at::sin(delta - alpha);
+  // hypot's gradient is 0/0 at R = 0 and acos' infinite at +-1: keep both away by stand-ins.
+  const at::Tensor ratio_raw = rhs / at::sqrt(at::clamp_min(R2, 1e-300));
+  const at::Tensor ok = angles_ok & (R2 > 1e-24) & (at::abs(ratio_raw) < 1.0 - 1e-9);
+  const at::Tensor ratio = pick(ok, ratio_raw, 0.0);
+  const at::Tensor t0 = at::atan2(pick(ok, b, 1.0), pick(ok, a, 1.0));
+  const at::Tensor half = at::acos(ratio);
+  // The three candidate roots (k = -1, 0, 1); each admissible one competes on N_gamma.
+  at::Tensor best = fb, best_n = at::full_like(fb, std::numeric_limits<double>::infinity());
+  at::Tensor found = at::zeros_like(ok);
+  for (int k = -1; k <= 1; ++k) {
+    const at::Tensor beta_k = 0.5 * (t0 + half) + kPi * k;
+    const at::Tensor eta = delta + rho + phi + beta_k, apb = alpha + phi + beta_k;
+    const at::Tensor adm = ok & (beta_k > 0) & (beta_k < kHalfPi) & (rho + beta_k < kPi) & (eta > 0) & (eta < kPi) &
+                           (apb > 0) & (apb < kPi);
+    const at::Tensor bs = pick(adm, beta_k, 0.5);
+    const at::Tensor ng = (1.0 / at::tan(rho) + 1.0 / at::tan(bs)) * at::sin(alpha + phi + bs) /
+                          (2.0 * at::sin(delta + rho + phi + bs));
+    const at::Tensor better = adm & (ng.detach() < best_n);
+    best = at::where(better, beta_k, best);
+    best_n = at::where(better, ng.detach(), best_n);
+    found = found | adm;
+  }
+  return {at::where(found, best, fb), found};
+}
+
 at::Tensor dNgammaDbeta(const at::Tensor& phi, const at::Tensor& delta, const at::Tensor& alpha, const at::Tensor& rho,
                         const at::Tensor& beta) {
   // fee.cpp factorGrad: (-csc^2 beta sin A sin eta + (cot rho + cot beta) sin(delta+rho-alpha)) / (2 sin^2 eta)
@@ -126,26 +171,50 @@ at::Tensor feeValid(const at::Tensor& soil, const at::Tensor& rho, const at::Ten
   return validOf(expandInputs(soil, rho, alpha, w, d, q, beta));
 }
 
-at::Tensor feeJacobian(const at::Tensor& soil, const at::Tensor& rho, const at::Tensor& alpha, const at::Tensor& w,
-                       const at::Tensor& d, const at::Tensor& q, const at::Tensor& beta) {
-  // Autograd on fresh [B,P] leaves: every F[b,p] depends only on the leaves' entry [b,p], so
-  // the gradient of sum(F_x) w.r.t. a leaf is the per-entry derivative. Two backward passes.
+const char* betaBaseName(BetaBase b) { return b == BetaBase::Min ? "min" : "nominal"; }
+
+BetaBase parseBetaBase(const std::string& s) {
+  if (s == "min") return BetaBase::Min;
+  if (s == "nominal") return BetaBase::Nominal;
+  throw std::invalid_argument("beta_base: '" + s + "' is neither 'min' (beta* minimising N_gamma) nor 'nominal' (pi/4 - phi/2)");
+}
+
+at::Tensor failureAngle(BetaBase base, const at::Tensor& phi, const at::Tensor& delta, const at::Tensor& alpha,
+                        const at::Tensor& rho) {
+  auto perStep = [&](const at::Tensor& x) {
+    const at::Tensor t = x.to(at::kDouble);
+    return t.dim() == 1 ? t.unsqueeze(1).expand_as(rho) : t;
+  };
+  const at::Tensor phi2 = perStep(phi);
+  const at::Tensor nominal = betaNominal(phi2);
+  if (base == BetaBase::Nominal) return nominal;
+  return betaMinTorch(phi2, perStep(delta), alpha.to(at::kDouble), rho.to(at::kDouble), nominal).beta;
+}
+
+namespace {
+
+/// Autograd Jacobian dF/d[c, phi, ca, delta, gamma, d, x] on fresh [B,P] leaves, with beta
+/// built from the leaves by `beta_of(in, x)` (x the last leaf). Every F[b,p] depends only on
+/// the leaves' entry [b,p], so the gradient of sum(F_x) w.r.t. a leaf is the per-entry
+/// derivative. Two backward passes.
+template <class BetaOf>
+at::Tensor jacobianWith(Inputs in, const at::Tensor& x0, BetaOf beta_of) {
   c10::AutoGradMode grad_on(true);
-  Inputs in = expandInputs(soil.detach(), rho.detach(), alpha.detach(), w.detach(), d.detach(), q.detach(),
-                           beta.detach());
-  std::vector<at::Tensor*> cols(kJacCount);
+  std::vector<at::Tensor*> cols(kJacCount - 1);
   cols[kJacC] = &in.c;
   cols[kJacPhi] = &in.phi;
   cols[kJacCa] = &in.ca;
   cols[kJacDelta] = &in.delta;
   cols[kJacGamma] = &in.gamma;
   cols[kJacD] = &in.d;
-  cols[kJacBeta] = &in.beta;
   std::vector<at::Tensor> leaves;
   for (at::Tensor* t : cols) {
     *t = t->contiguous().clone().requires_grad_(true);
     leaves.push_back(*t);
   }
+  const at::Tensor x = x0.contiguous().clone().requires_grad_(true);
+  leaves.push_back(x);
+  in.beta = beta_of(in, x);
   const FeeOut o = evaluate(in);
   std::vector<at::Tensor> rows;
   for (int k = 0; k < 2; ++k) {
@@ -156,6 +225,29 @@ at::Tensor feeJacobian(const at::Tensor& soil, const at::Tensor& rho, const at::
     rows.push_back(at::stack(g, -1));  // [B,P,7]
   }
   return at::stack(rows, -2).detach();  // [B,P,2,7]
+}
+
+}  // namespace
+
+at::Tensor feeJacobian(const at::Tensor& soil, const at::Tensor& rho, const at::Tensor& alpha, const at::Tensor& w,
+                       const at::Tensor& d, const at::Tensor& q, const at::Tensor& beta) {
+  Inputs in = expandInputs(soil.detach(), rho.detach(), alpha.detach(), w.detach(), d.detach(), q.detach(),
+                           beta.detach());
+  const at::Tensor b = in.beta;
+  return jacobianWith(std::move(in), b, [](const Inputs&, const at::Tensor& x) { return x; });
+}
+
+at::Tensor feeJacobianChained(const at::Tensor& soil, const at::Tensor& rho, const at::Tensor& alpha,
+                              const at::Tensor& w, const at::Tensor& d, const at::Tensor& q,
+                              const at::Tensor& beta_res, BetaBase base) {
+  if (!beta_res.defined() || beta_res.dim() != 1 || beta_res.size(0) != rho.size(0))
+    throw std::invalid_argument("feeJacobianChained: beta_res must be [B]");
+  const at::Tensor res = beta_res.detach().to(at::kDouble).unsqueeze(1).expand_as(rho);
+  Inputs in = expandInputs(soil.detach(), rho.detach(), alpha.detach(), w.detach(), d.detach(), q.detach(), res);
+  const at::Tensor r = in.beta;
+  return jacobianWith(std::move(in), r, [base](const Inputs& v, const at::Tensor& x) {
+    return failureAngle(base, v.phi, v.delta, v.alpha, v.rho) + x;
+  });
 }
 
 }  // namespace terramap::pinn

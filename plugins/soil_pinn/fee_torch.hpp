@@ -15,6 +15,8 @@
 /// Throws c10::Error (from ATen) or std::invalid_argument on inconsistent shapes.
 #include <ATen/ATen.h>
 
+#include <string>
+
 namespace terramap::pinn {
 
 /// Columns of the soil tensor, everywhere in soil_pinn.
@@ -37,6 +39,36 @@ FeeOut feeForward(const at::Tensor& soil, const at::Tensor& rho, const at::Tenso
 /// Nominal (Rankine) failure angle pi/4 - phi/2 (paper Eq. 9), element-wise, same dtype.
 at::Tensor betaNominal(const at::Tensor& phi);
 
+/// The failure angle beta* minimising N_gamma (fee::betaMin, ALGORITHMS.md §E) element-wise over
+/// broadcastable float64 angle tensors (rad), differentiable w.r.t. every angle (the closed
+/// form: 2 beta = atan2(b, a) + acos(sin(delta - alpha) / hypot(a, b)), the admissible root with
+/// the smallest N_gamma). `found` (bool, same shape) is false where fee::betaMin() is NaN (no
+/// admissible minimum, angles outside their ranges, the flat case aside) or where the acos is
+/// within 1e-9 of its poles (its derivative is infinite there); those entries return
+/// `fallback` (e.g. betaNominal(phi)) with the gradient of `fallback`, so nothing is NaN.
+struct BetaMinOut {
+  at::Tensor beta;   ///< rad
+  at::Tensor found;  ///< bool
+};
+BetaMinOut betaMinTorch(const at::Tensor& phi, const at::Tensor& delta, const at::Tensor& alpha,
+                        const at::Tensor& rho, const at::Tensor& fallback);
+
+/// Which failure angle the physics layer starts from (the network adds beta_res to it).
+///  - Nominal: Rankine's pi/4 - phi/2 (paper Eq. 9), the paper's choice.
+///  - Min: beta* of betaMinTorch() per horizon step (Rankine where no admissible minimum
+///    exists), the angle the simulator's wedge fails at. Rankine's angle makes the same cut
+///    roughly twice as hard in the simulator's soils (docs/soil_estimator.md), more than
+///    beta_res can bridge.
+enum class BetaBase { Nominal, Min };
+/// "nominal" / "min".
+const char* betaBaseName(BetaBase b);
+/// \throws std::invalid_argument naming the value on anything but "nominal" or "min".
+BetaBase parseBetaBase(const std::string& s);
+/// The base failure angle [B,P] (rad, float64) for soil angles phi, delta [B] or [B,P] and
+/// horizon angles alpha, rho [B,P]. Differentiable.
+at::Tensor failureAngle(BetaBase base, const at::Tensor& phi, const at::Tensor& delta, const at::Tensor& alpha,
+                        const at::Tensor& rho);
+
 /// Analytic dN_gamma/dbeta (the formula of fee::dNgammaDbeta), element-wise over broadcastable
 /// tensors of angles in rad. No masking: infinite/NaN at the poles (beta, rho, eta = 0 or pi);
 /// mask the inputs first (where(valid, x, stand-in)) when it feeds a loss.
@@ -57,5 +89,12 @@ enum JacCol : int { kJacC = 0, kJacPhi, kJacCa, kJacDelta, kJacGamma, kJacD, kJa
 /// detached anyway) and works under torch::NoGradGuard. 0 where invalid.
 at::Tensor feeJacobian(const at::Tensor& soil, const at::Tensor& rho, const at::Tensor& alpha, const at::Tensor& w,
                        const at::Tensor& d, const at::Tensor& q, const at::Tensor& beta);
+
+/// feeJacobian() with beta = failureAngle(base, phi, delta, alpha, rho) + beta_res (beta_res
+/// [B]): the phi and delta columns are total derivatives (beta's dependence on them chained
+/// in), column kJacBeta is dF/dbeta_res. [B,P,2,7] float64, detached; 0 where invalid.
+at::Tensor feeJacobianChained(const at::Tensor& soil, const at::Tensor& rho, const at::Tensor& alpha,
+                              const at::Tensor& w, const at::Tensor& d, const at::Tensor& q,
+                              const at::Tensor& beta_res, BetaBase base);
 
 }  // namespace terramap::pinn

@@ -27,12 +27,14 @@ at::Tensor nll2(const at::Tensor& r, const at::Tensor& Sigma, const at::Tensor& 
 
 }  // namespace
 
-LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWeights& w) {
+LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWeights& w, const at::Tensor& row_mask) {
   if (!out.F.defined() || force.sizes() != out.F.sizes())
     throw std::invalid_argument("pinnLoss: force must be [B,P,2] like the prediction, got " + c10::str(force.sizes()));
   const int64_t B = out.F.size(0), P = out.F.size(1);
   const double N = static_cast<double>(B * P);
-  const at::Tensor m = out.valid;
+  if (row_mask.defined() && row_mask.sizes() != out.valid.sizes())
+    throw std::invalid_argument("pinnLoss: row_mask must be [B,P] like the prediction, got " + c10::str(row_mask.sizes()));
+  const at::Tensor m = row_mask.defined() ? out.valid & row_mask.to(at::kBool) : out.valid;
   const at::Tensor mf = m.to(at::kDouble);
   const at::Tensor valid_frac = mf.mean(1);  // [B]: per-sample terms count once per valid step
   const at::Tensor wxz = at::tensor({w.w_xz[0], w.w_xz[1]}, at::kDouble);

@@ -52,7 +52,11 @@ struct LossTerms {
 };
 
 /// force: measured force of the blade on the soil [B,P,2] (N, [x along travel, z up]).
-/// \throws std::invalid_argument if force is not [B,P,2] matching out.F.
-LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWeights& w = {});
+/// row_mask: optional [B,P] bool; a false row is left out of every term as an invalid FEE step
+/// is (the trainer masks rows where the machine stood stalled: its measured force is not the
+/// soil's failure force), so m above is validity AND row_mask.
+/// \throws std::invalid_argument if force is not [B,P,2] matching out.F, or row_mask not [B,P].
+LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWeights& w = {},
+                   const at::Tensor& row_mask = {});
 
 }  // namespace terramap::pinn

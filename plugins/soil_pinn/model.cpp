@@ -18,12 +18,15 @@
 namespace terramap::pinn {
 namespace {
 
-constexpr int kFormatVersion = 1;
+// 2: the config holds beta_base (version 1 files load with BetaBase::Nominal).
+constexpr int kFormatVersion = 2;
 constexpr const char* kFormat = "terramap.soil_pinn";
 constexpr const char* kMetadataKey = "terramap_metadata";
 
-nlohmann::json configJson(const PinnConfig& c) {
-  return {{"T", c.T}, {"P", c.P}, {"D_o", c.D_o}, {"hidden", c.hidden}, {"seed", c.seed}};
+nlohmann::json configJson(const PinnConfig& c, int format_version = kFormatVersion) {
+  nlohmann::json j = {{"T", c.T}, {"P", c.P}, {"D_o", c.D_o}, {"hidden", c.hidden}, {"seed", c.seed}};
+  if (format_version >= 2) j["beta_base"] = betaBaseName(c.beta_base);
+  return j;
 }
 
 std::vector<double> toVector(const at::Tensor& t) {
@@ -48,7 +51,9 @@ double logVarLo(int k) { return 2 * std::log(1e-3 * logVarSpan(k)); }
 double logVarHi(int k) { return 2 * std::log(logVarSpan(k)); }
 double logVarInit(int k) { return 2 * std::log(0.1 * logVarSpan(k)); }
 
-std::string configHash(const PinnConfig& cfg) { return fnv1a64Hex(configJson(cfg).dump()); }
+std::string configHash(const PinnConfig& cfg, int format_version) {
+  return fnv1a64Hex(configJson(cfg, format_version).dump());
+}
 
 PinnNetImpl::PinnNetImpl(PinnConfig cfg) : cfg_(std::move(cfg)) {
   if (cfg_.P < 1 || cfg_.T < cfg_.P || cfg_.D_o < 1)
@@ -120,24 +125,25 @@ PinnOutput PinnNetImpl::forward(const at::Tensor& obs, const at::Tensor& theta_k
   const at::Tensor k = tk.to(at::kDouble);
   const at::Tensor rho = k.select(2, kKRho), alpha = k.select(2, kKAlpha), w = k.select(2, kKW), q = k.select(2, kKQ);
   const at::Tensor d = k.select(2, kKD) + out.d_res.to(at::kDouble).unsqueeze(1);
-  const at::Tensor phi = soil.select(1, kSoilPhi);
-  out.beta = betaNominal(phi) + out.beta_res.to(at::kDouble);
+  const at::Tensor phi = soil.select(1, kSoilPhi), delta = soil.select(1, kSoilDelta);
+  const at::Tensor base = failureAngle(cfg_.beta_base, phi, delta, alpha, rho);  // [B,P]
+  const at::Tensor beta_res = out.beta_res.to(at::kDouble);
+  out.beta = base + beta_res.unsqueeze(1);
   const FeeOut fee = feeForward(soil, rho, alpha, w, d, q, out.beta);
   out.valid = fee.valid;
   out.F = fee.F + out.F_r.to(at::kDouble).unsqueeze(1);
 
-  // Eq. 5/6 with beta = betaNominal(phi) + beta_res chained into the phi column.
-  at::Tensor J = feeJacobian(soil, rho, alpha, w, d, q, out.beta);
-  J.select(-1, kJacPhi).sub_(0.5 * J.select(-1, kJacBeta));
-  out.J = J;  // columns already [c, phi, ca, delta, gamma, d(_res), beta(_res)] = LogVarCol
+  // Eq. 5/6, the base angle's dependence on the soil chained in.
+  at::Tensor J = feeJacobianChained(soil, rho, alpha, w, d, q, beta_res, cfg_.beta_base);
+  out.J = J;  // columns [c, phi, ca, delta, gamma, d(_res), beta(_res)] = LogVarCol
   const at::Tensor var = at::exp(out.log_var.to(at::kDouble)).reshape({B, 1, 1, kLogVarCount});
   out.Sigma_F = at::matmul(J * var, J.transpose(-2, -1));
 
   // Eq. 8's dN_gamma/dbeta term: gradient only into beta (through beta_res).
   const at::Tensor& v = fee.valid;
   auto perStep = [&](const at::Tensor& x) { return x.unsqueeze(1).expand({B, P}); };
-  const at::Tensor phi_d = perStep(phi.detach()), delta_d = perStep(soil.select(1, kSoilDelta).detach());
-  const at::Tensor beta_g = perStep(betaNominal(phi).detach() + out.beta_res.to(at::kDouble));
+  const at::Tensor phi_d = perStep(phi.detach()), delta_d = perStep(delta.detach());
+  const at::Tensor beta_g = base.detach() + beta_res.unsqueeze(1);
   const at::Tensor dng = dNgammaDbeta(pick(v, phi_d, 0.5), pick(v, delta_d, 0.3), pick(v, alpha, 0.0),
                                       pick(v, rho, 1.2), pick(v, beta_g, 0.5));
   out.dNgamma_dbeta = at::where(v, dng, at::zeros_like(dng));
@@ -206,9 +212,12 @@ PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path
     cfg.D_o = c.at("D_o").get<int>();
     cfg.hidden = c.at("hidden").get<std::vector<int>>();
     cfg.seed = c.at("seed").get<int64_t>();
-    if (configHash(cfg) != j.at("config_hash").get<std::string>())
+    cfg.beta_base = version >= 2 ? parseBetaBase(c.at("beta_base").get<std::string>()) : BetaBase::Nominal;
+    if (configHash(cfg, version) != j.at("config_hash").get<std::string>())
       throw InputError(path + ": config_hash does not match the stored config");
   } catch (const nlohmann::json::exception& e) {
+    throw InputError(path + ": bad soil_pinn metadata: " + e.what());
+  } catch (const std::invalid_argument& e) {
     throw InputError(path + ": bad soil_pinn metadata: " + e.what());
   }
   PinnNet net(cfg);

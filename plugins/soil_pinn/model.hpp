@@ -82,6 +82,9 @@ struct PinnConfig {
   int D_o = 1;                   ///< observation features per step
   std::vector<int> hidden{64, 64};  ///< encoder layer widths (tanh after each)
   int64_t seed = 0;              ///< weight initialisation seed
+  /// Base failure angle of the physics layer (fee_torch.hpp). Model files of format version 1
+  /// predate the key and load as Nominal.
+  BetaBase beta_base = BetaBase::Min;
 };
 
 /// What forward() returns. B batch, P horizon.
@@ -91,13 +94,14 @@ struct PinnOutput {
   at::Tensor d_res;     ///< [B] float32, m
   at::Tensor beta_res;  ///< [B] float32, rad
   at::Tensor F_r;       ///< [B,2] float32, N, residual force (constant over the horizon)
-  at::Tensor beta;      ///< [B] float64, rad, betaNominal(phi) + beta_res
+  /// [B,P] float64, rad: failureAngle(config().beta_base, phi, delta, alpha_p, rho_p) + beta_res.
+  at::Tensor beta;
   /// [B,P,2] float64, N: FEE(theta_u; rho, alpha, w, d + d_res, Q, beta) + F_r; only F_r where
   /// the FEE is invalid.
   at::Tensor F;
   at::Tensor valid;     ///< [B,P] bool, FEE validity (includes d + d_res > 0)
-  /// [B,P,2,7] float64, detached: dF/d[theta_u, d_res, beta_res] (LogVarCol order), with beta's
-  /// dependence on phi chained in (column phi = dF/dphi - dF/dbeta / 2); 0 where invalid.
+  /// [B,P,2,7] float64, detached: dF/d[theta_u, d_res, beta_res] (LogVarCol order), with the
+  /// base angle's dependence on phi (and delta, for beta*) chained in; 0 where invalid.
   at::Tensor J;
   /// [B,P,2,2] float64, N^2: J diag(exp(S)) J^T (paper Eq. 6); differentiable w.r.t. S only.
   at::Tensor Sigma_F;
@@ -156,7 +160,8 @@ void saveArchiveAtomically(torch::serialize::OutputArchive& ar, const std::strin
 void savePinnTo(PinnNet& net, torch::serialize::OutputArchive& ar);
 PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path);
 
-/// FNV-1a 64 of the config's canonical JSON, as 16 hex digits.
-std::string configHash(const PinnConfig& cfg);
+/// FNV-1a 64 of the config's canonical JSON, as 16 hex digits. `format_version` 1 hashes the
+/// JSON without beta_base (the files written before it existed).
+std::string configHash(const PinnConfig& cfg, int format_version = 2);
 
 }  // namespace terramap::pinn

@@ -41,9 +41,7 @@ SoilEstimateRecord soilEstimateRecord(const SweepRecord& sweep, const soil::Pinn
   r.w_m = sweep.w_m;
   r.d_res_m = e.d_res_m;
   r.beta_res_rad = e.beta_res_rad;
-  fee::Soil s;
-  s.phi_rad = e.mean[pinn::kSoilPhi];
-  r.beta_rad = fee::betaNominal(s) + e.beta_res_rad;
+  r.beta_rad = e.beta_rad;
   bool finite = true;
   for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
     r.mean[k] = e.mean[k];

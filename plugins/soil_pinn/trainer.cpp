@@ -48,6 +48,8 @@ TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
   out.obs_raw = at::empty({m, T, D}, at::kFloat);
   out.theta_k = at::empty({m, P, soil::kThetaK}, at::kFloat);
   out.force = at::empty({m, P, 2}, at::kFloat);
+  out.moving = at::empty({m, P}, at::kBool);
+  bool* mv = out.moving.data_ptr<bool>();
   out.truth = at::empty({m, 5}, at::kFloat);
   out.truth_geometry = at::full({m, 5}, std::numeric_limits<float>::quiet_NaN(), at::kFloat);
   float* tg = out.truth_geometry.data_ptr<float>();
@@ -61,6 +63,9 @@ TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
     std::copy_n(d.theta_k.data() + (i * d.P + (d.P - P)) * soil::kThetaK, static_cast<long>(P) * soil::kThetaK,
                 th + r * P * soil::kThetaK);
     std::copy_n(d.force.data() + (i * d.P + (d.P - P)) * 2, static_cast<long>(P) * 2, f + r * P * 2);
+    // The horizon is the last P observation rows of the stored history.
+    for (int p = 0; p < P; ++p)
+      mv[r * P + p] = !soil::stalledRow(d.obs.data() + (i * d.T + (d.T - P + p)) * D);
     std::copy_n(d.truth.data() + i * 5, 5, tr + r * 5);
     if (d.truth_geometry.size() == d.truth.size()) std::copy_n(d.truth_geometry.data() + i * 5, 5, tg + r * 5);
     out.split.push_back(d.split[static_cast<std::size_t>(i)]);
@@ -81,6 +86,8 @@ std::string trainConfigHash(const TrainConfig& c) {
   j["max_epochs"] = c.max_epochs;
   j["patience"] = c.patience;
   j["learning_rate"] = c.learning_rate;
+  j["beta_base"] = betaBaseName(c.beta_base);
+  j["mask_stalled"] = c.mask_stalled;
   const LossWeights& w = c.weights;
   j["weights"] = {w.lambda_F, w.lambda_NLL, w.lambda_beta, w.lambda_range, w.lambda_res, w.lambda_Fr, w.w_xz[0],
                   w.w_xz[1], w.sigma_floor_n2};
@@ -206,6 +213,9 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   const at::Tensor obs = at::nan_to_num((data.obs_raw - om) / os, 0.0, 0.0, 0.0);
   const at::Tensor obs_tr = rows(obs, train_idx), th_tr = rows(data.theta_k, train_idx), f_tr = rows(data.force, train_idx);
   const at::Tensor obs_va = rows(obs, val_idx), th_va = rows(data.theta_k, val_idx), f_va = rows(data.force, val_idx);
+  const at::Tensor all_rows = at::ones_like(data.moving);
+  const at::Tensor& use = cfg.mask_stalled ? data.moving : all_rows;
+  const at::Tensor m_tr = rows(use, train_idx), m_va = rows(use, val_idx);
   const std::string hash = trainConfigHash(cfg) + "-" + ds.config_hash;
   std::error_code ec;
   fs::create_directories(checkpointPath(cfg, 0).parent_path(), ec);
@@ -217,9 +227,9 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   std::vector<PinnNet> best_members;
   for (int m = 0; m < cfg.members; ++m) {
     const std::int64_t seed = cfg.seed * 1000 + m;
-    PinnNet net(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed});
+    PinnNet net(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base});
     net->setThetaNormalisation(at::tensor(th_mean), at::tensor(th_std));
-    PinnNet best(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed});
+    PinnNet best(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base});
     copyInto(best, net);
     torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(cfg.learning_rate));
     MemberState st;
@@ -234,7 +244,7 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
       for (long b0 = 0; b0 < obs_va.size(0); b0 += cfg.batch) {
         const long len = std::min<long>(cfg.batch, obs_va.size(0) - b0);
         const LossTerms t = pinnLoss(net->forward(obs_va.narrow(0, b0, len), th_va.narrow(0, b0, len)),
-                                     f_va.narrow(0, b0, len), cfg.weights);
+                                     f_va.narrow(0, b0, len), cfg.weights, m_va.narrow(0, b0, len));
         sum += t.total.item<double>() * static_cast<double>(len);
         fsum += t.force_mae.item<double>() * static_cast<double>(len);
         n += len;
@@ -253,7 +263,7 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
         const long len = std::min<long>(cfg.batch, perm.size(0) - b0);
         const at::Tensor idx = perm.narrow(0, b0, len);
         const LossTerms t = pinnLoss(net->forward(obs_tr.index_select(0, idx), th_tr.index_select(0, idx)),
-                                     f_tr.index_select(0, idx), cfg.weights);
+                                     f_tr.index_select(0, idx), cfg.weights, m_tr.index_select(0, idx));
         opt.zero_grad();
         t.total.backward();
         opt.step();

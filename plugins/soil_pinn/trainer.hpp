@@ -34,6 +34,11 @@ struct TrainConfig {
   int max_epochs = 60;
   int patience = 8;                   ///< epochs without a better validation loss before stopping
   double learning_rate = 1e-3;
+  /// Base failure angle of the physics layer (fee_torch.hpp; YAML `beta_base: min | nominal`).
+  BetaBase beta_base = BetaBase::Min;
+  /// Leave horizon rows where the machine stood stalled (soil::stalledRow) out of the force
+  /// terms of the loss (YAML `mask_stalled`).
+  bool mask_stalled = true;
   LossWeights weights;
 };
 
@@ -45,6 +50,7 @@ struct TrainingData {
   at::Tensor obs_raw;    ///< [N, T, D] float32 (raw features)
   at::Tensor theta_k;    ///< [N, P, 6] float32
   at::Tensor force;      ///< [N, P, 2] float32
+  at::Tensor moving;     ///< [N, P] bool: the horizon row is not stalled (soil::stalledRow)
   at::Tensor truth;      ///< [N, 5] float32 (evaluation only)
   at::Tensor truth_geometry;  ///< [N, 5] float32 simulator's alpha, rho, d, w, q (diagnosis only; NaN if unknown)
   std::vector<std::uint8_t> split, family;

@@ -59,6 +59,15 @@ pinn::TrainConfig loadTrainConfig(const std::string& path) {
   c.max_epochs = r.integer("max_epochs", c.max_epochs, 1, 100000);
   c.patience = r.integer("patience", c.patience, 1, 100000);
   c.learning_rate = r.num("learning_rate", c.learning_rate, 1e-8, 1.0);
+  if (r.has("beta_base")) {
+    const std::string b = r.str("beta_base", "min");
+    try {
+      c.beta_base = pinn::parseBetaBase(b);
+    } catch (const std::invalid_argument&) {
+      r.error(r.node("beta_base"), "beta_base", "must be 'min' (beta* minimising N_gamma) or 'nominal' (pi/4 - phi/2), got '" + b + "'");
+    }
+  }
+  c.mask_stalled = r.boolean("mask_stalled", c.mask_stalled);
   if (r.has("loss")) {
     yaml::MapReader l = r.child("loss");
     pinn::LossWeights& w = c.weights;

@@ -43,6 +43,14 @@ const std::vector<std::string>& obsFeatureNames();
 /// Names of the kThetaK columns ("rho_rad", "alpha_rad", "w_m", "d_m", "q_n", "v_mps").
 const std::vector<std::string>& thetaKNames();
 
+/// True when the row's machine is held by the soil: its tracks turn (mean track speed above
+/// 0.1 m/s) but its base moves forward at less than 0.2 of that, the simulator's own stall flag
+/// (engine/sim/ctl.cpp) evaluated on the observed features. A held machine's force sensor reads
+/// only what the tracks mobilise to hold it, not the soil's failure force the FEE describes,
+/// so training leaves such rows out of the force terms (docs/soil_estimator.md). NaN speeds
+/// never count as stalled. `features` holds kObsFeatures values in obsFeatureNames() order.
+bool stalledRow(const float* features);
+
 /// One observation reduced to what a sample needs.
 struct ObsRow {
   double stamp = 0.0;

@@ -131,6 +131,116 @@ TEST_F(FeeTorch, AutogradJacobianMatchesAnalytic) {
     }
 }
 
+TEST_F(FeeTorch, BetaMinMatchesCppFeeEverywhereItExists) {
+  // Angles over (and beyond) every range, including slopes steeper than phi on both sides:
+  // where fee::betaMin() finds a failure plane the torch closed form gives the same angle,
+  // and where it does not, the torch one says so and returns the fallback.
+  std::mt19937 rng(11);
+  auto U = [&](double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng); };
+  const int n = 4000;
+  at::Tensor phi = at::empty({n}, at::kDouble), delta = at::empty({n}, at::kDouble);
+  at::Tensor alpha = at::empty({n}, at::kDouble), rho = at::empty({n}, at::kDouble);
+  for (int i = 0; i < n; ++i) {
+    phi[i] = U(-0.1, 1.6);
+    delta[i] = U(-0.1, 1.0);
+    alpha[i] = U(-1.0, 1.0);
+    rho[i] = U(0.2, 2.8);
+  }
+  const at::Tensor fallback = at::full({n}, 0.123, at::kDouble);
+  const BetaMinOut o = betaMinTorch(phi, delta, alpha, rho, fallback);
+  int found = 0, missing = 0;
+  for (int i = 0; i < n; ++i) {
+    const fee::Soil s{0, phi[i].item<double>(), 0, 0, delta[i].item<double>()};
+    const fee::Geometry g{alpha[i].item<double>(), rho[i].item<double>(), 0.1, 1, 0};
+    const double want = fee::betaMin(s, g);
+    if (std::isfinite(want)) {
+      ASSERT_TRUE(o.found[i].item<bool>()) << "case " << i << ": fee::betaMin = " << want;
+      EXPECT_NEAR(o.beta[i].item<double>(), want, 1e-12) << "case " << i;
+      ++found;
+    } else {
+      EXPECT_FALSE(o.found[i].item<bool>()) << "case " << i;
+      EXPECT_EQ(o.beta[i].item<double>(), 0.123) << "case " << i;
+      ++missing;
+    }
+  }
+  // Both kinds well represented, or the test says little.
+  EXPECT_GT(found, n / 4);
+  EXPECT_GT(missing, n / 10);
+}
+
+TEST_F(FeeTorch, BetaMinGradientMatchesFiniteDifferencesOfCppFee) {
+  const auto cases = randomValidCases(64, 1, 21);
+  int checked = 0;
+  for (const Case& c : cases) {
+    const double b0 = fee::betaMin(c.s, c.g);
+    if (!std::isfinite(b0)) continue;
+    at::Tensor x = at::tensor({c.s.phi_rad, c.s.delta_rad, c.g.alpha_rad, c.g.rho_rad}, at::kDouble).requires_grad_(true);
+    const BetaMinOut o = betaMinTorch(x[0], x[1], x[2], x[3], at::zeros({}, at::kDouble));
+    ASSERT_TRUE(o.found.item<bool>());
+    o.beta.backward();
+    const double h = 1e-6;
+    for (int k = 0; k < 4; ++k) {
+      fee::Soil sp = c.s, sm = c.s;
+      fee::Geometry gp = c.g, gm = c.g;
+      double* fp[4] = {&sp.phi_rad, &sp.delta_rad, &gp.alpha_rad, &gp.rho_rad};
+      double* fm[4] = {&sm.phi_rad, &sm.delta_rad, &gm.alpha_rad, &gm.rho_rad};
+      *fp[k] += h;
+      *fm[k] -= h;
+      const double fd = (fee::betaMin(sp, gp) - fee::betaMin(sm, gm)) / (2 * h);
+      ASSERT_TRUE(std::isfinite(fd));
+      EXPECT_NEAR(x.grad()[k].item<double>(), fd, 1e-6 * std::max(1.0, std::abs(fd))) << "angle " << k;
+    }
+    ++checked;
+  }
+  EXPECT_GT(checked, 32);
+}
+
+TEST_F(FeeTorch, ChainedJacobianMatchesFiniteDifferencesOfCppFeeAtBetaMin) {
+  // beta = beta*(phi, delta, alpha, rho) + beta_res: the phi and delta columns are total
+  // derivatives. Central differences of the C++ FEE re-evaluated at the moved soil's beta*.
+  const int B = 24, P = 2;
+  const auto cases = randomValidCases(B, P, 5);
+  const Batch t = toTensors(cases, B, P);
+  const at::Tensor res = at::linspace(-0.05, 0.05, B, at::kDouble);
+  const at::Tensor J = feeJacobianChained(t.soil, t.rho, t.alpha, t.w, t.d, t.q, res, BetaBase::Min);
+  const at::Tensor Jn = feeJacobianChained(t.soil, t.rho, t.alpha, t.w, t.d, t.q, res, BetaBase::Nominal);
+  auto force = [](fee::Soil s, fee::Geometry g, double r, bool min) {
+    const double b = min ? fee::betaMin(s, g) : fee::betaNominal(s);
+    return fee::evaluate(s, g, (std::isfinite(b) ? b : fee::betaNominal(s)) + r);
+  };
+  int checked = 0;
+  for (int b = 0; b < B; ++b)
+    for (int p = 0; p < P; ++p) {
+      const Case& c = cases[b * P + p];
+      const double r = res[b].item<double>();
+      for (bool min : {true, false}) {
+        const at::Tensor& Jt = min ? J : Jn;
+        if (!force(c.s, c.g, r, min).valid()) {
+          for (int j = 0; j < kJacCount; ++j) EXPECT_EQ(Jt[b][p][0][j].item<double>(), 0.0);
+          continue;
+        }
+        for (int j = 0; j < kJacCount; ++j) {
+          const double h = j == kJacC || j == kJacCa || j == kJacGamma ? 1.0 : 1e-7;
+          fee::Soil sp = c.s, sm = c.s;
+          fee::Geometry gp = c.g, gm = c.g;
+          double rp = r, rm = r;
+          double* xp[kJacCount] = {&sp.c_pa, &sp.phi_rad, &sp.ca_pa, &sp.delta_rad, &sp.gamma_n_m3, &gp.d_m, &rp};
+          double* xm[kJacCount] = {&sm.c_pa, &sm.phi_rad, &sm.ca_pa, &sm.delta_rad, &sm.gamma_n_m3, &gm.d_m, &rm};
+          *xp[j] += h;
+          *xm[j] -= h;
+          const fee::Result fp = force(sp, gp, rp, min), fm = force(sm, gm, rm, min);
+          if (!fp.valid() || !fm.valid()) continue;  // at a rule's edge
+          const Eigen::Vector2d fd = (fp.F_N - fm.F_N) / (2 * h);
+          for (int i = 0; i < 2; ++i)
+            EXPECT_NEAR(Jt[b][p][i][j].item<double>(), fd[i], 1e-5 * std::max(1.0, fd.norm()))
+                << (min ? "min" : "nominal") << " case " << b << "," << p << " col " << j;
+        }
+        ++checked;
+      }
+    }
+  EXPECT_GT(checked, B);
+}
+
 TEST_F(FeeTorch, ValidityMaskMatchesEveryRule) {
   using V = fee::Validity;
   const fee::Soil s0{10e3, 0.5, 16e3, 5e3, 0.3};

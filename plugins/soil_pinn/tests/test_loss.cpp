@@ -151,9 +151,32 @@ TEST_F(PinnLoss, PartlyValidSampleCountsPerStep) {
   EXPECT_NEAR(t.force_res.item<double>(), kForceRes, 1e-12);
 }
 
+TEST_F(PinnLoss, MaskedRowCountsAsAnInvalidStep) {
+  // A stalled row (row_mask false) leaves every term as an invalid step does, whatever its
+  // force: the same numbers as PartlyValidSampleCountsPerStep, with step 1 valid but masked
+  // and its measured force made absurd.
+  HandMade h = handMade(false);
+  h.force[0][1][0] = 1e7;
+  at::Tensor mask = at::ones({1, 2}, at::kBool);
+  mask[0][1] = false;
+  const LossTerms t = pinnLoss(h.out, h.force, noFloor(), mask);
+  EXPECT_NEAR(t.force_mae.item<double>(), 20.0 / 2, 1e-12);
+  EXPECT_NEAR(t.nll.item<double>(), 0.5 * (50 + std::log(64.0)) / 2, 1e-10);
+  EXPECT_NEAR(t.dngamma.item<double>(), 0.5 / 2, 1e-12);
+  EXPECT_NEAR(t.range.item<double>(), kRange / 2, 1e-9);
+  EXPECT_NEAR(t.residual.item<double>(), kResidual / 2, 1e-12);
+  EXPECT_NEAR(t.force_res.item<double>(), kForceRes, 1e-12);
+  // An all-true mask changes nothing.
+  const LossTerms all = pinnLoss(h.out, h.force, noFloor(), at::ones({1, 2}, at::kBool));
+  const LossTerms none = pinnLoss(h.out, h.force, noFloor());
+  EXPECT_EQ(all.total.item<double>(), none.total.item<double>());
+  EXPECT_GT(none.force_mae.item<double>(), 1e6);  // the absurd force counts without the mask
+}
+
 TEST_F(PinnLoss, RejectsForceOfWrongShape) {
   const HandMade h = handMade(false);
   EXPECT_THROW(pinnLoss(h.out, h.force.narrow(1, 0, 1)), std::invalid_argument);
+  EXPECT_THROW(pinnLoss(h.out, h.force, {}, at::ones({1, 3}, at::kBool)), std::invalid_argument);
 }
 
 /// A small real network and a valid batch for the gradient-routing tests.

@@ -8,6 +8,7 @@
 #include <terramap/soil/fee.hpp>
 
 #include <ATen/Parallel.h>
+#include <nlohmann/json.hpp>
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/grad_mode.h>
 #include <torch/optim/adam.h>
@@ -102,39 +103,59 @@ class PinnModel : public ::testing::Test {
   void SetUp() override { at::set_num_threads(1); }
 };
 
-TEST_F(PinnModel, PhysicsLayerMatchesCppFee) {
-  PinnNet net(PinnConfig{kT, kP, kDo, {8}, 3});
+/// The network's physics layer against the C++ FEE for one base angle: beta per step, F, J
+/// (the base angle's dependence on phi and delta chained in, by central differences of
+/// fee::betaMin for beta*), Sigma_F.
+void checkPhysicsLayer(BetaBase base) {
+  PinnNet net(PinnConfig{kT, kP, kDo, {8}, 3, base});
   const Dataset& ds = dataset();
   const int64_t B = 16;
   const PinnOutput o = net->forward(ds.obs.narrow(0, 0, B), ds.theta_k.narrow(0, 0, B));
   ASSERT_EQ(o.F.sizes(), (at::IntArrayRef{B, kP, 2}));
+  ASSERT_EQ(o.beta.sizes(), (at::IntArrayRef{B, kP}));
   ASSERT_EQ(o.Sigma_F.sizes(), (at::IntArrayRef{B, kP, 2, 2}));
   ASSERT_EQ(o.log_var.sizes(), (at::IntArrayRef{B, kLogVarCount}));
+  auto baseAngle = [base](const fee::Soil& s, const fee::Geometry& g) {
+    const double m = base == BetaBase::Min ? fee::betaMin(s, g) : NAN;
+    return std::isfinite(m) ? m : fee::betaNominal(s);
+  };
+  int valid_steps = 0;
   for (int64_t b = 0; b < B; ++b) {
     const at::Tensor th = o.theta_u[b].to(at::kDouble);
     fee::Soil s{th[kSoilC].item<double>(), th[kSoilPhi].item<double>(), th[kSoilGamma].item<double>(),
                 th[kSoilCa].item<double>(), th[kSoilDelta].item<double>()};
-    const double beta = o.beta[b].item<double>();
-    EXPECT_NEAR(beta, fee::betaNominal(s) + o.beta_res[b].item<float>(), 1e-12);
+    const double res = o.beta_res[b].item<float>();
     for (int p = 0; p < kP; ++p) {
       const at::Tensor k = ds.theta_k[b][p].to(at::kDouble);
       fee::Geometry g{k[kKAlpha].item<double>(), k[kKRho].item<double>(),
                       k[kKD].item<double>() + static_cast<double>(o.d_res[b].item<float>()), k[kKW].item<double>(),
                       k[kKQ].item<double>()};
+      const double beta = o.beta[b][p].item<double>();
+      EXPECT_NEAR(beta, baseAngle(s, g) + res, 1e-9);
       const fee::Result r = fee::evaluate(s, g, beta);
       ASSERT_EQ(o.valid[b][p].item<bool>(), r.valid());
+      if (!r.valid()) continue;
+      ++valid_steps;
       const Eigen::Vector2d Fr(o.F_r[b][0].item<float>(), o.F_r[b][1].item<float>());
       const Eigen::Vector2d want = r.F_N + Fr;
       for (int i = 0; i < 2; ++i) EXPECT_NEAR(o.F[b][p][i].item<double>(), want[i], 1e-6 * want.norm());
-      // J: fee's columns, beta chained into phi (beta = pi/4 - phi/2 + beta_res).
+      // J: fee's columns with d(base angle)/d(phi, delta) chained in.
       fee::Jacobian Ja = fee::jacobianF(s, g, beta);
-      Ja.col(fee::kPhi) += -0.5 * Ja.col(fee::kBeta);
+      const double h = 1e-6;
+      fee::Soil sp = s, sm = s;
+      sp.phi_rad += h;
+      sm.phi_rad -= h;
+      Ja.col(fee::kPhi) += (baseAngle(sp, g) - baseAngle(sm, g)) / (2 * h) * Ja.col(fee::kBeta);
+      sp = s, sm = s;
+      sp.delta_rad += h;
+      sm.delta_rad -= h;
+      Ja.col(fee::kDelta) += (baseAngle(sp, g) - baseAngle(sm, g)) / (2 * h) * Ja.col(fee::kBeta);
       const int cols[kLogVarCount] = {fee::kC, fee::kPhi, fee::kCa, fee::kDelta, fee::kGamma, fee::kD, fee::kBeta};
       Eigen::Matrix<double, 2, kLogVarCount> J;
       for (int j = 0; j < kLogVarCount; ++j) {
         J.col(j) = Ja.col(cols[j]);
         for (int i = 0; i < 2; ++i)
-          EXPECT_NEAR(o.J[b][p][i][j].item<double>(), J(i, j), 1e-6 * J.col(j).norm()) << "col " << j;
+          EXPECT_NEAR(o.J[b][p][i][j].item<double>(), J(i, j), 1e-6 * std::max(1.0, J.col(j).norm())) << "col " << j;
       }
       Eigen::Matrix<double, kLogVarCount, 1> var;
       for (int j = 0; j < kLogVarCount; ++j) var[j] = std::exp(static_cast<double>(o.log_var[b][j].item<float>()));
@@ -144,8 +165,29 @@ TEST_F(PinnModel, PhysicsLayerMatchesCppFee) {
           EXPECT_NEAR(o.Sigma_F[b][p][i][j].item<double>(), Sigma(i, j), 1e-6 * Sigma.norm());
     }
   }
+  EXPECT_GT(valid_steps, B);
   EXPECT_TRUE(o.Sigma_F.requires_grad());
   EXPECT_FALSE(o.J.requires_grad());
+}
+
+TEST_F(PinnModel, PhysicsLayerMatchesCppFeeAtBetaMin) { checkPhysicsLayer(BetaBase::Min); }
+TEST_F(PinnModel, PhysicsLayerMatchesCppFeeAtRankinesBeta) { checkPhysicsLayer(BetaBase::Nominal); }
+
+TEST_F(PinnModel, BaseAngleChangesTheForce) {
+  // Same weights, the two base angles: the same soil estimate gives other forces (beta* is
+  // the N_gamma minimiser; the cohesion and surcharge terms move the other way), so a model
+  // file must say which angle it was trained with.
+  PinnNet a(PinnConfig{kT, kP, kDo, {8}, 3, BetaBase::Min});
+  PinnNet b(PinnConfig{kT, kP, kDo, {8}, 3, BetaBase::Nominal});
+  const Dataset& ds = dataset();
+  const PinnOutput oa = a->forward(ds.obs, ds.theta_k), ob = b->forward(ds.obs, ds.theta_k);
+  EXPECT_TRUE(at::equal(oa.theta_u, ob.theta_u));
+  const at::Tensor both = oa.valid & ob.valid;
+  ASSERT_GT(both.sum().item<int64_t>(), 100);
+  const double diff = at::masked_select((oa.F - ob.F).norm(2, -1), both).sum().item<double>();
+  const double size = at::masked_select(ob.F.norm(2, -1), both).sum().item<double>();
+  EXPECT_GT(diff, 0.05 * size);
+  EXPECT_NE(configHash(a->config()), configHash(b->config()));
 }
 
 TEST_F(PinnModel, InferenceWithoutGradAndInflatedVariances) {
@@ -225,6 +267,43 @@ TEST_F(PinnModel, SaveLoadRoundTripGivesIdenticalOutputs) {
   EXPECT_TRUE(at::equal(x.F, y.F));
   EXPECT_TRUE(at::equal(x.Sigma_F, y.Sigma_F));
   std::remove(path.c_str());
+}
+
+/// A model file as format version `version` wrote it, with the given config JSON.
+std::string writeWithMetadata(PinnNet& net, const std::string& name, int version, const nlohmann::json& config,
+                              const std::string& hash) {
+  torch::serialize::OutputArchive ar;
+  net->save(ar);
+  nlohmann::json j{{"format", "terramap.soil_pinn"}, {"version", version}, {"config", config}, {"config_hash", hash}};
+  ar.write("terramap_metadata", c10::IValue(j.dump()));
+  const std::string path = tempPath(name);
+  ar.save_to(path);
+  return path;
+}
+
+TEST_F(PinnModel, VersionOneFilesLoadWithRankinesAngle) {
+  // Files written before beta_base existed were trained with pi/4 - phi/2 and must keep it.
+  PinnNet nominal(PinnConfig{kT, kP, kDo, {8}, 4, BetaBase::Nominal});
+  const PinnConfig& c = nominal->config();
+  const nlohmann::json v1{{"T", c.T}, {"P", c.P}, {"D_o", c.D_o}, {"hidden", c.hidden}, {"seed", c.seed}};
+  const std::string path = writeWithMetadata(nominal, "v1.pt", 1, v1, configHash(c, 1));
+  PinnNet loaded = loadPinn(path);
+  EXPECT_EQ(loaded->config().beta_base, BetaBase::Nominal);
+  const Dataset& ds = dataset();
+  EXPECT_TRUE(at::equal(loaded->forward(ds.obs, ds.theta_k).F, nominal->forward(ds.obs, ds.theta_k).F));
+  // A version-2 file must name its angle, and a known one.
+  nlohmann::json v2 = v1;
+  const std::string no_key = writeWithMetadata(nominal, "v2_no_key.pt", 2, v2, configHash(c, 1));
+  EXPECT_THROW(loadPinn(no_key), InputError);
+  v2["beta_base"] = "steepest";
+  const std::string bad = writeWithMetadata(nominal, "v2_bad.pt", 2, v2, configHash(c, 2));
+  try {
+    loadPinn(bad);
+    ADD_FAILURE() << "loaded a model with beta_base 'steepest'";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("steepest"), std::string::npos) << e.what();
+  }
+  for (const std::string& p : {path, no_key, bad}) std::remove(p.c_str());
 }
 
 TEST_F(PinnModel, LoadRejectsWhatIsNotAModel) {

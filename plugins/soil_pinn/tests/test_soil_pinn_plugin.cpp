@@ -12,9 +12,11 @@
 #include <terramap/pipeline/engine.hpp>
 #include <terramap/plugin/records/soil_estimate_record.hpp>
 #include <terramap/plugin/records/sweep_record.hpp>
+#include <terramap/soil/fee.hpp>
 #include <terramap/soil/pinn_sample.hpp>
 
 #include <ATen/Parallel.h>
+#include <torch/csrc/autograd/grad_mode.h>
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -256,7 +258,31 @@ TEST(SoilPinnPlugin, PublishesTheEstimateOfTheDatasetSample) {
     // The record carries the sweep's geometry and the FEE beta used.
     EXPECT_EQ(got.alpha_rad, sweep->alpha_rad);
     EXPECT_EQ(got.d_m, sweep->d_m);
-    EXPECT_NEAR(got.beta_rad, M_PI / 4 - got.mean[SoilEstimateRecord::kPhi] / 2 + got.beta_res_rad, 1e-12);
+    // beta at the last horizon step, the members' mean of beta*(their phi, delta; the step's
+    // alpha, rho) + their beta_res, recomputed here with the C++ FEE.
+    {
+      torch::NoGradGuard ng;
+      const at::Tensor obs = est.normaliseObs(s.obs.data(), 1, s.T);
+      const at::Tensor th = at::from_blob(const_cast<float*>(s.theta_k.data()), {1, s.P, 6}, at::kFloat)
+                                .narrow(1, s.P - est.P(), est.P())
+                                .contiguous();
+      const float* last = s.theta_k.data() + (s.P - 1) * 6;
+      double want = 0;
+      for (pinn::PinnNet net : est.members()) {
+        const pinn::PinnOutput o = net->forward(obs, th);
+        const at::Tensor u = o.theta_u[0].to(at::kDouble);
+        const fee::Soil soil{u[pinn::kSoilC].item<double>(), u[pinn::kSoilPhi].item<double>(),
+                             u[pinn::kSoilGamma].item<double>(), u[pinn::kSoilCa].item<double>(),
+                             u[pinn::kSoilDelta].item<double>()};
+        const fee::Geometry g{last[pinn::kKAlpha], last[pinn::kKRho], last[pinn::kKD], last[pinn::kKW], last[pinn::kKQ]};
+        const double bmin = fee::betaMin(soil, g);
+        want += (std::isfinite(bmin) ? bmin : fee::betaNominal(soil)) + o.beta_res[0].item<float>();
+      }
+      want /= static_cast<double>(est.size());
+      EXPECT_NEAR(got.beta_rad, want, 1e-9);
+      EXPECT_GT(std::abs(got.beta_rad - (M_PI / 4 - got.mean[SoilEstimateRecord::kPhi] / 2 + got.beta_res_rad)), 1e-3)
+          << "the test model was trained with beta*, not Rankine's angle";
+    }
     EXPECT_EQ(got.members, 3);
     for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
       EXPECT_TRUE(std::isfinite(got.mean[k]));

@@ -63,6 +63,26 @@ TEST(PinnSample, FeatureNamesMatchTheFeatureCount) {
   EXPECT_EQ(thetaKNames().size(), static_cast<std::size_t>(kThetaK));
 }
 
+TEST(PinnSample, StalledRowIsTracksTurningWithTheBaseHeld) {
+  // The rule reads base_vx and the two track speeds by index: they must be those features.
+  ASSERT_EQ(obsFeatureNames()[0], "base_vx_mps");
+  ASSERT_EQ(obsFeatureNames()[26], "track_left_mps");
+  ASSERT_EQ(obsFeatureNames()[27], "track_right_mps");
+  Observation o;
+  o.track_speed_mps = {1.0, 0.8};  // mean 0.9 m/s
+  o.twist_base[0] = 0.17;          // below 0.2 * 0.9
+  EXPECT_TRUE(stalledRow(observationRow(o).features));
+  o.twist_base[0] = 0.19;  // above
+  EXPECT_FALSE(stalledRow(observationRow(o).features));
+  o.track_speed_mps = {0.05, 0.05};  // the tracks barely turn: standing, not stalled
+  o.twist_base[0] = 0.0;
+  EXPECT_FALSE(stalledRow(observationRow(o).features));
+  o.track_speed_mps = {-1.0, -1.0};  // reversing
+  EXPECT_FALSE(stalledRow(observationRow(o).features));
+  o.track_speed_mps = {std::nan(""), 1.0};
+  EXPECT_FALSE(stalledRow(observationRow(o).features));
+}
+
 TEST(PinnSample, FeaturesDoNotDependOnWhereOrWhichWayTheMachineWorks) {
   // The same manoeuvre heading east and heading 130 degrees elsewhere on the site: every feature
   // is in the machine's own frames, so they must agree (to float rounding of the poses).

@@ -60,8 +60,9 @@ struct SoilEstimateRecord {
   double rho_rad = kNaN;       ///< alpha + blade angle (SweepRecord::rho_rad)
   double d_m = kNaN;           ///< the sweep's cut depth normal to the surface (SweepRecord::d_m)
   double w_m = kNaN;           ///< cut width (SweepRecord::w_m)
-  /// Failure angle the FEE layer used: betaNominal(φ) + β_res = π/4 - φ/2 + β_res with φ and
-  /// β_res the members' means (betaNominal is linear, so this is also the members' mean β), rad.
+  /// Failure angle the FEE layer used at the last horizon step, the members' mean: the model's
+  /// base angle (β* minimising N_γ, or Rankine's π/4 - φ/2 for models trained with
+  /// `beta_base: nominal`) plus β_res, rad.
   double beta_rad = kNaN;
   double d_res_m = kNaN;       ///< depth residual added to d in the FEE (members' mean), m
   double beta_res_rad = kNaN;  ///< failure-angle residual (members' mean), rad
