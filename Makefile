@@ -49,12 +49,13 @@ test-asan: deps
 # Every test under ThreadSanitizer in its own tree (build-tsan). Executor and the simulator run
 # their tasks on std::threads there (Debian's TBB is not instrumented; docs/reliability.md);
 # libtorch is not instrumented either and keeps its own thread pool, so the torch plugins are off.
+TSAN_OPTIONS = halt_on_error=1:second_deadlock_stack=1:suppressions=$(CURDIR)/scripts/tsan.supp
 test-tsan: deps
 	cmake -S . -B build-tsan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRAMAP_SANITIZE=thread \
 	  -DTERRAMAP_WITH_TORCH=OFF $(SAN_FLAGS)
-	cmake --build build-tsan -j $(JOBS)
-	cd build-tsan && TSAN_OPTIONS=halt_on_error=1:second_deadlock_stack=1:suppressions=$(CURDIR)/scripts/tsan.supp \
-	  ctest --output-on-failure -j $(JOBS) --timeout 3600 $(CTEST_ARGS)
+	# The build runs every test binary to list its tests (gtest_discover_tests): under TSan too.
+	TSAN_OPTIONS=$(TSAN_OPTIONS) cmake --build build-tsan -j $(JOBS)
+	cd build-tsan && TSAN_OPTIONS=$(TSAN_OPTIONS) ctest --output-on-failure -j $(JOBS) --timeout 3600 $(CTEST_ARGS)
 
 # One libFuzzer target per reader (fuzz/), built with clang in build-fuzz/; findings are kept in
 # build-fuzz/artifacts/<target>/ and fail the run (docs/reliability.md, "Fuzzing").

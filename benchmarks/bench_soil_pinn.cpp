@@ -1,13 +1,15 @@
 // Latency of one soil estimate, what the soil_pinn plugin spends per blade sweep
 // (ALGORITHMS.md §F; issue 12 goal: <= 1 ms on 1 thread, ensemble included).
 //
-//   BM_SoilPinn: SoilEstimator::estimate(sample) for ONE sample (batch 1) with a deep ensemble
-//     of 5 PinnNet members, T = 30 history steps x 34 observation features, P = 10 horizon
-//     steps, encoder hidden {128, 128}; one intra-op thread (at::set_num_threads(1), as the
-//     plugin runs it). Each iteration is the whole estimate: observation normalisation, the
-//     five forward passes with the FEE physics layer and its autograd Jacobian, Eq. 7 nullspace
-//     inflation (SVD per horizon step), and the ensemble's means and variances.
-//     Time per iteration = latency per estimate.
+//   BM_SoilPinn: SoilEstimator::estimateFast(sample), the torch-free path the plugin runs
+//     (terramap/soil/pinn_inference.hpp), for ONE sample with a deep ensemble of 5 members,
+//     T = 30 history steps x 34 observation features, P = 10 horizon steps, encoder hidden
+//     {128, 128}, physics layer at beta*. Each iteration is the whole estimate: observation
+//     normalisation, five encoder passes (Eigen, float), the FEE and its Jacobian per horizon
+//     step (terramap::fee), Eq. 7 nullspace inflation (one SVD of the stacked 20 x 5 Jacobian
+//     per member), the ensemble's means and variances. Time per iteration = latency per estimate.
+//   BM_SoilPinn_Libtorch: the same estimate through libtorch (SoilEstimator::estimate, what
+//     training and `terramap eval-soil` use), one intra-op thread.
 //   Counters: estimates_per_s (iterations per second of wall time), members (ensemble size),
 //     valid_members (members whose FEE was valid at some horizon step for this sample: the
 //     Jacobian and nullspace work is done for valid steps, so a sample the FEE rejects would
@@ -62,13 +64,14 @@ soil::PinnSample sample() {
   return s;
 }
 
-void BM_SoilPinn(benchmark::State& state) {
+template <bool kFast>
+void runEstimates(benchmark::State& state) {
   at::set_num_threads(1);
   const pinn::SoilEstimator& est = estimator();
   const soil::PinnSample s = sample();
   int valid_members = 0;
   for (auto _ : state) {
-    pinn::SoilEstimate e = est.estimate(s);
+    pinn::SoilEstimate e = kFast ? est.estimateFast(s) : est.estimate(s);
     valid_members = e.valid_members;
     benchmark::DoNotOptimize(e);
   }
@@ -76,7 +79,11 @@ void BM_SoilPinn(benchmark::State& state) {
   state.counters["members"] = kMembers;
   state.counters["valid_members"] = valid_members;
 }
+
+void BM_SoilPinn(benchmark::State& state) { runEstimates<true>(state); }
 BENCHMARK(BM_SoilPinn)->Unit(benchmark::kMicrosecond)->UseRealTime();
+void BM_SoilPinn_Libtorch(benchmark::State& state) { runEstimates<false>(state); }
+BENCHMARK(BM_SoilPinn_Libtorch)->Unit(benchmark::kMicrosecond)->UseRealTime();
 
 // Where BM_SoilPinn's time goes, per member (x5 in BM_SoilPinn), same sample, same thread rule:
 //   BM_SoilPinn_MemberForward: PinnNet::forward (encoder, heads, FEE layer, its autograd

@@ -196,6 +196,33 @@ double betaMin(const Soil& s, const Geometry& g) {
   return best;
 }
 
+Eigen::Vector2d betaMinGradient(const Soil& s, const Geometry& g) {
+  const Eigen::Vector2d nan(kNaN, kNaN);
+  if (!std::isfinite(betaMin(s, g))) return nan;
+  const double phi = s.phi_rad, delta = s.delta_rad, alpha = g.alpha_rad, rho = g.rho_rad;
+  const double K1 = std::sin(delta + rho - alpha), K2 = std::sin(rho), dK1 = std::cos(delta + rho - alpha);
+  const double E = alpha + delta + rho + 2 * phi;
+  const double a = K1 * std::cos(rho) - K2 * std::cos(E);
+  const double b = -K1 * std::sin(rho) + K2 * std::sin(E);
+  const double R = std::hypot(a, b);
+  const double rhs = std::sin(delta - alpha);
+  if (R < kFlatTol && std::abs(rhs) < kFlatTol) return {-0.5, 0.0};  // betaMin() returned Rankine's angle
+  // Partial derivatives of a, b, rhs w.r.t. phi (dE/dphi = 2) and delta (dE/ddelta = 1).
+  const double da[2] = {2 * K2 * std::sin(E), dK1 * std::cos(rho) + K2 * std::sin(E)};
+  const double db[2] = {2 * K2 * std::cos(E), -dK1 * std::sin(rho) + K2 * std::cos(E)};
+  const double dr[2] = {0.0, std::cos(delta - alpha)};
+  const double u = rhs / R, root = std::sqrt(1 - u * u);
+  if (!(root > 0)) return nan;  // acos at its pole: beta* is not differentiable there
+  Eigen::Vector2d out;
+  for (int k = 0; k < 2; ++k) {
+    const double dt0 = (a * db[k] - b * da[k]) / (R * R);
+    const double dR = (a * da[k] + b * db[k]) / R;
+    const double du = (dr[k] * R - rhs * dR) / (R * R);
+    out[k] = 0.5 * (dt0 - du / root);
+  }
+  return out;
+}
+
 Validity check(const Soil& s, const Geometry& g, double beta) {
   if (!std::isfinite(beta)) return Validity::NotFinite;
   const Validity v = checkWithoutBeta(s, g);

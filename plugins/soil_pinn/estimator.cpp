@@ -28,13 +28,18 @@ SoilEstimator::SoilEstimator(std::vector<PinnNet> members, std::vector<float> ob
   const PinnConfig& c0 = members_.front()->config();
   for (const auto& m : members_) {
     const PinnConfig& c = m->config();
-    if (c.T != c0.T || c.P != c0.P || c.D_o != c0.D_o || c.hidden != c0.hidden)
-      throw std::invalid_argument("SoilEstimator: members differ in T, P, D_o or hidden sizes");
+    if (c.T != c0.T || c.P != c0.P || c.D_o != c0.D_o || c.hidden != c0.hidden || c.beta_base != c0.beta_base)
+      throw std::invalid_argument("SoilEstimator: members differ in T, P, D_o, hidden sizes or beta_base");
   }
   if (obs_mean_.size() != static_cast<std::size_t>(c0.D_o) || obs_std_.size() != obs_mean_.size())
     throw std::invalid_argument("SoilEstimator: observation normalisation must have D_o entries");
   for (float s : obs_std_)
     if (!(s > 0) || !std::isfinite(s)) throw std::invalid_argument("SoilEstimator: observation std must be > 0");
+  std::vector<soil::PinnMemberWeights> weights;
+  for (const PinnNet& m : members_) weights.push_back(m->exportWeights());
+  fast_ = soil::PinnInference(std::move(weights), obs_mean_, obs_std_);
+  const at::Tensor sa = defaultAmbiguityVariance();
+  for (int k = 0; k < kSoilCount; ++k) ambiguity_var_[static_cast<std::size_t>(k)] = sa[k].item<double>();
 }
 
 at::Tensor SoilEstimator::normaliseObs(const float* raw, long batch, int T_stored) const {
@@ -124,6 +129,14 @@ std::vector<SoilEstimate> SoilEstimator::estimate(const float* obs_raw, const fl
 
 SoilEstimate SoilEstimator::estimate(const soil::PinnSample& s, const NullspaceTolerances& tol) const {
   return estimate(s.obs.data(), s.theta_k.data(), 1, s.T, s.P, tol).front();
+}
+
+SoilEstimate SoilEstimator::estimateFast(const soil::PinnSample& s, const NullspaceTolerances& tol) const {
+  soil::PinnInferenceOptions opt;
+  opt.a_tol = tol.a_tol;
+  opt.r_tol = tol.r_tol;
+  opt.ambiguity_var = ambiguity_var_;
+  return fast_.estimate(s.obs.data(), s.T, s.theta_k.data(), s.P, opt);
 }
 
 void saveEstimator(const SoilEstimator& e, const std::string& path) {

@@ -150,6 +150,48 @@ PinnOutput PinnNetImpl::forward(const at::Tensor& obs, const at::Tensor& theta_k
   return out;
 }
 
+soil::PinnMemberWeights PinnNetImpl::exportWeights() const {
+  using RowMajor = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  auto mat = [](const at::Tensor& t) {
+    const at::Tensor c = t.detach().to(at::kFloat).contiguous();
+    return Eigen::MatrixXf(Eigen::Map<const RowMajor>(c.data_ptr<float>(), c.size(0), c.size(1)));
+  };
+  auto vec = [](const at::Tensor& t) {
+    const at::Tensor c = t.detach().to(at::kFloat).contiguous();
+    return Eigen::VectorXf(Eigen::Map<const Eigen::VectorXf>(c.data_ptr<float>(), c.numel()));
+  };
+  soil::PinnMemberWeights w;
+  w.T = cfg_.T;
+  w.P = cfg_.P;
+  w.D_o = cfg_.D_o;
+  w.beta_min = cfg_.beta_base == BetaBase::Min;
+  for (const auto& m : encoder_->children())
+    if (const auto* lin = m->as<torch::nn::Linear>()) {
+      w.encoder_W.push_back(mat(lin->weight));
+      w.encoder_b.push_back(vec(lin->bias));
+    }
+  w.theta_W = mat(head_theta_->weight);
+  w.theta_b = vec(head_theta_->bias);
+  w.logvar_W = mat(head_logvar_->weight);
+  w.logvar_b = vec(head_logvar_->bias);
+  w.res_W = mat(head_res_->weight);
+  w.res_b = vec(head_res_->bias);
+  w.fr_W = mat(head_fr_->weight);
+  w.fr_b = vec(head_fr_->bias);
+  w.theta_k_mean = vec(theta_mean_);
+  w.theta_k_std = vec(theta_std_);
+  for (int k = 0; k < kSoilCount; ++k) {
+    w.soil_lo[static_cast<std::size_t>(k)] = static_cast<float>(kSoilRanges[k].lo);
+    w.soil_span[static_cast<std::size_t>(k)] = static_cast<float>(kSoilRanges[k].hi - kSoilRanges[k].lo);
+  }
+  const at::Tensor off = logvar_offset_.contiguous();
+  for (int k = 0; k < kLogVarCount; ++k) w.logvar_offset[static_cast<std::size_t>(k)] = off[k].item<float>();
+  w.d_res_max_m = static_cast<float>(kDResMaxM);
+  w.beta_res_max_rad = static_cast<float>(kBetaResMaxRad);
+  w.force_res_scale_n = static_cast<float>(kForceResScaleN);
+  return w;
+}
+
 std::string PinnNetImpl::metadataJson() const {
   nlohmann::json j;
   j["format"] = kFormat;

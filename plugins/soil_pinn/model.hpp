@@ -22,6 +22,8 @@
 /// construct while another thread draws from torch's global CPU generator.
 #include "fee_torch.hpp"
 
+#include <terramap/soil/pinn_inference.hpp>
+
 #include <torch/nn/module.h>
 #include <torch/nn/modules/container/sequential.h>
 #include <torch/nn/modules/linear.h>
@@ -126,6 +128,9 @@ class PinnNetImpl : public torch::nn::Module {
   const PinnConfig& config() const { return cfg_; }
   /// The metadata stored with the model (see savePinn()).
   std::string metadataJson() const;
+
+  /// The weights as plain arrays for the torch-free inference (terramap/soil/pinn_inference.hpp).
+  soil::PinnMemberWeights exportWeights() const;
 
   /// The heads, exposed for tests and for freezing parts in training.
   torch::nn::Linear headTheta() const { return head_theta_; }

@@ -166,10 +166,8 @@ void SoilPinn::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
     ctx.countDrop(std::string("sweep_") + soil::sampleSkipName(why));
     return;
   }
-  // On the calling (engine) thread, one intra-op thread: OpenMP's count is per thread, so set
-  // it before every estimate (README, "Threading").
-  at::set_num_threads(1);
-  const pinn::SoilEstimate e = estimator_->estimate(sample, tol_);
+  // On the calling (engine) thread, without libtorch (README, "Threading" and "Latency").
+  const pinn::SoilEstimate e = estimator_->estimateFast(sample, tol_);
   auto rec = std::make_shared<const SoilEstimateRecord>(
       soilEstimateRecord(sweep, sample, e, static_cast<int>(estimator_->size())));
   ctx.addCounter("estimates", 1);

@@ -117,6 +117,12 @@ double betaNominal(const Soil& s);
 /// interval (then the minimum is a boundary, not a failure plane).
 double betaMin(const Soil& s, const Geometry& g);
 
+/// d beta*/d phi and d beta*/d delta (rad/rad) of betaMin(), differentiating its closed form
+/// (the admissible root it returns: 2 beta* = atan2(b, a) + acos(sin(delta - alpha) / R) + 2 pi k,
+/// so k drops out). {NaN, NaN} where betaMin() is NaN, in the flat case (returns Rankine's
+/// angle there: {-0.5, 0}) is handled as betaMin() handles it.
+Eigen::Vector2d betaMinGradient(const Soil& s, const Geometry& g);
+
 /// Checks every validity rule for (soil, geometry, beta); returns the first that fails.
 Validity check(const Soil& s, const Geometry& g, double beta_rad);
 /// The N-factors at beta. Computed even when invalid (may be infinite or NaN there).

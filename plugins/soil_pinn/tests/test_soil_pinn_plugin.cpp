@@ -253,7 +253,7 @@ TEST(SoilPinnPlugin, PublishesTheEstimateOfTheDatasetSample) {
       if (w->sweep_index == s.sweep_index) sweep = w.get();
     ASSERT_NE(sweep, nullptr);
     EXPECT_TRUE(sweep->fee_valid);
-    const pinn::SoilEstimate e = est.estimate(s, {1500.0, 0.05});
+    const pinn::SoilEstimate e = est.estimateFast(s, {1500.0, 0.05});
     expectSameRecord(got, plugins::soilEstimateRecord(*sweep, s, e, 3));
     // The record carries the sweep's geometry and the FEE beta used.
     EXPECT_EQ(got.alpha_rad, sweep->alpha_rad);
@@ -279,7 +279,7 @@ TEST(SoilPinnPlugin, PublishesTheEstimateOfTheDatasetSample) {
         want += (std::isfinite(bmin) ? bmin : fee::betaNominal(soil)) + o.beta_res[0].item<float>();
       }
       want /= static_cast<double>(est.size());
-      EXPECT_NEAR(got.beta_rad, want, 1e-9);
+      EXPECT_NEAR(got.beta_rad, want, 1e-6);  // the member outputs of libtorch vs Eigen, float rounding
       EXPECT_GT(std::abs(got.beta_rad - (M_PI / 4 - got.mean[SoilEstimateRecord::kPhi] / 2 + got.beta_res_rad)), 1e-3)
           << "the test model was trained with beta*, not Rankine's angle";
     }

@@ -186,3 +186,68 @@ TEST(Trainer, TrainingDataTakesTheEndOfTheHistoryAndDropsNonFiniteForces) {
   EXPECT_THROW(makeTrainingData(ds, kT, kP + 1), InputError);
   fs::remove_all(data);
 }
+
+namespace {
+
+/// Every field of the torch-free estimate against the libtorch one, for every sample of `d`
+/// (the encoder runs in float32 in both, with different summation orders: compare to float
+/// rounding, relative to each parameter's range). Returns how many samples had a valid FEE.
+int expectFastPathMatches(const SoilEstimator& est, const TrainingData& d) {
+  const NullspaceTolerances tol{1500.0, 0.05};
+  const auto slow = est.estimate(d.obs_raw.data_ptr<float>(), d.theta_k.data_ptr<float>(), d.size(), kT, kP, tol);
+  int valid = 0;
+  for (long i = 0; i < d.size(); ++i) {
+    SCOPED_TRACE("sample " + std::to_string(i));
+    soil::PinnSample s;
+    s.T = kT;
+    s.P = kP;
+    s.obs.assign(d.obs_raw[i].data_ptr<float>(), d.obs_raw[i].data_ptr<float>() + kT * soil::kObsFeatures);
+    s.theta_k.assign(d.theta_k[i].data_ptr<float>(), d.theta_k[i].data_ptr<float>() + kP * 6);
+    const SoilEstimate f = est.estimateFast(s, tol);
+    const SoilEstimate& t = slow[static_cast<std::size_t>(i)];
+    EXPECT_EQ(f.valid, t.valid);
+    EXPECT_EQ(f.valid_members, t.valid_members);
+    valid += t.valid;
+    for (int k = 0; k < kSoilCount; ++k) {
+      const double span = kSoilRanges[k].hi - kSoilRanges[k].lo;
+      EXPECT_NEAR(f.mean[k], t.mean[k], 1e-5 * span) << "property " << k;
+      EXPECT_NEAR(f.var_aleatoric[k], t.var_aleatoric[k], 1e-4 * t.var_aleatoric[k]) << "property " << k;
+      EXPECT_NEAR(f.var_nullspace[k], t.var_nullspace[k], 1e-4 * t.var_nullspace[k]) << "property " << k;
+      EXPECT_NEAR(f.var_epistemic[k], t.var_epistemic[k], 1e-4 * t.var_epistemic[k] + 1e-9 * span * span)
+          << "property " << k;
+    }
+    EXPECT_EQ(f.F.size(), t.F.size());
+    for (std::size_t p = 0; p < std::min(f.F.size(), t.F.size()); ++p)
+      for (int c = 0; c < 2; ++c)
+        EXPECT_NEAR(f.F[p][c], t.F[p][c], 1e-4 * std::max(1.0, std::hypot(t.F[p][0], t.F[p][1])));
+    EXPECT_NEAR(f.beta_rad, t.beta_rad, 1e-6);
+    EXPECT_NEAR(f.d_res_m, t.d_res_m, 1e-7);
+    EXPECT_NEAR(f.F_r[0], t.F_r[0], 1e-3);
+  }
+  return valid;
+}
+
+}  // namespace
+
+TEST(Trainer, TheTorchFreeInferenceGivesTheLibtorchEstimate) {
+  // A trained ensemble (beta*) and an untrained one with Rankine's angle, on the dataset's
+  // samples plus copies cut above the surface (no valid FEE step) and half cut (one step).
+  const fs::path data = makeDataset("fast", 6, 6);
+  TrainConfig c = smallConfig(data, data / "fast.pt");
+  c.max_epochs = 3;
+  trainEnsemble(c);
+  const TrainingData td = makeTrainingData(eval::readSoilDataset(data.string()), kT, kP);
+  TrainingData mixed = td;
+  mixed.theta_k = td.theta_k.clone();
+  for (long i = 0; i < td.size(); i += 3) mixed.theta_k[i].select(1, kKD).fill_(-0.05);  // above the surface
+  for (long i = 1; i < td.size(); i += 3) mixed.theta_k[i][0][kKD] = -0.05;              // one step invalid
+  const SoilEstimator trained = loadEstimator(c.out);
+  EXPECT_GT(expectFastPathMatches(trained, td), td.size() / 2);
+  expectFastPathMatches(trained, mixed);
+  std::vector<PinnNet> members;
+  for (int64_t seed : {5, 6, 7})
+    members.emplace_back(PinnConfig{kT, kP, soil::kObsFeatures, {16, 8}, seed, BetaBase::Nominal});
+  const SoilEstimator rankine(std::move(members), trained.obsMean(), trained.obsStd());
+  expectFastPathMatches(rankine, mixed);
+  fs::remove_all(data);
+}

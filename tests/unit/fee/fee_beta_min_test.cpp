@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <random>
 
 namespace terramap::fee {
 namespace {
@@ -129,6 +130,44 @@ TEST(FeeBetaMin, FlatNGammaGivesTheNominalAngle) {
       EXPECT_NEAR(factors(s, g, beta).N_gamma, 1 / (2 * std::sin(rho)), 1e-14);
     EXPECT_DOUBLE_EQ(betaMin(s, g), kPi / 4) << "rho " << rho;
   }
+}
+
+TEST(FeeBetaMin, GradientMatchesCentralDifferences) {
+  // d beta*/d phi and d beta*/d delta of the closed form against central differences of
+  // betaMin() itself, over random admissible angles (slopes both ways).
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> U(0.0, 1.0);
+  int checked = 0;
+  for (int i = 0; i < 3000 && checked < 500; ++i) {
+    Soil s;
+    s.phi_rad = 0.05 + 0.8 * U(rng);
+    s.delta_rad = 0.6 * U(rng);
+    Geometry g;
+    g.alpha_rad = -0.5 + U(rng);
+    g.rho_rad = 0.4 + 2.2 * U(rng);
+    const Eigen::Vector2d grad = betaMinGradient(s, g);
+    if (!std::isfinite(betaMin(s, g))) {
+      EXPECT_TRUE(std::isnan(grad[0]) && std::isnan(grad[1]));
+      continue;
+    }
+    const double h = 1e-6;
+    Soil sp = s, sm = s;
+    sp.phi_rad += h, sm.phi_rad -= h;
+    const double fp = betaMin(sp, g), fm = betaMin(sm, g);
+    Soil tp = s, tm = s;
+    tp.delta_rad += h, tm.delta_rad -= h;
+    const double gp = betaMin(tp, g), gm = betaMin(tm, g);
+    if (!std::isfinite(fp + fm + gp + gm)) continue;  // at the edge of the admissible region
+    EXPECT_NEAR(grad[0], (fp - fm) / (2 * h), 1e-6) << "phi " << s.phi_rad << " delta " << s.delta_rad;
+    EXPECT_NEAR(grad[1], (gp - gm) / (2 * h), 1e-6) << "phi " << s.phi_rad << " delta " << s.delta_rad;
+    ++checked;
+  }
+  EXPECT_GE(checked, 500);
+  // The flat case returns Rankine's angle, whose gradient is (-1/2, 0).
+  Soil flat;
+  Geometry g;
+  g.rho_rad = kPi / 2;
+  EXPECT_EQ(betaMinGradient(flat, g), Eigen::Vector2d(-0.5, 0.0));
 }
 
 TEST(FeeBetaMin, NaNForOutOfRangeAngles) {

@@ -1,0 +1,195 @@
+// The soil estimator's inference with Eigen and terramap::fee (pinn_inference.hpp): the same
+// arithmetic as PinnNet::forward + SoilEstimator::estimate in plugins/soil_pinn, member by member.
+#include <terramap/soil/pinn_inference.hpp>
+
+#include <terramap/soil/fee.hpp>
+
+#include <Eigen/SVD>
+
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace terramap::soil {
+namespace {
+
+constexpr int kSoil = 5;
+constexpr int kThetaKCols = 6;
+
+/// One member's outputs for one sample.
+struct MemberOut {
+  Eigen::Matrix<double, kSoil, 1> theta, var_a, var_n;
+  double d_res = 0, beta_res = 0, beta_last = 0;
+  Eigen::Vector2d F_r = Eigen::Vector2d::Zero();
+  std::vector<Eigen::Vector2d> F;
+  bool any_valid = false;
+};
+
+float sigmoid(float z) { return 1.0f / (1.0f + std::exp(-z)); }
+
+/// fee::Soil from the estimator's order [c, phi, ca, delta, gamma].
+fee::Soil toSoil(const Eigen::Matrix<double, kSoil, 1>& t) {
+  fee::Soil s;
+  s.c_pa = t[0];
+  s.phi_rad = t[1];
+  s.ca_pa = t[2];
+  s.delta_rad = t[3];
+  s.gamma_n_m3 = t[4];
+  return s;
+}
+
+MemberOut runMember(const PinnMemberWeights& m, const Eigen::VectorXf& obs_flat, const float* theta_k,
+                    const PinnInferenceOptions& opt) {
+  const int P = m.P;
+  Eigen::VectorXf x(obs_flat.size() + P * kThetaKCols);
+  x.head(obs_flat.size()) = obs_flat;
+  for (int p = 0; p < P; ++p)
+    for (int k = 0; k < kThetaKCols; ++k)
+      x[obs_flat.size() + p * kThetaKCols + k] = (theta_k[p * kThetaKCols + k] - m.theta_k_mean[k]) / m.theta_k_std[k];
+  for (std::size_t l = 0; l < m.encoder_W.size(); ++l) x = (m.encoder_W[l] * x + m.encoder_b[l]).array().tanh().matrix();
+
+  MemberOut o;
+  const Eigen::VectorXf zt = m.theta_W * x + m.theta_b;
+  const Eigen::VectorXf lv = m.logvar_W * x + m.logvar_b;
+  const Eigen::VectorXf zr = m.res_W * x + m.res_b;
+  const Eigen::VectorXf zf = m.fr_W * x + m.fr_b;
+  for (int k = 0; k < kSoil; ++k) {
+    o.theta[k] = static_cast<double>(m.soil_lo[k] + m.soil_span[k] * sigmoid(zt[k]));
+    o.var_a[k] = std::exp(static_cast<double>(lv[k] + m.logvar_offset[k]));
+  }
+  o.d_res = static_cast<double>(m.d_res_max_m * std::tanh(zr[0]));
+  o.beta_res = static_cast<double>(m.beta_res_max_rad * std::tanh(zr[1]));
+  o.F_r = Eigen::Vector2d(m.force_res_scale_n * zf[0], m.force_res_scale_n * zf[1]);
+
+  // Physics layer per horizon step, in double.
+  const fee::Soil s = toSoil(o.theta);
+  Eigen::MatrixXd J = Eigen::MatrixXd::Zero(2 * P, kSoil);
+  o.F.resize(static_cast<std::size_t>(P));
+  for (int p = 0; p < P; ++p) {
+    const float* k = theta_k + p * kThetaKCols;
+    fee::Geometry g;
+    g.rho_rad = k[0];
+    g.alpha_rad = k[1];
+    g.w_m = k[2];
+    g.d_m = static_cast<double>(k[3]) + o.d_res;
+    g.q_n = k[4];
+    double base = std::nan("");
+    Eigen::Vector2d dbase(-0.5, 0.0);  // d base / d (phi, delta) of Rankine's angle
+    if (m.beta_min) {
+      base = fee::betaMin(s, g);
+      if (std::isfinite(base)) dbase = fee::betaMinGradient(s, g);
+    }
+    if (!std::isfinite(base)) base = fee::betaNominal(s);
+    const double beta = base + o.beta_res;
+    if (p == P - 1) o.beta_last = beta;
+    Eigen::Vector2d F = o.F_r;
+    if (fee::check(s, g, beta) == fee::Validity::Valid) {
+      o.any_valid = true;
+      F += fee::evaluate(s, g, beta).F_N;
+      const fee::Jacobian Jf = fee::jacobianF(s, g, beta);
+      J.block<2, 1>(2 * p, 0) = Jf.col(fee::kC);
+      J.block<2, 1>(2 * p, 1) = Jf.col(fee::kPhi) + dbase[0] * Jf.col(fee::kBeta);
+      J.block<2, 1>(2 * p, 2) = Jf.col(fee::kCa);
+      J.block<2, 1>(2 * p, 3) = Jf.col(fee::kDelta) + dbase[1] * Jf.col(fee::kBeta);
+      J.block<2, 1>(2 * p, 4) = Jf.col(fee::kGamma);
+    }
+    o.F[static_cast<std::size_t>(p)] = F;
+  }
+
+  // Eq. 7: diag((I - V_k V_k^T) Sigma_a) with the singular directions kept by the tolerances.
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(J, Eigen::ComputeThinV);
+  const Eigen::VectorXd& sv = svd.singularValues();
+  const double cutoff = std::max(opt.r_tol * (sv.size() > 0 ? sv.maxCoeff() : 0.0), opt.a_tol);
+  Eigen::Matrix<double, kSoil, 1> kept_sq = Eigen::Matrix<double, kSoil, 1>::Zero();
+  for (int j = 0; j < sv.size(); ++j)
+    if (sv[j] > cutoff) kept_sq += svd.matrixV().col(j).cwiseAbs2();
+  for (int k = 0; k < kSoil; ++k) o.var_n[k] = std::max(o.var_a[k], (1.0 - kept_sq[k]) * opt.ambiguity_var[static_cast<std::size_t>(k)]);
+  return o;
+}
+
+}  // namespace
+
+PinnInference::PinnInference(std::vector<PinnMemberWeights> members, std::vector<float> obs_mean,
+                             std::vector<float> obs_std)
+    : members_(std::move(members)), obs_mean_(std::move(obs_mean)), obs_std_(std::move(obs_std)) {
+  if (members_.empty()) throw std::invalid_argument("PinnInference: empty ensemble");
+  const PinnMemberWeights& m0 = members_.front();
+  for (const PinnMemberWeights& m : members_) {
+    if (m.T != m0.T || m.P != m0.P || m.D_o != m0.D_o || m.P < 1 || m.T < m.P || m.D_o < 1)
+      throw std::invalid_argument("PinnInference: members differ in T, P or D_o, or 1 <= P <= T fails");
+    if (m.encoder_W.size() != m.encoder_b.size())
+      throw std::invalid_argument("PinnInference: encoder weights and biases differ in count");
+    Eigen::Index width = static_cast<Eigen::Index>(m.T) * m.D_o + static_cast<Eigen::Index>(m.P) * kThetaKCols;
+    for (std::size_t l = 0; l < m.encoder_W.size(); ++l) {
+      if (m.encoder_W[l].cols() != width || m.encoder_b[l].size() != m.encoder_W[l].rows())
+        throw std::invalid_argument("PinnInference: encoder layer " + std::to_string(l) + " does not chain");
+      width = m.encoder_W[l].rows();
+    }
+    auto head = [&](const Eigen::MatrixXf& W, const Eigen::VectorXf& b, Eigen::Index out, const char* name) {
+      if (W.cols() != width || W.rows() != out || b.size() != out)
+        throw std::invalid_argument(std::string("PinnInference: head ") + name + " has the wrong shape");
+    };
+    head(m.theta_W, m.theta_b, kSoil, "theta");
+    head(m.logvar_W, m.logvar_b, 7, "log_var");
+    head(m.res_W, m.res_b, 2, "res");
+    head(m.fr_W, m.fr_b, 2, "force_res");
+    if (m.theta_k_mean.size() != kThetaKCols || m.theta_k_std.size() != kThetaKCols)
+      throw std::invalid_argument("PinnInference: theta_k normalisation needs 6 values");
+  }
+  if (obs_mean_.size() != static_cast<std::size_t>(m0.D_o) || obs_std_.size() != obs_mean_.size())
+    throw std::invalid_argument("PinnInference: observation normalisation must have D_o entries");
+  for (float s : obs_std_)
+    if (!(s > 0) || !std::isfinite(s)) throw std::invalid_argument("PinnInference: observation std must be > 0");
+}
+
+PinnEstimate PinnInference::estimate(const float* obs_raw, int T_stored, const float* theta_k, int P_stored,
+                                     const PinnInferenceOptions& opt) const {
+  PinnEstimate e;
+  const int T = this->T(), P = this->P(), D = members_.front().D_o;
+  if (T_stored < T || P_stored < P) return e;
+  Eigen::VectorXf obs(static_cast<Eigen::Index>(T) * D);
+  for (int t = 0; t < T; ++t)
+    for (int k = 0; k < D; ++k) {
+      const float raw = obs_raw[(T_stored - T + t) * D + k];
+      const float z = (raw - obs_mean_[static_cast<std::size_t>(k)]) / obs_std_[static_cast<std::size_t>(k)];
+      obs[t * D + k] = std::isfinite(z) ? z : 0.0f;
+    }
+  const float* tk = theta_k + static_cast<std::ptrdiff_t>(P_stored - P) * kThetaKCols;
+  const double M = static_cast<double>(members_.size());
+  Eigen::Matrix<double, kSoil, 1> mean = Eigen::Matrix<double, kSoil, 1>::Zero(), sq = mean, va = mean, vn = mean;
+  Eigen::Vector2d fr = Eigen::Vector2d::Zero();
+  std::vector<Eigen::Vector2d> F(static_cast<std::size_t>(P), Eigen::Vector2d::Zero());
+  std::vector<Eigen::Matrix<double, kSoil, 1>> thetas;
+  for (const PinnMemberWeights& m : members_) {
+    const MemberOut o = runMember(m, obs, tk, opt);
+    mean += o.theta;
+    thetas.push_back(o.theta);
+    va += o.var_a;
+    vn += o.var_n;
+    fr += o.F_r;
+    for (int p = 0; p < P; ++p) F[static_cast<std::size_t>(p)] += o.F[static_cast<std::size_t>(p)];
+    e.d_res_m += o.d_res;
+    e.beta_res_rad += o.beta_res;
+    e.beta_rad += o.beta_last;
+    e.valid_members += o.any_valid ? 1 : 0;
+  }
+  mean /= M;
+  for (const auto& t : thetas) sq += (t - mean).cwiseAbs2();
+  for (int k = 0; k < kSoil; ++k) {
+    const std::size_t ku = static_cast<std::size_t>(k);
+    e.mean[ku] = mean[k];
+    e.var_aleatoric[ku] = va[k] / M;
+    e.var_nullspace[ku] = vn[k] / M;
+    e.var_epistemic[ku] = sq[k] / M;  // population variance, as the libtorch path
+    e.var_total[ku] = e.var_nullspace[ku] + e.var_epistemic[ku];
+  }
+  e.F_r = {fr.x() / M, fr.y() / M};
+  for (const auto& f : F) e.F.push_back({f.x() / M, f.y() / M});
+  e.d_res_m /= M;
+  e.beta_res_rad /= M;
+  e.beta_rad /= M;
+  e.valid = 2 * e.valid_members > static_cast<int>(members_.size());
+  return e;
+}
+
+}  // namespace terramap::soil
