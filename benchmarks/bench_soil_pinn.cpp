@@ -23,7 +23,6 @@
 // soil_pinn_kernels, built with the module's flags.
 #include "estimator.hpp"
 
-#include <terramap/soil/fee.hpp>
 
 #include <ATen/Parallel.h>
 #include <torch/torch.h>
@@ -85,14 +84,11 @@ BENCHMARK(BM_SoilPinn)->Unit(benchmark::kMicrosecond)->UseRealTime();
 void BM_SoilPinn_Libtorch(benchmark::State& state) { runEstimates<false>(state); }
 BENCHMARK(BM_SoilPinn_Libtorch)->Unit(benchmark::kMicrosecond)->UseRealTime();
 
-// Where BM_SoilPinn's time goes, per member (x5 in BM_SoilPinn), same sample, same thread rule:
+// Where BM_SoilPinn_Libtorch's time goes, per member (x5), same sample, same thread rule:
 //   BM_SoilPinn_MemberForward: PinnNet::forward (encoder, heads, FEE layer, its autograd
 //     Jacobian, Sigma_F) under NoGradGuard;
 //   BM_SoilPinn_MemberFeeJacobian: feeJacobian alone on that member's inputs (B = 1, P = 10);
-//   BM_SoilPinn_MemberNullspace: soilVariances (Eq. 7, one SVD of the stacked [2P x 5] Jacobian);
-//   BM_SoilPinn_CppFeeJacobian: for comparison, the same P = 10 forces and Jacobians with the
-//     analytic C++ FEE (terramap::fee::evaluate + fee::jacobianF), what a torch-free inference
-//     path could cost.
+//   BM_SoilPinn_MemberNullspace: soilVariances (Eq. 7, one SVD of the stacked [2P x 5] Jacobian).
 struct MemberInputs {
   at::Tensor obs, theta_k;
   pinn::PinnOutput out;
@@ -144,35 +140,6 @@ void BM_SoilPinn_MemberNullspace(benchmark::State& state) {
 }
 BENCHMARK(BM_SoilPinn_MemberNullspace)->Unit(benchmark::kMicrosecond)->UseRealTime();
 
-void BM_SoilPinn_CppFeeJacobian(benchmark::State& state) {
-  const MemberInputs& in = memberInputs();
-  fee::Soil soil;
-  const auto th = in.out.theta_u.accessor<float, 2>();
-  soil.c_pa = th[0][pinn::kSoilC];
-  soil.phi_rad = th[0][pinn::kSoilPhi];
-  soil.ca_pa = th[0][pinn::kSoilCa];
-  soil.delta_rad = th[0][pinn::kSoilDelta];
-  soil.gamma_n_m3 = th[0][pinn::kSoilGamma];
-  const double beta = in.out.beta[0].item<double>(), d_res = in.out.d_res[0].item<double>();
-  const auto k = in.theta_k.accessor<float, 3>();
-  std::vector<fee::Geometry> steps(kP);
-  for (int p = 0; p < kP; ++p)
-    steps[p] = {k[0][p][pinn::kKAlpha], k[0][p][pinn::kKRho], k[0][p][pinn::kKD] + d_res, k[0][p][pinn::kKW],
-                k[0][p][pinn::kKQ]};
-  int valid = 0;
-  for (auto _ : state) {
-    valid = 0;
-    for (const fee::Geometry& g : steps) {
-      const fee::Result r = fee::evaluate(soil, g, beta);
-      benchmark::DoNotOptimize(r);
-      if (!r.valid()) continue;
-      ++valid;
-      benchmark::DoNotOptimize(fee::jacobianF(soil, g, beta));
-    }
-  }
-  state.counters["valid_steps"] = valid;
-}
-BENCHMARK(BM_SoilPinn_CppFeeJacobian)->Unit(benchmark::kMicrosecond)->UseRealTime();
 
 }  // namespace
 
