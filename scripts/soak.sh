@@ -3,7 +3,8 @@
 #
 # Runs `terramap run configs/soak/pipeline.yaml`: the simulator's compact track loader drives a
 # looping route (configs/soak/scenario.yaml: 10 lanes of 22 m, cut forward, reversed, back and
-# forth) for SOAK_SECONDS of simulated time through lidar_fusion, blade_sweep and soil_erosion,
+# forth) for SOAK_SECONDS of simulated time through lidar_fusion, blade_sweep, soil_erosion and
+# soil_pinn (the committed models/soil_pinn.pt),
 # the map following the machine. While it runs, the process's resident memory (VmRSS in
 # /proc/PID/status) is sampled every SOAK_SAMPLE_S wall seconds; the program itself writes one
 # entry per simulated minute into report.json's "series" (events, drops, records, tiles, its own
@@ -58,7 +59,7 @@ sample_s=${SOAK_SAMPLE_S:-2}
 shape_tol_m=${SOAK_SHAPE_TOL_M:-0.005}
 offset_max_m=${SOAK_OFFSET_MAX_M:-0.06}
 
-[[ -x $bin ]] || { echo "soak: $bin not found (build it: cmake --build build --target terramap lidar_fusion blade_sweep soil_erosion)" >&2; exit 2; }
+[[ -x $bin ]] || { echo "soak: $bin not found (build it: cmake --build build --target terramap lidar_fusion blade_sweep soil_erosion soil_pinn)" >&2; exit 2; }
 mkdir -p "$out"
 out=$(cd "$out" && pwd)
 rm -f "$out/report.json" "$out/soak_summary.json" "$out/soak_summary.txt"
@@ -67,7 +68,8 @@ rm -f "$out/report.json" "$out/soak_summary.json" "$out/soak_summary.txt"
 # thread count (pipeline and simulator alike: SOAK_THREADS=1 when another job has a core).
 # SOAK_LOCALISATION=perfect is the ablation: the same run with poses that are the truth.
 loc=${SOAK_LOCALISATION:+, localisation: $SOAK_LOCALISATION}
-sed -e "s|max_time_s: 3600|max_time_s: $sim_s$loc|" "$root/configs/soak/pipeline.yaml" > "$out/pipeline.yaml"
+sed -e "s|max_time_s: 3600|max_time_s: $sim_s$loc|" -e "s|model: models/soil_pinn.pt|model: $root/models/soil_pinn.pt|" \
+  "$root/configs/soak/pipeline.yaml" > "$out/pipeline.yaml"
 sed -e "s|^threads: 2$|threads: $threads|" "$root/configs/soak/scenario.yaml" > "$out/scenario.yaml"
 grep -q "max_time_s: $sim_s$loc}" "$out/pipeline.yaml" || { echo "soak: could not set max_time_s in the pipeline copy" >&2; exit 2; }
 grep -q "^threads: $threads$" "$out/scenario.yaml" || { echo "soak: could not set threads in the scenario copy" >&2; exit 2; }
@@ -218,6 +220,12 @@ for s in report["stages"]:
         sweeps = [r for r in s["records"] if r.get("type") == "terramap.sweep.v1"]
         check("blade: one record per sweep", len(sweeps) == c.get("sweeps", 0),
               f"{len(sweeps)} sweep records vs {c.get('sweeps', 0):.0f} sweeps")
+    if s["type"] == "soil_pinn":
+        skipped = sum(v for k, v in d.items() if k.startswith("sweep_"))
+        check("soil: every sweep estimated or skipped by reason", c.get("estimates", 0) + skipped == c.get("sweeps", 0),
+              f"{c.get('sweeps', 0):.0f} sweeps = {c.get('estimates', 0):.0f} estimates + {skipped} skipped ({', '.join(k for k in d if k.startswith('sweep_'))})")
+        check("soil: one record per estimate", len(s["records"]) == c.get("estimates", 0),
+              f"{len(s['records'])} records vs {c.get('estimates', 0):.0f} estimates")
 last_e = series[-1]
 check("series: its last entry saw every event", last_e["events"] == report["events_total"],
       f"{last_e['events']} vs {report['events_total']}")

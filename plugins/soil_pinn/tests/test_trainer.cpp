@@ -9,6 +9,7 @@
 #include <terramap/soil/soil_table.hpp>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 #include <unistd.h>
 
 #include <cmath>
@@ -250,4 +251,50 @@ TEST(Trainer, TheTorchFreeInferenceGivesTheLibtorchEstimate) {
   const SoilEstimator rankine(std::move(members), trained.obsMean(), trained.obsStd());
   expectFastPathMatches(rankine, mixed);
   fs::remove_all(data);
+}
+
+TEST(DefaultModel, TheCommittedModelHasTheDocumentedSettingsAndRuns) {
+  // models/soil_pinn.pt: `terramap train configs/train/pinn.yaml` on the dataset of
+  // configs/dataset/pinn.yaml (docs/soil_estimator.md). Loading it checks its format, version
+  // and the observation features of this build; the settings below are those of the config.
+  const SoilEstimator est = loadEstimator(std::string(TERRAMAP_SOURCE_DIR) + "/models/soil_pinn.pt");
+  ASSERT_EQ(est.size(), 5u);
+  const PinnConfig& c = est.members().front()->config();
+  EXPECT_EQ(c.T, 30);
+  EXPECT_EQ(c.P, 10);
+  EXPECT_EQ(c.hidden, (std::vector<int>{128, 128}));
+  EXPECT_EQ(c.beta_base, BetaBase::Min);
+  TrainConfig tc;  // configs/train/pinn.yaml
+  tc.T = 30;
+  tc.P = 10;
+  tc.hidden = {128, 128};
+  tc.members = 5;
+  tc.seed = 1;
+  tc.batch = 100;
+  tc.max_epochs = 60;
+  tc.patience = 8;
+  tc.learning_rate = 0.001;
+  tc.weights.lambda_Fr = 2e-5;
+  tc.beta_base = BetaBase::Min;
+  tc.mask_stalled = true;
+  const nlohmann::json tj = nlohmann::json::parse(est.trainingJson());
+  EXPECT_EQ(tj.at("train_config_hash").get<std::string>(), trainConfigHash(tc));
+  EXPECT_EQ(tj.at("train_samples").get<long>(), 4751);
+  // A plausible cut: a valid estimate inside the soil ranges, the same by both paths.
+  soil::PinnSample s;
+  s.T = 30;
+  s.P = 10;
+  s.obs.assign(static_cast<std::size_t>(s.T) * soil::kObsFeatures, 0.0f);
+  for (int t = 0; t < s.T; ++t) {
+    float* f = s.obs.data() + t * soil::kObsFeatures;
+    for (int k = 0; k < soil::kObsFeatures; ++k) f[k] = est.obsMean()[static_cast<std::size_t>(k)];
+  }
+  for (int p = 0; p < s.P; ++p) s.theta_k.insert(s.theta_k.end(), {1.40f, 0.0f, 1.8f, 0.08f, 1500.0f, 0.6f});
+  const SoilEstimate fast = est.estimateFast(s), slow = est.estimate(s);
+  ASSERT_TRUE(fast.valid);
+  for (int k = 0; k < kSoilCount; ++k) {
+    EXPECT_GE(fast.mean[k], kSoilRanges[k].lo);
+    EXPECT_LE(fast.mean[k], kSoilRanges[k].hi);
+    EXPECT_NEAR(fast.mean[k], slow.mean[k], 1e-5 * (kSoilRanges[k].hi - kSoilRanges[k].lo));
+  }
 }
