@@ -107,10 +107,21 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
     }
     if (options.on_progress) options.on_progress(source->progress(), n);
   }
-  // The end of the events, unless the last boundary entry came after the last event.
-  if (every > 0 && std::isfinite(last_t) && (series.empty() || series.back()["events"].get<long>() != n)) sample(last_t);
   engine->finish();
   for (const auto& [reason, count] : source->dropped()) engine->countSourceDrop(reason, count);
+  // The last entry is the run's end, after finish() (stages may still drop or report there,
+  // e.g. soil_pinn's pending sweeps) and the source's drops, so it matches the report's totals;
+  // skipped only when the last boundary entry already says exactly that.
+  if (every > 0 && std::isfinite(last_t)) {
+    const std::size_t before = series.size();
+    sample(last_t);
+    if (before > 0) {
+      const nlohmann::json& a = series[before - 1];
+      const nlohmann::json& b = series[before];
+      if (a["events"] == b["events"] && a["dropped"] == b["dropped"] && a["records_total"] == b["records_total"])
+        series.erase(before);
+    }
+  }
   const double run_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 
   // Sources that know the truth (the simulator) get error layers and statistics.

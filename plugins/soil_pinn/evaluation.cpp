@@ -305,4 +305,39 @@ std::string fig11Csv(const SoilEvaluation& e) {
   return os.str();
 }
 
+io::Image fig11Chart(const SoilEvaluation& e, const std::string& caption) {
+  // Colour-blind-safe family colours (Okabe-Ito).
+  const io::Rgba colours[4] = {{213, 94, 0, 255}, {0, 114, 178, 255}, {230, 159, 0, 255}, {0, 158, 115, 255}};
+  std::vector<io::ChartPanel> panels(kSoilCount);
+  for (int k = 0; k < kSoilCount; ++k) {
+    io::ChartPanel& p = panels[static_cast<std::size_t>(k)];
+    p.title = std::string(kName[k]);
+    p.x_label = "relative density I_d (bin centre)";
+    p.y_label = kDisplayUnit[k];
+    for (int fam = 0; fam < 4; ++fam) {
+      const std::string name = soil::soilFamilyName(static_cast<soil::SoilFamily>(fam));
+      io::ChartSeries est{name + ": estimate +-1 sigma", colours[fam], {}, {}, {}, false};
+      io::ChartSeries truth{name + ": truth", colours[fam], {}, {}, {}, true};
+      for (const Fig11Bin& b : e.fig11) {
+        if (b.family != fam) continue;
+        const double x = (b.bin + 0.5) / 10.0, scale = kDisplayScale[k];
+        // A small offset per family so the bars of one bin do not hide each other.
+        est.x.push_back(x + 0.012 * (fam - 1.5));
+        est.y.push_back(b.mean[k] * scale);
+        est.y_err.push_back(b.sigma[k] * scale);
+        truth.x.push_back(x);
+        truth.y.push_back(b.truth[k] * scale);
+      }
+      if (!est.x.empty()) {
+        p.series.push_back(truth);
+        p.series.push_back(est);
+      }
+    }
+  }
+  io::ChartOptions o;
+  o.title = "Soil estimates against the truth by relative density (test and held-out splits)";
+  o.caption = caption;
+  return io::renderChart(panels, o);
+}
+
 }  // namespace terramap::pinn

@@ -6,6 +6,8 @@
 #include "estimator.hpp"
 #include "trainer.hpp"
 
+#include <terramap/io/chart.hpp>
+
 #include <array>
 #include <cmath>
 #include <string>
@@ -68,5 +70,10 @@ std::string evaluationJson(const SoilEvaluation& e);
 std::string evaluationMarkdown(const SoilEvaluation& e);
 /// CSV of the Fig. 11 bins: family,id_bin,samples, then truth/mean/sigma per property.
 std::string fig11Csv(const SoilEvaluation& e);
+/// The Fig. 11 analogue as a picture: one panel per property (display units), x = I_d bin
+/// centre, per soil family the estimate's bin mean with ±1σ bars (sqrt of the mean total
+/// variance) and the truth's bin mean as a line; `caption` goes under the title.
+/// 	hrows OutputError (font).
+io::Image fig11Chart(const SoilEvaluation& e, const std::string& caption);
 
 }  // namespace terramap::pinn

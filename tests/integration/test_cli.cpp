@@ -103,6 +103,28 @@ outputs: {dir: out, geotiff: [elevation, elevation_smooth], png: all}
   EXPECT_NE(ex2.out.find("did you mean 'elevation'"), std::string::npos) << ex2.out;
 }
 
+TEST(Cli, TheSeriesLastEntryIsTheRunsEndAfterFinish) {
+  // test_probe reports a record per event and one more in finish(): the series' last entry
+  // must include it (it is taken after finish()), so it matches the report's totals.
+  const fs::path d = tempDir("series");
+  write(d / "p.yaml", R"(version: 1
+map: {resolution: 0.5, size: [8, 8], tile: 8}
+plugin_paths: [)" + std::string(TERRAMAP_BINARY_DIR) + R"(/test_plugins]
+pipeline:
+  - {name: p, type: test_probe, params: {records: true, events: [point_cloud]}}
+source: {type: sequence, clouds: )" + std::string(TERRAMAP_DATA_DIR) + R"(/kitti_hdl64, extensions: [.bin], max_frames: 3}
+outputs: {dir: out, png: [], snapshot: false, series_interval_s: 0.05}
+)");
+  const Result r = sh("run " + (d / "p.yaml").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto report = nlohmann::json::parse(std::ifstream(d / "out" / "report.json"));
+  const auto& series = report["series"];
+  ASSERT_FALSE(series.empty());
+  EXPECT_EQ(report["stages"][0]["records_total"], 4);  // three clouds + finish()
+  EXPECT_EQ(series.back()["records_total"], report["stages"][0]["records_total"]);
+  EXPECT_EQ(series.back()["events"], report["events_total"]);
+}
+
 TEST(Cli, ExitCodesPerErrorClass) {
   const fs::path d = tempDir("codes");
   write(d / "syntax.yaml", "version: 1\npipeline: [\n");

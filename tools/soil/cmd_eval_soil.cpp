@@ -7,6 +7,8 @@
 
 #include "evaluation.hpp"
 
+#include <terramap/io/render.hpp>
+
 #include <cstdio>
 #include <filesystem>
 
@@ -22,7 +24,7 @@ Registrar reg{Command{"eval-soil", [](CLI::App& app, std::function<int()>& run) 
   auto a = std::make_shared<EvalSoilArgs>();
   CLI::App* sub = app.add_subcommand("eval-soil",
                                      "Evaluate a soil estimator on a dataset's test and held-out splits (writes "
-                                     "eval_soil.json, eval_soil.md, fig11.csv)");
+                                     "eval_soil.json, eval_soil.md, fig11.csv, fig11.png)");
   sub->add_option("model", a->model, "model file written by `terramap train`")->required();
   sub->add_option("dataset", a->dataset, "dataset folder written by `terramap dataset`")->required();
   sub->add_option("--out", a->out, "output folder")->required();
@@ -40,8 +42,10 @@ Registrar reg{Command{"eval-soil", [](CLI::App& app, std::function<int()>& run) 
       io::writeFileAtomically(fs::path(a->out) / "eval_soil.json", pinn::evaluationJson(ev) + "\n");
       io::writeFileAtomically(fs::path(a->out) / "eval_soil.md", md);
       io::writeFileAtomically(fs::path(a->out) / "fig11.csv", pinn::fig11Csv(ev));
+      io::writePng(pinn::fig11Chart(ev, "model " + fs::path(a->model).filename().string() + ", dataset " + a->dataset),
+                   fs::path(a->out) / "fig11.png");
       std::printf("%s\n", md.c_str());
-      for (const char* f : {"eval_soil.json", "eval_soil.md", "fig11.csv"})
+      for (const char* f : {"eval_soil.json", "eval_soil.md", "fig11.csv", "fig11.png"})
         std::printf("wrote %s\n", (fs::path(a->out) / f).string().c_str());
       return kOk;
     };
