@@ -1,6 +1,7 @@
 // Unit tests of lidar_fusion with hand-computed expectations (see the comments at each
 // expectation for the arithmetic).
 #include "lidar_fusion.hpp"
+#include "memory_budget_scope.hpp"
 
 #include <terramap/core/memory_budget.hpp>
 
@@ -683,18 +684,7 @@ TEST(LidarFusion, BitIdenticalAtOneAndTwoThreads) {
   }
 }
 
-namespace {
-class BudgetGuard {
- public:
-  explicit BudgetGuard(std::uint64_t bytes) : old_(memoryBudget()) { setMemoryBudget(bytes); }
-  ~BudgetGuard() { setMemoryBudget(old_); }
-  BudgetGuard(const BudgetGuard&) = delete;
-  BudgetGuard& operator=(const BudgetGuard&) = delete;
-
- private:
-  std::uint64_t old_;
-};
-}  // namespace
+using BudgetGuard = terramap::test::MemoryBudgetScope;
 
 TEST(LidarFusion, SparseMapAtItsMemoryBudgetDropsTheTilesItCannotHoldCounted) {
   // A sparse 40 x 40 map in tiles of 8 (25 per layer, 7 layers, 256 bytes a tile) with a budget

@@ -138,17 +138,22 @@ TEST_F(PinnLoss, InvalidSampleKeepsOnlyItsResidualForce) {
   EXPECT_GT(h.out.F.grad()[0].abs().sum().item<double>(), 0.0);
 }
 
-TEST_F(PinnLoss, PartlyValidSampleCountsPerStep) {
-  // Sample 0 with step 1 invalid: force terms keep step 0 only, per-sample terms count half.
-  HandMade h = handMade(false);
-  h.out.valid[0][1] = false;
-  const LossTerms t = pinnLoss(h.out, h.force, noFloor());
+/// Sample 0 with its step 1 left out (invalid or masked): force terms keep step 0 only,
+/// per-sample terms count half, F^r counts whole.
+void expectStepOneLeftOut(const LossTerms& t) {
   EXPECT_NEAR(t.force_mae.item<double>(), 20.0 / 2, 1e-12);
   EXPECT_NEAR(t.nll.item<double>(), 0.5 * (50 + std::log(64.0)) / 2, 1e-10);
   EXPECT_NEAR(t.dngamma.item<double>(), 0.5 / 2, 1e-12);
   EXPECT_NEAR(t.range.item<double>(), kRange / 2, 1e-9);
   EXPECT_NEAR(t.residual.item<double>(), kResidual / 2, 1e-12);
   EXPECT_NEAR(t.force_res.item<double>(), kForceRes, 1e-12);
+}
+
+TEST_F(PinnLoss, PartlyValidSampleCountsPerStep) {
+  // Sample 0 with step 1 invalid: force terms keep step 0 only, per-sample terms count half.
+  HandMade h = handMade(false);
+  h.out.valid[0][1] = false;
+  expectStepOneLeftOut(pinnLoss(h.out, h.force, noFloor()));
 }
 
 TEST_F(PinnLoss, MaskedRowCountsAsAnInvalidStep) {
@@ -159,13 +164,7 @@ TEST_F(PinnLoss, MaskedRowCountsAsAnInvalidStep) {
   h.force[0][1][0] = 1e7;
   at::Tensor mask = at::ones({1, 2}, at::kBool);
   mask[0][1] = false;
-  const LossTerms t = pinnLoss(h.out, h.force, noFloor(), mask);
-  EXPECT_NEAR(t.force_mae.item<double>(), 20.0 / 2, 1e-12);
-  EXPECT_NEAR(t.nll.item<double>(), 0.5 * (50 + std::log(64.0)) / 2, 1e-10);
-  EXPECT_NEAR(t.dngamma.item<double>(), 0.5 / 2, 1e-12);
-  EXPECT_NEAR(t.range.item<double>(), kRange / 2, 1e-9);
-  EXPECT_NEAR(t.residual.item<double>(), kResidual / 2, 1e-12);
-  EXPECT_NEAR(t.force_res.item<double>(), kForceRes, 1e-12);
+  expectStepOneLeftOut(pinnLoss(h.out, h.force, noFloor(), mask));
   // An all-true mask changes nothing.
   const LossTerms all = pinnLoss(h.out, h.force, noFloor(), at::ones({1, 2}, at::kBool));
   const LossTerms none = pinnLoss(h.out, h.force, noFloor());

@@ -3,6 +3,8 @@
 #include <terramap/core/memory_budget.hpp>
 #include <terramap/core/parallel.hpp>
 
+#include "memory_budget_scope.hpp"
+
 #include <gtest/gtest.h>
 
 #include <array>
@@ -173,19 +175,7 @@ TEST(LayeredMap, SparseAllocatesOnFirstWriteOnly) {
   EXPECT_LE(m.allocatedTiles(), 1);
 }
 
-namespace {
-/// Sets the process's memory budget for one test and puts the old one back.
-class BudgetGuard {
- public:
-  explicit BudgetGuard(std::uint64_t bytes) : old_(memoryBudget()) { setMemoryBudget(bytes); }
-  ~BudgetGuard() { setMemoryBudget(old_); }
-  BudgetGuard(const BudgetGuard&) = delete;
-  BudgetGuard& operator=(const BudgetGuard&) = delete;
-
- private:
-  std::uint64_t old_;
-};
-}  // namespace
+using BudgetGuard = terramap::test::MemoryBudgetScope;
 
 TEST(LayeredMap, SparseTilesStayWithinTheMemoryBudget) {
   // 160 x 160 cells in tiles of 16: 100 tiles per layer, two layers, 1 KiB a tile; the budget
