@@ -643,6 +643,15 @@ struct RunResult {
   std::vector<Eigen::MatrixXf> layers;
 };
 
+/// Scan k of a short drive: the sensor moves 0.4 m in x, 0.1 m in y and turns 0.05 rad per scan.
+PointCloud movingScan(int k) {
+  PointCloud pc;
+  pc.stamp = 0.1 * k;
+  pc.T_map_sensor = Eigen::Translation3d(0.4 * k, 0.1 * k, 1.8) * Eigen::AngleAxisd(0.05 * k, Eigen::Vector3d::UnitZ());
+  pc.points = syntheticScan(42 + k);
+  return pc;
+}
+
 RunResult runSequence(int threads, bool sparse, const LidarFusionConfig& c) {
   LayeredMap map(Geometry(0.1, Size(200, 200)), MapOptions{32, sparse});
   LidarFusion f;
@@ -652,13 +661,7 @@ RunResult runSequence(int threads, bool sparse, const LidarFusionConfig& c) {
   RecordBus bus;
   PluginStats stats;
   ProcessContext ctx(map, ex, bus, stats, "lidar");
-  for (int k = 0; k < 4; ++k) {
-    PointCloud pc;
-    pc.stamp = 0.1 * k;
-    pc.T_map_sensor = Eigen::Translation3d(0.4 * k, 0.1 * k, 1.8) * Eigen::AngleAxisd(0.05 * k, Eigen::Vector3d::UnitZ());
-    pc.points = syntheticScan(42 + k);
-    f.process(ctx, Event(pc));
-  }
+  for (int k = 0; k < 4; ++k) f.process(ctx, Event(movingScan(k)));
   RunResult r;
   for (const char* name : {L::kElevation, L::kVariance, L::kIsValid, L::kTimeSinceUpdate, L::kUpperBound,
                            L::kIsUpperBound, L::kHits})
@@ -752,11 +755,7 @@ TEST(LidarFusion, SparseMapAtItsMemoryBudgetIsBitIdenticalAtOneAndTwoThreads) {
     RecordBus bus;
     ProcessContext ctx(map, ex, bus, stats, "lidar");
     for (int k = 0; k < 4; ++k) {
-      PointCloud pc;
-      pc.stamp = 0.1 * k;
-      pc.T_map_sensor = Eigen::Translation3d(0.4 * k, 0.1 * k, 1.8) * Eigen::AngleAxisd(0.05 * k, Eigen::Vector3d::UnitZ());
-      pc.points = syntheticScan(42 + k);
-      f.process(ctx, Event(pc));
+      f.process(ctx, Event(movingScan(k)));
       EXPECT_LE(map.allocatedTiles(), 100);
     }
     std::vector<Eigen::MatrixXf> layers;
