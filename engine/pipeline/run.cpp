@@ -33,6 +33,119 @@ std::uint64_t residentBytes() {
   return n == 2 && page > 0 ? static_cast<std::uint64_t>(resident) * static_cast<std::uint64_t>(page) : 0;
 }
 
+/// The report's "series": one entry at the first event at or after each multiple of
+/// `every` seconds of event time (so a long run shows whether memory, drops or the error drift),
+/// and a last one at the run's end, after finish() and the source's drops, so it matches the
+/// report's totals. Disabled when `every` <= 0.
+class SeriesRecorder {
+ public:
+  SeriesRecorder(double every, Engine& engine, Source& source, const RunOptions& options,
+                 std::chrono::steady_clock::time_point t0)
+      : every_(every), engine_(engine), source_(source), options_(options), t0_(t0) {}
+
+  bool enabled() const { return every_ > 0; }
+
+  void afterEvent(double t, long events) {
+    if (!enabled()) return;
+    last_t_ = t;
+    if (std::isnan(next_)) next_ = (std::floor(t / every_) + 1) * every_;
+    if (t >= next_) {
+      sample(t, events);
+      next_ = (std::floor(t / every_) + 1) * every_;
+    }
+  }
+
+  /// The run's end; skipped when the last boundary entry already says exactly that.
+  void atEnd(long events) {
+    if (!enabled() || !std::isfinite(last_t_)) return;
+    const std::size_t before = series_.size();
+    sample(last_t_, events);
+    if (before == 0) return;
+    const nlohmann::json &a = series_[before - 1], &b = series_[before];
+    if (a["events"] == b["events"] && a["dropped"] == b["dropped"] && a["records_total"] == b["records_total"])
+      series_.erase(before);
+  }
+
+  nlohmann::json take() { return std::move(series_); }
+
+ private:
+  void sample(double t, long events) {
+    const RunReport r = engine_.report();  // small: the records are in the spool
+    std::map<std::string, long> dropped = r.source_dropped;
+    long records = 0;
+    for (const auto& st : r.stages) {
+      for (const auto& [reason, count] : st.stats.dropped) dropped[reason] += count;
+      records += st.records_total;
+    }
+    const LayeredMap& map = engine_.map();
+    nlohmann::json entry = {
+        {"t_s", t},
+        {"wall_s", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0_).count()},
+        {"unix_time_s", std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count()},
+        {"events", events},
+        {"dropped", dropped},
+        {"records_total", records},
+        {"map_tiles_allocated", map.allocatedTiles()},
+        {"map_center_m", {map.geometry().center().x(), map.geometry().center().y()}},
+        {"rss_bytes", residentBytes()}};
+    if (options_.truth_stats) {
+      const std::string truth = options_.truth_stats(map, source_);
+      if (!truth.empty()) entry["truth"] = nlohmann::json::parse(truth);
+    }
+    series_.push_back(std::move(entry));
+  }
+
+  double every_;
+  Engine& engine_;
+  Source& source_;
+  const RunOptions& options_;
+  std::chrono::steady_clock::time_point t0_;
+  double next_ = NAN, last_t_ = NAN;
+  nlohmann::json series_ = nlohmann::json::array();
+};
+
+/// map.tif, the PNGs and the snapshot the outputs ask for; appends each file written to `files`.
+void writeMapOutputs(const PipelineSpec& spec, const Engine& engine, const TruthComparison& truth,
+                     std::vector<std::string>& files) {
+  const LayeredMap& map = engine.map();
+  const fs::path dir(spec.outputs.dir);
+  if (!spec.outputs.geotiff.empty()) {
+    io::GeoTiffOptions go;
+    go.georef.epsg = spec.outputs.epsg;
+    if (spec.outputs.origin.size() == 2) {
+      go.georef.origin_easting = spec.outputs.origin[0];
+      go.georef.origin_northing = spec.outputs.origin[1];
+    }
+    go.layer_docs = engine.layerDocs();
+    const fs::path p = dir / "map.tif";
+    io::writeGeoTiff(map, spec.outputs.geotiff, p, go);
+    files.push_back(p.string());
+  }
+  std::vector<std::string> pngs = spec.outputs.png;
+  if (spec.outputs.png_all) pngs = map.layerNames();
+  for (const auto& layer : pngs) {
+    io::RenderOptions ro;
+    ro.scale = std::max(1, 800 / std::max(map.geometry().size().x(), map.geometry().size().y()));
+    ro.nan_color = io::Rgba{128, 128, 128, 255};
+    const std::string& unit = map.layerInfo(map.layerId(layer)).unit;
+    // Heights read best hillshaded; everything else as a plain colour map.
+    ro.hillshade = unit == "m" && layer.find("elevation") != std::string::npos && layer != "elevation_error";
+    if (ro.hillshade) ro.ambient = 0.35;
+    if (layer == "elevation_error") ro.colormap = "rdbu";  // symmetric around 0: white = no error
+    io::Annotation an;
+    if (std::find(truth.layers.begin(), truth.layers.end(), layer) != truth.layers.end()) an.caption = truth.caption;
+    if (layer == "elevation_error") an.title = "elevation_error: map - truth [cm]";
+    const fs::path p = dir / (layer + ".png");
+    io::renderPng(map, layer, p, ro, an);
+    files.push_back(p.string());
+  }
+  if (spec.outputs.snapshot) {
+    const fs::path p = dir / "map.tmap";
+    io::saveSnapshot(map, p);
+    files.push_back(p.string());
+  }
+}
+
 }  // namespace
 
 RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
@@ -64,64 +177,16 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
   long n = 0;
   Event e;
-  // The series: one entry at the first event at or after each multiple of series_interval_s of
-  // event time, so a long run shows whether memory, drops or the error drift.
-  const double every = spec.outputs.series_interval_s;
-  nlohmann::json series = nlohmann::json::array();
-  double next_sample = NAN;
-  auto sample = [&](double t) {
-    const RunReport r = engine->report();  // small: the records are in the spool
-    std::map<std::string, long> dropped = r.source_dropped;
-    long records = 0;
-    for (const auto& st : r.stages) {
-      for (const auto& [reason, count] : st.stats.dropped) dropped[reason] += count;
-      records += st.records_total;
-    }
-    nlohmann::json entry = {
-        {"t_s", t},
-        {"wall_s", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()},
-        {"unix_time_s", std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count()},
-        {"events", n},
-        {"dropped", dropped},
-        {"records_total", records},
-        {"map_tiles_allocated", engine->map().allocatedTiles()},
-        {"map_center_m", {engine->map().geometry().center().x(), engine->map().geometry().center().y()}},
-        {"rss_bytes", residentBytes()}};
-    if (options.truth_stats) {
-      const std::string truth = options.truth_stats(engine->map(), *source);
-      if (!truth.empty()) entry["truth"] = nlohmann::json::parse(truth);
-    }
-    series.push_back(std::move(entry));
-  };
-  double last_t = NAN;
+  SeriesRecorder series(spec.outputs.series_interval_s, *engine, *source, options, t0);
   while (source->next(e)) {
     engine->push(e);
     ++n;
-    if (every > 0) {
-      last_t = stampOf(e);
-      if (std::isnan(next_sample)) next_sample = (std::floor(last_t / every) + 1) * every;
-      if (last_t >= next_sample) {
-        sample(last_t);
-        next_sample = (std::floor(last_t / every) + 1) * every;
-      }
-    }
+    series.afterEvent(stampOf(e), n);
     if (options.on_progress) options.on_progress(source->progress(), n);
   }
   engine->finish();
   for (const auto& [reason, count] : source->dropped()) engine->countSourceDrop(reason, count);
-  // The last entry is the run's end, after finish() (stages may still drop or report there,
-  // e.g. soil_pinn's pending sweeps) and the source's drops, so it matches the report's totals;
-  // skipped only when the last boundary entry already says exactly that.
-  if (every > 0 && std::isfinite(last_t)) {
-    const std::size_t before = series.size();
-    sample(last_t);
-    if (before > 0) {
-      const nlohmann::json& a = series[before - 1];
-      const nlohmann::json& b = series[before];
-      if (a["events"] == b["events"] && a["dropped"] == b["dropped"] && a["records_total"] == b["records_total"])
-        series.erase(before);
-    }
-  }
+  series.atEnd(n);
   const double run_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 
   // Sources that know the truth (the simulator) get error layers and statistics.
@@ -141,41 +206,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   if (ec) throw OutputError(spec.outputs.dir + ": cannot create output folder: " + ec.message());
   const LayeredMap& map = engine->map();
   const fs::path dir(spec.outputs.dir);
-  if (!spec.outputs.geotiff.empty()) {
-    io::GeoTiffOptions go;
-    go.georef.epsg = spec.outputs.epsg;
-    if (spec.outputs.origin.size() == 2) {
-      go.georef.origin_easting = spec.outputs.origin[0];
-      go.georef.origin_northing = spec.outputs.origin[1];
-    }
-    go.layer_docs = engine->layerDocs();
-    const fs::path p = dir / "map.tif";
-    io::writeGeoTiff(map, spec.outputs.geotiff, p, go);
-    res.files.push_back(p.string());
-  }
-  std::vector<std::string> pngs = spec.outputs.png;
-  if (spec.outputs.png_all) pngs = map.layerNames();
-  for (const auto& layer : pngs) {
-    io::RenderOptions ro;
-    ro.scale = std::max(1, 800 / std::max(map.geometry().size().x(), map.geometry().size().y()));
-    ro.nan_color = io::Rgba{128, 128, 128, 255};
-    const std::string& unit = map.layerInfo(map.layerId(layer)).unit;
-    // Heights read best hillshaded; everything else as a plain colour map.
-    ro.hillshade = unit == "m" && layer.find("elevation") != std::string::npos && layer != "elevation_error";
-    if (ro.hillshade) ro.ambient = 0.35;
-    if (layer == "elevation_error") ro.colormap = "rdbu";  // symmetric around 0: white = no error
-    io::Annotation an;
-    if (std::find(truth.layers.begin(), truth.layers.end(), layer) != truth.layers.end()) an.caption = truth.caption;
-    if (layer == "elevation_error") an.title = "elevation_error: map - truth [cm]";
-    const fs::path p = dir / (layer + ".png");
-    io::renderPng(map, layer, p, ro, an);
-    res.files.push_back(p.string());
-  }
-  if (spec.outputs.snapshot) {
-    const fs::path p = dir / "map.tmap";
-    io::saveSnapshot(map, p);
-    res.files.push_back(p.string());
-  }
+  writeMapOutputs(spec, *engine, truth, res.files);
   if (spec.outputs.report) {
     const fs::path p = dir / "report.json";
     nlohmann::json extra;
@@ -190,9 +221,9 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
     std::vector<std::string> files = res.files;
     files.push_back(p.string());
     extra["files"] = files;
-    if (every > 0) {
-      extra["series_interval_s"] = every;
-      extra["series"] = std::move(series);
+    if (series.enabled()) {
+      extra["series_interval_s"] = spec.outputs.series_interval_s;
+      extra["series"] = series.take();
     }
     writeReport(res.report, p.string(), extra.dump(), spool);
     res.files.push_back(p.string());
