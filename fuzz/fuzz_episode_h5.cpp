@@ -1,5 +1,7 @@
-// libFuzzer target: HDF5 episodes through terramap::sim::readEpisodeDataset (the budget check
-// on a dataset's declared size, then HDF5's read and conversion to double).
+// libFuzzer target: HDF5 episodes through terramap::sim::readEpisodeDataset (the seal of
+// io/file_seal.hpp, the budget check on a dataset's declared size, then HDF5's read and
+// conversion to double). The seeds are sealed, so the unchanged seeds reach libhdf5 and nearly
+// every mutation is refused by the seal (its length, checksum or text), which is the point.
 #include "fuzz_support.hpp"
 
 #include <terramap/sim/episode.hpp>

@@ -4,6 +4,7 @@
 #include <terramap/core/error.hpp>
 #include <terramap/core/text.hpp>
 #include <terramap/io/atomic_file.hpp>
+#include <terramap/io/file_seal.hpp>
 #include <terramap/pipeline/engine.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/pipeline/plugin_loader.hpp>
@@ -377,7 +378,10 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
   for (const auto& [k, v] : ep.skipped) skipped += (skipped.empty() ? "" : ",") + k + "=" + std::to_string(v);
   io::replaceFileAtomically(path, [&](const fs::path& tmp) {
     H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
-    const hid_t f = H5Fcreate(tmp.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+    const hid_t fcpl = H5Pcreate(H5P_FILE_CREATE);
+    H5Pset_userblock(fcpl, io::kSealBytes);  // room for the seal (io/file_seal.hpp)
+    const hid_t f = H5Fcreate(tmp.c_str(), H5F_ACC_TRUNC, fcpl, H5P_DEFAULT);
+    H5Pclose(fcpl);
     if (f < 0) throw OutputError(path + ": cannot create HDF5 file");
     try {
       using namespace h5detail;
@@ -405,6 +409,7 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
       throw;
     }
     if (H5Fclose(f) < 0) throw OutputError(path + ": cannot close HDF5 file");
+    io::sealFile(tmp);
   });
 }
 
@@ -427,6 +432,7 @@ std::vector<fs::path> episodeFiles(const std::string& dir) {
 }
 
 std::string fileAttrString(const std::string& path, const char* name) {
+  io::verifySeal(path);  // a damaged file never reaches libhdf5
   H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
   const hid_t h = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   if (h < 0) throw InputError(path + ": cannot open as HDF5");

@@ -1,6 +1,7 @@
 // HDF5 episode writer (C API). Layout: docs/sim.md.
 #include <terramap/core/error.hpp>
 #include <terramap/core/memory_budget.hpp>
+#include <terramap/io/file_seal.hpp>
 #include <terramap/sim/episode.hpp>
 
 #include "h5_detail.hpp"
@@ -286,7 +287,11 @@ EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, Epis
   I.tmp_path = path + ".tmp-" + std::to_string(::getpid());
   I.opt = options;
   H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);  // errors become OutputError, not stderr noise
-  I.file = H5Fcreate(I.tmp_path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  // Room for the seal (io/file_seal.hpp), written once the file is complete.
+  const hid_t fcpl = H5Pcreate(H5P_FILE_CREATE);
+  H5Pset_userblock(fcpl, io::kSealBytes);
+  I.file = H5Fcreate(I.tmp_path.c_str(), H5F_ACC_TRUNC, fcpl, H5P_DEFAULT);
+  H5Pclose(fcpl);
   if (I.file < 0) throw OutputError(I.tmp_path + ": cannot create HDF5 file");
   const Scenario& sc = sim.scenario();
   attrString(I.file, "format", "terramap-sim-episode");
@@ -434,6 +439,7 @@ void EpisodeWriter::close(const Simulator& sim) {
   attrDouble(I.file, "lost_volume_m3", sim.truth().lostVolume());
   attrDouble(I.file, "bank_volume_final_m3", sim.truth().bankVolume());
   I.closeAll();
+  io::sealFile(I.tmp_path);
   std::error_code ec;
   fs::rename(I.tmp_path, I.final_path, ec);
   if (ec) throw OutputError(I.final_path + ": cannot rename the finished episode into place: " + ec.message());
@@ -442,22 +448,15 @@ void EpisodeWriter::close(const Simulator& sim) {
 
 std::vector<double> readEpisodeDataset(const std::string& path, const std::string& dataset,
                                        std::vector<std::uint64_t>& dims) {
+  // A damaged file never reaches libhdf5, which can crash on one (io/file_seal.hpp).
+  io::verifySeal(path);
   H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
   const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   if (f < 0) throw InputError(path + ": cannot open as HDF5");
   const hid_t ds = H5Dopen2(f, dataset.c_str(), H5P_DEFAULT);
   if (ds < 0) {
     H5Fclose(f);
-    // Version 1 files predate the localisation: their top-level poses were what the mapper
-    // received (then the truth) and they have no estimate/ group. Told from the dataset's name,
-    // not from the file's "version" attribute: decoding the attributes of a damaged file is
-    // where libhdf5 1.10.8 reads past its buffers (fuzz_episode_h5, docs/reliability.md), and a
-    // reader should decode no more of a file than it needs.
-    const bool estimate = dataset.find("/estimate/") != std::string::npos;
-    throw InputError(path + ": no dataset '" + dataset + "'" +
-                     (estimate ? " (episodes of format version 1, written before the localisation estimate was "
-                                 "logged, have no estimate/ group: simulate the scenario again)"
-                               : ""));
+    throw InputError(path + ": no dataset '" + dataset + "'");
   }
   const hid_t sp = H5Dget_space(ds);
   const int nd = H5Sget_simple_extent_ndims(sp);

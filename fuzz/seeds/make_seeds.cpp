@@ -6,6 +6,7 @@
 // point formats, labelled rows, ...). Kept small (most well under 4 KiB): libFuzzer mutates
 // small inputs much faster.
 #include <terramap/core/layered_map.hpp>
+#include <terramap/io/file_seal.hpp>
 #include <terramap/io/geotiff.hpp>
 #include <terramap/io/snapshot.hpp>
 #include "sim/h5_detail.hpp"
@@ -331,7 +332,12 @@ void h5Appendable(hid_t parent, const char* name, hid_t type, const void* data, 
 void tinyEpisode(const fs::path& path, int gzip) {
   using terramap::h5detail::writeArray;
   const std::string where = path.string();
-  const hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  // Sealed as the episode writer seals (io/file_seal.hpp): an unsealed seed would never get past
+  // the reader's seal check, and neither would anything the fuzzer derives from it.
+  const hid_t fcpl = H5Pcreate(H5P_FILE_CREATE);
+  H5Pset_userblock(fcpl, terramap::io::kSealBytes);
+  const hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, fcpl, H5P_DEFAULT);
+  H5Pclose(fcpl);
   terramap::h5detail::attrString(f, "format", "terramap-sim-episode");
   terramap::h5detail::attrU64(f, "version", 2);
   const hid_t terrain = terramap::h5detail::makeGroup(f, "terrain", where);
@@ -355,6 +361,7 @@ void tinyEpisode(const fs::path& path, int gzip) {
   H5Gclose(m);
   H5Gclose(machines);
   H5Fclose(f);
+  terramap::io::sealFile(path);
 }
 
 void episodes() {

@@ -32,7 +32,8 @@ class EpisodeWriter {
   /// every successful next()). Writes a terrain snapshot when its interval has elapsed.
   /// \throws OutputError
   void record(const Simulator& sim, const std::vector<Event>& events);
-  /// Writes the final terrain snapshot, flushes, closes and renames into place.
+  /// Writes the final terrain snapshot, flushes, closes, seals (io/file_seal.hpp) and renames
+  /// into place.
   void close(const Simulator& sim);
 
   struct Impl;
@@ -43,7 +44,9 @@ class EpisodeWriter {
 
 /// Reads one numeric dataset of an episode (any numeric type, converted to double) with its
 /// dimensions; e.g. "/machines/ctl1/force_base_N". For evaluation tools and tests; the layout is
-/// plain HDF5, so h5py or the HDF5 C API read it as well. \throws InputError naming file and dataset.
+/// plain HDF5 behind a 512-byte user block, so h5py or the HDF5 C API read it as well. The file's
+/// seal is verified first (io::verifySeal): a truncated or damaged file is an InputError and never
+/// reaches libhdf5. \throws InputError naming file and dataset.
 std::vector<double> readEpisodeDataset(const std::string& path, const std::string& dataset,
                                        std::vector<std::uint64_t>& dims);
 

@@ -14,6 +14,7 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <thread>
 
 using namespace terramap;
@@ -563,17 +564,51 @@ TEST(Simulator, ProgressesWhenTheExecutorsWorkerIsBusyElsewhere) {
 // file lacks, the reader probed the root's "version" attribute for its hint, and libhdf5
 // 1.10.8 read past its buffer decoding the damaged attribute (SEGV). The hint now comes from the
 // dataset's name; the attributes are never decoded.
-TEST(Episode, DamagedFileIsAnInputErrorWithoutDecodingAttributes) {
+TEST(Episode, DamagedFileIsAnInputErrorWithoutReachingLibhdf5) {
+  // fuzz_episode_h5's finding: an unsealed, damaged file that made libhdf5 read past its buffer.
+  // It is refused by its (missing) seal before libhdf5 opens it.
   const std::string path = std::string(TERRAMAP_SOURCE_DIR) + "/tests/data/fuzz/episode_damaged_attributes.h5";
   std::vector<std::uint64_t> dims;
-  for (const char* name : {"/terrain/height", "/machines/ctl1/T_map_base"})
-    EXPECT_THROW(readEpisodeDataset(path, name, dims), InputError) << name;
-  try {
-    readEpisodeDataset(path, "/machines/ctl1/estimate/T_map_base", dims);
-    ADD_FAILURE() << "expected an InputError";
-  } catch (const InputError& e) {
-    EXPECT_NE(std::string(e.what()).find("format version 1"), std::string::npos) << e.what();
+  for (const char* name : {"/terrain/height", "/machines/ctl1/T_map_base", "/machines/ctl1/estimate/T_map_base"}) {
+    try {
+      readEpisodeDataset(path, name, dims);
+      ADD_FAILURE() << "expected an InputError for " << name;
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("no terramap seal"), std::string::npos) << e.what();
+    }
   }
+}
+
+TEST(Episode, AByteDamagedInsideTheDataIsRefusedNotReadAsOtherValues) {
+  // One flipped bit in the raw (uncompressed) initial terrain reads back as another height
+  // through libhdf5 without any error; the seal turns it into an InputError.
+  const std::string dir = std::string(TERRAMAP_BINARY_DIR) + "/sim_test_episode_damage";
+  std::filesystem::remove_all(dir);
+  const Scenario sc = parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 0.2, 2, true), "s.yaml");
+  EpisodeOptions opt;
+  opt.compression = 0;
+  const std::string path = runEpisode(sc, dir, opt);
+  std::vector<std::uint64_t> dims;
+  const std::vector<double> before = readEpisodeDataset(path, "/terrain/initial_height", dims);
+  ASSERT_GT(before.size(), 1000u);
+  // The file offset of the dataset's middle value: find its bytes in the file.
+  std::ifstream in(path, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  in.close();
+  const std::size_t mid = before.size() / 2;
+  float row[4];
+  for (int k = 0; k < 4; ++k) row[k] = static_cast<float>(before[mid + k]);
+  const std::size_t at = bytes.find(std::string(reinterpret_cast<const char*>(row), sizeof row));
+  ASSERT_NE(at, std::string::npos);
+  bytes[at + 1] = static_cast<char>(bytes[at + 1] ^ 0x01);
+  std::ofstream(path, std::ios::binary | std::ios::trunc).write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  try {
+    readEpisodeDataset(path, "/terrain/initial_height", dims);
+    ADD_FAILURE() << "a damaged value was read without an error";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("damaged: checksum"), std::string::npos) << e.what();
+  }
+  std::filesystem::remove_all(dir);
 }
 
 TEST(Episode, HdfLayoutReadsBack) {

@@ -1,0 +1,132 @@
+#include <terramap/core/error.hpp>
+#include <terramap/io/file_seal.hpp>
+#include <terramap/io/snapshot.hpp>
+
+#include <algorithm>
+#include <cerrno>
+#include <cinttypes>
+#include <cstdio>
+#include <cstring>
+#include <string>
+#include <vector>
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+namespace terramap::io {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr char kSealTag[] = "terramap-seal 1\n";
+
+/// An open descriptor that closes itself.
+struct Fd {
+  int fd = -1;
+  ~Fd() {
+    if (fd >= 0) ::close(fd);
+  }
+};
+
+/// Reads exactly n bytes at `offset`; false at an early end of file, errno set on an error.
+bool readAt(int fd, void* buf, std::size_t n, std::uint64_t offset) {
+  auto* p = static_cast<unsigned char*>(buf);
+  while (n > 0) {
+    const ssize_t r = ::pread(fd, p, n, static_cast<off_t>(offset));
+    if (r < 0) {
+      if (errno == EINTR) continue;
+      return false;
+    }
+    if (r == 0) {
+      errno = 0;
+      return false;
+    }
+    p += r;
+    n -= static_cast<std::size_t>(r);
+    offset += static_cast<std::uint64_t>(r);
+  }
+  return true;
+}
+
+/// CRC-64 of bytes [kSealBytes, size) of `fd`, read in 1 MiB pieces.
+bool crcAfterBlock(int fd, std::uint64_t size, std::uint64_t& crc) {
+  std::vector<unsigned char> buf(std::size_t{1} << 20);
+  crc = 0;
+  for (std::uint64_t at = kSealBytes; at < size;) {
+    const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(buf.size(), size - at));
+    if (!readAt(fd, buf.data(), n, at)) return false;
+    crc = crc64(buf.data(), n, crc);
+    at += n;
+  }
+  return true;
+}
+
+std::string errnoSuffix() { return errno ? std::string(": ") + std::strerror(errno) : std::string(); }
+
+}  // namespace
+
+void sealFile(const fs::path& path) {
+  const std::string p = path.string();
+  Fd f{::open(p.c_str(), O_RDWR | O_CLOEXEC)};
+  if (f.fd < 0) throw OutputError(p + ": cannot open to seal" + errnoSuffix());
+  struct stat st {};
+  if (::fstat(f.fd, &st) != 0) throw OutputError(p + ": cannot stat to seal" + errnoSuffix());
+  const auto size = static_cast<std::uint64_t>(st.st_size);
+  if (size < kSealBytes) throw OutputError(p + ": " + std::to_string(size) + " bytes, shorter than the seal's block");
+  unsigned char block[kSealBytes];
+  if (!readAt(f.fd, block, sizeof block, 0)) throw OutputError(p + ": cannot read the seal's block" + errnoSuffix());
+  // Sealing a file created without the user block would overwrite HDF5's superblock.
+  if (std::any_of(block, block + sizeof block, [](unsigned char c) { return c != 0; }))
+    throw OutputError(p + ": its first " + std::to_string(kSealBytes) +
+                      " bytes are not an empty HDF5 user block (create the file with H5Pset_userblock)");
+  std::uint64_t crc = 0;
+  if (!crcAfterBlock(f.fd, size, crc)) throw OutputError(p + ": cannot read the file to seal it" + errnoSuffix());
+  char text[kSealBytes] = {};
+  std::snprintf(text, sizeof text, "%sbytes %" PRIu64 "\ncrc64 %016" PRIx64 "\n", kSealTag, size, crc);
+  for (std::size_t done = 0; done < sizeof text;) {
+    const ssize_t w = ::pwrite(f.fd, text + done, sizeof text - done, static_cast<off_t>(done));
+    if (w < 0 && errno == EINTR) continue;
+    if (w <= 0) throw OutputError(p + ": cannot write the seal" + errnoSuffix());
+    done += static_cast<std::size_t>(w);
+  }
+  if (::fsync(f.fd) != 0) throw OutputError(p + ": cannot flush the sealed file" + errnoSuffix());
+}
+
+void verifySeal(const fs::path& path) {
+  const std::string p = path.string();
+  Fd f{::open(p.c_str(), O_RDONLY | O_CLOEXEC)};
+  if (f.fd < 0) throw InputError(p + ": cannot open" + errnoSuffix());
+  struct stat st {};
+  if (::fstat(f.fd, &st) != 0) throw InputError(p + ": cannot stat" + errnoSuffix());
+  if (!S_ISREG(st.st_mode)) throw InputError(p + ": not a regular file");
+  const auto size = static_cast<std::uint64_t>(st.st_size);
+  const std::string unsealed =
+      p + ": no terramap seal in its first " + std::to_string(kSealBytes) +
+      " bytes: not written by terramap, or by one older than the seal (2026-11); simulate or generate it again "
+      "(docs/sim.md, \"Episode layout\")";
+  char block[kSealBytes + 1] = {};
+  if (size < kSealBytes || !readAt(f.fd, block, kSealBytes, 0) ||
+      std::strncmp(block, kSealTag, sizeof kSealTag - 1) != 0)
+    throw InputError(unsealed);
+  std::uint64_t want_size = 0, want_crc = 0;
+  int used = 0;
+  if (std::sscanf(block + sizeof kSealTag - 1, "bytes %" SCNu64 "\ncrc64 %16" SCNx64 "\n%n", &want_size, &want_crc,
+                  &used) != 2 ||
+      used == 0)
+    throw InputError(p + ": its seal is damaged (cannot read the length and checksum in its first " +
+                     std::to_string(kSealBytes) + " bytes)");
+  if (want_size != size)
+    throw InputError(p + ": " + std::to_string(size) + " bytes, but its seal says " + std::to_string(want_size) +
+                     (size < want_size ? " (truncated)" : " (extended after it was written)"));
+  std::uint64_t crc = 0;
+  if (!crcAfterBlock(f.fd, size, crc)) throw InputError(p + ": cannot read" + errnoSuffix());
+  if (crc != want_crc) {
+    char hex[64];
+    std::snprintf(hex, sizeof hex, "%016" PRIx64 " where its seal says %016" PRIx64, crc, want_crc);
+    throw InputError(p + ": damaged: checksum (CRC-64) of its contents is " + hex);
+  }
+}
+
+}  // namespace terramap::io
