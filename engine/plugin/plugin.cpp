@@ -1,5 +1,7 @@
 #include <terramap/plugin/plugin.hpp>
 
+#include <algorithm>
+
 namespace terramap {
 
 Plugin::~Plugin() = default;
@@ -14,16 +16,32 @@ const char* layerAccessName(LayerAccess a) {
 }
 
 const Record* RecordBus::latest(const std::string& type) const {
-  auto it = latest_.find(type);
-  return it == latest_.end() ? nullptr : &it->second;
+  auto it = history_.find(type);
+  return it == history_.end() || it->second.empty() ? nullptr : &it->second.back();
+}
+
+RecordBus::Since RecordBus::since(const std::string& type, long after) const {
+  Since out;
+  auto it = history_.find(type);
+  if (it == history_.end() || it->second.empty()) return out;
+  const std::deque<Record>& h = it->second;
+  // Sequences are consecutive, so the ones after `after` that are gone are those below the
+  // oldest kept.
+  out.missed = std::max(0L, h.front().sequence - after - 1);
+  for (const Record& r : h)
+    if (r.sequence > after) out.records.push_back(r);
+  return out;
 }
 
 void RecordBus::publishErased(const std::string& type, double stamp, std::shared_ptr<const void> p) {
-  Record& r = latest_[type];
+  std::deque<Record>& h = history_[type];
+  Record r;
   r.type = type;
-  r.sequence += 1;
+  r.sequence = h.empty() ? 1 : h.back().sequence + 1;
   r.stamp = stamp;
   r.payload = std::move(p);
+  h.push_back(std::move(r));
+  while (h.size() > kHistory) h.pop_front();
 }
 
 }  // namespace terramap

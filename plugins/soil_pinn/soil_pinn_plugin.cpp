@@ -130,14 +130,15 @@ void SoilPinn::start(ProcessContext& ctx) {
 }
 
 void SoilPinn::collectSweep(ProcessContext& ctx) {
-  const Record* r = ctx.records().latest(SweepRecord::kType);
-  if (r == nullptr || r->sequence == last_sequence_) return;
-  // The bus keeps only the latest record: more than one publish since our last look means
-  // sweeps we never saw (blade_sweep is not directly before us, or published twice in one event).
-  if (r->sequence > last_sequence_ + 1) ctx.countDrop("sweep_missed", r->sequence - last_sequence_ - 1);
-  last_sequence_ = r->sequence;
-  pending_.push_back(std::static_pointer_cast<const SweepRecord>(r->payload));
-  ctx.addCounter("sweeps", 1);
+  // Every sweep since our last look, also when blade_sweep published several in one event or
+  // another stage ran between us; only more than RecordBus::kHistory of them can be missed.
+  const RecordBus::Since got = ctx.records().since(SweepRecord::kType, last_sequence_);
+  if (got.missed > 0) ctx.countDrop("sweep_missed", got.missed);
+  for (const Record& r : got.records) {
+    last_sequence_ = r.sequence;
+    pending_.push_back(std::static_pointer_cast<const SweepRecord>(r.payload));
+    ctx.addCounter("sweeps", 1);
+  }
 }
 
 void SoilPinn::buildPending(ProcessContext& ctx, bool all) {

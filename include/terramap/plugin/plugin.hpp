@@ -17,6 +17,8 @@
 #include <terramap/core/parallel.hpp>
 #include <terramap/plugin/params.hpp>
 
+#include <cstddef>
+#include <deque>
 #include <map>
 #include <memory>
 #include <string>
@@ -56,13 +58,20 @@ struct Record {
   std::shared_ptr<const void> payload;
 };
 
+/// The records of one pipeline run, by type. Engine thread only.
 class TERRAMAP_API RecordBus {
  public:
+  /// Records kept per type for since(): a stage that runs once per event sees every record
+  /// published before it in that event (publishers emit at most a few per event) and several
+  /// events back; older ones are released so their payloads do not pile up in a long run.
+  static constexpr std::size_t kHistory = 32;
+
   template <class T>
   void publish(const std::string& type, double stamp, std::shared_ptr<const T> payload) {
     publishErased(type, stamp, std::static_pointer_cast<const void>(std::move(payload)));
   }
-  /// Latest record of `type`, or nullptr. The caller must know the payload type.
+  /// Latest record of `type`, or nullptr. The caller must know the payload type. The pointer
+  /// is valid until the next publish of `type`.
   const Record* latest(const std::string& type) const;
   template <class T>
   std::shared_ptr<const T> latestAs(const std::string& type) const {
@@ -70,9 +79,20 @@ class TERRAMAP_API RecordBus {
     return r ? std::static_pointer_cast<const T>(r->payload) : nullptr;
   }
 
+  /// What since() returns: the records still kept, oldest first, and how many newer than the
+  /// asked sequence are no longer kept (more than kHistory were published since).
+  struct Since {
+    std::vector<Record> records;
+    long missed = 0;
+  };
+  /// Every record of `type` with a sequence above `after` (a consumer passes the last sequence
+  /// it handled, 0 at first). For a consumer that must see each record once, also when a
+  /// publisher emits several in one event (soil_bayes reading soil_pinn's estimates).
+  Since since(const std::string& type, long after) const;
+
  private:
   void publishErased(const std::string& type, double stamp, std::shared_ptr<const void> p);
-  std::map<std::string, Record> latest_;
+  std::map<std::string, std::deque<Record>> history_;  // back() is the latest
 };
 
 /// Which tiles of some layers were written since a stage last ran, for plugins that update

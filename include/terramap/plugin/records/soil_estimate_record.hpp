@@ -14,10 +14,10 @@
 ///
 /// Publication time: the record of a sweep is published once the observation at the sweep's
 /// last pose (stamp >= t1) has reached the plugin (it may arrive after that pose's BladePose), or
-/// at the end of the run; the RecordBus stamp is `stamp` (the end of the horizon). The bus keeps
-/// only the latest record of a type: a consumer that needs every estimate compares `sequence`
-/// with the last one it saw on every event. Several records can be published in one event only
-/// when several sweeps of a machine waited for the same observation, or at finish().
+/// at the end of the run; the RecordBus stamp is `stamp` (the end of the horizon). Several
+/// records can be published in one event (several sweeps of a machine waited for the same
+/// observation, or at finish()): a consumer that needs every estimate reads them with
+/// `RecordBus::since(kType, last_sequence_seen)` (soil_bayes does).
 ///
 /// NaN: a quantity that could not be computed is NaN, never a made-up 0. When `valid` is false
 /// the estimate must not be fused: `invalid_reason` says why, and the numbers (if finite) are
