@@ -94,19 +94,10 @@ void SoilErosion::erodeAround(ProcessContext& ctx, const SweepRecord& rec) {
   a.normalize();
   const Eigen::Vector2d b(-a.y(), a.x());
   const double ha = roi_along_m_, hb = 0.5 * (roi_margin_m_ + rec.geometry.width_m);
-  const double xmax = geo.center().x() + 0.5 * geo.length().x(), ymax = geo.center().y() + 0.5 * geo.length().y();
-  double umin = 1e300, umax = -1e300, vmin = 1e300, vmax = -1e300;
+  std::vector<Eigen::Vector2d> corners;
   for (int sa : {-1, 1})
-    for (int sb : {-1, 1}) {
-      const Eigen::Vector2d p = c + sa * ha * a + sb * hb * b;
-      umin = std::min(umin, (xmax - p.x()) / res);
-      umax = std::max(umax, (xmax - p.x()) / res);
-      vmin = std::min(vmin, (ymax - p.y()) / res);
-      vmax = std::max(vmax, (ymax - p.y()) / res);
-    }
-  const int i0 = static_cast<int>(std::floor(umin)), i1 = static_cast<int>(std::floor(umax));
-  const int j0 = static_cast<int>(std::floor(vmin)), j1 = static_cast<int>(std::floor(vmax));
-  const MapWindow win(map, i0, j0, i1 - i0 + 1, j1 - j0 + 1);
+    for (int sb : {-1, 1}) corners.push_back(c + sa * ha * a + sb * hb * b);
+  const MapWindow win = MapWindow::covering(map, corners);
   if (win.empty()) {
     ctx.addCounter("passes_outside_map", 1);
     return;

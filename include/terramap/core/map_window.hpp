@@ -20,6 +20,7 @@
 #include <terramap/core/submap_iterator.hpp>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <vector>
 
@@ -59,6 +60,30 @@ class MapWindow {
     };
     build(i0_, rows_, sz.x(), start.x(), row_tile_, row_off_, tile_rows_);
     build(j0_, cols_, sz.y(), start.y(), col_tile_, col_off_, tile_cols_);
+  }
+
+  /// The window of the logical cells under the bounding box of `points` (map frame x, y, m),
+  /// clipped to the map: what an oriented region (a blade's ROI, a soil wedge) needs gathered.
+  /// The region's own test decides which cells of the window belong to it.
+  static MapWindow covering(const LayeredMap& map, const std::vector<Eigen::Vector2d>& points) {
+    const Geometry& geo = map.geometry();
+    const double res = geo.resolution();
+    const double xmax = geo.center().x() + 0.5 * geo.length().x(), ymax = geo.center().y() + 0.5 * geo.length().y();
+    double umin = 1e300, umax = -1e300, vmin = 1e300, vmax = -1e300;
+    for (const Eigen::Vector2d& p : points) {
+      umin = std::min(umin, (xmax - p.x()) / res);
+      umax = std::max(umax, (xmax - p.x()) / res);
+      vmin = std::min(vmin, (ymax - p.y()) / res);
+      vmax = std::max(vmax, (ymax - p.y()) / res);
+    }
+    if (points.empty() || !(umax - umin < 1e9) || !(vmax - vmin < 1e9)) return MapWindow();
+    // Clamped before the cast: a region far off the map must not overflow int.
+    const double lo_i = -1.0, hi_i = geo.size().x() + 1.0, lo_j = -1.0, hi_j = geo.size().y() + 1.0;
+    const int i0 = static_cast<int>(std::floor(std::clamp(umin, lo_i, hi_i)));
+    const int i1 = static_cast<int>(std::floor(std::clamp(umax, lo_i, hi_i)));
+    const int j0 = static_cast<int>(std::floor(std::clamp(vmin, lo_j, hi_j)));
+    const int j1 = static_cast<int>(std::floor(std::clamp(vmax, lo_j, hi_j)));
+    return MapWindow(map, i0, j0, i1 - i0 + 1, j1 - j0 + 1);
   }
 
   int i0() const { return i0_; }
