@@ -551,11 +551,17 @@ std::vector<std::string> writeEvalOutputs(const EvalRun& run, const std::filesys
   std::snprintf(cap, sizeof cap, "RMSE inside the cut %.2f cm (no update: %.2f cm), outside %.2f cm (%.2f cm)",
                 100 * cut.rmse_m, 100 * cut.baseline_rmse_m, 100 * out.rmse_m, 100 * out.baseline_rmse_m);
   const std::string caption = cap;
-  io::Annotation a_blind{"blind heightmap [m]: blade only, no LiDAR", run.scenario, 0, {}, {}};
-  io::Annotation a_truth{"truth heightmap [m] at the end", run.scenario, 0, {}, {}};
-  io::Annotation a_error{"error: blind map - truth [cm]", caption, 0, {}, {}};
-  io::Annotation a_base{"error of the no-update baseline: initial map - truth [cm]", caption, 0, {}, {}};
-  io::Annotation a_reg{"regions of the evaluation (from the truth's own cut and moved soil)", run.scenario, 0, {}, {}};
+  auto annotation = [](std::string title, std::string text) {
+    io::Annotation a;
+    a.title = std::move(title);
+    a.caption = std::move(text);
+    return a;
+  };
+  const io::Annotation a_blind = annotation("blind heightmap [m]: blade only, no LiDAR", run.scenario);
+  const io::Annotation a_truth = annotation("truth heightmap [m] at the end", run.scenario);
+  const io::Annotation a_error = annotation("error: blind map - truth [cm]", caption);
+  const io::Annotation a_base = annotation("error of the no-update baseline: initial map - truth [cm]", caption);
+  io::Annotation a_reg = annotation("regions of the evaluation (from the truth's own cut and moved soil)", run.scenario);
   a_reg.categories = {{static_cast<float>(EvalRegion::Cut), "cut"},
                       {static_cast<float>(EvalRegion::Deposit), "deposit"},
                       {static_cast<float>(EvalRegion::Untouched), "untouched"}};

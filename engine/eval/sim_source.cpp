@@ -6,9 +6,13 @@
 #include <terramap/sim/scenario.hpp>
 #include <terramap/sim/simulator.hpp>
 #include <terramap/sim/truth_sampling.hpp>
+#include <terramap/sim/world.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <deque>
+#include <iterator>
+#include <limits>
 #include <mutex>
 
 namespace terramap::sim {
@@ -34,11 +38,47 @@ class SimEventSource : public Source {
   double progress() const override { return duration_ > 0 ? std::min(1.0, sim_->time() / duration_) : 1.0; }
   const Simulator& simulator() const { return *sim_; }
   bool truth(const std::string& layer, const Geometry& g, Eigen::Ref<Eigen::MatrixXf> out) const override {
-    if (layer != "elevation") return false;
+    if (layer == "elevation") {
+      TERRAMAP_CHECK(out.rows() == g.size().x() && out.cols() == g.size().y(), "truth view of the wrong size");
+      out = truthOnGeometry(sim_->truth(), g);  // surface (bank + loose) at cell centres, NaN off it
+      return true;
+    }
+    return soilTruth(layer, g, out);
+  }
+
+ private:
+  /// The soil now at the undisturbed surface (the soil a blade cuts next): the truth soil at
+  /// the depth the bank surface was lowered to below the initial surface, at the cell centres.
+  /// Layers: soil_c (Pa), soil_phi (rad), soil_ca (Pa), soil_delta (rad), soil_gamma (N/m³),
+  /// soil_zone (index of the scenario's soil zone, -1 = default soil). NaN off the terrain.
+  bool soilTruth(const std::string& layer, const Geometry& g, Eigen::Ref<Eigen::MatrixXf> out) const {
+    static const char* const kLayers[] = {"soil_c", "soil_phi", "soil_ca", "soil_delta", "soil_gamma", "soil_zone"};
+    const auto it = std::find(std::begin(kLayers), std::end(kLayers), layer);
+    if (it == std::end(kLayers)) return false;
     TERRAMAP_CHECK(out.rows() == g.size().x() && out.cols() == g.size().y(), "truth view of the wrong size");
-    out = truthOnGeometry(sim_->truth(), g);  // surface (bank + loose) at cell centres, NaN off it
+    const long which = it - std::begin(kLayers);
+    const TruthTerrain& t = sim_->truth();
+    const SoilField& soil = sim_->soil();
+    for (int i = 0; i < g.size().x(); ++i)
+      for (int j = 0; j < g.size().y(); ++j) {
+        const Position p = g.positionOf(Index(i, j));
+        const double depth = t.initialHeightAt(p.x(), p.y()) - t.undisturbedAt(p.x(), p.y());
+        if (!std::isfinite(depth)) {
+          out(i, j) = std::numeric_limits<float>::quiet_NaN();
+          continue;
+        }
+        if (which == 5) {
+          out(i, j) = static_cast<float>(soil.zoneAt(p.x(), p.y(), depth));
+          continue;
+        }
+        const fee::Soil& f = soil.at(p.x(), p.y(), depth).fee;
+        const double v[5] = {f.c_pa, f.phi_rad, f.ca_pa, f.delta_rad, f.gamma_n_m3};
+        out(i, j) = static_cast<float>(v[which]);
+      }
     return true;
   }
+
+ public:
 
  private:
   std::unique_ptr<Simulator> sim_;

@@ -41,4 +41,20 @@ ErrorStats errorStats(std::vector<double> e) {
   return r;
 }
 
+double rocAuc(std::vector<double> positives, std::vector<double> negatives) {
+  if (positives.empty() || negatives.empty()) return std::numeric_limits<double>::quiet_NaN();
+  std::sort(positives.begin(), positives.end());
+  std::sort(negatives.begin(), negatives.end());
+  // For each positive: the negatives below it, and half those equal to it (two pointers).
+  double u = 0.0;
+  std::size_t below = 0, upto = 0;
+  for (double p : positives) {
+    while (below < negatives.size() && negatives[below] < p) ++below;
+    if (upto < below) upto = below;
+    while (upto < negatives.size() && negatives[upto] <= p) ++upto;
+    u += static_cast<double>(below) + 0.5 * static_cast<double>(upto - below);
+  }
+  return u / (static_cast<double>(positives.size()) * static_cast<double>(negatives.size()));
+}
+
 }  // namespace terramap::eval

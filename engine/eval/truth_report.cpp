@@ -8,6 +8,8 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <map>
+#include <string>
 
 namespace terramap::eval {
 
@@ -61,6 +63,75 @@ nlohmann::json statsJson(std::vector<double> errors, long truth_cells) {
           {"max_abs_m", orZero(s.max_abs)}};
 }
 
+/// Soil layers (soil_bayes) against the source's soil truth; null when the map has no soil
+/// layers or the source no soil truth. `zone` receives the truth zone per cell.
+nlohmann::json compareSoil(const LayeredMap& map, const Source& source, Eigen::MatrixXf* zone_out) {
+  static const char* const kNames[] = {"soil_c", "soil_phi", "soil_ca", "soil_delta", "soil_gamma"};
+  static const char* const kUnits[] = {"Pa", "rad", "Pa", "rad", "N/m^3"};
+  const Geometry& g = map.geometry();
+  for (const char* n : kNames)
+    if (!map.hasLayer(n) || !map.hasLayer(std::string(n) + "_var")) return nullptr;
+  Eigen::MatrixXf truth(g.size().x(), g.size().y()), zone(g.size().x(), g.size().y());
+  if (!source.truth("soil_zone", g, zone)) return nullptr;
+  nlohmann::json props = nlohmann::json::object();
+  long estimated = 0;
+  for (std::size_t k = 0; k < 5; ++k) {
+    if (!source.truth(kNames[k], g, truth)) return nullptr;
+    const Eigen::MatrixXf est = map.toMatrix(map.layerId(kNames[k]));
+    const Eigen::MatrixXf var = map.toMatrix(map.layerId(std::string(kNames[k]) + "_var"));
+    std::vector<double> err;
+    long in1 = 0, in2 = 0;
+    double abs_sum = 0.0;
+    for (int i = 0; i < est.rows(); ++i)
+      for (int j = 0; j < est.cols(); ++j) {
+        if (!std::isfinite(est(i, j)) || !std::isfinite(truth(i, j)) || !std::isfinite(var(i, j))) continue;
+        const double e = static_cast<double>(est(i, j)) - truth(i, j);
+        const double sd = std::sqrt(std::max(0.0, static_cast<double>(var(i, j))));
+        err.push_back(e);
+        abs_sum += std::abs(e);
+        in1 += std::abs(e) <= sd;
+        in2 += std::abs(e) <= 2.0 * sd;
+      }
+    const long n = static_cast<long>(err.size());
+    estimated = std::max(estimated, n);
+    const ErrorStats st = errorStats(err);
+    auto orNull = [&](double v) { return n ? nlohmann::json(v) : nlohmann::json(nullptr); };
+    props[kNames[k]] = {{"unit", kUnits[k]},
+                        {"cells", n},
+                        {"mae", orNull(n ? abs_sum / n : 0.0)},
+                        {"bias", orNull(st.bias)},
+                        {"rmse", orNull(st.rmse)},
+                        // Calibration: for Gaussian beliefs 68.3 % and 95.4 % of the truths fall
+                        // within 1 and 2 standard deviations.
+                        {"within_1sigma", orNull(n ? static_cast<double>(in1) / n : 0.0)},
+                        {"within_2sigma", orNull(n ? static_cast<double>(in2) / n : 0.0)}};
+  }
+  nlohmann::json out = {{"cells_estimated", estimated}, {"properties", props}};
+  // The FEE index against the soil zones: how well it tells each zone from the default soil.
+  if (map.hasLayer("fee_index")) {
+    const Eigen::MatrixXf idx = map.toMatrix(map.layerId("fee_index"));
+    std::map<int, std::vector<double>> by_zone;
+    for (int i = 0; i < idx.rows(); ++i)
+      for (int j = 0; j < idx.cols(); ++j)
+        if (std::isfinite(idx(i, j)) && std::isfinite(zone(i, j)))
+          by_zone[static_cast<int>(zone(i, j))].push_back(idx(i, j));
+    nlohmann::json zones = nlohmann::json::array();
+    for (const auto& [z, v] : by_zone) {
+      double sum = 0.0;
+      for (double x : v) sum += x;
+      nlohmann::json e = {{"zone", z}, {"cells", v.size()}, {"mean_index_n", sum / static_cast<double>(v.size())}};
+      const auto def = by_zone.find(-1);
+      // AUC of the index separating this zone's cells (positives) from the default soil's.
+      if (z >= 0) e["auc_vs_default"] = def == by_zone.end() ? nlohmann::json(nullptr)
+                                                             : nlohmann::json(rocAuc(v, def->second));
+      zones.push_back(e);
+    }
+    out["fee_index"] = {{"zones", zones}};
+  }
+  if (zone_out) *zone_out = zone;
+  return out;
+}
+
 }  // namespace
 
 TruthComparison compareWithSourceTruth(LayeredMap& map, const Source& source) {
@@ -69,13 +140,28 @@ TruthComparison compareWithSourceTruth(LayeredMap& map, const Source& source) {
   if (!compare(map, source, c)) return {};
   map.fromMatrix(map.addLayer("truth_elevation", "m"), c.truth);
   map.fromMatrix(map.addLayer("elevation_error", "m"), c.err);
-  const nlohmann::json j = statsJson(std::move(c.errors), c.truth_cells);
+  nlohmann::json j = statsJson(std::move(c.errors), c.truth_cells);
+  std::vector<std::string> layers{"truth_elevation", "elevation_error"};
+  Eigen::MatrixXf zone;
+  const nlohmann::json soil = compareSoil(map, source, &zone);
+  if (!soil.is_null()) {
+    j["soil"] = soil;
+    if (!map.hasLayer("truth_soil_zone")) {
+      map.fromMatrix(map.addLayer("truth_soil_zone", "1"), zone);
+      layers.push_back("truth_soil_zone");
+    }
+  }
   char caption[256];
   std::snprintf(caption, sizeof caption,
                 "|map - truth|: RMSE %.2f cm, median %.2f cm, p95 %.2f cm; coverage %.1f %% of %ld cells",
                 100.0 * j["rmse_m"].get<double>(), 100.0 * j["median_abs_m"].get<double>(),
                 100.0 * j["p95_abs_m"].get<double>(), 100.0 * j["coverage"].get<double>(), c.truth_cells);
-  return TruthComparison{j.dump(), {"truth_elevation", "elevation_error"}, caption};
+  return TruthComparison{j.dump(), layers, caption};
+}
+
+std::string soilTruthJson(const LayeredMap& map, const Source& source) {
+  const nlohmann::json j = compareSoil(map, source, nullptr);
+  return j.is_null() ? std::string() : j.dump();
 }
 
 std::string truthStatsJson(const LayeredMap& map, const Source& source) {

@@ -11,6 +11,7 @@
 #include <limits>
 #include <memory>
 #include <sstream>
+#include <stdexcept>
 
 namespace terramap::io {
 
@@ -305,12 +306,47 @@ Image renderPicture(const LayeredMap& map, const std::string& layer, const Rende
   RenderOptions o = options;
   const ValueRange r = renderRange(map, map.layerId(layer), o);
   if (r.min < r.max) o.range = r;
-  return annotate(renderLayer(map, layer, o), map, layer, o, *annotation);
+  Image img = renderLayer(map, layer, o);
+  if (!annotation->outline_regions.empty())
+    outlineRegions(img, map, annotation->outline_regions, o.scale, annotation->outline_colour);
+  return annotate(img, map, layer, o, *annotation);
 }
 
 void renderPng(const LayeredMap& map, const std::string& layer, const fs::path& path, const RenderOptions& options,
                const std::optional<Annotation>& annotation) {
   writePng(renderPicture(map, layer, options, annotation), path);
+}
+
+void outlineRegions(Image& img, const LayeredMap& map, const std::string& regions, int scale, Rgba colour) {
+  const RasterF z = northUpRaster(map, map.layerId(regions));  // rows = y (north first), cols = x
+  const int H = static_cast<int>(z.rows()), W = static_cast<int>(z.cols()), S = scale;
+  if (S < 1 || img.width != W * S || img.height != H * S)
+    throw std::invalid_argument("outlineRegions: the image is not the map at the given scale");
+  auto paint = [&](int px, int py) {
+    std::uint8_t* p = img.rgba.data() + (static_cast<std::size_t>(py) * static_cast<std::size_t>(img.width) +
+                                         static_cast<std::size_t>(px)) * 4;
+    p[0] = colour.r;
+    p[1] = colour.g;
+    p[2] = colour.b;
+    p[3] = colour.a;
+  };
+  auto differ = [&](int r0, int c0, int r1, int c1) {
+    const float a = z(r0, c0), b = z(r1, c1);
+    return std::isfinite(a) && std::isfinite(b) && a != b;
+  };
+  for (int r = 0; r < H; ++r)
+    for (int c = 0; c < W; ++c) {
+      if (c + 1 < W && differ(r, c, r, c + 1))  // vertical edge between columns c and c + 1
+        for (int k = 0; k < S; ++k) {
+          paint(c * S + S - 1, r * S + k);
+          paint((c + 1) * S, r * S + k);
+        }
+      if (r + 1 < H && differ(r, c, r + 1, c))  // horizontal edge between rows r and r + 1
+        for (int k = 0; k < S; ++k) {
+          paint(c * S + k, r * S + S - 1);
+          paint(c * S + k, (r + 1) * S);
+        }
+    }
 }
 
 }  // namespace terramap::io

@@ -135,6 +135,17 @@ void writeMapOutputs(const PipelineSpec& spec, const Engine& engine, const Truth
     io::Annotation an;
     if (std::find(truth.layers.begin(), truth.layers.end(), layer) != truth.layers.end()) an.caption = truth.caption;
     if (layer == "elevation_error") an.title = "elevation_error: map - truth [cm]";
+    // Soil pictures show where the truth's soil zones are (the run compared them, truth_report).
+    const bool soil_layer = layer.rfind("soil_", 0) == 0 || layer.rfind("fee_index", 0) == 0;
+    if (soil_layer && layer != "truth_soil_zone" && map.hasLayer("truth_soil_zone")) {
+      an.outline_regions = "truth_soil_zone";
+      an.caption = "white lines: the simulator's soil zones";
+    }
+    if (layer == "fee_index" && unit == "N") {
+      an.title = "fee_index [kN]: force of the reference cut on the mapped soil";
+      an.display_scale = 1e-3;
+      an.display_unit = "kN";
+    }
     const fs::path p = dir / (layer + ".png");
     io::renderPng(map, layer, p, ro, an);
     files.push_back(p.string());

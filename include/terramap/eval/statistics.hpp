@@ -33,4 +33,10 @@ struct ErrorStats {
 /// Sums run in the order given, so equal inputs give bit-equal figures.
 TERRAMAP_API ErrorStats errorStats(std::vector<double> errors);
 
+/// Area under the ROC curve of a score separating `positives` from `negatives`: the probability
+/// that a random positive scores above a random negative, ties counting one half (the
+/// Mann-Whitney U statistic over n_pos n_neg). 1 = perfect separation, 0.5 = none. NaN when
+/// either set is empty. Non-finite scores must be removed by the caller.
+TERRAMAP_API double rocAuc(std::vector<double> positives, std::vector<double> negatives);
+
 }  // namespace terramap::eval

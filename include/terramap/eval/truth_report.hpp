@@ -20,6 +20,19 @@ namespace terramap::eval {
 /// RunOptions::compare_truth. \throws LayerError only if the map changes under it.
 TERRAMAP_API TruthComparison compareWithSourceTruth(LayeredMap& map, const Source& source);
 
+/// The soil layers of soil_bayes (`soil_c`, `soil_phi`, `soil_ca`, `soil_delta`, `soil_gamma` and
+/// their `_var`) against the source's soil truth (the simulator's soil at the undisturbed surface
+/// at the cell centres, Source::truth "soil_*" and "soil_zone"), as JSON: cells_estimated and per
+/// property unit, cells, mae, bias, rmse (estimate − truth, in the property's unit; null when no
+/// cell was compared), within_1sigma / within_2sigma (the fraction of the cells whose truth lies
+/// within 1 / 2 posterior standard deviations: 0.683 / 0.954 when the variances are calibrated);
+/// with a `fee_index` layer also fee_index.zones: per truth zone (-1 = the default soil) cells,
+/// mean_index_n and, for the scenario's zones, auc_vs_default (eval::rocAuc of the index
+/// separating the zone's cells from the default soil's). Empty when the map has no soil layers or
+/// the source no soil truth. compareWithSourceTruth puts it under "soil" and adds the layer
+/// `truth_soil_zone`. Engine thread, between events. \throws nothing of its own.
+TERRAMAP_API std::string soilTruthJson(const LayeredMap& map, const Source& source);
+
 /// The same statistics as compareWithSourceTruth's JSON, of the map as it is now, without
 /// touching it (no layers added): what `terramap run` records once per `outputs.series_interval_s`
 /// (RunOptions::truth_stats). Empty when the map has no `elevation` or the source no truth of it.

@@ -128,6 +128,14 @@ ValueRange renderRange(const LayeredMap& map, LayerId id, const RenderOptions& o
 /// Writes an RGBA PNG through GDAL's PNG driver, atomically. \throws OutputError.
 void writePng(const Image& image, const std::filesystem::path& path);
 
+/// Draws, onto `map_image` (renderLayer's output for `map` at `scale` pixels per cell), the
+/// boundaries of the regions of a categorical layer `regions` (e.g. `truth_soil_zone`): every
+/// pixel edge between two cells whose finite values differ gets `colour` on both sides (a line
+/// two pixels wide at scale >= 2, one cell wide at scale 1). NaN cells are no region.
+/// \throws LayerError if `regions` is not a layer of `map`; std::invalid_argument if the image is
+/// not W·scale x H·scale.
+void outlineRegions(Image& map_image, const LayeredMap& map, const std::string& regions, int scale, Rgba colour);
+
 /// What makes a picture explain itself (annotate()).
 struct Annotation {
   std::string title;    ///< first line; empty = "<layer> [<unit>]"
@@ -137,6 +145,10 @@ struct Annotation {
   std::string display_unit;
   /// A categorical layer (e.g. regions): labelled swatches instead of a colour bar.
   std::vector<std::pair<float, std::string>> categories;
+  /// When not empty: a categorical layer whose region boundaries are drawn over the picture
+  /// (outlineRegions), e.g. `truth_soil_zone` over a soil layer; the caption says so.
+  std::string outline_regions;
+  Rgba outline_colour{255, 255, 255, 255};
 };
 
 /// The unit a colour bar shows a layer in: errors and differences in metres (diverging colour

@@ -48,3 +48,19 @@ TEST(Statistics, ErrorStatsOfKnownErrors) {
   EXPECT_EQ(none.n, 0);
   EXPECT_TRUE(std::isnan(none.rmse) && std::isnan(none.bias) && std::isnan(none.max_abs));
 }
+
+TEST(Statistics, RocAucCountsPairsInOrderWithTiesAsHalf) {
+  EXPECT_DOUBLE_EQ(rocAuc({3, 4}, {1, 2}), 1.0);
+  EXPECT_DOUBLE_EQ(rocAuc({1, 2}, {3, 4}), 0.0);
+  // Pairs (p, n): 2>1, 2=2 (½), 2<3, 5>1, 5>2, 5>3 → 4.5 of 6.
+  EXPECT_DOUBLE_EQ(rocAuc({5, 2}, {1, 3, 2}), 4.5 / 6.0);
+  EXPECT_DOUBLE_EQ(rocAuc({7, 7}, {7}), 0.5);
+  EXPECT_TRUE(std::isnan(rocAuc({}, {1})));
+  // Against the definition on random scores with many ties.
+  std::vector<double> p, n;
+  for (int k = 0; k < 200; ++k) (k % 3 ? n : p).push_back(static_cast<double>((k * 37) % 11));
+  double u = 0;
+  for (double a : p)
+    for (double b : n) u += a > b ? 1.0 : a == b ? 0.5 : 0.0;
+  EXPECT_DOUBLE_EQ(rocAuc(p, n), u / (p.size() * n.size()));
+}

@@ -115,6 +115,38 @@ TEST(Render, NorthUpOrientationAndGreyValues) {
   EXPECT_TRUE(sameColour(img.pixel(1, 1), g(1)));  // (0, 1)
 }
 
+TEST(Render, RegionOutlinesFollowTheBoundaryOfACategoricalLayer) {
+  // 6 x (x) by 4 y cells at 3 pixels a cell; zone 1 where x > 0 (logical rows i < 3 are the
+  // larger x: the right half of the north-up picture), a NaN cell inside it.
+  LayeredMap m(Geometry(1.0, Size(6, 4)), MapOptions{8, false});
+  const LayerId v = m.addLayer("v", "m"), z = m.addLayer("zone", "1");
+  for (int i = 0; i < 6; ++i)
+    for (int j = 0; j < 4; ++j) {
+      m.set(v, Index(i, j), 0.0f);
+      m.set(z, Index(i, j), i < 3 ? 1.0f : -1.0f);
+    }
+  m.set(z, Index(0, 0), kNaN);
+  tio::RenderOptions o;
+  o.colormap = "grey";
+  o.range = tio::ValueRange{0.f, 1.f};
+  o.scale = 3;
+  tio::Image img = tio::renderLayer(m, "v", o);
+  const Rgba red{255, 0, 0, 255}, black{0, 0, 0, 255};
+  tio::outlineRegions(img, m, "zone", 3, red);
+  // The boundary is the vertical line between picture columns 2 and 3 (cells), pixels 8 and 9.
+  for (int row = 0; row < 12; ++row) {
+    EXPECT_TRUE(sameColour(img.pixel(row, 8), red)) << row;
+    EXPECT_TRUE(sameColour(img.pixel(row, 9), red)) << row;
+    EXPECT_TRUE(sameColour(img.pixel(row, 7), black)) << row;
+    EXPECT_TRUE(sameColour(img.pixel(row, 10), black)) << row;
+  }
+  // The NaN cell is no region: no line around it (top-right cell, pixels 15-17 x 0-2).
+  EXPECT_TRUE(sameColour(img.pixel(2, 15), black));
+  EXPECT_TRUE(sameColour(img.pixel(3, 16), black));
+  tio::Image small = tio::renderLayer(m, "v", tio::RenderOptions{});
+  EXPECT_THROW(tio::outlineRegions(small, m, "zone", 3, red), std::invalid_argument);
+}
+
 TEST(Render, ClampsOutOfRangeAndHandlesNaN) {
   LayeredMap m(Geometry(1.0, Size(1, 4)), MapOptions{8, false});
   const LayerId id = m.addLayer("v", "m");

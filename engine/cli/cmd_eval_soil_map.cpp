@@ -1,0 +1,123 @@
+// `terramap eval-soil-map SCENARIO.yaml`: the soil map against the simulator's truth (paper
+// §3.2, Fig. 12). Runs configs/soil_map.yaml (LiDAR, blade, erosion, soil_pinn, soil_bayes,
+// fee_index) on the scenario and prints what the run report's truth.soil holds
+// (eval/truth_report.hpp): per property the error and calibration of the soil layers, per soil
+// zone the FEE index and its AUC against the default soil.
+#include "command.hpp"
+
+#include <terramap/core/error.hpp>
+#include <terramap/eval/truth_report.hpp>
+#include <terramap/pipeline/pipeline_spec.hpp>
+#include <terramap/pipeline/run.hpp>
+#include <terramap/sim/scenario.hpp>
+
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+
+namespace terramap::cli {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct SoilMapArgs {
+  std::string scenario, pipeline, model, out = "out/eval_soil_map";
+  int threads = 0;
+  double duration = -1;
+  bool quiet = false;
+};
+
+double num(const nlohmann::json& j) { return j.is_number() ? j.get<double>() : std::nan(""); }
+
+void printSoil(const nlohmann::json& soil, const sim::Scenario& sc) {
+  std::printf("soil layers against the truth soil at the surface (%ld cells with an estimate):\n",
+              soil.value("cells_estimated", 0L));
+  std::printf("  %-12s %8s %12s %12s %12s %10s %10s\n", "property", "cells", "MAE", "bias", "RMSE", "in 1 sd",
+              "in 2 sd");
+  static const std::pair<const char*, double> kShow[] = {{"soil_c", 1e-3}, {"soil_phi", 57.29577951308232},
+                                                         {"soil_ca", 1e-3}, {"soil_delta", 57.29577951308232},
+                                                         {"soil_gamma", 1e-3}};
+  static const char* const kUnit[] = {"kPa", "deg", "kPa", "deg", "kN/m3"};
+  int k = 0;
+  for (const auto& [name, scale] : kShow) {
+    const nlohmann::json& p = soil["properties"][name];
+    std::printf("  %-12s %8ld %8.2f %-3s %8.2f %-3s %8.2f %-3s %9.1f%% %9.1f%%\n", name, p.value("cells", 0L),
+                num(p["mae"]) * scale, kUnit[k], num(p["bias"]) * scale, kUnit[k], num(p["rmse"]) * scale, kUnit[k],
+                100 * num(p["within_1sigma"]), 100 * num(p["within_2sigma"]));
+    ++k;
+  }
+  std::printf("  (calibrated variances put 68.3 %% of the truths within 1 sd and 95.4 %% within 2)\n");
+  if (!soil.contains("fee_index")) return;
+  std::printf("FEE index per truth soil zone:\n");
+  for (const nlohmann::json& z : soil["fee_index"]["zones"]) {
+    const int id = z["zone"].get<int>();
+    const std::string name =
+        id < 0 ? "default soil" : (id < static_cast<int>(sc.zones.size()) ? sc.zones[static_cast<std::size_t>(id)].name : "zone " + std::to_string(id));
+    std::printf("  %-16s %8ld cells, mean %8.2f kN", name.c_str(), z.value("cells", 0L), num(z["mean_index_n"]) * 1e-3);
+    if (z.contains("auc_vs_default")) std::printf(", AUC against the default soil %.3f", num(z["auc_vs_default"]));
+    std::printf("\n");
+  }
+}
+
+Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& run) {
+  auto a = std::make_shared<SoilMapArgs>();
+  auto* sub = app.add_subcommand("eval-soil-map",
+      "The soil map against the simulator's truth (paper Fig. 12): run SCENARIO through\n"
+      "configs/soil_map.yaml (LiDAR, blade, erosion, soil_pinn, soil_bayes, fee_index) and print\n"
+      "the soil layers' error and calibration per property and the FEE index per soil zone with\n"
+      "its AUC against the default soil. Writes the run's outputs to --out: map.tif (with\n"
+      "truth_soil_zone), fee_index.png and soil_*.png with the zones outlined, report.json\n"
+      "(truth.soil holds every figure printed).");
+  sub->add_option("scenario", a->scenario, "Scenario YAML")->required()->check(CLI::ExistingFile);
+  sub->add_option("--pipeline", a->pipeline, "Pipeline YAML (default: configs/soil_map.yaml of the source tree)");
+  sub->add_option("--model", a->model,
+                  "Soil estimator file for every soil_pinn stage (default: models/soil_pinn.pt of the source tree)");
+  sub->add_option("--out,-o", a->out, "Output folder");
+  sub->add_option("--threads,-j", a->threads, "Worker threads")->check(CLI::Range(1, 256));
+  sub->add_option("--duration", a->duration, "Simulate at most this many seconds")->check(CLI::PositiveNumber);
+  sub->add_flag("--quiet,-q", a->quiet, "Print nothing but errors");
+  sub->callback([&run, a] {
+    run = [a]() -> int {
+      const fs::path configs = embeddedDemoBaseDir();
+      PipelineSpec spec = parsePipelineFile(a->pipeline.empty() ? (configs / "soil_map.yaml").string() : a->pipeline);
+      if (spec.source.type != "sim")
+        throw ConfigError(spec.file + ": eval-soil-map needs a `sim` source (it compares with the simulator's truth)");
+      const std::string scenario = fs::absolute(a->scenario).string();
+      spec.source.settings["scenario"] = RawParam{ParamValue{scenario}, "eval-soil-map SCENARIO"};
+      if (a->duration > 0) spec.source.settings["max_time_s"] = RawParam{ParamValue{a->duration}, "--duration"};
+      // The model path of a pipeline is relative to the working directory (soil_pinn's `model`);
+      // here it is made absolute, so the command runs from anywhere.
+      const std::string model = a->model.empty() ? (configs.parent_path() / "models" / "soil_pinn.pt").string()
+                                                 : fs::absolute(a->model).string();
+      bool has_pinn = false;
+      for (StageSpec& st : spec.stages)
+        if (st.type == "soil_pinn") {
+          st.params["model"] = RawParam{ParamValue{model}, a->model.empty() ? "eval-soil-map (default model)" : "--model"};
+          has_pinn = true;
+        }
+      if (!has_pinn) throw ConfigError(spec.file + ": eval-soil-map needs a soil_pinn stage");
+      RunOptions o;
+      o.out_dir = a->out;
+      o.threads = a->threads;
+      o.compare_truth = eval::compareWithSourceTruth;
+      const RunResult r = runPipeline(spec, o);
+      std::ifstream in(fs::path(r.out_dir) / "report.json");
+      const nlohmann::json report = nlohmann::json::parse(in);
+      if (!report.contains("truth") || !report["truth"].contains("soil"))
+        throw ConfigError(spec.file + ": the run produced no soil layers to compare (needs soil_bayes)");
+      if (!a->quiet) {
+        std::printf("eval-soil-map %s: %.1f s wall, outputs in %s\n", a->scenario.c_str(), r.report.wall_s,
+                    r.out_dir.c_str());
+        printSoil(report["truth"]["soil"], sim::loadScenario(scenario));
+      }
+      return kOk;
+    };
+  });
+}}};
+
+}  // namespace
+}  // namespace terramap::cli
