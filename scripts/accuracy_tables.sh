@@ -14,7 +14,8 @@ demo() {  # $1 = localisation or "" ; $2 = lidar_sees_machines or ""
   local extra=""
   [ -n "$1" ] && extra+=", localisation: $1"
   [ -n "$2" ] && extra+=", lidar_sees_machines: $2"
-  sed "s|source: {type: sim, scenario: scenarios/dense_strip.yaml}|source: {type: sim, scenario: $ROOT/configs/scenarios/dense_strip.yaml$extra}|" \
+  sed -e "s|source: {type: sim, scenario: scenarios/dense_strip.yaml}|source: {type: sim, scenario: $ROOT/configs/scenarios/dense_strip.yaml$extra}|" \
+      -e "s|model: ../models/soil_pinn.pt|model: $ROOT/models/soil_pinn.pt|" \
     "$ROOT/configs/demo.yaml" > "$TMP/demo.yaml"
   rm -rf "$TMP/demo_out"
   "$BIN" run "$TMP/demo.yaml" --out "$TMP/demo_out" > /dev/null || exit 1

@@ -68,7 +68,7 @@ rm -f "$out/report.json" "$out/soak_summary.json" "$out/soak_summary.txt"
 # thread count (pipeline and simulator alike: SOAK_THREADS=1 when another job has a core).
 # SOAK_LOCALISATION=perfect is the ablation: the same run with poses that are the truth.
 loc=${SOAK_LOCALISATION:+, localisation: $SOAK_LOCALISATION}
-sed -e "s|max_time_s: 3600|max_time_s: $sim_s$loc|" -e "s|model: models/soil_pinn.pt|model: $root/models/soil_pinn.pt|" \
+sed -e "s|max_time_s: 3600|max_time_s: $sim_s$loc|" -e "s|model: ../../models/soil_pinn.pt|model: $root/models/soil_pinn.pt|" \
   "$root/configs/soak/pipeline.yaml" > "$out/pipeline.yaml"
 sed -e "s|^threads: 2$|threads: $threads|" "$root/configs/soak/scenario.yaml" > "$out/scenario.yaml"
 grep -q "max_time_s: $sim_s$loc}" "$out/pipeline.yaml" || { echo "soak: could not set max_time_s in the pipeline copy" >&2; exit 2; }

@@ -75,7 +75,7 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
   sub->add_option("scenario", a->scenario, "Scenario YAML")->required()->check(CLI::ExistingFile);
   sub->add_option("--pipeline", a->pipeline, "Pipeline YAML (default: configs/soil_map.yaml of the source tree)");
   sub->add_option("--model", a->model,
-                  "Soil estimator file for every soil_pinn stage (default: models/soil_pinn.pt of the source tree)");
+                  "Soil estimator file for every soil_pinn stage (default: the pipeline's own `model`)");
   sub->add_option("--out,-o", a->out, "Output folder");
   sub->add_option("--threads,-j", a->threads, "Worker threads")->check(CLI::Range(1, 256));
   sub->add_option("--duration", a->duration, "Simulate at most this many seconds")->check(CLI::PositiveNumber);
@@ -89,16 +89,12 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
       const std::string scenario = fs::absolute(a->scenario).string();
       spec.source.settings["scenario"] = RawParam{ParamValue{scenario}, "eval-soil-map SCENARIO"};
       if (a->duration > 0) spec.source.settings["max_time_s"] = RawParam{ParamValue{a->duration}, "--duration"};
-      // The model path of a pipeline is relative to the working directory (soil_pinn's `model`);
-      // here it is made absolute, so the command runs from anywhere.
-      const std::string model = a->model.empty() ? (configs.parent_path() / "models" / "soil_pinn.pt").string()
-                                                 : fs::absolute(a->model).string();
       bool has_pinn = false;
-      for (StageSpec& st : spec.stages)
-        if (st.type == "soil_pinn") {
-          st.params["model"] = RawParam{ParamValue{model}, a->model.empty() ? "eval-soil-map (default model)" : "--model"};
-          has_pinn = true;
-        }
+      for (StageSpec& st : spec.stages) {
+        if (st.type != "soil_pinn") continue;
+        has_pinn = true;
+        if (!a->model.empty()) st.params["model"] = RawParam{ParamValue{fs::absolute(a->model).string()}, "--model"};
+      }
       if (!has_pinn) throw ConfigError(spec.file + ": eval-soil-map needs a soil_pinn stage");
       RunOptions o;
       o.out_dir = a->out;

@@ -2,6 +2,7 @@
 #include <terramap/core/text.hpp>
 
 #include <algorithm>
+#include <filesystem>
 #include <chrono>
 #include <optional>
 #include <set>
@@ -76,7 +77,7 @@ struct CheckedParams {
 };
 
 CheckedParams checkParams(const std::string& owner, const PluginHandle& plugin, const ParamSchema& schema,
-                          const std::map<std::string, RawParam>& raw) {
+                          const std::map<std::string, RawParam>& raw, const std::string& base_dir) {
   std::vector<std::string> names;
   for (const auto& s : schema) names.push_back(s.name);
   CheckedParams out{Params(owner, schema), {}};
@@ -107,6 +108,12 @@ CheckedParams checkParams(const std::string& owner, const PluginHandle& plugin, 
       errors.push_back(at + ": " + m + (it->unit.empty() || it->unit == "1" ? "" : " [" + it->unit + "]"));
       if (it->default_value) out.params.set(key, *it->default_value);
       continue;
+    }
+    // Paths in a pipeline are relative to its file, not to wherever terramap was started.
+    if (it->type == ParamType::String && it->unit == "path" && !base_dir.empty()) {
+      const std::string& text = std::get<std::string>(v);
+      if (!text.empty() && std::filesystem::path(text).is_relative())
+        v = (std::filesystem::path(base_dir) / text).lexically_normal().string();
     }
     out.params.set(key, v, at);
   }
@@ -147,10 +154,10 @@ Engine::~Engine() = default;
 
 PreparedStage Engine::prepare(const std::string& name, PluginHandle plugin,
                               const std::map<std::string, RawParam>& raw, const std::string& where,
-                              const Geometry* map) {
+                              const Geometry* map, const std::string& base_dir) {
   const std::string owner = where.empty() ? name : where;
   const ParamSchema schema = schemaOf(owner, plugin);
-  CheckedParams checked = checkParams(owner, plugin, schema, raw);
+  CheckedParams checked = checkParams(owner, plugin, schema, raw, base_dir);
   if (map) checked.params.setMapGeometry(*map);
   if (!checked.errors.empty()) throw ConfigError(joinLines(checked.errors));
   configurePlugin(owner, plugin, checked.params);
@@ -226,7 +233,7 @@ std::vector<std::string> Engine::validate(const PipelineSpec& spec, const Plugin
     const std::string owner = s.where.empty() ? s.name : s.where;
     try {
       const ParamSchema schema = schemaOf(owner, h);
-      CheckedParams checked = checkParams(owner, h, schema, s.params);
+      CheckedParams checked = checkParams(owner, h, schema, s.params, spec.base_dir);
       if (geometry) checked.params.setMapGeometry(*geometry);
       if (checked.errors.empty()) {
         configurePlugin(owner, h, checked.params);
@@ -294,7 +301,7 @@ std::unique_ptr<Engine> Engine::fromValidatedSpec(const PipelineSpec& spec, cons
   o.layers = spec.layers;
   auto engine = std::make_unique<Engine>(o);
   for (const auto& s : spec.stages)
-    engine->addStage(prepare(s.name, registry.create(s.type), s.params, s.where, &o.geometry));
+    engine->addStage(prepare(s.name, registry.create(s.type), s.params, s.where, &o.geometry, spec.base_dir));
   return engine;
 }
 

@@ -65,6 +65,9 @@ ParamSpec text(std::string name, std::string def, std::vector<std::string> choic
               std::move(choices), -1};
   return s;
 }
+ParamSpec path(std::string name, std::string def, std::string doc) {
+  return ParamSpec{std::move(name), ParamType::String, ParamValue(std::move(def)), 0, 0, "path", std::move(doc), {}, -1};
+}
 ParamSpec reals(std::string name, std::vector<double> def, int size, double min, double max, std::string unit,
                 std::string doc) {
   return ParamSpec{std::move(name), ParamType::DoubleList, ParamValue(std::move(def)), min, max,

@@ -88,7 +88,8 @@ std::string soilEstimateRecordJson(const SoilEstimateRecord& r) {
 }
 
 ParamSchema SoilPinn::schema() const {
-  ParamSpec model = param::text("model", "", {}, "path of a trained soil estimator file (saveEstimator; required)");
+  ParamSpec model = param::path("model", "",
+                                "trained soil estimator file (saveEstimator; required); relative to the pipeline's folder");
   model.default_value.reset();  // required
   const pinn::NullspaceTolerances d;
   return {model,

@@ -10,6 +10,7 @@
 
 #include <sys/wait.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
@@ -23,7 +24,8 @@ namespace fs = std::filesystem;
 using namespace terramap_test;
 
 TEST(Cli, HelpEverywhere) {
-  for (const char* sub : {"", "run", "validate", "plugins", "export", "fee", "sim", "eval", "dataset", "train", "eval-soil"}) {
+  for (const char* sub : {"", "run", "validate", "plugins", "export", "fee", "sim", "eval", "dataset", "train", "eval-soil",
+                          "eval-soil-map"}) {
     const Result r = sh(std::string(sub) + " --help");
     EXPECT_EQ(r.code, 0) << sub << "\n" << r.out;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub;
@@ -171,6 +173,24 @@ TEST(Cli, PluginsParamsPrintsLayersWithTheirDocs) {
   EXPECT_TRUE(std::regex_search(r.out, std::regex("create +probe +\\[1\\] probe counter"))) << r.out;
 }
 
+TEST(Cli, EvalSoilMapComparesTheSoilLayersWithTheTruthZones) {
+  // Fig. 12's command on the first 12 s of the dense-strip scenario, run from the build folder:
+  // the pipeline's model path is relative to the pipeline's folder, not to the working one.
+  const fs::path d = tempDir("eval_soil_map");
+  const std::string scen = std::string(TERRAMAP_SOURCE_DIR) + "/configs/scenarios/fig12_dense_strip.yaml";
+  const Result r = sh("eval-soil-map " + scen + " --duration 12 --out " + d.string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("soil_c"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("AUC against the default soil"), std::string::npos) << r.out;
+  const auto report = nlohmann::json::parse(std::ifstream(d / "report.json"));
+  const auto& soil = report["truth"]["soil"];
+  EXPECT_GT(soil["cells_estimated"].get<long>(), 100);
+  EXPECT_GT(soil["properties"]["soil_c"]["cells"].get<long>(), 100);
+  EXPECT_TRUE(fs::exists(d / "fee_index.png"));
+  // A scenario path that does not exist is a usage error.
+  EXPECT_EQ(sh("eval-soil-map /nonexistent.yaml").code, 2);
+}
+
 TEST(Cli, EmbeddedDemoWritesGeoTiffPngAndReport) {
   const fs::path d = tempDir("demo");
   const Result r = sh("run --out " + d.string());
@@ -187,6 +207,16 @@ TEST(Cli, EmbeddedDemoWritesGeoTiffPngAndReport) {
   // The demo's source is the simulator: the run compares the map with its truth.
   ASSERT_TRUE(report.contains("truth")) << report.dump(1);
   EXPECT_GT(report["truth"]["coverage"].get<double>(), 0.9);
+  // The whole chain: soil layers and the FEE index as bands and pictures, judged against the
+  // simulator's soil (truth.soil).
+  std::vector<std::string> bands;
+  for (const auto& b : raster.bands) bands.push_back(b.description);
+  for (const char* l : {"soil_c", "soil_phi", "fee_index", "fee_index_var", "truth_soil_zone"}) {
+    EXPECT_NE(std::find(bands.begin(), bands.end(), l), bands.end()) << l;
+  }
+  EXPECT_TRUE(fs::exists(d / "fee_index.png"));
+  ASSERT_TRUE(report["truth"].contains("soil")) << report["truth"].dump(1);
+  EXPECT_GT(report["truth"]["soil"]["cells_estimated"].get<long>(), 1000);
   // With exact poses the fused cells are well inside the LiDAR's 2 cm range noise. The demo's
   // poses come from the realistic (rtk_imu) localisation, so a return's height also carries the
   // pose's vertical error, e_z + r e_tilt at horizontal range r. Its RMS per axis is what the

@@ -81,11 +81,13 @@ class TERRAMAP_API Engine {
 
   /// Checks `params` against the plugin's schema and configures it. Does not touch the engine.
   /// `map`: the geometry the stage will run on, shown to configure() (Params::mapGeometry) so
-  /// map-dependent checks fail here rather than at run time.
+  /// map-dependent checks fail here rather than at run time. `base_dir`: relative values of path
+  /// parameters (param::path) are taken relative to it (the pipeline file's folder; empty = as
+  /// given, relative to the working directory).
   /// \throws ConfigError with every parameter problem.
   static PreparedStage prepare(const std::string& name, PluginHandle plugin,
                                const std::map<std::string, RawParam>& params, const std::string& where = {},
-                               const Geometry* map = nullptr);
+                               const Geometry* map = nullptr, const std::string& base_dir = {});
 
   /// Appends a stage: checks its layers against the current map, creates its layers, calls
   /// start(). \throws ConfigError / LayerError / PluginError, or the Error start() threw (same

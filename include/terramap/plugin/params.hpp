@@ -49,6 +49,10 @@ TERRAMAP_API ParamSpec text(std::string name, std::string def, std::vector<std::
 TERRAMAP_API ParamSpec reals(std::string name, std::vector<double> def, int size, double min, double max,
                              std::string unit, std::string doc);
 TERRAMAP_API ParamSpec texts(std::string name, std::vector<std::string> def, std::string doc);
+/// A file or folder path (a String whose unit is "path"). In a pipeline, the host makes a
+/// relative value absolute against the pipeline file's folder before configure(), like every
+/// other path of the file; makeParams and an embedder's own values are left as given.
+TERRAMAP_API ParamSpec path(std::string name, std::string def, std::string doc);
 }  // namespace param
 
 using ParamSchema = std::vector<ParamSpec>;

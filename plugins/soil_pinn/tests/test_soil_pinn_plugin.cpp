@@ -375,6 +375,20 @@ TEST(SoilPinnPlugin, AMissingModelFileIsAConfigErrorNamingTheFile) {
                ConfigError);
 }
 
+TEST(SoilPinnPlugin, ARelativeModelPathIsTakenRelativeToThePipelineFolder) {
+  // `model` is a path parameter: in a pipeline it is relative to the pipeline's folder (here
+  // the model's own folder), whatever the working directory.
+  const std::string full = modelPath();
+  const std::string folder = full.substr(0, full.rfind('/')), name = full.substr(full.rfind('/') + 1);
+  std::map<std::string, RawParam> p;
+  p["model"] = RawParam{ParamValue(name), "", false};
+  const auto plugin = [] { return PluginRegistry::createFromFile(std::string(TERRAMAP_PLUGIN_DIR) + "/soil_pinn.so"); };
+  EXPECT_NO_THROW(Engine::prepare("soil", plugin(), p, {}, nullptr, folder));
+  // Without a folder the value is used as given: relative to the working directory (the test
+  // runs in the build folder, which holds no such file).
+  EXPECT_THROW(Engine::prepare("soil", plugin(), p), ConfigError);
+}
+
 TEST(SoilPinnPlugin, HistoryCapacityBelowTheModelsTIsRefused) {
   const auto prepare = [](long cap) {
     std::map<std::string, RawParam> p;
