@@ -8,6 +8,8 @@
 #include <terramap/core/error.hpp>
 #include <terramap/eval/truth_report.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
+#include <terramap/pipeline/plugin_loader.hpp>
+#include <terramap/soil/fee.hpp>
 #include <terramap/pipeline/run.hpp>
 #include <terramap/sim/scenario.hpp>
 
@@ -17,7 +19,9 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <memory>
+#include <optional>
 
 namespace terramap::cli {
 namespace {
@@ -33,7 +37,40 @@ struct SoilMapArgs {
 
 double num(const nlohmann::json& j) { return j.is_number() ? j.get<double>() : std::nan(""); }
 
-void printSoil(const nlohmann::json& soil, const sim::Scenario& sc) {
+/// The reference cut of the pipeline's fee_index stage: its parameters, defaults from the
+/// plugin's own schema. Empty without a fee_index stage.
+struct ReferenceCut {
+  fee::Geometry g;
+  bool beta_min = true, horizontal = false;
+};
+std::optional<ReferenceCut> referenceCut(const PipelineSpec& spec) {
+  for (const StageSpec& st : spec.stages) {
+    if (st.type != "fee_index") continue;
+    const Params p = [&] {
+      const PluginHandle h = PluginRegistry(spec.plugin_paths).create("fee_index");
+      std::map<std::string, ParamValue> given;
+      for (const auto& [k, v] : st.params) given[k] = v.value;
+      return makeParams("fee_index", h->schema(), given);
+    }();
+    ReferenceCut c;
+    c.g = {p.getDouble("alpha_rad"), p.getDouble("rho_rad"), p.getDouble("d_m"), p.getDouble("w_m"), p.getDouble("q_n")};
+    c.beta_min = p.getString("beta") == "min";
+    c.horizontal = p.getString("component") == "horizontal";
+    return c;
+  }
+  return std::nullopt;
+}
+
+/// What fee_index would show with a perfect estimator: its index (plugins/fee_index,
+/// feeIndexOf) of the zone's truth soil. NaN where the FEE has no valid solution.
+double truthIndex(const fee::Soil& s, const ReferenceCut& c) {
+  const double beta = c.beta_min ? fee::betaMin(s, c.g) : fee::betaNominal(s);
+  const fee::Result r = fee::evaluate(s, c.g, beta);
+  if (!std::isfinite(beta) || !r.valid()) return std::nan("");
+  return c.horizontal ? r.F_N.x() : r.F_N.norm();
+}
+
+void printSoil(const nlohmann::json& soil, const sim::Scenario& sc, const std::optional<ReferenceCut>& cut) {
   std::printf("soil layers against the truth soil at the surface (%ld cells with an estimate):\n",
               soil.value("cells_estimated", 0L));
   std::printf("  %-12s %8s %12s %12s %12s %10s %10s\n", "property", "cells", "MAE", "bias", "RMSE", "in 1 sd",
@@ -58,7 +95,26 @@ void printSoil(const nlohmann::json& soil, const sim::Scenario& sc) {
     const std::string name =
         id < 0 ? "default soil" : (id < static_cast<int>(sc.zones.size()) ? sc.zones[static_cast<std::size_t>(id)].name : "zone " + std::to_string(id));
     std::printf("  %-16s %8ld cells, mean %8.2f kN", name.c_str(), z.value("cells", 0L), num(z["mean_index_n"]) * 1e-3);
-    if (z.contains("auc_vs_default")) std::printf(", AUC against the default soil %.3f", num(z["auc_vs_default"]));
+    // Zones have one soil each (at the surface): the index a perfect estimator would give.
+    const auto soilOf = [&](int zone) -> const fee::Soil& {
+      return zone >= 0 && zone < static_cast<int>(sc.zones.size()) ? sc.zones[static_cast<std::size_t>(zone)].soil.fee
+                                                                    : sc.default_soil.fee;
+    };
+    double truth = std::nan(""), truth_default = std::nan("");
+    if (cut) {
+      truth = truthIndex(soilOf(id), *cut);
+      truth_default = truthIndex(sc.default_soil.fee, *cut);
+      std::printf(" (truth soil: %.2f kN)", truth * 1e-3);
+    }
+    if (z.contains("auc_vs_default")) {
+      // report.json's AUC is P(zone cell > default cell). Where the truth's index is lower in
+      // the zone (dense gravel against cohesive loam), separating it means ranking it lower.
+      const double auc = num(z["auc_vs_default"]);
+      if (truth < truth_default)
+        std::printf(", AUC in the truth's order (zone lower) %.3f", 1.0 - auc);
+      else
+        std::printf(", AUC against the default soil %.3f", auc);
+    }
     std::printf("\n");
   }
 }
@@ -108,7 +164,7 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
       if (!a->quiet) {
         std::printf("eval-soil-map %s: %.1f s wall, outputs in %s\n", a->scenario.c_str(), r.report.wall_s,
                     r.out_dir.c_str());
-        printSoil(report["truth"]["soil"], sim::loadScenario(scenario));
+        printSoil(report["truth"]["soil"], sim::loadScenario(scenario), referenceCut(spec));
       }
       return kOk;
     };

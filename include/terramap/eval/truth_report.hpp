@@ -27,8 +27,9 @@ TERRAMAP_API TruthComparison compareWithSourceTruth(LayeredMap& map, const Sourc
 /// cell was compared), within_1sigma / within_2sigma (the fraction of the cells whose truth lies
 /// within 1 / 2 posterior standard deviations: 0.683 / 0.954 when the variances are calibrated);
 /// with a `fee_index` layer also fee_index.zones: per truth zone (-1 = the default soil) cells,
-/// mean_index_n and, for the scenario's zones, auc_vs_default (eval::rocAuc of the index
-/// separating the zone's cells from the default soil's). Empty when the map has no soil layers or
+/// mean_index_n and, for the scenario's zones, auc_vs_default (eval::rocAuc with the zone's cells
+/// as positives: the probability that a zone cell's index is above a default-soil cell's; where
+/// the truth soil's index is lower in the zone, 1 − it is the separation in the truth's order). Empty when the map has no soil layers or
 /// the source no soil truth. compareWithSourceTruth puts it under "soil" and adds the layer
 /// `truth_soil_zone`. Engine thread, between events. \throws nothing of its own.
 TERRAMAP_API std::string soilTruthJson(const LayeredMap& map, const Source& source);
