@@ -9,7 +9,8 @@
 #include <terramap/eval/truth_report.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/pipeline/plugin_loader.hpp>
-#include <terramap/soil/fee.hpp>
+#include <terramap/soil/fee_index.hpp>
+#include <terramap/soil/soil_parameters.hpp>
 #include <terramap/pipeline/run.hpp>
 #include <terramap/sim/scenario.hpp>
 
@@ -18,7 +19,6 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <map>
 #include <memory>
 #include <optional>
@@ -39,21 +39,16 @@ double num(const nlohmann::json& j) { return j.is_number() ? j.get<double>() : s
 
 /// The reference cut of the pipeline's fee_index stage: its parameters, defaults from the
 /// plugin's own schema. Empty without a fee_index stage.
-struct ReferenceCut {
-  fee::Geometry g;
-  bool beta_min = true, horizontal = false;
-};
-std::optional<ReferenceCut> referenceCut(const PipelineSpec& spec) {
+std::optional<soil::FeeIndexConfig> referenceCut(const PipelineSpec& spec) {
   for (const StageSpec& st : spec.stages) {
     if (st.type != "fee_index") continue;
-    const Params p = [&] {
-      const PluginHandle h = PluginRegistry(spec.plugin_paths).create("fee_index");
-      std::map<std::string, ParamValue> given;
-      for (const auto& [k, v] : st.params) given[k] = v.value;
-      return makeParams("fee_index", h->schema(), given);
-    }();
-    ReferenceCut c;
-    c.g = {p.getDouble("alpha_rad"), p.getDouble("rho_rad"), p.getDouble("d_m"), p.getDouble("w_m"), p.getDouble("q_n")};
+    const PluginHandle h = PluginRegistry(spec.plugin_paths).create("fee_index");
+    std::map<std::string, ParamValue> given;
+    for (const auto& [k, v] : st.params) given[k] = v.value;
+    const Params p = makeParams("fee_index", h->schema(), given);
+    soil::FeeIndexConfig c;
+    c.geometry = {p.getDouble("alpha_rad"), p.getDouble("rho_rad"), p.getDouble("d_m"), p.getDouble("w_m"),
+                  p.getDouble("q_n")};
     c.beta_min = p.getString("beta") == "min";
     c.horizontal = p.getString("component") == "horizontal";
     return c;
@@ -61,36 +56,26 @@ std::optional<ReferenceCut> referenceCut(const PipelineSpec& spec) {
   return std::nullopt;
 }
 
-/// What fee_index would show with a perfect estimator: its index (plugins/fee_index,
-/// feeIndexOf) of the zone's truth soil. NaN where the FEE has no valid solution.
-double truthIndex(const fee::Soil& s, const ReferenceCut& c) {
-  const double beta = c.beta_min ? fee::betaMin(s, c.g) : fee::betaNominal(s);
-  const fee::Result r = fee::evaluate(s, c.g, beta);
-  if (!std::isfinite(beta) || !r.valid()) return std::nan("");
-  return c.horizontal ? r.F_N.x() : r.F_N.norm();
-}
-
-void printSoil(const nlohmann::json& soil, const sim::Scenario& sc, const std::optional<ReferenceCut>& cut) {
+void printSoil(const nlohmann::json& truth_soil, const sim::Scenario& sc, const std::optional<soil::FeeIndexConfig>& cut) {
   std::printf("soil layers against the truth soil at the surface (%ld cells with an estimate):\n",
-              soil.value("cells_estimated", 0L));
+              truth_soil.value("cells_estimated", 0L));
   std::printf("  %-12s %8s %12s %12s %12s %10s %10s\n", "property", "cells", "MAE", "bias", "RMSE", "in 1 sd",
               "in 2 sd");
-  static const std::pair<const char*, double> kShow[] = {{"soil_c", 1e-3}, {"soil_phi", 57.29577951308232},
-                                                         {"soil_ca", 1e-3}, {"soil_delta", 57.29577951308232},
-                                                         {"soil_gamma", 1e-3}};
-  static const char* const kUnit[] = {"kPa", "deg", "kPa", "deg", "kN/m3"};
-  int k = 0;
-  for (const auto& [name, scale] : kShow) {
-    const nlohmann::json& p = soil["properties"][name];
+  // Display scale and unit per soil::SoilParam.
+  static const std::pair<double, const char*> kShow[] = {
+      {1e-3, "kPa"}, {1 / soil::kDegree, "deg"}, {1e-3, "kPa"}, {1 / soil::kDegree, "deg"}, {1e-3, "kN/m3"}};
+  for (int k = 0; k < soil::kSoilParamCount; ++k) {
+    const char* name = soil::kSoilParams[k].layer;
+    const auto& [scale, unit] = kShow[k];
+    const nlohmann::json& p = truth_soil["properties"][name];
     std::printf("  %-12s %8ld %8.2f %-3s %8.2f %-3s %8.2f %-3s %9.1f%% %9.1f%%\n", name, p.value("cells", 0L),
-                num(p["mae"]) * scale, kUnit[k], num(p["bias"]) * scale, kUnit[k], num(p["rmse"]) * scale, kUnit[k],
+                num(p["mae"]) * scale, unit, num(p["bias"]) * scale, unit, num(p["rmse"]) * scale, unit,
                 100 * num(p["within_1sigma"]), 100 * num(p["within_2sigma"]));
-    ++k;
   }
   std::printf("  (calibrated variances put 68.3 %% of the truths within 1 sd and 95.4 %% within 2)\n");
-  if (!soil.contains("fee_index")) return;
+  if (!truth_soil.contains("fee_index")) return;
   std::printf("FEE index per truth soil zone:\n");
-  for (const nlohmann::json& z : soil["fee_index"]["zones"]) {
+  for (const nlohmann::json& z : truth_soil["fee_index"]["zones"]) {
     const int id = z["zone"].get<int>();
     const std::string name =
         id < 0 ? "default soil" : (id < static_cast<int>(sc.zones.size()) ? sc.zones[static_cast<std::size_t>(id)].name : "zone " + std::to_string(id));
@@ -102,8 +87,9 @@ void printSoil(const nlohmann::json& soil, const sim::Scenario& sc, const std::o
     };
     double truth = std::nan(""), truth_default = std::nan("");
     if (cut) {
-      truth = truthIndex(soilOf(id), *cut);
-      truth_default = truthIndex(sc.default_soil.fee, *cut);
+      // What fee_index would show with a perfect estimator (variances 0: the index alone).
+      truth = soil::feeIndexOf(soilOf(id), fee::Soil{}, *cut).index_n;
+      truth_default = soil::feeIndexOf(sc.default_soil.fee, fee::Soil{}, *cut).index_n;
       std::printf(" (truth soil: %.2f kN)", truth * 1e-3);
     }
     if (z.contains("auc_vs_default")) {
@@ -157,14 +143,13 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
       o.threads = a->threads;
       o.compare_truth = eval::compareWithSourceTruth;
       const RunResult r = runPipeline(spec, o);
-      std::ifstream in(fs::path(r.out_dir) / "report.json");
-      const nlohmann::json report = nlohmann::json::parse(in);
-      if (!report.contains("truth") || !report["truth"].contains("soil"))
+      const nlohmann::json truth = r.truth_json.empty() ? nlohmann::json() : nlohmann::json::parse(r.truth_json);
+      if (!truth.contains("soil"))
         throw ConfigError(spec.file + ": the run produced no soil layers to compare (needs soil_bayes)");
       if (!a->quiet) {
         std::printf("eval-soil-map %s: %.1f s wall, outputs in %s\n", a->scenario.c_str(), r.report.wall_s,
                     r.out_dir.c_str());
-        printSoil(report["truth"]["soil"], sim::loadScenario(scenario), referenceCut(spec));
+        printSoil(truth["soil"], sim::loadScenario(scenario), referenceCut(spec));
       }
       return kOk;
     };

@@ -7,17 +7,45 @@
 #include <terramap/sim/simulator.hpp>
 #include <terramap/sim/truth_sampling.hpp>
 #include <terramap/sim/world.hpp>
+#include <terramap/soil/soil_parameters.hpp>
 
 #include <algorithm>
 #include <cmath>
 #include <deque>
-#include <iterator>
 #include <limits>
 #include <mutex>
 
 namespace terramap::sim {
 
 namespace {
+
+/// The soil now at the undisturbed surface (the soil a blade cuts next): the truth soil at
+/// the depth the bank surface was lowered to below the initial surface, at the cell centres.
+/// Layers: soil_c (Pa), soil_phi (rad), soil_ca (Pa), soil_delta (rad), soil_gamma (N/m³),
+/// soil_zone (index of the scenario's soil zone, -1 = default soil). NaN off the terrain.
+bool soilTruth(const Simulator& sim, const std::string& layer, const Geometry& g, Eigen::Ref<Eigen::MatrixXf> out) {
+  // soil::kSoilParams' layers, then soil_zone.
+  int which = layer == "soil_zone" ? soil::kSoilParamCount : -1;
+  for (int k = 0; k < soil::kSoilParamCount; ++k)
+    if (layer == soil::kSoilParams[k].layer) which = k;
+  if (which < 0) return false;
+  TERRAMAP_CHECK(out.rows() == g.size().x() && out.cols() == g.size().y(), "truth view of the wrong size");
+  const TruthTerrain& t = sim.truth();
+  const SoilField& field = sim.soil();
+  for (int i = 0; i < g.size().x(); ++i)
+    for (int j = 0; j < g.size().y(); ++j) {
+      const Position p = g.positionOf(Index(i, j));
+      const double depth = t.initialHeightAt(p.x(), p.y()) - t.undisturbedAt(p.x(), p.y());
+      if (!std::isfinite(depth)) {
+        out(i, j) = std::numeric_limits<float>::quiet_NaN();
+        continue;
+      }
+      out(i, j) = which == soil::kSoilParamCount
+                      ? static_cast<float>(field.zoneAt(p.x(), p.y(), depth))
+                      : static_cast<float>(soil::fromFee(field.at(p.x(), p.y(), depth).fee)[static_cast<std::size_t>(which)]);
+    }
+  return true;
+}
 
 /// The simulator, live: each step's events in time order.
 class SimEventSource : public Source {
@@ -43,42 +71,8 @@ class SimEventSource : public Source {
       out = truthOnGeometry(sim_->truth(), g);  // surface (bank + loose) at cell centres, NaN off it
       return true;
     }
-    return soilTruth(layer, g, out);
+    return soilTruth(*sim_, layer, g, out);
   }
-
- private:
-  /// The soil now at the undisturbed surface (the soil a blade cuts next): the truth soil at
-  /// the depth the bank surface was lowered to below the initial surface, at the cell centres.
-  /// Layers: soil_c (Pa), soil_phi (rad), soil_ca (Pa), soil_delta (rad), soil_gamma (N/m³),
-  /// soil_zone (index of the scenario's soil zone, -1 = default soil). NaN off the terrain.
-  bool soilTruth(const std::string& layer, const Geometry& g, Eigen::Ref<Eigen::MatrixXf> out) const {
-    static const char* const kLayers[] = {"soil_c", "soil_phi", "soil_ca", "soil_delta", "soil_gamma", "soil_zone"};
-    const auto it = std::find(std::begin(kLayers), std::end(kLayers), layer);
-    if (it == std::end(kLayers)) return false;
-    TERRAMAP_CHECK(out.rows() == g.size().x() && out.cols() == g.size().y(), "truth view of the wrong size");
-    const long which = it - std::begin(kLayers);
-    const TruthTerrain& t = sim_->truth();
-    const SoilField& soil = sim_->soil();
-    for (int i = 0; i < g.size().x(); ++i)
-      for (int j = 0; j < g.size().y(); ++j) {
-        const Position p = g.positionOf(Index(i, j));
-        const double depth = t.initialHeightAt(p.x(), p.y()) - t.undisturbedAt(p.x(), p.y());
-        if (!std::isfinite(depth)) {
-          out(i, j) = std::numeric_limits<float>::quiet_NaN();
-          continue;
-        }
-        if (which == 5) {
-          out(i, j) = static_cast<float>(soil.zoneAt(p.x(), p.y(), depth));
-          continue;
-        }
-        const fee::Soil& f = soil.at(p.x(), p.y(), depth).fee;
-        const double v[5] = {f.c_pa, f.phi_rad, f.ca_pa, f.delta_rad, f.gamma_n_m3};
-        out(i, j) = static_cast<float>(v[which]);
-      }
-    return true;
-  }
-
- public:
 
  private:
   std::unique_ptr<Simulator> sim_;

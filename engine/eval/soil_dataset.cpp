@@ -333,25 +333,6 @@ std::string episodeFileName(const EpisodePlan& plan) {
   return buf;
 }
 
-namespace {
-
-
-std::string readAttrString(hid_t obj, const char* name, const std::string& path) {
-  if (H5Aexists(obj, name) <= 0) throw InputError(path + ": no attribute '" + std::string(name) + "'");
-  const hid_t a = H5Aopen(obj, name, H5P_DEFAULT);
-  const hid_t t = H5Aget_type(a);
-  const std::size_t n = H5Tget_size(t);
-  std::string s(n, '\0');
-  const herr_t rc = H5Tget_class(t) == H5T_STRING ? H5Aread(a, t, s.data()) : -1;
-  H5Tclose(t);
-  H5Aclose(a);
-  if (rc < 0) throw InputError(path + ": attribute '" + std::string(name) + "' is not a string");
-  s.erase(std::find(s.begin(), s.end(), '\0'), s.end());
-  return s;
-}
-
-}  // namespace
-
 void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, const EpisodeData& ep) {
   const hsize_t n = ep.samples.size();
   const hsize_t T = static_cast<hsize_t>(cfg.history_T), P = static_cast<hsize_t>(cfg.horizon_P);
@@ -431,20 +412,6 @@ std::vector<fs::path> episodeFiles(const std::string& dir) {
   return files;
 }
 
-std::string fileAttrString(const std::string& path, const char* name) {
-  io::verifySeal(path);  // a damaged file never reaches libhdf5
-  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
-  const hid_t h = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  if (h < 0) throw InputError(path + ": cannot open as HDF5");
-  try {
-    std::string v = readAttrString(h, name, path);
-    H5Fclose(h);
-    return v;
-  } catch (...) {
-    H5Fclose(h);
-    throw;
-  }
-}
 
 }  // namespace
 
@@ -457,11 +424,12 @@ std::string datasetManifestJson(const std::string& dir) {
   std::string hash;
   for (const fs::path& f : episodeFiles(dir)) {
     const std::string path = f.string();
-    if (hash.empty()) hash = fileAttrString(path, "config_hash");
+    const sim::EpisodeFile file(path);
+    if (hash.empty()) hash = file.rootAttribute("config_hash");
     std::vector<std::uint64_t> dims;
-    const std::vector<double> plan = sim::readEpisodeDataset(path, "plan", dims);
+    const std::vector<double> plan = file.read("plan", dims);
     if (plan.size() != 8) throw InputError(path + ": dataset 'plan' must hold 8 values");
-    sim::readEpisodeDataset(path, "truth", dims);
+    file.read("truth", dims);
     const long n = dims.empty() ? 0 : static_cast<long>(dims[0]);
     const std::string split = datasetSplitName(static_cast<DatasetSplit>(static_cast<int>(plan[1])));
     const std::string fam = soil::soilFamilyName(static_cast<soil::SoilFamily>(static_cast<int>(plan[2])));
@@ -470,7 +438,7 @@ std::string datasetManifestJson(const std::string& dir) {
     s["episodes"] = s.value("episodes", 0L) + 1;
     s["samples"] = s.value("samples", 0L) + n;
     families[fam] = families.value(fam, 0L) + n;
-    std::stringstream ss(fileAttrString(path, "skipped"));
+    std::stringstream ss(file.rootAttribute("skipped"));
     for (std::string item; std::getline(ss, item, ',');) {
       const auto eq = item.find('=');
       if (eq == std::string::npos) continue;
@@ -496,29 +464,30 @@ SoilDataset readSoilDataset(const std::string& dir) {
   SoilDataset d;
   for (const fs::path& f : files) {
     const std::string path = f.string();
+    const sim::EpisodeFile file(path);
     std::vector<std::uint64_t> dims;
     {
-      const std::string hash = fileAttrString(path, "config_hash");
+      const std::string hash = file.rootAttribute("config_hash");
       if (d.config_hash.empty()) d.config_hash = hash;
       else if (hash != d.config_hash)
         throw InputError(path + ": written with another configuration (config_hash " + hash + ", the first file has " +
                          d.config_hash + "); a dataset folder holds one configuration's episodes");
     }
-    const std::vector<double> plan = sim::readEpisodeDataset(path, "plan", dims);
+    const std::vector<double> plan = file.read("plan", dims);
     if (plan.size() != 8) throw InputError(path + ": dataset 'plan' must hold 8 values");
-    const std::vector<double> obs = sim::readEpisodeDataset(path, "obs", dims);
+    const std::vector<double> obs = file.read("obs", dims);
     if (dims.size() != 3 || dims[2] != static_cast<std::uint64_t>(soil::kObsFeatures))
       throw InputError(path + ": dataset 'obs' must be [N, T, " + std::to_string(soil::kObsFeatures) + "]");
     const std::size_t n = dims[0];
     const int T = static_cast<int>(dims[1]);
-    const std::vector<double> theta = sim::readEpisodeDataset(path, "theta_k", dims);
+    const std::vector<double> theta = file.read("theta_k", dims);
     if (dims.size() != 3 || dims[0] != n || dims[2] != static_cast<std::uint64_t>(soil::kThetaK))
       throw InputError(path + ": dataset 'theta_k' must be [N, P, 6] with the N of 'obs'");
     const int P = static_cast<int>(dims[1]);
-    const std::vector<double> force = sim::readEpisodeDataset(path, "force", dims);
+    const std::vector<double> force = file.read("force", dims);
     if (dims.size() != 3 || dims[0] != n || dims[1] != static_cast<std::uint64_t>(P) || dims[2] != 2)
       throw InputError(path + ": dataset 'force' must be [N, P, 2]");
-    const std::vector<double> truth = sim::readEpisodeDataset(path, "truth", dims);
+    const std::vector<double> truth = file.read("truth", dims);
     if (dims.size() != 2 || dims[0] != n || dims[1] != 5) throw InputError(path + ": dataset 'truth' must be [N, 5]");
     if (d.T == 0 && d.P == 0) {
       d.T = T;
@@ -533,7 +502,7 @@ SoilDataset readSoilDataset(const std::string& dir) {
     d.truth.insert(d.truth.end(), truth.begin(), truth.end());
     // Files of the first layout have no truth geometry: NaN (diagnosis only, never trained on).
     try {
-      const std::vector<double> tg = sim::readEpisodeDataset(path, "truth_geometry", dims);
+      const std::vector<double> tg = file.read("truth_geometry", dims);
       if (dims.size() != 2 || dims[0] != n || dims[1] != 5) throw InputError(path + ": dataset 'truth_geometry' must be [N, 5]");
       d.truth_geometry.insert(d.truth_geometry.end(), tg.begin(), tg.end());
     } catch (const InputError& e) {

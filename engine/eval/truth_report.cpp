@@ -1,6 +1,7 @@
 #include <terramap/eval/truth_report.hpp>
 
 #include <terramap/eval/statistics.hpp>
+#include <terramap/soil/soil_parameters.hpp>
 
 #include <nlohmann/json.hpp>
 
@@ -66,19 +67,17 @@ nlohmann::json statsJson(std::vector<double> errors, long truth_cells) {
 /// Soil layers (soil_bayes) against the source's soil truth; null when the map has no soil
 /// layers or the source no soil truth. `zone` receives the truth zone per cell.
 nlohmann::json compareSoil(const LayeredMap& map, const Source& source, Eigen::MatrixXf* zone_out) {
-  static const char* const kNames[] = {"soil_c", "soil_phi", "soil_ca", "soil_delta", "soil_gamma"};
-  static const char* const kUnits[] = {"Pa", "rad", "Pa", "rad", "N/m^3"};
   const Geometry& g = map.geometry();
-  for (const char* n : kNames)
-    if (!map.hasLayer(n) || !map.hasLayer(std::string(n) + "_var")) return nullptr;
+  for (const soil::SoilParamInfo& info : soil::kSoilParams)
+    if (!map.hasLayer(info.layer) || !map.hasLayer(std::string(info.layer) + "_var")) return nullptr;
   Eigen::MatrixXf truth(g.size().x(), g.size().y()), zone(g.size().x(), g.size().y());
   if (!source.truth("soil_zone", g, zone)) return nullptr;
   nlohmann::json props = nlohmann::json::object();
   long estimated = 0;
-  for (std::size_t k = 0; k < 5; ++k) {
-    if (!source.truth(kNames[k], g, truth)) return nullptr;
-    const Eigen::MatrixXf est = map.toMatrix(map.layerId(kNames[k]));
-    const Eigen::MatrixXf var = map.toMatrix(map.layerId(std::string(kNames[k]) + "_var"));
+  for (const soil::SoilParamInfo& info : soil::kSoilParams) {
+    if (!source.truth(info.layer, g, truth)) return nullptr;
+    const Eigen::MatrixXf est = map.toMatrix(map.layerId(info.layer));
+    const Eigen::MatrixXf var = map.toMatrix(map.layerId(std::string(info.layer) + "_var"));
     std::vector<double> err;
     long in1 = 0, in2 = 0;
     double abs_sum = 0.0;
@@ -96,7 +95,7 @@ nlohmann::json compareSoil(const LayeredMap& map, const Source& source, Eigen::M
     estimated = std::max(estimated, n);
     const ErrorStats st = errorStats(err);
     auto orNull = [&](double v) { return n ? nlohmann::json(v) : nlohmann::json(nullptr); };
-    props[kNames[k]] = {{"unit", kUnits[k]},
+    props[info.layer] = {{"unit", info.unit},
                         {"cells", n},
                         {"mae", orNull(n ? abs_sum / n : 0.0)},
                         {"bias", orNull(st.bias)},

@@ -67,6 +67,9 @@ void drawArrow(Canvas& c, int x0, int y0, int dx, int dy, int len) {
 
 std::pair<std::string, double> displayUnit(const std::string& unit, bool diverging) {
   if (unit == "m" && diverging) return {"cm", 100.0};
+  // Forces and stresses of soil cutting run to tens of thousands of newtons and pascals.
+  if (unit == "N") return {"kN", 1e-3};
+  if (unit == "Pa") return {"kPa", 1e-3};
   return {unit.empty() ? "1" : unit, 1.0};
 }
 
@@ -82,7 +85,7 @@ Image annotate(const Image& map_image, const LayeredMap& map, const std::string&
 
   Font& font = Font::get();
   std::lock_guard<std::mutex> lock(font.mutex());
-  const std::string title = a.title.empty() ? layer + " [" + (info.unit.empty() ? "1" : info.unit) + "]" : a.title;
+  const std::string title = a.title.empty() ? layer + " [" + unit + "]" : a.title;
   const int top = kMargin + kTitlePx + 6 + (a.caption.empty() ? 0 : kCaptionPx + 6) + 12;
   const int right = a.categories.empty() ? 24 + kBarWidth + 8 + 64 : 24 + kBarWidth + 8 + 96;
   const int bottom = 56;

@@ -141,11 +141,7 @@ void writeMapOutputs(const PipelineSpec& spec, const Engine& engine, const Truth
       an.outline_regions = "truth_soil_zone";
       an.caption = "white lines: the simulator's soil zones";
     }
-    if (layer == "fee_index" && unit == "N") {
-      an.title = "fee_index [kN]: force of the reference cut on the mapped soil";
-      an.display_scale = 1e-3;
-      an.display_unit = "kN";
-    }
+
     const fs::path p = dir / (layer + ".png");
     io::renderPng(map, layer, p, ro, an);
     files.push_back(p.string());
@@ -212,6 +208,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   RunResult res;
   res.out_dir = spec.outputs.dir;
   res.report = engine->report();
+  res.truth_json = truth.json;
   std::error_code ec;
   fs::create_directories(spec.outputs.dir, ec);
   if (ec) throw OutputError(spec.outputs.dir + ": cannot create output folder: " + ec.message());

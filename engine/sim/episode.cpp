@@ -9,6 +9,7 @@
 #include <hdf5.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -446,18 +447,23 @@ void EpisodeWriter::close(const Simulator& sim) {
   I.closed = true;
 }
 
-std::vector<double> readEpisodeDataset(const std::string& path, const std::string& dataset,
-                                       std::vector<std::uint64_t>& dims) {
+static_assert(sizeof(hid_t) == sizeof(std::int64_t), "EpisodeFile keeps a hid_t in an int64");
+
+EpisodeFile::EpisodeFile(const std::string& path) : path_(path) {
   // A damaged file never reaches libhdf5, which can crash on one (io/file_seal.hpp).
   io::verifySeal(path);
   H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
-  const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  if (f < 0) throw InputError(path + ": cannot open as HDF5");
-  const hid_t ds = H5Dopen2(f, dataset.c_str(), H5P_DEFAULT);
-  if (ds < 0) {
-    H5Fclose(f);
-    throw InputError(path + ": no dataset '" + dataset + "'");
-  }
+  file_ = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (file_ < 0) throw InputError(path + ": cannot open as HDF5");
+}
+
+EpisodeFile::~EpisodeFile() {
+  if (file_ >= 0) H5Fclose(file_);
+}
+
+std::vector<double> EpisodeFile::read(const std::string& dataset, std::vector<std::uint64_t>& dims) const {
+  const hid_t ds = H5Dopen2(file_, dataset.c_str(), H5P_DEFAULT);
+  if (ds < 0) throw InputError(path_ + ": no dataset '" + dataset + "'");
   const hid_t sp = H5Dget_space(ds);
   const int nd = H5Sget_simple_extent_ndims(sp);
   std::vector<hsize_t> d(static_cast<std::size_t>(std::max(nd, 0)));
@@ -467,22 +473,39 @@ std::vector<double> readEpisodeDataset(const std::string& path, const std::strin
   // A dataset can declare (chunked, compressed) far more elements than the file holds: refuse
   // before allocating what its header asks for.
   try {
-    requireInputBudget(saturatingProduct({n, sizeof(double)}), path + ": dataset '" + dataset + "' of " +
+    requireInputBudget(saturatingProduct({n, sizeof(double)}), path_ + ": dataset '" + dataset + "' of " +
                        std::to_string(n) + " values", "read as doubles");
   } catch (...) {
     H5Sclose(sp);
     H5Dclose(ds);
-    H5Fclose(f);
     throw;
   }
   std::vector<double> v(n);
   const herr_t rc = n ? H5Dread(ds, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data()) : 0;
   H5Sclose(sp);
   H5Dclose(ds);
-  H5Fclose(f);
-  if (rc < 0) throw InputError(path + ": cannot read dataset '" + dataset + "' as numbers");
+  if (rc < 0) throw InputError(path_ + ": cannot read dataset '" + dataset + "' as numbers");
   dims.assign(d.begin(), d.end());
   return v;
+}
+
+std::string EpisodeFile::rootAttribute(const std::string& name) const {
+  if (H5Aexists(file_, name.c_str()) <= 0) throw InputError(path_ + ": no attribute '" + name + "'");
+  const hid_t a = H5Aopen(file_, name.c_str(), H5P_DEFAULT);
+  const hid_t t = H5Aget_type(a);
+  const std::size_t n = H5Tget_size(t);
+  std::string s(n, '\0');
+  const herr_t rc = H5Tget_class(t) == H5T_STRING ? H5Aread(a, t, s.data()) : -1;
+  H5Tclose(t);
+  H5Aclose(a);
+  if (rc < 0) throw InputError(path_ + ": attribute '" + name + "' is not a string");
+  s.erase(std::find(s.begin(), s.end(), '\0'), s.end());
+  return s;
+}
+
+std::vector<double> readEpisodeDataset(const std::string& path, const std::string& dataset,
+                                       std::vector<std::uint64_t>& dims) {
+  return EpisodeFile(path).read(dataset, dims);
 }
 
 std::string runEpisode(const Scenario& scenario, const std::string& dir, EpisodeOptions options) {

@@ -1,6 +1,8 @@
 // fee_index: the FEE of a reference cut over the fused soil layers, with its variance.
 #include "fee_index.hpp"
 
+#include <terramap/soil/soil_parameters.hpp>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -10,46 +12,8 @@ namespace terramap::plugins {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-// fee::Soil order [c, φ, γ, c_a, δ] and the layers soil_bayes writes.
-constexpr const char* kSoilLayers[5] = {"soil_c", "soil_phi", "soil_gamma", "soil_ca", "soil_delta"};
-constexpr fee::Param kSoilParams[5] = {fee::kC, fee::kPhi, fee::kGamma, fee::kCa, fee::kDelta};
-
-fee::Soil soilOf(const std::array<double, 5>& v) { return {v[0], v[1], v[2], v[3], v[4]}; }
 
 }  // namespace
-
-FeeIndexValue feeIndexOf(const fee::Soil& mean, const fee::Soil& var, const FeeIndexConfig& cfg) {
-  FeeIndexValue out;
-  const fee::Geometry& g = cfg.geometry;
-  const double beta = cfg.beta_min ? fee::betaMin(mean, g) : fee::betaNominal(mean);
-  const fee::Result r = fee::evaluate(mean, g, beta);
-  out.validity = std::isfinite(beta) ? r.validity : fee::Validity::NoAdmissibleBeta;
-  if (out.validity != fee::Validity::Valid) return out;
-  fee::Jacobian J = fee::jacobianF(mean, g, beta);
-  // β is a function of φ and δ, not an independent parameter.
-  if (cfg.beta_min) {
-    const Eigen::Vector2d db = fee::betaMinGradient(mean, g);
-    J.col(fee::kPhi) += db.x() * J.col(fee::kBeta);
-    J.col(fee::kDelta) += db.y() * J.col(fee::kBeta);
-  } else {
-    J.col(fee::kPhi) += -0.5 * J.col(fee::kBeta);
-  }
-  Eigen::Matrix<double, 1, fee::kParamCount> j;
-  if (cfg.horizontal) {
-    out.index_n = r.F_N.x();
-    j = J.row(0);
-  } else {
-    out.index_n = r.F_N.norm();
-    if (!(out.index_n > 0.0)) return {};
-    j = r.F_N.transpose() * J / out.index_n;
-  }
-  const double v[5] = {var.c_pa, var.phi_rad, var.gamma_n_m3, var.ca_pa, var.delta_rad};
-  double s = 0.0;
-  for (int k = 0; k < 5; ++k) s += j(kSoilParams[k]) * j(kSoilParams[k]) * v[k];
-  out.var_n2 = s;
-  if (!std::isfinite(out.index_n) || !std::isfinite(out.var_n2)) return {};
-  return out;
-}
 
 ParamSchema FeeIndex::schema() const {
   const FeeIndexConfig d;
@@ -78,7 +42,8 @@ void FeeIndex::configure(const Params& p) {
 
 std::vector<LayerSpec> FeeIndex::layers() const {
   std::vector<LayerSpec> out;
-  for (const char* l : kSoilLayers) {
+  for (const soil::SoilParamInfo& info : soil::kSoilParams) {
+    const char* l = info.layer;
     out.push_back({l, LayerAccess::Read, "", std::numeric_limits<float>::quiet_NaN(), ""});
     out.push_back({std::string(l) + "_var", LayerAccess::Read, "", std::numeric_limits<float>::quiet_NaN(), ""});
   }
@@ -94,9 +59,9 @@ EventMask FeeIndex::events() const { return EventKind::Observation | EventKind::
 
 void FeeIndex::start(ProcessContext& ctx) {
   LayeredMap& map = ctx.map();
-  for (std::size_t k = 0; k < 5; ++k) {
-    mean_[k] = map.layerId(kSoilLayers[k]);
-    var_[k] = map.layerId(std::string(kSoilLayers[k]) + "_var");
+  for (std::size_t k = 0; k < mean_.size(); ++k) {
+    mean_[k] = map.layerId(soil::kSoilParams[k].layer);
+    var_[k] = map.layerId(std::string(soil::kSoilParams[k].layer) + "_var");
     ctx.trackChanges(mean_[k]);
     ctx.trackChanges(var_[k]);
   }
@@ -106,7 +71,7 @@ void FeeIndex::start(ProcessContext& ctx) {
 
 void FeeIndex::process(ProcessContext& ctx, const Event&) {
   std::vector<int> tiles;
-  for (std::size_t k = 0; k < 5; ++k) {
+  for (std::size_t k = 0; k < mean_.size(); ++k) {
     for (int t : ctx.changedTiles(mean_[k])) tiles.push_back(t);
     for (int t : ctx.changedTiles(var_[k])) tiles.push_back(t);
   }
@@ -124,8 +89,8 @@ long FeeIndex::computeTiles(ProcessContext& ctx, const std::vector<int>& tiles) 
   std::vector<long> valid(tiles.size(), 0), invalid(tiles.size(), 0), budget(tiles.size(), 0);
   ctx.executor().forEach(static_cast<int>(tiles.size()), [&](int n) {
     const int t = tiles[static_cast<std::size_t>(n)];
-    std::array<const float*, 5> m{}, v{};
-    for (std::size_t k = 0; k < 5; ++k) {
+    std::array<const float*, soil::kSoilParamCount> m{}, v{};
+    for (std::size_t k = 0; k < m.size(); ++k) {
       m[k] = map.tileData(mean_[k], t);
       v[k] = map.tileData(var_[k], t);
     }
@@ -143,16 +108,16 @@ long FeeIndex::computeTiles(ProcessContext& ctx, const std::vector<int>& tiles) 
     for (int a = 0; a < r.rows; ++a)
       for (int b = 0; b < r.cols; ++b) {
         const std::size_t o = static_cast<std::size_t>(a) * static_cast<std::size_t>(T) + static_cast<std::size_t>(b);
-        std::array<double, 5> mv{}, vv{};
+        soil::SoilParamVector mv{}, vv{};
         bool finite = true;
-        for (std::size_t k = 0; k < 5; ++k) {
+        for (std::size_t k = 0; k < mv.size(); ++k) {
           mv[k] = m[k] ? m[k][o] : std::numeric_limits<double>::quiet_NaN();
           vv[k] = v[k] ? v[k][o] : std::numeric_limits<double>::quiet_NaN();
           finite = finite && std::isfinite(mv[k]) && std::isfinite(vv[k]);
         }
         FeeIndexValue f;
         if (finite) {
-          f = feeIndexOf(soilOf(mv), soilOf(vv), cfg_);
+          f = feeIndexOf(soil::toFee(mv), soil::toFee(vv), cfg_);
           (f.validity == fee::Validity::Valid ? valid : invalid)[static_cast<std::size_t>(n)] += 1;
         }
         out[o] = static_cast<float>(f.index_n);

@@ -21,25 +21,17 @@
 /// are recomputed (ProcessContext::changedTiles), one task per tile; each cell depends on that
 /// cell only, so the layers are bit-identical at any thread count and equal to a full recompute.
 #include <terramap/plugin/plugin.hpp>
-#include <terramap/soil/fee.hpp>
+#include <terramap/soil/fee_index.hpp>
+#include <terramap/soil/soil_parameters.hpp>
 
 #include <array>
 
 namespace terramap::plugins {
 
-struct FeeIndexConfig {
-  fee::Geometry geometry{0.0, 80.0 * 3.14159265358979323846 / 180.0, 0.2, 1.85, 0.0};
-  bool beta_min = true;     ///< β* (true) or Rankine's nominal angle
-  bool horizontal = false;  ///< F_x instead of |F|
-};
-
-/// The index and its variance for one soil belief (means, variances in fee::Soil's units).
-struct FeeIndexValue {
-  double index_n = std::numeric_limits<double>::quiet_NaN();
-  double var_n2 = std::numeric_limits<double>::quiet_NaN();
-  fee::Validity validity = fee::Validity::NotFinite;
-};
-FeeIndexValue feeIndexOf(const fee::Soil& mean, const fee::Soil& var, const FeeIndexConfig& cfg);
+// The index itself is terramap::soil's (soil/fee_index.hpp), shared with eval-soil-map.
+using soil::FeeIndexConfig;
+using soil::FeeIndexValue;
+using soil::feeIndexOf;
 
 class FeeIndex : public Plugin {
  public:
@@ -58,8 +50,8 @@ class FeeIndex : public Plugin {
 
  private:
   FeeIndexConfig cfg_;
-  // [c, φ, γ, c_a, δ] (fee::Soil order) means and variances.
-  std::array<LayerId, 5> mean_{}, var_{};
+  // Means and variances, soil::SoilParam order.
+  std::array<LayerId, soil::kSoilParamCount> mean_{}, var_{};
   LayerId index_ = -1, index_var_ = -1;
 };
 

@@ -2,6 +2,7 @@
 #include "soil_bayes.hpp"
 
 #include <terramap/core/map_window.hpp>
+#include <terramap/soil/soil_parameters.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -12,25 +13,21 @@ namespace terramap::plugins {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-constexpr double kDeg = 3.14159265358979323846 / 180.0;
-
-// Layer names in SoilEstimateRecord::Soil order, with their units.
-constexpr const char* kNames[SoilEstimateRecord::kCount] = {"soil_c", "soil_phi", "soil_ca", "soil_delta",
-                                                             "soil_gamma"};
-constexpr const char* kUnits[SoilEstimateRecord::kCount] = {"Pa", "rad", "Pa", "rad", "N/m^3"};
+// Layers, units and ranges: soil::kSoilParams (SoilEstimateRecord::Soil order).
 constexpr const char* kDocs[SoilEstimateRecord::kCount] = {
     "cohesion c of the soil at the surface (posterior mean)",
     "internal friction angle phi (posterior mean)",
     "soil-blade adhesion c_a (posterior mean)",
     "soil-blade friction angle delta (posterior mean)",
     "unit weight gamma (posterior mean)"};
-// Parameter names of the priors and their wide defaults: the uniform distribution over the soil
-// estimator's physical ranges (plugins/soil_pinn/model.hpp, kSoilRanges): mean the middle,
-// variance span² / 12.
+// Parameter names of the priors. Their wide defaults: the uniform distribution over the soil
+// estimator's physical ranges (soil::kSoilParams): mean the middle, variance span² / 12.
 constexpr const char* kPriorKeys[SoilEstimateRecord::kCount] = {"prior_c_pa", "prior_phi_rad", "prior_ca_pa",
                                                                  "prior_delta_rad", "prior_gamma_n_m3"};
-constexpr double kRangeLo[SoilEstimateRecord::kCount] = {0.0, 10 * kDeg, 0.0, 5 * kDeg, 12e3};
-constexpr double kRangeHi[SoilEstimateRecord::kCount] = {60e3, 50 * kDeg, 30e3, 40 * kDeg, 22e3};
+static_assert(int{SoilEstimateRecord::kCount} == int{soil::kSoilParamCount} &&
+                  int{SoilEstimateRecord::kCa} == int{soil::kParamCa} &&
+                  int{SoilEstimateRecord::kGamma} == int{soil::kParamGamma},
+              "the record carries the soil in soil::SoilParam order");
 
 std::string squared(const std::string& unit) { return unit.find('^') == std::string::npos ? unit + "^2" : "(" + unit + ")^2"; }
 
@@ -66,9 +63,10 @@ ParamSchema SoilBayes::schema() const {
                   "by exp(depth / cut_depth_m)"),
   };
   for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
-    const double mid = 0.5 * (kRangeLo[k] + kRangeHi[k]), span = kRangeHi[k] - kRangeLo[k];
-    s.push_back(param::reals(kPriorKeys[k], {mid, span * span / 12.0}, 2, 0.0, 1e12, kUnits[k],
-                             std::string("prior [mean, variance] of ") + kNames[k]));
+    const soil::SoilParamInfo& info = soil::kSoilParams[k];
+    const double mid = 0.5 * (info.lo + info.hi), span = info.hi - info.lo;
+    s.push_back(param::reals(kPriorKeys[k], {mid, span * span / 12.0}, 2, 0.0, 1e12, info.unit,
+                             std::string("prior [mean, variance] of ") + info.layer));
   }
   return s;
 }
@@ -89,11 +87,12 @@ void SoilBayes::configure(const Params& p) {
 std::vector<LayerSpec> SoilBayes::layers() const {
   std::vector<LayerSpec> out;
   for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
-    out.push_back({kNames[k], LayerAccess::Create, kUnits[k], std::numeric_limits<float>::quiet_NaN(),
+    const soil::SoilParamInfo& info = soil::kSoilParams[k];
+    out.push_back({info.layer, LayerAccess::Create, info.unit, std::numeric_limits<float>::quiet_NaN(),
                    std::string(kDocs[k]) + "; NaN = no estimate reached the cell"});
-    out.push_back({std::string(kNames[k]) + "_var", LayerAccess::Create, squared(kUnits[k]),
+    out.push_back({std::string(info.layer) + "_var", LayerAccess::Create, squared(info.unit),
                    std::numeric_limits<float>::quiet_NaN(),
-                   std::string("posterior variance of ") + kNames[k] + "; NaN = no estimate reached the cell"});
+                   std::string("posterior variance of ") + info.layer + "; NaN = no estimate reached the cell"});
   }
   out.push_back({"soil_n", LayerAccess::Create, "count", 0.0f, "soil estimates fused into the cell"});
   out.push_back({"soil_z", LayerAccess::Create, "m", std::numeric_limits<float>::quiet_NaN(),
@@ -112,8 +111,8 @@ EventMask SoilBayes::events() const {
 void SoilBayes::start(ProcessContext& ctx) {
   LayeredMap& map = ctx.map();
   for (std::size_t k = 0; k < mean_.size(); ++k) {
-    mean_[k] = map.layerId(kNames[k]);
-    var_[k] = map.layerId(std::string(kNames[k]) + "_var");
+    mean_[k] = map.layerId(soil::kSoilParams[k].layer);
+    var_[k] = map.layerId(std::string(soil::kSoilParams[k].layer) + "_var");
   }
   n_ = map.layerId("soil_n");
   z_ = map.layerId("soil_z");
@@ -213,7 +212,7 @@ long SoilBayes::fuse(ProcessContext& ctx, const SoilEstimateRecord& est) {
     }
   if (cells == 0) return 0;
   // Per cell and property: independent of every other cell, so rows may run in any order.
-  const SoilBayesConfig cfg = cfg_;
+  const SoilBayesConfig& cfg = cfg_;
   ctx.executor().forEach(win.rows(), [&](int r) {
     for (int cc = 0; cc < win.cols(); ++cc) {
       const std::size_t k = static_cast<std::size_t>(r) * static_cast<std::size_t>(win.cols()) + static_cast<std::size_t>(cc);

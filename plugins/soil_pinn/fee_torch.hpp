@@ -13,14 +13,23 @@
 /// would otherwise leak through where()'s backward as 0 * inf).
 /// Threading: plain ATen ops; the caller sets at::set_num_threads (1 inside engine tasks).
 /// Throws c10::Error (from ATen) or std::invalid_argument on inconsistent shapes.
+#include <terramap/soil/soil_parameters.hpp>
+
 #include <ATen/ATen.h>
 
 #include <string>
 
 namespace terramap::pinn {
 
-/// Columns of the soil tensor, everywhere in soil_pinn.
-enum SoilCol : int { kSoilC = 0, kSoilPhi, kSoilCa, kSoilDelta, kSoilGamma, kSoilCount };
+/// Columns of the soil tensor, everywhere in soil_pinn: soil::SoilParam's order.
+enum SoilCol : int {
+  kSoilC = soil::kParamC,
+  kSoilPhi = soil::kParamPhi,
+  kSoilCa = soil::kParamCa,
+  kSoilDelta = soil::kParamDelta,
+  kSoilGamma = soil::kParamGamma,
+  kSoilCount = soil::kSoilParamCount
+};
 
 /// Output of feeForward(). Shapes with B the batch, P the horizon; dtype of `soil` unless noted.
 struct FeeOut {

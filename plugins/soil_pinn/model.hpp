@@ -23,6 +23,7 @@
 #include "fee_torch.hpp"
 
 #include <terramap/soil/pinn_inference.hpp>
+#include <terramap/soil/soil_parameters.hpp>
 
 #include <torch/nn/module.h>
 #include <torch/nn/modules/container/sequential.h>
@@ -43,24 +44,12 @@ enum ThetaKCol : int { kKRho = 0, kKAlpha, kKW, kKD, kKQ, kKV, kThetaKCount };
 /// residuals.
 enum LogVarCol : int { kLvDRes = kSoilCount, kLvBetaRes, kLogVarCount };
 
-/// A physical range.
-struct ParamRange {
-  const char* name;
-  const char* unit;
-  double lo, hi;
-};
-
 /// The ranges theta_u is squashed into by a sigmoid (theta = lo + (hi - lo) sigmoid(z)),
-/// SoilCol order. Wide enough for the four soil families of the simulator (loose sand to
-/// dense clay); the range penalty of the loss uses the same table.
-inline constexpr double kDeg = 3.14159265358979323846 / 180.0;
-inline constexpr ParamRange kSoilRanges[kSoilCount] = {
-    {"c", "Pa", 0.0, 60e3},
-    {"phi", "rad", 10 * kDeg, 50 * kDeg},
-    {"ca", "Pa", 0.0, 30e3},
-    {"delta", "rad", 5 * kDeg, 40 * kDeg},
-    {"gamma", "N/m^3", 12e3, 22e3},
-};
+/// SoilCol order (= soil::SoilParam order); the range penalty of the loss uses the same table.
+/// The one table is terramap::soil's (soil_parameters.hpp), shared with the soil layers.
+using ParamRange = soil::SoilParamInfo;
+inline constexpr const ParamRange (&kSoilRanges)[soil::kSoilParamCount] = soil::kSoilParams;
+inline constexpr double kDeg = soil::kDegree;
 /// d_res = kDResMaxM tanh(z) (m); beta_res = kBetaResMaxRad tanh(z) (rad).
 inline constexpr double kDResMaxM = 0.05;
 inline constexpr double kBetaResMaxRad = 0.2;

@@ -138,7 +138,7 @@ void outlineRegions(Image& map_image, const LayeredMap& map, const std::string& 
 
 /// What makes a picture explain itself (annotate()).
 struct Annotation {
-  std::string title;    ///< first line; empty = "<layer> [<unit>]"
+  std::string title;    ///< first line; empty = "<layer> [<display unit>]"
   std::string caption;  ///< optional second line (e.g. the error statistics of the picture)
   /// Colour-bar labels show value * display_scale in display_unit; empty unit = displayUnit().
   double display_scale = 0.0;  ///< 0 = from displayUnit()
@@ -151,8 +151,9 @@ struct Annotation {
   Rgba outline_colour{255, 255, 255, 255};
 };
 
-/// The unit a colour bar shows a layer in: errors and differences in metres (diverging colour
-/// maps) read in centimetres; everything else in its own unit. Returns {unit, scale}.
+/// The unit a colour bar (and the default title) shows a layer in: errors and differences in
+/// metres (diverging colour maps) read in centimetres, newtons in kN, pascals in kPa; everything
+/// else in its own unit. Returns {unit, scale}.
 std::pair<std::string, double> displayUnit(const std::string& unit, bool diverging);
 
 /// Where annotate() put things, for tests and for callers that overlay more.

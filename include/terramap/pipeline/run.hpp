@@ -43,6 +43,8 @@ struct RunResult {
   RunReport report;
   std::vector<std::string> files;  ///< every file written
   std::string out_dir;
+  /// RunOptions::compare_truth's JSON (report.json's "truth"), empty without one.
+  std::string truth_json;
 };
 
 /// Memory stays bounded over long runs: the stages' report records are spooled to an anonymous

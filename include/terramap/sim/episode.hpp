@@ -42,11 +42,34 @@ class EpisodeWriter {
   std::unique_ptr<Impl> impl_;
 };
 
-/// Reads one numeric dataset of an episode (any numeric type, converted to double) with its
-/// dimensions; e.g. "/machines/ctl1/force_base_N". For evaluation tools and tests; the layout is
-/// plain HDF5 behind a 512-byte user block, so h5py or the HDF5 C API read it as well. The file's
-/// seal is verified first (io::verifySeal): a truncated or damaged file is an InputError and never
-/// reaches libhdf5. \throws InputError naming file and dataset.
+/// A sealed terramap HDF5 file (simulator or soil-dataset episode) opened for reading: the seal
+/// is verified once (io::verifySeal: a truncated or damaged file is an InputError and never
+/// reaches libhdf5), then any number of datasets and root attributes are read from the one
+/// open file. The layout is plain HDF5 behind a 512-byte user block, so h5py or the HDF5 C API
+/// read it as well. Not thread-safe (libhdf5 is Debian's serial build).
+class EpisodeFile {
+ public:
+  /// \throws InputError naming the file (no seal, length or checksum wrong, not HDF5).
+  explicit EpisodeFile(const std::string& path);
+  ~EpisodeFile();
+  EpisodeFile(const EpisodeFile&) = delete;
+  EpisodeFile& operator=(const EpisodeFile&) = delete;
+
+  /// One numeric dataset (any numeric type, converted to double) with its dimensions; e.g.
+  /// "/machines/ctl1/force_base_N". \throws InputError naming file and dataset (missing, over
+  /// the memory budget, not numbers).
+  std::vector<double> read(const std::string& dataset, std::vector<std::uint64_t>& dims) const;
+  /// A string attribute of the root group. \throws InputError naming it when missing or not a string.
+  std::string rootAttribute(const std::string& name) const;
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+  std::int64_t file_ = -1;  // hid_t
+};
+
+/// EpisodeFile(path).read(dataset, dims): for one dataset. Reading several from one file, open
+/// it once with EpisodeFile. \throws InputError naming file and dataset.
 std::vector<double> readEpisodeDataset(const std::string& path, const std::string& dataset,
                                        std::vector<std::uint64_t>& dims);
 

@@ -76,6 +76,8 @@ TEST(Annotate, ErrorsInMetresReadInCentimetres) {
   EXPECT_EQ(tio::displayUnit("m", false), std::make_pair(std::string("m"), 1.0));
   EXPECT_EQ(tio::displayUnit("", false), std::make_pair(std::string("1"), 1.0));
   EXPECT_EQ(tio::displayUnit("count", true), std::make_pair(std::string("count"), 1.0));
+  EXPECT_EQ(tio::displayUnit("N", false), std::make_pair(std::string("kN"), 1e-3));
+  EXPECT_EQ(tio::displayUnit("Pa", true), std::make_pair(std::string("kPa"), 1e-3));
 }
 
 TEST(Annotate, TextIsDrawnAndDiffersWithTheTitle) {

@@ -38,7 +38,8 @@ struct SoilEstimateRecord {
   /// RecordBus type name. Bump the suffix when the layout changes incompatibly.
   static constexpr const char* kType = "terramap.soil_estimate.v1";
 
-  /// Indices into the soil arrays.
+  /// Indices into the soil arrays (soil::SoilParam's order: soil/soil_parameters.hpp holds
+  /// names, layer names, units and ranges).
   enum Soil : int { kC = 0, kPhi, kCa, kDelta, kGamma, kCount };
   using SoilVector = std::array<double, kCount>;
   static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
