@@ -617,6 +617,10 @@ SoilZone readZone(MapReader& z, std::size_t k) {
   }
   if (regions > 1) z.error(z.self(), "polygon", "give one region (strip or polygon), not both");
   readRange(z, "depth_m", zone.depth_min_m, zone.depth_max_m, 0.0, INFINITY);
+  if (z.has("depth_dip")) {
+    std::vector<double> v;
+    if (z.numList(z.node("depth_dip"), "depth_dip", 2, v)) zone.depth_dip = {v[0], v[1]};
+  }
   z.finish();
   return zone;
 }

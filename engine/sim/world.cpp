@@ -62,7 +62,7 @@ int SoilField::zoneAt(double x, double y, double depth_m) const {
   const double d = std::max(0.0, depth_m);
   for (int k = static_cast<int>(zones_.size()) - 1; k >= 0; --k) {
     const SoilZone& z = zones_[k];
-    if (d < z.depth_min_m || d > z.depth_max_m) continue;
+    if (d < z.depthMinAt(x, y) || d > z.depthMaxAt(x, y)) continue;
     bool inside = true;
     switch (z.region) {
       case SoilZone::Region::Everywhere: break;

@@ -27,6 +27,8 @@ ParamSchema FeeIndex::schema() const {
                   "failure angle: beta* minimising N_gamma (min) or Rankine's pi/4 - phi/2 (nominal)"),
       param::text("component", "magnitude", {"magnitude", "horizontal"},
                   "index: |F| (Eq. 1's f) or F_x (the push along travel)"),
+      param::text("soil_prefix", "soil_", {}, "soil layers read: <prefix>c, <prefix>phi, ... and their _var"),
+      param::text("output", "fee_index", {}, "layers created: <output> and <output>_var"),
   };
 }
 
@@ -38,19 +40,22 @@ void FeeIndex::configure(const Params& p) {
   cfg_.geometry.q_n = p.getDouble("q_n");
   cfg_.beta_min = p.getString("beta") == "min";
   cfg_.horizontal = p.getString("component") == "horizontal";
+  prefix_ = p.getString("soil_prefix");
+  output_ = p.getString("output");
+  if (output_.empty()) p.fail("output", "the index layer needs a name");
 }
 
 std::vector<LayerSpec> FeeIndex::layers() const {
   std::vector<LayerSpec> out;
   for (const soil::SoilParamInfo& info : soil::kSoilParams) {
-    const char* l = info.layer;
+    const std::string l = prefix_ + info.name;
     out.push_back({l, LayerAccess::Read, "", std::numeric_limits<float>::quiet_NaN(), ""});
-    out.push_back({std::string(l) + "_var", LayerAccess::Read, "", std::numeric_limits<float>::quiet_NaN(), ""});
+    out.push_back({l + "_var", LayerAccess::Read, "", std::numeric_limits<float>::quiet_NaN(), ""});
   }
-  out.push_back({"fee_index", LayerAccess::Create, "N", std::numeric_limits<float>::quiet_NaN(),
-                 "FEE force of the reference cut on the fused soil; NaN = no soil belief or no valid FEE"});
-  out.push_back({"fee_index_var", LayerAccess::Create, "N^2", std::numeric_limits<float>::quiet_NaN(),
-                 "variance of fee_index (J Sigma J^T over the soil layers' variances)"});
+  out.push_back({output_, LayerAccess::Create, "N", std::numeric_limits<float>::quiet_NaN(),
+                 "FEE force of the reference cut on the soil layers " + prefix_ + "*; NaN = no soil belief or no valid FEE"});
+  out.push_back({output_ + "_var", LayerAccess::Create, "N^2", std::numeric_limits<float>::quiet_NaN(),
+                 "variance of " + output_ + " (J Sigma J^T over the soil layers' variances)"});
   return out;
 }
 
@@ -60,13 +65,13 @@ EventMask FeeIndex::events() const { return EventKind::Observation | EventKind::
 void FeeIndex::start(ProcessContext& ctx) {
   LayeredMap& map = ctx.map();
   for (std::size_t k = 0; k < mean_.size(); ++k) {
-    mean_[k] = map.layerId(soil::kSoilParams[k].layer);
-    var_[k] = map.layerId(std::string(soil::kSoilParams[k].layer) + "_var");
+    mean_[k] = map.layerId(prefix_ + soil::kSoilParams[k].name);
+    var_[k] = map.layerId(prefix_ + soil::kSoilParams[k].name + "_var");
     ctx.trackChanges(mean_[k]);
     ctx.trackChanges(var_[k]);
   }
-  index_ = map.layerId("fee_index");
-  index_var_ = map.layerId("fee_index_var");
+  index_ = map.layerId(output_);
+  index_var_ = map.layerId(output_ + "_var");
 }
 
 void FeeIndex::process(ProcessContext& ctx, const Event&) {

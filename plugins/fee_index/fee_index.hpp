@@ -15,7 +15,9 @@
 ///
 /// Layers (created): `fee_index` (N; NaN where a soil layer is NaN or the FEE is invalid for that
 /// soil), `fee_index_var` (N²). Read: soil_c, soil_phi, soil_gamma, soil_ca, soil_delta and their
-/// `_var`.
+/// `_var`. `soil_prefix` reads another set of soil layers with the same suffixes (e.g.
+/// `strata_next_`: octomap_strata's soil expected in the next cut) and `output` names the two
+/// created layers (`output`, `output` + "_var"), so two instances can index two soils.
 ///
 /// Incremental and parallel: only tiles whose soil layers were written since the stage last ran
 /// are recomputed (ProcessContext::changedTiles), one task per tile; each cell depends on that
@@ -50,6 +52,7 @@ class FeeIndex : public Plugin {
 
  private:
   FeeIndexConfig cfg_;
+  std::string prefix_ = "soil_", output_ = "fee_index";
   // Means and variances, soil::SoilParam order.
   std::array<LayerId, soil::kSoilParamCount> mean_{}, var_{};
   LayerId index_ = -1, index_var_ = -1;

@@ -65,8 +65,13 @@ struct SoilZone {
   enum class Region { Everywhere, StripX, StripY, Polygon } region = Region::Everywhere;
   double lo_m = 0, hi_m = 0;                 ///< strip bounds (x or y) for StripX/StripY
   std::vector<Eigen::Vector2d> polygon;      ///< map xy, any orientation, not self-intersecting
-  /// Depth range below the *initial* surface (m, positive down) where the zone applies.
+  /// Depth range below the *initial* surface (m, positive down) where the zone applies, at map
+  /// (0, 0); with a dip both bounds shift by depth_dip · (x, y) (a tilted stratum: m per m).
   double depth_min_m = 0, depth_max_m = std::numeric_limits<double>::infinity();
+  Eigen::Vector2d depth_dip = Eigen::Vector2d::Zero();
+  /// Depth (m below the initial surface) of the zone's top / bottom at map (x, y).
+  double depthMinAt(double x, double y) const { return depth_min_m + depth_dip.x() * x + depth_dip.y() * y; }
+  double depthMaxAt(double x, double y) const { return depth_max_m + depth_dip.x() * x + depth_dip.y() * y; }
 };
 
 /// A scalar set-point that drifts as a reflected random walk (paper §3.1):

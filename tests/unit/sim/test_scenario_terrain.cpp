@@ -100,6 +100,22 @@ TEST(Scenario, SoilZonesOverrideInOrderAndByDepth) {
   EXPECT_EQ(f.at(-0.9, -0.6, 0.0).family, SoilFamily::Loam);  // other side of the diagonal
 }
 
+TEST(Scenario, ADippingStratumShiftsItsDepthRangeAcrossTheSite) {
+  const Scenario sc = parseScenario(std::string(kMinimal) + R"(soil:
+  default: {family: loam, relative_density: 0.2}
+  zones:
+    - {family: clay, relative_density: 0.8, depth_m: [0.3, .inf], depth_dip: [0.02, -0.01]}
+)",
+                                    "s.yaml");
+  const SoilField f(sc.default_soil, sc.zones);
+  // At (5, 0) the top lies at 0.3 + 0.1 = 0.4 m; at (0, 10) at 0.3 - 0.1 = 0.2 m.
+  EXPECT_EQ(f.at(5, 0, 0.38).family, SoilFamily::Loam);
+  EXPECT_EQ(f.at(5, 0, 0.42).family, SoilFamily::Clay);
+  EXPECT_EQ(f.at(0, 10, 0.18).family, SoilFamily::Loam);
+  EXPECT_EQ(f.at(0, 10, 0.22).family, SoilFamily::Clay);
+  EXPECT_DOUBLE_EQ(sc.zones[0].depthMinAt(5, 10), 0.3);
+}
+
 TEST(Terrain, EsriAsciiDemIsReadAndSampled) {
   const std::string path = std::string(TERRAMAP_BINARY_DIR) + "/sim_test_dem.asc";
   {

@@ -1,0 +1,360 @@
+// octomap_strata: the strata model (strata.hpp) fed by the record bus, and its map layers.
+#include "octomap_strata.hpp"
+
+#include <terramap/core/error.hpp>
+#include <terramap/io/render.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <set>
+
+namespace terramap::plugins {
+
+namespace {
+
+constexpr float kNaNf = std::numeric_limits<float>::quiet_NaN();
+constexpr const char* kPriorKeys[soil::kSoilParamCount] = {"prior_c_pa", "prior_phi_rad", "prior_ca_pa",
+                                                            "prior_delta_rad", "prior_gamma_n_m3"};
+std::string squared(const std::string& unit) { return unit.find('^') == std::string::npos ? unit + "^2" : "(" + unit + ")^2"; }
+
+std::vector<std::string> paramNames() {
+  std::vector<std::string> v;
+  for (const soil::SoilParamInfo& i : soil::kSoilParams) v.push_back(i.name);
+  return v;
+}
+
+int paramIndex(const std::string& name) {
+  for (int k = 0; k < soil::kSoilParamCount; ++k)
+    if (name == soil::kSoilParams[k].name) return k;
+  return 0;
+}
+
+}  // namespace
+
+std::vector<strata::CellCut> cellCutsOf(const SweepRecord& sweep) {
+  std::vector<strata::CellCut> out;
+  std::size_t s = 0;  // slices follow the cut cells of the mask, in order
+  for (const SweepMaskCell& m : sweep.mask) {
+    if (!m.cut) continue;
+    strata::CellCut c;
+    c.position = m.position;
+    c.cell_m = sweep.resolution_m;
+    c.new_surface_m = m.sv_bottom_m;
+    c.old_surface_m = std::numeric_limits<double>::quiet_NaN();
+    if (s < sweep.slices.size()) {
+      const SweepSlice& sl = sweep.slices[s];
+      // The slice's fitted bank surface; without a valid fit, the cell's height before the cut
+      // (swept bottom + removed height), which counts loose soil as bank.
+      if (sl.valid && std::isfinite(sl.surface_z_m)) c.old_surface_m = sl.surface_z_m;
+      else if (std::isfinite(m.sv_bottom_m)) c.old_surface_m = static_cast<double>(m.sv_bottom_m) + sl.cut_m;
+    }
+    ++s;
+    out.push_back(c);
+  }
+  return out;
+}
+
+ParamSchema OctomapStrata::schema() const {
+  const OctomapStrataConfig d;
+  ParamSchema s{
+      param::real("resolution_m", d.strata.resolution_m, 0.005, 10.0, "m", "voxel edge"),
+      param::reals("extent_min_m", {d.strata.min_m.x(), d.strata.min_m.y(), d.strata.min_m.z()}, 3, -1e5, 1e5, "m",
+                   "lower corner of the strata's extent (map frame); columns outside are ignored and counted"),
+      param::reals("extent_max_m", {d.strata.max_m.x(), d.strata.max_m.y(), d.strata.max_m.z()}, 3, -1e5, 1e5, "m",
+                   "upper corner of the extent"),
+      param::real("inflation_depth_m", d.strata.inflation_depth_m, 1e-3, 100.0, "m",
+                  "the soil below a cut inherits the cut's estimate with its variance grown by exp(depth / this)"),
+      param::integer("max_pending_sweeps", d.strata.max_pending_sweeps, 1, 100000,
+                     "sweeps waiting for their estimate; the oldest beyond keep their prediction"),
+      param::real("next_cut_m", d.next_cut_m, 1e-3, 10.0, "m", "depth of the cut the strata_next_* layers describe"),
+      param::boolean("surface_fallback", d.surface_fallback,
+                     "cells whose column was never cut take soil_bayes' surface layers (soil_*) when the map has them"),
+      param::integer("change_min_voxels", d.change_min_voxels, 1, 1000,
+                     "strata_change_depth_m: removed voxels with an estimate needed on each side of a change"),
+      param::real("change_min_gain", d.change_min_gain, 0.0, 1.0, "1",
+                  "strata_change_depth_m: share of the column's spread the split must explain"),
+      param::path("save_path", "", "write the whole model here at the end (.ot + terramap trailer); empty = no"),
+      param::path("octovis_path", "", "write an octovis ColorOcTree (.ot) here at the end; empty = no"),
+      param::text("octovis_param", "c", paramNames(), "soil property the ColorOcTree's colours show"),
+      param::real("octovis_below_m", d.octovis_below_m, 0.0, 100.0, "m",
+                  "the ColorOcTree also shows the predicted soil this far below each cut column's surface"),
+      param::path("section_png", "", "write a cross-section picture here at the end; empty = no"),
+      param::reals("section_line_m", {0, 0, 1, 0}, 4, -1e5, 1e5, "m", "cross-section from (x0, y0) to (x1, y1)"),
+      param::text("section_param", "c", paramNames(), "soil property the cross-section shows"),
+  };
+  for (int k = 0; k < soil::kSoilParamCount; ++k) {
+    const soil::SoilParamInfo& info = soil::kSoilParams[k];
+    const double mid = 0.5 * (info.lo + info.hi), span = info.hi - info.lo;
+    s.push_back(param::reals(kPriorKeys[k], {mid, span * span / 12.0}, 2, 0.0, 1e12, info.unit,
+                             std::string("prior [mean, variance] of ") + info.name + " where no estimate reached"));
+  }
+  return s;
+}
+
+void OctomapStrata::configure(const Params& p) {
+  OctomapStrataConfig c;
+  c.strata.resolution_m = p.getDouble("resolution_m");
+  const std::vector<double>& lo = p.getDoubles("extent_min_m");
+  const std::vector<double>& hi = p.getDoubles("extent_max_m");
+  c.strata.min_m = {lo[0], lo[1], lo[2]};
+  c.strata.max_m = {hi[0], hi[1], hi[2]};
+  for (int a = 0; a < 3; ++a)
+    if (!(lo[static_cast<std::size_t>(a)] < hi[static_cast<std::size_t>(a)]))
+      p.fail("extent_max_m", std::string("must exceed extent_min_m along ") + "xyz"[a]);
+  c.strata.inflation_depth_m = p.getDouble("inflation_depth_m");
+  c.strata.max_pending_sweeps = static_cast<int>(p.getInt("max_pending_sweeps"));
+  for (int k = 0; k < soil::kSoilParamCount; ++k) {
+    const std::vector<double>& v = p.getDoubles(kPriorKeys[k]);
+    if (!(v[1] > 0.0)) p.fail(kPriorKeys[k], "the prior variance must be above 0");
+    c.strata.prior_mean[static_cast<std::size_t>(k)] = v[0];
+    c.strata.prior_var[static_cast<std::size_t>(k)] = v[1];
+  }
+  c.next_cut_m = p.getDouble("next_cut_m");
+  c.surface_fallback = p.getBool("surface_fallback");
+  c.change_min_voxels = static_cast<int>(p.getInt("change_min_voxels"));
+  c.change_min_gain = p.getDouble("change_min_gain");
+  c.save_path = p.getString("save_path");
+  c.octovis_path = p.getString("octovis_path");
+  c.octovis_param = paramIndex(p.getString("octovis_param"));
+  c.octovis_below_m = p.getDouble("octovis_below_m");
+  c.section_png = p.getString("section_png");
+  c.section_line = p.getDoubles("section_line_m");
+  c.section_param = paramIndex(p.getString("section_param"));
+  try {
+    strata::Strata probe(c.strata);  // every check of the model, reported against the stage
+  } catch (const ConfigError& e) {
+    p.fail("resolution_m", e.what());
+  }
+  cfg_ = c;
+}
+
+std::vector<LayerSpec> OctomapStrata::layers() const {
+  std::vector<LayerSpec> out;
+  for (const soil::SoilParamInfo& info : soil::kSoilParams) {
+    const std::string l = std::string("strata_next_") + info.name;
+    out.push_back({l, LayerAccess::Create, info.unit, kNaNf,
+                   std::string(info.name) + " of the soil the next cut of next_cut_m would remove; NaN = nothing known"});
+    out.push_back({l + "_var", LayerAccess::Create, squared(info.unit), kNaNf, "variance of " + l});
+  }
+  out.push_back({"strata_cut_m", LayerAccess::Create, "m", kNaNf,
+                 "bank soil removed since the column was first cut; NaN = never cut"});
+  out.push_back({"strata_change_depth_m", LayerAccess::Create, "m", kNaNf,
+                 "depth below the first-cut surface of the strongest change in the removed soil; NaN = none found"});
+  out.push_back({"elevation", LayerAccess::Read, "", kNaNf, ""});
+  return out;
+}
+
+// blade_sweep publishes on BladePose and Pose, soil_pinn on Observation and BladePose.
+EventMask OctomapStrata::events() const { return EventKind::Observation | EventKind::BladePose | EventKind::Pose; }
+
+void OctomapStrata::start(ProcessContext& ctx) {
+  strata_.emplace(cfg_.strata);
+  LayeredMap& map = ctx.map();
+  for (int k = 0; k < soil::kSoilParamCount; ++k) {
+    const std::string n = std::string("strata_next_") + soil::kSoilParams[k].name;
+    next_[static_cast<std::size_t>(k)] = map.layerId(n);
+    next_var_[static_cast<std::size_t>(k)] = map.layerId(n + "_var");
+  }
+  cut_ = map.layerId("strata_cut_m");
+  change_ = map.layerId("strata_change_depth_m");
+  elevation_ = map.layerId("elevation");
+  loose_ = map.hasLayer("loose") ? map.layerId("loose") : LayerId(-1);
+  have_surface_ = cfg_.surface_fallback;
+  for (int k = 0; have_surface_ && k < soil::kSoilParamCount; ++k)
+    have_surface_ = map.hasLayer(soil::kSoilParams[k].layer) && map.hasLayer(std::string(soil::kSoilParams[k].layer) + "_var");
+  if (have_surface_)
+    for (int k = 0; k < soil::kSoilParamCount; ++k) {
+      surf_[static_cast<std::size_t>(k)] = map.layerId(soil::kSoilParams[k].layer);
+      surf_var_[static_cast<std::size_t>(k)] = map.layerId(std::string(soil::kSoilParams[k].layer) + "_var");
+      ctx.trackChanges(surf_[static_cast<std::size_t>(k)]);
+      ctx.trackChanges(surf_var_[static_cast<std::size_t>(k)]);
+    }
+  const Record* e = ctx.records().latest(SoilEstimateRecord::kType);
+  last_estimate_ = e ? e->sequence : 0;
+  const Record* s = ctx.records().latest(SweepRecord::kType);
+  last_sweep_ = s ? s->sequence : 0;
+}
+
+void OctomapStrata::collect(ProcessContext& ctx, std::vector<int>& tiles) {
+  LayeredMap& map = ctx.map();
+  const Geometry& geo = map.geometry();
+  auto touch = [&](const Eigen::Vector2d& p) {
+    const auto idx = geo.indexAt(p);
+    if (!idx) return;
+    const Index b = map.bufferIndex(*idx);
+    tiles.push_back(map.tileOfBuffer(b.x(), b.y()));
+  };
+  const strata::StrataCounters before = strata_->counters();
+  const RecordBus::Since sweeps = ctx.records().since(SweepRecord::kType, last_sweep_);
+  if (sweeps.missed > 0) ctx.countDrop("sweep_missed", sweeps.missed);
+  for (const Record& r : sweeps.records) {
+    last_sweep_ = r.sequence;
+    const auto& sw = *std::static_pointer_cast<const SweepRecord>(r.payload);
+    const std::vector<strata::CellCut> cells = cellCutsOf(sw);
+    if (cells.empty()) continue;
+    ctx.addCounter("voxels_removed", static_cast<double>(strata_->applyCut(sw.sweep_index, cells)));
+    for (const strata::CellCut& c : cells) touch(c.position);
+  }
+  const RecordBus::Since est = ctx.records().since(SoilEstimateRecord::kType, last_estimate_);
+  if (est.missed > 0) ctx.countDrop("estimate_missed", est.missed);
+  for (const Record& r : est.records) {
+    last_estimate_ = r.sequence;
+    const auto& e = *std::static_pointer_cast<const SoilEstimateRecord>(r.payload);
+    const long n = e.valid ? strata_->assignEstimate(e.sweep_index, &e.mean, &e.var_total)
+                           : strata_->assignEstimate(e.sweep_index, nullptr, nullptr);
+    ctx.addCounter("voxels_estimated", static_cast<double>(e.valid ? n : 0));
+    // The estimate's columns are where its sweep cut: their tiles were marked then, but the
+    // layers must be recomputed now that the estimate is in. The blade's end pose is inside.
+    const Eigen::Vector2d c = e.T_map_blade1.translation().head<2>();
+    const double reach = 0.5 * (std::isfinite(e.w_m) ? e.w_m : 2.0) + 1.0;
+    for (double dx = -reach; dx <= reach; dx += 0.5 * reach)
+      for (double dy = -reach; dy <= reach; dy += 0.5 * reach) touch(c + Eigen::Vector2d(dx, dy));
+  }
+  const strata::StrataCounters& after = strata_->counters();
+  if (after.estimates_invalid > before.estimates_invalid)
+    ctx.countDrop("estimate_invalid", after.estimates_invalid - before.estimates_invalid);
+  if (after.estimates_unmatched > before.estimates_unmatched)
+    ctx.countDrop("estimate_without_cut", after.estimates_unmatched - before.estimates_unmatched);
+  if (after.pending_evicted > before.pending_evicted)
+    ctx.countDrop("estimate_never_came", after.pending_evicted - before.pending_evicted);
+  if (after.columns_outside > before.columns_outside)
+    ctx.countDrop("column_outside_extent", after.columns_outside - before.columns_outside);
+  if (after.columns_unknown_surface > before.columns_unknown_surface)
+    ctx.countDrop("column_surface_unknown", after.columns_unknown_surface - before.columns_unknown_surface);
+  if (have_surface_)
+    for (int k = 0; k < soil::kSoilParamCount; ++k) {
+      for (int t : ctx.changedTiles(surf_[static_cast<std::size_t>(k)])) tiles.push_back(t);
+      for (int t : ctx.changedTiles(surf_var_[static_cast<std::size_t>(k)])) tiles.push_back(t);
+    }
+}
+
+void OctomapStrata::process(ProcessContext& ctx, const Event&) {
+  std::vector<int> tiles;
+  collect(ctx, tiles);
+  std::sort(tiles.begin(), tiles.end());
+  tiles.erase(std::unique(tiles.begin(), tiles.end()), tiles.end());
+  if (!tiles.empty()) computeTiles(ctx, tiles);
+}
+
+void OctomapStrata::finish(ProcessContext& ctx) {
+  std::vector<int> tiles;
+  collect(ctx, tiles);
+  strata_->flushPending();
+  std::sort(tiles.begin(), tiles.end());
+  tiles.erase(std::unique(tiles.begin(), tiles.end()), tiles.end());
+  if (!tiles.empty()) computeTiles(ctx, tiles);
+  const strata::StrataCounters& c = strata_->counters();
+  ctx.addCounter("columns", static_cast<double>(strata_->columns()));
+  ctx.addCounter("tree_nodes", static_cast<double>(strata_->nodes()));
+  ctx.addCounter("memory_bytes", static_cast<double>(strata_->memoryBytes()));
+  ctx.addCounter("estimates_assigned", static_cast<double>(c.estimates_assigned));
+  writeFiles(ctx);
+}
+
+void OctomapStrata::computeTiles(ProcessContext& ctx, const std::vector<int>& tiles) {
+  LayeredMap& map = ctx.map();
+  const Geometry& geo = map.geometry();
+  const int T = map.tileSize();
+  const strata::Strata& st = *strata_;
+  std::vector<long> budget(tiles.size(), 0);
+  ctx.executor().forEach(static_cast<int>(tiles.size()), [&](int n) {
+    const int t = tiles[static_cast<std::size_t>(n)];
+    if (!map.tryAllocateTile(t, {next_[0], next_[1], next_[2], next_[3], next_[4], next_var_[0], next_var_[1],
+                                 next_var_[2], next_var_[3], next_var_[4], cut_, change_})) {
+      budget[static_cast<std::size_t>(n)] = 1;
+      return;
+    }
+    std::array<float*, soil::kSoilParamCount> m{}, v{};
+    std::array<const float*, soil::kSoilParamCount> sm{}, sv{};
+    for (std::size_t k = 0; k < m.size(); ++k) {
+      m[k] = map.mutableTileData(next_[k], t);
+      v[k] = map.mutableTileData(next_var_[k], t);
+      if (have_surface_) {
+        sm[k] = map.tileData(surf_[k], t);
+        sv[k] = map.tileData(surf_var_[k], t);
+      }
+    }
+    float* cut = map.mutableTileData(cut_, t);
+    float* change = map.mutableTileData(change_, t);
+    const CellRect r = map.tileRect(t);
+    for (int a = 0; a < r.rows; ++a)
+      for (int b = 0; b < r.cols; ++b) {
+        const std::size_t o = static_cast<std::size_t>(a) * static_cast<std::size_t>(T) + static_cast<std::size_t>(b);
+        const Position p = geo.positionOf(map.logicalIndex(Index(r.r0 + a, r.c0 + b)));
+        const double top = st.surfaceAt(p.x(), p.y());
+        if (std::isfinite(top)) {
+          const strata::SoilBelief e = st.expectedCut(p.x(), p.y(), top, cfg_.next_cut_m);
+          for (std::size_t k = 0; k < m.size(); ++k) {
+            m[k][o] = static_cast<float>(e.mean[k]);
+            v[k][o] = static_cast<float>(e.var[k]);
+          }
+          cut[o] = static_cast<float>(st.initialSurfaceAt(p.x(), p.y()) - top);
+          change[o] = static_cast<float>(st.changeDepthAt(p.x(), p.y(), cfg_.change_min_voxels, cfg_.change_min_gain));
+        } else {
+          for (std::size_t k = 0; k < m.size(); ++k) {
+            m[k][o] = sm[k] ? sm[k][o] : kNaNf;
+            v[k][o] = sv[k] ? sv[k][o] : kNaNf;
+          }
+          cut[o] = kNaNf;
+          change[o] = kNaNf;
+        }
+      }
+  });
+  long nb = 0;
+  for (long b : budget) nb += b;
+  if (nb > 0) ctx.countDrop("tile_budget", nb);
+  ctx.addCounter("tiles_computed", static_cast<double>(static_cast<long>(tiles.size()) - nb));
+}
+
+void OctomapStrata::writeFiles(ProcessContext& ctx) const {
+  if (!cfg_.save_path.empty()) strata_->save(cfg_.save_path);
+  if (!cfg_.octovis_path.empty())
+    strata_->exportColorOt(cfg_.octovis_path, cfg_.octovis_param, cfg_.octovis_below_m);
+  if (cfg_.section_png.empty()) return;
+  // The cross-section as a small map: rows along the line (x = distance), columns in z.
+  const std::vector<double>& L = cfg_.section_line;
+  const Eigen::Vector2d a(L[0], L[1]), b(L[2], L[3]);
+  const double len = (b - a).norm(), res = cfg_.strata.resolution_m;
+  if (!(len > 0.0)) throw ConfigError("octomap_strata: section_line_m has zero length");
+  // z range: the cut columns along the line, with 0.5 m of prediction below.
+  double zlo = std::numeric_limits<double>::infinity(), zhi = -zlo;
+  const int ns = std::max(2, static_cast<int>(std::ceil(len / res)));
+  for (int s = 0; s < ns; ++s) {
+    const Eigen::Vector2d p = a + (b - a) * ((s + 0.5) / ns);
+    const double top = strata_->surfaceAt(p.x(), p.y()), init = strata_->initialSurfaceAt(p.x(), p.y());
+    if (std::isfinite(top)) zlo = std::min(zlo, top - 0.5);
+    if (std::isfinite(init)) zhi = std::max(zhi, init + res);
+  }
+  if (!std::isfinite(zlo) || !std::isfinite(zhi)) {
+    ctx.countDrop("section_nothing_cut");
+    return;
+  }
+  const int nz = std::max(2, static_cast<int>(std::ceil((zhi - zlo) / res)));
+  // Geometry rows run along x (distance), columns along y (height, z = zlo + (j + 0.5) res).
+  const Geometry g(res, Size(ns, nz), Position(0.5 * ns * res, zlo + 0.5 * nz * res));
+  LayeredMap sec(g);
+  const soil::SoilParamInfo& info = soil::kSoilParams[cfg_.section_param];
+  const std::string layer = std::string("strata_") + info.name;
+  const LayerId id = sec.addLayer(layer, info.unit);
+  for (int s = 0; s < ns; ++s) {
+    const Eigen::Vector2d p = a + (b - a) * ((s + 0.5) / ns);
+    for (int j = 0; j < nz; ++j) {
+      const Position q = g.positionOf(Index(s, j));
+      const strata::SoilBelief sb = strata_->soilAt(p.x(), p.y(), q.y());
+      if (sb.source == strata::SoilSource::Air || sb.source == strata::SoilSource::Outside) continue;
+      sec.set(id, Index(s, j), static_cast<float>(sb.mean[static_cast<std::size_t>(cfg_.section_param)]));
+    }
+  }
+  io::RenderOptions ro;
+  ro.range = io::ValueRange{static_cast<float>(info.lo), static_cast<float>(info.hi)};
+  ro.scale = std::max(1, static_cast<int>(std::lround(0.02 / res * 4)));
+  io::Annotation an;
+  an.title = std::string("strata ") + info.name + " along (" + std::to_string(L[0]).substr(0, 5) + ", " +
+             std::to_string(L[1]).substr(0, 5) + ") -> (" + std::to_string(L[2]).substr(0, 5) + ", " +
+             std::to_string(L[3]).substr(0, 5) + ")";
+  an.caption = "horizontal: distance along the line; vertical: height z; blank = air or nothing known";
+  io::renderPng(sec, layer, cfg_.section_png, ro, an);
+}
+
+}  // namespace terramap::plugins

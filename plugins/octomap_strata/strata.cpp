@@ -1,0 +1,573 @@
+// Subsurface soil memory in an OctoMap tree (strata.hpp).
+#include "strata.hpp"
+
+#include <terramap/core/error.hpp>
+#include <terramap/io/atomic_file.hpp>
+#include <terramap/io/render.hpp>
+
+#include <octomap/ColorOcTree.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <sstream>
+
+namespace terramap::strata {
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr int kP = soil::kSoilParamCount;
+constexpr const char* kTreeId = "TerramapStrataTree";
+constexpr const char* kTrailer = "terramap_strata 1";
+
+/// Product of two Gaussians; a non-finite or non-positive measurement leaves the prior.
+void fuse(double& m, double& v, double z, double r) {
+  if (!std::isfinite(z) || !std::isfinite(r) || r <= 0.0) return;
+  const double s = v + r;
+  m = (r * m + v * z) / s;
+  v = v * r / s;
+}
+
+SoilBelief nanBelief(SoilSource s) {
+  SoilBelief b;
+  b.mean.fill(kNaN);
+  b.var.fill(kNaN);
+  b.source = s;
+  return b;
+}
+
+SoilBelief fromVoxel(const VoxelBelief& v) {
+  SoilBelief b;
+  for (int q = 0; q < kP; ++q) {
+    b.mean[q] = v.mean[q];
+    b.var[q] = v.var[q];
+  }
+  b.source = v.kind == VoxelBelief::kEstimated ? SoilSource::Removed : SoilSource::Predicted;
+  return b;
+}
+
+VoxelBelief toVoxel(const SoilBelief& b, VoxelBelief::Kind kind) {
+  VoxelBelief v;
+  for (int q = 0; q < kP; ++q) {
+    v.mean[q] = static_cast<float>(b.mean[q]);
+    v.var[q] = static_cast<float>(b.var[q]);
+  }
+  v.kind = kind;
+  return v;
+}
+
+template <typename T>
+void put(std::ostream& o, const T& v) {
+  o.write(reinterpret_cast<const char*>(&v), sizeof(T));
+}
+template <typename T>
+bool get(std::istream& i, T& v) {
+  return static_cast<bool>(i.read(reinterpret_cast<char*>(&v), sizeof(T)));
+}
+
+}  // namespace
+
+bool VoxelBelief::operator==(const VoxelBelief& o) const {
+  return kind == o.kind && mean == o.mean && var == o.var;
+}
+
+const char* soilSourceName(SoilSource s) {
+  switch (s) {
+    case SoilSource::Outside: return "outside";
+    case SoilSource::Air: return "air";
+    case SoilSource::Prior: return "prior";
+    case SoilSource::Inherited: return "inherited";
+    case SoilSource::Removed: return "removed";
+    case SoilSource::Predicted: return "predicted";
+  }
+  return "?";
+}
+
+StrataTree::StrataTree(double resolution) : octomap::OcTreeBaseImpl<StrataNode, octomap::AbstractOcTree>(resolution) {}
+
+void StrataTree::setLeaf(const octomap::OcTreeKey& key, const VoxelBelief& value) {
+  if (!root) {
+    root = new StrataNode();
+    ++tree_size;
+  }
+  StrataNode* node = root;
+  for (int depth = static_cast<int>(tree_depth) - 1; depth >= 0; --depth) {
+    const unsigned int pos = octomap::computeChildIdx(key, depth);
+    if (!nodeChildExists(node, pos)) {
+      // A leaf above the bottom is a pruned region: expand it so the other voxels keep its value.
+      if (!nodeHasChildren(node) && node != root && node->getValue().kind != VoxelBelief::kNone) {
+        expandNode(node);
+      } else {
+        createNodeChild(node, pos);
+      }
+    }
+    node = getNodeChild(node, pos);
+  }
+  node->setValue(value);
+}
+
+Strata::Strata(const StrataConfig& config) : cfg_(config), tree_(config.resolution_m > 0 ? config.resolution_m : 1.0) {
+  if (!(cfg_.resolution_m > 0.0) || !std::isfinite(cfg_.resolution_m))
+    throw ConfigError("octomap_strata: resolution_m must be above 0");
+  for (int a = 0; a < 3; ++a) {
+    if (!(cfg_.min_m[a] < cfg_.max_m[a]))
+      throw ConfigError("octomap_strata: the extent is empty along " + std::string(1, "xyz"[a]) + " (min >= max)");
+    octomap::key_type k;
+    if (!tree_.coordToKeyChecked(cfg_.min_m[a], k) || !tree_.coordToKeyChecked(cfg_.max_m[a], k))
+      throw ConfigError("octomap_strata: the extent along " + std::string(1, "xyz"[a]) +
+                        " exceeds OctoMap's key range at this resolution (±" +
+                        std::to_string(32767 * cfg_.resolution_m) + " m)");
+  }
+  if (!(cfg_.inflation_depth_m > 0.0)) throw ConfigError("octomap_strata: inflation_depth_m must be above 0");
+  for (int q = 0; q < kP; ++q)
+    if (!std::isfinite(cfg_.prior_mean[q]) || !(cfg_.prior_var[q] > 0.0) || !std::isfinite(cfg_.prior_var[q]))
+      throw ConfigError(std::string("octomap_strata: the prior of ") + soil::kSoilParams[q].layer +
+                        " needs a finite mean and a variance above 0");
+  if (cfg_.max_pending_sweeps < 1) throw ConfigError("octomap_strata: max_pending_sweeps must be at least 1");
+}
+
+bool Strata::columnKey(double x, double y, std::uint32_t& key) const {
+  if (!(x >= cfg_.min_m.x() && x < cfg_.max_m.x() && y >= cfg_.min_m.y() && y < cfg_.max_m.y())) return false;
+  octomap::key_type kx, ky;
+  if (!tree_.coordToKeyChecked(x, kx) || !tree_.coordToKeyChecked(y, ky)) return false;
+  key = (static_cast<std::uint32_t>(kx) << 16) | ky;
+  return true;
+}
+
+SoilBelief Strata::predictBelow(const Column* c, double z) const {
+  SoilBelief b;
+  b.mean = cfg_.prior_mean;
+  b.var = cfg_.prior_var;
+  b.source = SoilSource::Prior;
+  if (!c || c->inherit_sweep < 0) return b;
+  const double f = std::exp(std::max(0.0, static_cast<double>(c->anchor) - z) / cfg_.inflation_depth_m);
+  for (int q = 0; q < kP; ++q) fuse(b.mean[q], b.var[q], c->inherit_mean[q], c->inherit_var[q] * f);
+  b.source = SoilSource::Inherited;
+  return b;
+}
+
+long Strata::applyCut(long sweep, const std::vector<CellCut>& cells) {
+  ++counters_.sweeps;
+  const double res = cfg_.resolution_m;
+  // The columns this sweep cut, each once (a map cell may hold several columns, and with a
+  // finer map several cells fall in one column): deepest new surface, highest old surface.
+  struct Cut {
+    double bottom = std::numeric_limits<double>::infinity();
+    double old = -std::numeric_limits<double>::infinity();
+  };
+  std::map<std::uint32_t, Cut> cuts;
+  for (const CellCut& cell : cells) {
+    if (!std::isfinite(cell.new_surface_m)) continue;
+    const double h = 0.5 * std::max(cell.cell_m, 0.0);
+    // Columns whose centres lie in the cell; at least the one holding its centre.
+    const long i0 = static_cast<long>(std::ceil((cell.position.x() - h) / res - 0.5));
+    const long i1 = static_cast<long>(std::ceil((cell.position.x() + h) / res - 0.5)) - 1;
+    const long j0 = static_cast<long>(std::ceil((cell.position.y() - h) / res - 0.5));
+    const long j1 = static_cast<long>(std::ceil((cell.position.y() + h) / res - 0.5)) - 1;
+    auto add = [&](double x, double y) {
+      std::uint32_t key;
+      if (!columnKey(x, y, key)) {
+        ++counters_.columns_outside;
+        return;
+      }
+      Cut& c = cuts[key];
+      c.bottom = std::min(c.bottom, cell.new_surface_m);
+      if (std::isfinite(cell.old_surface_m)) c.old = std::max(c.old, cell.old_surface_m);
+    };
+    if (i1 < i0 || j1 < j0) {
+      add(cell.position.x(), cell.position.y());
+      continue;
+    }
+    for (long i = i0; i <= i1; ++i)
+      for (long j = j0; j <= j1; ++j) add((static_cast<double>(i) + 0.5) * res, (static_cast<double>(j) + 0.5) * res);
+  }
+  octomap::key_type kz_min = 0, kz_max = 0;  // the extent was checked in the constructor
+  tree_.coordToKeyChecked(cfg_.min_m.z(), kz_min);
+  tree_.coordToKeyChecked(cfg_.max_m.z(), kz_max);
+  const long zoff = static_cast<long>(tree_.keyOffset());
+  std::vector<PendingColumn> pend;
+  long removed = 0;
+  for (const auto& [key, cut] : cuts) {
+    auto it = columns_.find(key);
+    if (it == columns_.end()) {
+      if (!std::isfinite(cut.old)) {
+        ++counters_.columns_unknown_surface;  // first cut without a surface fit: top unknown
+        continue;
+      }
+      Column c;
+      c.top = c.initial = static_cast<float>(std::max(cut.old, cut.bottom));
+      it = columns_.emplace(key, c).first;
+    }
+    Column& col = it->second;
+    if (!(cut.bottom < col.top)) continue;
+    // Voxels whose centres (k - zoff + 0.5) res lie in (bottom, top].
+    long k_lo = static_cast<long>(std::floor(cut.bottom / res - 0.5)) + 1 + zoff;
+    long k_hi = static_cast<long>(std::floor(static_cast<double>(col.top) / res - 0.5)) + zoff;
+    k_lo = std::max<long>(k_lo, kz_min);
+    k_hi = std::min<long>(k_hi, kz_max);
+    ++counters_.columns_cut;
+    if (k_lo <= k_hi) {
+      octomap::OcTreeKey vk;
+      vk[0] = static_cast<octomap::key_type>(key >> 16);
+      vk[1] = static_cast<octomap::key_type>(key & 0xffffu);
+      for (long k = k_lo; k <= k_hi; ++k) {
+        vk[2] = static_cast<octomap::key_type>(k);
+        const double z = (static_cast<double>(k - zoff) + 0.5) * res;
+        tree_.setLeaf(vk, toVoxel(predictBelow(&col, z), VoxelBelief::kPredicted));
+        ++removed;
+      }
+      pend.push_back({key, static_cast<std::uint16_t>(k_lo), static_cast<std::uint16_t>(k_hi), static_cast<float>(cut.bottom)});
+    }
+    col.top = static_cast<float>(cut.bottom);
+  }
+  counters_.voxels_removed += removed;
+  if (!pend.empty()) {
+    ++counters_.sweeps_cutting;
+    pending_[sweep] = std::move(pend);
+    while (static_cast<int>(pending_.size()) > cfg_.max_pending_sweeps) {
+      ++counters_.pending_evicted;  // its estimate never came: the voxels keep their prediction
+      pending_.erase(pending_.begin());
+    }
+  }
+  return removed;
+}
+
+void Strata::resolve(long sweep, const std::vector<PendingColumn>& cols, const SoilVector* mean, const SoilVector* var) {
+  bool valid = mean && var;
+  for (int q = 0; valid && q < kP; ++q)
+    valid = std::isfinite((*mean)[q]) && std::isfinite((*var)[q]) && (*var)[q] > 0.0;
+  if (!valid) {
+    ++counters_.estimates_invalid;
+    return;
+  }
+  ++counters_.estimates_assigned;
+  SoilBelief post;
+  post.mean = cfg_.prior_mean;
+  post.var = cfg_.prior_var;
+  for (int q = 0; q < kP; ++q) fuse(post.mean[q], post.var[q], (*mean)[q], (*var)[q]);
+  const VoxelBelief v = toVoxel(post, VoxelBelief::kEstimated);
+  const long zoff = static_cast<long>(tree_.keyOffset());
+  for (const PendingColumn& pc : cols) {
+    octomap::OcTreeKey vk;
+    vk[0] = static_cast<octomap::key_type>(pc.column >> 16);
+    vk[1] = static_cast<octomap::key_type>(pc.column & 0xffffu);
+    for (long k = pc.k_lo; k <= pc.k_hi; ++k) {
+      vk[2] = static_cast<octomap::key_type>(k);
+      tree_.setLeaf(vk, v);
+    }
+    Column& col = columns_[pc.column];
+    if (sweep > col.inherit_sweep) {
+      col.inherit_sweep = sweep;
+      col.inherit_mean = *mean;
+      col.inherit_var = *var;
+      col.anchor = pc.bottom;
+    }
+  }
+  (void)zoff;
+}
+
+long Strata::assignEstimate(long sweep, const SoilVector* mean, const SoilVector* var) {
+  const auto it = pending_.find(sweep);
+  if (it == pending_.end()) {
+    ++counters_.estimates_unmatched;
+    return 0;
+  }
+  long n = 0;
+  for (const PendingColumn& pc : it->second) n += pc.k_hi - pc.k_lo + 1;
+  resolve(sweep, it->second, mean, var);
+  pending_.erase(it);
+  tree_.prune();
+  return n;
+}
+
+void Strata::flushPending() {
+  for (const auto& [sweep, cols] : pending_) resolve(sweep, cols, nullptr, nullptr);
+  pending_.clear();
+}
+
+SoilBelief Strata::soilAt(double x, double y, double z) const {
+  std::uint32_t key;
+  if (!columnKey(x, y, key) || !(z >= cfg_.min_m.z() && z < cfg_.max_m.z())) return nanBelief(SoilSource::Outside);
+  const auto it = columns_.find(key);
+  if (it == columns_.end()) return predictBelow(nullptr, z);
+  const Column& c = it->second;
+  if (z <= c.top) return predictBelow(&c, z);
+  const StrataNode* n = tree_.search(x, y, z);
+  if (n && n->getValue().kind != VoxelBelief::kNone) return fromVoxel(n->getValue());
+  return nanBelief(SoilSource::Air);
+}
+
+SoilBelief Strata::expectedCut(double x, double y, double surface_z, double depth_m) const {
+  std::uint32_t key;
+  if (!columnKey(x, y, key)) return nanBelief(SoilSource::Outside);
+  const auto it = columns_.find(key);
+  const Column* c = it == columns_.end() ? nullptr : &it->second;
+  if (!std::isfinite(surface_z)) {
+    if (!c) return predictBelow(nullptr, 0.0);
+    surface_z = c->top;
+  }
+  const double res = cfg_.resolution_m;
+  // Voxel centres in (surface - depth, surface]; at least the one just below the surface.
+  const long k_hi = static_cast<long>(std::floor(surface_z / res - 0.5));
+  long k_lo = static_cast<long>(std::floor((surface_z - depth_m) / res - 0.5)) + 1;
+  k_lo = std::min(k_lo, k_hi);
+  SoilBelief out;
+  out.mean.fill(0.0);
+  SoilVector sd{};
+  int n = 0;
+  for (long k = k_lo; k <= k_hi; ++k) {
+    const double z = (static_cast<double>(k) + 0.5) * res;
+    const SoilBelief b = soilAt(x, y, z);
+    if (b.source == SoilSource::Outside || b.source == SoilSource::Air) continue;
+    for (int q = 0; q < kP; ++q) {
+      out.mean[q] += b.mean[q];
+      sd[q] += std::sqrt(b.var[q]);
+    }
+    out.source = b.source;
+    ++n;
+  }
+  if (n == 0) return nanBelief(SoilSource::Outside);
+  for (int q = 0; q < kP; ++q) {
+    out.mean[q] /= n;
+    out.var[q] = (sd[q] / n) * (sd[q] / n);
+  }
+  return out;
+}
+
+double Strata::surfaceAt(double x, double y) const {
+  std::uint32_t key;
+  if (!columnKey(x, y, key)) return kNaN;
+  const auto it = columns_.find(key);
+  return it == columns_.end() ? kNaN : it->second.top;
+}
+
+double Strata::initialSurfaceAt(double x, double y) const {
+  std::uint32_t key;
+  if (!columnKey(x, y, key)) return kNaN;
+  const auto it = columns_.find(key);
+  return it == columns_.end() ? kNaN : it->second.initial;
+}
+
+std::vector<std::pair<double, VoxelBelief>> Strata::columnVoxels(double x, double y) const {
+  std::vector<std::pair<double, VoxelBelief>> out;
+  std::uint32_t key;
+  if (!columnKey(x, y, key)) return out;
+  const auto it = columns_.find(key);
+  if (it == columns_.end()) return out;
+  const double res = cfg_.resolution_m;
+  const long k_top = static_cast<long>(std::floor(static_cast<double>(it->second.initial) / res - 0.5));
+  const long k_bottom = static_cast<long>(std::floor(static_cast<double>(it->second.top) / res - 0.5)) + 1;
+  octomap::OcTreeKey vk;
+  vk[0] = static_cast<octomap::key_type>(key >> 16);
+  vk[1] = static_cast<octomap::key_type>(key & 0xffffu);
+  const long zoff = static_cast<long>(tree_.keyOffset());
+  for (long k = k_top; k >= k_bottom; --k) {
+    if (k + zoff < 0 || k + zoff > 0xffff) continue;
+    vk[2] = static_cast<octomap::key_type>(k + zoff);
+    const StrataNode* n = tree_.search(vk);
+    if (n && n->getValue().kind != VoxelBelief::kNone) out.emplace_back((static_cast<double>(k) + 0.5) * res, n->getValue());
+  }
+  return out;
+}
+
+double Strata::changeDepthAt(double x, double y, int min_voxels, double min_gain) const {
+  std::vector<std::pair<double, VoxelBelief>> vox = columnVoxels(x, y);
+  vox.erase(std::remove_if(vox.begin(), vox.end(), [](const auto& v) { return v.second.kind != VoxelBelief::kEstimated; }),
+            vox.end());
+  const int n = static_cast<int>(vox.size());
+  min_voxels = std::max(1, min_voxels);
+  if (n < 2 * min_voxels) return kNaN;
+  // Prefix sums of the normalised means: SSE of a run = Σx² − (Σx)²/m per property.
+  std::vector<std::array<double, kP>> s1(static_cast<std::size_t>(n) + 1), s2(static_cast<std::size_t>(n) + 1);
+  s1[0].fill(0.0);
+  s2[0].fill(0.0);
+  for (int i = 0; i < n; ++i)
+    for (int q = 0; q < kP; ++q) {
+      const double v = vox[static_cast<std::size_t>(i)].second.mean[q] / std::sqrt(cfg_.prior_var[q]);
+      s1[static_cast<std::size_t>(i) + 1][q] = s1[static_cast<std::size_t>(i)][q] + v;
+      s2[static_cast<std::size_t>(i) + 1][q] = s2[static_cast<std::size_t>(i)][q] + v * v;
+    }
+  auto sse = [&](int a, int b) {  // voxels [a, b)
+    double e = 0.0;
+    const double m = b - a;
+    for (int q = 0; q < kP; ++q) {
+      const double d1 = s1[static_cast<std::size_t>(b)][q] - s1[static_cast<std::size_t>(a)][q];
+      const double d2 = s2[static_cast<std::size_t>(b)][q] - s2[static_cast<std::size_t>(a)][q];
+      e += std::max(0.0, d2 - d1 * d1 / m);
+    }
+    return e;
+  };
+  const double total = sse(0, n);
+  if (!(total > 1e-12)) return kNaN;
+  double best = std::numeric_limits<double>::infinity();
+  int split = -1;
+  for (int s = min_voxels; s <= n - min_voxels; ++s) {
+    const double e = sse(0, s) + sse(s, n);
+    if (e < best) {
+      best = e;
+      split = s;
+    }
+  }
+  if (split < 0 || 1.0 - best / total < min_gain) return kNaN;
+  const double z_between = 0.5 * (vox[static_cast<std::size_t>(split) - 1].first + vox[static_cast<std::size_t>(split)].first);
+  return initialSurfaceAt(x, y) - z_between;
+}
+
+std::size_t Strata::memoryBytes() const {
+  std::size_t pend = 0;
+  for (const auto& [s, v] : pending_) pend += v.capacity() * sizeof(PendingColumn) + 48;
+  return tree_.memoryUsage() + columns_.size() * (sizeof(Column) + sizeof(std::uint32_t) + 16) +
+         columns_.bucket_count() * sizeof(void*) + pend;
+}
+
+void Strata::save(const std::filesystem::path& path) const {
+  std::ostringstream o(std::ios::binary);
+  if (!tree_.write(o)) throw OutputError(path.string() + ": could not serialise the strata tree");
+  o << '\n' << kTrailer << '\n';
+  put(o, cfg_.resolution_m);
+  for (int a = 0; a < 3; ++a) put(o, cfg_.min_m[a]);
+  for (int a = 0; a < 3; ++a) put(o, cfg_.max_m[a]);
+  put(o, cfg_.inflation_depth_m);
+  for (int q = 0; q < kP; ++q) put(o, cfg_.prior_mean[q]);
+  for (int q = 0; q < kP; ++q) put(o, cfg_.prior_var[q]);
+  std::vector<std::uint32_t> keys;
+  keys.reserve(columns_.size());
+  for (const auto& [k, c] : columns_) keys.push_back(k);
+  std::sort(keys.begin(), keys.end());
+  put(o, static_cast<std::uint64_t>(keys.size()));
+  for (std::uint32_t k : keys) {
+    const Column& c = columns_.at(k);
+    put(o, k);
+    put(o, c.top);
+    put(o, c.initial);
+    put(o, c.anchor);
+    put(o, static_cast<std::int64_t>(c.inherit_sweep));
+    for (int q = 0; q < kP; ++q) put(o, c.inherit_mean[q]);
+    for (int q = 0; q < kP; ++q) put(o, c.inherit_var[q]);
+  }
+  io::writeFileAtomically(path, o.str());
+}
+
+Strata Strata::load(const std::filesystem::path& path) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) throw InputError(path.string() + ": cannot open");
+  const auto bad = [&](const std::string& what) { return InputError(path.string() + ": " + what); };
+  std::string line;
+  if (!std::getline(f, line) || line.rfind("# Octomap OcTree file", 0) != 0)
+    throw bad("not an OctoMap .ot file (the first line must be '# Octomap OcTree file')");
+  std::string id;
+  double res = 0;
+  long size = -1;
+  while (std::getline(f, line)) {
+    if (!line.empty() && line[0] == '#') continue;
+    std::istringstream ls(line);
+    std::string word;
+    ls >> word;
+    if (word == "data") break;
+    if (word == "id") ls >> id;
+    else if (word == "res") ls >> res;
+    else if (word == "size") ls >> size;
+    else throw bad("unknown header line '" + line + "'");
+  }
+  if (id != kTreeId) throw bad("holds a tree of type '" + id + "', not " + kTreeId + " (written by octomap_strata)");
+  if (!(res > 0) || size < 0) throw bad("header without a valid 'res' and 'size'");
+  StrataConfig cfg;
+  cfg.resolution_m = res;
+  cfg.prior_mean.fill(0.0);
+  cfg.prior_var.fill(1.0);
+  cfg.min_m = Eigen::Vector3d::Constant(-res);  // placeholders within any key range: the
+  cfg.max_m = Eigen::Vector3d::Constant(res);   // trailer holds the real extent
+  Strata s(cfg);
+  if (size > 0) {
+    s.tree_.readData(f);
+    if (!f) throw bad("truncated tree data");
+    if (static_cast<long>(s.tree_.size()) != size)
+      throw bad("the tree holds " + std::to_string(s.tree_.size()) + " nodes, the header says " + std::to_string(size));
+  }
+  while (std::getline(f, line) && line.empty()) {
+  }
+  if (line != kTrailer) throw bad("no '" + std::string(kTrailer) + "' trailer after the tree (not written by octomap_strata?)");
+  bool ok = get(f, cfg.resolution_m);
+  for (int a = 0; a < 3; ++a) ok = ok && get(f, cfg.min_m[a]);
+  for (int a = 0; a < 3; ++a) ok = ok && get(f, cfg.max_m[a]);
+  ok = ok && get(f, cfg.inflation_depth_m);
+  for (int q = 0; q < kP; ++q) ok = ok && get(f, cfg.prior_mean[q]);
+  for (int q = 0; q < kP; ++q) ok = ok && get(f, cfg.prior_var[q]);
+  std::uint64_t n = 0;
+  ok = ok && get(f, n);
+  if (!ok) throw bad("truncated configuration trailer");
+  if (cfg.resolution_m != res) throw bad("the trailer's resolution differs from the header's");
+  try {
+    Strata probe(cfg);  // validates the stored configuration
+  } catch (const ConfigError& e) {
+    throw bad(std::string("stored configuration is invalid: ") + e.what());
+  }
+  s.cfg_ = cfg;
+  for (std::uint64_t i = 0; i < n; ++i) {
+    std::uint32_t k;
+    Column c;
+    std::int64_t sweep;
+    ok = get(f, k) && get(f, c.top) && get(f, c.initial) && get(f, c.anchor) && get(f, sweep);
+    for (int q = 0; ok && q < kP; ++q) ok = get(f, c.inherit_mean[q]);
+    for (int q = 0; ok && q < kP; ++q) ok = get(f, c.inherit_var[q]);
+    if (!ok) throw bad("truncated after " + std::to_string(i) + " of " + std::to_string(n) + " columns");
+    c.inherit_sweep = static_cast<long>(sweep);
+    s.columns_[k] = c;
+  }
+  return s;
+}
+
+void Strata::exportColorOt(const std::filesystem::path& path, int param, double below_m, double lo, double hi) const {
+  if (param < 0 || param >= kP) throw ConfigError("octomap_strata: no soil parameter " + std::to_string(param));
+  if (!(lo < hi)) {
+    lo = soil::kSoilParams[param].lo;
+    hi = soil::kSoilParams[param].hi;
+  }
+  const io::Colormap cmap = io::Colormap::byName("viridis");
+  const double res = cfg_.resolution_m;
+  octomap::ColorOcTree ct(res);
+  auto paint = [&](const octomap::OcTreeKey& k, double value) {
+    octomap::ColorOcTreeNode* n = ct.updateNode(k, true);
+    const io::Rgba c = cmap.at((value - lo) / (hi - lo));
+    n->setColor(c.r, c.g, c.b);
+  };
+  for (auto it = tree_.begin_leafs(), end = tree_.end_leafs(); it != end; ++it) {
+    if (it->getValue().kind == VoxelBelief::kNone) continue;
+    const double value = it->getValue().mean[param];
+    // A pruned leaf stands for several voxels: paint each.
+    const int span = 1 << (tree_.getTreeDepth() - it.getDepth());
+    const octomap::OcTreeKey base = it.getIndexKey();
+    for (int a = 0; a < span; ++a)
+      for (int b = 0; b < span; ++b)
+        for (int c = 0; c < span; ++c) {
+          octomap::OcTreeKey k(static_cast<octomap::key_type>(base[0] + a), static_cast<octomap::key_type>(base[1] + b),
+                               static_cast<octomap::key_type>(base[2] + c));
+          paint(k, value);
+        }
+  }
+  std::vector<std::uint32_t> keys;
+  for (const auto& [k, c] : columns_) keys.push_back(k);
+  std::sort(keys.begin(), keys.end());
+  const long zoff = static_cast<long>(tree_.keyOffset());
+  for (std::uint32_t key : keys) {
+    const Column& c = columns_.at(key);
+    const long k_top = static_cast<long>(std::floor(static_cast<double>(c.top) / res - 0.5));
+    const long k_bottom = static_cast<long>(std::floor((static_cast<double>(c.top) - below_m) / res - 0.5)) + 1;
+    for (long k = k_top; k >= k_bottom; --k) {
+      const double z = (static_cast<double>(k) + 0.5) * res;
+      if (!(z >= cfg_.min_m.z() && z < cfg_.max_m.z())) continue;
+      octomap::OcTreeKey vk(static_cast<octomap::key_type>(key >> 16), static_cast<octomap::key_type>(key & 0xffffu),
+                            static_cast<octomap::key_type>(k + zoff));
+      paint(vk, predictBelow(&c, z).mean[param]);
+    }
+  }
+  ct.updateInnerOccupancy();
+  std::ostringstream o(std::ios::binary);
+  if (!ct.write(o)) throw OutputError(path.string() + ": could not serialise the ColorOcTree");
+  io::writeFileAtomically(path, o.str());
+}
+
+}  // namespace terramap::strata

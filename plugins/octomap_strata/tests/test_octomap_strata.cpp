@@ -1,0 +1,413 @@
+// octomap_strata: insertion by depth, inheritance and inflation against hand-computed values,
+// pending and invalid estimates, the change depth, pruning, the .ot round trip and the octovis
+// export, the plugin's layers and their bit-identity at 1 and 2 threads.
+#include <gtest/gtest.h>
+
+#include <octomap/AbstractOcTree.h>
+#include <octomap/ColorOcTree.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+
+#include "octomap_strata.hpp"
+
+#include <terramap/io/render.hpp>
+
+using namespace terramap;
+using namespace terramap::plugins;
+using terramap::strata::CellCut;
+using terramap::strata::SoilBelief;
+using terramap::strata::SoilSource;
+using terramap::strata::Strata;
+using terramap::strata::StrataConfig;
+using terramap::strata::SoilVector;
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+StrataConfig config() {
+  StrataConfig c;
+  c.resolution_m = 0.05;
+  c.min_m = {-10, -10, -5};
+  c.max_m = {10, 10, 5};
+  c.inflation_depth_m = 0.2;
+  c.prior_mean = {30e3, 0.5, 10e3, 0.4, 17e3};
+  c.prior_var = {1e8, 0.04, 4e7, 0.02, 4e6};
+  return c;
+}
+
+// One column-sized cell at (x, y) cut from `from` down to `to`.
+CellCut cell(double x, double y, double from, double to, double size = 0.05) {
+  CellCut c;
+  c.position = {x, y};
+  c.cell_m = size;
+  c.old_surface_m = from;
+  c.new_surface_m = to;
+  return c;
+}
+
+double fusedMean(double m0, double v0, double z, double r) { return (r * m0 + v0 * z) / (v0 + r); }
+double fusedVar(double v0, double r) { return v0 * r / (v0 + r); }
+
+const SoilVector kEst{12e3, 0.6, 4e3, 0.35, 16e3};
+const SoilVector kEstVar{4e6, 0.01, 1e6, 0.004, 1e6};
+
+std::string tmp(const std::string& name) { return std::string(TERRAMAP_BINARY_DIR) + "/strata_test_" + name; }
+
+}  // namespace
+
+TEST(Strata, ACutRemovesTheVoxelsBetweenTheSurfacesAndTheyTakePriorTimesEstimate) {
+  Strata s(config());
+  // Voxel centres at (k + 0.5) 0.05: a cut from 1.0 to 0.8 removes 0.825, 0.875, 0.925, 0.975.
+  EXPECT_EQ(s.applyCut(1, {cell(0.025, 0.025, 1.0, 0.8)}), 4);
+  EXPECT_FLOAT_EQ(static_cast<float>(s.surfaceAt(0.025, 0.025)), 0.8f);  // heights are kept as float
+  EXPECT_FLOAT_EQ(static_cast<float>(s.initialSurfaceAt(0.025, 0.025)), 1.0f);
+  // Before the estimate arrives the removed soil holds its prediction: the prior.
+  SoilBelief b = s.soilAt(0.025, 0.025, 0.9);
+  EXPECT_EQ(b.source, SoilSource::Predicted);
+  EXPECT_FLOAT_EQ(static_cast<float>(b.mean[0]), 30e3f);
+  EXPECT_EQ(s.assignEstimate(1, &kEst, &kEstVar), 4);
+  const StrataConfig c = config();
+  for (double z : {0.825, 0.875, 0.925, 0.975}) {
+    b = s.soilAt(0.025, 0.025, z);
+    ASSERT_EQ(b.source, SoilSource::Removed) << z;
+    for (int q = 0; q < 5; ++q) {
+      EXPECT_FLOAT_EQ(static_cast<float>(b.mean[q]), static_cast<float>(fusedMean(c.prior_mean[q], c.prior_var[q], kEst[q], kEstVar[q]))) << q;
+      EXPECT_FLOAT_EQ(static_cast<float>(b.var[q]), static_cast<float>(fusedVar(c.prior_var[q], kEstVar[q]))) << q;
+    }
+  }
+  EXPECT_EQ(s.soilAt(0.025, 0.025, 1.02).source, SoilSource::Air);   // above the first surface
+  EXPECT_EQ(s.soilAt(0.075, 0.025, 0.9).source, SoilSource::Prior);  // the next column: never cut
+  EXPECT_EQ(s.soilAt(11.0, 0.0, 0.9).source, SoilSource::Outside);
+  EXPECT_TRUE(std::isnan(s.soilAt(11.0, 0.0, 0.9).mean[0]));
+}
+
+TEST(Strata, TheSoilBelowInheritsTheEstimateWithVarianceInflatedByDepth) {
+  Strata s(config());
+  s.applyCut(1, {cell(0.025, 0.025, 1.0, 0.8)});
+  s.assignEstimate(1, &kEst, &kEstVar);
+  const StrataConfig c = config();
+  for (double z : {0.8, 0.7, 0.5, 0.0}) {
+    const SoilBelief b = s.soilAt(0.025, 0.025, z);
+    ASSERT_EQ(b.source, SoilSource::Inherited);
+    // By hand: e per 0.2 m below the anchor (the surface sweep 1 left, kept as a float).
+    const double f = std::exp((static_cast<double>(0.8f) - z) / 0.2);
+    for (int q = 0; q < 5; ++q) {
+      EXPECT_NEAR(b.mean[q], fusedMean(c.prior_mean[q], c.prior_var[q], kEst[q], kEstVar[q] * f), 1e-12 * std::abs(c.prior_mean[q])) << z;
+      EXPECT_NEAR(b.var[q], fusedVar(c.prior_var[q], kEstVar[q] * f), 1e-12 * c.prior_var[q]) << z;
+    }
+  }
+  // Deep down the prior dominates again; right under the cut the estimate does.
+  EXPECT_NEAR(s.soilAt(0.025, 0.025, 0.79).mean[0], 12e3, 2e3);
+  EXPECT_NEAR(s.soilAt(0.025, 0.025, -2.0).mean[0], 30e3, 1e3);
+}
+
+TEST(Strata, AnInvalidEstimateLeavesThePredictionAndNoInheritance) {
+  Strata s(config());
+  s.applyCut(1, {cell(0.025, 0.025, 1.0, 0.8)});
+  s.assignEstimate(1, &kEst, &kEstVar);
+  s.applyCut(2, {cell(0.025, 0.025, 0.8, 0.7)});
+  // Pending: the removed voxels hold what was predicted for them (inherited from sweep 1).
+  const SoilBelief before = s.soilAt(0.025, 0.025, 0.775);
+  EXPECT_EQ(before.source, SoilSource::Predicted);
+  EXPECT_NEAR(before.mean[0], s.soilAt(0.025, 0.025, 0.8).mean[0], 3e3);
+  s.assignEstimate(2, nullptr, nullptr);
+  EXPECT_EQ(s.soilAt(0.025, 0.025, 0.775).source, SoilSource::Predicted);
+  EXPECT_EQ(s.counters().estimates_invalid, 1);
+  // The soil below still inherits sweep 1's estimate, anchored where sweep 1 left the surface.
+  const SoilBelief below = s.soilAt(0.025, 0.025, 0.6);
+  const double f = std::exp((static_cast<double>(0.8f) - 0.6) / 0.2);
+  EXPECT_NEAR(below.var[0], fusedVar(1e8, 4e6 * f), 1e-3);
+  // An estimate for a sweep that cut nothing here is counted, not applied.
+  EXPECT_EQ(s.assignEstimate(99, &kEst, &kEstVar), 0);
+  EXPECT_EQ(s.counters().estimates_unmatched, 1);
+}
+
+TEST(Strata, PendingSweepsBeyondTheLimitKeepTheirPrediction) {
+  StrataConfig c = config();
+  c.max_pending_sweeps = 2;
+  Strata s(c);
+  for (int k = 0; k < 3; ++k) s.applyCut(k + 1, {cell(0.025 + 0.05 * k, 0.025, 1.0, 0.9)});
+  EXPECT_EQ(s.pendingSweeps(), 2u);
+  EXPECT_EQ(s.counters().pending_evicted, 1);
+  EXPECT_EQ(s.assignEstimate(1, &kEst, &kEstVar), 0);  // evicted
+  EXPECT_EQ(s.assignEstimate(2, &kEst, &kEstVar), 2);
+}
+
+TEST(Strata, TheChangeDepthIsWhereTheRemovedSoilChanges) {
+  Strata s(config());
+  const SoilVector loam{8e3, 0.5, 3e3, 0.35, 15e3}, clay{55e3, 0.42, 20e3, 0.3, 19e3};
+  // Four cuts of 0.1 m; the soil changes after the second: 0.2 m below the first surface.
+  const SoilVector* est[4] = {&loam, &loam, &clay, &clay};
+  for (int k = 0; k < 4; ++k) {
+    s.applyCut(k + 1, {cell(0.025, 0.025, 1.0 - 0.1 * k, 0.9 - 0.1 * k)});
+    s.assignEstimate(k + 1, est[k], &kEstVar);
+  }
+  EXPECT_NEAR(s.changeDepthAt(0.025, 0.025), 0.2, 1e-9);
+  const auto vox = s.columnVoxels(0.025, 0.025);
+  ASSERT_EQ(vox.size(), 8u);
+  EXPECT_NEAR(vox.front().first, 0.975, 1e-9);
+  EXPECT_NEAR(vox.back().first, 0.625, 1e-9);
+  // One soil all the way down: no change.
+  Strata u(config());
+  for (int k = 0; k < 4; ++k) {
+    u.applyCut(k + 1, {cell(0.025, 0.025, 1.0 - 0.1 * k, 0.9 - 0.1 * k)});
+    u.assignEstimate(k + 1, &loam, &kEstVar);
+  }
+  EXPECT_TRUE(std::isnan(u.changeDepthAt(0.025, 0.025)));
+}
+
+TEST(Strata, ExpectedCutAveragesTheNextDepthOfTheColumn) {
+  Strata s(config());
+  s.applyCut(1, {cell(0.025, 0.025, 1.0, 0.8)});
+  s.assignEstimate(1, &kEst, &kEstVar);
+  const SoilBelief e = s.expectedCut(0.025, 0.025, kNaN, 0.2);
+  // Voxel centres 0.775, 0.725, 0.675, 0.625 below the surface at 0.8.
+  double m = 0, sd = 0;
+  for (double z : {0.775, 0.725, 0.675, 0.625}) {
+    m += s.soilAt(0.025, 0.025, z).mean[0] / 4;
+    sd += std::sqrt(s.soilAt(0.025, 0.025, z).var[0]) / 4;
+  }
+  EXPECT_NEAR(e.mean[0], m, 1e-6);
+  EXPECT_NEAR(e.var[0], sd * sd, 1e-3);
+  EXPECT_EQ(e.source, SoilSource::Inherited);
+  // A column never cut: the prior.
+  EXPECT_EQ(s.expectedCut(1.0, 1.0, kNaN, 0.2).source, SoilSource::Prior);
+}
+
+TEST(Strata, OneSweepsUniformSlabIsPrunedAndMemoryFollowsTheCutVolume) {
+  Strata s(config());
+  // A 0.4 x 0.4 m cell aligned with the octree: 8 x 8 columns x 8 voxels, one estimate.
+  s.applyCut(1, {cell(0.2, 0.2, 0.4, 0.0, 0.4)});
+  EXPECT_EQ(s.counters().voxels_removed, 512);
+  const std::size_t unpruned = s.nodes();
+  s.assignEstimate(1, &kEst, &kEstVar);
+  EXPECT_LT(s.nodes(), unpruned / 8) << "a uniform slab collapses into a few parents";
+  // The pruned slab still answers for every voxel.
+  EXPECT_EQ(s.soilAt(0.01, 0.39, 0.01).source, SoilSource::Removed);
+  EXPECT_EQ(s.soilAt(0.39, 0.01, 0.39).source, SoilSource::Removed);
+  // Writing one voxel inside a pruned region expands it without losing the others.
+  s.applyCut(2, {cell(0.025, 0.025, 0.0, -0.05)});
+  s.assignEstimate(2, &kEstVar, &kEstVar);
+  EXPECT_EQ(s.soilAt(0.39, 0.01, 0.39).source, SoilSource::Removed);
+  EXPECT_FLOAT_EQ(static_cast<float>(s.soilAt(0.39, 0.01, 0.39).mean[0]), static_cast<float>(s.soilAt(0.01, 0.39, 0.01).mean[0]));
+  // Cells outside the extent are counted, not stored.
+  s.applyCut(3, {cell(50, 0, 1, 0.5)});
+  EXPECT_EQ(s.counters().columns_outside, 1);
+}
+
+TEST(Strata, SaveAndLoadRoundTripEveryQuery) {
+  Strata s(config());
+  const SoilVector clay{55e3, 0.42, 20e3, 0.3, 19e3};
+  for (int k = 0; k < 3; ++k) {
+    s.applyCut(k + 1, {cell(0.3 * k, 0.1, 1.0 - 0.1 * k, 0.8 - 0.1 * k, 0.3)});
+    s.assignEstimate(k + 1, k == 1 ? &clay : &kEst, &kEstVar);
+  }
+  s.applyCut(4, {cell(-1, -1, 0.5, 0.4, 0.2)});  // left pending: saved as predicted
+  const std::string path = tmp("roundtrip.ot");
+  s.save(path);
+  const Strata r = Strata::load(path);
+  EXPECT_EQ(r.nodes(), s.nodes());
+  EXPECT_EQ(r.columns(), s.columns());
+  long compared = 0;
+  for (double x = -1.2; x < 1.0; x += 0.037)
+    for (double z = 0.2; z < 1.1; z += 0.033) {
+      const SoilBelief a = s.soilAt(x, 0.1, z), b = r.soilAt(x, 0.1, z);
+      ASSERT_EQ(a.source, b.source) << x << " " << z;
+      for (int q = 0; q < 5; ++q)
+        if (std::isfinite(a.mean[q])) {
+          EXPECT_EQ(a.mean[q], b.mean[q]);
+          EXPECT_EQ(a.var[q], b.var[q]);
+          ++compared;
+        }
+    }
+  EXPECT_GT(compared, 1000);
+  // Not ours, truncated: an input error naming the file.
+  {
+    std::ofstream o(tmp("other.ot"));
+    o << "# Octomap OcTree file\nid OcTree\nsize 1\nres 0.1\ndata\n";
+  }
+  try {
+    Strata::load(tmp("other.ot"));
+    ADD_FAILURE() << "loaded an OcTree";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("other.ot"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("TerramapStrataTree"), std::string::npos);
+  }
+  const auto size = std::filesystem::file_size(path);
+  std::filesystem::resize_file(path, size - 10);
+  EXPECT_THROW(Strata::load(path), InputError);
+}
+
+TEST(Strata, TheOctovisExportIsAColorOcTreeOctoMapReads) {
+  Strata s(config());
+  s.applyCut(1, {cell(0.2, 0.2, 0.4, 0.2, 0.4)});
+  s.assignEstimate(1, &kEst, &kEstVar);
+  const std::string path = tmp("octovis.ot");
+  s.exportColorOt(path, 0, 0.1);
+  std::unique_ptr<octomap::AbstractOcTree> t(octomap::AbstractOcTree::read(path));
+  ASSERT_TRUE(t);
+  ASSERT_EQ(t->getTreeType(), "ColorOcTree");
+  auto* ct = dynamic_cast<octomap::ColorOcTree*>(t.get());
+  ASSERT_NE(ct, nullptr);
+  // 8 x 8 columns: 4 removed voxels and 2 predicted ones below the new surface each.
+  long leafs = 0;
+  for (auto it = ct->begin_leafs(); it != ct->end_leafs(); ++it)
+    leafs += ct->isNodeOccupied(*it) ? (1L << (3 * (ct->getTreeDepth() - it.getDepth()))) : 0;
+  EXPECT_EQ(leafs, 64 * 6);
+  // Colours: viridis over c's range [0, 60 kPa] of the removed and the predicted soil.
+  const io::Colormap viridis = io::Colormap::byName("viridis");
+  for (double z : {0.3, 0.125}) {
+    const auto* n = ct->search(0.2, 0.2, z);
+    ASSERT_TRUE(n) << z;
+    const io::Rgba want = viridis.at(s.soilAt(0.2, 0.2, z).mean[0] / 60e3);
+    EXPECT_EQ(n->getColor(), octomap::ColorOcTreeNode::Color(want.r, want.g, want.b)) << z;
+  }
+}
+
+TEST(OctomapStrataPlugin, CellCutsTakeTheFittedBankSurfaceAndTheSweptBottom) {
+  SweepRecord r;
+  r.resolution_m = 0.1;
+  SweepMaskCell a, b, c;
+  a.position = {0, 0};
+  a.cut = true;
+  a.sv_bottom_m = 0.4f;
+  b.position = {0.1, 0};
+  b.cut = false;
+  c.position = {0.2, 0};
+  c.cut = true;
+  c.sv_bottom_m = 0.45f;
+  r.mask = {a, b, c};
+  SweepSlice s1, s2;
+  s1.valid = true;
+  s1.surface_z_m = 0.5;
+  s1.cut_m = 0.12;
+  s2.valid = false;
+  s2.cut_m = 0.07;
+  r.slices = {s1, s2};
+  const auto cuts = cellCutsOf(r);
+  ASSERT_EQ(cuts.size(), 2u);
+  EXPECT_DOUBLE_EQ(cuts[0].old_surface_m, 0.5);
+  EXPECT_FLOAT_EQ(static_cast<float>(cuts[0].new_surface_m), 0.4f);
+  EXPECT_NEAR(cuts[1].old_surface_m, 0.52, 1e-6);  // no fit: swept bottom + removed height
+  EXPECT_DOUBLE_EQ(cuts[1].cell_m, 0.1);
+}
+
+namespace {
+
+// The plugin on a map with the layers it creates (as the host would) and a flat elevation.
+struct Harness {
+  LayeredMap map;
+  Executor ex;
+  RecordBus bus;
+  PluginStats stats;
+  ProcessContext ctx;
+  OctomapStrata plugin;
+  explicit Harness(int threads = 1, std::map<std::string, ParamValue> params = {})
+      : map(Geometry(0.1, Size(80, 80))), ex(threads), ctx(map, ex, bus, stats, "strata") {
+    plugin.configure(makeParams("strata", plugin.schema(), params));
+    for (const LayerSpec& l : plugin.layers())
+      if (l.access == LayerAccess::Create) map.addLayer(l.name, l.unit, l.fill);
+    const LayerId h = map.addLayer("elevation", "m");
+    for (int i = 0; i < 80; ++i)
+      for (int j = 0; j < 80; ++j) map.set(h, Index(i, j), 1.0f);
+    plugin.start(ctx);
+  }
+  float at(const std::string& layer, const Eigen::Vector2d& p) const {
+    return map.at(map.layerId(layer), *map.geometry().indexAt(p));
+  }
+  // A sweep cutting a w x 0.3 m strip at x0 along +x from `from` to `to`.
+  void sweep(long index, double x0, double from, double to) {
+    SweepRecord r;
+    r.sweep_index = index;
+    r.resolution_m = 0.1;
+    for (int i = 0; i < 3; ++i)
+      for (int j = -5; j <= 5; ++j) {
+        SweepMaskCell m;
+        m.position = {x0 + 0.1 * i + 0.05, 0.1 * j + 0.05};
+        m.cut = true;
+        m.sv_bottom_m = static_cast<float>(to);
+        r.mask.push_back(m);
+        SweepSlice s;
+        s.valid = true;
+        s.surface_z_m = from;
+        r.slices.push_back(s);
+      }
+    bus.publish<SweepRecord>(SweepRecord::kType, 0.0, std::make_shared<const SweepRecord>(r));
+  }
+  void estimate(long index, double x_end, double c_pa, bool valid = true) {
+    SoilEstimateRecord e;
+    e.sweep_index = index;
+    e.T_map_blade1.translation() = Eigen::Vector3d(x_end, 0.0, 1.0);
+    e.w_m = 1.1;
+    e.mean = {c_pa, 0.5, 5e3, 0.35, 16e3};
+    e.var_total = {4e6, 0.01, 1e6, 0.004, 1e6};
+    e.valid = valid;
+    bus.publish<SoilEstimateRecord>(SoilEstimateRecord::kType, 0.0, std::make_shared<const SoilEstimateRecord>(e));
+  }
+  void event() { plugin.process(ctx, Tick{}); }
+};
+
+}  // namespace
+
+TEST(OctomapStrataPlugin, LayersShowTheNextCutTheRemovedDepthAndTheChange) {
+  Harness h(1, {{"change_min_voxels", ParamValue{2L}}});
+  // Four passes over the same strip, 0.1 m each; the soil turns from 8 to 55 kPa after two.
+  const double c[4] = {8e3, 8e3, 55e3, 55e3};
+  for (int k = 0; k < 4; ++k) {
+    h.sweep(k + 1, 0.0, 1.0 - 0.1 * k, 0.9 - 0.1 * k);
+    h.event();
+    h.estimate(k + 1, 0.3, c[k]);
+    h.event();
+  }
+  const Eigen::Vector2d p(0.15, 0.05);
+  EXPECT_NEAR(h.at("strata_cut_m", p), 0.4f, 1e-5);
+  EXPECT_NEAR(h.at("strata_change_depth_m", p), 0.2f, 1e-5);
+  // The next cut: the clay below, inherited from the last estimate.
+  EXPECT_NEAR(h.at("strata_next_c", p), h.plugin.model().expectedCut(p.x(), p.y(), kNaN, 0.2).mean[0], 1.0);
+  EXPECT_GT(h.at("strata_next_c", p), 40e3f);
+  EXPECT_TRUE(std::isnan(h.at("strata_next_c", {2.0, 2.0})));  // never cut, no surface layers
+  // 4 sweeps x 33 cells of 0.1 m = 4 columns each x 2 voxels of 0.05 m.
+  EXPECT_DOUBLE_EQ(h.stats.counters.at("voxels_estimated"), 4 * 33 * 4 * 2.0);
+}
+
+TEST(OctomapStrataPlugin, LayersAreBitIdenticalAtOneAndTwoThreads) {
+  Harness a(1), b(2);
+  for (Harness* h : {&a, &b})
+    for (int k = 0; k < 6; ++k) {
+      h->sweep(k + 1, 0.3 * (k % 3) - 1.0, 1.0 - 0.07 * (k / 3), 0.93 - 0.07 * (k / 3));
+      h->event();
+      h->estimate(k + 1, 0.3 * (k % 3) - 0.7, 10e3 + 7e3 * k, k != 4);
+      h->event();
+    }
+  long cells = 0;
+  for (const std::string& l : a.map.layerNames()) {
+    const LayerId ia = a.map.layerId(l), ib = b.map.layerId(l);
+    for (int i = 0; i < 80; ++i)
+      for (int j = 0; j < 80; ++j) {
+        const float x = a.map.at(ia, Index(i, j)), y = b.map.at(ib, Index(i, j));
+        ASSERT_EQ(std::memcmp(&x, &y, sizeof(float)), 0) << l << " " << i << " " << j;
+        cells += std::isfinite(x) ? 1 : 0;
+      }
+  }
+  EXPECT_GT(cells, 1000);
+}
+
+TEST(OctomapStrataPlugin, FilesAreWrittenAtTheEnd) {
+  const std::string ot = tmp("plugin_model.ot"), ov = tmp("plugin_octovis.ot"), png = tmp("plugin_section.png");
+  for (const auto& f : {ot, ov, png}) std::filesystem::remove(f);
+  Harness h(1, {{"save_path", ParamValue{ot}}, {"octovis_path", ParamValue{ov}}, {"section_png", ParamValue{png}},
+                {"section_line_m", ParamValue{std::vector<double>{-0.5, 0.05, 0.8, 0.05}}}});
+  h.sweep(1, 0.0, 1.0, 0.9);
+  h.event();
+  h.estimate(1, 0.3, 20e3);
+  h.plugin.finish(h.ctx);
+  EXPECT_TRUE(std::filesystem::exists(ot));
+  EXPECT_TRUE(std::filesystem::exists(ov));
+  EXPECT_GT(std::filesystem::file_size(png), 1000u);
+  EXPECT_EQ(Strata::load(ot).soilAt(0.15, 0.05, 0.95).source, SoilSource::Removed);
+}
