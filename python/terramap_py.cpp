@@ -18,6 +18,9 @@
 #include <terramap/pipeline/run.hpp>
 #include <terramap/pipeline/source.hpp>
 #include <terramap/soil/fee.hpp>
+#ifdef TERRAMAP_PY_STRATA
+#include "strata.hpp"  // plugins/octomap_strata (built with OctoMap)
+#endif
 
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
@@ -451,6 +454,47 @@ void bindFunctions(py::module_& m) {
 
 }  // namespace
 
+#ifdef TERRAMAP_PY_STRATA
+/// Strata: a model octomap_strata saved (`save_path`), read back for queries.
+void bindStrata(py::module_& m) {
+  using strata::Strata;
+  auto belief = [](const strata::SoilBelief& b) {
+    py::dict d;
+    py::array_t<double> mean(soil::kSoilParamCount), var(soil::kSoilParamCount);
+    for (int q = 0; q < soil::kSoilParamCount; ++q) {
+      mean.mutable_at(q) = b.mean[static_cast<std::size_t>(q)];
+      var.mutable_at(q) = b.var[static_cast<std::size_t>(q)];
+    }
+    d["mean"] = mean;
+    d["var"] = var;
+    d["source"] = strata::soilSourceName(b.source);
+    return d;
+  };
+  py::class_<Strata>(m, "Strata",
+                     "Subsurface soil memory written by the octomap_strata plugin (save_path). Soil vectors in the "
+                     "order [c (Pa), phi (rad), c_a (Pa), delta (rad), gamma (N/m^3)]; map frame, metres.")
+      .def_static("load", &Strata::load, py::arg("path"), "Reads a file written by octomap_strata's save_path.")
+      .def("soil_at",
+           [belief](const Strata& s, double x, double y, double z) { return belief(s.soilAt(x, y, z)); },
+           py::arg("x"), py::arg("y"), py::arg("z"),
+           "Belief about the soil at (x, y, z): {'mean', 'var', 'source'}; source is 'removed' (a cut's estimate), "
+           "'predicted', 'inherited' (below a cut, variance inflated by depth), 'prior', 'air' or 'outside'.")
+      .def("expected_cut",
+           [belief](const Strata& s, double x, double y, double depth_m) {
+             return belief(s.expectedCut(x, y, std::numeric_limits<double>::quiet_NaN(), depth_m));
+           },
+           py::arg("x"), py::arg("y"), py::arg("depth_m") = 0.2, "The soil the next cut of depth_m would remove.")
+      .def("surface_at", &Strata::surfaceAt, py::arg("x"), py::arg("y"), "Bank surface of the column (NaN: never cut).")
+      .def("initial_surface_at", &Strata::initialSurfaceAt, py::arg("x"), py::arg("y"))
+      .def("change_height_at", &Strata::changeHeightAt, py::arg("x"), py::arg("y"), py::arg("min_voxels") = 1,
+           py::arg("min_gain") = 0.5, py::arg("radius_m") = 0.0, "Height of the strongest change in the removed soil.")
+      .def_property_readonly("resolution", [](const Strata& s) { return s.config().resolution_m; })
+      .def_property_readonly("columns", &Strata::columns)
+      .def_property_readonly("nodes", &Strata::nodes)
+      .def_property_readonly("memory_bytes", &Strata::memoryBytes);
+}
+#endif
+
 PYBIND11_MODULE(_terramap, m) {
   m.doc() = "terramap's C++ engine (see the terramap package for the documentation)";
   sim::registerSimSource();
@@ -459,4 +503,7 @@ PYBIND11_MODULE(_terramap, m) {
   bindMap(m);
   bindEngine(m);
   bindFunctions(m);
+#ifdef TERRAMAP_PY_STRATA
+  bindStrata(m);
+#endif
 }

@@ -224,6 +224,8 @@ CtlCommand CtlController::update(double dt, const CompactTrackLoader& m) {
         heading_ = std::atan2(P.y() - p.y(), P.x() - p.x());
         v_cmd = spec_.route_speed_mps;
         depth_ = spec_.route_depth_m;
+        if (spec_.route_grade)
+          grade_target_ = std::max(spec_.grade_lowest_m, spec_.grade_first_m + pass_ * spec_.grade_step_m);
         // Stuck (at a pile of its own spoil, the blade already raised): back off and go on.
         const bool give_up = spec_.stall_give_up_s > 0 && slow_time_ > spec_.stall_give_up_s;
         if (along >= spec_.route_length_m || give_up) {
@@ -235,6 +237,7 @@ CtlCommand CtlController::update(double dt, const CompactTrackLoader& m) {
         heading_ = std::atan2(p.y() - P.y(), p.x() - P.x());
         v_cmd = -spec_.route_return_speed_mps;
         depth_ = -0.2;
+        grade_target_.reset();
         if (along <= -0.5) {
           reversing_ = false;
           ++pass_;
@@ -244,6 +247,7 @@ CtlCommand CtlController::update(double dt, const CompactTrackLoader& m) {
       omega_cmd = std::clamp(1.5 * wrapAngle(heading_ - m.yaw()), -0.6, 0.6);
     }
     if (finished_) {
+      grade_target_.reset();
       v_cmd = 0;
       depth_ = -0.2;
       speed_ = 0;
@@ -260,7 +264,14 @@ CtlCommand CtlController::update(double dt, const CompactTrackLoader& m) {
   c.v_left = v_cmd - omega_cmd * gauge_ / 2;
   c.v_right = v_cmd + omega_cmd * gauge_ / 2;
   const std::array<double, 3> q = m.joints();
-  c.joint_rate[0] = 3.0 * ((-depth_ + raise_) - q[0]);
+  if (grade_target_) {
+    // Cut to grade: the lift that puts the edge at the target height (lift is the edge's height
+    // above the contact plane, so a change of lift moves the edge by as much).
+    const double edge_z = m.T_map_blade().translation().z();
+    c.joint_rate[0] = 3.0 * ((*grade_target_ - edge_z) + raise_);
+  } else {
+    c.joint_rate[0] = 3.0 * ((-depth_ + raise_) - q[0]);
+  }
   c.joint_rate[1] = 4.0 * (roll_ - q[1]);
   c.joint_rate[2] = 4.0 * (blade_yaw_ - q[2]);
   for (int k = 0; k < 3; ++k) c.joint_rate[k] = std::clamp(c.joint_rate[k], -joint_max_rate_[k], joint_max_rate_[k]);

@@ -176,6 +176,14 @@ ControllerSpec readController(MapReader& r) {
     c.route_depth_m = r.num("depth_m", c.route_depth_m, -1.0, 1.0);
     c.route_speed_mps = r.num("speed_mps", c.route_speed_mps, 0.05, 5.0);
     c.route_return_speed_mps = r.num("return_speed_mps", c.route_return_speed_mps, 0.05, 5.0);
+    if (r.has("grade")) {
+      MapReader g = r.child("grade");
+      c.route_grade = true;
+      c.grade_first_m = g.num("first_m", c.grade_first_m, -1e4, 1e4);
+      c.grade_step_m = g.num("step_m", c.grade_step_m, -10.0, 10.0);
+      c.grade_lowest_m = g.num("lowest_m", c.grade_lowest_m, -1e4, 1e4);
+      g.finish();
+    }
   } else {
     // As for sensors: the keys depend on the type, so they are not checked against a guess.
     r.error(r.node("type"), "type", "unknown controller type '" + type + "'" + didYouMean(type, {"random_walk", "route"}));

@@ -44,10 +44,10 @@ std::vector<strata::CellCut> cellCutsOf(const SweepRecord& sweep) {
     c.old_surface_m = std::numeric_limits<double>::quiet_NaN();
     if (s < sweep.slices.size()) {
       const SweepSlice& sl = sweep.slices[s];
-      // The slice's fitted bank surface; without a valid fit, the cell's height before the cut
-      // (swept bottom + removed height), which counts loose soil as bank.
+      // The slice's fitted bank surface. Without a valid fit it stays unknown: the cell's height
+      // before the cut (swept bottom + removed height) would count the pile pushed over it as
+      // bank, and a column's first surface sets every depth in it.
       if (sl.valid && std::isfinite(sl.surface_z_m)) c.old_surface_m = sl.surface_z_m;
-      else if (std::isfinite(m.sv_bottom_m)) c.old_surface_m = static_cast<double>(m.sv_bottom_m) + sl.cut_m;
     }
     ++s;
     out.push_back(c);
@@ -74,6 +74,10 @@ ParamSchema OctomapStrata::schema() const {
                      "strata_change_depth_m: removed voxels with an estimate needed on each side of a change"),
       param::real("change_min_gain", d.change_min_gain, 0.0, 1.0, "1",
                   "strata_change_depth_m: share of the column's spread the split must explain"),
+      param::real("change_radius_m", d.change_radius_m, 0.0, 10.0, "m",
+                  "strata_change_*: columns within this distance pool their removed soil by level"),
+      param::real("change_interval_s", d.change_interval_s, 0.0, 1e6, "s",
+                  "strata_change_* are recomputed at most this often (event time) and at the end; 0 = every event"),
       param::path("save_path", "", "write the whole model here at the end (.ot + terramap trailer); empty = no"),
       param::path("octovis_path", "", "write an octovis ColorOcTree (.ot) here at the end; empty = no"),
       param::text("octovis_param", "c", paramNames(), "soil property the ColorOcTree's colours show"),
@@ -114,6 +118,8 @@ void OctomapStrata::configure(const Params& p) {
   c.surface_fallback = p.getBool("surface_fallback");
   c.change_min_voxels = static_cast<int>(p.getInt("change_min_voxels"));
   c.change_min_gain = p.getDouble("change_min_gain");
+  c.change_radius_m = p.getDouble("change_radius_m");
+  c.change_interval_s = p.getDouble("change_interval_s");
   c.save_path = p.getString("save_path");
   c.octovis_path = p.getString("octovis_path");
   c.octovis_param = paramIndex(p.getString("octovis_param"));
@@ -141,6 +147,8 @@ std::vector<LayerSpec> OctomapStrata::layers() const {
                  "bank soil removed since the column was first cut; NaN = never cut"});
   out.push_back({"strata_change_depth_m", LayerAccess::Create, "m", kNaNf,
                  "depth below the first-cut surface of the strongest change in the removed soil; NaN = none found"});
+  out.push_back({"strata_change_z_m", LayerAccess::Create, "m", kNaNf,
+                 "height (map z) of that change: the first-cut surface minus strata_change_depth_m; NaN = none found"});
   out.push_back({"elevation", LayerAccess::Read, "", kNaNf, ""});
   return out;
 }
@@ -158,6 +166,7 @@ void OctomapStrata::start(ProcessContext& ctx) {
   }
   cut_ = map.layerId("strata_cut_m");
   change_ = map.layerId("strata_change_depth_m");
+  change_z_ = map.layerId("strata_change_z_m");
   elevation_ = map.layerId("elevation");
   loose_ = map.hasLayer("loose") ? map.layerId("loose") : LayerId(-1);
   have_surface_ = cfg_.surface_fallback;
@@ -176,25 +185,21 @@ void OctomapStrata::start(ProcessContext& ctx) {
   last_sweep_ = s ? s->sequence : 0;
 }
 
-void OctomapStrata::collect(ProcessContext& ctx, std::vector<int>& tiles) {
-  LayeredMap& map = ctx.map();
-  const Geometry& geo = map.geometry();
-  auto touch = [&](const Eigen::Vector2d& p) {
-    const auto idx = geo.indexAt(p);
-    if (!idx) return;
-    const Index b = map.bufferIndex(*idx);
-    tiles.push_back(map.tileOfBuffer(b.x(), b.y()));
-  };
+void OctomapStrata::collect(ProcessContext& ctx, std::vector<Eigen::Vector2d>& cells, std::vector<int>& fallback_tiles) {
   const strata::StrataCounters before = strata_->counters();
   const RecordBus::Since sweeps = ctx.records().since(SweepRecord::kType, last_sweep_);
   if (sweeps.missed > 0) ctx.countDrop("sweep_missed", sweeps.missed);
   for (const Record& r : sweeps.records) {
     last_sweep_ = r.sequence;
     const auto& sw = *std::static_pointer_cast<const SweepRecord>(r.payload);
-    const std::vector<strata::CellCut> cells = cellCutsOf(sw);
-    if (cells.empty()) continue;
-    ctx.addCounter("voxels_removed", static_cast<double>(strata_->applyCut(sw.sweep_index, cells)));
-    for (const strata::CellCut& c : cells) touch(c.position);
+    const std::vector<strata::CellCut> cut = cellCutsOf(sw);
+    if (cut.empty()) continue;
+    ctx.addCounter("voxels_removed", static_cast<double>(strata_->applyCut(sw.sweep_index, cut)));
+    std::vector<Eigen::Vector2d>& where = sweep_cells_[sw.sweep_index];
+    for (const strata::CellCut& c : cut) where.push_back(c.position);
+    cells.insert(cells.end(), where.begin(), where.end());
+    change_dirty_.insert(change_dirty_.end(), where.begin(), where.end());
+    while (static_cast<int>(sweep_cells_.size()) > cfg_.strata.max_pending_sweeps) sweep_cells_.erase(sweep_cells_.begin());
   }
   const RecordBus::Since est = ctx.records().since(SoilEstimateRecord::kType, last_estimate_);
   if (est.missed > 0) ctx.countDrop("estimate_missed", est.missed);
@@ -204,18 +209,18 @@ void OctomapStrata::collect(ProcessContext& ctx, std::vector<int>& tiles) {
     const long n = e.valid ? strata_->assignEstimate(e.sweep_index, &e.mean, &e.var_total)
                            : strata_->assignEstimate(e.sweep_index, nullptr, nullptr);
     ctx.addCounter("voxels_estimated", static_cast<double>(e.valid ? n : 0));
-    // The estimate's columns are where its sweep cut: their tiles were marked then, but the
-    // layers must be recomputed now that the estimate is in. The blade's end pose is inside.
-    const Eigen::Vector2d c = e.T_map_blade1.translation().head<2>();
-    const double reach = 0.5 * (std::isfinite(e.w_m) ? e.w_m : 2.0) + 1.0;
-    for (double dx = -reach; dx <= reach; dx += 0.5 * reach)
-      for (double dy = -reach; dy <= reach; dy += 0.5 * reach) touch(c + Eigen::Vector2d(dx, dy));
+    // The estimate changed the columns its sweep cut.
+    const auto it = sweep_cells_.find(e.sweep_index);
+    if (it == sweep_cells_.end()) continue;
+    cells.insert(cells.end(), it->second.begin(), it->second.end());
+    change_dirty_.insert(change_dirty_.end(), it->second.begin(), it->second.end());
+    sweep_cells_.erase(it);
   }
   const strata::StrataCounters& after = strata_->counters();
   if (after.estimates_invalid > before.estimates_invalid)
     ctx.countDrop("estimate_invalid", after.estimates_invalid - before.estimates_invalid);
   if (after.estimates_unmatched > before.estimates_unmatched)
-    ctx.countDrop("estimate_without_cut", after.estimates_unmatched - before.estimates_unmatched);
+    ctx.countDrop("estimate_removed_nothing", after.estimates_unmatched - before.estimates_unmatched);
   if (after.pending_evicted > before.pending_evicted)
     ctx.countDrop("estimate_never_came", after.pending_evicted - before.pending_evicted);
   if (after.columns_outside > before.columns_outside)
@@ -224,26 +229,34 @@ void OctomapStrata::collect(ProcessContext& ctx, std::vector<int>& tiles) {
     ctx.countDrop("column_surface_unknown", after.columns_unknown_surface - before.columns_unknown_surface);
   if (have_surface_)
     for (int k = 0; k < soil::kSoilParamCount; ++k) {
-      for (int t : ctx.changedTiles(surf_[static_cast<std::size_t>(k)])) tiles.push_back(t);
-      for (int t : ctx.changedTiles(surf_var_[static_cast<std::size_t>(k)])) tiles.push_back(t);
+      for (int t : ctx.changedTiles(surf_[static_cast<std::size_t>(k)])) fallback_tiles.push_back(t);
+      for (int t : ctx.changedTiles(surf_var_[static_cast<std::size_t>(k)])) fallback_tiles.push_back(t);
     }
 }
 
-void OctomapStrata::process(ProcessContext& ctx, const Event&) {
-  std::vector<int> tiles;
-  collect(ctx, tiles);
-  std::sort(tiles.begin(), tiles.end());
-  tiles.erase(std::unique(tiles.begin(), tiles.end()), tiles.end());
-  if (!tiles.empty()) computeTiles(ctx, tiles);
+void OctomapStrata::process(ProcessContext& ctx, const Event&) { update(ctx, false); }
+
+void OctomapStrata::update(ProcessContext& ctx, bool final) {
+  std::vector<Eigen::Vector2d> cells;
+  std::vector<int> fallback;
+  collect(ctx, cells, fallback);
+  if (final) strata_->flushPending();
+  std::sort(fallback.begin(), fallback.end());
+  fallback.erase(std::unique(fallback.begin(), fallback.end()), fallback.end());
+  // Fallback first: a cell whose column was just cut is then overwritten with the strata's.
+  ctx.addCounter("fallback_tiles", static_cast<double>(fallback.size()));
+  if (!fallback.empty()) computeCells(ctx, {}, fallback, Pass::Fallback);
+  if (!cells.empty()) computeCells(ctx, cells, {}, Pass::Next);
+  const double now = ctx.stamp();
+  if (!change_dirty_.empty() && (final || !(now - last_change_s_ < cfg_.change_interval_s))) {
+    computeCells(ctx, change_dirty_, {}, Pass::Change);
+    change_dirty_.clear();
+    last_change_s_ = now;
+  }
 }
 
 void OctomapStrata::finish(ProcessContext& ctx) {
-  std::vector<int> tiles;
-  collect(ctx, tiles);
-  strata_->flushPending();
-  std::sort(tiles.begin(), tiles.end());
-  tiles.erase(std::unique(tiles.begin(), tiles.end()), tiles.end());
-  if (!tiles.empty()) computeTiles(ctx, tiles);
+  update(ctx, true);
   const strata::StrataCounters& c = strata_->counters();
   ctx.addCounter("columns", static_cast<double>(strata_->columns()));
   ctx.addCounter("tree_nodes", static_cast<double>(strata_->nodes()));
@@ -252,59 +265,102 @@ void OctomapStrata::finish(ProcessContext& ctx) {
   writeFiles(ctx);
 }
 
-void OctomapStrata::computeTiles(ProcessContext& ctx, const std::vector<int>& tiles) {
+void OctomapStrata::computeCells(ProcessContext& ctx, const std::vector<Eigen::Vector2d>& positions,
+                                 const std::vector<int>& whole_tiles, Pass pass) {
   LayeredMap& map = ctx.map();
   const Geometry& geo = map.geometry();
   const int T = map.tileSize();
+  // The cells as (tile, offset in the tile), each once; Change grows them by the pooling radius.
+  std::vector<std::pair<int, int>> todo;
+  const int reach = pass == Pass::Change ? static_cast<int>(std::ceil(cfg_.change_radius_m / geo.resolution())) : 0;
+  for (const Eigen::Vector2d& p : positions) {
+    const auto idx = geo.indexAt(p);
+    if (!idx) continue;
+    for (int a = -reach; a <= reach; ++a)
+      for (int b = -reach; b <= reach; ++b) {
+        const Index l(idx->x() + a, idx->y() + b);
+        if (l.x() < 0 || l.y() < 0 || l.x() >= geo.size().x() || l.y() >= geo.size().y()) continue;
+        const Index buf = map.bufferIndex(l);
+        const int t = map.tileOfBuffer(buf.x(), buf.y());
+        const CellRect r = map.tileRect(t);
+        todo.emplace_back(t, (buf.x() - r.r0) * T + (buf.y() - r.c0));
+      }
+  }
+  for (int t : whole_tiles) {
+    const CellRect r = map.tileRect(t);
+    for (int a = 0; a < r.rows; ++a)
+      for (int b = 0; b < r.cols; ++b) todo.emplace_back(t, a * T + b);
+  }
+  std::sort(todo.begin(), todo.end());
+  todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
+  // One task per tile.
+  std::vector<std::size_t> starts;
+  for (std::size_t k = 0; k < todo.size(); ++k)
+    if (k == 0 || todo[k].first != todo[k - 1].first) starts.push_back(k);
+  starts.push_back(todo.size());
+  const int ntiles = static_cast<int>(starts.size()) - 1;
   const strata::Strata& st = *strata_;
-  std::vector<long> budget(tiles.size(), 0);
-  ctx.executor().forEach(static_cast<int>(tiles.size()), [&](int n) {
-    const int t = tiles[static_cast<std::size_t>(n)];
-    if (!map.tryAllocateTile(t, {next_[0], next_[1], next_[2], next_[3], next_[4], next_var_[0], next_var_[1],
-                                 next_var_[2], next_var_[3], next_var_[4], cut_, change_})) {
+  std::vector<long> budget(static_cast<std::size_t>(std::max(0, ntiles)), 0);
+  ctx.executor().forEach(ntiles, [&](int n) {
+    const int t = todo[starts[static_cast<std::size_t>(n)]].first;
+    const bool ok = pass == Pass::Change
+                        ? map.tryAllocateTile(t, {change_, change_z_})
+                        : map.tryAllocateTile(t, {next_[0], next_[1], next_[2], next_[3], next_[4], next_var_[0],
+                                                  next_var_[1], next_var_[2], next_var_[3], next_var_[4], cut_});
+    if (!ok) {
       budget[static_cast<std::size_t>(n)] = 1;
       return;
     }
+    const CellRect r = map.tileRect(t);
     std::array<float*, soil::kSoilParamCount> m{}, v{};
     std::array<const float*, soil::kSoilParamCount> sm{}, sv{};
-    for (std::size_t k = 0; k < m.size(); ++k) {
-      m[k] = map.mutableTileData(next_[k], t);
-      v[k] = map.mutableTileData(next_var_[k], t);
-      if (have_surface_) {
-        sm[k] = map.tileData(surf_[k], t);
-        sv[k] = map.tileData(surf_var_[k], t);
-      }
-    }
-    float* cut = map.mutableTileData(cut_, t);
-    float* change = map.mutableTileData(change_, t);
-    const CellRect r = map.tileRect(t);
-    for (int a = 0; a < r.rows; ++a)
-      for (int b = 0; b < r.cols; ++b) {
-        const std::size_t o = static_cast<std::size_t>(a) * static_cast<std::size_t>(T) + static_cast<std::size_t>(b);
-        const Position p = geo.positionOf(map.logicalIndex(Index(r.r0 + a, r.c0 + b)));
-        const double top = st.surfaceAt(p.x(), p.y());
-        if (std::isfinite(top)) {
-          const strata::SoilBelief e = st.expectedCut(p.x(), p.y(), top, cfg_.next_cut_m);
-          for (std::size_t k = 0; k < m.size(); ++k) {
-            m[k][o] = static_cast<float>(e.mean[k]);
-            v[k][o] = static_cast<float>(e.var[k]);
-          }
-          cut[o] = static_cast<float>(st.initialSurfaceAt(p.x(), p.y()) - top);
-          change[o] = static_cast<float>(st.changeDepthAt(p.x(), p.y(), cfg_.change_min_voxels, cfg_.change_min_gain));
-        } else {
-          for (std::size_t k = 0; k < m.size(); ++k) {
-            m[k][o] = sm[k] ? sm[k][o] : kNaNf;
-            v[k][o] = sv[k] ? sv[k][o] : kNaNf;
-          }
-          cut[o] = kNaNf;
-          change[o] = kNaNf;
+    float *cut = nullptr, *change = nullptr, *change_z = nullptr;
+    if (pass == Pass::Change) {
+      change = map.mutableTileData(change_, t);
+      change_z = map.mutableTileData(change_z_, t);
+    } else {
+      for (std::size_t k = 0; k < m.size(); ++k) {
+        m[k] = map.mutableTileData(next_[k], t);
+        v[k] = map.mutableTileData(next_var_[k], t);
+        if (have_surface_) {
+          sm[k] = map.tileData(surf_[k], t);
+          sv[k] = map.tileData(surf_var_[k], t);
         }
       }
+      cut = map.mutableTileData(cut_, t);
+    }
+    for (std::size_t k = starts[static_cast<std::size_t>(n)]; k < starts[static_cast<std::size_t>(n) + 1]; ++k) {
+      const int o = todo[k].second;
+      const Position p = geo.positionOf(map.logicalIndex(Index(r.r0 + o / T, r.c0 + o % T)));
+      const double top = st.surfaceAt(p.x(), p.y());
+      if (pass == Pass::Change) {
+        const double z = std::isfinite(top) ? st.changeHeightAt(p.x(), p.y(), cfg_.change_min_voxels, cfg_.change_min_gain,
+                                                                cfg_.change_radius_m)
+                                            : std::numeric_limits<double>::quiet_NaN();
+        change_z[o] = static_cast<float>(z);
+        change[o] = static_cast<float>(st.initialSurfaceAt(p.x(), p.y()) - z);
+      } else if (std::isfinite(top)) {
+        if (pass == Pass::Fallback) continue;  // the strata's own belief stands
+        const strata::SoilBelief e = st.expectedCut(p.x(), p.y(), top, cfg_.next_cut_m);
+        for (std::size_t q = 0; q < m.size(); ++q) {
+          m[q][o] = static_cast<float>(e.mean[q]);
+          v[q][o] = static_cast<float>(e.var[q]);
+        }
+        cut[o] = static_cast<float>(st.initialSurfaceAt(p.x(), p.y()) - top);
+      } else {
+        for (std::size_t q = 0; q < m.size(); ++q) {
+          m[q][o] = sm[q] ? sm[q][o] : kNaNf;
+          v[q][o] = sv[q] ? sv[q][o] : kNaNf;
+        }
+        cut[o] = kNaNf;
+      }
+    }
   });
   long nb = 0;
   for (long b : budget) nb += b;
   if (nb > 0) ctx.countDrop("tile_budget", nb);
-  ctx.addCounter("tiles_computed", static_cast<double>(static_cast<long>(tiles.size()) - nb));
+  ctx.addCounter(pass == Pass::Change ? "cells_change_computed" : "cells_computed",
+                 static_cast<double>(todo.size()));
 }
 
 void OctomapStrata::writeFiles(ProcessContext& ctx) const {
@@ -324,7 +380,7 @@ void OctomapStrata::writeFiles(ProcessContext& ctx) const {
     const Eigen::Vector2d p = a + (b - a) * ((s + 0.5) / ns);
     const double top = strata_->surfaceAt(p.x(), p.y()), init = strata_->initialSurfaceAt(p.x(), p.y());
     if (std::isfinite(top)) zlo = std::min(zlo, top - 0.5);
-    if (std::isfinite(init)) zhi = std::max(zhi, init + res);
+    if (std::isfinite(init)) zhi = std::max(zhi, init + 2 * res);
   }
   if (!std::isfinite(zlo) || !std::isfinite(zhi)) {
     ctx.countDrop("section_nothing_cut");
@@ -334,6 +390,13 @@ void OctomapStrata::writeFiles(ProcessContext& ctx) const {
   // Geometry rows run along x (distance), columns along y (height, z = zlo + (j + 0.5) res).
   const Geometry g(res, Size(ns, nz), Position(0.5 * ns * res, zlo + 0.5 * nz * res));
   LayeredMap sec(g);
+  const LayeredMap& map = ctx.map();
+  auto bankAt = [&](const Eigen::Vector2d& p) {
+    const auto idx = map.geometry().indexAt(p);
+    if (!idx) return std::numeric_limits<double>::quiet_NaN();
+    const float l = loose_ >= 0 ? map.at(loose_, *idx) : 0.0f;
+    return static_cast<double>(map.at(elevation_, *idx)) - (std::isfinite(l) ? std::max(0.0f, l) : 0.0f);
+  };
   const soil::SoilParamInfo& info = soil::kSoilParams[cfg_.section_param];
   const std::string layer = std::string("strata_") + info.name;
   const LayerId id = sec.addLayer(layer, info.unit);
@@ -343,6 +406,8 @@ void OctomapStrata::writeFiles(ProcessContext& ctx) const {
       const Position q = g.positionOf(Index(s, j));
       const strata::SoilBelief sb = strata_->soilAt(p.x(), p.y(), q.y());
       if (sb.source == strata::SoilSource::Air || sb.source == strata::SoilSource::Outside) continue;
+      // A column never cut has no surface of its own: the prior below the map's bank surface.
+      if (sb.source == strata::SoilSource::Prior && !(q.y() <= bankAt(p))) continue;
       sec.set(id, Index(s, j), static_cast<float>(sb.mean[static_cast<std::size_t>(cfg_.section_param)]));
     }
   }

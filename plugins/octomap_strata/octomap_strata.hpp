@@ -14,12 +14,19 @@
 ///    NaN. `fee_index` with `soil_prefix: strata_next_` turns them into a force index;
 ///  - `strata_cut_m`: bank soil removed since the column's first cut (m);
 ///  - `strata_change_depth_m`: depth below the first-cut surface of the strongest change in the
-///    removed soil (Strata::changeDepthAt; NaN = no change found).
+///    removed soil, pooled over the columns within `change_radius_m` (Strata::changeHeightAt;
+///    NaN = no change found), and `strata_change_z_m`, its
+///    height in the map frame (what to compare with a boundary known in absolute terms).
 /// Read: `elevation` (and `loose`, `soil_*` when present).
 ///
 /// Files, written at the end of the run when their parameter is set (atomically): `save_path`
 /// (the whole model, Strata::load reads it), `octovis_path` (a ColorOcTree for octovis coloured
 /// by `octovis_param`), `section_png` (a cross-section along `section_line_m` with a colour bar).
+///
+/// Incremental: strata_next_* and strata_cut_m are recomputed for the cells a sweep cut (when
+/// the sweep arrives and again when its estimate does) and, from soil_*, for never-cut cells of
+/// tiles soil_bayes wrote; strata_change_* (the costlier split) for the cells around changed
+/// columns at most every `change_interval_s` of event time and at the end of the run.
 ///
 /// Threading: the tree is updated on the calling thread in record order; the layers are
 /// recomputed one task per tile from const queries, so they are bit-identical at any thread
@@ -30,6 +37,8 @@
 #include <terramap/plugin/records/soil_estimate_record.hpp>
 #include <terramap/plugin/records/sweep_record.hpp>
 
+#include <limits>
+#include <map>
 #include <memory>
 #include <optional>
 
@@ -45,6 +54,8 @@ struct OctomapStrataConfig {
   bool surface_fallback = true;
   int change_min_voxels = 1;
   double change_min_gain = 0.5;
+  double change_radius_m = 0.25;
+  double change_interval_s = 5.0;
   std::string save_path, octovis_path, section_png;
   int octovis_param = 0, section_param = 0;
   double octovis_below_m = 0.5;
@@ -64,19 +75,27 @@ class OctomapStrata : public Plugin {
   const OctomapStrataConfig& config() const { return cfg_; }
   /// The model (after start()).
   const strata::Strata& model() const { return *strata_; }
-  /// Recomputes the layers on these tiles (what process() does for the tiles it touched).
-  void computeTiles(ProcessContext& ctx, const std::vector<int>& tiles);
 
  private:
-  void collect(ProcessContext& ctx, std::vector<int>& tiles);
-  void writeFiles(ProcessContext& ctx) const;
+  /// Which layers a computation writes: strata_next_* and strata_cut_m of the given cells
+  /// (Next), the same for never-cut cells of whole tiles from soil_* (Fallback), or
+  /// strata_change_* of the given cells grown by change_radius_m (Change).
+  enum class Pass { Next, Fallback, Change };
+  void collect(ProcessContext& ctx, std::vector<Eigen::Vector2d>& cells, std::vector<int>& fallback_tiles);
+  void update(ProcessContext& ctx, bool final);
+  void computeCells(ProcessContext& ctx, const std::vector<Eigen::Vector2d>& positions, const std::vector<int>& whole_tiles,
+                    Pass pass);
+  void writeFiles(ProcessContext& ctx) const;  // reads the map: needs the host's exclusive access
 
   OctomapStrataConfig cfg_;
   std::optional<strata::Strata> strata_;
   std::array<LayerId, soil::kSoilParamCount> next_{}, next_var_{}, surf_{}, surf_var_{};
-  LayerId cut_ = -1, change_ = -1, elevation_ = -1, loose_ = -1;
+  LayerId cut_ = -1, change_ = -1, change_z_ = -1, elevation_ = -1, loose_ = -1;
   bool have_surface_ = false;
   long last_estimate_ = 0, last_sweep_ = 0;
+  std::map<long, std::vector<Eigen::Vector2d>> sweep_cells_;  ///< cut cells of sweeps awaiting their estimate
+  std::vector<Eigen::Vector2d> change_dirty_;  ///< cells whose removed soil changed since strata_change_* last ran
+  double last_change_s_ = -std::numeric_limits<double>::infinity();
 };
 
 }  // namespace terramap::plugins

@@ -373,24 +373,44 @@ std::vector<std::pair<double, VoxelBelief>> Strata::columnVoxels(double x, doubl
   return out;
 }
 
-double Strata::changeDepthAt(double x, double y, int min_voxels, double min_gain) const {
-  std::vector<std::pair<double, VoxelBelief>> vox = columnVoxels(x, y);
-  vox.erase(std::remove_if(vox.begin(), vox.end(), [](const auto& v) { return v.second.kind != VoxelBelief::kEstimated; }),
-            vox.end());
-  const int n = static_cast<int>(vox.size());
+double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gain, double radius_m) const {
+  std::uint32_t key0;
+  if (!columnKey(x, y, key0)) return kNaN;
+  const double res = cfg_.resolution_m;
+  // Voxel levels (z key) -> sum of the normalised means and count, over the pooled columns.
+  std::map<long, std::pair<std::array<double, kP>, int>, std::greater<long>> levels;
+  const int reach = static_cast<int>(std::floor(std::max(0.0, radius_m) / res));
+  const double cx = (static_cast<double>(static_cast<long>(key0 >> 16) - static_cast<long>(tree_.keyOffset())) + 0.5) * res;
+  const double cy = (static_cast<double>(static_cast<long>(key0 & 0xffffu) - static_cast<long>(tree_.keyOffset())) + 0.5) * res;
+  for (int a = -reach; a <= reach; ++a)
+    for (int b = -reach; b <= reach; ++b) {
+      if ((a * a + b * b) * res * res > radius_m * radius_m + 1e-12) continue;
+      for (const auto& [z, v] : columnVoxels(cx + a * res, cy + b * res)) {
+        if (v.kind != VoxelBelief::kEstimated) continue;
+        auto& l = levels[static_cast<long>(std::floor(z / res))];
+        if (l.second == 0) l.first.fill(0.0);
+        for (int q = 0; q < kP; ++q) l.first[q] += v.mean[q] / std::sqrt(cfg_.prior_var[q]);
+        ++l.second;
+      }
+    }
+  const int n = static_cast<int>(levels.size());
   min_voxels = std::max(1, min_voxels);
   if (n < 2 * min_voxels) return kNaN;
-  // Prefix sums of the normalised means: SSE of a run = Σx² − (Σx)²/m per property.
+  std::vector<double> zs;
   std::vector<std::array<double, kP>> s1(static_cast<std::size_t>(n) + 1), s2(static_cast<std::size_t>(n) + 1);
   s1[0].fill(0.0);
   s2[0].fill(0.0);
-  for (int i = 0; i < n; ++i)
+  int i = 0;
+  for (const auto& [k, l] : levels) {
+    zs.push_back((static_cast<double>(k) + 0.5) * res);
     for (int q = 0; q < kP; ++q) {
-      const double v = vox[static_cast<std::size_t>(i)].second.mean[q] / std::sqrt(cfg_.prior_var[q]);
+      const double v = l.first[q] / l.second;
       s1[static_cast<std::size_t>(i) + 1][q] = s1[static_cast<std::size_t>(i)][q] + v;
       s2[static_cast<std::size_t>(i) + 1][q] = s2[static_cast<std::size_t>(i)][q] + v * v;
     }
-  auto sse = [&](int a, int b) {  // voxels [a, b)
+    ++i;
+  }
+  auto sse = [&](int a, int b) {  // levels [a, b)
     double e = 0.0;
     const double m = b - a;
     for (int q = 0; q < kP; ++q) {
@@ -412,8 +432,11 @@ double Strata::changeDepthAt(double x, double y, int min_voxels, double min_gain
     }
   }
   if (split < 0 || 1.0 - best / total < min_gain) return kNaN;
-  const double z_between = 0.5 * (vox[static_cast<std::size_t>(split) - 1].first + vox[static_cast<std::size_t>(split)].first);
-  return initialSurfaceAt(x, y) - z_between;
+  return 0.5 * (zs[static_cast<std::size_t>(split) - 1] + zs[static_cast<std::size_t>(split)]);
+}
+
+double Strata::changeDepthAt(double x, double y, int min_voxels, double min_gain, double radius_m) const {
+  return initialSurfaceAt(x, y) - changeHeightAt(x, y, min_voxels, min_gain, radius_m);
 }
 
 std::size_t Strata::memoryBytes() const {

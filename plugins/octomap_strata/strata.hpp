@@ -154,13 +154,18 @@ class Strata {
   /// The column's bank surface / its surface at the first cut (map z); NaN = never cut.
   double surfaceAt(double x, double y) const;
   double initialSurfaceAt(double x, double y) const;
-  /// Depth (m below the initial surface) of the strongest change in the column's removed soil:
-  /// the split of its removed voxels (top to bottom, at least `min_voxels` each side) into two
-  /// runs that minimises the squared deviation from each run's mean, in units of the prior
-  /// standard deviation, summed over the properties. NaN with fewer than 2 × min_voxels removed
-  /// voxels carrying estimates, or when the best split explains less than `min_gain` of the
-  /// column's spread.
-  double changeDepthAt(double x, double y, int min_voxels = 1, double min_gain = 0.5) const;
+  /// Height (map z) of the strongest change in the removed soil around (x, y): the removed voxels
+  /// carrying estimates of the columns whose centres lie within `radius_m` of the column's
+  /// (the column itself at 0) are averaged per voxel level (one sweep's estimate covers the
+  /// blade's width and 0.2 m of travel, so neighbours add other sweeps' estimates of the same
+  /// depth); the levels, top to bottom, are split into two runs (at least `min_voxels` levels
+  /// each) minimising the squared deviation from each run's mean, in units of the prior
+  /// standard deviation, summed over the properties. NaN with fewer than 2 × min_voxels
+  /// levels, or when the best split explains less than `min_gain` of the spread. The height
+  /// returned is halfway between the last level above and the first below the split.
+  double changeHeightAt(double x, double y, int min_voxels = 1, double min_gain = 0.5, double radius_m = 0.0) const;
+  /// changeHeightAt as a depth below the column's initial surface (NaN if either is NaN).
+  double changeDepthAt(double x, double y, int min_voxels = 1, double min_gain = 0.5, double radius_m = 0.0) const;
   /// Removed voxel centres of the column, top (shallowest) first, with their beliefs.
   std::vector<std::pair<double, VoxelBelief>> columnVoxels(double x, double y) const;
 

@@ -39,6 +39,11 @@ from ._terramap import (  # noqa: F401
     run_pipeline,
 )
 
+try:  # built when OctoMap is (the octomap_strata plugin's model)
+    from ._terramap import Strata  # noqa: F401
+except ImportError:
+    pass
+
 Engine.__doc__ = """A pipeline: one map, one thread pool, plugins in YAML order.
 
 Engine.from_file(path, threads=0) / Engine.from_yaml(text, base_dir=".", threads=0) validate the

@@ -146,6 +146,40 @@ def test_the_simulator_source_plays_and_knows_the_truth(tmp_path):
     np.testing.assert_allclose(np.sqrt(np.mean(diff[both] ** 2)), truth["rmse_m"], rtol=1e-5)
 
 
+@pytest.mark.skipif(not hasattr(terramap, "Strata"), reason="built without OctoMap")
+def test_a_saved_strata_model_answers_soil_queries(tmp_path):
+    # configs/strata.yaml for its first two passes (25 s), the model saved into tmp_path.
+    yaml = open(os.path.join(SOURCE_DIR, "configs", "strata.yaml")).read()
+    for old, new in [("scenario: scenarios/strata_loam_over_clay.yaml",
+                      "scenario: " + os.path.join(SOURCE_DIR, "configs", "scenarios", "strata_loam_over_clay.yaml")
+                      + ", max_time_s: 25"),
+                     ("model: ../models/soil_pinn.pt", "model: " + os.path.join(SOURCE_DIR, "models", "soil_pinn.pt")),
+                     ("save_path: ../out/strata/strata.ot", "save_path: strata.ot"),
+                     ("octovis_path: ../out/strata/strata_octovis.ot", "octovis_path: ''"),
+                     ("section_png: ../out/strata/section_c.png", "section_png: ''")]:
+        assert old in yaml, old
+        yaml = yaml.replace(old, new)
+    eng = terramap.Engine.from_yaml(yaml, base_dir=str(tmp_path), threads=2)
+    eng.play()
+    eng.finish()
+    s = terramap.Strata.load(str(tmp_path / "strata.ot"))
+    assert s.columns > 1000 and s.resolution == pytest.approx(0.05)
+    # The lane runs from x = 0 towards -4 m at y = 0: a cut column there.
+    top, first = s.surface_at(-1.5, 0.0), s.initial_surface_at(-1.5, 0.0)
+    assert np.isfinite(top) and first > top
+    removed = s.soil_at(-1.5, 0.0, 0.5 * (top + first))
+    assert removed["source"] in ("removed", "predicted") and np.all(np.isfinite(removed["mean"]))
+    below = s.soil_at(-1.5, 0.0, top - 0.3)
+    assert below["source"] in ("inherited", "prior") and below["var"][0] > 0
+    assert s.soil_at(-1.5, 0.0, first + 0.5)["source"] == "air"
+    assert s.soil_at(15.0, 5.0, 0.0)["source"] == "prior"  # never cut: the configured prior
+    assert s.soil_at(100.0, 0.0, 0.0)["source"] == "outside"
+    nxt = s.expected_cut(-1.5, 0.0, 0.2)
+    assert np.all(np.isfinite(nxt["mean"]))
+    with pytest.raises(terramap.InputError, match="strata.yaml"):
+        terramap.Strata.load(os.path.join(SOURCE_DIR, "configs", "strata.yaml"))
+
+
 def test_fee_equals_the_command_line_calculator():
     args = dict(c_pa=5000.0, phi_rad=np.radians(30), gamma_n_m3=18000.0, ca_pa=2000.0, delta_rad=np.radians(20),
                 alpha_rad=np.radians(5), rho_rad=np.radians(80), d_m=0.15, w_m=1.85, q_n=300.0)

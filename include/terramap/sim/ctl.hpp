@@ -17,6 +17,7 @@
 
 #include <Eigen/Geometry>
 #include <array>
+#include <optional>
 #include <random>
 
 namespace terramap::sim {
@@ -109,6 +110,7 @@ class CtlController {
   // Route state.
   int pass_ = 0;
   bool reversing_ = false, finished_ = false;
+  std::optional<double> grade_target_;  ///< edge height held on a forward pass (route grade)
   std::array<double, 3> joint_max_rate_;
 };
 

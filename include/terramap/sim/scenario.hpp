@@ -99,6 +99,12 @@ struct ControllerSpec {
   int route_passes = 3;
   bool route_loop = false;
   double route_depth_m = 0.1, route_speed_mps = 0.8, route_return_speed_mps = 1.2;
+  /// Route only, cut to grade (GNSS machine control): with `route_grade`, forward passes hold the
+  /// cutting edge at the map height grade_first_m + k * grade_step_m on pass k (0-based), never
+  /// below grade_lowest_m, instead of `route_depth_m` below the tracks; repeated passes down one
+  /// lane then deepen it whatever loose soil the tracks ride on.
+  bool route_grade = false;
+  double grade_first_m = -0.1, grade_step_m = -0.1, grade_lowest_m = -1.0;
   /// Raise the blade when the measured speed stays below `stall_ratio` * set-point for
   /// `stall_time_s` (speed tracking failed): rate of the raise, m/s.
   double stall_ratio = 0.5, stall_time_s = 0.3, raise_rate_mps = 0.15;

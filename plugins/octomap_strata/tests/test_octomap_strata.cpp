@@ -161,6 +161,27 @@ TEST(Strata, TheChangeDepthIsWhereTheRemovedSoilChanges) {
   EXPECT_TRUE(std::isnan(u.changeDepthAt(0.025, 0.025)));
 }
 
+TEST(Strata, NeighbouringColumnsPoolTheirEstimatesByLevel) {
+  Strata s(config());
+  const SoilVector loam{8e3, 0.5, 3e3, 0.35, 15e3}, clay{55e3, 0.5, 3e3, 0.35, 15e3};
+  // Six one-voxel cuts per column; the soil changes below the fourth level. The centre column
+  // has one wrong estimate (clay at level 2): alone its best split explains exactly half the
+  // spread, with its two neighbours level 2 averages to 23.7 kPa and the split explains 93 %.
+  const double cols[3][2] = {{0.025, 0.025}, {0.075, 0.025}, {0.025, 0.075}};
+  long sweep = 0;
+  for (int c = 0; c < 3; ++c)
+    for (int k = 0; k < 6; ++k) {
+      s.applyCut(++sweep, {cell(cols[c][0], cols[c][1], 1.0 - 0.05 * k, 0.95 - 0.05 * k)});
+      const bool clay_here = k >= 4 || (c == 0 && k == 1);
+      s.assignEstimate(sweep, clay_here ? &clay : &loam, &kEstVar);
+    }
+  EXPECT_TRUE(std::isnan(s.changeHeightAt(0.025, 0.025, 1, 0.6, 0.0)));
+  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025, 1, 0.6, 0.05), 0.8, 1e-9);
+  EXPECT_NEAR(s.changeDepthAt(0.025, 0.025, 1, 0.6, 0.05), 0.2, 1e-6);
+  // The radius reaches the 4-neighbours (0.05 m), not the diagonal (0.07 m): same answer at 0.06.
+  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025, 1, 0.6, 0.06), 0.8, 1e-9);
+}
+
 TEST(Strata, ExpectedCutAveragesTheNextDepthOfTheColumn) {
   Strata s(config());
   s.applyCut(1, {cell(0.025, 0.025, 1.0, 0.8)});
@@ -293,7 +314,7 @@ TEST(OctomapStrataPlugin, CellCutsTakeTheFittedBankSurfaceAndTheSweptBottom) {
   ASSERT_EQ(cuts.size(), 2u);
   EXPECT_DOUBLE_EQ(cuts[0].old_surface_m, 0.5);
   EXPECT_FLOAT_EQ(static_cast<float>(cuts[0].new_surface_m), 0.4f);
-  EXPECT_NEAR(cuts[1].old_surface_m, 0.52, 1e-6);  // no fit: swept bottom + removed height
+  EXPECT_TRUE(std::isnan(cuts[1].old_surface_m));  // no fit: unknown (a pile is not bank)
   EXPECT_DOUBLE_EQ(cuts[1].cell_m, 0.1);
 }
 
@@ -355,7 +376,8 @@ struct Harness {
 }  // namespace
 
 TEST(OctomapStrataPlugin, LayersShowTheNextCutTheRemovedDepthAndTheChange) {
-  Harness h(1, {{"change_min_voxels", ParamValue{2L}}});
+  Harness h(1, {{"change_min_voxels", ParamValue{2L}}, {"change_radius_m", ParamValue{0.0}},
+                {"change_interval_s", ParamValue{0.0}}});
   // Four passes over the same strip, 0.1 m each; the soil turns from 8 to 55 kPa after two.
   const double c[4] = {8e3, 8e3, 55e3, 55e3};
   for (int k = 0; k < 4; ++k) {
@@ -375,8 +397,24 @@ TEST(OctomapStrataPlugin, LayersShowTheNextCutTheRemovedDepthAndTheChange) {
   EXPECT_DOUBLE_EQ(h.stats.counters.at("voxels_estimated"), 4 * 33 * 4 * 2.0);
 }
 
+TEST(OctomapStrataPlugin, TheChangeLayerWaitsForItsIntervalOrTheEnd) {
+  Harness h(1, {{"change_min_voxels", ParamValue{2L}}});  // every 5 s of event time (the stamps here stay 0)
+  const double c[4] = {8e3, 8e3, 55e3, 55e3};
+  for (int k = 0; k < 4; ++k) {
+    h.sweep(k + 1, 0.0, 1.0 - 0.1 * k, 0.9 - 0.1 * k);
+    h.event();
+    h.estimate(k + 1, 0.3, c[k]);
+    h.event();
+  }
+  const Eigen::Vector2d p(0.15, 0.05);
+  EXPECT_TRUE(std::isnan(h.at("strata_change_depth_m", p)));  // computed once, at the first sweep
+  EXPECT_NEAR(h.at("strata_cut_m", p), 0.4f, 1e-5);           // per event
+  h.plugin.finish(h.ctx);
+  EXPECT_NEAR(h.at("strata_change_depth_m", p), 0.2f, 1e-5);
+}
+
 TEST(OctomapStrataPlugin, LayersAreBitIdenticalAtOneAndTwoThreads) {
-  Harness a(1), b(2);
+  Harness a(1, {{"change_interval_s", ParamValue{0.0}}}), b(2, {{"change_interval_s", ParamValue{0.0}}});
   for (Harness* h : {&a, &b})
     for (int k = 0; k < 6; ++k) {
       h->sweep(k + 1, 0.3 * (k % 3) - 1.0, 1.0 - 0.07 * (k / 3), 0.93 - 0.07 * (k / 3));
