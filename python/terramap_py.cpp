@@ -473,7 +473,7 @@ void bindStrata(py::module_& m) {
   py::class_<Strata>(m, "Strata",
                      "Subsurface soil memory written by the octomap_strata plugin (save_path). Soil vectors in the "
                      "order [c (Pa), phi (rad), c_a (Pa), delta (rad), gamma (N/m^3)]; map frame, metres.")
-      .def_static("load", &Strata::load, py::arg("path"), "Reads a file written by octomap_strata's save_path.")
+      .def_static("load", [](const std::string& path) { return Strata::load(path); }, py::arg("path"), "Reads a file written by octomap_strata's save_path.")
       .def("soil_at",
            [belief](const Strata& s, double x, double y, double z) { return belief(s.soilAt(x, y, z)); },
            py::arg("x"), py::arg("y"), py::arg("z"),
@@ -486,7 +486,11 @@ void bindStrata(py::module_& m) {
            py::arg("x"), py::arg("y"), py::arg("depth_m") = 0.2, "The soil the next cut of depth_m would remove.")
       .def("surface_at", &Strata::surfaceAt, py::arg("x"), py::arg("y"), "Bank surface of the column (NaN: never cut).")
       .def("initial_surface_at", &Strata::initialSurfaceAt, py::arg("x"), py::arg("y"))
-      .def("change_height_at", &Strata::changeHeightAt, py::arg("x"), py::arg("y"), py::arg("min_voxels") = 1,
+      .def("change_height_at",
+           [](const Strata& s, double x, double y, int min_voxels, double min_gain, double radius_m) {
+             return s.changeHeightAt(x, y, min_voxels, min_gain, radius_m);
+           },
+           py::arg("x"), py::arg("y"), py::arg("min_voxels") = 1,
            py::arg("min_gain") = 0.5, py::arg("radius_m") = 0.0, "Height of the strongest change in the removed soil.")
       .def_property_readonly("resolution", [](const Strata& s) { return s.config().resolution_m; })
       .def_property_readonly("columns", &Strata::columns)

@@ -40,7 +40,8 @@ struct StrataArgs {
   std::string scenario, pipeline, model, out = "out/eval_strata", zone;
   int threads = 0;
   double min_cut_m = 0.02;
-  bool quiet = false;
+  bool quiet = false, boundary_only = false;
+  std::vector<std::string> set;  ///< strata stage parameters, KEY=VALUE (numbers)
 };
 
 /// The truth terrain's bank surface at the map's cells at one moment.
@@ -180,7 +181,22 @@ int runEvalStrata(const StrataArgs& a) {
   for (StageSpec& st : spec.stages) {
     if (st.type == "soil_pinn" && !a.model.empty())
       st.params["model"] = RawParam{ParamValue{fs::absolute(a.model).string()}, "--model"};
-    if (st.type == "octomap_strata") strata = &st;
+    if (st.type == "octomap_strata") {
+      strata = &st;
+      for (const std::string& kv : a.set) {
+        const auto eq = kv.find('=');
+        if (eq == std::string::npos) throw ConfigError("--set " + kv + ": expected KEY=VALUE");
+        try {
+          const std::string v = kv.substr(eq + 1);
+          std::size_t used = 0;
+          const long n = std::stol(v, &used);
+          st.params[kv.substr(0, eq)] = used == v.size() ? RawParam{ParamValue{n}, "--set"}
+                                                          : RawParam{ParamValue{std::stod(v)}, "--set"};
+        } catch (const std::exception&) {
+          throw ConfigError("--set " + kv + ": the value must be a number");
+        }
+      }
+    }
     if (st.type == "fee_index") {
       const std::string prefix = paramText(st, "soil_prefix", "soil_");
       if (prefix == "soil_") surface = &st;
@@ -244,7 +260,7 @@ int runEvalStrata(const StrataArgs& a) {
   if (!a.quiet)
     std::printf("next pass: FEE index of the soil each pass removed (truth) against the map's indices at its start\n"
                 "  %-5s %7s %7s %8s %14s %14s\n", "pass", "start", "end", "cells", "surface MAE", "strata MAE");
-  for (std::size_t k = 0; k + 1 < snaps.size(); ++k) {
+  for (std::size_t k = 0; !a.boundary_only && k + 1 < snaps.size(); ++k) {
     const fs::path dir = fs::path(a.out) / ("pass_" + std::to_string(k + 2));
     const io::Raster r = runTo(snaps[k].t, dir, false);
     const std::vector<double> fs_ = band(r, out_surface, g, (dir / "map.tif").string());
@@ -324,6 +340,8 @@ Registrar reg{Command{"eval-strata", [](CLI::App& app, std::function<int()>& run
       ->check(CLI::PositiveNumber);
   sub->add_option("--out,-o", a->out, "Output folder");
   sub->add_option("--threads,-j", a->threads, "Worker threads")->check(CLI::Range(1, 256));
+  sub->add_flag("--boundary-only", a->boundary_only, "Skip the per-pass runs: the boundary figure from the full run only");
+  sub->add_option("--set", a->set, "Numeric octomap_strata parameter for this run, KEY=VALUE (repeatable)");
   sub->add_flag("--quiet,-q", a->quiet, "Print nothing but errors");
   sub->callback([&run, a] { run = [a]() -> int { return runEvalStrata(*a); }; });
 }}};

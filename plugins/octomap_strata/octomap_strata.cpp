@@ -312,6 +312,7 @@ void OctomapStrata::computeCells(ProcessContext& ctx, const std::vector<Eigen::V
       return;
     }
     const CellRect r = map.tileRect(t);
+    strata::VoxelCache cache;  // this tile's cells pool overlapping columns
     std::array<float*, soil::kSoilParamCount> m{}, v{};
     std::array<const float*, soil::kSoilParamCount> sm{}, sv{};
     float *cut = nullptr, *change = nullptr, *change_z = nullptr;
@@ -335,7 +336,7 @@ void OctomapStrata::computeCells(ProcessContext& ctx, const std::vector<Eigen::V
       const double top = st.surfaceAt(p.x(), p.y());
       if (pass == Pass::Change) {
         const double z = std::isfinite(top) ? st.changeHeightAt(p.x(), p.y(), cfg_.change_min_voxels, cfg_.change_min_gain,
-                                                                cfg_.change_radius_m)
+                                                                cfg_.change_radius_m, &cache)
                                             : std::numeric_limits<double>::quiet_NaN();
         change_z[o] = static_cast<float>(z);
         change[o] = static_cast<float>(st.initialSurfaceAt(p.x(), p.y()) - z);

@@ -52,9 +52,9 @@ struct OctomapStrataConfig {
   strata::StrataConfig strata;
   double next_cut_m = 0.2;
   bool surface_fallback = true;
-  int change_min_voxels = 1;
-  double change_min_gain = 0.5;
-  double change_radius_m = 0.25;
+  int change_min_voxels = 2;
+  double change_min_gain = 0.3;
+  double change_radius_m = 0.0;
   double change_interval_s = 5.0;
   std::string save_path, octovis_path, section_png;
   int octovis_param = 0, section_param = 0;

@@ -373,7 +373,7 @@ std::vector<std::pair<double, VoxelBelief>> Strata::columnVoxels(double x, doubl
   return out;
 }
 
-double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gain, double radius_m) const {
+double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gain, double radius_m, VoxelCache* cache) const {
   std::uint32_t key0;
   if (!columnKey(x, y, key0)) return kNaN;
   const double res = cfg_.resolution_m;
@@ -385,11 +385,29 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
   for (int a = -reach; a <= reach; ++a)
     for (int b = -reach; b <= reach; ++b) {
       if ((a * a + b * b) * res * res > radius_m * radius_m + 1e-12) continue;
-      for (const auto& [z, v] : columnVoxels(cx + a * res, cy + b * res)) {
-        if (v.kind != VoxelBelief::kEstimated) continue;
-        auto& l = levels[static_cast<long>(std::floor(z / res))];
+      // The column's estimated voxels as (level, means), from the cache when there is one.
+      std::vector<std::pair<long, std::array<float, kP>>> local;
+      const std::vector<std::pair<long, std::array<float, kP>>>* list = &local;
+      const std::uint32_t key = static_cast<std::uint32_t>(((static_cast<long>(key0 >> 16) + a) << 16) |
+                                                           ((static_cast<long>(key0 & 0xffffu) + b) & 0xffff));
+      auto fill = [&](std::vector<std::pair<long, std::array<float, kP>>>& out) {
+        for (const auto& [z, v] : columnVoxels(cx + a * res, cy + b * res))
+          if (v.kind == VoxelBelief::kEstimated) out.emplace_back(static_cast<long>(std::floor(z / res)), v.mean);
+      };
+      if (cache) {
+        auto it = cache->columns.find(key);
+        if (it == cache->columns.end()) {
+          it = cache->columns.emplace(key, std::vector<std::pair<long, std::array<float, kP>>>{}).first;
+          fill(it->second);
+        }
+        list = &it->second;
+      } else {
+        fill(local);
+      }
+      for (const auto& [level, mean] : *list) {
+        auto& l = levels[level];
         if (l.second == 0) l.first.fill(0.0);
-        for (int q = 0; q < kP; ++q) l.first[q] += v.mean[q] / std::sqrt(cfg_.prior_var[q]);
+        for (int q = 0; q < kP; ++q) l.first[q] += mean[q] / std::sqrt(cfg_.prior_var[q]);
         ++l.second;
       }
     }

@@ -125,6 +125,12 @@ struct StrataCounters {
   long voxels_removed = 0, columns_cut = 0, columns_outside = 0, columns_unknown_surface = 0;
 };
 
+/// Memo of columns' estimated voxels for many changeHeightAt calls over one area (neighbouring
+/// cells pool the same columns). One per thread; stale after any non-const call on the Strata.
+struct VoxelCache {
+  std::unordered_map<std::uint32_t, std::vector<std::pair<long, std::array<float, soil::kSoilParamCount>>>> columns;
+};
+
 class Strata {
  public:
   /// \throws ConfigError on a resolution <= 0, an empty extent, an extent beyond
@@ -163,7 +169,8 @@ class Strata {
   /// standard deviation, summed over the properties. NaN with fewer than 2 × min_voxels
   /// levels, or when the best split explains less than `min_gain` of the spread. The height
   /// returned is halfway between the last level above and the first below the split.
-  double changeHeightAt(double x, double y, int min_voxels = 1, double min_gain = 0.5, double radius_m = 0.0) const;
+  double changeHeightAt(double x, double y, int min_voxels = 1, double min_gain = 0.5, double radius_m = 0.0,
+                        struct VoxelCache* cache = nullptr) const;
   /// changeHeightAt as a depth below the column's initial surface (NaN if either is NaN).
   double changeDepthAt(double x, double y, int min_voxels = 1, double min_gain = 0.5, double radius_m = 0.0) const;
   /// Removed voxel centres of the column, top (shallowest) first, with their beliefs.

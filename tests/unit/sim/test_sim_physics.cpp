@@ -425,6 +425,40 @@ TEST(Ctl, RouteGivesUpAPassItIsStuckInAndTakesTheNextLane) {
   EXPECT_LT(gave_up.first, 3.0) << "and stopped at the berm there too";
 }
 
+TEST(Ctl, CutToGradeDeepensTheLaneByTheStepEveryPass) {
+  // Loose sand, one 6 m lane driven three times to grade: -0.05 m, then -0.10, -0.15 (or with a
+  // step of 0.03 m: -0.03, -0.06, -0.09); the middle of the lane ends at the last grade.
+  auto run = [](double step) {
+    const std::string yaml =
+        std::string("version: 1\nseed: 3\nduration_s: 60\nthreads: 1\n") +
+        "terrain: {size_m: [12, 6], origin_m: [-3, -3], resolution_m: 0.02}\n"
+        "soil: {default: {family: sand, relative_density: 0.1}}\n"
+        "machines:\n  - id: ctl1\n    controller: {type: route, start_m: [0, 0], length_m: 6, spacing_m: 0, passes: 3, "
+        "depth_m: 0.05, speed_mps: 0.6, stall: {raise_rate_mps: 0.0}"
+        ", grade: {first_m: " + std::to_string(step) + ", step_m: " + std::to_string(step) + ", lowest_m: -0.5}}\n";
+    Simulator sim(noiseFree(parseScenario(yaml, "grade.yaml")));
+    std::vector<Event> ev;
+    std::vector<double> edge;  // edge heights while driving forward over x in [3, 5] on pass 0
+    bool reversed = false;
+    while (sim.next(ev)) {
+      ev.clear();
+      const MachineTruth& t = sim.machineTruth(0);
+      if (t.twist_base(0) < -0.05) reversed = true;
+      const double xe = t.T_map_blade.translation().x();
+      if (!reversed && t.twist_base(0) > 0.05 && xe > 3.0 && xe < 5.0) edge.push_back(t.T_map_blade.translation().z());
+    }
+    std::sort(edge.begin(), edge.end());
+    const double median = edge.empty() ? std::nan("") : edge[edge.size() / 2];
+    return std::make_pair(median, sim.truth().undisturbedAt(4.0, 0.0));
+  };
+  const auto [edge5, bank5] = run(-0.05);
+  const auto [edge3, bank3] = run(-0.03);
+  EXPECT_NEAR(edge5, -0.05, 0.02) << "pass 0 holds its grade";
+  EXPECT_NEAR(edge3, -0.03, 0.02);
+  EXPECT_NEAR(bank5, -0.15, 0.03) << "three passes, three steps";
+  EXPECT_NEAR(bank3, -0.09, 0.03);
+}
+
 TEST(Simulator, EventsAreTimeOrderedAndMassIsConserved) {
   Simulator sim(parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 2.0, 2, true), "s.yaml"));
   const double m0 = sim.truth().bankVolume();
