@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <set>
 
@@ -65,6 +66,8 @@ ParamSchema OctomapStrata::schema() const {
                    "upper corner of the extent"),
       param::real("inflation_depth_m", d.strata.inflation_depth_m, 1e-3, 100.0, "m",
                   "the soil below a cut inherits the cut's estimate with its variance grown by exp(depth / this)"),
+      param::text("inherit", "filter", {"filter", "last"},
+                  "the soil below a column: every estimate that cut it, filtered down the column (filter), or the last one"),
       param::integer("max_pending_sweeps", d.strata.max_pending_sweeps, 1, 100000,
                      "sweeps waiting for their estimate; the oldest beyond keep their prediction"),
       param::real("next_cut_m", d.next_cut_m, 1e-3, 10.0, "m", "depth of the cut the strata_next_* layers describe"),
@@ -108,6 +111,7 @@ void OctomapStrata::configure(const Params& p) {
       p.fail("extent_max_m", std::string("must exceed extent_min_m along ") + "xyz"[a]);
   c.strata.inflation_depth_m = p.getDouble("inflation_depth_m");
   c.strata.max_pending_sweeps = static_cast<int>(p.getInt("max_pending_sweeps"));
+  c.strata.filter_inheritance = p.getString("inherit") == "filter";
   for (int k = 0; k < soil::kSoilParamCount; ++k) {
     const std::vector<double>& v = p.getDoubles(kPriorKeys[k]);
     if (!(v[1] > 0.0)) p.fail(kPriorKeys[k], "the prior variance must be above 0");
@@ -374,22 +378,34 @@ void OctomapStrata::writeFiles(ProcessContext& ctx) const {
   const Eigen::Vector2d a(L[0], L[1]), b(L[2], L[3]);
   const double len = (b - a).norm(), res = cfg_.strata.resolution_m;
   if (!(len > 0.0)) throw ConfigError("octomap_strata: section_line_m has zero length");
-  // z range: the cut columns along the line, with 0.5 m of prediction below.
-  double zlo = std::numeric_limits<double>::infinity(), zhi = -zlo;
+  // z range: the cut columns along the line, from the 95th percentile of their first surfaces
+  // down to 0.3 m below the 5th percentile of their surfaces (a few columns first cut under a
+  // pile, or cut off the site's edge, would stretch a min/max range).
   const int ns = std::max(2, static_cast<int>(std::ceil(len / res)));
+  std::vector<double> tops, inits;
   for (int s = 0; s < ns; ++s) {
     const Eigen::Vector2d p = a + (b - a) * ((s + 0.5) / ns);
     const double top = strata_->surfaceAt(p.x(), p.y()), init = strata_->initialSurfaceAt(p.x(), p.y());
-    if (std::isfinite(top)) zlo = std::min(zlo, top - 0.5);
-    if (std::isfinite(init)) zhi = std::max(zhi, init + 2 * res);
+    if (std::isfinite(top)) tops.push_back(top);
+    if (std::isfinite(init)) inits.push_back(init);
+  }
+  double zlo = std::numeric_limits<double>::quiet_NaN(), zhi = zlo;
+  if (!tops.empty()) {
+    std::sort(tops.begin(), tops.end());
+    std::sort(inits.begin(), inits.end());
+    zlo = tops[tops.size() / 20] - 0.3;
+    zhi = inits[inits.size() - 1 - inits.size() / 20] + 2 * res;
   }
   if (!std::isfinite(zlo) || !std::isfinite(zhi)) {
     ctx.countDrop("section_nothing_cut");
     return;
   }
-  const int nz = std::max(2, static_cast<int>(std::ceil((zhi - zlo) / res)));
-  // Geometry rows run along x (distance), columns along y (height, z = zlo + (j + 0.5) res).
-  const Geometry g(res, Size(ns, nz), Position(0.5 * ns * res, zlo + 0.5 * nz * res));
+  // Heights are exaggerated so the strata show on a long line: the z extent fills about half of
+  // the picture's length (at most 20 times).
+  const double exaggeration = std::clamp(std::floor(len / (2.0 * (zhi - zlo))), 1.0, 20.0);
+  const int nz = std::max(2, static_cast<int>(std::ceil((zhi - zlo) * exaggeration / res)));
+  // Geometry rows run along x (distance), columns along y: y = (z - zlo) * exaggeration.
+  const Geometry g(res, Size(ns, nz), Position(0.5 * ns * res, 0.5 * nz * res));
   LayeredMap sec(g);
   const LayeredMap& map = ctx.map();
   auto bankAt = [&](const Eigen::Vector2d& p) {
@@ -402,24 +418,29 @@ void OctomapStrata::writeFiles(ProcessContext& ctx) const {
   const std::string layer = std::string("strata_") + info.name;
   const LayerId id = sec.addLayer(layer, info.unit);
   for (int s = 0; s < ns; ++s) {
-    const Eigen::Vector2d p = a + (b - a) * ((s + 0.5) / ns);
+    // Distance along the line from the cell's x (logical rows run towards -x).
+    const Eigen::Vector2d p = a + (b - a) * (g.positionOf(Index(s, 0)).x() / (ns * res));
     for (int j = 0; j < nz; ++j) {
-      const Position q = g.positionOf(Index(s, j));
-      const strata::SoilBelief sb = strata_->soilAt(p.x(), p.y(), q.y());
+      const double z = zlo + g.positionOf(Index(s, j)).y() / exaggeration;
+      const strata::SoilBelief sb = strata_->soilAt(p.x(), p.y(), z);
       if (sb.source == strata::SoilSource::Air || sb.source == strata::SoilSource::Outside) continue;
       // A column never cut has no surface of its own: the prior below the map's bank surface.
-      if (sb.source == strata::SoilSource::Prior && !(q.y() <= bankAt(p))) continue;
+      if (sb.source == strata::SoilSource::Prior && !(z <= bankAt(p))) continue;
       sec.set(id, Index(s, j), static_cast<float>(sb.mean[static_cast<std::size_t>(cfg_.section_param)]));
     }
   }
   io::RenderOptions ro;
   ro.range = io::ValueRange{static_cast<float>(info.lo), static_cast<float>(info.hi)};
-  ro.scale = std::max(1, static_cast<int>(std::lround(0.02 / res * 4)));
+  ro.scale = std::clamp(static_cast<int>(std::lround(700.0 / ns)), 1, 16);  // about 700 pixels long
   io::Annotation an;
   an.title = std::string("strata ") + info.name + " along (" + std::to_string(L[0]).substr(0, 5) + ", " +
              std::to_string(L[1]).substr(0, 5) + ") -> (" + std::to_string(L[2]).substr(0, 5) + ", " +
              std::to_string(L[3]).substr(0, 5) + ")";
-  an.caption = "horizontal: distance along the line; vertical: height z; blank = air or nothing known";
+  char cap[200];
+  std::snprintf(cap, sizeof cap,
+                "horizontal: distance along the line; vertical: height z from %.2f to %.2f m, exaggerated %.0fx; blank = air or nothing known",
+                zlo, zhi, exaggeration);
+  an.caption = cap;
   io::renderPng(sec, layer, cfg_.section_png, ro, an);
 }
 

@@ -260,9 +260,21 @@ void Strata::resolve(long sweep, const std::vector<PendingColumn>& cols, const S
     }
     Column& col = columns_[pc.column];
     if (sweep > col.inherit_sweep) {
+      if (cfg_.filter_inheritance && col.inherit_sweep >= 0) {
+        // A Kalman filter down the column: the belief inherited so far, carried from its anchor
+        // to the new one (variance × exp(Δz / L)), times the new estimate.
+        const double f = std::exp(std::max(0.0, static_cast<double>(col.anchor) - pc.bottom) / cfg_.inflation_depth_m);
+        for (int q = 0; q < kP; ++q) {
+          double m = col.inherit_mean[q], v = col.inherit_var[q] * f;
+          fuse(m, v, (*mean)[q], (*var)[q]);
+          col.inherit_mean[q] = m;
+          col.inherit_var[q] = v;
+        }
+      } else {
+        col.inherit_mean = *mean;
+        col.inherit_var = *var;
+      }
       col.inherit_sweep = sweep;
-      col.inherit_mean = *mean;
-      col.inherit_var = *var;
       col.anchor = pc.bottom;
     }
   }

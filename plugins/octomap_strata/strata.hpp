@@ -13,8 +13,10 @@
 ///    lowest height a blade's edge has cut the column to; NaN until a sweep first cuts it;
 ///  - `initial`: the bank surface when a sweep first cut it (depths below it are the strata's
 ///    depths), taken from the sweep's fitted surface line at the cell;
-///  - an inherited belief: the estimate of the last sweep that removed soil from the column,
-///    anchored at the surface that sweep left (`anchor`).
+///  - an inherited belief, anchored at the surface the last sweep that removed soil from the
+///    column left (`anchor`): that sweep's estimate, filtered with the earlier ones (each carried
+///    down to the new anchor with its variance inflated by exp(Δz / L)) unless
+///    `filter_inheritance` is off.
 /// Removed soil: a sweep removes, in every column it cut, the voxels whose centres lie between
 /// the new surface (the swept volume's bottom, SweepMaskCell::sv_bottom_m) and `top`. When the
 /// sweep's estimate arrives (it is published later, SoilEstimateRecord), those voxels take the
@@ -105,9 +107,13 @@ struct StrataConfig {
   double resolution_m = 0.05;  ///< voxel edge (m)
   /// Extent in the map frame (m): columns and voxels outside are ignored (counted).
   Eigen::Vector3d min_m{-50, -50, -20}, max_m{50, 50, 20};
-  double inflation_depth_m = 0.2;  ///< L: the inherited variance grows by e per L of depth
+  double inflation_depth_m = 0.1;  ///< L: the inherited variance grows by e per L of depth
   SoilVector prior_mean{}, prior_var{};  ///< must be finite, variances > 0
   int max_pending_sweeps = 256;    ///< sweeps waiting for their estimate; older ones resolve as Predicted
+  /// true: a column's inherited belief filters every estimate that removed soil from it (the
+  /// previous belief carried down to the new anchor with its variance × exp(Δz / L), times the
+  /// new estimate); false: the last estimate alone.
+  bool filter_inheritance = true;
 };
 
 /// One cut cell of a sweep, as the strata need it (from SweepRecord's mask and slices).

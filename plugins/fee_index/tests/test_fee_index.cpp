@@ -2,6 +2,8 @@
 // a soil patch, incremental recomputation of changed tiles only, bit-identity at 1 and 2 threads.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -167,3 +169,40 @@ TEST(FeeIndex, BitIdenticalAtOneAndTwoThreads) {
 }
 
 }  // namespace
+
+TEST(FeeIndex, AnotherSoilPrefixFeedsAnotherOutput) {
+  // Two soils on one map (the surface's and the strata's next cut): each instance reads its own
+  // layers and writes its own index.
+  LayeredMap map(Geometry(0.05, Size(40, 40)), MapOptions{32});
+  Executor ex(1);
+  RecordBus bus;
+  PluginStats stats;
+  ChangeTracker tracker;
+  ProcessContext ctx(map, ex, bus, stats, "next");
+  ctx.setTracker(&tracker);
+  FeeIndex plugin;
+  plugin.configure(makeParams("next", plugin.schema(),
+                              {{"soil_prefix", ParamValue{std::string("strata_next_")}}, {"output", ParamValue{std::string("fee_next")}}}));
+  std::vector<std::string> read, created;
+  for (const LayerSpec& l : plugin.layers()) (l.access == LayerAccess::Create ? created : read).push_back(l.name);
+  EXPECT_EQ(created, (std::vector<std::string>{"fee_next", "fee_next_var"}));
+  EXPECT_NE(std::find(read.begin(), read.end(), "strata_next_phi_var"), read.end());
+  EXPECT_EQ(std::find(read.begin(), read.end(), "soil_c"), read.end());
+  const char* names[5] = {"strata_next_c", "strata_next_phi", "strata_next_gamma", "strata_next_ca", "strata_next_delta"};
+  const double m[5] = {kClay.c_pa, kClay.phi_rad, kClay.gamma_n_m3, kClay.ca_pa, kClay.delta_rad};
+  for (int k = 0; k < 5; ++k) {
+    map.addLayer(names[k], "");
+    map.addLayer(std::string(names[k]) + "_var", "");
+  }
+  for (const std::string& l : created) map.addLayer(l, "");
+  plugin.start(ctx);
+  for (int k = 0; k < 5; ++k) {
+    map.set(map.layerId(names[k]), Index(5, 5), static_cast<float>(m[k]));
+    map.set(map.layerId(std::string(names[k]) + "_var"), Index(5, 5), 1.0f);
+  }
+  plugin.process(ctx, Tick{});
+  const fee::Soil s{static_cast<float>(kClay.c_pa), static_cast<float>(kClay.phi_rad), static_cast<float>(kClay.gamma_n_m3),
+                    static_cast<float>(kClay.ca_pa), static_cast<float>(kClay.delta_rad)};
+  EXPECT_FLOAT_EQ(map.at(map.layerId("fee_next"), Index(5, 5)),
+                  static_cast<float>(feeIndexOf(s, fee::Soil{1, 1, 1, 1, 1}, FeeIndexConfig{}).index_n));
+}

@@ -106,6 +106,37 @@ TEST(Strata, TheSoilBelowInheritsTheEstimateWithVarianceInflatedByDepth) {
   EXPECT_NEAR(s.soilAt(0.025, 0.025, -2.0).mean[0], 30e3, 1e3);
 }
 
+TEST(Strata, TheInheritedBeliefFiltersEveryEstimateDownTheColumn) {
+  const SoilVector second{30e3, 0.4, 8e3, 0.3, 18e3};
+  for (const bool filter : {true, false}) {
+    StrataConfig c = config();
+    c.filter_inheritance = filter;
+    Strata s(c);
+    s.applyCut(1, {cell(0.025, 0.025, 1.0, 0.9)});
+    s.assignEstimate(1, &kEst, &kEstVar);
+    s.applyCut(2, {cell(0.025, 0.025, 0.9, 0.8)});
+    s.assignEstimate(2, &second, &kEstVar);
+    // By hand: estimate 1 carried from 0.9 to 0.8 (variance × e^(0.1/0.2)), times estimate 2;
+    // then, at z = 0.7, that carried another 0.1 m and times the prior.
+    const double a0 = 0.9f, a1 = 0.8f;
+    for (int q = 0; q < 5; ++q) {
+      double m = kEst[q], v = kEstVar[q] * std::exp((a0 - a1) / 0.2);
+      if (filter) {
+        const double mm = fusedMean(m, v, second[q], kEstVar[q]), vv = fusedVar(v, kEstVar[q]);
+        m = mm;
+        v = vv;
+      } else {
+        m = second[q];
+        v = kEstVar[q];
+      }
+      const double f = std::exp((a1 - 0.7) / 0.2);
+      const SoilBelief b = s.soilAt(0.025, 0.025, 0.7);
+      EXPECT_NEAR(b.mean[q], fusedMean(c.prior_mean[q], c.prior_var[q], m, v * f), 1e-9 * std::abs(c.prior_mean[q])) << q << filter;
+      EXPECT_NEAR(b.var[q], fusedVar(c.prior_var[q], v * f), 1e-9 * c.prior_var[q]) << q << filter;
+    }
+  }
+}
+
 TEST(Strata, AnInvalidEstimateLeavesThePredictionAndNoInheritance) {
   Strata s(config());
   s.applyCut(1, {cell(0.025, 0.025, 1.0, 0.8)});
@@ -377,7 +408,7 @@ struct Harness {
 
 TEST(OctomapStrataPlugin, LayersShowTheNextCutTheRemovedDepthAndTheChange) {
   Harness h(1, {{"change_min_voxels", ParamValue{2L}}, {"change_radius_m", ParamValue{0.0}},
-                {"change_interval_s", ParamValue{0.0}}});
+                {"change_interval_s", ParamValue{0.0}}, {"inherit", ParamValue{std::string("last")}}});
   // Four passes over the same strip, 0.1 m each; the soil turns from 8 to 55 kPa after two.
   const double c[4] = {8e3, 8e3, 55e3, 55e3};
   for (int k = 0; k < 4; ++k) {
