@@ -109,6 +109,23 @@ void StrataTree::setLeaf(const octomap::OcTreeKey& key, const VoxelBelief& value
   node->setValue(value);
 }
 
+void StrataTree::pruneAbove(const octomap::OcTreeKey& key) {
+  if (!root) return;
+  StrataNode* path[32];
+  int n = 0;
+  StrataNode* node = root;
+  path[n++] = node;
+  for (int depth = static_cast<int>(tree_depth) - 1; depth >= 0 && nodeHasChildren(node); --depth) {
+    const unsigned int pos = octomap::computeChildIdx(key, depth);
+    if (!nodeChildExists(node, pos)) break;
+    node = getNodeChild(node, pos);
+    path[n++] = node;
+  }
+  // path[n - 1] is the leaf (or the pruned region holding it): try its parents upwards.
+  for (int k = n - 2; k >= 0; --k)
+    if (!pruneNode(path[k])) break;
+}
+
 Strata::Strata(const StrataConfig& config) : cfg_(config), tree_(config.resolution_m > 0 ? config.resolution_m : 1.0) {
   if (!(cfg_.resolution_m > 0.0) || !std::isfinite(cfg_.resolution_m))
     throw ConfigError("octomap_strata: resolution_m must be above 0");
@@ -258,6 +275,10 @@ void Strata::resolve(long sweep, const std::vector<PendingColumn>& cols, const S
       vk[2] = static_cast<octomap::key_type>(k);
       tree_.setLeaf(vk, v);
     }
+    for (long k = pc.k_lo; k <= pc.k_hi; ++k) {
+      vk[2] = static_cast<octomap::key_type>(k);
+      tree_.pruneAbove(vk);
+    }
     Column& col = columns_[pc.column];
     if (sweep > col.inherit_sweep) {
       if (cfg_.filter_inheritance && col.inherit_sweep >= 0) {
@@ -291,7 +312,6 @@ long Strata::assignEstimate(long sweep, const SoilVector* mean, const SoilVector
   for (const PendingColumn& pc : it->second) n += pc.k_hi - pc.k_lo + 1;
   resolve(sweep, it->second, mean, var);
   pending_.erase(it);
-  tree_.prune();
   return n;
 }
 

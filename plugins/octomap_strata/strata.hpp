@@ -82,6 +82,9 @@ class StrataTree : public octomap::OcTreeBaseImpl<StrataNode, octomap::AbstractO
   std::string getTreeType() const override { return "TerramapStrataTree"; }
   /// Sets the leaf at `key` (creating its path, expanding a pruned parent on the way).
   void setLeaf(const octomap::OcTreeKey& key, const VoxelBelief& value);
+  /// Prunes the ancestors of the leaf at `key`, bottom up, while they are collapsible: the
+  /// part of prune() a write can have changed, in O(depth) instead of the whole tree.
+  void pruneAbove(const octomap::OcTreeKey& key);
   /// Key of the cell whose lower corner is at 0 (keys are offset by it).
   unsigned int keyOffset() const { return tree_max_val; }
 };
@@ -189,7 +192,7 @@ class Strata {
   /// Tree nodes and an estimate of the bytes the tree and the columns hold.
   std::size_t nodes() const { return tree_.size(); }
   std::size_t memoryBytes() const;
-  /// Prunes uniform regions of the tree (called by assignEstimate; cheap when nothing changed).
+  /// Prunes uniform regions of the whole tree (assignEstimate prunes above what it wrote).
   void prune() { tree_.prune(); }
 
   /// Writes the whole model atomically: an OctoMap `.ot` (id TerramapStrataTree) followed by a
