@@ -39,7 +39,7 @@ namespace fs = std::filesystem;
 struct StrataArgs {
   std::string scenario, pipeline, model, out = "out/eval_strata", zone;
   int threads = 0;
-  double min_cut_m = 0.02;
+  double min_cut_m = 0.02, duration = -1;
   bool quiet = false, boundary_only = false;
   std::vector<std::string> set;  ///< strata stage parameters, KEY=VALUE (numbers)
 };
@@ -168,7 +168,8 @@ int runEvalStrata(const StrataArgs& a) {
     throw ConfigError(spec.file + ": eval-strata needs a `sim` source (it compares with the simulator's truth)");
   const std::string scenario = fs::absolute(a.scenario).string();
   spec.source.settings["scenario"] = RawParam{ParamValue{scenario}, "eval-strata SCENARIO"};
-  const sim::Scenario sc = sim::loadScenario(scenario);
+  sim::Scenario sc = sim::loadScenario(scenario);
+  if (a.duration > 0) sc.duration_s = std::min(sc.duration_s, a.duration);
   // The zone whose top is the boundary: --zone, else the first zone that starts below the surface.
   const sim::SoilZone* zone = nullptr;
   for (const sim::SoilZone& z : sc.zones)
@@ -339,6 +340,7 @@ Registrar reg{Command{"eval-strata", [](CLI::App& app, std::function<int()>& run
   sub->add_option("--min-cut", a->min_cut_m, "A pass must remove at least this much bank soil from a cell (m)")
       ->check(CLI::PositiveNumber);
   sub->add_option("--out,-o", a->out, "Output folder");
+  sub->add_option("--duration", a->duration, "Simulate at most this many seconds")->check(CLI::PositiveNumber);
   sub->add_option("--threads,-j", a->threads, "Worker threads")->check(CLI::Range(1, 256));
   sub->add_flag("--boundary-only", a->boundary_only, "Skip the per-pass runs: the boundary figure from the full run only");
   sub->add_option("--set", a->set, "Numeric octomap_strata parameter for this run, KEY=VALUE (repeatable)");

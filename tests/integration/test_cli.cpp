@@ -25,7 +25,7 @@ using namespace terramap_test;
 
 TEST(Cli, HelpEverywhere) {
   for (const char* sub : {"", "run", "validate", "plugins", "export", "fee", "sim", "eval", "dataset", "train", "eval-soil",
-                          "eval-soil-map"}) {
+                          "eval-soil-map", "eval-strata"}) {
     const Result r = sh(std::string(sub) + " --help");
     EXPECT_EQ(r.code, 0) << sub << "\n" << r.out;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub;
@@ -189,6 +189,30 @@ TEST(Cli, EvalSoilMapComparesTheSoilLayersWithTheTruthZones) {
   EXPECT_TRUE(fs::exists(d / "fee_index.png"));
   // A scenario path that does not exist is a usage error.
   EXPECT_EQ(sh("eval-soil-map /nonexistent.yaml").code, 2);
+}
+
+TEST(Cli, EvalStrataComparesTheNextPassIndicesAndTheBoundaryWithTheTruth) {
+  // The strata's command on the first three passes (35 s) of its scenario.
+  const fs::path d = tempDir("eval_strata");
+  const std::string scen = std::string(TERRAMAP_SOURCE_DIR) + "/configs/scenarios/strata_loam_over_clay.yaml";
+  const Result r = sh("eval-strata " + scen + " --duration 35 --out " + d.string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("surface MAE"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("boundary (top of 'clay')"), std::string::npos) << r.out;
+  const auto j = nlohmann::json::parse(std::ifstream(d / "eval_strata.json"));
+  ASSERT_GE(j["next_pass"]["passes"].size(), 2u) << j.dump(1);
+  const auto& first = j["next_pass"]["passes"][0];
+  EXPECT_EQ(first["pass"].get<int>(), 2);
+  EXPECT_GT(first["surface"]["cells"].get<long>(), 100);
+  EXPECT_EQ(first["surface"]["cells"], first["strata"]["cells"]);  // the same cells judged twice
+  EXPECT_GT(j["next_pass"]["strata"]["mae_n"].get<double>(), 0.0);
+  EXPECT_TRUE(j["boundary"].contains("columns_cut_through"));
+  for (const char* f : {"strata.ot", "strata_octovis.ot", "section_c.png", "map.tif"}) EXPECT_TRUE(fs::exists(d / f)) << f;
+  // A pipeline without an octomap_strata stage is a configuration error naming what is missing.
+  const Result bad = sh("eval-strata " + scen + " --pipeline " + std::string(TERRAMAP_SOURCE_DIR) + "/configs/soil_map.yaml --out " +
+                        d.string());
+  EXPECT_EQ(bad.code, 3) << bad.out;
+  EXPECT_NE(bad.out.find("octomap_strata"), std::string::npos) << bad.out;
 }
 
 TEST(Cli, EmbeddedDemoWritesGeoTiffPngAndReport) {
