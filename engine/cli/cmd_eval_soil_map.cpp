@@ -4,6 +4,7 @@
 // (eval/truth_report.hpp): per property the error and calibration of the soil layers, per soil
 // zone the FEE index and its AUC against the default soil.
 #include "command.hpp"
+#include "fee_stage.hpp"
 
 #include <terramap/core/error.hpp>
 #include <terramap/eval/truth_report.hpp>
@@ -37,22 +38,10 @@ struct SoilMapArgs {
 
 double num(const nlohmann::json& j) { return j.is_number() ? j.get<double>() : std::nan(""); }
 
-/// The reference cut of the pipeline's fee_index stage: its parameters, defaults from the
-/// plugin's own schema. Empty without a fee_index stage.
+/// The reference cut of the pipeline's (first) fee_index stage; empty without one.
 std::optional<soil::FeeIndexConfig> referenceCut(const PipelineSpec& spec) {
-  for (const StageSpec& st : spec.stages) {
-    if (st.type != "fee_index") continue;
-    const PluginHandle h = PluginRegistry(spec.plugin_paths).create("fee_index");
-    std::map<std::string, ParamValue> given;
-    for (const auto& [k, v] : st.params) given[k] = v.value;
-    const Params p = makeParams("fee_index", h->schema(), given);
-    soil::FeeIndexConfig c;
-    c.geometry = {p.getDouble("alpha_rad"), p.getDouble("rho_rad"), p.getDouble("d_m"), p.getDouble("w_m"),
-                  p.getDouble("q_n")};
-    c.beta_min = p.getString("beta") == "min";
-    c.horizontal = p.getString("component") == "horizontal";
-    return c;
-  }
+  for (const StageSpec& st : spec.stages)
+    if (st.type == "fee_index") return feeIndexConfigOf(spec, st);
   return std::nullopt;
 }
 

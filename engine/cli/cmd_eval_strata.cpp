@@ -10,6 +10,7 @@
 // reverse to forward); the map at each pass start from a run of the pipeline up to it (the
 // simulator is deterministic per seed, so that run is the full run's beginning).
 #include "command.hpp"
+#include "fee_stage.hpp"
 
 #include <terramap/core/error.hpp>
 #include <terramap/io/geotiff.hpp>
@@ -127,18 +128,6 @@ fee::Soil truthSoilBetween(const sim::SoilField& f, double x, double y, double d
   return s;
 }
 
-soil::FeeIndexConfig cutOf(const PipelineSpec& spec, const StageSpec& st) {
-  const PluginHandle h = PluginRegistry(spec.plugin_paths).create("fee_index");
-  std::map<std::string, ParamValue> given;
-  for (const auto& [k, v] : st.params) given[k] = v.value;
-  const Params p = makeParams("fee_index", h->schema(), given);
-  soil::FeeIndexConfig c;
-  c.geometry = {p.getDouble("alpha_rad"), p.getDouble("rho_rad"), p.getDouble("d_m"), p.getDouble("w_m"), p.getDouble("q_n")};
-  c.beta_min = p.getString("beta") == "min";
-  c.horizontal = p.getString("component") == "horizontal";
-  return c;
-}
-
 std::string paramText(const StageSpec& st, const std::string& key, const std::string& def) {
   const auto it = st.params.find(key);
   if (it == st.params.end()) return def;
@@ -208,7 +197,7 @@ int runEvalStrata(const StrataArgs& a) {
     throw ConfigError(spec.file + ": eval-strata needs an octomap_strata stage and two fee_index stages, one over "
                       "soil_* and one with soil_prefix: strata_next_");
   const std::string out_surface = paramText(*surface, "output", "fee_index"), out_next = paramText(*next, "output", "fee_index");
-  const soil::FeeIndexConfig cut = cutOf(spec, *surface);
+  const soil::FeeIndexConfig cut = feeIndexConfigOf(spec, *surface);
   const Geometry g = spec.geometry();
   const double voxel = [&] {
     const auto it = strata->params.find("resolution_m");

@@ -3,6 +3,7 @@
 
 #include <terramap/core/error.hpp>
 #include <terramap/io/render.hpp>
+#include <terramap/soil/prior_params.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -15,8 +16,6 @@ namespace terramap::plugins {
 namespace {
 
 constexpr float kNaNf = std::numeric_limits<float>::quiet_NaN();
-constexpr const char* kPriorKeys[soil::kSoilParamCount] = {"prior_c_pa", "prior_phi_rad", "prior_ca_pa",
-                                                            "prior_delta_rad", "prior_gamma_n_m3"};
 std::string squared(const std::string& unit) { return unit.find('^') == std::string::npos ? unit + "^2" : "(" + unit + ")^2"; }
 
 std::vector<std::string> paramNames() {
@@ -90,12 +89,7 @@ ParamSchema OctomapStrata::schema() const {
       param::reals("section_line_m", {0, 0, 1, 0}, 4, -1e5, 1e5, "m", "cross-section from (x0, y0) to (x1, y1)"),
       param::text("section_param", "c", paramNames(), "soil property the cross-section shows"),
   };
-  for (int k = 0; k < soil::kSoilParamCount; ++k) {
-    const soil::SoilParamInfo& info = soil::kSoilParams[k];
-    const double mid = 0.5 * (info.lo + info.hi), span = info.hi - info.lo;
-    s.push_back(param::reals(kPriorKeys[k], {mid, span * span / 12.0}, 2, 0.0, 1e12, info.unit,
-                             std::string("prior [mean, variance] of ") + info.name + " where no estimate reached"));
-  }
+  soil::addPriorParams(s, "where no estimate reached");
   return s;
 }
 
@@ -112,12 +106,7 @@ void OctomapStrata::configure(const Params& p) {
   c.strata.inflation_depth_m = p.getDouble("inflation_depth_m");
   c.strata.max_pending_sweeps = static_cast<int>(p.getInt("max_pending_sweeps"));
   c.strata.filter_inheritance = p.getString("inherit") == "filter";
-  for (int k = 0; k < soil::kSoilParamCount; ++k) {
-    const std::vector<double>& v = p.getDoubles(kPriorKeys[k]);
-    if (!(v[1] > 0.0)) p.fail(kPriorKeys[k], "the prior variance must be above 0");
-    c.strata.prior_mean[static_cast<std::size_t>(k)] = v[0];
-    c.strata.prior_var[static_cast<std::size_t>(k)] = v[1];
-  }
+  soil::readPriorParams(p, c.strata.prior_mean, c.strata.prior_var);
   c.next_cut_m = p.getDouble("next_cut_m");
   c.surface_fallback = p.getBool("surface_fallback");
   c.change_min_voxels = static_cast<int>(p.getInt("change_min_voxels"));

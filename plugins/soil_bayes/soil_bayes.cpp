@@ -2,6 +2,7 @@
 #include "soil_bayes.hpp"
 
 #include <terramap/core/map_window.hpp>
+#include <terramap/soil/prior_params.hpp>
 #include <terramap/soil/soil_parameters.hpp>
 
 #include <algorithm>
@@ -20,10 +21,6 @@ constexpr const char* kDocs[SoilEstimateRecord::kCount] = {
     "soil-blade adhesion c_a (posterior mean)",
     "soil-blade friction angle delta (posterior mean)",
     "unit weight gamma (posterior mean)"};
-// Parameter names of the priors. Their wide defaults: the uniform distribution over the soil
-// estimator's physical ranges (soil::kSoilParams): mean the middle, variance span² / 12.
-constexpr const char* kPriorKeys[SoilEstimateRecord::kCount] = {"prior_c_pa", "prior_phi_rad", "prior_ca_pa",
-                                                                 "prior_delta_rad", "prior_gamma_n_m3"};
 static_assert(int{SoilEstimateRecord::kCount} == int{soil::kSoilParamCount} &&
                   int{SoilEstimateRecord::kCa} == int{soil::kParamCa} &&
                   int{SoilEstimateRecord::kGamma} == int{soil::kParamGamma},
@@ -62,12 +59,7 @@ ParamSchema SoilBayes::schema() const {
                   "a cut this much below the surface the soil was fused at inflates the variances "
                   "by exp(depth / cut_depth_m)"),
   };
-  for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
-    const soil::SoilParamInfo& info = soil::kSoilParams[k];
-    const double mid = 0.5 * (info.lo + info.hi), span = info.hi - info.lo;
-    s.push_back(param::reals(kPriorKeys[k], {mid, span * span / 12.0}, 2, 0.0, 1e12, info.unit,
-                             std::string("prior [mean, variance] of ") + info.layer));
-  }
+  soil::addPriorParams(s, "in a cell no estimate reached yet");
   return s;
 }
 
@@ -76,12 +68,7 @@ void SoilBayes::configure(const Params& p) {
   cfg_.x_min_m = p.getDouble("x_min_m");
   cfg_.use_prior = p.getString("prior") == "config";
   cfg_.cut_depth_m = p.getDouble("cut_depth_m");
-  for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
-    const std::vector<double>& v = p.getDoubles(kPriorKeys[k]);
-    if (!(v[1] > 0.0)) p.fail(kPriorKeys[k], "the prior variance must be above 0");
-    cfg_.prior_mean[static_cast<std::size_t>(k)] = v[0];
-    cfg_.prior_var[static_cast<std::size_t>(k)] = v[1];
-  }
+  soil::readPriorParams(p, cfg_.prior_mean, cfg_.prior_var);
 }
 
 std::vector<LayerSpec> SoilBayes::layers() const {
