@@ -7,6 +7,9 @@
 #include "fee_stage.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/core/layered_map.hpp>
+#include <terramap/pipeline/source.hpp>
+#include <terramap/io/render.hpp>
 #include <terramap/eval/truth_report.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/pipeline/plugin_loader.hpp>
@@ -17,6 +20,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -94,6 +99,53 @@ void printSoil(const nlohmann::json& truth_soil, const sim::Scenario& sc, const 
   }
 }
 
+/// The index a perfect estimator would map (`truth_fee_index`: the reference cut on the truth
+/// soil at each cell's surface), and `fee_index_vs_truth.png`: the mapped and the truth index
+/// side by side on one colour range, the truth's soil zones outlined on both (paper Fig. 12).
+void addTruthIndex(LayeredMap& map, const Source& src, const soil::FeeIndexConfig& cut, const fs::path& out,
+                   TruthComparison& tc) {
+  const Geometry& g = map.geometry();
+  std::array<Eigen::MatrixXf, soil::kSoilParamCount> truth;
+  for (int k = 0; k < soil::kSoilParamCount; ++k) {
+    truth[static_cast<std::size_t>(k)].resize(g.size().x(), g.size().y());
+    if (!src.truth(soil::kSoilParams[k].layer, g, truth[static_cast<std::size_t>(k)])) return;
+  }
+  const LayerId id = map.addLayer("truth_fee_index", "N");
+  for (int i = 0; i < g.size().x(); ++i)
+    for (int j = 0; j < g.size().y(); ++j) {
+      soil::SoilParamVector v{};
+      for (int k = 0; k < soil::kSoilParamCount; ++k) v[static_cast<std::size_t>(k)] = truth[static_cast<std::size_t>(k)](i, j);
+      const double f = std::isfinite(v[0]) ? soil::feeIndexOf(soil::toFee(v), fee::Soil{}, cut).index_n : std::nan("");
+      map.set(id, Index(i, j), static_cast<float>(f));
+    }
+  tc.layers.push_back("truth_fee_index");
+  // One colour range for both pictures: the mapped index's cells and the truth's.
+  const io::ValueRange a = io::robustRange(map, map.layerId("fee_index")), b = io::robustRange(map, id, 0.0, 100.0);
+  io::RenderOptions ro;
+  ro.range = io::ValueRange{std::min(a.min, b.min), std::max(a.max, b.max)};
+  ro.scale = std::max(1, 600 / std::max(g.size().x(), g.size().y()));
+  ro.nan_color = io::Rgba{128, 128, 128, 255};
+  io::Annotation an;
+  an.outline_regions = map.hasLayer("truth_soil_zone") ? "truth_soil_zone" : "";
+  an.title = "fee_index: mapped [kN]";
+  an.caption = "white lines: the simulator's soil zones";
+  const io::Image left = io::renderPicture(map, "fee_index", ro, an);
+  an.title = "truth_fee_index: the truth soil [kN]";
+  const io::Image right = io::renderPicture(map, "truth_fee_index", ro, an);
+  io::Image both;
+  both.width = left.width + right.width;
+  both.height = std::max(left.height, right.height);
+  both.rgba.assign(static_cast<std::size_t>(both.width) * static_cast<std::size_t>(both.height) * 4, 255);
+  auto blit = [&](const io::Image& im, int x0) {
+    for (int r = 0; r < im.height; ++r)
+      std::copy_n(im.rgba.begin() + static_cast<std::ptrdiff_t>(r) * im.width * 4, im.width * 4,
+                  both.rgba.begin() + (static_cast<std::ptrdiff_t>(r) * both.width + x0) * 4);
+  };
+  blit(left, 0);
+  blit(right, left.width);
+  io::writePng(both, out / "fee_index_vs_truth.png");
+}
+
 Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& run) {
   auto a = std::make_shared<SoilMapArgs>();
   auto* sub = app.add_subcommand("eval-soil-map",
@@ -101,8 +153,9 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
       "configs/soil_map.yaml (LiDAR, blade, erosion, soil_pinn, soil_bayes, fee_index) and print\n"
       "the soil layers' error and calibration per property and the FEE index per soil zone with\n"
       "its AUC against the default soil. Writes the run's outputs to --out: map.tif (with\n"
-      "truth_soil_zone), fee_index.png and soil_*.png with the zones outlined, report.json\n"
-      "(truth.soil holds every figure printed).");
+      "truth_soil_zone and truth_fee_index, the index of the truth soil), fee_index.png and\n"
+      "soil_*.png with the zones outlined, fee_index_vs_truth.png (mapped and truth index side by\n"
+      "side on one colour range), report.json (truth.soil holds every figure printed).");
   sub->add_option("scenario", a->scenario, "Scenario YAML")->required()->check(CLI::ExistingFile);
   sub->add_option("--pipeline", a->pipeline, "Pipeline YAML (default: configs/soil_map.yaml of the source tree)");
   sub->add_option("--model", a->model,
@@ -130,7 +183,16 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
       RunOptions o;
       o.out_dir = a->out;
       o.threads = a->threads;
-      o.compare_truth = eval::compareWithSourceTruth;
+      const std::optional<soil::FeeIndexConfig> cut = referenceCut(spec);
+      const fs::path out = a->out;
+      o.compare_truth = [cut, out](LayeredMap& map, const Source& src) {
+        TruthComparison tc = eval::compareWithSourceTruth(map, src);
+        if (cut && map.hasLayer("fee_index")) {
+          fs::create_directories(out);
+          addTruthIndex(map, src, *cut, out, tc);
+        }
+        return tc;
+      };
       const RunResult r = runPipeline(spec, o);
       const nlohmann::json truth = r.truth_json.empty() ? nlohmann::json() : nlohmann::json::parse(r.truth_json);
       if (!truth.contains("soil"))
@@ -138,7 +200,8 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
       if (!a->quiet) {
         std::printf("eval-soil-map %s: %.1f s wall, outputs in %s\n", a->scenario.c_str(), r.report.wall_s,
                     r.out_dir.c_str());
-        printSoil(truth["soil"], sim::loadScenario(scenario), referenceCut(spec));
+        printSoil(truth["soil"], sim::loadScenario(scenario), cut);
+        if (fs::exists(out / "fee_index_vs_truth.png")) std::printf("wrote %s\n", (out / "fee_index_vs_truth.png").string().c_str());
       }
       return kOk;
     };

@@ -187,6 +187,18 @@ TEST(Cli, EvalSoilMapComparesTheSoilLayersWithTheTruthZones) {
   EXPECT_GT(soil["cells_estimated"].get<long>(), 100);
   EXPECT_GT(soil["properties"]["soil_c"]["cells"].get<long>(), 100);
   EXPECT_TRUE(fs::exists(d / "fee_index.png"));
+  EXPECT_TRUE(fs::exists(d / "fee_index_vs_truth.png"));
+  // The truth's index, cell by cell: the strip's (dense clay) above the loose clay's.
+  const auto raster = terramap::io::readRaster(d / "map.tif");
+  const terramap::io::RasterBand* t = nullptr;
+  for (const auto& b : raster.bands)
+    if (b.description == "truth_fee_index") t = &b;
+  ASSERT_NE(t, nullptr);
+  const auto& gt = *raster.geotransform;
+  auto at = [&](double x, double y) {
+    return t->values(static_cast<long>((y - gt[3]) / gt[5]), static_cast<long>((x - gt[0]) / gt[1]));
+  };
+  EXPECT_GT(at(7.5, 0.0), 2.0f * at(3.0, 0.0));  // 88 vs 21 kN
   // A scenario path that does not exist is a usage error.
   EXPECT_EQ(sh("eval-soil-map /nonexistent.yaml").code, 2);
 }
