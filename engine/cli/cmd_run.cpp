@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -79,8 +80,12 @@ Registrar reg{Command{"run", [](CLI::App& app, std::function<int()>& run) {
       if (!a->quiet) {
         long events = 0;
         for (const auto& [k, v] : r.report.events) events += v;
-        std::printf("ran %s: %ld events in %.2f s on %d thread%s\n", spec.file.c_str(), events, r.report.wall_s,
+        std::printf("ran %s: %ld events in %.2f s on %d thread%s", spec.file.c_str(), events, r.report.wall_s,
                     r.report.threads, r.report.threads == 1 ? "" : "s");
+        // The stages' time above; with the source (the simulator, a reader), per event second:
+        if (std::isfinite(r.real_time_factor))
+          std::printf(" (%.2f s with the source: %.1fx real time)", r.run_wall_s, r.real_time_factor);
+        std::printf("\n");
         for (const auto& s : r.report.stages) {
           long dropped = 0;
           for (const auto& [k, v] : s.stats.dropped) dropped += v;

@@ -209,6 +209,11 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   res.out_dir = spec.outputs.dir;
   res.report = engine->report();
   res.truth_json = truth.json;
+  res.run_wall_s = run_s;
+  {
+    const double span = res.report.last_stamp - res.report.first_stamp;
+    if (std::isfinite(span) && span > 0 && run_s > 0) res.real_time_factor = span / run_s;
+  }
   std::error_code ec;
   fs::create_directories(spec.outputs.dir, ec);
   if (ec) throw OutputError(spec.outputs.dir + ": cannot create output folder: " + ec.message());
@@ -222,6 +227,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
     if (!truth.json.empty()) extra["truth"] = nlohmann::json::parse(truth.json);
     extra["events_total"] = n;
     extra["run_wall_s"] = run_s;
+    if (std::isfinite(res.real_time_factor)) extra["real_time_factor"] = res.real_time_factor;
     extra["map"] = {{"resolution_m", map.geometry().resolution()},
                     {"size", {map.geometry().size().x(), map.geometry().size().y()}},
                     {"center_m", {map.geometry().center().x(), map.geometry().center().y()}},

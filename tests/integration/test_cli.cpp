@@ -240,6 +240,12 @@ TEST(Cli, EmbeddedDemoWritesGeoTiffPngAndReport) {
   const auto report = nlohmann::json::parse(std::ifstream(d / "report.json"));
   EXPECT_GT(report["events_total"].get<long>(), 0);
   EXPECT_GT(report["stages"][0]["counters"]["points_fused"].get<double>(), 0.0);
+  // Event seconds per wall second of the whole loop (simulator included), what it says it is.
+  ASSERT_TRUE(report.contains("real_time_factor"));
+  EXPECT_NEAR(report["real_time_factor"].get<double>(),
+              (report["last_stamp"].get<double>() - report["first_stamp"].get<double>()) / report["run_wall_s"].get<double>(),
+              1e-9);
+  EXPECT_NE(r.out.find("x real time"), std::string::npos) << r.out;
   // The demo's source is the simulator: the run compares the map with its truth.
   ASSERT_TRUE(report.contains("truth")) << report.dump(1);
   EXPECT_GT(report["truth"]["coverage"].get<double>(), 0.9);

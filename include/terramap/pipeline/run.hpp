@@ -6,6 +6,7 @@
 #include <terramap/pipeline/pipeline_spec.hpp>
 
 #include <functional>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -45,6 +46,12 @@ struct RunResult {
   std::string out_dir;
   /// RunOptions::compare_truth's JSON (report.json's "truth"), empty without one.
   std::string truth_json;
+  /// Wall seconds of the event loop (source and stages, not the outputs; report.json's
+  /// run_wall_s) and event seconds it covered per wall second (report.json's real_time_factor:
+  /// (last stamp - first stamp) / run_wall_s; NaN with fewer than two stamps). For a simulator
+  /// source, how many times faster than real time the whole pipeline ran.
+  double run_wall_s = 0.0;
+  double real_time_factor = std::numeric_limits<double>::quiet_NaN();
 };
 
 /// Memory stays bounded over long runs: the stages' report records are spooled to an anonymous
