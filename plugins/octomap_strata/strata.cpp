@@ -21,7 +21,7 @@ namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr int kP = soil::kSoilParamCount;
 constexpr const char* kTreeId = "TerramapStrataTree";
-constexpr const char* kTrailer = "terramap_strata 1";
+constexpr const char* kTrailer = "terramap_strata 2";  // 2: columns hold float beliefs
 
 /// Product of two Gaussians; a non-finite or non-positive measurement leaves the prior.
 void fuse(double& m, double& v, double z, double r) {
@@ -288,12 +288,14 @@ void Strata::resolve(long sweep, const std::vector<PendingColumn>& cols, const S
         for (int q = 0; q < kP; ++q) {
           double m = col.inherit_mean[q], v = col.inherit_var[q] * f;
           fuse(m, v, (*mean)[q], (*var)[q]);
-          col.inherit_mean[q] = m;
-          col.inherit_var[q] = v;
+          col.inherit_mean[q] = static_cast<float>(m);
+          col.inherit_var[q] = static_cast<float>(v);
         }
       } else {
-        col.inherit_mean = *mean;
-        col.inherit_var = *var;
+        for (int q = 0; q < kP; ++q) {
+          col.inherit_mean[q] = static_cast<float>((*mean)[q]);
+          col.inherit_var[q] = static_cast<float>((*var)[q]);
+        }
       }
       col.inherit_sweep = sweep;
       col.anchor = pc.bottom;

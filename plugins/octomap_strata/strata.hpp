@@ -211,7 +211,8 @@ class Strata {
     float initial = std::numeric_limits<float>::quiet_NaN();
     float anchor = std::numeric_limits<float>::quiet_NaN();
     long inherit_sweep = -1;  ///< sweep whose estimate the column inherited (-1 = none)
-    SoilVector inherit_mean{}, inherit_var{};
+    // float, like the voxels: a column is ~60 bytes instead of ~100 (4 M columns at 1 ha, 5 cm).
+    std::array<float, soil::kSoilParamCount> inherit_mean{}, inherit_var{};
   };
   struct PendingColumn {
     std::uint32_t column;

@@ -97,8 +97,10 @@ TEST(Strata, TheSoilBelowInheritsTheEstimateWithVarianceInflatedByDepth) {
     // By hand: e per 0.2 m below the anchor (the surface sweep 1 left, kept as a float).
     const double f = std::exp((static_cast<double>(0.8f) - z) / 0.2);
     for (int q = 0; q < 5; ++q) {
-      EXPECT_NEAR(b.mean[q], fusedMean(c.prior_mean[q], c.prior_var[q], kEst[q], kEstVar[q] * f), 1e-12 * std::abs(c.prior_mean[q])) << z;
-      EXPECT_NEAR(b.var[q], fusedVar(c.prior_var[q], kEstVar[q] * f), 1e-12 * c.prior_var[q]) << z;
+      // The column keeps the estimate as float.
+      const double m = static_cast<float>(kEst[q]), v = static_cast<float>(kEstVar[q]);
+      EXPECT_NEAR(b.mean[q], fusedMean(c.prior_mean[q], c.prior_var[q], m, v * f), 1e-12 * std::abs(c.prior_mean[q])) << z;
+      EXPECT_NEAR(b.var[q], fusedVar(c.prior_var[q], v * f), 1e-12 * c.prior_var[q]) << z;
     }
   }
   // Deep down the prior dominates again; right under the cut the estimate does.
@@ -120,14 +122,15 @@ TEST(Strata, TheInheritedBeliefFiltersEveryEstimateDownTheColumn) {
     // then, at z = 0.7, that carried another 0.1 m and times the prior.
     const double a0 = 0.9f, a1 = 0.8f;
     for (int q = 0; q < 5; ++q) {
-      double m = kEst[q], v = kEstVar[q] * std::exp((a0 - a1) / 0.2);
+      // The column keeps its belief as float.
+      double m = static_cast<float>(kEst[q]), v = static_cast<float>(kEstVar[q]) * std::exp((a0 - a1) / 0.2);
       if (filter) {
         const double mm = fusedMean(m, v, second[q], kEstVar[q]), vv = fusedVar(v, kEstVar[q]);
-        m = mm;
-        v = vv;
+        m = static_cast<float>(mm);
+        v = static_cast<float>(vv);
       } else {
-        m = second[q];
-        v = kEstVar[q];
+        m = static_cast<float>(second[q]);
+        v = static_cast<float>(kEstVar[q]);
       }
       const double f = std::exp((a1 - 0.7) / 0.2);
       const SoilBelief b = s.soilAt(0.025, 0.025, 0.7);
