@@ -16,6 +16,11 @@ Frames and units: the map frame is x, y horizontal and z up, metres; transforms 
 frame-b coordinates into frame a; stamps are seconds. Logical cell (i, j) has its centre at
 Geometry.position_of(i, j) (grid_map's convention: i grows towards -x, j towards -y).
 
+Subsurface soil (built with OctoMap): terramap.Strata.load(path) reads the model the
+octomap_strata plugin saved (its `save_path`); s.soil_at(x, y, z) -> {"mean", "var", "source"}
+with soil vectors [c (Pa), phi (rad), c_a (Pa), delta (rad), gamma (N/m^3)], s.expected_cut(x, y,
+depth_m), s.surface_at(x, y), s.change_height_at(x, y).
+
 Errors are raised as terramap.Error subclasses carrying the C++ message (file:line:col and key
 for configuration errors): ConfigError, InputError, PluginError, LayerError, OutputError.
 Malformed numpy input raises ValueError.
