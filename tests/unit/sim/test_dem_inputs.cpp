@@ -15,6 +15,7 @@
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
+#include <fstream>
 
 using namespace terramap;
 using namespace terramap::sim;
@@ -129,6 +130,86 @@ TEST(DemGridding, HoleFillingIsLinearOnASparseGrid) {
   for (double v : g.z) ASSERT_NEAR(v, -1.25, 1e-12);  // convex combinations of -1.25
 }
 
+// fuzz_las's finding, rebuilt here field by field (docs/reliability.md, "Fuzzing"): the LAS 1.4
+// point-format-3 seed of fuzz/seeds/make_seeds.cpp (6 synthetic points, 4 of them ground, UTM
+// 32N GeoKeys) with one byte of one ground point's x mutated, so that x reaches 1476 km past
+// the others while the header's extent still says 15 m.
+std::string writeSparseGroundLas(const fs::path& path) {
+  std::string b;
+  auto raw = [&](const void* p, std::size_t n) { b.append(static_cast<const char*>(p), n); };
+  auto u8 = [&](std::uint8_t v) { raw(&v, 1); };
+  auto u16 = [&](std::uint16_t v) { raw(&v, 2); };
+  auto u32 = [&](std::uint32_t v) { raw(&v, 4); };
+  auto u64 = [&](std::uint64_t v) { raw(&v, 8); };
+  auto i32 = [&](std::int32_t v) { raw(&v, 4); };
+  auto f64 = [&](double v) { raw(&v, 8); };
+  auto text = [&](const std::string& t, std::size_t n) { b.append(t); b.append(n - t.size(), '\0'); };
+  // Public header, 375 bytes.
+  text("LASF", 4);
+  u16(0);                   // file source id
+  u16(0);                   // global encoding
+  text("", 16);             // GUID
+  u8(1);
+  u8(4);                    // version 1.4
+  text("terramap fuzz seed", 32);
+  text("make_seeds", 32);
+  u16(200);
+  u16(2026);                // creation day, year
+  u16(375);                 // header size
+  u32(453);                 // offset to the points: header + one 78-byte VLR
+  u32(1);                   // VLRs
+  u8(3);                    // point format 3
+  u16(34);                  // record length
+  u32(6);                   // legacy point count
+  for (std::uint32_t v : {6u, 0u, 0u, 0u, 0u}) u32(v);
+  for (int k = 0; k < 3; ++k) f64(0.001);  // scale
+  f64(500000.0);
+  f64(4000000.0);
+  f64(100.0);               // offset
+  for (double v : {500010.0, 499995.75, 4000002.0, 3999990.0, 102.0, 99.25}) f64(v);  // max/min x, y, z
+  u64(0);
+  u64(0);
+  u32(0);                   // waveform, EVLR start, EVLR count
+  u64(6);                   // point count
+  for (int k = 0; k < 15; ++k) u64(k == 0 ? 6 : 0);
+  // GeoKeyDirectoryTag VLR: ProjectedCSTypeGeoKey 32632 (UTM 32N).
+  u16(0);
+  text("LASF_Projection", 16);
+  u16(34735);
+  u16(24);
+  text("GeoKeyDirectoryTag", 32);
+  for (std::uint16_t v : {1, 1, 0, 2, 1024, 0, 1, 1, 3072, 0, 1, 32632}) u16(v);
+  // Points: x, y, z (scaled ints), intensity, return bits, class, scan angle, user data, source
+  // id, GPS time, RGB. The fourth is the mutated one (x 1476395008).
+  struct P {
+    std::int32_t x, y, z;
+    std::uint16_t intensity;
+    std::uint8_t cls;
+    std::uint16_t green;
+  };
+  const P pts[6] = {{1500, -2000, 250, 6553, 2, 1000},  {3000, 500, -750, 58981, 2, 1000},
+                    {-4250, 1000, 2000, 32767, 1, 1000}, {1476395008, 0, 0, 0, 2, 776},
+                    {10000, -10000, 1000, 65535, 2, 1000}, {2000, 2000, 2000, 19660, 1, 1000}};
+  for (int k = 0; k < 6; ++k) {
+    i32(pts[k].x);
+    i32(pts[k].y);
+    i32(pts[k].z);
+    u16(pts[k].intensity);
+    u8(9);
+    u8(pts[k].cls);
+    u8(0);
+    u8(0);
+    u16(1);
+    f64(1000.0 + k);
+    u16(0);
+    u16(pts[k].green);
+    u16(2000);
+  }
+  EXPECT_EQ(b.size(), 657u);
+  std::ofstream(path, std::ios::binary).write(b.data(), static_cast<std::streamsize>(b.size()));
+  return path.string();
+}
+
 // Same input: the grid and the filling are sized against the memory budget before allocating
 // (the grid alone took 141 MB, the filling 405 MB more, on 6 points).
 TEST(DemInputs, SparseLasGroundPointsAreCheckedAgainstTheBudget) {
@@ -138,7 +219,9 @@ TEST(DemInputs, SparseLasGroundPointsAreCheckedAgainstTheBudget) {
     ~BudgetScope() { setMemoryBudget(saved); }
   } budget(64ull << 20);
   DemSpec spec;
-  spec.path = std::string(TERRAMAP_SOURCE_DIR) + "/tests/data/fuzz/las_dem_sparse_ground.las";
+  const fs::path dir = fs::path(TERRAMAP_BINARY_DIR) / "sim_test_dem";
+  fs::create_directories(dir);
+  spec.path = writeSparseGroundLas(dir / "las_dem_sparse_ground.las");
   spec.format = DemFormat::Las;
   try {
     loadDem(spec);

@@ -599,9 +599,25 @@ TEST(Simulator, ProgressesWhenTheExecutorsWorkerIsBusyElsewhere) {
 // 1.10.8 read past its buffer decoding the damaged attribute (SEGV). The hint now comes from the
 // dataset's name; the attributes are never decoded.
 TEST(Episode, DamagedFileIsAnInputErrorWithoutReachingLibhdf5) {
-  // fuzz_episode_h5's finding: an unsealed, damaged file that made libhdf5 read past its buffer.
-  // It is refused by its (missing) seal before libhdf5 opens it.
-  const std::string path = std::string(TERRAMAP_SOURCE_DIR) + "/tests/data/fuzz/episode_damaged_attributes.h5";
+  // fuzz_episode_h5's finding was an unsealed file whose root attribute was damaged. The same
+  // kind of file, made here: a real episode with its seal wiped (the 512-byte user block, which
+  // libhdf5 skips) and the bytes after the root's "version" attribute name overwritten. It is
+  // refused by its (missing) seal before libhdf5 opens it.
+  const std::string dir = std::string(TERRAMAP_BINARY_DIR) + "/sim_test_episode_unsealed";
+  std::filesystem::remove_all(dir);
+  const Scenario sc = parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 0.2, 1, true), "s.yaml");
+  const std::string path = runEpisode(sc, dir, EpisodeOptions{});
+  {
+    std::ifstream in(path, std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    in.close();
+    ASSERT_GT(bytes.size(), 4096u);
+    std::fill(bytes.begin(), bytes.begin() + 512, '\0');
+    const std::size_t at = bytes.find("version", 512);
+    ASSERT_NE(at, std::string::npos);
+    std::fill(bytes.begin() + static_cast<std::ptrdiff_t>(at) + 7, bytes.begin() + static_cast<std::ptrdiff_t>(at) + 23, '\xff');
+    std::ofstream(path, std::ios::binary | std::ios::trunc).write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  }
   std::vector<std::uint64_t> dims;
   for (const char* name : {"/terrain/height", "/machines/ctl1/T_map_base", "/machines/ctl1/estimate/T_map_base"}) {
     try {
@@ -611,6 +627,7 @@ TEST(Episode, DamagedFileIsAnInputErrorWithoutReachingLibhdf5) {
       EXPECT_NE(std::string(e.what()).find("no terramap seal"), std::string::npos) << e.what();
     }
   }
+  std::filesystem::remove_all(dir);
 }
 
 TEST(Episode, AByteDamagedInsideTheDataIsRefusedNotReadAsOtherValues) {
