@@ -188,26 +188,22 @@ void OctomapStrata::collect(ProcessContext& ctx, std::vector<Eigen::Vector2d>& c
     const std::vector<strata::CellCut> cut = cellCutsOf(sw);
     if (cut.empty()) continue;
     ctx.addCounter("voxels_removed", static_cast<double>(strata_->applyCut(sw.sweep_index, cut)));
-    std::vector<Eigen::Vector2d>& where = sweep_cells_[sw.sweep_index];
-    for (const strata::CellCut& c : cut) where.push_back(c.position);
-    cells.insert(cells.end(), where.begin(), where.end());
-    change_dirty_.insert(change_dirty_.end(), where.begin(), where.end());
-    while (static_cast<int>(sweep_cells_.size()) > cfg_.strata.max_pending_sweeps) sweep_cells_.erase(sweep_cells_.begin());
+    for (const strata::CellCut& c : cut) {
+      cells.push_back(c.position);
+      change_dirty_.push_back(c.position);
+    }
   }
   const RecordBus::Since est = ctx.records().since(SoilEstimateRecord::kType, last_estimate_);
   if (est.missed > 0) ctx.countDrop("estimate_missed", est.missed);
   for (const Record& r : est.records) {
     last_estimate_ = r.sequence;
     const auto& e = *std::static_pointer_cast<const SoilEstimateRecord>(r.payload);
-    const long n = e.valid ? strata_->assignEstimate(e.sweep_index, &e.mean, &e.var_total)
-                           : strata_->assignEstimate(e.sweep_index, nullptr, nullptr);
+    // The estimate changes the columns its sweep cut: their cells are recomputed.
+    const std::size_t first = cells.size();
+    const long n = e.valid ? strata_->assignEstimate(e.sweep_index, &e.mean, &e.var_total, &cells)
+                           : strata_->assignEstimate(e.sweep_index, nullptr, nullptr, &cells);
     ctx.addCounter("voxels_estimated", static_cast<double>(e.valid ? n : 0));
-    // The estimate changed the columns its sweep cut.
-    const auto it = sweep_cells_.find(e.sweep_index);
-    if (it == sweep_cells_.end()) continue;
-    cells.insert(cells.end(), it->second.begin(), it->second.end());
-    change_dirty_.insert(change_dirty_.end(), it->second.begin(), it->second.end());
-    sweep_cells_.erase(it);
+    change_dirty_.insert(change_dirty_.end(), cells.begin() + static_cast<std::ptrdiff_t>(first), cells.end());
   }
   const strata::StrataCounters& after = strata_->counters();
   if (after.estimates_invalid > before.estimates_invalid)

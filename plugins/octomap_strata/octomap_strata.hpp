@@ -93,7 +93,6 @@ class OctomapStrata : public Plugin {
   LayerId cut_ = -1, change_ = -1, change_z_ = -1, elevation_ = -1, loose_ = -1;
   bool have_surface_ = false;
   long last_estimate_ = 0, last_sweep_ = 0;
-  std::map<long, std::vector<Eigen::Vector2d>> sweep_cells_;  ///< cut cells of sweeps awaiting their estimate
   std::vector<Eigen::Vector2d> change_dirty_;  ///< cells whose removed soil changed since strata_change_* last ran
   double last_change_s_ = -std::numeric_limits<double>::infinity();
 };

@@ -1,6 +1,8 @@
 // Subsurface soil memory in an OctoMap tree (strata.hpp).
 #include "strata.hpp"
 
+#include <terramap/soil/belief.hpp>
+
 #include <terramap/core/error.hpp>
 #include <terramap/io/atomic_file.hpp>
 #include <terramap/io/render.hpp>
@@ -23,12 +25,11 @@ constexpr int kP = soil::kSoilParamCount;
 constexpr const char* kTreeId = "TerramapStrataTree";
 constexpr const char* kTrailer = "terramap_strata 2";  // 2: columns hold float beliefs
 
-/// Product of two Gaussians; a non-finite or non-positive measurement leaves the prior.
+/// m, v ← prior N(m, v) × N(z, r) (soil/belief.hpp; the prior here is always finite).
 void fuse(double& m, double& v, double z, double r) {
-  if (!std::isfinite(z) || !std::isfinite(r) || r <= 0.0) return;
-  const double s = v + r;
-  m = (r * m + v * z) / s;
-  v = v * r / s;
+  const soil::Belief b = soil::fuseBelief({m, v}, z, r);
+  m = b.mean;
+  v = b.var;
 }
 
 SoilBelief nanBelief(SoilSource s) {
@@ -154,6 +155,20 @@ bool Strata::columnKey(double x, double y, std::uint32_t& key) const {
   return true;
 }
 
+long Strata::levelOf(double z) const { return static_cast<long>(std::floor(z / cfg_.resolution_m - 0.5)); }
+
+double Strata::levelZ(long level) const { return (static_cast<double>(level) + 0.5) * cfg_.resolution_m; }
+
+octomap::OcTreeKey Strata::voxelKey(std::uint32_t column, long level) const {
+  return octomap::OcTreeKey(static_cast<octomap::key_type>(column >> 16), static_cast<octomap::key_type>(column & 0xffffu),
+                            static_cast<octomap::key_type>(level + static_cast<long>(tree_.keyOffset())));
+}
+
+Eigen::Vector2d Strata::columnCentre(std::uint32_t column) const {
+  const long off = static_cast<long>(tree_.keyOffset());
+  return {levelZ(static_cast<long>(column >> 16) - off), levelZ(static_cast<long>(column & 0xffffu) - off)};
+}
+
 SoilBelief Strata::predictBelow(const Column* c, double z) const {
   SoilBelief b;
   b.mean = cfg_.prior_mean;
@@ -167,7 +182,6 @@ SoilBelief Strata::predictBelow(const Column* c, double z) const {
 }
 
 long Strata::applyCut(long sweep, const std::vector<CellCut>& cells) {
-  ++counters_.sweeps;
   const double res = cfg_.resolution_m;
   // The columns this sweep cut, each once (a map cell may hold several columns, and with a
   // finer map several cells fall in one column): deepest new surface, highest old surface.
@@ -201,10 +215,9 @@ long Strata::applyCut(long sweep, const std::vector<CellCut>& cells) {
     for (long i = i0; i <= i1; ++i)
       for (long j = j0; j <= j1; ++j) add((static_cast<double>(i) + 0.5) * res, (static_cast<double>(j) + 0.5) * res);
   }
-  octomap::key_type kz_min = 0, kz_max = 0;  // the extent was checked in the constructor
-  tree_.coordToKeyChecked(cfg_.min_m.z(), kz_min);
-  tree_.coordToKeyChecked(cfg_.max_m.z(), kz_max);
-  const long zoff = static_cast<long>(tree_.keyOffset());
+  // Levels whose centres lie inside the extent's z range.
+  const long level_min = levelOf(cfg_.min_m.z()) + (levelZ(levelOf(cfg_.min_m.z())) < cfg_.min_m.z() ? 1 : 0);
+  const long level_max = levelOf(std::nextafter(cfg_.max_m.z(), -INFINITY));
   std::vector<PendingColumn> pend;
   long removed = 0;
   for (const auto& [key, cut] : cuts) {
@@ -220,29 +233,19 @@ long Strata::applyCut(long sweep, const std::vector<CellCut>& cells) {
     }
     Column& col = it->second;
     if (!(cut.bottom < col.top)) continue;
-    // Voxels whose centres (k - zoff + 0.5) res lie in (bottom, top].
-    long k_lo = static_cast<long>(std::floor(cut.bottom / res - 0.5)) + 1 + zoff;
-    long k_hi = static_cast<long>(std::floor(static_cast<double>(col.top) / res - 0.5)) + zoff;
-    k_lo = std::max<long>(k_lo, kz_min);
-    k_hi = std::min<long>(k_hi, kz_max);
-    ++counters_.columns_cut;
-    if (k_lo <= k_hi) {
-      octomap::OcTreeKey vk;
-      vk[0] = static_cast<octomap::key_type>(key >> 16);
-      vk[1] = static_cast<octomap::key_type>(key & 0xffffu);
-      for (long k = k_lo; k <= k_hi; ++k) {
-        vk[2] = static_cast<octomap::key_type>(k);
-        const double z = (static_cast<double>(k - zoff) + 0.5) * res;
-        tree_.setLeaf(vk, toVoxel(predictBelow(&col, z), VoxelBelief::kPredicted));
+    // The voxels whose centres lie in (bottom, top].
+    const long lo = std::max(levelOf(cut.bottom) + 1, level_min), hi = std::min(levelOf(col.top), level_max);
+    if (lo <= hi) {
+      for (long k = lo; k <= hi; ++k) {
+        tree_.setLeaf(voxelKey(key, k), toVoxel(predictBelow(&col, levelZ(k)), VoxelBelief::kPredicted));
         ++removed;
       }
-      pend.push_back({key, static_cast<std::uint16_t>(k_lo), static_cast<std::uint16_t>(k_hi), static_cast<float>(cut.bottom)});
+      pend.push_back({key, lo, hi, static_cast<float>(cut.bottom)});
     }
     col.top = static_cast<float>(cut.bottom);
   }
   counters_.voxels_removed += removed;
   if (!pend.empty()) {
-    ++counters_.sweeps_cutting;
     pending_[sweep] = std::move(pend);
     while (static_cast<int>(pending_.size()) > cfg_.max_pending_sweeps) {
       ++counters_.pending_evicted;  // its estimate never came: the voxels keep their prediction
@@ -266,19 +269,10 @@ void Strata::resolve(long sweep, const std::vector<PendingColumn>& cols, const S
   post.var = cfg_.prior_var;
   for (int q = 0; q < kP; ++q) fuse(post.mean[q], post.var[q], (*mean)[q], (*var)[q]);
   const VoxelBelief v = toVoxel(post, VoxelBelief::kEstimated);
-  const long zoff = static_cast<long>(tree_.keyOffset());
   for (const PendingColumn& pc : cols) {
-    octomap::OcTreeKey vk;
-    vk[0] = static_cast<octomap::key_type>(pc.column >> 16);
-    vk[1] = static_cast<octomap::key_type>(pc.column & 0xffffu);
-    for (long k = pc.k_lo; k <= pc.k_hi; ++k) {
-      vk[2] = static_cast<octomap::key_type>(k);
-      tree_.setLeaf(vk, v);
-    }
-    for (long k = pc.k_lo; k <= pc.k_hi; ++k) {
-      vk[2] = static_cast<octomap::key_type>(k);
-      tree_.pruneAbove(vk);
-    }
+    for (long k = pc.lo; k <= pc.hi; ++k) tree_.setLeaf(voxelKey(pc.column, k), v);
+    // After the whole column: a block of the slab collapses once all its voxels hold v.
+    for (long k = pc.lo; k <= pc.hi; ++k) tree_.pruneAbove(voxelKey(pc.column, k));
     Column& col = columns_[pc.column];
     if (sweep > col.inherit_sweep) {
       if (cfg_.filter_inheritance && col.inherit_sweep >= 0) {
@@ -301,17 +295,19 @@ void Strata::resolve(long sweep, const std::vector<PendingColumn>& cols, const S
       col.anchor = pc.bottom;
     }
   }
-  (void)zoff;
 }
 
-long Strata::assignEstimate(long sweep, const SoilVector* mean, const SoilVector* var) {
+long Strata::assignEstimate(long sweep, const SoilVector* mean, const SoilVector* var, std::vector<Eigen::Vector2d>* columns) {
   const auto it = pending_.find(sweep);
   if (it == pending_.end()) {
     ++counters_.estimates_unmatched;
     return 0;
   }
   long n = 0;
-  for (const PendingColumn& pc : it->second) n += pc.k_hi - pc.k_lo + 1;
+  for (const PendingColumn& pc : it->second) {
+    n += pc.hi - pc.lo + 1;
+    if (columns) columns->push_back(columnCentre(pc.column));
+  }
   resolve(sweep, it->second, mean, var);
   pending_.erase(it);
   return n;
@@ -343,18 +339,15 @@ SoilBelief Strata::expectedCut(double x, double y, double surface_z, double dept
     if (!c) return predictBelow(nullptr, 0.0);
     surface_z = c->top;
   }
-  const double res = cfg_.resolution_m;
   // Voxel centres in (surface - depth, surface]; at least the one just below the surface.
-  const long k_hi = static_cast<long>(std::floor(surface_z / res - 0.5));
-  long k_lo = static_cast<long>(std::floor((surface_z - depth_m) / res - 0.5)) + 1;
-  k_lo = std::min(k_lo, k_hi);
+  const long k_hi = levelOf(surface_z);
+  const long k_lo = std::min(levelOf(surface_z - depth_m) + 1, k_hi);
   SoilBelief out;
   out.mean.fill(0.0);
   SoilVector sd{};
   int n = 0;
   for (long k = k_lo; k <= k_hi; ++k) {
-    const double z = (static_cast<double>(k) + 0.5) * res;
-    const SoilBelief b = soilAt(x, y, z);
+    const SoilBelief b = soilAt(x, y, levelZ(k));
     if (b.source == SoilSource::Outside || b.source == SoilSource::Air) continue;
     for (int q = 0; q < kP; ++q) {
       out.mean[q] += b.mean[q];
@@ -391,18 +384,13 @@ std::vector<std::pair<double, VoxelBelief>> Strata::columnVoxels(double x, doubl
   if (!columnKey(x, y, key)) return out;
   const auto it = columns_.find(key);
   if (it == columns_.end()) return out;
-  const double res = cfg_.resolution_m;
-  const long k_top = static_cast<long>(std::floor(static_cast<double>(it->second.initial) / res - 0.5));
-  const long k_bottom = static_cast<long>(std::floor(static_cast<double>(it->second.top) / res - 0.5)) + 1;
-  octomap::OcTreeKey vk;
-  vk[0] = static_cast<octomap::key_type>(key >> 16);
-  vk[1] = static_cast<octomap::key_type>(key & 0xffffu);
-  const long zoff = static_cast<long>(tree_.keyOffset());
-  for (long k = k_top; k >= k_bottom; --k) {
-    if (k + zoff < 0 || k + zoff > 0xffff) continue;
-    vk[2] = static_cast<octomap::key_type>(k + zoff);
-    const StrataNode* n = tree_.search(vk);
-    if (n && n->getValue().kind != VoxelBelief::kNone) out.emplace_back((static_cast<double>(k) + 0.5) * res, n->getValue());
+  // Removed voxels lie between the surface and the first surface (at most: the extent's z
+  // range clips them, and the search then finds nothing there).
+  const long off = static_cast<long>(tree_.keyOffset());
+  for (long k = levelOf(it->second.initial); k > levelOf(it->second.top); --k) {
+    if (k + off < 0 || k + off > 0xffff) continue;
+    const StrataNode* n = tree_.search(voxelKey(key, k));
+    if (n && n->getValue().kind != VoxelBelief::kNone) out.emplace_back(levelZ(k), n->getValue());
   }
   return out;
 }
@@ -414,19 +402,19 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
   // Voxel levels (z key) -> sum of the normalised means and count, over the pooled columns.
   std::map<long, std::pair<std::array<double, kP>, int>, std::greater<long>> levels;
   const int reach = static_cast<int>(std::floor(std::max(0.0, radius_m) / res));
-  const double cx = (static_cast<double>(static_cast<long>(key0 >> 16) - static_cast<long>(tree_.keyOffset())) + 0.5) * res;
-  const double cy = (static_cast<double>(static_cast<long>(key0 & 0xffffu) - static_cast<long>(tree_.keyOffset())) + 0.5) * res;
+  const Eigen::Vector2d centre = columnCentre(key0);
   for (int a = -reach; a <= reach; ++a)
     for (int b = -reach; b <= reach; ++b) {
       if ((a * a + b * b) * res * res > radius_m * radius_m + 1e-12) continue;
       // The column's estimated voxels as (level, means), from the cache when there is one.
+      const double nx = centre.x() + a * res, ny = centre.y() + b * res;
+      std::uint32_t key;
+      if (!columnKey(nx, ny, key)) continue;
       std::vector<std::pair<long, std::array<float, kP>>> local;
       const std::vector<std::pair<long, std::array<float, kP>>>* list = &local;
-      const std::uint32_t key = static_cast<std::uint32_t>(((static_cast<long>(key0 >> 16) + a) << 16) |
-                                                           ((static_cast<long>(key0 & 0xffffu) + b) & 0xffff));
       auto fill = [&](std::vector<std::pair<long, std::array<float, kP>>>& out) {
-        for (const auto& [z, v] : columnVoxels(cx + a * res, cy + b * res))
-          if (v.kind == VoxelBelief::kEstimated) out.emplace_back(static_cast<long>(std::floor(z / res)), v.mean);
+        for (const auto& [z, v] : columnVoxels(nx, ny))
+          if (v.kind == VoxelBelief::kEstimated) out.emplace_back(levelOf(z), v.mean);
       };
       if (cache) {
         auto it = cache->columns.find(key);
@@ -454,7 +442,7 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
   s2[0].fill(0.0);
   int i = 0;
   for (const auto& [k, l] : levels) {
-    zs.push_back((static_cast<double>(k) + 0.5) * res);
+    zs.push_back(levelZ(k));
     for (int q = 0; q < kP; ++q) {
       const double v = l.first[q] / l.second;
       s1[static_cast<std::size_t>(i) + 1][q] = s1[static_cast<std::size_t>(i)][q] + v;
@@ -626,17 +614,11 @@ void Strata::exportColorOt(const std::filesystem::path& path, int param, double 
   std::vector<std::uint32_t> keys;
   for (const auto& [k, c] : columns_) keys.push_back(k);
   std::sort(keys.begin(), keys.end());
-  const long zoff = static_cast<long>(tree_.keyOffset());
   for (std::uint32_t key : keys) {
     const Column& c = columns_.at(key);
-    const long k_top = static_cast<long>(std::floor(static_cast<double>(c.top) / res - 0.5));
-    const long k_bottom = static_cast<long>(std::floor((static_cast<double>(c.top) - below_m) / res - 0.5)) + 1;
-    for (long k = k_top; k >= k_bottom; --k) {
-      const double z = (static_cast<double>(k) + 0.5) * res;
-      if (!(z >= cfg_.min_m.z() && z < cfg_.max_m.z())) continue;
-      octomap::OcTreeKey vk(static_cast<octomap::key_type>(key >> 16), static_cast<octomap::key_type>(key & 0xffffu),
-                            static_cast<octomap::key_type>(k + zoff));
-      paint(vk, predictBelow(&c, z).mean[param]);
+    for (long k = levelOf(c.top); k > levelOf(c.top - below_m); --k) {
+      const double z = levelZ(k);
+      if (z >= cfg_.min_m.z() && z < cfg_.max_m.z()) paint(voxelKey(key, k), predictBelow(&c, z).mean[param]);
     }
   }
   ct.updateInnerOccupancy();

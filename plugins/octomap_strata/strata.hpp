@@ -129,9 +129,8 @@ struct CellCut {
 
 /// Counters of everything the model did or dropped (reasons are the map keys).
 struct StrataCounters {
-  long sweeps = 0, sweeps_cutting = 0, estimates_assigned = 0, estimates_invalid = 0, estimates_unmatched = 0;
-  long pending_evicted = 0;
-  long voxels_removed = 0, columns_cut = 0, columns_outside = 0, columns_unknown_surface = 0;
+  long estimates_assigned = 0, estimates_invalid = 0, estimates_unmatched = 0, pending_evicted = 0;
+  long voxels_removed = 0, columns_outside = 0, columns_unknown_surface = 0;
 };
 
 /// Memo of columns' estimated voxels for many changeHeightAt calls over one area (neighbouring
@@ -153,8 +152,10 @@ class Strata {
   long applyCut(long sweep, const std::vector<CellCut>& cells);
   /// Sweep `sweep`'s estimate: its removed voxels take prior × N(mean, var), the columns it cut
   /// inherit it. `mean`/`var` null or not finite = no valid estimate: the voxels keep their
-  /// prediction. Returns the voxels written (0 when no pending sweep has that index).
-  long assignEstimate(long sweep, const SoilVector* mean, const SoilVector* var);
+  /// prediction. Returns the voxels written (0 when no pending sweep has that index); appends
+  /// the centres of the columns the sweep cut to `columns` when given.
+  long assignEstimate(long sweep, const SoilVector* mean, const SoilVector* var,
+                      std::vector<Eigen::Vector2d>* columns = nullptr);
   /// Resolves every pending sweep as without estimate (end of a run).
   void flushPending();
 
@@ -216,10 +217,16 @@ class Strata {
   };
   struct PendingColumn {
     std::uint32_t column;
-    std::uint16_t k_lo, k_hi;  ///< removed voxel z keys, inclusive
-    float bottom;              ///< the surface the sweep left (the anchor for inheritance)
+    long lo, hi;   ///< removed voxel levels, inclusive
+    float bottom;  ///< the surface the sweep left (the anchor for inheritance)
   };
+  // Columns are keyed by their OctoMap x and y keys ((kx << 16) | ky); a *level* is a voxel's
+  // z index without OctoMap's offset: its centre is at (level + 0.5) · resolution.
   bool columnKey(double x, double y, std::uint32_t& key) const;
+  long levelOf(double z) const;  ///< the highest level whose centre is at or below z
+  double levelZ(long level) const;
+  octomap::OcTreeKey voxelKey(std::uint32_t column, long level) const;
+  Eigen::Vector2d columnCentre(std::uint32_t column) const;
   SoilBelief predictBelow(const Column* c, double z) const;
   void resolve(long sweep, const std::vector<PendingColumn>& cols, const SoilVector* mean, const SoilVector* var);
 

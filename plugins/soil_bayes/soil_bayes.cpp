@@ -30,13 +30,6 @@ std::string squared(const std::string& unit) { return unit.find('^') == std::str
 
 }  // namespace
 
-Belief fuseBelief(const Belief& prior, double z, double r) {
-  if (!std::isfinite(z) || !std::isfinite(r) || r <= 0.0) return prior;
-  if (!std::isfinite(prior.mean) || !std::isfinite(prior.var) || prior.var <= 0.0) return {z, r};
-  const double s = prior.var + r;
-  return {(r * prior.mean + prior.var * z) / s, prior.var * r / s};
-}
-
 double wedgeLength(double d_m, double d_res_m, double alpha_rad, double beta_rad) {
   const double d = d_m + (std::isfinite(d_res_m) ? d_res_m : 0.0);
   if (!std::isfinite(d) || !std::isfinite(alpha_rad) || !std::isfinite(beta_rad) || d <= 0.0) return kNaN;

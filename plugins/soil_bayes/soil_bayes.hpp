@@ -38,22 +38,16 @@
 #include <terramap/plugin/plugin.hpp>
 #include <terramap/plugin/records/soil_estimate_record.hpp>
 #include <terramap/plugin/records/sweep_record.hpp>
+#include <terramap/soil/belief.hpp>
 
 #include <array>
 #include <string>
 
 namespace terramap::plugins {
 
-/// A Gaussian belief of one property in one cell.
-struct Belief {
-  double mean = std::numeric_limits<double>::quiet_NaN();
-  double var = std::numeric_limits<double>::quiet_NaN();
-};
-
-/// Product of the prior `prior` and the measurement N(z, r): the formulas above. A prior with a
-/// non-finite mean or variance is "no prior": the result is the measurement. A non-finite or
-/// non-positive measurement leaves the prior as it is.
-Belief fuseBelief(const Belief& prior, double z, double r);
+// The belief and its update are terramap::soil's (soil/belief.hpp), shared with octomap_strata.
+using soil::Belief;
+using soil::fuseBelief;
 
 /// The wedge length x_max of the header (m); NaN when d + d_res ≤ 0, cos α ≤ 0 or
 /// tan(α + β) ≤ tan α, or any input is not finite.
