@@ -4,7 +4,7 @@
 // (eval/truth_report.hpp): per property the error and calibration of the soil layers, per soil
 // zone the FEE index and its AUC against the default soil.
 #include "command.hpp"
-#include "fee_stage.hpp"
+#include "stage_params.hpp"
 
 #include <terramap/core/error.hpp>
 #include <terramap/core/layered_map.hpp>

@@ -7,13 +7,13 @@
 //    expect in the next cut (fee_index over strata_next_*) predict the index of the soil that
 //    pass actually removes, compared with the surface-only index (fee_index over soil_*)?
 // The truth comes from a run of the simulator alone (pass starts: the machine turning from
-// reverse to forward); the map at each pass start from a run of the pipeline up to it (the
-// simulator is deterministic per seed, so that run is the full run's beginning).
+// reverse to forward); the map from one run of the pipeline, its index layers sampled at the
+// first event of each pass start (the simulator is deterministic per seed: both runs see the
+// same machine).
 #include "command.hpp"
-#include "fee_stage.hpp"
+#include "stage_params.hpp"
 
 #include <terramap/core/error.hpp>
-#include <terramap/io/geotiff.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/pipeline/plugin_loader.hpp>
 #include <terramap/pipeline/run.hpp>
@@ -93,26 +93,6 @@ std::vector<Snapshot> truthSnapshots(const sim::Scenario& sc, const Geometry& g,
   return out;
 }
 
-/// A band of a raster by name, sampled at the map geometry's cells (NaN where absent).
-std::vector<double> band(const io::Raster& r, const std::string& name, const Geometry& g, const std::string& file) {
-  const io::RasterBand* b = nullptr;
-  for (const io::RasterBand& x : r.bands)
-    if (x.description == name) b = &x;
-  if (!b) throw InputError(file + ": no band '" + name + "'");
-  if (!r.geotransform) throw InputError(file + ": no geotransform");
-  const auto& gt = *r.geotransform;
-  std::vector<double> out(static_cast<std::size_t>(g.size().x() * g.size().y()), std::nan(""));
-  for (int i = 0; i < g.size().x(); ++i)
-    for (int j = 0; j < g.size().y(); ++j) {
-      const Position p = g.positionOf(Index(i, j));
-      const long c = static_cast<long>(std::floor((p.x() - gt[0]) / gt[1]));
-      const long rr = static_cast<long>(std::floor((p.y() - gt[3]) / gt[5]));
-      if (c < 0 || rr < 0 || c >= r.width || rr >= r.height) continue;
-      out[static_cast<std::size_t>(i * g.size().y() + j)] = b->values(rr, c);
-    }
-  return out;
-}
-
 /// The soil the truth holds between two depths below the initial surface, averaged in 1 cm steps.
 fee::Soil truthSoilBetween(const sim::SoilField& f, double x, double y, double d0, double d1) {
   const int n = std::max(1, static_cast<int>(std::ceil((d1 - d0) / 0.01)));
@@ -126,13 +106,6 @@ fee::Soil truthSoilBetween(const sim::SoilField& f, double x, double y, double d
     s.delta_rad += q.delta_rad / n;
   }
   return s;
-}
-
-std::string paramText(const StageSpec& st, const std::string& key, const std::string& def) {
-  const auto it = st.params.find(key);
-  if (it == st.params.end()) return def;
-  const auto* s = std::get_if<std::string>(&it->second.value);
-  return s ? *s : def;
 }
 
 struct ErrorSum {
@@ -149,6 +122,161 @@ struct ErrorSum {
             {"relative", truth > 0 ? abs / truth : std::nan("")}};
   }
 };
+
+/// What eval-strata needs from the pipeline: its strata stage and its two index layers.
+struct Stages {
+  std::string surface_index, next_index;  ///< fee_index outputs over soil_* and strata_next_*
+  soil::FeeIndexConfig cut;               ///< the surface index's reference cut
+  double voxel_m = 0;                     ///< the strata's resolution
+};
+
+/// Finds the stages (and applies --model and --set to them). \throws ConfigError.
+Stages findStages(PipelineSpec& spec, const StrataArgs& a) {
+  Stages out;
+  StageSpec *strata = nullptr, *surface = nullptr, *next = nullptr;
+  for (StageSpec& st : spec.stages) {
+    if (st.type == "soil_pinn" && !a.model.empty())
+      st.params["model"] = RawParam{ParamValue{fs::absolute(a.model).string()}, "--model"};
+    if (st.type == "octomap_strata") strata = &st;
+    if (st.type == "fee_index") {
+      const std::string prefix = stageParams(spec, st).getString("soil_prefix");
+      if (prefix == "soil_") surface = &st;
+      if (prefix == "strata_next_") next = &st;
+    }
+  }
+  if (!strata || !surface || !next)
+    throw ConfigError(spec.file + ": eval-strata needs an octomap_strata stage and two fee_index stages, one over "
+                      "soil_* and one with soil_prefix: strata_next_");
+  for (const std::string& kv : a.set) {
+    const auto eq = kv.find('=');
+    if (eq == std::string::npos) throw ConfigError("--set " + kv + ": expected KEY=VALUE");
+    try {
+      const std::string v = kv.substr(eq + 1);
+      std::size_t used = 0;
+      const long n = std::stol(v, &used);
+      strata->params[kv.substr(0, eq)] = used == v.size() ? RawParam{ParamValue{n}, "--set"}
+                                                           : RawParam{ParamValue{std::stod(v)}, "--set"};
+    } catch (const std::exception&) {
+      throw ConfigError("--set " + kv + ": the value must be a number");
+    }
+  }
+  out.surface_index = stageParams(spec, *surface).getString("output");
+  out.next_index = stageParams(spec, *next).getString("output");
+  out.cut = feeIndexConfigOf(spec, *surface);
+  out.voxel_m = stageParams(spec, *strata).getDouble("resolution_m");
+  // The full run's strata files, in the output folder.
+  for (const auto& [key, name] : {std::pair<const char*, const char*>{"save_path", "strata.ot"},
+                                  {"octovis_path", "strata_octovis.ot"}, {"section_png", "section_c.png"}})
+    strata->params[key] = RawParam{ParamValue{(fs::absolute(a.out) / name).string()}, "eval-strata"};
+  for (const std::string& l : {out.surface_index, out.next_index, std::string("strata_change_z_m"), std::string("strata_cut_m")})
+    if (std::find(spec.outputs.geotiff.begin(), spec.outputs.geotiff.end(), l) == spec.outputs.geotiff.end())
+      spec.outputs.geotiff.push_back(l);
+  return out;
+}
+
+/// The map's layers sampled during the run: both indices at each pass start, the change height
+/// at the end. Row-major over the map geometry's logical cells, NaN where unknown.
+struct MapSamples {
+  std::vector<std::vector<double>> surface, next;  ///< [pass start k][cell]
+  std::vector<double> change_z;
+};
+
+std::vector<double> sampleLayer(const LayeredMap& map, const std::string& layer) {
+  const Geometry& g = map.geometry();
+  const LayerId id = map.layerId(layer);
+  std::vector<double> out(static_cast<std::size_t>(g.size().x() * g.size().y()));
+  for (int i = 0; i < g.size().x(); ++i)
+    for (int j = 0; j < g.size().y(); ++j) out[static_cast<std::size_t>(i * g.size().y() + j)] = map.at(id, Index(i, j));
+  return out;
+}
+
+/// One pipeline run over the whole scenario, with its usual outputs in --out.
+MapSamples runAndSample(const PipelineSpec& spec, const StrataArgs& a, const Stages& st, const std::vector<Snapshot>& snaps) {
+  MapSamples m;
+  std::size_t next_start = 0;  // snaps[0 .. K-2] are pass starts, the last one the end
+  RunOptions o;
+  o.out_dir = a.out;
+  o.threads = a.threads;
+  o.on_event = [&](const LayeredMap& map, double stamp) {
+    while (!a.boundary_only && next_start + 1 < snaps.size() && stamp >= snaps[next_start].t) {
+      m.surface.push_back(sampleLayer(map, st.surface_index));
+      m.next.push_back(sampleLayer(map, st.next_index));
+      ++next_start;
+    }
+  };
+  o.compare_truth = [&](LayeredMap& map, const Source& src) {
+    m.change_z = sampleLayer(map, "strata_change_z_m");
+    return eval::compareWithSourceTruth(map, src);
+  };
+  PipelineSpec s = spec;
+  s.source.settings["max_time_s"] = RawParam{ParamValue{snaps.back().t}, "eval-strata"};
+  runPipeline(s, o);
+  return m;
+}
+
+/// Per pass k + 2: the indices at its start against the index of the truth soil it removed.
+nlohmann::json nextPassErrors(const StrataArgs& a, const Stages& st, const Geometry& g, const sim::SoilField& field,
+                              const std::vector<double>& initial, const std::vector<Snapshot>& snaps, const MapSamples& m) {
+  ErrorSum total_surface, total_next;
+  nlohmann::json passes = nlohmann::json::array();
+  if (!a.quiet)
+    std::printf("next pass: FEE index of the soil each pass removed (truth) against the map's indices at its start\n"
+                "  %-5s %7s %7s %8s %14s %14s\n", "pass", "start", "end", "cells", "surface MAE", "strata MAE");
+  for (std::size_t k = 0; k < m.surface.size(); ++k) {
+    ErrorSum es, en;
+    for (int i = 0; i < g.size().x(); ++i)
+      for (int j = 0; j < g.size().y(); ++j) {
+        const std::size_t c = static_cast<std::size_t>(i * g.size().y() + j);
+        const double b0 = snaps[k].bank[c], b1 = snaps[k + 1].bank[c], fs_ = m.surface[k][c], fn = m.next[k][c];
+        if (!(b0 - b1 >= a.min_cut_m) || !std::isfinite(fs_) || !std::isfinite(fn)) continue;
+        const Position p = g.positionOf(Index(i, j));
+        const double ti =
+            soil::feeIndexOf(truthSoilBetween(field, p.x(), p.y(), initial[c] - b0, initial[c] - b1), fee::Soil{}, st.cut).index_n;
+        if (!std::isfinite(ti)) continue;
+        es.add(fs_, ti);
+        en.add(fn, ti);
+        total_surface.add(fs_, ti);
+        total_next.add(fn, ti);
+      }
+    passes.push_back({{"pass", k + 2}, {"start_s", snaps[k].t}, {"end_s", snaps[k + 1].t}, {"surface", es.json()}, {"strata", en.json()}});
+    if (!a.quiet)
+      std::printf("  %-5zu %7.1f %7.1f %8ld %11.2f kN %11.2f kN\n", k + 2, snaps[k].t, snaps[k + 1].t, es.n,
+                  es.n ? es.abs / es.n * 1e-3 : std::nan(""), en.n ? en.abs / en.n * 1e-3 : std::nan(""));
+  }
+  if (!a.quiet && total_surface.n > 0)
+    std::printf("  all   %23ld %11.2f kN %11.2f kN  (relative %.1f %% / %.1f %%)\n", total_surface.n,
+                total_surface.abs / total_surface.n * 1e-3, total_next.abs / total_next.n * 1e-3,
+                100 * total_surface.json()["relative"].get<double>(), 100 * total_next.json()["relative"].get<double>());
+  return {{"passes", passes}, {"surface", total_surface.json()}, {"strata", total_next.json()}};
+}
+
+/// In the columns cut through the zone's top (the bank at the end at least one voxel below it):
+/// is the change height within one voxel of it?
+nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, double voxel, const Geometry& g,
+                              const std::vector<double>& initial, const Snapshot& end, const std::vector<double>& change_z) {
+  long cut_through = 0, found = 0, within = 0;
+  double abs_err = 0;
+  for (int i = 0; i < g.size().x(); ++i)
+    for (int j = 0; j < g.size().y(); ++j) {
+      const std::size_t c = static_cast<std::size_t>(i * g.size().y() + j);
+      const Position p = g.positionOf(Index(i, j));
+      const double top = initial[c] - zone.depthMinAt(p.x(), p.y());
+      if (!(end.bank[c] <= top - voxel)) continue;
+      ++cut_through;
+      if (!std::isfinite(change_z[c])) continue;
+      ++found;
+      abs_err += std::abs(change_z[c] - top);
+      if (std::abs(change_z[c] - top) <= voxel) ++within;
+    }
+  if (!a.quiet)
+    std::printf("boundary (top of '%s'): %ld columns cut through it, a change found in %ld, within one voxel (%.2f m) in "
+                "%ld = %.1f %% (MAE where found %.3f m)\n",
+                zone.name.c_str(), cut_through, found, voxel, within, cut_through ? 100.0 * within / cut_through : std::nan(""),
+                found ? abs_err / found : std::nan(""));
+  return {{"columns_cut_through", cut_through}, {"columns_with_change", found}, {"within_one_voxel", within},
+          {"fraction_within", cut_through ? static_cast<double>(within) / cut_through : std::nan("")},
+          {"mae_m_where_found", found ? abs_err / found : std::nan("")}};
+}
 
 int runEvalStrata(const StrataArgs& a) {
   const fs::path configs = embeddedDemoBaseDir();
@@ -167,147 +295,22 @@ int runEvalStrata(const StrataArgs& a) {
       break;
     }
   if (!zone) throw ConfigError(scenario + ": no soil zone " + (a.zone.empty() ? "below the surface (depth_m: [>0, ...])" : "named '" + a.zone + "'"));
-  const StageSpec *strata = nullptr, *surface = nullptr, *next = nullptr;
-  for (StageSpec& st : spec.stages) {
-    if (st.type == "soil_pinn" && !a.model.empty())
-      st.params["model"] = RawParam{ParamValue{fs::absolute(a.model).string()}, "--model"};
-    if (st.type == "octomap_strata") {
-      strata = &st;
-      for (const std::string& kv : a.set) {
-        const auto eq = kv.find('=');
-        if (eq == std::string::npos) throw ConfigError("--set " + kv + ": expected KEY=VALUE");
-        try {
-          const std::string v = kv.substr(eq + 1);
-          std::size_t used = 0;
-          const long n = std::stol(v, &used);
-          st.params[kv.substr(0, eq)] = used == v.size() ? RawParam{ParamValue{n}, "--set"}
-                                                          : RawParam{ParamValue{std::stod(v)}, "--set"};
-        } catch (const std::exception&) {
-          throw ConfigError("--set " + kv + ": the value must be a number");
-        }
-      }
-    }
-    if (st.type == "fee_index") {
-      const std::string prefix = paramText(st, "soil_prefix", "soil_");
-      if (prefix == "soil_") surface = &st;
-      if (prefix == "strata_next_") next = &st;
-    }
-  }
-  if (!strata || !surface || !next)
-    throw ConfigError(spec.file + ": eval-strata needs an octomap_strata stage and two fee_index stages, one over "
-                      "soil_* and one with soil_prefix: strata_next_");
-  const std::string out_surface = paramText(*surface, "output", "fee_index"), out_next = paramText(*next, "output", "fee_index");
-  const soil::FeeIndexConfig cut = feeIndexConfigOf(spec, *surface);
+  const Stages st = findStages(spec, a);
   const Geometry g = spec.geometry();
-  const double voxel = [&] {
-    const auto it = strata->params.find("resolution_m");
-    const double* v = it == strata->params.end() ? nullptr : std::get_if<double>(&it->second.value);
-    return v ? *v : 0.05;
-  }();
   fs::create_directories(a.out);
 
   if (!a.quiet) std::printf("eval-strata %s: truth run of the simulator\n", a.scenario.c_str());
   std::vector<double> initial;
   const std::vector<Snapshot> snaps = truthSnapshots(sc, g, initial, a.quiet);
-  sim::Simulator probe(sc);  // its SoilField: the truth soil by depth
-  const sim::SoilField& field = probe.soil();
-
-  // The map at each pass start (snaps[0 .. K-2]) and at the end (snaps[K-1]).
-  auto runTo = [&](double t, const fs::path& dir, bool last) {
-    PipelineSpec s = spec;
-    s.source.settings["max_time_s"] = RawParam{ParamValue{t}, "eval-strata"};
-    for (StageSpec& st : s.stages)
-      if (st.type == "octomap_strata") {
-        for (const char* k : {"save_path", "octovis_path", "section_png"}) {
-          const std::string name = std::string(k) == "save_path" ? "strata.ot" : std::string(k) == "octovis_path" ? "strata_octovis.ot" : "section_c.png";
-          st.params[k] = RawParam{ParamValue{last ? (fs::absolute(dir) / name).string() : std::string()}, "eval-strata"};
-        }
-      }
-    if (!last) {
-      s.outputs.geotiff = {out_surface, out_next};
-      s.outputs.png.clear();
-      s.outputs.png_all = false;
-      s.outputs.snapshot = false;
-      s.outputs.report = false;
-    } else {
-      for (const std::string& l : {out_surface, out_next, std::string("strata_change_z_m"), std::string("strata_cut_m")})
-        if (std::find(s.outputs.geotiff.begin(), s.outputs.geotiff.end(), l) == s.outputs.geotiff.end()) s.outputs.geotiff.push_back(l);
-    }
-    RunOptions o;
-    o.out_dir = dir.string();
-    o.threads = a.threads;
-    if (last) o.compare_truth = eval::compareWithSourceTruth;
-    runPipeline(s, o);
-    return io::readRaster(dir / "map.tif");
-  };
+  if (!a.quiet) std::printf("pipeline run\n");
+  const MapSamples m = runAndSample(spec, a, st, snaps);
 
   nlohmann::json report;
   report["scenario"] = scenario;
   report["zone"] = zone->name;
-  report["voxel_m"] = voxel;
-  ErrorSum total_surface, total_next;
-  nlohmann::json passes = nlohmann::json::array();
-  if (!a.quiet)
-    std::printf("next pass: FEE index of the soil each pass removed (truth) against the map's indices at its start\n"
-                "  %-5s %7s %7s %8s %14s %14s\n", "pass", "start", "end", "cells", "surface MAE", "strata MAE");
-  for (std::size_t k = 0; !a.boundary_only && k + 1 < snaps.size(); ++k) {
-    const fs::path dir = fs::path(a.out) / ("pass_" + std::to_string(k + 2));
-    const io::Raster r = runTo(snaps[k].t, dir, false);
-    const std::vector<double> fs_ = band(r, out_surface, g, (dir / "map.tif").string());
-    const std::vector<double> fn = band(r, out_next, g, (dir / "map.tif").string());
-    ErrorSum es, en;
-    for (int i = 0; i < g.size().x(); ++i)
-      for (int j = 0; j < g.size().y(); ++j) {
-        const std::size_t c = static_cast<std::size_t>(i * g.size().y() + j);
-        const double b0 = snaps[k].bank[c], b1 = snaps[k + 1].bank[c];
-        if (!(b0 - b1 >= a.min_cut_m) || !std::isfinite(fs_[c]) || !std::isfinite(fn[c])) continue;
-        const Position p = g.positionOf(Index(i, j));
-        const fee::Soil truth = truthSoilBetween(field, p.x(), p.y(), initial[c] - b0, initial[c] - b1);
-        const double ti = soil::feeIndexOf(truth, fee::Soil{}, cut).index_n;
-        if (!std::isfinite(ti)) continue;
-        es.add(fs_[c], ti);
-        en.add(fn[c], ti);
-        total_surface.add(fs_[c], ti);
-        total_next.add(fn[c], ti);
-      }
-    passes.push_back({{"pass", k + 2}, {"start_s", snaps[k].t}, {"end_s", snaps[k + 1].t}, {"surface", es.json()}, {"strata", en.json()}});
-    if (!a.quiet)
-      std::printf("  %-5zu %7.1f %7.1f %8ld %11.2f kN %11.2f kN\n", k + 2, snaps[k].t, snaps[k + 1].t, es.n,
-                  es.n ? es.abs / es.n * 1e-3 : std::nan(""), en.n ? en.abs / en.n * 1e-3 : std::nan(""));
-  }
-  report["next_pass"] = {{"passes", passes}, {"surface", total_surface.json()}, {"strata", total_next.json()}};
-  if (!a.quiet)
-    std::printf("  all   %23ld %11.2f kN %11.2f kN  (relative %.1f %% / %.1f %%)\n", total_surface.n,
-                total_surface.n ? total_surface.abs / total_surface.n * 1e-3 : std::nan(""),
-                total_next.n ? total_next.abs / total_next.n * 1e-3 : std::nan(""), 100 * total_surface.json()["relative"].get<double>(),
-                100 * total_next.json()["relative"].get<double>());
-
-  // The boundary, from the full run.
-  const io::Raster r = runTo(snaps.back().t, a.out, true);
-  const std::vector<double> cz = band(r, "strata_change_z_m", g, (fs::path(a.out) / "map.tif").string());
-  long cut_through = 0, found = 0, within = 0;
-  double abs_err = 0;
-  for (int i = 0; i < g.size().x(); ++i)
-    for (int j = 0; j < g.size().y(); ++j) {
-      const std::size_t c = static_cast<std::size_t>(i * g.size().y() + j);
-      const Position p = g.positionOf(Index(i, j));
-      const double top = initial[c] - zone->depthMinAt(p.x(), p.y());
-      // Cut through: the bank at the end at least one voxel below the zone's top.
-      if (!(snaps.back().bank[c] <= top - voxel)) continue;
-      ++cut_through;
-      if (!std::isfinite(cz[c])) continue;
-      ++found;
-      abs_err += std::abs(cz[c] - top);
-      if (std::abs(cz[c] - top) <= voxel) ++within;
-    }
-  report["boundary"] = {{"columns_cut_through", cut_through}, {"columns_with_change", found}, {"within_one_voxel", within},
-                        {"fraction_within", cut_through ? static_cast<double>(within) / cut_through : std::nan("")},
-                        {"mae_m_where_found", found ? abs_err / found : std::nan("")}};
-  if (!a.quiet)
-    std::printf("boundary (top of '%s'): %ld columns cut through it, a change found in %ld, within one voxel (%.2f m) in "
-                "%ld = %.1f %% (MAE where found %.3f m)\n",
-                zone->name.c_str(), cut_through, found, voxel, within, cut_through ? 100.0 * within / cut_through : std::nan(""),
-                found ? abs_err / found : std::nan(""));
+  report["voxel_m"] = st.voxel_m;
+  if (!a.boundary_only) report["next_pass"] = nextPassErrors(a, st, g, sim::SoilField(sc.default_soil, sc.zones), initial, snaps, m);
+  report["boundary"] = boundaryFigure(a, *zone, st.voxel_m, g, initial, snaps.back(), m.change_z);
   std::ofstream(fs::path(a.out) / "eval_strata.json") << report.dump(2) << "\n";
   if (!a.quiet) std::printf("wrote %s\n", (fs::path(a.out) / "eval_strata.json").string().c_str());
   return kOk;
@@ -320,8 +323,8 @@ Registrar reg{Command{"eval-strata", [](CLI::App& app, std::function<int()>& run
       "through configs/strata.yaml and report (1) in the columns cut through a soil zone's top, how\n"
       "often the height where the removed soil changes lies within one voxel of it, and (2) per pass,\n"
       "how well the FEE index of the soil expected in the next cut predicts the index of the soil the\n"
-      "pass removed, against the surface-only index. Writes eval_strata.json and the full run's\n"
-      "outputs (with strata.ot, strata_octovis.ot, section_c.png) to --out.");
+      "pass removed, against the surface-only index. Writes eval_strata.json and the run's outputs\n"
+      "(with strata.ot, strata_octovis.ot, section_c.png) to --out.");
   sub->add_option("scenario", a->scenario, "Scenario YAML")->required()->check(CLI::ExistingFile);
   sub->add_option("--pipeline", a->pipeline, "Pipeline YAML (default: configs/strata.yaml of the source tree)");
   sub->add_option("--model", a->model, "Soil estimator file for every soil_pinn stage");
@@ -331,7 +334,7 @@ Registrar reg{Command{"eval-strata", [](CLI::App& app, std::function<int()>& run
   sub->add_option("--out,-o", a->out, "Output folder");
   sub->add_option("--duration", a->duration, "Simulate at most this many seconds")->check(CLI::PositiveNumber);
   sub->add_option("--threads,-j", a->threads, "Worker threads")->check(CLI::Range(1, 256));
-  sub->add_flag("--boundary-only", a->boundary_only, "Skip the per-pass runs: the boundary figure from the full run only");
+  sub->add_flag("--boundary-only", a->boundary_only, "The boundary figure only (no per-pass comparison)");
   sub->add_option("--set", a->set, "Numeric octomap_strata parameter for this run, KEY=VALUE (repeatable)");
   sub->add_flag("--quiet,-q", a->quiet, "Print nothing but errors");
   sub->callback([&run, a] { run = [a]() -> int { return runEvalStrata(*a); }; });

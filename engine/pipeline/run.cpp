@@ -190,6 +190,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
     ++n;
     series.afterEvent(stampOf(e), n);
     if (options.on_progress) options.on_progress(source->progress(), n);
+    if (options.on_event) options.on_event(engine->map(), stampOf(e));
   }
   engine->finish();
   for (const auto& [reason, count] : source->dropped()) engine->countSourceDrop(reason, count);

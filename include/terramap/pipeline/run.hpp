@@ -29,6 +29,10 @@ struct RunOptions {
   /// Called after each event with the source's progress in [0, 1] (or < 0 if unknown) and
   /// the number of events so far. Runs on the calling thread.
   std::function<void(double progress, long events)> on_progress;
+  /// Called after each event with the map as the stages left it and the event's stamp (s), for
+  /// callers that look at the map while it is built (eval-strata samples it at pass starts).
+  /// Runs on the calling thread, between events; the map must not be kept past the call.
+  std::function<void(const LayeredMap& map, double stamp)> on_event;
   /// After the last event: compares the map with the source's truth, when the source has one
   /// (the simulator), adding error layers to the map. The CLI sets it to
   /// terramap::eval::compareWithSourceTruth (eval/truth_report.hpp); unset = no comparison, so
