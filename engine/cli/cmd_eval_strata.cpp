@@ -20,11 +20,13 @@
 #include <terramap/sim/scenario.hpp>
 #include <terramap/sim/simulator.hpp>
 #include <terramap/soil/fee_index.hpp>
+#include <terramap/soil/soil_parameters.hpp>
 #include <terramap/eval/truth_report.hpp>
 
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -51,10 +53,16 @@ struct Snapshot {
   std::vector<double> bank;  ///< row-major over the map geometry's logical cells
 };
 
+/// The soil the blade was cutting, per observation period of the truth run (NaN: not cutting).
+struct CutSoil {
+  std::vector<double> t;
+  std::vector<soil::SoilParamVector> soil;
+};
+
 /// Runs the simulator alone: the bank surface at the start of every forward pass after the first
-/// and at the end, and the initial surface.
+/// and at the end, the initial surface, and the soil the blade cut when.
 std::vector<Snapshot> truthSnapshots(const sim::Scenario& sc, const Geometry& g, std::vector<double>& initial,
-                                     bool quiet) {
+                                     CutSoil& cut_soil, bool quiet) {
   sim::Simulator s(sc);
   const int n = g.size().x() * g.size().y();
   auto grab = [&](double t) {
@@ -80,6 +88,9 @@ std::vector<Snapshot> truthSnapshots(const sim::Scenario& sc, const Geometry& g,
   bool reversing = false;
   while (s.next(ev)) {
     ev.clear();
+    const sim::FeeTruth& f = s.machineTruth(0).fee;
+    cut_soil.t.push_back(s.time());
+    cut_soil.soil.push_back({f.c_pa, f.phi_rad, f.ca_pa, f.delta_rad, f.gamma_n_m3});
     const double v = s.machineTruth(0).twist_base(0);
     if (v < -0.05) reversing = true;
     if (reversing && v > 0.05) {
@@ -278,6 +289,58 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
           {"mae_m_where_found", found ? abs_err / found : std::nan("")}};
 }
 
+/// How far apart the soil estimator's estimates of the two soils are: every valid estimate of
+/// the run (report.json's soil_pinn records) paired with the soil the truth blade was cutting at
+/// its sweep's end, classed by the nearer of the default soil and the zone's in cohesion. Per
+/// property: truth, estimates' mean and spread, and d' = (mean difference) / pooled spread.
+/// The boundary can only be as sharp as these classes are apart.
+nlohmann::json estimatorSeparation(const StrataArgs& a, const sim::Scenario& sc, const sim::SoilZone& zone, const CutSoil& truth) {
+  const nlohmann::json run = nlohmann::json::parse(std::ifstream(fs::path(a.out) / "report.json"));
+  const soil::SoilParamVector soils[2] = {soil::fromFee(sc.default_soil.fee), soil::fromFee(zone.soil.fee)};
+  std::array<std::vector<soil::SoilParamVector>, 2> est;
+  for (const nlohmann::json& stage : run["stages"]) {
+    if (stage["type"] != "soil_pinn" || !stage.contains("records")) continue;
+    for (const nlohmann::json& r : stage["records"]) {
+      if (!r.value("valid", false)) continue;
+      const double t1 = r["t1"].get<double>();
+      const auto it = std::lower_bound(truth.t.begin(), truth.t.end(), t1 - 1e-9);
+      if (it == truth.t.end()) continue;
+      const soil::SoilParamVector& cut = truth.soil[static_cast<std::size_t>(it - truth.t.begin())];
+      if (!std::isfinite(cut[soil::kParamC])) continue;  // the blade was not cutting
+      const int cls = std::abs(cut[soil::kParamC] - soils[1][soil::kParamC]) < std::abs(cut[soil::kParamC] - soils[0][soil::kParamC]);
+      soil::SoilParamVector m{};
+      for (int q = 0; q < soil::kSoilParamCount; ++q) m[static_cast<std::size_t>(q)] = r["mean"][static_cast<std::size_t>(q)].get<double>();
+      est[static_cast<std::size_t>(cls)].push_back(m);
+    }
+  }
+  nlohmann::json out = {{"estimates", {{"default", est[0].size()}, {zone.name, est[1].size()}}}};
+  if (!a.quiet)
+    std::printf("soil estimates by the soil being cut (%zu in the default soil, %zu in '%s'):\n  %-6s %-32s %-32s %6s\n",
+                est[0].size(), est[1].size(), zone.name.c_str(), "", "default: truth / estimates", "zone: truth / estimates", "d'");
+  for (int q = 0; q < soil::kSoilParamCount; ++q) {
+    double mean[2] = {std::nan(""), std::nan("")}, sd[2] = {std::nan(""), std::nan("")};
+    for (int c = 0; c < 2; ++c) {
+      const auto& v = est[static_cast<std::size_t>(c)];
+      if (v.empty()) continue;
+      double s1 = 0, s2 = 0;
+      for (const auto& e : v) {
+        s1 += e[static_cast<std::size_t>(q)];
+        s2 += e[static_cast<std::size_t>(q)] * e[static_cast<std::size_t>(q)];
+      }
+      mean[c] = s1 / v.size();
+      sd[c] = std::sqrt(std::max(0.0, s2 / v.size() - mean[c] * mean[c]));
+    }
+    const double d = (mean[1] - mean[0]) / std::sqrt(0.5 * (sd[0] * sd[0] + sd[1] * sd[1]));
+    const soil::SoilParamInfo& info = soil::kSoilParams[q];
+    out["properties"][info.name] = {{"unit", info.unit}, {"truth", {soils[0][static_cast<std::size_t>(q)], soils[1][static_cast<std::size_t>(q)]}},
+                                    {"mean", {mean[0], mean[1]}}, {"sd", {sd[0], sd[1]}}, {"d_prime", d}};
+    if (!a.quiet)
+      std::printf("  %-6s %9.4g / %9.4g +- %-9.3g %9.4g / %9.4g +- %-9.3g %6.2f  [%s]\n", info.name, soils[0][static_cast<std::size_t>(q)],
+                  mean[0], sd[0], soils[1][static_cast<std::size_t>(q)], mean[1], sd[1], d, info.unit);
+  }
+  return out;
+}
+
 int runEvalStrata(const StrataArgs& a) {
   const fs::path configs = embeddedDemoBaseDir();
   PipelineSpec spec = parsePipelineFile(a.pipeline.empty() ? (configs / "strata.yaml").string() : a.pipeline);
@@ -301,7 +364,8 @@ int runEvalStrata(const StrataArgs& a) {
 
   if (!a.quiet) std::printf("eval-strata %s: truth run of the simulator\n", a.scenario.c_str());
   std::vector<double> initial;
-  const std::vector<Snapshot> snaps = truthSnapshots(sc, g, initial, a.quiet);
+  CutSoil cut_soil;
+  const std::vector<Snapshot> snaps = truthSnapshots(sc, g, initial, cut_soil, a.quiet);
   if (!a.quiet) std::printf("pipeline run\n");
   const MapSamples m = runAndSample(spec, a, st, snaps);
 
@@ -311,6 +375,7 @@ int runEvalStrata(const StrataArgs& a) {
   report["voxel_m"] = st.voxel_m;
   if (!a.boundary_only) report["next_pass"] = nextPassErrors(a, st, g, sim::SoilField(sc.default_soil, sc.zones), initial, snaps, m);
   report["boundary"] = boundaryFigure(a, *zone, st.voxel_m, g, initial, snaps.back(), m.change_z);
+  report["estimator"] = estimatorSeparation(a, sc, *zone, cut_soil);
   std::ofstream(fs::path(a.out) / "eval_strata.json") << report.dump(2) << "\n";
   if (!a.quiet) std::printf("wrote %s\n", (fs::path(a.out) / "eval_strata.json").string().c_str());
   return kOk;

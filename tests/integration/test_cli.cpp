@@ -219,6 +219,8 @@ TEST(Cli, EvalStrataComparesTheNextPassIndicesAndTheBoundaryWithTheTruth) {
   EXPECT_EQ(first["surface"]["cells"], first["strata"]["cells"]);  // the same cells judged twice
   EXPECT_GT(j["next_pass"]["strata"]["mae_n"].get<double>(), 0.0);
   EXPECT_TRUE(j["boundary"].contains("columns_cut_through"));
+  EXPECT_GT(j["estimator"]["estimates"]["default"].get<long>(), 0);  // the loam is cut from the first pass
+  EXPECT_TRUE(j["estimator"]["properties"]["c"].contains("d_prime"));
   for (const char* f : {"strata.ot", "strata_octovis.ot", "section_c.png", "map.tif"}) EXPECT_TRUE(fs::exists(d / f)) << f;
   // A pipeline without an octomap_strata stage is a configuration error naming what is missing.
   const Result bad = sh("eval-strata " + scen + " --pipeline " + std::string(TERRAMAP_SOURCE_DIR) + "/configs/soil_map.yaml --out " +
