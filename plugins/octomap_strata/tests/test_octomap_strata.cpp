@@ -405,6 +405,17 @@ struct Harness {
     bus.publish<SoilEstimateRecord>(SoilEstimateRecord::kType, 0.0, std::make_shared<const SoilEstimateRecord>(e));
   }
   void event() { plugin.process(ctx, Tick{}); }
+  // Four passes over the same strip, 0.1 m each, each sweep's estimate in the next event; the
+  // soil turns from 8 to 55 kPa after two.
+  void loamOverClay() {
+    const double c[4] = {8e3, 8e3, 55e3, 55e3};
+    for (int k = 0; k < 4; ++k) {
+      sweep(k + 1, 0.0, 1.0 - 0.1 * k, 0.9 - 0.1 * k);
+      event();
+      estimate(k + 1, 0.3, c[k]);
+      event();
+    }
+  }
 };
 
 }  // namespace
@@ -412,14 +423,7 @@ struct Harness {
 TEST(OctomapStrataPlugin, LayersShowTheNextCutTheRemovedDepthAndTheChange) {
   Harness h(1, {{"change_min_voxels", ParamValue{2L}}, {"change_radius_m", ParamValue{0.0}},
                 {"change_interval_s", ParamValue{0.0}}, {"inherit", ParamValue{std::string("last")}}});
-  // Four passes over the same strip, 0.1 m each; the soil turns from 8 to 55 kPa after two.
-  const double c[4] = {8e3, 8e3, 55e3, 55e3};
-  for (int k = 0; k < 4; ++k) {
-    h.sweep(k + 1, 0.0, 1.0 - 0.1 * k, 0.9 - 0.1 * k);
-    h.event();
-    h.estimate(k + 1, 0.3, c[k]);
-    h.event();
-  }
+  h.loamOverClay();
   const Eigen::Vector2d p(0.15, 0.05);
   EXPECT_NEAR(h.at("strata_cut_m", p), 0.4f, 1e-5);
   EXPECT_NEAR(h.at("strata_change_depth_m", p), 0.2f, 1e-5);
@@ -433,13 +437,7 @@ TEST(OctomapStrataPlugin, LayersShowTheNextCutTheRemovedDepthAndTheChange) {
 
 TEST(OctomapStrataPlugin, TheChangeLayerWaitsForItsIntervalOrTheEnd) {
   Harness h(1, {{"change_min_voxels", ParamValue{2L}}});  // every 5 s of event time (the stamps here stay 0)
-  const double c[4] = {8e3, 8e3, 55e3, 55e3};
-  for (int k = 0; k < 4; ++k) {
-    h.sweep(k + 1, 0.0, 1.0 - 0.1 * k, 0.9 - 0.1 * k);
-    h.event();
-    h.estimate(k + 1, 0.3, c[k]);
-    h.event();
-  }
+  h.loamOverClay();
   const Eigen::Vector2d p(0.15, 0.05);
   EXPECT_TRUE(std::isnan(h.at("strata_change_depth_m", p)));  // computed once, at the first sweep
   EXPECT_NEAR(h.at("strata_cut_m", p), 0.4f, 1e-5);           // per event
