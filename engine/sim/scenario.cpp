@@ -704,6 +704,14 @@ Scenario parseImpl(const std::string& text, Ctx& ctx) {
     readSoilSection(s, sc);
   }
   sc.localisation = readLocalisation(r, sc.localisation);
+  if (r.has("survey")) {
+    MapReader v = r.child("survey");
+    sc.survey.spacing_m = v.num("spacing_m", 0.025, 1e-3, 10.0);
+    sc.survey.sigma_m = v.num("sigma_m", sc.survey.sigma_m, 0.0, 10.0);
+    sc.survey.height_m = v.num("height_m", sc.survey.height_m, 0.5, 1000.0);
+    sc.survey.block_m = v.num("block_m", sc.survey.block_m, 0.5, 1000.0);
+    v.finish();
+  }
   readMachines(r, sc, extent_known);
   r.finish();
   ctx.diag.throwIfAny();

@@ -1,6 +1,7 @@
 // The simulator loop: controllers, machine dynamics, truth force, deformation, sensors.
 #include <terramap/core/error.hpp>
 #include <terramap/sim/simulator.hpp>
+#include <terramap/sim/survey.hpp>
 
 #include <tbb/task_group.h>
 
@@ -490,6 +491,7 @@ bool Simulator::next(std::vector<Event>& out) {
     Period rec;
     producePeriod(rec);
     consume(rec, out);
+    appendSurvey(out);
     return true;
   }
   Period rec;
@@ -526,7 +528,19 @@ bool Simulator::next(std::vector<Event>& out) {
     return false;
   }
   consume(rec, out);
+  appendSurvey(out);
   return true;
+}
+
+void Simulator::appendSurvey(std::vector<Event>& out) {
+  if (survey_sent_) return;
+  survey_sent_ = true;
+  if (!sc_.survey.enabled() || out.empty()) return;
+  // The initial surface never changes, so reading it while the physics runs ahead is safe.
+  for (PointCloud& pc : surveyClouds(sc_, terrain_, stampOf(out.back()))) {
+    stats_.survey_points += pc.points.size();
+    out.emplace_back(std::move(pc));
+  }
 }
 
 }  // namespace terramap::sim

@@ -370,3 +370,43 @@ machines:
   EXPECT_NE(r.out.find("--memory-budget: 'lots' is not a memory size"), std::string::npos) << r.out;
   fs::remove_all(d);
 }
+
+// A mast LiDAR's lowest beam reaches the ground metres ahead of the machine, so without a
+// survey the ground the blade starts cutting is unknown to the map and blade_sweep can neither
+// cut it nor extract the FEE there (nor count the pile it pushes); with `survey:` it knows it
+// from the first sweep.
+TEST(Cli, ASurveyedSiteIsKnownUnderTheBladeFromTheFirstSweep) {
+  const fs::path d = tempDir("survey");
+  auto run = [&](const std::string& survey) {
+    write(d / "s.yaml", "version: 1\nseed: 3\nduration_s: 2.5\n" + survey +
+                            "terrain: {size_m: [14, 8], origin_m: [-4, -4], resolution_m: 0.02}\n"
+                            "machines:\n  - id: ctl1\n"
+                            "    controller: {type: route, start_m: [0, 0], length_m: 6, passes: 1, depth_m: 0.08}\n"
+                            "    sensors:\n      - {id: top, type: lidar, preset: os1_64, offset_m: [0.3, 0, 2.4]}\n");
+    write(d / "p.yaml",
+          "version: 1\nmap: {resolution: 0.05, size: [280, 160], center: [3, 0]}\nthreads: 2\n"
+          "source: {type: sim, scenario: s.yaml}\npipeline:\n"
+          "  - {name: lidar, type: lidar_fusion, params: {max_range_m: 30, max_height_above_sensor_m: -0.5}}\n"
+          "  - {name: blade, type: blade_sweep, params: {min_translation_m: 0.2}}\n");
+    const fs::path out = d / (survey.empty() ? "plain" : "survey");
+    const auto r = sh("run " + (d / "p.yaml").string() + " --quiet --out " + out.string());
+    EXPECT_EQ(r.code, 0) << r.out;
+    const auto rep = nlohmann::json::parse(std::ifstream(out / "report.json"));
+    long under = 0, unknown = 0, cut = 0;
+    for (const auto& s : rep["stages"])
+      if (s["name"] == "blade")
+        for (const auto& rec : s["records"]) {
+          under += rec["cells_under_sv"].get<long>();
+          unknown += rec["cells_unknown_under_sv"].get<long>();
+          cut += rec["cells_cut"].get<long>();
+        }
+    return std::array<long, 3>{under, unknown, cut};
+  };
+  const auto plain = run(""), surveyed = run("survey: {spacing_m: 0.025, sigma_m: 0.02}\n");
+  ASSERT_GT(plain[0], 500);
+  EXPECT_GT(plain[1], plain[0] / 2) << "the LiDAR alone should not see the first metres under the blade";
+  EXPECT_LT(plain[2], plain[0] / 10);
+  ASSERT_GT(surveyed[0], 500);
+  EXPECT_EQ(surveyed[1], 0);
+  EXPECT_GT(surveyed[2], surveyed[0] / 4);
+}

@@ -175,6 +175,24 @@ struct MachineSpec {
   std::vector<ShapeBox> shape;
 };
 
+/// A survey of the site before the work starts (drone photogrammetry, a total-station or
+/// terrestrial-scanner DEM): the initial truth surface sampled every `spacing_m` (each point
+/// jittered uniformly within its square, so a map grid never aliases with it) with Gaussian
+/// height noise `sigma_m`, delivered as PointClouds of frame "survey" with the first observation
+/// period, one cloud per `block_m` square whose sensor sits `height_m` above the square's highest
+/// point (so a range-limited fusion still reaches the corners; keep sqrt(2) block_m / 2 and
+/// height_m within the fusion's max range). Real machines start on surveyed sites; without it
+/// the ground the machine starts on is unknown to a mast LiDAR (its lowest beam reaches the
+/// ground several metres ahead) until the machine has driven past it. Off (spacing_m = 0) by
+/// default; the points are the same bits for a seed whatever the thread count.
+struct SurveySpec {
+  double spacing_m = 0;    ///< 0 = no survey
+  double sigma_m = 0.02;   ///< 1σ height noise of a survey point
+  double height_m = 15;    ///< survey sensor above the block's highest point
+  double block_m = 10;     ///< side of the square one cloud covers
+  bool enabled() const { return spacing_m > 0; }
+};
+
 struct Scenario {
   std::string name;
   std::string source_path;  ///< file it was loaded from ("" if from a string)
@@ -196,6 +214,7 @@ struct Scenario {
   /// Top-level `localisation:`: the default of machines without their own (rtk_imu if absent).
   LocalisationSpec localisation = LocalisationSpec::rtkImu();
   std::vector<MachineSpec> machines;
+  SurveySpec survey;  ///< top-level `survey:` (off when absent)
 };
 
 /// Loads and validates a scenario file. Relative paths inside (DEM) resolve against the

@@ -102,6 +102,7 @@ class Simulator {
     /// patches handed over (count, nodes).
     double wait_wall_s = 0;
     std::uint64_t patches = 0, patch_nodes = 0;
+    std::uint64_t survey_points = 0;  ///< points of the scenario's survey (survey.hpp), sent once
   };
   const Stats& stats() const { return stats_; }
 
@@ -128,6 +129,9 @@ class Simulator {
   bool produceOne();
   void produceTask();
   void consume(Period& rec, std::vector<Event>& out);
+  /// With the first period's events: the survey clouds (after the machines' first poses, so a
+  /// fusion stage's self-filter is placed), stamped like the period's last event.
+  void appendSurvey(std::vector<Event>& out);
   PointCloud runScan(const ScanRequest& q, const TruthTerrain& terrain);
 
   Scenario sc_;
@@ -146,6 +150,7 @@ class Simulator {
   double t_ = 0;
   long obs_step_ = 0, phys_step_ = 0;
   bool done_ = false;
+  bool survey_sent_ = false;
   std::vector<MachineTruth> view_truth_;
   Stats stats_;
   // Overlap mode (threads >= 2, LiDAR present, Scenario::overlap_scans): the physics runs
