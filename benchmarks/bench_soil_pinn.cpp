@@ -40,7 +40,8 @@ const pinn::SoilEstimator& estimator() {
   static const pinn::SoilEstimator e = [] {
     std::vector<pinn::PinnNet> members;
     for (int m = 0; m < kMembers; ++m)
-      members.emplace_back(pinn::PinnConfig{kT, kP, soil::kObsFeatures, {128, 128}, 100 + m});
+      // The default model's settings (configs/train/pinn.yaml): beta*, penetration term.
+      members.emplace_back(pinn::PinnConfig{kT, kP, soil::kObsFeatures, {128, 128}, 100 + m, pinn::BetaBase::Min, 0.025});
     return pinn::SoilEstimator(std::move(members), std::vector<float>(soil::kObsFeatures, 0.0f),
                                std::vector<float>(soil::kObsFeatures, 1.0f));
   }();

@@ -13,18 +13,6 @@ constexpr double kG = 9.80665;
 
 Eigen::Vector3d horizontal(const Eigen::Vector3d& v) { return {v.x(), v.y(), 0.0}; }
 
-/// Terzaghi strip-footing bearing capacity factors (N_c, N_q) for friction angle phi.
-void bearingFactors(double phi, double& nc, double& nq) {
-  if (phi < 1e-6) {
-    nq = 1.0;
-    nc = M_PI + 2.0;  // Prandtl, phi = 0
-    return;
-  }
-  const double t = std::tan(M_PI / 4 + phi / 2);
-  nq = std::exp(M_PI * std::tan(phi)) * t * t;
-  nc = (nq - 1.0) / std::tan(phi);
-}
-
 struct BladeFrame {
   Eigen::Vector3d c, xb, yb, zb, n_h, e_h;  // edge centre, axes, horizontal push dir, horizontal edge dir
   double half_lat = 0;                      // horizontal half-length of the edge
@@ -332,9 +320,8 @@ void cuttingSlice(const SliceInputs& in, const SoilProperties& sp, double q, dou
     o.f_in = mass_flux * in.normal_speed_mps + q / kG * std::max(0.0, in.accel_mps2);
   }
   if (in.edge_vz_mps < 0) {
-    double nc = 0, nq = 0;
-    bearingFactors(sp.fee.phi_rad, nc, nq);
-    o.qb = sp.fee.c_pa * nc + sp.fee.gamma_n_m3 * depth_v * nq;
+    const fee::BearingFactors bf = fee::bearingFactors(sp.fee.phi_rad);
+    o.qb = sp.fee.c_pa * bf.N_c + sp.fee.gamma_n_m3 * depth_v * bf.N_q;
   }
   o.alpha = alpha; o.rho_s = rho_s; o.d = d; o.beta = beta;
 }

@@ -338,4 +338,36 @@ Jacobian jacobianFTotal(const Soil& s, const Geometry& g, double beta) {
   return J;
 }
 
+BearingFactors bearingFactors(double phi) {
+  BearingFactors b;
+  if (phi < 1e-6) {
+    // Series at phi -> 0: N_q = 1 + (pi + 2) phi + ..., N_c = pi + 2 + (pi^2/2 + pi + 1 ... ) phi;
+    // the constant terms are all the estimator's ranges (phi >= 10 deg) ever meet here.
+    b.N_q = 1.0;
+    b.N_c = M_PI + 2.0;
+    b.dN_q = M_PI + 2.0;
+    b.dN_c = 0.0;
+    return b;
+  }
+  const double t = std::tan(phi), sec2 = 1.0 + t * t;
+  const double u = std::tan(M_PI / 4 + phi / 2);
+  b.N_q = std::exp(M_PI * t) * u * u;
+  b.N_c = (b.N_q - 1.0) / t;
+  // d/dphi ln N_q = pi sec^2 phi + 2 * (1/2) sec^2(u) / tan(u) = pi sec^2 phi + 2 / cos phi.
+  b.dN_q = b.N_q * (M_PI * sec2 + 2.0 / std::cos(phi));
+  b.dN_c = b.dN_q / t - (b.N_q - 1.0) * sec2 / (t * t);
+  return b;
+}
+
+double penetrationForce(const Soil& s, double d_m, double w_m, double edge_m) {
+  const BearingFactors b = bearingFactors(s.phi_rad);
+  return (s.c_pa * b.N_c + s.gamma_n_m3 * d_m * b.N_q) * edge_m * w_m;
+}
+
+Eigen::Vector4d penetrationGradient(const Soil& s, double d_m, double w_m, double edge_m) {
+  const BearingFactors b = bearingFactors(s.phi_rad);
+  const double a = edge_m * w_m;
+  return {b.N_c * a, (s.c_pa * b.dN_c + s.gamma_n_m3 * d_m * b.dN_q) * a, d_m * b.N_q * a, s.gamma_n_m3 * b.N_q * a};
+}
+
 }  // namespace terramap::fee

@@ -60,6 +60,8 @@ MemberOut runMember(const PinnMemberWeights& m, const Eigen::VectorXf& obs_flat,
   o.d_res = static_cast<double>(m.d_res_max_m * std::tanh(zr[0]));
   o.beta_res = static_cast<double>(m.beta_res_max_rad * std::tanh(zr[1]));
   o.F_r = Eigen::Vector2d(m.force_res_scale_n * zf[0], m.force_res_scale_n * zf[1]);
+  Eigen::VectorXf gate;
+  if (m.edge_thickness_m > 0) gate = (m.gate_W * x + m.gate_b).unaryExpr([](float z) { return sigmoid(z); });
 
   // Physics layer per horizon step, in double.
   const fee::Soil s = toSoil(o.theta);
@@ -92,6 +94,14 @@ MemberOut runMember(const PinnMemberWeights& m, const Eigen::VectorXf& obs_flat,
       J.block<2, 1>(2 * p, 2) = Jf.col(fee::kCa);
       J.block<2, 1>(2 * p, 3) = Jf.col(fee::kDelta) + dbase[1] * Jf.col(fee::kBeta);
       J.block<2, 1>(2 * p, 4) = Jf.col(fee::kGamma);
+      if (m.edge_thickness_m > 0) {
+        const double gp = static_cast<double>(gate[p]);
+        F.y() -= gp * fee::penetrationForce(s, g.d_m, g.w_m, m.edge_thickness_m);
+        const Eigen::Vector4d dp = fee::penetrationGradient(s, g.d_m, g.w_m, m.edge_thickness_m);
+        J(2 * p + 1, 0) -= gp * dp[0];
+        J(2 * p + 1, 1) -= gp * dp[1];
+        J(2 * p + 1, 4) -= gp * dp[2];
+      }
     }
     o.F[static_cast<std::size_t>(p)] = F;
   }
@@ -133,6 +143,7 @@ PinnInference::PinnInference(std::vector<PinnMemberWeights> members, std::vector
     head(m.logvar_W, m.logvar_b, 7, "log_var");
     head(m.res_W, m.res_b, 2, "res");
     head(m.fr_W, m.fr_b, 2, "force_res");
+    if (m.edge_thickness_m > 0) head(m.gate_W, m.gate_b, m.P, "pen_gate");
     if (m.theta_k_mean.size() != kThetaKCols || m.theta_k_std.size() != kThetaKCols)
       throw std::invalid_argument("PinnInference: theta_k normalisation needs 6 values");
   }

@@ -106,4 +106,16 @@ at::Tensor feeJacobianChained(const at::Tensor& soil, const at::Tensor& rho, con
                               const at::Tensor& w, const at::Tensor& d, const at::Tensor& q,
                               const at::Tensor& beta_res, BetaBase base);
 
+/// The physics layer's penetration term (PinnConfig::edge_thickness_m; fee::penetrationForce):
+/// Fz = -gate (c N_c(phi) + gamma d N_q(phi)) t_e w, the blade's force on the soil while the
+/// edge descends with probability `gate`. soil [B,5] float64 (SoilCol), w, d, gate [B,P]
+/// float64. `J` [B,P,2,7] float64, detached, LogVarCol columns: the z row's derivatives in c,
+/// phi, gamma and d (through d_res), the gate held fixed (it is not a soil parameter, as F^r).
+struct PenetrationOut {
+  at::Tensor Fz;  ///< [B,P] N, differentiable w.r.t. soil, d and gate
+  at::Tensor J;   ///< [B,P,2,7]
+};
+PenetrationOut penetrationForward(const at::Tensor& soil, const at::Tensor& w, const at::Tensor& d,
+                                  const at::Tensor& gate, double edge_m);
+
 }  // namespace terramap::pinn

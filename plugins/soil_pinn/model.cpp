@@ -19,13 +19,15 @@ namespace terramap::pinn {
 namespace {
 
 // 2: the config holds beta_base (version 1 files load with BetaBase::Nominal).
-constexpr int kFormatVersion = 2;
+// 3: the config holds edge_thickness_m (older files load with 0: no penetration term).
+constexpr int kFormatVersion = 3;
 constexpr const char* kFormat = "terramap.soil_pinn";
 constexpr const char* kMetadataKey = "terramap_metadata";
 
 nlohmann::json configJson(const PinnConfig& c, int format_version = kFormatVersion) {
   nlohmann::json j = {{"T", c.T}, {"P", c.P}, {"D_o", c.D_o}, {"hidden", c.hidden}, {"seed", c.seed}};
   if (format_version >= 2) j["beta_base"] = betaBaseName(c.beta_base);
+  if (format_version >= 3) j["edge_thickness_m"] = c.edge_thickness_m;
   return j;
 }
 
@@ -58,6 +60,8 @@ std::string configHash(const PinnConfig& cfg, int format_version) {
 PinnNetImpl::PinnNetImpl(PinnConfig cfg) : cfg_(std::move(cfg)) {
   if (cfg_.P < 1 || cfg_.T < cfg_.P || cfg_.D_o < 1)
     throw std::invalid_argument("PinnConfig: need 1 <= P <= T and D_o >= 1");
+  if (!(cfg_.edge_thickness_m >= 0 && cfg_.edge_thickness_m < 1))
+    throw std::invalid_argument("PinnConfig: edge_thickness_m must be in [0, 1) m");
   for (int h : cfg_.hidden)
     if (h < 1) throw std::invalid_argument("PinnConfig: hidden widths must be >= 1");
   // Initialise from cfg.seed, then give the global generator its state back so building a
@@ -76,6 +80,7 @@ PinnNetImpl::PinnNetImpl(PinnConfig cfg) : cfg_(std::move(cfg)) {
   head_logvar_ = register_module("head_log_var", torch::nn::Linear(width, kLogVarCount));
   head_res_ = register_module("head_res", torch::nn::Linear(width, 2));
   head_fr_ = register_module("head_force_res", torch::nn::Linear(width, 2));
+  if (cfg_.edge_thickness_m > 0) head_gate_ = register_module("head_pen_gate", torch::nn::Linear(width, cfg_.P));
   gen.set_state(saved_state);
   theta_mean_ = register_buffer("theta_k_mean", at::zeros({kThetaKCount}, at::kFloat));
   theta_std_ = register_buffer("theta_k_std", at::ones({kThetaKCount}, at::kFloat));
@@ -135,6 +140,15 @@ PinnOutput PinnNetImpl::forward(const at::Tensor& obs, const at::Tensor& theta_k
 
   // Eq. 5/6, the base angle's dependence on the soil chained in.
   at::Tensor J = feeJacobianChained(soil, rho, alpha, w, d, q, beta_res, cfg_.beta_base);
+  if (cfg_.edge_thickness_m > 0) {
+    out.pen_gate = at::sigmoid(head_gate_(h));
+    const PenetrationOut pen = penetrationForward(soil, w, d, out.pen_gate.to(at::kDouble), cfg_.edge_thickness_m);
+    const at::Tensor zero = at::zeros_like(pen.Fz);
+    out.F = out.F + at::stack({zero, at::where(fee.valid, pen.Fz, zero)}, -1);
+    J = J + at::where(fee.valid.unsqueeze(-1).unsqueeze(-1), pen.J, at::zeros_like(pen.J));
+  } else {
+    out.pen_gate = at::zeros({B, P}, at::kFloat);
+  }
   out.J = J;  // columns [c, phi, ca, delta, gamma, d(_res), beta(_res)] = LogVarCol
   const at::Tensor var = at::exp(out.log_var.to(at::kDouble)).reshape({B, 1, 1, kLogVarCount});
   out.Sigma_F = at::matmul(J * var, J.transpose(-2, -1));
@@ -189,6 +203,11 @@ soil::PinnMemberWeights PinnNetImpl::exportWeights() const {
   w.d_res_max_m = static_cast<float>(kDResMaxM);
   w.beta_res_max_rad = static_cast<float>(kBetaResMaxRad);
   w.force_res_scale_n = static_cast<float>(kForceResScaleN);
+  w.edge_thickness_m = cfg_.edge_thickness_m;
+  if (cfg_.edge_thickness_m > 0) {
+    w.gate_W = mat(head_gate_->weight);
+    w.gate_b = vec(head_gate_->bias);
+  }
   return w;
 }
 
@@ -255,6 +274,7 @@ PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path
     cfg.hidden = c.at("hidden").get<std::vector<int>>();
     cfg.seed = c.at("seed").get<int64_t>();
     cfg.beta_base = version >= 2 ? parseBetaBase(c.at("beta_base").get<std::string>()) : BetaBase::Nominal;
+    cfg.edge_thickness_m = version >= 3 ? c.at("edge_thickness_m").get<double>() : 0.0;
     if (configHash(cfg, version) != j.at("config_hash").get<std::string>())
       throw InputError(path + ": config_hash does not match the stored config");
   } catch (const nlohmann::json::exception& e) {

@@ -76,6 +76,14 @@ struct PinnConfig {
   /// Base failure angle of the physics layer (fee_torch.hpp). Model files of format version 1
   /// predate the key and load as Nominal.
   BetaBase beta_base = BetaBase::Min;
+  /// Thickness of the cutting edge (m) for the penetration term of the physics layer: while
+  /// the edge descends the soil bears on it with Terzaghi's strip capacity
+  /// q_b = c N_c(phi) + gamma d N_q(phi) over t_e w, a vertical force the FEE does not hold
+  /// (ALGORITHMS.md §J's truth force has it). The network gives, per horizon step, the
+  /// probability g that the edge was descending (a sigmoid head; the observations say when,
+  /// the soil says how much); F_z -= g q_b t_e w where the FEE is valid. 0 = no such term (and
+  /// no head: model files of format version <= 2 load so).
+  double edge_thickness_m = 0.0;
 };
 
 /// What forward() returns. B batch, P horizon.
@@ -99,6 +107,8 @@ struct PinnOutput {
   /// [B,P] float64: dN_gamma/dbeta at beta with every other angle detached, so its gradient
   /// reaches beta_res only (Eq. 8's beta-arrow); 0 where invalid.
   at::Tensor dNgamma_dbeta;
+  /// [B,P] float32: probability the edge was descending (penetration gate); zeros without the term.
+  at::Tensor pen_gate;
 };
 
 class PinnNetImpl : public torch::nn::Module {
@@ -129,6 +139,7 @@ class PinnNetImpl : public torch::nn::Module {
   PinnConfig cfg_;
   torch::nn::Sequential encoder_{nullptr};
   torch::nn::Linear head_theta_{nullptr}, head_logvar_{nullptr}, head_res_{nullptr}, head_fr_{nullptr};
+  torch::nn::Linear head_gate_{nullptr};  ///< only with edge_thickness_m > 0
   at::Tensor theta_mean_, theta_std_, logvar_offset_;
 };
 TORCH_MODULE(PinnNet);
@@ -155,7 +166,7 @@ void savePinnTo(PinnNet& net, torch::serialize::OutputArchive& ar);
 PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path);
 
 /// FNV-1a 64 of the config's canonical JSON, as 16 hex digits. `format_version` 1 hashes the
-/// JSON without beta_base (the files written before it existed).
-std::string configHash(const PinnConfig& cfg, int format_version = 2);
+/// JSON without beta_base (the files written before it existed), 2 without edge_thickness_m.
+std::string configHash(const PinnConfig& cfg, int format_version = 3);
 
 }  // namespace terramap::pinn

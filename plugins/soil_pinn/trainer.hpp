@@ -39,6 +39,9 @@ struct TrainConfig {
   /// Leave horizon rows where the machine stood stalled (soil::stalledRow) out of the force
   /// terms of the loss (YAML `mask_stalled`).
   bool mask_stalled = true;
+  /// Cutting-edge thickness of the physics layer's penetration term (PinnConfig; YAML
+  /// `edge_thickness_m`, m; 0 = no term).
+  double edge_thickness_m = 0.0;
   LossWeights weights;
 };
 

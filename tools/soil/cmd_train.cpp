@@ -68,6 +68,7 @@ pinn::TrainConfig loadTrainConfig(const std::string& path) {
     }
   }
   c.mask_stalled = r.boolean("mask_stalled", c.mask_stalled);
+  c.edge_thickness_m = r.num("edge_thickness_m", c.edge_thickness_m, 0.0, 0.5);
   if (r.has("loss")) {
     yaml::MapReader l = r.child("loss");
     pinn::LossWeights& w = c.weights;

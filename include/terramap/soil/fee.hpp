@@ -161,4 +161,21 @@ Jacobian jacobianF(const Soil& s, const Geometry& g, double beta_rad);
 /// Analytic dF_total/dTheta (same conventions as jacobianF).
 Jacobian jacobianFTotal(const Soil& s, const Geometry& g, double beta_rad);
 
+/// Terzaghi/Prandtl strip bearing-capacity factors at phi (rad) and their derivatives
+/// (per rad): N_q = e^{pi tan phi} tan^2(pi/4 + phi/2), N_c = (N_q - 1) / tan phi
+/// (Prandtl's pi + 2 as phi -> 0, where the derivatives are those of the limit's series).
+struct BearingFactors {
+  double N_c = 0, N_q = 0, dN_c = 0, dN_q = 0;
+};
+BearingFactors bearingFactors(double phi_rad);
+
+/// Vertical resistance of the soil to a descending cutting edge of thickness `edge_m` (m) over
+/// width w_m at depth d_m: q_b t_e w with q_b = c N_c + gamma d N_q (N, >= 0 for valid soil;
+/// the soil pushes the edge up, so the blade's force on the soil gains -this in z).
+/// The simulator's truth force adds it while the edge descends (docs/sim.md, "Model"); the
+/// estimator's physics layer adds it weighted by the probability that the edge descended.
+double penetrationForce(const Soil& s, double d_m, double w_m, double edge_m);
+/// d penetrationForce / d [c, phi, gamma, d] (N per Pa, rad, N/m^3, m).
+Eigen::Vector4d penetrationGradient(const Soil& s, double d_m, double w_m, double edge_m);
+
 }  // namespace terramap::fee

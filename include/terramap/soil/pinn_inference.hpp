@@ -38,6 +38,11 @@ struct PinnMemberWeights {
   std::array<float, 5> soil_lo{}, soil_span{};     ///< theta_u = lo + span sigmoid(z)
   std::array<float, 7> logvar_offset{};            ///< added to the log-variance head
   float d_res_max_m = 0, beta_res_max_rad = 0, force_res_scale_n = 0;
+  /// Penetration term (fee::penetrationForce): edge thickness (m; 0 = none) and the gate head
+  /// (P outputs, sigmoid: the probability the edge descended at each horizon step).
+  double edge_thickness_m = 0;
+  Eigen::MatrixXf gate_W;
+  Eigen::VectorXf gate_b;
 };
 
 /// What one estimate holds (the members' aggregate, as pinn::SoilEstimate documents).

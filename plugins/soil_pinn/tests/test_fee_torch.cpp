@@ -318,5 +318,39 @@ TEST_F(FeeTorch, ValidityMaskMatchesEveryRule) {
   EXPECT_EQ(gs.narrow(0, 1, B - 1).abs().sum().item<double>(), 0.0);
 }
 
+
+TEST_F(FeeTorch, PenetrationTermMatchesCppFeeAndItsJacobianAndGradients) {
+  const int B = 16, P = 3;
+  const auto cases = randomValidCases(B, P, 5);
+  const Batch t = toTensors(cases, B, P);
+  const double edge = 0.025;
+  at::Tensor soil = t.soil.clone().set_requires_grad(true);
+  const at::Tensor gate = at::rand({B, P}, at::kDouble);
+  const PenetrationOut o = penetrationForward(soil, t.w, t.d, gate, edge);
+  ASSERT_EQ(o.Fz.sizes(), (at::IntArrayRef{B, P}));
+  ASSERT_EQ(o.J.sizes(), (at::IntArrayRef{B, P, 2, kJacCount}));
+  for (int b = 0; b < B; ++b)
+    for (int p = 0; p < P; ++p) {
+      const Case& c = cases[b * P + p];
+      const double g = gate[b][p].item<double>();
+      const double f = fee::penetrationForce(c.s, c.g.d_m, c.g.w_m, edge);
+      EXPECT_NEAR(o.Fz[b][p].item<double>(), -g * f, 1e-9 * f) << b << "," << p;
+      const Eigen::Vector4d dp = fee::penetrationGradient(c.s, c.g.d_m, c.g.w_m, edge);
+      const double scale = dp.norm();
+      EXPECT_NEAR(o.J[b][p][1][kSoilC].item<double>(), -g * dp[0], 1e-9 * scale);
+      EXPECT_NEAR(o.J[b][p][1][kSoilPhi].item<double>(), -g * dp[1], 1e-9 * scale);
+      EXPECT_NEAR(o.J[b][p][1][kSoilGamma].item<double>(), -g * dp[2], 1e-9 * scale);
+      EXPECT_NEAR(o.J[b][p][1][kSoilCount].item<double>(), -g * dp[3], 1e-9 * scale);  // d_res
+      for (int k : {int(kSoilCa), int(kSoilDelta), kSoilCount + 1}) EXPECT_EQ(o.J[b][p][1][k].item<double>(), 0.0);
+      for (int k = 0; k < kJacCount; ++k) EXPECT_EQ(o.J[b][p][0][k].item<double>(), 0.0);  // no horizontal part
+    }
+  // Autograd through the forward gives the same soil gradients as the analytic Jacobian.
+  o.Fz.sum().backward();
+  const at::Tensor gsum = o.J.select(2, 1).sum(1);  // [B,7]
+  for (int b = 0; b < B; ++b)
+    for (int k : {int(kSoilC), int(kSoilPhi), int(kSoilGamma)})
+      EXPECT_NEAR(soil.grad()[b][k].item<double>(), gsum[b][k].item<double>(), 1e-9 * std::abs(gsum[b][k].item<double>()) + 1e-12);
+}
+
 }  // namespace
 }  // namespace terramap::pinn

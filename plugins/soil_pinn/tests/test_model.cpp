@@ -306,6 +306,38 @@ TEST_F(PinnModel, VersionOneFilesLoadWithRankinesAngle) {
   for (const std::string& p : {path, no_key, bad}) std::remove(p.c_str());
 }
 
+TEST_F(PinnModel, ThePenetrationTermPushesDownWhereTheFeeIsValidAndRoundTrips) {
+  // Same seed, same weights for every shared layer: the two networks differ only by the term.
+  PinnNet plain(PinnConfig{kT, kP, kDo, {8}, 21, BetaBase::Min});
+  PinnNet pen(PinnConfig{kT, kP, kDo, {8}, 21, BetaBase::Min, 0.025});
+  const Dataset& ds = dataset();
+  const PinnOutput a = plain->forward(ds.obs, ds.theta_k), b = pen->forward(ds.obs, ds.theta_k);
+  ASSERT_TRUE(at::equal(a.theta_u, b.theta_u));
+  EXPECT_TRUE(at::equal(a.F.select(2, 0), b.F.select(2, 0)));  // horizontal force untouched
+  const at::Tensor dz = (b.F.select(2, 1) - a.F.select(2, 1));
+  EXPECT_TRUE(at::equal(a.pen_gate, at::zeros_like(a.pen_gate)));
+  EXPECT_TRUE(((b.pen_gate > 0) & (b.pen_gate < 1)).all().item<bool>());
+  EXPECT_TRUE((dz.masked_select(b.valid) < 0).all().item<bool>()) << "the blade pushes down on the soil it penetrates";
+  EXPECT_TRUE((dz.masked_select(~b.valid) == 0).all().item<bool>());
+  // The z row of the Jacobian carries the term's soil sensitivities (so does Sigma_F), the x row not.
+  EXPECT_FALSE(at::equal(b.J.select(2, 1), a.J.select(2, 1)));
+  EXPECT_TRUE(at::equal(b.J.select(2, 0), a.J.select(2, 0)));
+  const std::string path = tempPath("pen.pt");
+  savePinn(pen, path);
+  PinnNet loaded = loadPinn(path);
+  EXPECT_EQ(loaded->config().edge_thickness_m, 0.025);
+  EXPECT_TRUE(at::equal(loaded->forward(ds.obs, ds.theta_k).F, b.F));
+  std::remove(path.c_str());
+  // A version-2 file (before the key) loads without the term; a version-3 one must name it.
+  const PinnConfig& c = plain->config();
+  nlohmann::json v2{{"T", c.T}, {"P", c.P}, {"D_o", c.D_o}, {"hidden", c.hidden}, {"seed", c.seed}, {"beta_base", "min"}};
+  const std::string old = writeWithMetadata(plain, "v2.pt", 2, v2, configHash(c, 2));
+  EXPECT_EQ(loadPinn(old)->config().edge_thickness_m, 0.0);
+  const std::string no_key = writeWithMetadata(plain, "v3_no_key.pt", 3, v2, configHash(c, 2));
+  EXPECT_THROW(loadPinn(no_key), InputError);
+  for (const std::string& p : {old, no_key}) std::remove(p.c_str());
+}
+
 TEST_F(PinnModel, LoadRejectsWhatIsNotAModel) {
   EXPECT_THROW(loadPinn(tempPath("does_not_exist.pt")), InputError);
   const std::string junk = tempPath("junk.pt");

@@ -250,6 +250,13 @@ TEST(Trainer, TheTorchFreeInferenceGivesTheLibtorchEstimate) {
     members.emplace_back(PinnConfig{kT, kP, soil::kObsFeatures, {16, 8}, seed, BetaBase::Nominal});
   const SoilEstimator rankine(std::move(members), trained.obsMean(), trained.obsStd());
   expectFastPathMatches(rankine, mixed);
+  // With the penetration term: its gate head and the z row of the Jacobian in both paths.
+  std::vector<PinnNet> pen;
+  for (int64_t seed : {8, 9, 10})
+    pen.emplace_back(PinnConfig{kT, kP, soil::kObsFeatures, {16, 8}, seed, BetaBase::Min, 0.025});
+  const SoilEstimator penetrating(std::move(pen), trained.obsMean(), trained.obsStd());
+  EXPECT_GT(expectFastPathMatches(penetrating, td), td.size() / 2);
+  expectFastPathMatches(penetrating, mixed);
   fs::remove_all(data);
 }
 
@@ -277,9 +284,11 @@ TEST(DefaultModel, TheCommittedModelHasTheDocumentedSettingsAndRuns) {
   tc.weights.lambda_Fr = 2e-5;
   tc.beta_base = BetaBase::Min;
   tc.mask_stalled = true;
+  tc.edge_thickness_m = 0.025;
+  EXPECT_EQ(c.edge_thickness_m, 0.025);
   const nlohmann::json tj = nlohmann::json::parse(est.trainingJson());
   EXPECT_EQ(tj.at("train_config_hash").get<std::string>(), trainConfigHash(tc));
-  EXPECT_EQ(tj.at("train_samples").get<long>(), 4751);
+  EXPECT_EQ(tj.at("train_samples").get<long>(), 12387);
   // A plausible cut: a valid estimate inside the soil ranges, the same by both paths.
   soil::PinnSample s;
   s.T = 30;

@@ -1,0 +1,127 @@
+#!/usr/bin/env python3
+"""Where the soil estimator's physics misses the measured blade force (docs/soil_estimator.md).
+
+Two analyses, both with the truth soil (so only geometry and physics are in question):
+
+  python3 scripts/analysis/pinn_force_gap.py geometry DATASET_DIR [SPLIT]
+      Per sample of a `terramap dataset` (split default: test), the force of the last horizon
+      row against F_total at beta* of the truth soil on the mapped geometry, then with each
+      mapped FEE parameter (alpha, rho, d, w, Q) replaced by the simulator's own: which one
+      closes the gap. Prints the force error (sum |dF| / sum |F|) and the median measured /
+      predicted horizontal force per substitution.
+
+  python3 scripts/analysis/pinn_force_gap.py episode EPISODE_H5
+      On one `terramap sim` episode (truth geometry and soil logged per step, stalled steps left
+      out): F_total at beta* against the measured force, on steps where the cutting edge
+      descends and where it does not, then with the edge's penetration resistance
+      (terramap.fee's soil, q_b = c N_c + gamma d N_q over 0.025 m x w) added on descending steps.
+
+Needs Debian's python3-h5py and terramap's Python module (build/python; PYTHONPATH or run from
+the repository root after `make`).
+"""
+import glob
+import math
+import os
+import sys
+
+sys.path.insert(0, "/usr/lib/python3/dist-packages")  # Debian's h5py under a non-Debian python
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "build", "python"))
+import h5py  # noqa: E402
+import numpy as np  # noqa: E402
+import terramap as tm  # noqa: E402
+
+EDGE_M = 0.025  # the simulator's default blade edge thickness (docs/sim.md)
+
+
+def force_error(pred, meas):
+    return 100 * np.sum(np.hypot(pred[:, 0] - meas[:, 0], pred[:, 1] - meas[:, 1])) / np.sum(np.hypot(meas[:, 0], meas[:, 1]))
+
+
+def geometry(dataset, split):
+    rows = []
+    for fn in sorted(glob.glob(os.path.join(dataset, "episodes", "*.h5"))):
+        with h5py.File(fn, "r") as f:
+            if f.attrs["split"].decode() != split:
+                continue
+            tk, force, truth, tg = f["theta_k"][:], f["force"][:], f["truth"][:], f["truth_geometry"][:]
+        for i in range(len(tk)):
+            rows.append((tuple(map(float, truth[i])), tuple(map(float, tk[i, -1])), tuple(map(float, tg[i])), force[i, -1]))
+    if not rows:
+        sys.exit(dataset + ": no samples in split " + split)
+    print("%d samples of split %s" % (len(rows), split))
+    for sub in [[], ["alpha"], ["rho"], ["d"], ["w"], ["q"], ["alpha", "rho", "w", "q"], ["alpha", "rho", "d", "w", "q"]]:
+        pred, meas, ratio = [], [], []
+        for (c, phi, ca, delta, gamma), (rho, alpha, w, d, q, _v), (a2, r2, d2, w2, q2), fm in rows:
+            if not (np.isfinite([a2, r2, d2, w2, q2]).all() and d > 0 and d2 > 0):
+                continue
+            g = {"alpha": alpha, "rho": rho, "d": d, "w": w, "q": q}
+            t = {"alpha": a2, "rho": r2, "d": d2, "w": w2, "q": q2}
+            for k in sub:
+                g[k] = t[k]
+            r = tm.fee(c, phi, gamma, ca, delta, g["alpha"], g["rho"], g["d"], g["w"], g["q"], beta="min")
+            f = r["F_total_N"] if r["valid"] else (0.0, 0.0)
+            pred.append(f)
+            meas.append(fm)
+            if r["valid"]:
+                ratio.append(fm[0] / f[0])
+        print("  truth %-22s samples %5d  force error %5.1f %%  median measured/predicted Fx %.2f" % (
+            "+".join(sub) or "(mapped only)", len(pred), force_error(np.array(pred), np.array(meas)), np.median(ratio)))
+
+
+def bearing(phi):
+    t = math.tan(math.pi / 4 + phi / 2)
+    nq = math.exp(math.pi * math.tan(phi)) * t * t
+    return (nq - 1) / math.tan(phi), nq
+
+
+def episode(path):
+    with h5py.File(path, "r") as f:
+        m = "machines/" + sorted(f["machines"].keys())[0] + "/"
+        F = f[m + "truth/force_map_N"][:]
+        fee, soil, stalled = f[m + "truth/fee"][:], f[m + "truth/soil"][:], f[m + "truth/stalled"][:]
+        T_blade, T_base, stamp = f[m + "T_map_blade"][:], f[m + "T_map_base"][:], f[m + "stamp"][:]
+        measured, truth_base = f[m + "force_base_N"][:][:, [0, 2]], f[m + "truth/force_base_N"][:][:, [0, 2]]
+    # The truth force (the soil's response with its coloured noise) is compared below; the
+    # force sensor adds its own noise on top, a floor no estimator of the sensor reading passes.
+    contact = np.hypot(truth_base[:, 0], truth_base[:, 1]) > 500
+    print("force sensor noise on %d contact steps: %.1f %% of the reading" % (
+        contact.sum(), force_error(truth_base[contact], measured[contact])))
+    vz = np.gradient(T_blade[:, 2, 3], stamp)
+    rows = []
+    for k in range(len(F)):
+        alpha, rho, d, w, q, _beta = fee[k]
+        if not d > 0 or stalled[k]:
+            continue
+        c, phi, gamma, ca, delta = soil[k][:5]
+        r = tm.fee(c, phi, gamma, ca, delta, alpha, rho, d, w, q, beta="min")
+        if not r["valid"]:
+            continue
+        heading = T_base[k, :2, 0]
+        fx = -(F[k, 0] * heading[0] + F[k, 1] * heading[1])  # blade on soil, along travel
+        fz = -F[k, 2]
+        nc, nq = bearing(phi)
+        pen = (c * nc + gamma * d * nq) * EDGE_M * w if vz[k] < 0 else 0.0
+        rows.append((fx, fz, r["F_total_N"][0], r["F_total_N"][1], r["F_total_N"][1] - pen, vz[k] < 0))
+    R = np.array(rows)
+    down = R[:, 5] > 0
+    meas, fee_only = R[:, 0:2], R[:, 2:4]
+    with_pen = np.stack([R[:, 2], R[:, 4]], 1)
+    print("%d cutting steps (not stalled, FEE valid), %d with the edge descending" % (len(R), down.sum()))
+    print("  F_total at beta*: force error %.1f %% (descending %.1f %%, not %.1f %%)" % (
+        force_error(fee_only, meas), force_error(fee_only[down], meas[down]), force_error(fee_only[~down], meas[~down])))
+    print("  median measured / FEE vertical force on descending steps: %.0f N / %.0f N" % (
+        np.median(meas[down, 1]), np.median(fee_only[down, 1])))
+    print("  + penetration on descending steps: force error %.1f %%" % force_error(with_pen, meas))
+
+
+def main():
+    if len(sys.argv) < 3 or sys.argv[1] not in ("geometry", "episode"):
+        sys.exit(__doc__)
+    if sys.argv[1] == "geometry":
+        geometry(sys.argv[2], sys.argv[3] if len(sys.argv) > 3 else "test")
+    else:
+        episode(sys.argv[2])
+
+
+if __name__ == "__main__":
+    main()
