@@ -359,15 +359,13 @@ BearingFactors bearingFactors(double phi) {
   return b;
 }
 
-double penetrationForce(const Soil& s, double d_m, double w_m, double edge_m) {
-  const BearingFactors b = bearingFactors(s.phi_rad);
-  return (s.c_pa * b.N_c + s.gamma_n_m3 * d_m * b.N_q) * edge_m * w_m;
-}
-
-Eigen::Vector4d penetrationGradient(const Soil& s, double d_m, double w_m, double edge_m) {
+Penetration penetration(const Soil& s, double d_m, double w_m, double edge_m) {
   const BearingFactors b = bearingFactors(s.phi_rad);
   const double a = edge_m * w_m;
-  return {b.N_c * a, (s.c_pa * b.dN_c + s.gamma_n_m3 * d_m * b.dN_q) * a, d_m * b.N_q * a, s.gamma_n_m3 * b.N_q * a};
+  Penetration p;
+  p.force_n = (s.c_pa * b.N_c + s.gamma_n_m3 * d_m * b.N_q) * edge_m * w_m;
+  p.gradient = {b.N_c * a, (s.c_pa * b.dN_c + s.gamma_n_m3 * d_m * b.dN_q) * a, d_m * b.N_q * a, s.gamma_n_m3 * b.N_q * a};
+  return p;
 }
 
 }  // namespace terramap::fee

@@ -96,8 +96,9 @@ MemberOut runMember(const PinnMemberWeights& m, const Eigen::VectorXf& obs_flat,
       J.block<2, 1>(2 * p, 4) = Jf.col(fee::kGamma);
       if (m.edge_thickness_m > 0) {
         const double gp = static_cast<double>(gate[p]);
-        F.y() -= gp * fee::penetrationForce(s, g.d_m, g.w_m, m.edge_thickness_m);
-        const Eigen::Vector4d dp = fee::penetrationGradient(s, g.d_m, g.w_m, m.edge_thickness_m);
+        const fee::Penetration pen = fee::penetration(s, g.d_m, g.w_m, m.edge_thickness_m);
+        F.y() -= gp * pen.force_n;
+        const Eigen::Vector4d& dp = pen.gradient;
         J(2 * p + 1, 0) -= gp * dp[0];
         J(2 * p + 1, 1) -= gp * dp[1];
         J(2 * p + 1, 4) -= gp * dp[2];

@@ -254,30 +254,26 @@ PenetrationOut penetrationForward(const at::Tensor& soil, const at::Tensor& w, c
                                   const at::Tensor& gate, double edge_m) {
   // The formulas of fee::bearingFactors (phi >= 10 deg in the estimator's ranges, so no
   // phi -> 0 branch is needed here).
-  auto factors = [](const at::Tensor& phi) {
-    const at::Tensor t = at::tan(phi), sec2 = 1.0 + t * t, u = at::tan(M_PI / 4 + phi / 2);
-    const at::Tensor nq = at::exp(M_PI * t) * u * u;
-    const at::Tensor nc = (nq - 1.0) / t;
-    const at::Tensor dnq = nq * (M_PI * sec2 + 2.0 / at::cos(phi));
-    const at::Tensor dnc = dnq / t - (nq - 1.0) * sec2 / (t * t);
-    return std::array<at::Tensor, 4>{nc, nq, dnc, dnq};
-  };
   auto col = [&](const at::Tensor& s, int k) { return s.select(1, k).unsqueeze(1); };  // [B,1]
-  const auto f = factors(col(soil, kSoilPhi));
-  const at::Tensor c = col(soil, kSoilC), gam = col(soil, kSoilGamma);
+  const at::Tensor phi = col(soil, kSoilPhi), c = col(soil, kSoilC), gam = col(soil, kSoilGamma);
+  const at::Tensor t = at::tan(phi), sec2 = 1.0 + t * t, u = at::tan(M_PI / 4 + phi / 2);
+  const at::Tensor nq = at::exp(M_PI * t) * u * u;
+  const at::Tensor nc = (nq - 1.0) / t;
   PenetrationOut out;
-  out.Fz = -gate * (c * f[0] + gam * d * f[1]) * (edge_m * w);
-  // Jacobian from detached values.
-  const at::Tensor sd = soil.detach(), g = gate.detach(), dd = d.detach(), a = edge_m * w.detach();
-  const auto fd = factors(col(sd, kSoilPhi));
-  const at::Tensor cd = col(sd, kSoilC), gd = col(sd, kSoilGamma);
+  out.Fz = -gate * (c * nc + gam * d * nq) * (edge_m * w);
+  // The Jacobian from the same factors, detached (the derivatives in closed form).
+  const at::Tensor nqd = nq.detach(), ncd = nc.detach(), td = t.detach(), sec2d = sec2.detach();
+  const at::Tensor dnq = nqd * (M_PI * sec2d + 2.0 / at::cos(phi.detach()));
+  const at::Tensor dnc = dnq / td - (nqd - 1.0) * sec2d / (td * td);
+  const at::Tensor g = gate.detach(), dd = d.detach(), a = edge_m * w.detach();
+  const at::Tensor cd = c.detach(), gd = gam.detach();
   const at::Tensor zero = at::zeros_like(dd);
-  std::vector<at::Tensor> zrow((kSoilCount + 2), zero);
-  zrow[kSoilC] = -g * fd[0] * a;
-  zrow[kSoilPhi] = -g * (cd * fd[2] + gd * dd * fd[3]) * a;
-  zrow[kSoilGamma] = -g * dd * fd[1] * a;
-  zrow[kSoilCount] = -g * gd * fd[1] * a;  // d_res
-  const at::Tensor xrow = at::zeros({dd.size(0), dd.size(1), (kSoilCount + 2)}, dd.options());
+  std::vector<at::Tensor> zrow(kJacCount, zero);
+  zrow[kJacC] = -g * ncd * a;
+  zrow[kJacPhi] = -g * (cd * dnc + gd * dd * dnq) * a;
+  zrow[kJacGamma] = -g * dd * nqd * a;
+  zrow[kJacD] = -g * gd * nqd * a;  // through d_res
+  const at::Tensor xrow = at::zeros({dd.size(0), dd.size(1), kJacCount}, dd.options());
   out.J = at::stack({xrow, at::stack(zrow, -1)}, -2);
   return out;
 }

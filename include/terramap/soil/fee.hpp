@@ -171,11 +171,19 @@ BearingFactors bearingFactors(double phi_rad);
 
 /// Vertical resistance of the soil to a descending cutting edge of thickness `edge_m` (m) over
 /// width w_m at depth d_m: q_b t_e w with q_b = c N_c + gamma d N_q (N, >= 0 for valid soil;
-/// the soil pushes the edge up, so the blade's force on the soil gains -this in z).
-/// The simulator's truth force adds it while the edge descends (docs/sim.md, "Model"); the
-/// estimator's physics layer adds it weighted by the probability that the edge descended.
-double penetrationForce(const Soil& s, double d_m, double w_m, double edge_m);
-/// d penetrationForce / d [c, phi, gamma, d] (N per Pa, rad, N/m^3, m).
-Eigen::Vector4d penetrationGradient(const Soil& s, double d_m, double w_m, double edge_m);
+/// the soil pushes the edge up, so the blade's force on the soil gains -this in z), and its
+/// derivatives d/d[c, phi, gamma, d] (N per Pa, rad, N/m^3, m), from one evaluation of the
+/// bearing factors. The simulator's truth force adds it while the edge descends (docs/sim.md,
+/// "Model"); the estimator's physics layer adds it weighted by the probability that the edge
+/// descended.
+struct Penetration {
+  double force_n = 0;
+  Eigen::Vector4d gradient = Eigen::Vector4d::Zero();
+};
+Penetration penetration(const Soil& s, double d_m, double w_m, double edge_m);
+/// penetration(...).force_n.
+inline double penetrationForce(const Soil& s, double d_m, double w_m, double edge_m) {
+  return penetration(s, d_m, w_m, edge_m).force_n;
+}
 
 }  // namespace terramap::fee

@@ -335,7 +335,7 @@ TEST_F(FeeTorch, PenetrationTermMatchesCppFeeAndItsJacobianAndGradients) {
       const double g = gate[b][p].item<double>();
       const double f = fee::penetrationForce(c.s, c.g.d_m, c.g.w_m, edge);
       EXPECT_NEAR(o.Fz[b][p].item<double>(), -g * f, 1e-9 * f) << b << "," << p;
-      const Eigen::Vector4d dp = fee::penetrationGradient(c.s, c.g.d_m, c.g.w_m, edge);
+      const Eigen::Vector4d dp = fee::penetration(c.s, c.g.d_m, c.g.w_m, edge).gradient;
       const double scale = dp.norm();
       EXPECT_NEAR(o.J[b][p][1][kSoilC].item<double>(), -g * dp[0], 1e-9 * scale);
       EXPECT_NEAR(o.J[b][p][1][kSoilPhi].item<double>(), -g * dp[1], 1e-9 * scale);

@@ -1,5 +1,5 @@
 // Bearing-capacity factors and the edge's penetration resistance (fee::bearingFactors,
-// fee::penetrationForce/Gradient): textbook values and central differences.
+// fee::penetration): textbook values and central differences.
 #include <gtest/gtest.h>
 
 #include <terramap/soil/fee.hpp>
@@ -39,7 +39,7 @@ TEST(FeePenetration, ForceByHandAndGradientByCentralDifferences) {
   const double d = 0.08, w = 1.7, t = 0.025;
   const BearingFactors b = bearingFactors(s.phi_rad);
   EXPECT_DOUBLE_EQ(penetrationForce(s, d, w, t), (s.c_pa * b.N_c + s.gamma_n_m3 * d * b.N_q) * t * w);
-  const Eigen::Vector4d g = penetrationGradient(s, d, w, t);
+  const Eigen::Vector4d g = penetration(s, d, w, t).gradient;
   auto fd = [&](auto set, double h) {
     Soil a = s, c = s;
     double da = d, dc = d;
