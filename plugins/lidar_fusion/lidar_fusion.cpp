@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -30,6 +31,14 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 constexpr int kChunk = 8192;
 /// Rays per visibility-cleanup task (fixed: the tasks' contents never depend on threads).
 constexpr int kRayTask = 1024;
+/// Side (cells) of the blocks the ray walk decides to skip or walk as a whole: small enough that
+/// a ray high above the ground skips most of its path, large enough that the decision costs
+/// little next to the cells it saves.
+constexpr int kRayBlock = 8;
+/// Buckets of the counting sort that orders the rays by steepness.
+constexpr int kRaySortBuckets = 2048;
+/// Azimuth sectors (octants) of the ray walk: a worker walks a whole sector at a time.
+constexpr int kRaySectors = 8;
 /// Items ahead of the current one whose cells the fusion loop prefetches.
 constexpr int kPrefetchAhead = 8;
 constexpr float kRayPenetration = 1.0f;  // Item::aux of a ray passing below a stale surface
@@ -431,6 +440,32 @@ void LidarFusion::buildIndexTables(const LayeredMap& map) {
     col_tile_[static_cast<size_t>(j)] = a.tile;
     col_local_[static_cast<size_t>(j)] = a.offset;
   }
+  // Ray-walk blocks: kRayBlock x kRayBlock cells of one tile. A block's logical rows are a run
+  // of consecutive logical rows with the same tile row and local row / kRayBlock (the ring
+  // buffer's wrap ends a tile, so it ends a block too).
+  const int nbs = (T + kRayBlock - 1) / kRayBlock;
+  blocks_per_tile_ = nbs * nbs;
+  auto runs = [&](int n, auto key, std::vector<std::int32_t>& lo, std::vector<std::int32_t>& hi) {
+    lo.resize(static_cast<size_t>(n));
+    hi.resize(static_cast<size_t>(n));
+    int a = 0;
+    for (int q = 1; q <= n; ++q)
+      if (q == n || key(q) != key(a)) {
+        for (int r = a; r < q; ++r) {
+          lo[static_cast<size_t>(r)] = a;
+          hi[static_cast<size_t>(r)] = q;
+        }
+        a = q;
+      }
+  };
+  row_blk_.resize(static_cast<size_t>(R));
+  col_blk_.resize(static_cast<size_t>(C));
+  for (int i = 0; i < R; ++i) row_blk_[static_cast<size_t>(i)] = row_local_[static_cast<size_t>(i)] / T / kRayBlock * nbs;
+  for (int j = 0; j < C; ++j) col_blk_[static_cast<size_t>(j)] = col_local_[static_cast<size_t>(j)] / kRayBlock;
+  runs(R, [&](int i) { return std::pair(row_tile_[static_cast<size_t>(i)], row_blk_[static_cast<size_t>(i)]); },
+       row_blk_lo_, row_blk_hi_);
+  runs(C, [&](int j) { return std::pair(col_tile_[static_cast<size_t>(j)], col_blk_[static_cast<size_t>(j)]); },
+       col_blk_lo_, col_blk_hi_);
   tables_start_ = s;
 }
 
@@ -761,7 +796,7 @@ bool LidarFusion::layoutHitLists(int ntiles) {
 void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st) {
   const bool have_prev = layoutHitLists(map.tileCount());
   const int nt = static_cast<int>(task_tiles_.size());
-  std::vector<std::array<long, 4>> per(static_cast<size_t>(nt));
+  std::vector<std::array<long, 5>> per(static_cast<size_t>(nt));
   const float k2 = static_cast<float>(config_.mahalanobis_thresh * config_.mahalanobis_thresh);
   const float ov = static_cast<float>(config_.outlier_variance_m2);
   const float vmax = static_cast<float>(config_.max_variance_m2);
@@ -785,12 +820,12 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
       for (int q = 0; q < prev_hit_count_[static_cast<size_t>(t)]; ++q) H[o[q]] = 0.0f;
     }
     if (tile_points_[static_cast<size_t>(t)] == 0) {
-      per[static_cast<size_t>(k)] = {0, 0, 0, 0};
+      per[static_cast<size_t>(k)] = {0, 0, 0, 0, 0};
       return;
     }
     if (!refused.empty() && refused[static_cast<size_t>(t)]) {
       hit_count_[static_cast<size_t>(t)] = 0;
-      per[static_cast<size_t>(k)] = {0, 0, 0, tile_points_[static_cast<size_t>(t)]};
+      per[static_cast<size_t>(k)] = {0, 0, 0, tile_points_[static_cast<size_t>(t)], 0};
       return;
     }
     // mutableTileData inside the tile's own task: distinct tiles may be un-shared/allocated
@@ -864,7 +899,7 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
       }
     }
     hit_count_[static_cast<size_t>(t)] = nhit;
-    per[static_cast<size_t>(k)] = {fused, outl, forgot, 0};
+    per[static_cast<size_t>(k)] = {fused, outl, forgot, 0, nhit};
   });
   for (int k = 0; k < nt; ++k) {
     st.points_fused += per[static_cast<size_t>(k)][0];
@@ -872,6 +907,7 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
     st.cells_forgotten += per[static_cast<size_t>(k)][2];
     st.dropped_tile_budget += per[static_cast<size_t>(k)][3];
     st.tile_budget_refusals += per[static_cast<size_t>(k)][3] > 0 ? 1 : 0;
+    st.cells_fused += per[static_cast<size_t>(k)][4];
   }
   for (int t : active_tiles_) tile_known_[static_cast<size_t>(t)] = 1;
   st.tiles_touched = static_cast<long>(active_tiles_.size());
@@ -883,25 +919,35 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
   const RayWalkView view = rayWalkView(map, S);
   const int slots = ex.threads();
   prepareRayTasks(slots, map.tileCount(), view.tile_cells);
+  prepareRayBlocks(map);
   const int nc = static_cast<int>(ray_tasks_.size());
   ray_chunks_.resize(static_cast<size_t>(nc));
-  std::vector<std::array<long, 2>> per(static_cast<size_t>(nc));
+  std::vector<std::array<long, 3>> per(static_cast<size_t>(nc));
 
   // Phase A: walk rays (one task per fixed run of rays); reads the map only. Over unknown cells a
   // ray lowers its slot's per-cell minimum (min is exact and order-free, so neither the
-  // chunk-to-thread assignment nor the order of rays changes the result); under stale
-  // surfaces it emits a penetration item (those are applied in ray order in phase B).
-  ex.forEach(nc, [&](int c) {
+  // task-to-thread assignment nor the order of rays changes the result); under stale
+  // surfaces it emits a penetration item (phase B applies them so that their order does not
+  // matter either).
+  // Each worker takes the next azimuth octant and walks its tasks in order, steepest rays
+  // first, so the bounds its slot gathers over a block come from the rays that cross it and
+  // let the higher rays skip it (walkRayTask). Which octants a slot gets changes only the work.
+  std::atomic<int> next{0};
+  const int workers = std::min(slots, kRaySectors);
+  ex.forEach(workers, [&](int) {
     // forEach runs inline (on the caller, maybe outside the arena) for one thread or one task.
-    int slot = slots > 1 && nc > 1 ? Executor::currentSlot() : 0;
+    int slot = workers > 1 ? Executor::currentSlot() : 0;
     if (slot < 0 || slot >= slots)
       throw std::logic_error("lidar_fusion: worker slot " + std::to_string(slot) + " outside the executor's " +
                              std::to_string(slots));
-    per[static_cast<size_t>(c)] = walkRayTask(view, ray_min_[static_cast<size_t>(slot)], c);
+    for (int g = next.fetch_add(1); g < kRaySectors; g = next.fetch_add(1))
+      for (int c = ray_sector_start_[static_cast<size_t>(g)]; c < ray_sector_start_[static_cast<size_t>(g) + 1]; ++c)
+        per[static_cast<size_t>(c)] = walkRayTask(view, ray_min_[static_cast<size_t>(slot)], c);
   });
   for (const auto& p : per) {
     st.rays += p[0];
     st.ray_cells += p[1];
+    st.ray_cells_read += p[2];
   }
   applyRayResults(map, ex, st);
 }
@@ -918,6 +964,7 @@ LidarFusion::RayWalkView LidarFusion::rayWalkView(const LayeredMap& map, const E
   w.v0 = (ymax - S.y()) / w.res;
   w.sensor_z = S.z();
   const int ntiles = map.tileCount();
+  w.tile_side = map.tileSize();
   w.tile_cells = map.tileSize() * map.tileSize();
   // Read-only views for phase A (the map is not written until phase B).
   w.elev.resize(static_cast<size_t>(ntiles));
@@ -947,13 +994,102 @@ void LidarFusion::prepareRayTasks(int slots, int ntiles, int tile_cells) {
     }
     ray_min_tile_cells_ = tile_cells;
   }
-  // Ray tasks: fixed runs of kRayTask rays of one point chunk, in input order. Smaller than
-  // a chunk, so that the two threads stay balanced although ray lengths differ by chunk.
+  // The rays by azimuth octant and, within one, steepest descent first (a stable counting sort;
+  // the order changes only how much of the walk is skipped, never the result). Low rays bound
+  // the unknown cells near the sensor first; the higher rays that follow find those blocks
+  // already bounded below them and skip them. A worker walks a whole octant (its bounds are
+  // per worker slot: see cleanup()). Tasks are fixed runs of at most kRayTask rays of one
+  // octant (smaller than a chunk, so that the threads stay balanced although ray lengths differ).
+  long nr = 0;
+  for (const PointChunk& ch : point_chunks_) nr += static_cast<long>(ch.ray_ends.size() / 3);
+  ray_keys_.resize(static_cast<size_t>(nr));
+  constexpr int nkeys = kRaySectors * kRaySortBuckets;
+  std::vector<int> start(nkeys + 1, 0);
+  size_t q = 0;
+  for (const PointChunk& ch : point_chunks_)
+    for (size_t k = 0; k < ch.ray_ends.size(); k += 3, ++q) {
+      const float dx = ch.ray_ends[k], dy = ch.ray_ends[k + 1], dz = ch.ray_ends[k + 2];
+      const float L = std::sqrt(dx * dx + dy * dy + dz * dz);
+      const float sine = L > 0.0f ? dz / L : 0.0f;  // NaN-free: the gates passed only finite points
+      const int b = std::clamp(static_cast<int>((sine + 1.0f) * (0.5f * kRaySortBuckets)), 0, kRaySortBuckets - 1);
+      const int octant = (dx < 0.0f ? 4 : 0) + (dy < 0.0f ? 2 : 0) + (std::abs(dx) < std::abs(dy) ? 1 : 0);
+      const int key = octant * kRaySortBuckets + b;
+      ray_keys_[q] = static_cast<std::uint16_t>(key);
+      ++start[static_cast<size_t>(key) + 1];
+    }
+  for (int b = 0; b < nkeys; ++b) start[static_cast<size_t>(b) + 1] += start[static_cast<size_t>(b)];
+  ray_sector_start_.resize(kRaySectors + 1);
   ray_tasks_.clear();
-  for (int c = 0; c < static_cast<int>(point_chunks_.size()); ++c) {
-    const int nr = static_cast<int>(point_chunks_[static_cast<size_t>(c)].ray_ends.size() / 3);
-    for (int r0 = 0; r0 < nr; r0 += kRayTask) ray_tasks_.push_back({c, r0, std::min(nr, r0 + kRayTask)});
+  for (int g = 0; g < kRaySectors; ++g) {
+    ray_sector_start_[static_cast<size_t>(g)] = static_cast<int>(ray_tasks_.size());
+    const int r0 = start[static_cast<size_t>(g) * kRaySortBuckets], r1 = start[static_cast<size_t>(g + 1) * kRaySortBuckets];
+    for (int r = r0; r < r1; r += kRayTask) ray_tasks_.push_back({r, std::min(r1, r + kRayTask)});
   }
+  ray_sector_start_[kRaySectors] = static_cast<int>(ray_tasks_.size());
+  ray_order_.resize(3 * static_cast<size_t>(nr));
+  q = 0;
+  for (const PointChunk& ch : point_chunks_)
+    for (size_t k = 0; k < ch.ray_ends.size(); k += 3, ++q) {
+      float* dst = &ray_order_[3 * static_cast<size_t>(start[ray_keys_[q]]++)];
+      dst[0] = ch.ray_ends[k];
+      dst[1] = ch.ray_ends[k + 1];
+      dst[2] = ch.ray_ends[k + 2];
+    }
+}
+
+// Per cloud, before the walk: every slot's block bounds reset (+inf: not bounded yet) and
+// their surfaces marked not computed.
+void LidarFusion::prepareRayBlocks(const LayeredMap& map) {
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  const size_t nblocks = static_cast<size_t>(map.tileCount()) * static_cast<size_t>(blocks_per_tile_);
+  for (RayMinSlot& m : ray_min_) {
+    m.block_max.assign(nblocks, kInf);
+    m.block_dirty.assign(nblocks, 0);
+    m.block_kmax.assign(nblocks, kNaN);
+  }
+}
+
+// A block's surface for the skip test, computed on the first entry of one of the slot's rays:
+// the highest known cell this cloud did not hit, and -inf as the bound of a block without
+// unknown cells (there is nothing to bound).
+void LidarFusion::blockSurface(const RayWalkView& w, RayMinSlot& mins, std::int32_t tile, int block) const {
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  const int T = w.tile_side;
+  const int nbs = (T + kRayBlock - 1) / kRayBlock;
+  const int br = block / nbs, bc = block % nbs;
+  const float* E = w.elev[static_cast<size_t>(tile)];
+  const float* H = w.hits[static_cast<size_t>(tile)];
+  float kmax = -kInf;
+  bool unknown = false;
+  for (int r = br * kRayBlock; r < std::min(T, (br + 1) * kRayBlock); ++r)
+    for (int c = bc * kRayBlock; c < std::min(T, (bc + 1) * kRayBlock); ++c) {
+      const int off = r * T + c;
+      const float h = E[off];
+      if (std::isnan(h)) unknown = true;
+      else if (!(H && H[off] > 0.0f)) kmax = std::max(kmax, h);
+    }
+  const size_t b = static_cast<size_t>(tile) * static_cast<size_t>(blocks_per_tile_) + static_cast<size_t>(block);
+  mins.block_kmax[b] = kmax;
+  if (!unknown) mins.block_max[b] = -kInf;
+}
+
+// The largest minimum a slot holds over the unknown cells of one block (+inf where a cell has
+// none, or the tile no buffer).
+float LidarFusion::blockMax(const RayWalkView& w, const RayMinSlot& mins, std::int32_t tile, int block) const {
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  const float* m = mins.active[static_cast<size_t>(tile)];
+  if (!m) return kInf;
+  const int T = w.tile_side;
+  const int nbs = (T + kRayBlock - 1) / kRayBlock;
+  const int br = block / nbs, bc = block % nbs;
+  const float* E = w.elev[static_cast<size_t>(tile)];
+  float b = -kInf;
+  for (int r = br * kRayBlock; r < std::min(T, (br + 1) * kRayBlock); ++r)
+    for (int c = bc * kRayBlock; c < std::min(T, (bc + 1) * kRayBlock); ++c) {
+      const int off = r * T + c;
+      if (std::isnan(E[off])) b = std::max(b, m[off]);
+    }
+  return b;
 }
 
 // A known cell under the ray: a penetration item if the cell is stale (not measured by this
@@ -988,10 +1124,11 @@ __attribute__((noinline)) void LidarFusion::staleCell(const RayWalkView& w, int 
   if (cosang >= config_.cleanup_cos_thresh) items.push_back(Item{tile, off, static_cast<float>(zhi), kRayPenetration});
 }
 
-std::array<long, 2> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& mins, int c) {
+std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& mins, int c) {
   const LidarFusionConfig& cf = config_;
   const int tile_cells = w.tile_cells;
   constexpr float kInf = std::numeric_limits<float>::infinity();
+  constexpr double kInfD = std::numeric_limits<double>::infinity();
   auto touch = [&](std::int32_t tile) {
     std::unique_ptr<float[]>& buf = mins.tiles[static_cast<size_t>(tile)];
     if (!buf) {
@@ -1005,18 +1142,29 @@ std::array<long, 2> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
   std::vector<Item>& out = ray_chunks_[static_cast<size_t>(c)];
   out.clear();
   const RayTask task = ray_tasks_[static_cast<size_t>(c)];
-  const std::vector<float>& ends = point_chunks_[static_cast<size_t>(task.chunk)].ray_ends;
+  const float* ends = ray_order_.data();
   // Locals for the walk loop (through a closure or `this` the compiler reloads them every step).
   const std::int32_t* row_tile = row_tile_.data();
   const std::int32_t* row_local = row_local_.data();
   const std::int32_t* col_tile = col_tile_.data();
   const std::int32_t* col_local = col_local_.data();
+  const std::int32_t* row_blk = row_blk_.data();
+  const std::int32_t* col_blk = col_blk_.data();
+  const std::int32_t* row_lo = row_blk_lo_.data();
+  const std::int32_t* row_hi = row_blk_hi_.data();
+  const std::int32_t* col_lo = col_blk_lo_.data();
+  const std::int32_t* col_hi = col_blk_hi_.data();
+  float* kmax = mins.block_kmax.data();
+  float* bmax = mins.block_max.data();
+  std::uint8_t* dirty = mins.block_dirty.data();
+  const int nbb = blocks_per_tile_;
   const float* const* const Et = w.elev.data();
   float* const* const active = mins.active.data();
   const int R = w.rows, C = w.cols;
   const unsigned Ru = static_cast<unsigned>(R), Cu = static_cast<unsigned>(C);
   const double res = w.res, u0 = w.u0, v0 = w.v0, Sz = w.sensor_z;
-  long nrays = 0, ncells = 0;
+  long nrays = 0, ncells = 0, nread = 0;
+  const bool may_skip = !force_cell_walk_;
   for (size_t q = 3 * static_cast<size_t>(task.begin); q < 3 * static_cast<size_t>(task.end); q += 3) {
     const double dx = ends[q], dy = ends[q + 1], dz = ends[q + 2];
     const double L = std::sqrt(dx * dx + dy * dy + dz * dz);
@@ -1047,59 +1195,119 @@ std::array<long, 2> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
     int j = static_cast<int>(std::ceil(v0 + tm * dv)) - 1;
     i = std::clamp(i, 0, R - 1);
     j = std::clamp(j, 0, C - 1);
-    GridLine line(Index(i, j), u0, v0, du, dv);
+    const int i_start = i, j_start = j;
+    // Column traversal (Amanatides-Woo) with each crossing's parameter computed from its grid
+    // line, t = (n - u0) / du, rather than accumulated: a walk that jumps over a block lands in
+    // exactly the cell and state the cell-by-cell walk reaches.
+    const int si = du > 0 ? 1 : -1, sj = dv > 0 ? 1 : -1;
+    const double dsi = si, dsj = sj;
+    // A zero component never crosses a line of its axis: its next crossing stays at +inf (the
+    // other axis is then always the nearer one, and a ray with both zero ends in its first cell).
+    const double idu = du != 0.0 ? 1.0 / du : 0.0, idv = dv != 0.0 ? 1.0 / dv : 0.0;
+    double nbi = du > 0 ? i + 1 : i, nbj = dv > 0 ? j + 1 : j;  // next grid lines (integers)
+    double tmi = du != 0.0 ? (nbi - u0) * idu : kInfD, tmj = dv != 0.0 ? (nbj - v0) * idv : kInfD;
     double ta = t0;
     const double dirx = dx / L, diry = dy / L, dirz = dz / L;
-    // Tile and in-tile offset of (i, j), updated per step from the axis that changed; the
-    // tile's elevation data and minimum buffer are looked up only when the tile changes.
-    std::int32_t rt = row_tile[i], rl = row_local[i], ct = col_tile[j], cl = col_local[j];
-    std::int32_t tile = rt + ct;
-    const float* e = Et[tile];
-    float* m = active[tile];
     const bool up = dz >= 0;
-    long steps = 0;
     while (true) {
-      const double tb = std::min(line.exitParam(), t1);
-      // Highest point of the ray inside this column: the ground under the crossing is below it.
-      const double zhi = Sz + (up ? tb : ta) * dz;
-      ++steps;
-      const std::uint32_t off = static_cast<std::uint32_t>(rl + cl);
-      const float h = e[off];
-      if (std::isnan(h)) {
-        if (!m) m = touch(tile);
-        const float z = static_cast<float>(zhi);
-        if (z < m[off]) m[off] = z;
-      } else if (h > zhi) {
-        // (Necessary for h - k sigma > zhi, as k sigma >= 0: most known cells stop here.)
-        staleCell(w, i, j, tile, off, h, zhi, dirx, diry, dirz, out);
+      // Entering the block of (i, j) (from a step or a jump that may have left the map).
+      if (static_cast<unsigned>(i) >= Ru) {
+        i -= si;
+        break;
       }
-      if (tb >= t1) break;
-      if (line.step() == GridLine::Axis::Row) {
-        i = line.row();
-        if (static_cast<unsigned>(i) >= Ru) break;
-        rl = row_local[i];
-        if (row_tile[i] != rt) {
-          rt = row_tile[i];
-          tile = rt + ct;
-          e = Et[tile];
-          m = active[tile];
+      if (static_cast<unsigned>(j) >= Cu) {
+        j -= sj;
+        break;
+      }
+      // The ray's lowest point over the block (its exit for a descending ray) decides: if no
+      // surface that this cloud missed reaches up to it there, and this slot already bounds
+      // every unknown cell of the block at or below it, no cell of the block would change, so
+      // the walk jumps to the block's exit.
+      const std::int32_t tile = row_tile[i] + col_tile[j];
+      const int blk = tile * nbb + row_blk[i] + col_blk[j];
+      const int rlo = row_lo[i], rhi = row_hi[i], clo = col_lo[j], chi = col_hi[j];
+      const int far_r = si > 0 ? rhi : rlo, far_c = sj > 0 ? chi : clo;
+      const double t_r = du != 0.0 ? (far_r - u0) * idu : kInfD, t_c = dv != 0.0 ? (far_c - v0) * idv : kInfD;
+      const double tex = std::min(std::min(t_r, t_c), t1);
+      const double zlow = Sz + (up ? ta : tex) * dz;
+      bool skip = false;
+      if (may_skip && std::isnan(kmax[blk])) blockSurface(w, mins, tile, blk - tile * nbb);
+      if (may_skip && zlow >= kmax[blk]) {
+        const float zf = static_cast<float>(zlow);
+        if (!(zf >= bmax[blk]) && dirty[blk]) {
+          bmax[blk] = blockMax(w, mins, tile, blk - tile * nbb);
+          dirty[blk] = 0;
         }
-      } else {
-        j = line.col();
-        if (static_cast<unsigned>(j) >= Cu) break;
-        cl = col_local[j];
-        if (col_tile[j] != ct) {
-          ct = col_tile[j];
-          tile = rt + ct;
-          e = Et[tile];
-          m = active[tile];
+        skip = zf >= bmax[blk];
+      }
+      if (skip) {
+        if (tex >= t1) {
+          // The ray ends in this block: step to its last cell without reading the map.
+          while (std::min(tmi, tmj) < t1) {
+            if (tmi <= tmj) {
+              if (static_cast<unsigned>(i + si) >= Ru) break;
+              i += si, nbi += dsi, tmi = (nbi - u0) * idu;
+            } else {
+              if (static_cast<unsigned>(j + sj) >= Cu) break;
+              j += sj, nbj += dsj, tmj = (nbj - v0) * idv;
+            }
+          }
+          break;
+        }
+        if (t_r <= t_c) {  // leaves across a row line, after the column lines before it (ties: row first)
+          while (tmj < tex) j += sj, nbj += dsj, tmj = (nbj - v0) * idv;
+          i = si > 0 ? far_r : far_r - 1, nbi = far_r + si, tmi = (nbi - u0) * idu;
+        } else {
+          while (tmi <= tex) i += si, nbi += dsi, tmi = (nbi - u0) * idu;
+          j = sj > 0 ? far_c : far_c - 1, nbj = far_c + sj, tmj = (nbj - v0) * idv;
+        }
+        ta = tex;
+        continue;
+      }
+      // Walk the block cell by cell; the block's bounds keep (i, j) on the map.
+      const float* e = Et[tile];
+      float* m = active[tile];
+      std::int32_t rl = row_local[i], cl = col_local[j];
+      bool ended = false;
+      while (true) {
+        const double tb = std::min(std::min(tmi, tmj), t1);
+        // Highest point of the ray inside this column: the ground under the crossing is below it.
+        const double zhi = Sz + (up ? tb : ta) * dz;
+        const std::uint32_t off = static_cast<std::uint32_t>(rl + cl);
+        const float h = e[off];
+        ++nread;
+        if (std::isnan(h)) {
+          if (!m) m = touch(tile);
+          const float z = static_cast<float>(zhi);
+          if (z < m[off]) {
+            m[off] = z;
+            dirty[blk] = 1;
+          }
+        } else if (h > zhi) {
+          // (Necessary for h - k sigma > zhi, as k sigma >= 0: most known cells stop here.)
+          staleCell(w, i, j, tile, off, h, zhi, dirx, diry, dirz, out);
+        }
+        if (tb >= t1) {
+          ended = true;
+          break;
+        }
+        ta = tb;
+        if (tmi <= tmj) {
+          i += si, nbi += dsi, tmi = (nbi - u0) * idu;
+          if (i < rlo || i >= rhi) break;  // next block
+          rl = row_local[i];
+        } else {
+          j += sj, nbj += dsj, tmj = (nbj - v0) * idv;
+          if (j < clo || j >= chi) break;
+          cl = col_local[j];
         }
       }
-      ta = tb;
+      if (ended) break;
     }
-    ncells += steps;
+    // Cells the walk spans (visited or jumped over): one per crossing plus the first.
+    ncells += std::abs(i - i_start) + std::abs(j - j_start) + 1;
   }
-  return {nrays, ncells};
+  return {nrays, ncells, nread};
 }
 
 // Phase B, one task per tile that has ray minima or penetration items: apply the minima
@@ -1197,6 +1405,13 @@ void LidarFusion::applyRayResults(LayeredMap& map, const Executor& ex, FusionSta
           ISUB[o] = 1.0f;
         }
       }
+      // A cell invalidated by this cloud is bounded by the lowest of all its rays, those before
+      // the invalidating one included: the result does not depend on the order of the rays
+      // (phase A walks them steepest first, not in input order).
+      for (int b = b0; b < b1; ++b) {
+        const Item& it = binned_[static_cast<size_t>(b)];
+        if (std::isnan(Ew[it.off]) && it.z < UB[it.off]) UB[it.off] = it.z;
+      }
     }
     res3[static_cast<size_t>(q)] = {pen, inv, ubs, no_room ? 1 : 0};
   });
@@ -1223,11 +1438,13 @@ void LidarFusion::accumulate(const FusionStats& s) {
   t.dropped_tile_budget += s.dropped_tile_budget;
   t.tile_budget_refusals += s.tile_budget_refusals;
   t.points_fused += s.points_fused;
+  t.cells_fused += s.cells_fused;
   t.outliers += s.outliers;
   t.cells_forgotten += s.cells_forgotten;
   t.tiles_touched += s.tiles_touched;
   t.rays += s.rays;
   t.ray_cells += s.ray_cells;
+  t.ray_cells_read += s.ray_cells_read;
   t.cells_penetrated += s.cells_penetrated;
   t.cells_invalidated += s.cells_invalidated;
   t.upper_bounds += s.upper_bounds;

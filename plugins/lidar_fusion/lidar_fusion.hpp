@@ -22,7 +22,10 @@
 ///  6. visibility cleanup: one ray every `cleanup_ray_stride` points is walked through the
 ///     grid (exact column traversal, Amanatides-Woo); valid cells not hit by this cloud whose
 ///     surface lies above the ray lose validity (cleanup_step per ray) and gain variance, unknown
-///     cells get an upper bound (min over rays of the ray height in the cell);
+///     cells get an upper bound (min over rays of the ray height in the cell; a cell invalidated
+///     by this cloud: min over the rays that passed under it). The walk jumps over blocks of
+///     8 x 8 cells where no cell could change (no missed surface reaches the ray, and the
+///     steeper rays walked before already bound every unknown cell below it);
 ///  7. optional drift compensation (off by default).
 ///
 /// Frames: `elevation` and `upper_bound` are map-frame z (metres). NaN = unknown.
@@ -114,11 +117,15 @@ struct FusionStats {
        dropped_outside_map = 0;
   long dropped_tile_budget = 0;  ///< points in a tile a sparse map could not allocate (memory budget)
   long points_fused = 0;     ///< points that updated a cell (including cell initialisations)
+  long cells_fused = 0;      ///< distinct cells those points updated
   long outliers = 0;         ///< points rejected by the Mahalanobis gate
   long cells_forgotten = 0;  ///< cells reset because their variance exceeded max_variance
   long tiles_touched = 0;
   long rays = 0;             ///< rays walked
-  long ray_cells = 0;        ///< cell crossings visited by the walks
+  long ray_cells = 0;        ///< cells the walks span (one per column crossing, plus the first)
+  /// Of those, the cells the walks read (the rest lay in blocks skipped whole). The only figure
+  /// that depends on the thread count (which worker walks which rays); not in the run report.
+  long ray_cells_read = 0;
   long cells_penetrated = 0; ///< penetrating-ray updates applied to stale valid cells
   long cells_invalidated = 0;  ///< stale cells whose validity fell below 0.5
   long upper_bounds = 0;     ///< unknown cells given a ray upper bound (once per cell), plus
@@ -174,6 +181,10 @@ class LidarFusion : public Plugin {
   /// (x86-64 CPUs with AVX2 use it by default). Both give bit-identical results (tested);
   /// this exists for that test and for benchmarking the difference.
   void forceScalarGates(bool on) { force_scalar_gates_ = on; }
+  /// Walk every cell of every ray instead of jumping over the blocks where no cell could change
+  /// (the cleanup's block skipping, on by default). Both give bit-identical layers and counters
+  /// other than ray_cells_read (tested); this exists for that test and for benchmarking.
+  void forceCellByCellWalk(bool on) { force_cell_walk_ = on; }
   /// Totals over every cloud so far.
   const FusionStats& totals() const { return totals_; }
 
@@ -239,6 +250,15 @@ class LidarFusion : public Plugin {
     std::vector<std::unique_ptr<float[]>> tiles;  // per tile: tileSize^2 floats, or null
     std::vector<float*> active;                   // per tile: the buffer if touched this cloud
     std::vector<int> list;                        // tiles touched this cloud
+    // Per block (kRayBlock^2 cells of a tile): an upper bound on the largest minimum this slot
+    // holds over the block's unknown cells (-inf: no unknown cell; +inf: one may have none
+    // yet), and whether a ray lowered a minimum there since it was computed.
+    std::vector<float> block_max;
+    std::vector<std::uint8_t> block_dirty;
+    // Per block, computed by the slot the first time one of its rays enters the block (NaN
+    // until then): the highest surface a ray could find stale there (known cells this cloud
+    // did not hit; -inf none).
+    std::vector<float> block_kmax;
   };
   std::vector<RayMinSlot> ray_min_;
   int ray_min_tile_cells_ = 0;
@@ -246,21 +266,33 @@ class LidarFusion : public Plugin {
   // visibility cleanup: ray tasks (rays [begin, end) of a point chunk) and their penetration
   // items (one list per task, in task order = input order), binned per tile
   struct RayTask {
-    int chunk, begin, end;
+    int begin, end;  // rays [begin, end) of ray_order_
   };
+  // The rays of the cloud (sensor-relative xyz, map frame), steepest descent first: where low
+  // rays have already bounded a block's unknown cells, the higher ones skip it (walkRayTask).
+  std::vector<float> ray_order_;
+  std::vector<std::uint16_t> ray_keys_;  // sort bucket per ray (scratch)
+  std::vector<int> ray_sector_start_;    // first ray task of each azimuth octant; one past the end last
+  // Blocks of the ray walk: per logical row (column) the block's row (column) part of its index
+  // inside the tile and the logical bounds [lo, hi) of the block's rows (columns).
+  std::vector<std::int32_t> row_blk_, col_blk_, row_blk_lo_, row_blk_hi_, col_blk_lo_, col_blk_hi_;
+  int blocks_per_tile_ = 0;
   std::vector<RayTask> ray_tasks_;
   std::vector<std::vector<Item>> ray_chunks_;
   /// What the cleanup's ray walk reads: per-tile layer views (elevation never null: an
   /// unallocated tile points at nan_tile_), the grid size and the sensor in grid coordinates.
   struct RayWalkView {
     std::vector<const float*> elev, var, hits;
-    int rows = 0, cols = 0, tile_cells = 0;
+    int rows = 0, cols = 0, tile_side = 0, tile_cells = 0;
     double res = 0, u0 = 0, v0 = 0, sensor_z = 0;
   };
   // The steps of cleanup(): views, ray tasks, phase A per task (the walk), phase B.
   RayWalkView rayWalkView(const LayeredMap& map, const Eigen::Vector3d& sensor);
   void prepareRayTasks(int slots, int ntiles, int tile_cells);
-  std::array<long, 2> walkRayTask(const RayWalkView& view, RayMinSlot& mins, int task);
+  void prepareRayBlocks(const LayeredMap& map);
+  float blockMax(const RayWalkView& view, const RayMinSlot& mins, std::int32_t tile, int block) const;
+  void blockSurface(const RayWalkView& view, RayMinSlot& mins, std::int32_t tile, int block) const;
+  std::array<long, 3> walkRayTask(const RayWalkView& view, RayMinSlot& mins, int task);
   void staleCell(const RayWalkView& view, int i, int j, std::int32_t tile, std::uint32_t off, float h, double zhi,
                  double dirx, double diry, double dirz, std::vector<Item>& items) const;
   void applyRayResults(LayeredMap& map, const Executor& ex, FusionStats& st);
@@ -269,6 +301,7 @@ class LidarFusion : public Plugin {
   std::vector<int> ray_tiles_;     // tiles with binned ray items, ascending
   std::vector<char> tile_known_;   // buffer tiles that may hold known cells (time pass)
   bool force_scalar_gates_ = false;
+  bool force_cell_walk_ = false;
   bool have_stamp_ = false;
   double last_stamp_ = 0.0;
   bool have_pose_ = false;         // a Pose event arrived (follow it rather than the sensor)
