@@ -445,27 +445,17 @@ void LidarFusion::buildIndexTables(const LayeredMap& map) {
   // buffer's wrap ends a tile, so it ends a block too).
   const int nbs = (T + kRayBlock - 1) / kRayBlock;
   blocks_per_tile_ = nbs * nbs;
-  auto runs = [&](int n, auto key, std::vector<std::int32_t>& lo, std::vector<std::int32_t>& hi) {
-    lo.resize(static_cast<size_t>(n));
-    hi.resize(static_cast<size_t>(n));
+  auto blocks = [&](int n, const std::vector<std::int32_t>& tile, auto blk, std::vector<AxisBlock>& out) {
+    out.resize(static_cast<size_t>(n));
     int a = 0;
     for (int q = 1; q <= n; ++q)
-      if (q == n || key(q) != key(a)) {
-        for (int r = a; r < q; ++r) {
-          lo[static_cast<size_t>(r)] = a;
-          hi[static_cast<size_t>(r)] = q;
-        }
+      if (q == n || tile[static_cast<size_t>(q)] != tile[static_cast<size_t>(a)] || blk(q) != blk(a)) {
+        for (int r = a; r < q; ++r) out[static_cast<size_t>(r)] = {tile[static_cast<size_t>(r)], blk(r), a, q};
         a = q;
       }
   };
-  row_blk_.resize(static_cast<size_t>(R));
-  col_blk_.resize(static_cast<size_t>(C));
-  for (int i = 0; i < R; ++i) row_blk_[static_cast<size_t>(i)] = row_local_[static_cast<size_t>(i)] / T / kRayBlock * nbs;
-  for (int j = 0; j < C; ++j) col_blk_[static_cast<size_t>(j)] = col_local_[static_cast<size_t>(j)] / kRayBlock;
-  runs(R, [&](int i) { return std::pair(row_tile_[static_cast<size_t>(i)], row_blk_[static_cast<size_t>(i)]); },
-       row_blk_lo_, row_blk_hi_);
-  runs(C, [&](int j) { return std::pair(col_tile_[static_cast<size_t>(j)], col_blk_[static_cast<size_t>(j)]); },
-       col_blk_lo_, col_blk_hi_);
+  blocks(R, row_tile_, [&](int i) { return row_local_[static_cast<size_t>(i)] / T / kRayBlock * nbs; }, row_blocks_);
+  blocks(C, col_tile_, [&](int j) { return col_local_[static_cast<size_t>(j)] / kRayBlock; }, col_blocks_);
   tables_start_ = s;
 }
 
@@ -1144,16 +1134,10 @@ std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
   const RayTask task = ray_tasks_[static_cast<size_t>(c)];
   const float* ends = ray_order_.data();
   // Locals for the walk loop (through a closure or `this` the compiler reloads them every step).
-  const std::int32_t* row_tile = row_tile_.data();
   const std::int32_t* row_local = row_local_.data();
-  const std::int32_t* col_tile = col_tile_.data();
   const std::int32_t* col_local = col_local_.data();
-  const std::int32_t* row_blk = row_blk_.data();
-  const std::int32_t* col_blk = col_blk_.data();
-  const std::int32_t* row_lo = row_blk_lo_.data();
-  const std::int32_t* row_hi = row_blk_hi_.data();
-  const std::int32_t* col_lo = col_blk_lo_.data();
-  const std::int32_t* col_hi = col_blk_hi_.data();
+  const AxisBlock* row_blocks = row_blocks_.data();
+  const AxisBlock* col_blocks = col_blocks_.data();
   float* kmax = mins.block_kmax.data();
   float* bmax = mins.block_max.data();
   std::uint8_t* dirty = mins.block_dirty.data();
@@ -1223,9 +1207,10 @@ std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
       // surface that this cloud missed reaches up to it there, and this slot already bounds
       // every unknown cell of the block at or below it, no cell of the block would change, so
       // the walk jumps to the block's exit.
-      const std::int32_t tile = row_tile[i] + col_tile[j];
-      const int blk = tile * nbb + row_blk[i] + col_blk[j];
-      const int rlo = row_lo[i], rhi = row_hi[i], clo = col_lo[j], chi = col_hi[j];
+      const AxisBlock rb = row_blocks[i], cb = col_blocks[j];
+      const std::int32_t tile = rb.tile + cb.tile;
+      const int blk = tile * nbb + rb.blk + cb.blk;
+      const int rlo = rb.lo, rhi = rb.hi, clo = cb.lo, chi = cb.hi;
       const int far_r = si > 0 ? rhi : rlo, far_c = sj > 0 ? chi : clo;
       const double t_r = du != 0.0 ? (far_r - u0) * idu : kInfD, t_c = dv != 0.0 ? (far_c - v0) * idv : kInfD;
       const double tex = std::min(std::min(t_r, t_c), t1);

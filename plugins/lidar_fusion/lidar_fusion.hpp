@@ -273,9 +273,13 @@ class LidarFusion : public Plugin {
   std::vector<float> ray_order_;
   std::vector<std::uint16_t> ray_keys_;  // sort bucket per ray (scratch)
   std::vector<int> ray_sector_start_;    // first ray task of each azimuth octant; one past the end last
-  // Blocks of the ray walk: per logical row (column) the block's row (column) part of its index
-  // inside the tile and the logical bounds [lo, hi) of the block's rows (columns).
-  std::vector<std::int32_t> row_blk_, col_blk_, row_blk_lo_, row_blk_hi_, col_blk_lo_, col_blk_hi_;
+  // Blocks of the ray walk, per logical row (column): the tile's row (column) part, the block's
+  // row (column) part of its index inside the tile, and the logical bounds [lo, hi) of the
+  // block's rows (columns). One record, read together on entering a block.
+  struct AxisBlock {
+    std::int32_t tile, blk, lo, hi;
+  };
+  std::vector<AxisBlock> row_blocks_, col_blocks_;
   int blocks_per_tile_ = 0;
   std::vector<RayTask> ray_tasks_;
   std::vector<std::vector<Item>> ray_chunks_;
