@@ -8,12 +8,22 @@
 
 #include <hdf5.h>
 #include <unistd.h>
+#include <zlib.h>
 
 #include <algorithm>
+#include <array>
+#include <chrono>
 #include <cmath>
 #include <cstring>
+#include <condition_variable>
+#include <deque>
+#include <exception>
 #include <filesystem>
+#include <functional>
 #include <map>
+#include <memory>
+#include <mutex>
+#include <thread>
 
 namespace terramap::sim {
 namespace {
@@ -24,13 +34,96 @@ using h5detail::attrString;
 using h5detail::attrU64;
 using h5detail::makeGroup;
 
-/// An HDF5 dataset growing along its first dimension, with rows buffered in memory.
+/// The thread that makes the HDF5 calls once the file is laid out: compression (deflate on the
+/// terrain snapshots and the clouds) and writes run beside the simulation instead of in its
+/// loop. Debian's libhdf5 is the serial build: while the thread runs, no other thread touches
+/// HDF5 (the writer's owner only queues jobs and, before its own HDF5 calls, drains them).
+/// Jobs run in the order queued; the first one that throws stops the rest, and its exception
+/// is rethrown to the owner by the next queue() or drain(). At most kMaxQueuedBytes of data wait
+/// in the queue: beyond that queue() waits (the simulation would otherwise outrun the disk).
+class WriterThread {
+ public:
+  static constexpr std::size_t kMaxQueuedBytes = std::size_t{256} << 20;
+  ~WriterThread() { stop(); }
+  void queue(std::function<void()> job, std::size_t bytes) {
+    std::unique_lock<std::mutex> lk(m_);
+    rethrowLocked();
+    if (!thread_.joinable()) thread_ = std::thread([this] { loop(); });
+    space_.wait(lk, [&] { return queued_bytes_ == 0 || queued_bytes_ + bytes <= kMaxQueuedBytes || error_; });
+    rethrowLocked();
+    jobs_.push_back({std::move(job), bytes});
+    queued_bytes_ += bytes;
+    work_.notify_one();
+  }
+  /// Waits until every queued job ran. 	hrows the first job's exception.
+  void drain() {
+    std::unique_lock<std::mutex> lk(m_);
+    idle_.wait(lk, [&] { return (jobs_.empty() && !busy_) || error_; });
+    rethrowLocked();
+  }
+  /// Drops the jobs not started, waits for the running one and ends the thread.
+  void stop() {
+    {
+      std::lock_guard<std::mutex> lk(m_);
+      quit_ = true;
+      jobs_.clear();
+      work_.notify_one();
+    }
+    if (thread_.joinable()) thread_.join();
+  }
+
+ private:
+  struct Job {
+    std::function<void()> run;
+    std::size_t bytes;
+  };
+  void rethrowLocked() {
+    if (error_) std::rethrow_exception(error_);
+  }
+  void loop() {
+    std::unique_lock<std::mutex> lk(m_);
+    while (true) {
+      work_.wait(lk, [&] { return quit_ || !jobs_.empty(); });
+      if (quit_) return;
+      Job job = std::move(jobs_.front());
+      jobs_.pop_front();
+      busy_ = true;
+      lk.unlock();
+      std::exception_ptr err;
+      try {
+        job.run();
+      } catch (...) {
+        err = std::current_exception();
+      }
+      lk.lock();
+      busy_ = false;
+      queued_bytes_ -= job.bytes;
+      if (err && !error_) {
+        error_ = err;
+        jobs_.clear();
+        queued_bytes_ = 0;
+      }
+      space_.notify_all();
+      if (jobs_.empty()) idle_.notify_all();
+    }
+  }
+  std::mutex m_;
+  std::condition_variable work_, space_, idle_;
+  std::deque<Job> jobs_;
+  std::size_t queued_bytes_ = 0;
+  bool busy_ = false, quit_ = false;
+  std::exception_ptr error_;
+  std::thread thread_;
+};
+
+/// An HDF5 dataset growing along its first dimension, with rows buffered in memory; full
+/// buffers are written by the writer thread when one is given, else at once.
 class Appender {
  public:
   Appender() = default;
   Appender(hid_t parent, const std::string& name, hid_t type, std::vector<hsize_t> row_dims, int gzip,
-           const std::string& path, hsize_t chunk_rows = 1024)
-      : type_(type), row_dims_(std::move(row_dims)), path_(path), name_(name) {
+           const std::string& path, hsize_t chunk_rows = 1024, WriterThread* writer = nullptr)
+      : type_(type), row_dims_(std::move(row_dims)), path_(path), name_(name), writer_(writer) {
     row_elems_ = 1;
     for (hsize_t d : row_dims_) row_elems_ *= d;
     elem_size_ = H5Tget_size(type);
@@ -56,12 +149,14 @@ class Appender {
   Appender& operator=(Appender&& o) noexcept {
     std::swap(ds_, o.ds_);
     type_ = o.type_; row_dims_ = o.row_dims_; row_elems_ = o.row_elems_; elem_size_ = o.elem_size_;
-    rows_ = o.rows_; buf_ = std::move(o.buf_); path_ = o.path_; name_ = o.name_;
+    rows_ = o.rows_; buf_ = std::move(o.buf_); path_ = o.path_; name_ = o.name_; writer_ = o.writer_;
     return *this;
   }
   ~Appender() {
     if (ds_ >= 0) H5Dclose(ds_);
   }
+  /// From now on full buffers are written by `w` (which must outlive this Appender's writes).
+  void useWriter(WriterThread* w) { writer_ = w; }
   template <class T>
   void append(const T* row, std::size_t nrows = 1) {
     const char* p = reinterpret_cast<const char*>(row);
@@ -70,7 +165,22 @@ class Appender {
   }
   void flush() {
     if (buf_.empty() || ds_ < 0) return;
-    const hsize_t n = buf_.size() / (row_elems_ * elem_size_);
+    if (!writer_) {
+      write(buf_.data(), buf_.size());
+      buf_.clear();
+      return;
+    }
+    // The rows go to the writer thread; this Appender stays where it is until the writer is
+    // drained (it lives in the writer's Impl), so the job may refer to it.
+    auto rows = std::make_shared<std::vector<char>>(std::move(buf_));
+    buf_ = std::vector<char>();
+    const std::size_t bytes = rows->size();
+    writer_->queue([this, rows] { write(rows->data(), rows->size()); }, bytes);
+  }
+
+ private:
+  void write(const char* data, std::size_t size) {
+    const hsize_t n = size / (row_elems_ * elem_size_);
     std::vector<hsize_t> dims{rows_ + n}, start{rows_}, count{n};
     for (hsize_t d : row_dims_) {
       dims.push_back(d);
@@ -81,15 +191,13 @@ class Appender {
     const hid_t fs_ = H5Dget_space(ds_);
     H5Sselect_hyperslab(fs_, H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr);
     const hid_t ms = H5Screate_simple(static_cast<int>(count.size()), count.data(), nullptr);
-    const herr_t rc = H5Dwrite(ds_, type_, ms, fs_, H5P_DEFAULT, buf_.data());
+    const herr_t rc = H5Dwrite(ds_, type_, ms, fs_, H5P_DEFAULT, data);
     H5Sclose(ms);
     H5Sclose(fs_);
     if (rc < 0) throw OutputError(path_ + ": cannot write '" + name_ + "' (disk full?)");
     rows_ += n;
-    buf_.clear();
   }
 
- private:
   hid_t ds_ = -1;
   hid_t type_ = -1;
   std::vector<hsize_t> row_dims_;
@@ -97,6 +205,111 @@ class Appender {
   std::size_t elem_size_ = 8;
   std::vector<char> buf_;
   std::string path_, name_;
+  WriterThread* writer_ = nullptr;
+};
+
+/// A series of ny x nx float grids (the terrain snapshots): dataset [k, ny, nx] in chunks of
+/// 1 x 256 x 256, HDF5's shuffle and deflate filters when compressed. The terrain changes only
+/// where the machines work, so most chunks of a snapshot equal the previous snapshot's: those
+/// are written as the bytes already compressed for it (H5Dwrite_chunk), and only the changed
+/// ones are shuffled and deflated here, the way HDF5's own filters encode them (any HDF5 reader
+/// decodes the file as before). Deflating every 18 MB snapshot whole cost more CPU than the
+/// simulation it records.
+class GridSeries {
+ public:
+  static constexpr int kChunk = 256;
+  GridSeries() = default;
+  GridSeries(hid_t parent, const std::string& name, int nx, int ny, int gzip, const std::string& path)
+      : nx_(nx), ny_(ny), gzip_(gzip), path_(path), name_(name) {
+    cx_ = std::min(nx, kChunk);
+    cy_ = std::min(ny, kChunk);
+    ncx_ = (nx + cx_ - 1) / cx_;
+    ncy_ = (ny + cy_ - 1) / cy_;
+    hsize_t dims[3] = {0, static_cast<hsize_t>(ny), static_cast<hsize_t>(nx)};
+    hsize_t maxd[3] = {H5S_UNLIMITED, static_cast<hsize_t>(ny), static_cast<hsize_t>(nx)};
+    hsize_t chunk[3] = {1, static_cast<hsize_t>(cy_), static_cast<hsize_t>(cx_)};
+    const hid_t space = H5Screate_simple(3, dims, maxd);
+    const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+    H5Pset_chunk(dcpl, 3, chunk);
+    if (gzip > 0) {
+      H5Pset_shuffle(dcpl);
+      H5Pset_deflate(dcpl, static_cast<unsigned>(gzip));
+    }
+    ds_ = H5Dcreate2(parent, name.c_str(), H5T_NATIVE_FLOAT, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
+    H5Pclose(dcpl);
+    H5Sclose(space);
+    if (ds_ < 0) throw OutputError(path_ + ": cannot create dataset '" + name + "'");
+    prev_.resize(static_cast<std::size_t>(ncx_) * static_cast<std::size_t>(ncy_));
+    packed_.resize(prev_.size());
+  }
+  GridSeries(GridSeries&& o) noexcept { *this = std::move(o); }
+  GridSeries& operator=(GridSeries&& o) noexcept {
+    std::swap(ds_, o.ds_);
+    nx_ = o.nx_, ny_ = o.ny_, gzip_ = o.gzip_, cx_ = o.cx_, cy_ = o.cy_, ncx_ = o.ncx_, ncy_ = o.ncy_;
+    count_ = o.count_, reused_ = o.reused_, path_ = o.path_, name_ = o.name_;
+    prev_ = std::move(o.prev_);
+    packed_ = std::move(o.packed_);
+    return *this;
+  }
+  ~GridSeries() {
+    if (ds_ >= 0) H5Dclose(ds_);
+  }
+  /// Appends one grid (row-major, ny rows of nx). HDF5 calls: on the writer thread's side.
+  void write(const std::vector<float>& g) {
+    if (ds_ < 0) return;
+    hsize_t dims[3] = {count_ + 1, static_cast<hsize_t>(ny_), static_cast<hsize_t>(nx_)};
+    if (H5Dset_extent(ds_, dims) < 0) throw OutputError(path_ + ": cannot extend '" + name_ + "'");
+    const std::size_t n = static_cast<std::size_t>(cx_) * static_cast<std::size_t>(cy_);
+    std::vector<float> raw(n);
+    std::vector<unsigned char> shuffled(n * sizeof(float));
+    for (int by = 0; by < ncy_; ++by)
+      for (int bx = 0; bx < ncx_; ++bx) {
+        // The chunk as stored: cy x cx, the part past the grid's edge filled with 0.
+        std::fill(raw.begin(), raw.end(), 0.0f);
+        for (int y = 0; y < cy_ && by * cy_ + y < ny_; ++y) {
+          const int w = std::min(cx_, nx_ - bx * cx_);
+          std::memcpy(&raw[static_cast<std::size_t>(y) * cx_],
+                      &g[static_cast<std::size_t>(by * cy_ + y) * nx_ + static_cast<std::size_t>(bx * cx_)],
+                      static_cast<std::size_t>(w) * sizeof(float));
+        }
+        const std::size_t k = static_cast<std::size_t>(by) * ncx_ + bx;
+        std::vector<unsigned char>& packed = packed_[k];
+        if (count_ > 0 && std::memcmp(prev_[k].data(), raw.data(), n * sizeof(float)) == 0) {
+          ++reused_;
+        } else {
+          prev_[k] = raw;
+          if (gzip_ > 0) {
+            // HDF5's shuffle filter: byte b of every element, for b = 0..3, one plane after another.
+            const unsigned char* src = reinterpret_cast<const unsigned char*>(raw.data());
+            for (std::size_t e = 0; e < n; ++e)
+              for (std::size_t b = 0; b < sizeof(float); ++b) shuffled[b * n + e] = src[e * sizeof(float) + b];
+            uLongf len = compressBound(static_cast<uLong>(shuffled.size()));
+            packed.resize(len);
+            if (compress2(packed.data(), &len, shuffled.data(), static_cast<uLong>(shuffled.size()), gzip_) != Z_OK)
+              throw OutputError(path_ + ": cannot compress a chunk of '" + name_ + "'");
+            packed.resize(len);
+          } else {
+            packed.assign(reinterpret_cast<const unsigned char*>(raw.data()),
+                          reinterpret_cast<const unsigned char*>(raw.data()) + n * sizeof(float));
+          }
+        }
+        const hsize_t offset[3] = {count_, static_cast<hsize_t>(by * cy_), static_cast<hsize_t>(bx * cx_)};
+        if (H5Dwrite_chunk(ds_, H5P_DEFAULT, 0, offset, packed.size(), packed.data()) < 0)
+          throw OutputError(path_ + ": cannot write '" + name_ + "' (disk full?)");
+      }
+    ++count_;
+  }
+  /// Chunks written from the previous snapshot's bytes so far.
+  std::uint64_t reusedChunks() const { return reused_; }
+
+ private:
+  hid_t ds_ = -1;
+  int nx_ = 0, ny_ = 0, gzip_ = 0, cx_ = 1, cy_ = 1, ncx_ = 0, ncy_ = 0;
+  hsize_t count_ = 0;
+  std::uint64_t reused_ = 0;
+  std::string path_, name_;
+  std::vector<std::vector<float>> prev_;            // per chunk: its last stored values
+  std::vector<std::vector<unsigned char>> packed_;  // per chunk: its last stored bytes
 };
 
 void writeGrid(hid_t parent, const std::string& name, const std::vector<float>& data, int nx, int ny, int gzip,
@@ -148,10 +361,13 @@ struct MachineSets {
 }  // namespace
 
 struct EpisodeWriter::Impl {
+  WriterThread writer;  // stopped by closeAll() before any other HDF5 call
+  bool writer_started = false;
   std::string final_path, tmp_path;
   EpisodeOptions opt;
   hid_t file = -1, terrain = -1;
-  Appender snap_stamp, snap_height, snap_loose;
+  Appender snap_stamp;
+  GridSeries snap_height, snap_loose;
   int nx = 0, ny = 0;
   double next_snapshot = 0, snapshot_interval = 1;
   double last_snapshot_t = -1;
@@ -169,13 +385,29 @@ struct EpisodeWriter::Impl {
       }
     const double st = sim.time();
     snap_stamp.append(&st);
-    snap_height.append(h.data());
-    snap_loose.append(l.data());
-    snap_height.flush();
-    snap_loose.flush();
+    auto grids = std::make_shared<std::array<std::vector<float>, 2>>();
+    (*grids)[0] = std::move(h);
+    (*grids)[1] = std::move(l);
+    auto job = [this, grids] {
+      snap_height.write((*grids)[0]);
+      snap_loose.write((*grids)[1]);
+    };
+    if (writer_started) writer.queue(job, 2 * (*grids)[0].size() * sizeof(float));
+    else job();
     last_snapshot_t = st;
   }
+  /// Hands every dataset's writes to the writer thread (once the file is laid out).
+  void startWriter() {
+    for (auto& m : machines) {
+      for (auto& [k, a] : m.a) a.useWriter(&writer);
+      for (auto& [k, c] : m.cloud)
+        for (Appender* a : {&c.stamp, &c.T, &c.offset, &c.count, &c.points}) a->useWriter(&writer);
+    }
+    snap_stamp.useWriter(&writer);
+    writer_started = true;
+  }
   void closeAll() {
+    writer.stop();
     for (auto& m : machines) {
       for (auto& [k, c] : m.cloud) {
         c.stamp = Appender(); c.T = Appender(); c.offset = Appender(); c.count = Appender(); c.points = Appender();
@@ -188,7 +420,7 @@ struct EpisodeWriter::Impl {
       if (m.group >= 0) H5Gclose(m.group);
     }
     machines.clear();
-    snap_stamp = Appender(); snap_height = Appender(); snap_loose = Appender();
+    snap_stamp = Appender(); snap_height = GridSeries(); snap_loose = GridSeries();
     if (terrain >= 0) H5Gclose(terrain);
     terrain = -1;
     if (file >= 0) H5Fclose(file);
@@ -275,7 +507,7 @@ void EpisodeWriter::Impl::openMachine(hid_t mg, const MachineSpec& spec, std::si
       c.T = Appender(c.group, "T_map_sensor", H5T_NATIVE_DOUBLE, {4, 4}, 0, I.tmp_path, 256);
       c.offset = Appender(c.group, "offset", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, 256);
       c.count = Appender(c.group, "count", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, 256);
-      c.points = Appender(c.group, "points", H5T_NATIVE_FLOAT, {4}, options.compression, I.tmp_path, 65536);
+      c.points = Appender(c.group, "points", H5T_NATIVE_FLOAT, {4}, options.cloud_compression, I.tmp_path, 65536);
       M.cloud.emplace(spec.id + "/" + s.id, std::move(c));
     }
   }
@@ -319,9 +551,8 @@ EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, Epis
     for (int i = 0; i < I.nx; ++i) g[static_cast<std::size_t>(j) * I.nx + i] = static_cast<float>(t.initialHeight(i, j));
   writeGrid(I.terrain, "initial_height", g, I.nx, I.ny, options.compression, I.tmp_path);
   I.snap_stamp = Appender(I.terrain, "snapshot_stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, 64);
-  const std::vector<hsize_t> grid{static_cast<hsize_t>(I.ny), static_cast<hsize_t>(I.nx)};
-  I.snap_height = Appender(I.terrain, "height", H5T_NATIVE_FLOAT, grid, options.compression, I.tmp_path, 1);
-  I.snap_loose = Appender(I.terrain, "loose", H5T_NATIVE_FLOAT, grid, options.compression, I.tmp_path, 1);
+  I.snap_height = GridSeries(I.terrain, "height", I.nx, I.ny, options.compression, I.tmp_path);
+  I.snap_loose = GridSeries(I.terrain, "loose", I.nx, I.ny, options.compression, I.tmp_path);
   I.snapshot_interval = sc.terrain.snapshot_interval_s;
   I.writeSoilMaps(sim, options);
   // Machines.
@@ -331,6 +562,7 @@ EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, Epis
   H5Gclose(mg);
   I.snapshot(sim);
   I.next_snapshot = I.snapshot_interval;
+  I.startWriter();
 }
 
 EpisodeWriter::~EpisodeWriter() {
@@ -437,6 +669,7 @@ void EpisodeWriter::close(const Simulator& sim) {
     }
   }
   I.snap_stamp.flush();
+  I.writer.drain();  // the writer thread's last HDF5 call: from here on this thread makes them
   attrDouble(I.file, "lost_volume_m3", sim.truth().lostVolume());
   attrDouble(I.file, "bank_volume_final_m3", sim.truth().bankVolume());
   I.closeAll();
@@ -508,19 +741,27 @@ std::vector<double> readEpisodeDataset(const std::string& path, const std::strin
   return EpisodeFile(path).read(dataset, dims);
 }
 
-std::string runEpisode(const Scenario& scenario, const std::string& dir, EpisodeOptions options) {
+std::string runEpisode(const Scenario& scenario, const std::string& dir, EpisodeOptions options,
+                       EpisodeTiming* timing) {
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec) throw OutputError(dir + ": cannot create the output folder: " + ec.message());
   const std::string path = (fs::path(dir) / "episode.h5").string();
+  using Clock = std::chrono::steady_clock;
+  const Clock::time_point t0 = Clock::now();
   Simulator sim(scenario);
   EpisodeWriter w(path, sim, options);
+  const Clock::time_point t1 = Clock::now();
   std::vector<Event> ev;
   while (sim.next(ev)) {
     w.record(sim, ev);
     ev.clear();
   }
   w.close(sim);
+  if (timing) {
+    timing->setup_s = std::chrono::duration<double>(t1 - t0).count();
+    timing->run_s = std::chrono::duration<double>(Clock::now() - t1).count();
+  }
   return path;
 }
 

@@ -15,7 +15,10 @@ namespace terramap::sim {
 
 struct EpisodeOptions {
   bool clouds = true;          ///< store LiDAR clouds (the bulk of the file)
-  int compression = 1;         ///< gzip level for the terrain and cloud datasets (0 = none)
+  int compression = 1;         ///< gzip level for the terrain grids and snapshots (0 = none)
+  /// gzip level for the LiDAR clouds (0 = none, the default: deflate shrinks float point clouds
+  /// only to about 74 % and costs more CPU than simulating them; `terramap sim --cloud-compression 1`).
+  int cloud_compression = 0;
 };
 
 class EpisodeWriter {
@@ -73,7 +76,17 @@ class EpisodeFile {
 std::vector<double> readEpisodeDataset(const std::string& path, const std::string& dataset,
                                        std::vector<std::uint64_t>& dims);
 
-/// Runs a whole scenario into `dir`/episode.h5 (creating `dir`). Returns the file path.
-std::string runEpisode(const Scenario& scenario, const std::string& dir, EpisodeOptions options = {});
+/// Wall seconds of one runEpisode call: `setup_s` builds the world (Simulator) and lays out the
+/// file with its static parts (EpisodeWriter); `run_s` simulates and writes the rest, up to the
+/// sealed file in place: the part BM_SimRealtime measures, plus the HDF5 writer.
+struct EpisodeTiming {
+  double setup_s = 0.0, run_s = 0.0;
+};
+
+/// Runs a whole scenario into `dir`/episode.h5 (creating `dir`). Returns the file path; fills
+/// `timing` when given. The HDF5 writes of the run go through a writer thread beside the
+/// simulation (compression off its loop); the file's contents do not depend on it.
+std::string runEpisode(const Scenario& scenario, const std::string& dir, EpisodeOptions options = {},
+                       EpisodeTiming* timing = nullptr);
 
 }  // namespace terramap::sim
