@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Interleaved before/after benchmark rounds of two builds on the same machine (the only fair
 # comparison on a VM whose speed drifts): ROUNDS times base then new, CSV rows "tag,<benchmark csv>".
-# Usage: scripts/bench_compare.sh BASE_BIN_DIR NEW_BIN_DIR [ROUNDS] > compare.csv
+# Usage: scripts/bench/compare.sh BASE_BIN_DIR NEW_BIN_DIR [ROUNDS] > compare.csv
 # (BENCHMARKS.md "Architecture pass" was measured this way: two rounds, base = a build of 08849f9.)
 set -u
 base=$1; new=$2; rounds=${3:-2}
@@ -12,7 +12,7 @@ FAMILIES=(
   "bench_core BM_CoreTileLoopHeavy/2000"
   "bench_blind_mapping BM_BladeSweep"
   "bench_blind_mapping BM_SoilErosion"
-  "bench_lidar_fusion BM_LidarFusion_Kitti_400x400_5cm_(NoCleanup|Cleanup)/"
+  "bench_lidar_fusion BM_LidarFusionSeq_Kitti_400x400_5cm_(NoCleanup|Cleanup4th|CleanupAll)/"
   "bench_lidar_fusion BM_LidarFusion_TimeUpdate"
   "bench_sim BM_SimRealtime/2"
 )
