@@ -174,6 +174,33 @@ void runOctoMap(benchmark::State& state, bool kitti, MapSpec m) {
   state.SetItemsProcessed(state.iterations() * static_cast<long>(pts.size()));
 }
 
+/// The naive loops' gates: finite, range, height above the sensor; the map-frame point and
+/// its range when it passes.
+inline bool naiveGate(const PointXYZI& p, const Eigen::Isometry3d& T, const LidarFusionConfig& c, Eigen::Vector3d& pm,
+                      double& r) {
+  if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) return false;
+  const Eigen::Vector3d ps(p.x, p.y, p.z);
+  r = ps.norm();
+  if (r < c.min_range_m || r > c.max_range_m) return false;
+  pm = T * ps;
+  return pm.z() - T.translation().z() <= c.max_height_above_sensor_m;
+}
+
+/// The naive loops' update of one cell (h, v) by one point (z, vp): the plugin's arithmetic
+/// without its floor, forgetting or bookkeeping.
+inline void naiveFuse(float& h, float& v, float z, float vp, float k2, float outlier_var) {
+  if (std::isnan(h)) {
+    h = z;
+    v = vp;
+  } else if ((z - h) * (z - h) > k2 * (v + vp)) {
+    v += outlier_var;
+  } else {
+    const float s = v + vp;
+    h = (h * vp + z * v) / s;
+    v = v * vp / s;
+  }
+}
+
 /// The obvious serial implementation: per point, transform, gate, index, fuse into a
 /// row-major array. No binning, no tiles, no rays.
 void runNaive(benchmark::State& state, bool kitti, MapSpec m) {
@@ -187,27 +214,14 @@ void runNaive(benchmark::State& state, bool kitti, MapSpec m) {
   auto once = [&] {
     long fused = 0;
     for (const PointXYZI& p : pts) {
-      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) continue;
-      const Eigen::Vector3d ps(p.x, p.y, p.z);
-      const double r = ps.norm();
-      if (r < c.min_range_m || r > c.max_range_m) continue;
-      const Eigen::Vector3d pm = T * ps;
-      if (pm.z() - T.translation().z() > c.max_height_above_sensor_m) continue;
+      Eigen::Vector3d pm;
+      double r;
+      if (!naiveGate(p, T, c, pm, r)) continue;
       const auto idx = g.indexAt(pm.head<2>());
       if (!idx) continue;
       const size_t k = static_cast<size_t>(idx->x()) * static_cast<size_t>(m.cells) + static_cast<size_t>(idx->y());
       const double sigma = c.range_noise_a_m + c.range_noise_b * r;
-      const float vp = float(sigma * sigma), z = float(pm.z());
-      if (std::isnan(h[k])) {
-        h[k] = z;
-        v[k] = vp;
-      } else if ((z - h[k]) * (z - h[k]) > k2 * (v[k] + vp)) {
-        v[k] += float(c.outlier_variance_m2);
-      } else {
-        const float s = v[k] + vp;
-        h[k] = (h[k] * vp + z * v[k]) / s;
-        v[k] = v[k] * vp / s;
-      }
+      naiveFuse(h[k], v[k], float(pm.z()), float(sigma * sigma), k2, float(c.outlier_variance_m2));
       ++fused;
     }
     return fused;
@@ -433,27 +447,14 @@ void runNaiveSeq(benchmark::State& state, bool kitti, MapSpec m) {
     moveTo(T.translation().x(), T.translation().y());
     long fused = 0;
     for (const PointXYZI& p : pc.points) {
-      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) continue;
-      const Eigen::Vector3d ps(p.x, p.y, p.z);
-      const double r = ps.norm();
-      if (r < c.min_range_m || r > c.max_range_m) continue;
-      const Eigen::Vector3d pm = T * ps;
-      if (pm.z() - T.translation().z() > c.max_height_above_sensor_m) continue;
+      Eigen::Vector3d pm;
+      double r;
+      if (!naiveGate(p, T, c, pm, r)) continue;
       const long gx = static_cast<long>(std::floor(pm.x() / res)), gy = static_cast<long>(std::floor(pm.y() / res));
       if (gx < x0 || gx >= x0 + N || gy < y0 || gy >= y0 + N) continue;
       const size_t q = wrap(gx) * static_cast<size_t>(N) + wrap(gy);
       const double sigma = c.range_noise_a_m + c.range_noise_b * r;
-      const float vp = float(sigma * sigma), z = float(pm.z());
-      if (std::isnan(h[q])) {
-        h[q] = z;
-        v[q] = vp;
-      } else if ((z - h[q]) * (z - h[q]) > k2 * (v[q] + vp)) {
-        v[q] += float(c.outlier_variance_m2);
-      } else {
-        const float s = v[q] + vp;
-        h[q] = (h[q] * vp + z * v[q]) / s;
-        v[q] = v[q] * vp / s;
-      }
+      naiveFuse(h[q], v[q], float(pm.z()), float(sigma * sigma), k2, float(c.outlier_variance_m2));
       ++fused;
     }
     return std::pair<long, long>(static_cast<long>(pc.points.size()), fused);
@@ -470,6 +471,14 @@ void runNaiveSeq(benchmark::State& state, bool kitti, MapSpec m) {
   state.SetItemsProcessed(sum.points_in);
 }
 
+/// Registers a benchmark in ms of wall time at 1 thread, and at 2 when `two_threads`.
+template <class F>
+benchmark::internal::Benchmark* reg(const std::string& name, F f, bool two_threads) {
+  benchmark::internal::Benchmark* b = benchmark::RegisterBenchmark(name.c_str(), f)->Arg(1);
+  if (two_threads) b->Arg(2);
+  return b->Unit(benchmark::kMillisecond)->UseRealTime();
+}
+
 void registerSequences() {
   for (bool kitti : {true, false}) {
     const std::string cloud = kitti ? "Kitti" : "Sim64";
@@ -480,26 +489,14 @@ void registerSequences() {
                              : cl == Cleanup::Every4th  ? "_Cleanup4th"
                              : cl == Cleanup::EveryRay ? "_CleanupAll"
                                                         : "_CleanupAllCellByCell";
-        benchmark::RegisterBenchmark(("BM_LidarFusionSeq_" + cloud + "_" + m.name + suffix).c_str(),
-                                     [=](benchmark::State& s) { runLidarFusionSeq(s, kitti, m, cl); })
-            ->Arg(1)
-            ->Arg(2)
-            ->Unit(benchmark::kMillisecond)
-            ->UseRealTime();
+        reg("BM_LidarFusionSeq_" + cloud + "_" + m.name + suffix,
+            [=](benchmark::State& s) { runLidarFusionSeq(s, kitti, m, cl); }, true);
       }
-      benchmark::RegisterBenchmark(("BM_NaiveSeq_" + cloud + "_" + m.name).c_str(),
-                                   [=](benchmark::State& s) { runNaiveSeq(s, kitti, m); })
-          ->Arg(1)
-          ->Unit(benchmark::kMillisecond)
-          ->UseRealTime();
+      reg("BM_NaiveSeq_" + cloud + "_" + m.name, [=](benchmark::State& s) { runNaiveSeq(s, kitti, m); }, false);
       // OctoMap only where its range limit equals the map's half width (10 m): like for like.
       if (m.cells == 400)
-        benchmark::RegisterBenchmark(("BM_OctoMapSeq_" + cloud + "_" + m.name).c_str(),
-                                     [=](benchmark::State& s) { runOctoMapSeq(s, kitti, m); })
-            ->Arg(1)
-            ->Unit(benchmark::kMillisecond)
-            ->Iterations(10)
-            ->UseRealTime();
+        reg("BM_OctoMapSeq_" + cloud + "_" + m.name, [=](benchmark::State& s) { runOctoMapSeq(s, kitti, m); }, false)
+            ->Iterations(10);
     }
   }
 }
@@ -508,43 +505,19 @@ void registerAll() {
   for (bool kitti : {true, false}) {
     const std::string cloud = kitti ? "Kitti" : "Synthetic";
     for (const MapSpec& m : kMaps) {
-      for (bool cleanup : {false, true}) {
-        const std::string name =
-            "BM_LidarFusionSteady_" + cloud + "_" + m.name + (cleanup ? "_Cleanup" : "_NoCleanup");
-        benchmark::RegisterBenchmark(name.c_str(), [=](benchmark::State& s) { runLidarFusion(s, kitti, m, cleanup); })
-            ->Arg(1)
-            ->Arg(2)
-            ->Unit(benchmark::kMillisecond)
-            ->UseRealTime();
-      }
+      for (bool cleanup : {false, true})
+        reg("BM_LidarFusionSteady_" + cloud + "_" + m.name + (cleanup ? "_Cleanup" : "_NoCleanup"),
+            [=](benchmark::State& s) { runLidarFusion(s, kitti, m, cleanup); }, true);
       if (m.cells == 400)
-        benchmark::RegisterBenchmark(
-            ("BM_LidarFusionSteady_" + cloud + "_" + m.name + "_NoCleanup_ScalarGates").c_str(),
-            [=](benchmark::State& s) { runLidarFusion(s, kitti, m, false, true); })
-            ->Arg(1)
-            ->Arg(2)
-            ->Unit(benchmark::kMillisecond)
-            ->UseRealTime();
-      benchmark::RegisterBenchmark(("BM_OctoMapFreshTree_" + cloud + "_" + m.name).c_str(),
-                                   [=](benchmark::State& s) { runOctoMap(s, kitti, m); })
-          ->Arg(1)
-          ->Unit(benchmark::kMillisecond)
-          ->Iterations(m.cells > 1000 ? 1 : 3)
-          ->UseRealTime();
-      benchmark::RegisterBenchmark(("BM_NaiveSteady_" + cloud + "_" + m.name).c_str(),
-                                   [=](benchmark::State& s) { runNaive(s, kitti, m); })
-          ->Arg(1)
-          ->Unit(benchmark::kMillisecond)
-          ->UseRealTime();
+        reg("BM_LidarFusionSteady_" + cloud + "_" + m.name + "_NoCleanup_ScalarGates",
+            [=](benchmark::State& s) { runLidarFusion(s, kitti, m, false, true); }, true);
+      reg("BM_OctoMapFreshTree_" + cloud + "_" + m.name, [=](benchmark::State& s) { runOctoMap(s, kitti, m); }, false)
+          ->Iterations(m.cells > 1000 ? 1 : 3);
+      reg("BM_NaiveSteady_" + cloud + "_" + m.name, [=](benchmark::State& s) { runNaive(s, kitti, m); }, false);
     }
   }
   for (const MapSpec& m : kMaps)
-    benchmark::RegisterBenchmark((std::string("BM_LidarFusion_TimeUpdate_") + m.name).c_str(),
-                                 [=](benchmark::State& s) { runTimeUpdate(s, m); })
-        ->Arg(1)
-        ->Arg(2)
-        ->Unit(benchmark::kMillisecond)
-        ->UseRealTime();
+    reg(std::string("BM_LidarFusion_TimeUpdate_") + m.name, [=](benchmark::State& s) { runTimeUpdate(s, m); }, true);
 }
 
 }  // namespace

@@ -34,6 +34,26 @@ using h5detail::attrString;
 using h5detail::attrU64;
 using h5detail::makeGroup;
 
+/// A chunked dataset, shuffled and deflated at level `gzip` when gzip > 0.
+/// \throws OutputError naming the file and the dataset.
+hid_t createChunked(hid_t parent, const std::string& name, hid_t type, const std::vector<hsize_t>& dims,
+                    const std::vector<hsize_t>& maxd, const std::vector<hsize_t>& chunk, int gzip,
+                    const std::string& path) {
+  const int rank = static_cast<int>(dims.size());
+  const hid_t space = H5Screate_simple(rank, dims.data(), maxd.empty() ? nullptr : maxd.data());
+  const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+  H5Pset_chunk(dcpl, rank, chunk.data());
+  if (gzip > 0) {
+    H5Pset_shuffle(dcpl);
+    H5Pset_deflate(dcpl, static_cast<unsigned>(gzip));
+  }
+  const hid_t ds = H5Dcreate2(parent, name.c_str(), type, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
+  H5Pclose(dcpl);
+  H5Sclose(space);
+  if (ds < 0) throw OutputError(path + ": cannot create dataset '" + name + "'");
+  return ds;
+}
+
 /// The thread that makes the HDF5 calls once the file is laid out: compression (deflate on the
 /// terrain snapshots and the clouds) and writes run beside the simulation instead of in its
 /// loop. Debian's libhdf5 is the serial build: while the thread runs, no other thread touches
@@ -133,17 +153,7 @@ class Appender {
       maxd.push_back(d);
       chunk.push_back(d);
     }
-    const hid_t space = H5Screate_simple(static_cast<int>(dims.size()), dims.data(), maxd.data());
-    const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
-    H5Pset_chunk(dcpl, static_cast<int>(chunk.size()), chunk.data());
-    if (gzip > 0) {
-      H5Pset_shuffle(dcpl);
-      H5Pset_deflate(dcpl, static_cast<unsigned>(gzip));
-    }
-    ds_ = H5Dcreate2(parent, name.c_str(), type, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
-    H5Pclose(dcpl);
-    H5Sclose(space);
-    if (ds_ < 0) throw OutputError(path_ + ": cannot create dataset '" + name + "'");
+    ds_ = createChunked(parent, name, type, dims, maxd, chunk, gzip, path_);
   }
   Appender(Appender&& o) noexcept { *this = std::move(o); }
   Appender& operator=(Appender&& o) noexcept {
@@ -225,20 +235,9 @@ class GridSeries {
     cy_ = std::min(ny, kChunk);
     ncx_ = (nx + cx_ - 1) / cx_;
     ncy_ = (ny + cy_ - 1) / cy_;
-    hsize_t dims[3] = {0, static_cast<hsize_t>(ny), static_cast<hsize_t>(nx)};
-    hsize_t maxd[3] = {H5S_UNLIMITED, static_cast<hsize_t>(ny), static_cast<hsize_t>(nx)};
-    hsize_t chunk[3] = {1, static_cast<hsize_t>(cy_), static_cast<hsize_t>(cx_)};
-    const hid_t space = H5Screate_simple(3, dims, maxd);
-    const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
-    H5Pset_chunk(dcpl, 3, chunk);
-    if (gzip > 0) {
-      H5Pset_shuffle(dcpl);
-      H5Pset_deflate(dcpl, static_cast<unsigned>(gzip));
-    }
-    ds_ = H5Dcreate2(parent, name.c_str(), H5T_NATIVE_FLOAT, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
-    H5Pclose(dcpl);
-    H5Sclose(space);
-    if (ds_ < 0) throw OutputError(path_ + ": cannot create dataset '" + name + "'");
+    const hsize_t y = static_cast<hsize_t>(ny), x = static_cast<hsize_t>(nx);
+    ds_ = createChunked(parent, name, H5T_NATIVE_FLOAT, {0, y, x}, {H5S_UNLIMITED, y, x},
+                        {1, static_cast<hsize_t>(cy_), static_cast<hsize_t>(cx_)}, gzip, path_);
     prev_.resize(static_cast<std::size_t>(ncx_) * static_cast<std::size_t>(ncy_));
     packed_.resize(prev_.size());
   }
@@ -314,20 +313,11 @@ class GridSeries {
 
 void writeGrid(hid_t parent, const std::string& name, const std::vector<float>& data, int nx, int ny, int gzip,
                const std::string& path) {
-  hsize_t dims[2] = {static_cast<hsize_t>(ny), static_cast<hsize_t>(nx)};
-  hsize_t chunk[2] = {std::min<hsize_t>(dims[0], 256), std::min<hsize_t>(dims[1], 256)};
-  const hid_t space = H5Screate_simple(2, dims, nullptr);
-  const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
-  H5Pset_chunk(dcpl, 2, chunk);
-  if (gzip > 0) {
-    H5Pset_shuffle(dcpl);
-    H5Pset_deflate(dcpl, static_cast<unsigned>(gzip));
-  }
-  const hid_t ds = H5Dcreate2(parent, name.c_str(), H5T_NATIVE_FLOAT, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
-  H5Pclose(dcpl);
-  H5Sclose(space);
-  if (ds < 0 || H5Dwrite(ds, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, data.data()) < 0) {
-    if (ds >= 0) H5Dclose(ds);
+  const hsize_t y = static_cast<hsize_t>(ny), x = static_cast<hsize_t>(nx);
+  const hid_t ds = createChunked(parent, name, H5T_NATIVE_FLOAT, {y, x}, {},
+                                 {std::min<hsize_t>(y, 256), std::min<hsize_t>(x, 256)}, gzip, path);
+  if (H5Dwrite(ds, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, data.data()) < 0) {
+    H5Dclose(ds);
     throw OutputError(path + ": cannot write grid '" + name + "'");
   }
   H5Dclose(ds);
