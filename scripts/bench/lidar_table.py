@@ -73,7 +73,7 @@ def main():
         octo = next((b for b in sel if b["name"].startswith("BM_OctoMapSeq")), None)
         naive = next((b for b in sel if b["name"].startswith("BM_NaiveSeq")), None)
         print(f"| {seq} ({a.map}) | ms / scan | points in /s | points fused /s | cells fused /s "
-              f"| ray cells /s (read) | × OctoMap | × naive |")
+              f"| ray cells /s (read) | OctoMap ms / this | naive ms / this |")
         print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
         for b in sel:
             name = b["name"].replace("BM_", "").replace(f"_{seq}_{a.map}", "").replace("/real_time", "")
