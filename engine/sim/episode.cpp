@@ -59,13 +59,20 @@ hid_t createChunked(hid_t parent, const std::string& name, hid_t type, const std
 /// loop. Debian's libhdf5 is the serial build: while the thread runs, no other thread touches
 /// HDF5 (the writer's owner only queues jobs and, before its own HDF5 calls, drains them).
 /// Jobs run in the order queued; the first one that throws stops the rest, and its exception
-/// is rethrown to the owner by the next queue() or drain(). At most kMaxQueuedBytes of data wait
-/// in the queue: beyond that queue() waits (the simulation would otherwise outrun the disk).
+/// is rethrown to the owner by the next submit() or drain(). At most kMaxQueuedBytes of data wait
+/// in the queue: beyond that submit() waits (the simulation would otherwise outrun the disk).
 class WriterThread {
  public:
   static constexpr std::size_t kMaxQueuedBytes = std::size_t{256} << 20;
   ~WriterThread() { stop(); }
-  void queue(std::function<void()> job, std::size_t bytes) {
+  /// From now on submit() queues (before, while the file is laid out, it runs jobs at once).
+  void start() { async_ = true; }
+  /// Runs `job` (HDF5 writes of `bytes` of data) at once before start(), else queues it.
+  void submit(std::function<void()> job, std::size_t bytes) {
+    if (!async_) {
+      job();
+      return;
+    }
     std::unique_lock<std::mutex> lk(m_);
     rethrowLocked();
     if (!thread_.joinable()) thread_ = std::thread([this] { loop(); });
@@ -75,7 +82,7 @@ class WriterThread {
     queued_bytes_ += bytes;
     work_.notify_one();
   }
-  /// Waits until every queued job ran. 	hrows the first job's exception.
+  /// Waits until every queued job ran. \throws the first job's exception.
   void drain() {
     std::unique_lock<std::mutex> lk(m_);
     idle_.wait(lk, [&] { return (jobs_.empty() && !busy_) || error_; });
@@ -87,6 +94,7 @@ class WriterThread {
       std::lock_guard<std::mutex> lk(m_);
       quit_ = true;
       jobs_.clear();
+      queued_bytes_ = 0;
       work_.notify_one();
     }
     if (thread_.joinable()) thread_.join();
@@ -131,18 +139,18 @@ class WriterThread {
   std::condition_variable work_, space_, idle_;
   std::deque<Job> jobs_;
   std::size_t queued_bytes_ = 0;
-  bool busy_ = false, quit_ = false;
+  bool async_ = false, busy_ = false, quit_ = false;
   std::exception_ptr error_;
   std::thread thread_;
 };
 
 /// An HDF5 dataset growing along its first dimension, with rows buffered in memory; full
-/// buffers are written by the writer thread when one is given, else at once.
+/// buffers go to `writer` (at once until it is started; without one, at once).
 class Appender {
  public:
   Appender() = default;
   Appender(hid_t parent, const std::string& name, hid_t type, std::vector<hsize_t> row_dims, int gzip,
-           const std::string& path, hsize_t chunk_rows = 1024, WriterThread* writer = nullptr)
+           const std::string& path, WriterThread* writer, hsize_t chunk_rows = 1024)
       : type_(type), row_dims_(std::move(row_dims)), path_(path), name_(name), writer_(writer) {
     row_elems_ = 1;
     for (hsize_t d : row_dims_) row_elems_ *= d;
@@ -165,8 +173,6 @@ class Appender {
   ~Appender() {
     if (ds_ >= 0) H5Dclose(ds_);
   }
-  /// From now on full buffers are written by `w` (which must outlive this Appender's writes).
-  void useWriter(WriterThread* w) { writer_ = w; }
   template <class T>
   void append(const T* row, std::size_t nrows = 1) {
     const char* p = reinterpret_cast<const char*>(row);
@@ -180,12 +186,12 @@ class Appender {
       buf_.clear();
       return;
     }
-    // The rows go to the writer thread; this Appender stays where it is until the writer is
-    // drained (it lives in the writer's Impl), so the job may refer to it.
+    // The rows go to the writer; this Appender stays where it is until the writer is drained
+    // (both live in the EpisodeWriter's Impl), so the job may refer to it.
     auto rows = std::make_shared<std::vector<char>>(std::move(buf_));
     buf_ = std::vector<char>();
     const std::size_t bytes = rows->size();
-    writer_->queue([this, rows] { write(rows->data(), rows->size()); }, bytes);
+    writer_->submit([this, rows] { write(rows->data(), rows->size()); }, bytes);
   }
 
  private:
@@ -245,7 +251,7 @@ class GridSeries {
   GridSeries& operator=(GridSeries&& o) noexcept {
     std::swap(ds_, o.ds_);
     nx_ = o.nx_, ny_ = o.ny_, gzip_ = o.gzip_, cx_ = o.cx_, cy_ = o.cy_, ncx_ = o.ncx_, ncy_ = o.ncy_;
-    count_ = o.count_, reused_ = o.reused_, path_ = o.path_, name_ = o.name_;
+    count_ = o.count_, path_ = o.path_, name_ = o.name_;
     prev_ = std::move(o.prev_);
     packed_ = std::move(o.packed_);
     return *this;
@@ -273,9 +279,7 @@ class GridSeries {
         }
         const std::size_t k = static_cast<std::size_t>(by) * ncx_ + bx;
         std::vector<unsigned char>& packed = packed_[k];
-        if (count_ > 0 && std::memcmp(prev_[k].data(), raw.data(), n * sizeof(float)) == 0) {
-          ++reused_;
-        } else {
+        if (count_ == 0 || std::memcmp(prev_[k].data(), raw.data(), n * sizeof(float)) != 0) {
           prev_[k] = raw;
           if (gzip_ > 0) {
             // HDF5's shuffle filter: byte b of every element, for b = 0..3, one plane after another.
@@ -298,14 +302,11 @@ class GridSeries {
       }
     ++count_;
   }
-  /// Chunks written from the previous snapshot's bytes so far.
-  std::uint64_t reusedChunks() const { return reused_; }
 
  private:
   hid_t ds_ = -1;
   int nx_ = 0, ny_ = 0, gzip_ = 0, cx_ = 1, cy_ = 1, ncx_ = 0, ncy_ = 0;
   hsize_t count_ = 0;
-  std::uint64_t reused_ = 0;
   std::string path_, name_;
   std::vector<std::vector<float>> prev_;            // per chunk: its last stored values
   std::vector<std::vector<unsigned char>> packed_;  // per chunk: its last stored bytes
@@ -351,8 +352,7 @@ struct MachineSets {
 }  // namespace
 
 struct EpisodeWriter::Impl {
-  WriterThread writer;  // stopped by closeAll() before any other HDF5 call
-  bool writer_started = false;
+  WriterThread writer;  // started once the file is laid out; stopped by closeAll() before any other HDF5 call
   std::string final_path, tmp_path;
   EpisodeOptions opt;
   hid_t file = -1, terrain = -1;
@@ -382,19 +382,8 @@ struct EpisodeWriter::Impl {
       snap_height.write((*grids)[0]);
       snap_loose.write((*grids)[1]);
     };
-    if (writer_started) writer.queue(job, 2 * (*grids)[0].size() * sizeof(float));
-    else job();
+    writer.submit(job, 2 * (*grids)[0].size() * sizeof(float));
     last_snapshot_t = st;
-  }
-  /// Hands every dataset's writes to the writer thread (once the file is laid out).
-  void startWriter() {
-    for (auto& m : machines) {
-      for (auto& [k, a] : m.a) a.useWriter(&writer);
-      for (auto& [k, c] : m.cloud)
-        for (Appender* a : {&c.stamp, &c.T, &c.offset, &c.count, &c.points}) a->useWriter(&writer);
-    }
-    snap_stamp.useWriter(&writer);
-    writer_started = true;
   }
   void closeAll() {
     writer.stop();
@@ -455,7 +444,7 @@ void EpisodeWriter::Impl::openMachine(hid_t mg, const MachineSpec& spec, std::si
   attrDouble(M.group, "blade_width_m", spec.blade.width_m);
   attrDouble(M.group, "blade_height_m", spec.blade.height_m);
   auto add = [&](hid_t parent, const std::string& key, const std::string& name, hid_t type, std::vector<hsize_t> row) {
-    M.a.emplace(key, Appender(parent, name, type, std::move(row), 0, I.tmp_path));
+    M.a.emplace(key, Appender(parent, name, type, std::move(row), 0, I.tmp_path, &I.writer));
   };
   add(M.group, "stamp", "stamp", H5T_NATIVE_DOUBLE, {});
   add(M.group, "T_map_base", "T_map_base", H5T_NATIVE_DOUBLE, {4, 4});
@@ -493,11 +482,11 @@ void EpisodeWriter::Impl::openMachine(hid_t mg, const MachineSpec& spec, std::si
       c.group = makeGroup(M.clouds, s.id, I.tmp_path);
       attrU64(c.group, "beams", static_cast<std::uint64_t>(s.beams));
       attrU64(c.group, "columns", static_cast<std::uint64_t>(s.columns));
-      c.stamp = Appender(c.group, "stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, 256);
-      c.T = Appender(c.group, "T_map_sensor", H5T_NATIVE_DOUBLE, {4, 4}, 0, I.tmp_path, 256);
-      c.offset = Appender(c.group, "offset", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, 256);
-      c.count = Appender(c.group, "count", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, 256);
-      c.points = Appender(c.group, "points", H5T_NATIVE_FLOAT, {4}, options.cloud_compression, I.tmp_path, 65536);
+      c.stamp = Appender(c.group, "stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, &I.writer, 256);
+      c.T = Appender(c.group, "T_map_sensor", H5T_NATIVE_DOUBLE, {4, 4}, 0, I.tmp_path, &I.writer, 256);
+      c.offset = Appender(c.group, "offset", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, &I.writer, 256);
+      c.count = Appender(c.group, "count", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, &I.writer, 256);
+      c.points = Appender(c.group, "points", H5T_NATIVE_FLOAT, {4}, options.cloud_compression, I.tmp_path, &I.writer, 65536);
       M.cloud.emplace(spec.id + "/" + s.id, std::move(c));
     }
   }
@@ -540,7 +529,7 @@ EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, Epis
   for (int j = 0; j < I.ny; ++j)
     for (int i = 0; i < I.nx; ++i) g[static_cast<std::size_t>(j) * I.nx + i] = static_cast<float>(t.initialHeight(i, j));
   writeGrid(I.terrain, "initial_height", g, I.nx, I.ny, options.compression, I.tmp_path);
-  I.snap_stamp = Appender(I.terrain, "snapshot_stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, 64);
+  I.snap_stamp = Appender(I.terrain, "snapshot_stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, &I.writer, 64);
   I.snap_height = GridSeries(I.terrain, "height", I.nx, I.ny, options.compression, I.tmp_path);
   I.snap_loose = GridSeries(I.terrain, "loose", I.nx, I.ny, options.compression, I.tmp_path);
   I.snapshot_interval = sc.terrain.snapshot_interval_s;
@@ -552,7 +541,7 @@ EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, Epis
   H5Gclose(mg);
   I.snapshot(sim);
   I.next_snapshot = I.snapshot_interval;
-  I.startWriter();
+  I.writer.start();
 }
 
 EpisodeWriter::~EpisodeWriter() {

@@ -1,7 +1,6 @@
 #include "lidar_fusion.hpp"
 
 #include <terramap/core/error.hpp>
-#include <terramap/core/grid_line.hpp>
 #include <terramap/core/submap_iterator.hpp>
 #include <terramap/core/text.hpp>
 
@@ -39,6 +38,94 @@ constexpr int kRayBlock = 8;
 constexpr int kRaySortBuckets = 2048;
 /// Azimuth sectors (octants) of the ray walk: a worker walks a whole sector at a time.
 constexpr int kRaySectors = 8;
+/// Calls f(offset in the tile) for each cell of ray-walk block `block` of a T x T tile (blocks
+/// numbered row-major, ceil(T / kRayBlock) per side; the last row and column may be partial).
+template <class F>
+inline void forEachBlockCell(int T, int block, F&& f) {
+  const int nbs = (T + kRayBlock - 1) / kRayBlock;
+  const int r0 = block / nbs * kRayBlock, c0 = block % nbs * kRayBlock;
+  for (int r = r0; r < std::min(T, r0 + kRayBlock); ++r)
+    for (int c = c0; c < std::min(T, c0 + kRayBlock); ++c) f(r * T + c);
+}
+/// The column traversal (Amanatides-Woo) of one ray over the grid, in grid coordinates
+/// u = (xmax - x)/res, v = (ymax - y)/res (row i covers u in (i, i+1]). Each crossing's parameter
+/// is computed from its grid line, t = (n - u0) / du, rather than accumulated, so a walk that
+/// jumps over a block lands in exactly the cell and state the cell-by-cell walk reaches. An axis
+/// the ray does not move along has its next crossing at +inf (the other axis is then always the
+/// nearer one; a ray with both components zero ends in its first cell).
+struct ColumnWalk {
+  int i = 0, j = 0, si = 1, sj = 1;
+  double dsi = 1, dsj = 1, u0 = 0, v0 = 0, idu = 0, idv = 0;
+  double nbi = 0, nbj = 0;  // next grid lines (integers)
+  double tmi = 0, tmj = 0;  // the ray parameters at which it crosses them
+  double t1 = 0;            // the walk ends in the cell that holds t1
+
+  /// The parameter of row line n (+inf on an axis the ray does not move along).
+  double rowLine(int n) const { return idu != 0.0 ? (n - u0) * idu : std::numeric_limits<double>::infinity(); }
+  double colLine(int n) const { return idv != 0.0 ? (n - v0) * idv : std::numeric_limits<double>::infinity(); }
+  bool rowFirst() const { return tmi <= tmj; }
+  void stepRow() { i += si, nbi += dsi, tmi = (nbi - u0) * idu; }
+  void stepCol() { j += sj, nbj += dsj, tmj = (nbj - v0) * idv; }
+  /// To the cell that holds t1, without reading the map (stopping at its edge).
+  void toEnd(unsigned rows, unsigned cols) {
+    while (std::min(tmi, tmj) < t1) {
+      if (rowFirst()) {
+        if (static_cast<unsigned>(i + si) >= rows) return;
+        stepRow();
+      } else {
+        if (static_cast<unsigned>(j + sj) >= cols) return;
+        stepCol();
+      }
+    }
+  }
+  /// Out of a block whose far lines far_r / far_c the ray crosses at t_r / t_c, tex the first
+  /// of them (< t1): the crossings before it in the order the cell walk takes them (ties: row
+  /// first), then the exit itself. The new cell may be off the map.
+  void leaveBlock(int far_r, int far_c, double t_r, double t_c, double tex) {
+    if (t_r <= t_c) {
+      while (tmj < tex) stepCol();
+      i = si > 0 ? far_r : far_r - 1, nbi = far_r + si, tmi = (nbi - u0) * idu;
+    } else {
+      while (tmi <= tex) stepRow();
+      j = sj > 0 ? far_c : far_c - 1, nbj = far_c + sj, tmj = (nbj - v0) * idv;
+    }
+  }
+};
+
+/// The walk of the ray from the sensor (grid point u0, v0) along (dx, dy) (m, map frame),
+/// clipped to [0, t1] (end margin, max length) and to the map box rows x cols (Liang-Barsky) of
+/// cells res wide; false if nothing of it lies on the map. t0: where it enters.
+bool startColumnWalk(double dx, double dy, double t1, double u0, double v0, double res, int rows,
+                     int cols, ColumnWalk& cw, double& t0) {
+  const double du = -dx / res, dv = -dy / res;
+  t0 = 0.0;
+  auto clip = [&](double p0, double dp, double hi) {
+    if (dp == 0.0) {
+      if (p0 < 0.0 || p0 > hi) t1 = -1.0;
+      return;
+    }
+    double ta = (0.0 - p0) / dp, tb = (hi - p0) / dp;
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+  };
+  clip(u0, du, rows);
+  clip(v0, dv, cols);
+  if (!(t1 > t0)) return false;
+  // Start cell: the one containing the point just after t0.
+  const double tm = t0 + 1e-9 * (t1 - t0);
+  cw.i = std::clamp(static_cast<int>(std::ceil(u0 + tm * du)) - 1, 0, rows - 1);
+  cw.j = std::clamp(static_cast<int>(std::ceil(v0 + tm * dv)) - 1, 0, cols - 1);
+  cw.si = du > 0 ? 1 : -1, cw.sj = dv > 0 ? 1 : -1;
+  cw.dsi = cw.si, cw.dsj = cw.sj;
+  cw.u0 = u0, cw.v0 = v0;
+  cw.idu = du != 0.0 ? 1.0 / du : 0.0, cw.idv = dv != 0.0 ? 1.0 / dv : 0.0;
+  cw.nbi = du > 0 ? cw.i + 1 : cw.i, cw.nbj = dv > 0 ? cw.j + 1 : cw.j;
+  cw.tmi = cw.rowLine(static_cast<int>(cw.nbi)), cw.tmj = cw.colLine(static_cast<int>(cw.nbj));
+  cw.t1 = t1;
+  return true;
+}
+
 /// Items ahead of the current one whose cells the fusion loop prefetches.
 constexpr int kPrefetchAhead = 8;
 constexpr float kRayPenetration = 1.0f;  // Item::aux of a ray passing below a stale surface
@@ -1044,20 +1131,15 @@ void LidarFusion::prepareRayBlocks(const LayeredMap& map) {
 // unknown cells (there is nothing to bound).
 void LidarFusion::blockSurface(const RayWalkView& w, RayMinSlot& mins, std::int32_t tile, int block) const {
   constexpr float kInf = std::numeric_limits<float>::infinity();
-  const int T = w.tile_side;
-  const int nbs = (T + kRayBlock - 1) / kRayBlock;
-  const int br = block / nbs, bc = block % nbs;
   const float* E = w.elev[static_cast<size_t>(tile)];
   const float* H = w.hits[static_cast<size_t>(tile)];
   float kmax = -kInf;
   bool unknown = false;
-  for (int r = br * kRayBlock; r < std::min(T, (br + 1) * kRayBlock); ++r)
-    for (int c = bc * kRayBlock; c < std::min(T, (bc + 1) * kRayBlock); ++c) {
-      const int off = r * T + c;
-      const float h = E[off];
-      if (std::isnan(h)) unknown = true;
-      else if (!(H && H[off] > 0.0f)) kmax = std::max(kmax, h);
-    }
+  forEachBlockCell(w.tile_side, block, [&](int off) {
+    const float h = E[off];
+    if (std::isnan(h)) unknown = true;
+    else if (!(H && H[off] > 0.0f)) kmax = std::max(kmax, h);
+  });
   const size_t b = static_cast<size_t>(tile) * static_cast<size_t>(blocks_per_tile_) + static_cast<size_t>(block);
   mins.block_kmax[b] = kmax;
   if (!unknown) mins.block_max[b] = -kInf;
@@ -1069,16 +1151,11 @@ float LidarFusion::blockMax(const RayWalkView& w, const RayMinSlot& mins, std::i
   constexpr float kInf = std::numeric_limits<float>::infinity();
   const float* m = mins.active[static_cast<size_t>(tile)];
   if (!m) return kInf;
-  const int T = w.tile_side;
-  const int nbs = (T + kRayBlock - 1) / kRayBlock;
-  const int br = block / nbs, bc = block % nbs;
   const float* E = w.elev[static_cast<size_t>(tile)];
   float b = -kInf;
-  for (int r = br * kRayBlock; r < std::min(T, (br + 1) * kRayBlock); ++r)
-    for (int c = bc * kRayBlock; c < std::min(T, (bc + 1) * kRayBlock); ++c) {
-      const int off = r * T + c;
-      if (std::isnan(E[off])) b = std::max(b, m[off]);
-    }
+  forEachBlockCell(w.tile_side, block, [&](int off) {
+    if (std::isnan(E[off])) b = std::max(b, m[off]);
+  });
   return b;
 }
 
@@ -1118,7 +1195,6 @@ std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
   const LidarFusionConfig& cf = config_;
   const int tile_cells = w.tile_cells;
   constexpr float kInf = std::numeric_limits<float>::infinity();
-  constexpr double kInfD = std::numeric_limits<double>::infinity();
   auto touch = [&](std::int32_t tile) {
     std::unique_ptr<float[]>& buf = mins.tiles[static_cast<size_t>(tile)];
     if (!buf) {
@@ -1144,118 +1220,72 @@ std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
   const int nbb = blocks_per_tile_;
   const float* const* const Et = w.elev.data();
   float* const* const active = mins.active.data();
-  const int R = w.rows, C = w.cols;
-  const unsigned Ru = static_cast<unsigned>(R), Cu = static_cast<unsigned>(C);
-  const double res = w.res, u0 = w.u0, v0 = w.v0, Sz = w.sensor_z;
+  const unsigned Ru = static_cast<unsigned>(w.rows), Cu = static_cast<unsigned>(w.cols);
+  const double Sz = w.sensor_z;
   long nrays = 0, ncells = 0, nread = 0;
   const bool may_skip = !force_cell_walk_;
   for (size_t q = 3 * static_cast<size_t>(task.begin); q < 3 * static_cast<size_t>(task.end); q += 3) {
     const double dx = ends[q], dy = ends[q + 1], dz = ends[q + 2];
     const double L = std::sqrt(dx * dx + dy * dy + dz * dz);
     if (!(L > 1e-9)) continue;
-    double t1 = std::min({1.0, (L - cf.cleanup_end_margin_m) / L, cf.max_ray_length_m / L});
-    if (!(t1 > 0.0)) continue;
+    const double t_end = std::min({1.0, (L - cf.cleanup_end_margin_m) / L, cf.max_ray_length_m / L});
+    if (!(t_end > 0.0)) continue;
     ++nrays;
-    // Grid coordinates: u = (xmax - x)/res grows with the row index i (cell i = (i, i+1]).
-    const double du = -dx / res, dv = -dy / res;
-    double t0 = 0.0;
-    // Clip t to the map box u in [0, R], v in [0, C] (Liang-Barsky).
-    auto clip = [&](double p0, double dp, double hi) {
-      if (dp == 0.0) {
-        if (p0 < 0.0 || p0 > hi) t1 = -1.0;
-        return;
-      }
-      double ta = (0.0 - p0) / dp, tb = (hi - p0) / dp;
-      if (ta > tb) std::swap(ta, tb);
-      t0 = std::max(t0, ta);
-      t1 = std::min(t1, tb);
-    };
-    clip(u0, du, R);
-    clip(v0, dv, C);
-    if (!(t1 > t0)) continue;
-    // Start cell: the one containing the point just after t0.
-    const double tm = t0 + 1e-9 * (t1 - t0);
-    int i = static_cast<int>(std::ceil(u0 + tm * du)) - 1;
-    int j = static_cast<int>(std::ceil(v0 + tm * dv)) - 1;
-    i = std::clamp(i, 0, R - 1);
-    j = std::clamp(j, 0, C - 1);
-    const int i_start = i, j_start = j;
-    // Column traversal (Amanatides-Woo) with each crossing's parameter computed from its grid
-    // line, t = (n - u0) / du, rather than accumulated: a walk that jumps over a block lands in
-    // exactly the cell and state the cell-by-cell walk reaches.
-    const int si = du > 0 ? 1 : -1, sj = dv > 0 ? 1 : -1;
-    const double dsi = si, dsj = sj;
-    // A zero component never crosses a line of its axis: its next crossing stays at +inf (the
-    // other axis is then always the nearer one, and a ray with both zero ends in its first cell).
-    const double idu = du != 0.0 ? 1.0 / du : 0.0, idv = dv != 0.0 ? 1.0 / dv : 0.0;
-    double nbi = du > 0 ? i + 1 : i, nbj = dv > 0 ? j + 1 : j;  // next grid lines (integers)
-    double tmi = du != 0.0 ? (nbi - u0) * idu : kInfD, tmj = dv != 0.0 ? (nbj - v0) * idv : kInfD;
-    double ta = t0;
+    ColumnWalk cw;
+    double ta;
+    if (!startColumnWalk(dx, dy, t_end, w.u0, w.v0, w.res, w.rows, w.cols, cw, ta)) continue;
+    const int i_start = cw.i, j_start = cw.j;
     const double dirx = dx / L, diry = dy / L, dirz = dz / L;
     const bool up = dz >= 0;
     while (true) {
-      // Entering the block of (i, j) (from a step or a jump that may have left the map).
-      if (static_cast<unsigned>(i) >= Ru) {
-        i -= si;
+      // Entering the block of (i, j), from a step or a jump that may have left the map.
+      if (static_cast<unsigned>(cw.i) >= Ru) {
+        cw.i -= cw.si;
         break;
       }
-      if (static_cast<unsigned>(j) >= Cu) {
-        j -= sj;
+      if (static_cast<unsigned>(cw.j) >= Cu) {
+        cw.j -= cw.sj;
         break;
       }
+      const AxisBlock rb = row_blocks[cw.i], cb = col_blocks[cw.j];
+      const std::int32_t tile = rb.tile + cb.tile;
+      const int blk = tile * nbb + rb.blk + cb.blk;
+      const int far_r = cw.si > 0 ? rb.hi : rb.lo, far_c = cw.sj > 0 ? cb.hi : cb.lo;
+      const double t_r = cw.rowLine(far_r), t_c = cw.colLine(far_c);
+      const double tex = std::min(std::min(t_r, t_c), cw.t1);
       // The ray's lowest point over the block (its exit for a descending ray) decides: if no
       // surface that this cloud missed reaches up to it there, and this slot already bounds
       // every unknown cell of the block at or below it, no cell of the block would change, so
       // the walk jumps to the block's exit.
-      const AxisBlock rb = row_blocks[i], cb = col_blocks[j];
-      const std::int32_t tile = rb.tile + cb.tile;
-      const int blk = tile * nbb + rb.blk + cb.blk;
-      const int rlo = rb.lo, rhi = rb.hi, clo = cb.lo, chi = cb.hi;
-      const int far_r = si > 0 ? rhi : rlo, far_c = sj > 0 ? chi : clo;
-      const double t_r = du != 0.0 ? (far_r - u0) * idu : kInfD, t_c = dv != 0.0 ? (far_c - v0) * idv : kInfD;
-      const double tex = std::min(std::min(t_r, t_c), t1);
-      const double zlow = Sz + (up ? ta : tex) * dz;
       bool skip = false;
-      if (may_skip && std::isnan(kmax[blk])) blockSurface(w, mins, tile, blk - tile * nbb);
-      if (may_skip && zlow >= kmax[blk]) {
-        const float zf = static_cast<float>(zlow);
-        if (!(zf >= bmax[blk]) && dirty[blk]) {
-          bmax[blk] = blockMax(w, mins, tile, blk - tile * nbb);
-          dirty[blk] = 0;
+      if (may_skip) {
+        if (std::isnan(kmax[blk])) blockSurface(w, mins, tile, blk - tile * nbb);
+        const double zlow = Sz + (up ? ta : tex) * dz;
+        if (zlow >= kmax[blk]) {
+          const float zf = static_cast<float>(zlow);
+          if (!(zf >= bmax[blk]) && dirty[blk]) {
+            bmax[blk] = blockMax(w, mins, tile, blk - tile * nbb);
+            dirty[blk] = 0;
+          }
+          skip = zf >= bmax[blk];
         }
-        skip = zf >= bmax[blk];
       }
       if (skip) {
-        if (tex >= t1) {
-          // The ray ends in this block: step to its last cell without reading the map.
-          while (std::min(tmi, tmj) < t1) {
-            if (tmi <= tmj) {
-              if (static_cast<unsigned>(i + si) >= Ru) break;
-              i += si, nbi += dsi, tmi = (nbi - u0) * idu;
-            } else {
-              if (static_cast<unsigned>(j + sj) >= Cu) break;
-              j += sj, nbj += dsj, tmj = (nbj - v0) * idv;
-            }
-          }
+        if (tex >= cw.t1) {  // the ray ends in this block
+          cw.toEnd(Ru, Cu);
           break;
         }
-        if (t_r <= t_c) {  // leaves across a row line, after the column lines before it (ties: row first)
-          while (tmj < tex) j += sj, nbj += dsj, tmj = (nbj - v0) * idv;
-          i = si > 0 ? far_r : far_r - 1, nbi = far_r + si, tmi = (nbi - u0) * idu;
-        } else {
-          while (tmi <= tex) i += si, nbi += dsi, tmi = (nbi - u0) * idu;
-          j = sj > 0 ? far_c : far_c - 1, nbj = far_c + sj, tmj = (nbj - v0) * idv;
-        }
+        cw.leaveBlock(far_r, far_c, t_r, t_c, tex);
         ta = tex;
         continue;
       }
       // Walk the block cell by cell; the block's bounds keep (i, j) on the map.
       const float* e = Et[tile];
       float* m = active[tile];
-      std::int32_t rl = row_local[i], cl = col_local[j];
+      std::int32_t rl = row_local[cw.i], cl = col_local[cw.j];
       bool ended = false;
       while (true) {
-        const double tb = std::min(std::min(tmi, tmj), t1);
+        const double tb = std::min(std::min(cw.tmi, cw.tmj), cw.t1);
         // Highest point of the ray inside this column: the ground under the crossing is below it.
         const double zhi = Sz + (up ? tb : ta) * dz;
         const std::uint32_t off = static_cast<std::uint32_t>(rl + cl);
@@ -1270,27 +1300,27 @@ std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
           }
         } else if (h > zhi) {
           // (Necessary for h - k sigma > zhi, as k sigma >= 0: most known cells stop here.)
-          staleCell(w, i, j, tile, off, h, zhi, dirx, diry, dirz, out);
+          staleCell(w, cw.i, cw.j, tile, off, h, zhi, dirx, diry, dirz, out);
         }
-        if (tb >= t1) {
+        if (tb >= cw.t1) {
           ended = true;
           break;
         }
         ta = tb;
-        if (tmi <= tmj) {
-          i += si, nbi += dsi, tmi = (nbi - u0) * idu;
-          if (i < rlo || i >= rhi) break;  // next block
-          rl = row_local[i];
+        if (cw.rowFirst()) {
+          cw.stepRow();
+          if (cw.i < rb.lo || cw.i >= rb.hi) break;  // next block
+          rl = row_local[cw.i];
         } else {
-          j += sj, nbj += dsj, tmj = (nbj - v0) * idv;
-          if (j < clo || j >= chi) break;
-          cl = col_local[j];
+          cw.stepCol();
+          if (cw.j < cb.lo || cw.j >= cb.hi) break;
+          cl = col_local[cw.j];
         }
       }
       if (ended) break;
     }
     // Cells the walk spans (visited or jumped over): one per crossing plus the first.
-    ncells += std::abs(i - i_start) + std::abs(j - j_start) + 1;
+    ncells += std::abs(cw.i - i_start) + std::abs(cw.j - j_start) + 1;
   }
   return {nrays, ncells, nread};
 }
@@ -1372,9 +1402,7 @@ void LidarFusion::applyRayResults(LayeredMap& map, const Executor& ex, FusionSta
         const Item& it = binned_[static_cast<size_t>(b)];
         const std::uint32_t o = it.off;
         if (std::isnan(Ew[o])) {
-          // Invalidated by an earlier ray of this cloud: the surface is below every later ray.
-          if (std::isnan(UB[o]) || it.z < UB[o]) UB[o] = it.z;
-          ISUB[o] = 1.0f;
+          // Invalidated by an earlier ray of this cloud (its bound: the loop below).
           ++ubs;
           continue;
         }
