@@ -296,6 +296,8 @@ class LidarFusion : public Plugin {
   void prepareRayBlocks(const LayeredMap& map);
   float blockMax(const RayWalkView& view, const RayMinSlot& mins, std::int32_t tile, int block) const;
   void blockSurface(const RayWalkView& view, RayMinSlot& mins, std::int32_t tile, int block) const;
+  inline bool blockUnchanged(const RayWalkView& view, RayMinSlot& mins, std::int32_t tile, int block, double zlow) const;
+  float* minTile(RayMinSlot& mins, std::int32_t tile) const;
   std::array<long, 3> walkRayTask(const RayWalkView& view, RayMinSlot& mins, int task);
   void staleCell(const RayWalkView& view, int i, int j, std::int32_t tile, std::uint32_t off, float h, double zhi,
                  double dirx, double diry, double dirz, std::vector<Item>& items) const;
