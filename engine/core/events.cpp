@@ -9,6 +9,7 @@ const char* kindName(EventKind k) {
     case EventKind::BladePose: return "blade_pose";
     case EventKind::Observation: return "observation";
     case EventKind::Tick: return "tick";
+    case EventKind::Imu: return "imu";
   }
   return "unknown";
 }
@@ -18,7 +19,7 @@ EventMask eventMaskFromNames(const std::vector<std::string>& names, std::string*
   for (const auto& n : names) {
     bool found = false;
     for (EventKind k : {EventKind::PointCloud, EventKind::Pose, EventKind::BladePose, EventKind::Observation,
-                        EventKind::Tick})
+                        EventKind::Tick, EventKind::Imu})
       if (n == kindName(k)) {
         m |= mask(k);
         found = true;

@@ -30,6 +30,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using h5detail::attrDouble;
+using h5detail::attrDoubles;
 using h5detail::attrString;
 using h5detail::attrU64;
 using h5detail::makeGroup;
@@ -347,6 +348,8 @@ struct MachineSets {
   std::map<std::string, Appender> a;  // by dataset path
   struct Cloud { hid_t group = -1; Appender stamp, T, offset, count, points; std::uint64_t total = 0; };
   std::map<std::string, Cloud> cloud;  // by frame "<machine>/<sensor>"
+  struct Imu { hid_t group = -1; Appender stamp, accel, gyro; };
+  std::map<std::string, Imu> imu;      // by frame "<machine>/<sensor>"
 };
 
 }  // namespace
@@ -391,6 +394,10 @@ struct EpisodeWriter::Impl {
       for (auto& [k, c] : m.cloud) {
         c.stamp = Appender(); c.T = Appender(); c.offset = Appender(); c.count = Appender(); c.points = Appender();
         if (c.group >= 0) H5Gclose(c.group);
+      }
+      for (auto& [k, u] : m.imu) {
+        u.stamp = Appender(); u.accel = Appender(); u.gyro = Appender();
+        if (u.group >= 0) H5Gclose(u.group);
       }
       m.a.clear();
       if (m.clouds >= 0) H5Gclose(m.clouds);
@@ -474,14 +481,45 @@ void EpisodeWriter::Impl::openMachine(hid_t mg, const MachineSpec& spec, std::si
   add(M.truth, "t_stalled", "stalled", H5T_NATIVE_UINT8, {});
   add(M.truth, "t_setpoints", "setpoints", H5T_NATIVE_DOUBLE, {5});
   add(M.truth, "t_cut", "cut_bank_m3", H5T_NATIVE_DOUBLE, {});
+  bool any_imu = false;
+  for (const SensorSpec& s : spec.sensors) any_imu |= s.type == SensorSpec::Type::Imu;
+  if (any_imu) {
+    const hid_t imus = makeGroup(M.group, "imu", I.tmp_path);
+    for (const SensorSpec& s : spec.sensors) {
+      if (s.type != SensorSpec::Type::Imu) continue;
+      MachineSets::Imu u;
+      u.group = makeGroup(imus, s.id, I.tmp_path);
+      attrString(u.group, "link", s.link == SensorSpec::Link::Blade ? "blade" : "base");
+      attrDouble(u.group, "rate_hz", s.rate_hz);
+      double T[16];
+      rowMajor4x4(s.T_base_sensor, T);
+      attrDoubles(u.group, "T_link_imu", T, 16);
+      u.stamp = Appender(u.group, "stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, &I.writer, 1024);
+      u.accel = Appender(u.group, "accel_mps2", H5T_NATIVE_DOUBLE, {3}, 0, I.tmp_path, &I.writer, 1024);
+      u.gyro = Appender(u.group, "gyro_radps", H5T_NATIVE_DOUBLE, {3}, 0, I.tmp_path, &I.writer, 1024);
+      M.imu.emplace(spec.id + "/" + s.id, std::move(u));
+    }
+    H5Gclose(imus);
+  }
   if (options.clouds) {
     M.clouds = makeGroup(M.group, "clouds", I.tmp_path);
     for (const SensorSpec& s : spec.sensors) {
-      if (s.type != SensorSpec::Type::Lidar) continue;
+      if (!s.castsRays()) continue;
       MachineSets::Cloud c;
       c.group = makeGroup(M.clouds, s.id, I.tmp_path);
-      attrU64(c.group, "beams", static_cast<std::uint64_t>(s.beams));
-      attrU64(c.group, "columns", static_cast<std::uint64_t>(s.columns));
+      if (s.type == SensorSpec::Type::DepthCamera) {
+        attrString(c.group, "kind", "depth_camera");
+        attrU64(c.group, "width", static_cast<std::uint64_t>(s.width));
+        attrU64(c.group, "height", static_cast<std::uint64_t>(s.height));
+        attrDouble(c.group, "fx", s.fx);
+        attrDouble(c.group, "fy", s.fy);
+        attrDouble(c.group, "cx", s.cx);
+        attrDouble(c.group, "cy", s.cy);
+      } else {
+        attrString(c.group, "kind", "lidar");
+        attrU64(c.group, "beams", static_cast<std::uint64_t>(s.beams));
+        attrU64(c.group, "columns", static_cast<std::uint64_t>(s.columns));
+      }
       c.stamp = Appender(c.group, "stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, &I.writer, 256);
       c.T = Appender(c.group, "T_map_sensor", H5T_NATIVE_DOUBLE, {4, 4}, 0, I.tmp_path, &I.writer, 256);
       c.offset = Appender(c.group, "offset", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, &I.writer, 256);
@@ -576,6 +614,14 @@ void EpisodeWriter::record(const Simulator& sim, const std::vector<Event>& event
       c.count.append(&cnt);
       if (cnt) c.points.append(reinterpret_cast<const float*>(pc->points.data()), cnt);
       c.total += cnt;
+    } else if (const auto* im = std::get_if<ImuSample>(&e)) {
+      const auto mit = I.machine_index.find(im->frame.substr(0, im->frame.find('/')));
+      if (mit == I.machine_index.end()) continue;
+      auto uit = I.machines[mit->second].imu.find(im->frame);
+      if (uit == I.machines[mit->second].imu.end()) continue;
+      uit->second.stamp.append(&im->stamp);
+      uit->second.accel.append(im->accel_mps2.data());
+      uit->second.gyro.append(im->gyro_radps.data());
     } else if (const auto* ps = std::get_if<Pose>(&e)) {
       // Pose frames are "base" (one machine) or "<machine>/base".
       std::size_t mi = 0;
@@ -645,6 +691,9 @@ void EpisodeWriter::close(const Simulator& sim) {
     for (auto& [k, a] : m.a) a.flush();
     for (auto& [k, c] : m.cloud) {
       c.stamp.flush(); c.T.flush(); c.offset.flush(); c.count.flush(); c.points.flush();
+    }
+    for (auto& [k, u] : m.imu) {
+      u.stamp.flush(); u.accel.flush(); u.gyro.flush();
     }
   }
   I.snap_stamp.flush();

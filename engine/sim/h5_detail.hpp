@@ -25,6 +25,14 @@ inline void attrDouble(hid_t obj, const char* name, double v) {
   H5Aclose(a);
   H5Sclose(s);
 }
+inline void attrDoubles(hid_t obj, const char* name, const double* v, std::size_t n) {
+  const hsize_t dims[1] = {n};
+  const hid_t s = H5Screate_simple(1, dims, nullptr);
+  const hid_t a = H5Acreate2(obj, name, H5T_NATIVE_DOUBLE, s, H5P_DEFAULT, H5P_DEFAULT);
+  H5Awrite(a, H5T_NATIVE_DOUBLE, v);
+  H5Aclose(a);
+  H5Sclose(s);
+}
 inline void attrU64(hid_t obj, const char* name, std::uint64_t v) {
   const hid_t s = H5Screate(H5S_SCALAR);
   const hid_t a = H5Acreate2(obj, name, H5T_NATIVE_UINT64, s, H5P_DEFAULT, H5P_DEFAULT);

@@ -121,6 +121,14 @@ class ScanObstacles {
     }
   }
 
+  /// Every box as a candidate (rays that share no azimuth: a camera's image row).
+  void everyBox(std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up) const {
+    n_all = n_up = 0;
+    for (std::size_t q = 0; q < boxes_.size(); ++q) {
+      all[n_all++] = static_cast<int>(q);
+      if (top_[q] >= oz_) up[n_up++] = static_cast<int>(q);
+    }
+  }
   /// First box entry of the ray o + t dm in [t_min, t_max] among the column's candidates;
   /// +inf when none.
   double hit(const Eigen::Vector3d& o, const Eigen::Vector3d& dm, double t_min, double t_max, const std::vector<int>& all,
@@ -151,7 +159,26 @@ LidarModel::LidarModel(LidarModel&&) noexcept = default;
 LidarModel& LidarModel::operator=(LidarModel&&) noexcept = default;
 
 LidarModel::LidarModel(const SensorSpec& spec) : spec_(spec), scratch_(std::make_unique<Scratch>()) {
+  if (spec.type == SensorSpec::Type::DepthCamera) {
+    // Row-major image: a "column" of the scan is an image row, its "beams" the row's pixels.
+    camera_ = true;
+    B_ = spec.width;
+    C_ = spec.height;
+    dirs_.reserve(static_cast<std::size_t>(B_) * C_);
+    double min_z = 1.0;
+    for (int v = 0; v < C_; ++v)
+      for (int u = 0; u < B_; ++u) {
+        const Eigen::Vector3d d = Eigen::Vector3d((u - spec.cx) / spec.fx, (v - spec.cy) / spec.fy, 1.0).normalized();
+        dirs_.push_back(d);
+        min_z = std::min(min_z, d.z());
+      }
+    t_max_ = spec.max_range_m / min_z;
+    return;
+  }
   const int B = spec.beams, C = spec.columns;
+  B_ = B;
+  C_ = C;
+  t_max_ = spec.max_range_m;
   dirs_.reserve(static_cast<std::size_t>(B) * C);
   const bool full_circle = spec.hfov_rad >= 2 * M_PI - 1e-9;
   for (int c = 0; c < C; ++c) {
@@ -175,6 +202,11 @@ double LidarModel::minSlope(const Eigen::Matrix3d& R_map_sensor) const {
   // d_z. A small margin covers rounding of the rotated directions.
   const double rh = std::hypot(R_map_sensor(2, 0), R_map_sensor(2, 1));
   double dz_min = 1.0;
+  if (camera_) {
+    // A pinhole's rays share no elevation: the exact minimum over them (one dot product a ray).
+    const Eigen::RowVector3d r2 = R_map_sensor.row(2);
+    for (const Eigen::Vector3d& d : dirs_) dz_min = std::min(dz_min, r2.dot(d));
+  }
   for (double e : elevations_) dz_min = std::min(dz_min, R_map_sensor(2, 2) * std::sin(e) - std::cos(e) * rh);
   dz_min -= 1e-9;
   if (dz_min <= -1.0 + 1e-12) return -std::numeric_limits<double>::infinity();
@@ -184,20 +216,21 @@ double LidarModel::minSlope(const Eigen::Matrix3d& R_map_sensor) const {
 std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3d& T_map_sensor, std::uint64_t noise_key,
                              const Executor* exec, std::vector<PointXYZI>& out,
                              const std::vector<PlacedBox>* obstacles) const {
-  const int B = spec_.beams, C = spec_.columns;
+  const int B = B_, C = C_;
   const int chunks = (C + columns_per_chunk_ - 1) / columns_per_chunk_;
+  const double t_max = t_max_;
   const Eigen::Vector3d o = T_map_sensor.translation();
   const Eigen::Matrix3d R = T_map_sensor.linear();
   // One horizon table per scan (the ray-casting view is frozen while the scan is cast); the
   // model keeps its buffers, so a scan allocates nothing after the first.
   ScanCaster& caster = scratch_->caster;
-  caster.build(terrain, o, spec_.max_range_m, minSlope(R), exec);
+  caster.build(terrain, o, t_max, minSlope(R), exec);
   std::vector<std::vector<PointXYZI>>& parts = scratch_->parts;
   if (static_cast<int>(parts.size()) < chunks) parts.resize(chunks);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const ScanCaster& cast = caster;
   ScanObstacles& boxes = scratch_->obstacles;
-  boxes.prepare(obstacles, o, R, spec_.max_range_m);
+  boxes.prepare(obstacles, o, R, t_max);
   const std::size_t nbox = boxes.size();
   auto work = [&](int ch) {
     std::vector<PointXYZI>& pts = parts[ch];
@@ -215,7 +248,8 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
     for (int c = c0; c < c1; ++c) {
       // Boxes this column's half-plane can reach; of those, the ones an upward ray can reach.
       int n_cand = 0, n_up = 0;
-      if (nbox > 0) boxes.column(dirs_[static_cast<std::size_t>(c) * B], cand, n_cand, cand_up, n_up);
+      if (nbox > 0 && camera_) boxes.everyBox(cand, n_cand, cand_up, n_up);  // an image row shares no azimuth
+      else if (nbox > 0) boxes.column(dirs_[static_cast<std::size_t>(c) * B], cand, n_cand, cand_up, n_up);
       // Rays that cannot hit (upwards from above the terrain: half of a spinning LiDAR's) are
       // settled here; the rest are cast as one batch.
       int n_may = 0;
@@ -227,8 +261,8 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
           may_idx[n_may++] = b;
         }
       }
-      cast.castBatch(dm_may.data(), n_may, spec_.min_range_m, spec_.max_range_m, t_may.data(), ci_may.data(),
-                     cj_may.data());
+      // A camera's minimum depth bounds t from below too (t >= z); depth itself is checked below.
+      cast.castBatch(dm_may.data(), n_may, spec_.min_range_m, t_max, t_may.data(), ci_may.data(), cj_may.data());
       for (int q = 0; q < n_may; ++q) {
         const int b = may_idx[q];
         t_col[b] = t_may[q];
@@ -243,10 +277,14 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
         double t = t_col[b];
         // A machine in front of the terrain hit (or in a ray that misses the terrain) wins.
         Eigen::Vector3d n_box;
-        const double t_box = boxes.hit(o, dm, spec_.min_range_m, std::isnan(t) ? spec_.max_range_m : t, cand, n_cand,
+        const double t_box = boxes.hit(o, dm, spec_.min_range_m, std::isnan(t) ? t_max : t, cand, n_cand,
                                        cand_up, n_up, &n_box);
         const bool on_machine = t_box < std::numeric_limits<double>::infinity();
         if (on_machine) t = t_box;
+        if (camera_ && !std::isnan(t)) {
+          const double z = ds.z() * t;  // depth: the optical z
+          if (z < spec_.min_range_m || z > spec_.max_range_m) t = std::numeric_limits<double>::quiet_NaN();
+        }
         if (std::isnan(t)) {
           if (spec_.keep_dropouts) pts.push_back({nan, nan, nan, nan});
           continue;
@@ -266,7 +304,14 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
           inten = static_cast<float>(std::abs(dm.z() - g.x() * dm.x() - g.y() * dm.y()) /
                                      std::sqrt(1.0 + g.x() * g.x() + g.y() * g.y()));
         }
-        if (spec_.range_noise_m > 0) t += spec_.range_noise_m * gaussianFromBits(h);
+        if (camera_) {
+          // Depth noise sigma(z) along the ray: z -> z + sigma n moves the point by sigma n / d_z.
+          const double z = ds.z() * t;
+          const double sigma = spec_.depth_noise_abs_m + spec_.depth_noise_k * z * z;
+          if (sigma > 0) t += sigma * gaussianFromBits(h) / ds.z();
+        } else if (spec_.range_noise_m > 0) {
+          t += spec_.range_noise_m * gaussianFromBits(h);
+        }
         pts.push_back({static_cast<float>(ds.x() * t), static_cast<float>(ds.y() * t), static_cast<float>(ds.z() * t), inten});
       }
     }

@@ -124,13 +124,69 @@ void readLidar(MapReader& r, SensorSpec& s) {
   s.keep_dropouts = r.boolean("keep_dropouts", s.keep_dropouts);
 }
 
-SensorSpec readSensor(MapReader& r) {
+// The camera body (x forward, y left, z up) to the optical frame (x right, y down, z forward):
+// the columns are the optical axes in body coordinates.
+Eigen::Matrix3d bodyFromOptical() {
+  Eigen::Matrix3d R;
+  R << 0, 0, 1,  //
+      -1, 0, 0,  //
+      0, -1, 0;
+  return R;
+}
+
+void readDepthCamera(MapReader& r, SensorSpec& s) {
+  // Defaults: an Intel RealSense D435-class stereo camera in its 424 x 240 mode (87 deg
+  // horizontal field of view, 0.3-10 m, 15 Hz), square pixels, principal point at the centre.
+  s.width = r.integer("width", 424, 2, 4096);
+  s.height = r.integer("height", 240, 2, 4096);
+  const double hfov = r.num("horizontal_fov_deg", 87.0, 1.0, 170.0) * kDeg;
+  const double f_default = 0.5 * s.width / std::tan(0.5 * hfov);
+  if (r.has("fx") && r.has("horizontal_fov_deg"))
+    r.error(r.node("fx"), "fx", "give either fx (pixels) or horizontal_fov_deg, not both");
+  s.fx = r.num("fx", f_default, 1e-3, 1e6);
+  s.fy = r.num("fy", s.fx, 1e-3, 1e6);
+  s.cx = r.num("cx", 0.5 * (s.width - 1), -1e5, 1e5);
+  s.cy = r.num("cy", 0.5 * (s.height - 1), -1e5, 1e5);
+  s.rate_hz = r.num("rate_hz", 15.0, 0.1, 1000.0);
+  double rmin = 0.3, rmax = 10.0;
+  readRange(r, "depth_range_m", rmin, rmax, 0.0, 1e3);
+  if (!(rmax > 0)) r.error(r.node("depth_range_m"), "depth_range_m", "the maximum depth must be > 0");
+  s.min_range_m = rmin;
+  s.max_range_m = rmax;
+  s.depth_noise_abs_m = r.num("noise_abs_m", s.depth_noise_abs_m, 0.0, 10.0);
+  s.depth_noise_k = r.num("noise_k_per_m", s.depth_noise_k, 0.0, 10.0);
+  s.dropout = r.num("dropout", 0.0, 0.0, 1.0);
+  s.keep_dropouts = r.boolean("keep_dropouts", s.keep_dropouts);
+  s.range_noise_m = 0;  // a LiDAR's key; the camera's noise is the depth model above
+  s.T_base_sensor.linear() = s.T_base_sensor.linear() * bodyFromOptical();
+}
+
+void readImu(MapReader& r, SensorSpec& s, double physics_hz) {
+  const std::string link = r.str("link", "base");
+  if (link == "base") s.link = SensorSpec::Link::Base;
+  else if (link == "blade") s.link = SensorSpec::Link::Blade;
+  else r.error(r.node("link"), "link", "unknown link '" + link + "' (known: base, blade)" + didYouMean(link, {"base", "blade"}));
+  s.rate_hz = r.num("rate_hz", 120.0, 0.1, 10000.0);
+  const double ratio = physics_hz / s.rate_hz;
+  if (std::abs(ratio - std::round(ratio)) > 1e-9 || ratio < 1)
+    r.error(r.node("rate_hz"), "rate_hz", "physics_hz (" + formatNumber(physics_hz) + ") must be a whole multiple of an IMU's rate_hz");
+  s.accel_noise_density = r.num("accel_noise_density", s.accel_noise_density, 0.0, 10.0);
+  s.gyro_noise_density = r.num("gyro_noise_density", s.gyro_noise_density, 0.0, 10.0);
+  s.accel_bias_walk = r.num("accel_bias_walk", s.accel_bias_walk, 0.0, 10.0);
+  s.gyro_bias_walk = r.num("gyro_bias_walk", s.gyro_bias_walk, 0.0, 10.0);
+  s.accel_bias_sigma = r.num("accel_bias_sigma", s.accel_bias_sigma, 0.0, 100.0);
+  s.gyro_bias_sigma = r.num("gyro_bias_sigma", s.gyro_bias_sigma, 0.0, 10.0);
+}
+
+SensorSpec readSensor(MapReader& r, double physics_hz) {
   SensorSpec s;
   s.id = r.strRequired("id");
   const std::string type = r.strRequired("type");
-  const std::vector<std::string> types{"lidar", "force"};
+  const std::vector<std::string> types{"lidar", "force", "depth_camera", "imu"};
   if (type == "lidar") s.type = SensorSpec::Type::Lidar;
   else if (type == "force") s.type = SensorSpec::Type::Force;
+  else if (type == "depth_camera") s.type = SensorSpec::Type::DepthCamera;
+  else if (type == "imu") s.type = SensorSpec::Type::Imu;
   else if (type == "pose") {
     // Its noise was a second, inconsistent pose model (white noise on the Pose event only);
     // refused rather than silently ignored so no scenario believes it still applies.
@@ -146,6 +202,10 @@ SensorSpec readSensor(MapReader& r) {
   s.T_base_sensor = readMount(r);
   if (s.type == SensorSpec::Type::Lidar) {
     readLidar(r, s);
+  } else if (s.type == SensorSpec::Type::DepthCamera) {
+    readDepthCamera(r, s);
+  } else if (s.type == SensorSpec::Type::Imu) {
+    readImu(r, s, physics_hz);
   } else {
     s.force_noise_abs_n = r.num("noise_abs_n", s.force_noise_abs_n, 0.0, 1e7);
     s.force_noise_rel = r.num("noise_rel", s.force_noise_rel, 0.0, 10.0);
@@ -246,7 +306,7 @@ void readJoints(MapReader& j, MachineSpec& m) {
   j.finish();
 }
 
-void readSensors(MapReader& r, MachineSpec& m) {
+void readSensors(MapReader& r, MachineSpec& m, double physics_hz) {
   const YAML::Node ss = r.node("sensors");
   if (!ss.IsSequence()) {
     r.error(ss, "sensors", "expected a list of sensors");
@@ -255,7 +315,7 @@ void readSensors(MapReader& r, MachineSpec& m) {
   std::set<std::string> ids;
   for (std::size_t k = 0; k < ss.size(); ++k) {
     MapReader sr(r.diagnostics(), ss[k], r.join("sensors[" + std::to_string(k) + "]"));
-    SensorSpec s = readSensor(sr);
+    SensorSpec s = readSensor(sr, physics_hz);
     if (!s.id.empty() && !ids.insert(s.id).second) sr.error(ss[k]["id"], "id", "duplicate sensor id '" + s.id + "'");
     m.sensors.push_back(std::move(s));
   }
@@ -344,7 +404,7 @@ void readShape(MapReader& r, MachineSpec& m) {
   }
 }
 
-MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisation) {
+MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisation, double physics_hz) {
   MachineSpec m;
   m.localisation = readLocalisation(r, default_localisation);
   m.id = r.strRequired("id");
@@ -380,7 +440,7 @@ MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisati
     MapReader c = r.child("controller");
     if (c.valid()) m.controller = readController(c);
   }
-  if (r.has("sensors")) readSensors(r, m);
+  if (r.has("sensors")) readSensors(r, m, physics_hz);
   m.shape = defaultCtlShape(m.track_gauge_m, m.track_length_m, m.blade.width_m, m.blade.height_m);
   if (r.has("shape")) readShape(r, m);
   r.finish();
@@ -664,7 +724,7 @@ void readMachines(MapReader& r, Scenario& sc, bool extent_known) {
   for (std::size_t k = 0; k < ms.size(); ++k) {
     MapReader mr(r.diagnostics(), ms[k], "machines[" + std::to_string(k) + "]");
     if (!mr.valid()) continue;
-    MachineSpec m = readMachine(mr, sc.localisation);
+    MachineSpec m = readMachine(mr, sc.localisation, sc.physics_hz);
     if (!m.id.empty() && !ids.insert(m.id).second) mr.error(ms[k]["id"], "id", "duplicate machine id '" + m.id + "'");
     const TerrainSpec& t = sc.terrain;
     if (extent_known && (m.x_m < t.origin_x_m || m.x_m > t.origin_x_m + t.size_x_m || m.y_m < t.origin_y_m ||

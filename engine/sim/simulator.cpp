@@ -1,5 +1,6 @@
 // The simulator loop: controllers, machine dynamics, truth force, deformation, sensors.
 #include <terramap/core/error.hpp>
+#include <terramap/sim/imu.hpp>
 #include <terramap/sim/simulator.hpp>
 #include <terramap/sim/survey.hpp>
 
@@ -62,18 +63,27 @@ struct Simulator::Machine {
     long next_scan = 0;
   };
   std::vector<Lidar> lidars;
+  struct Imu {
+    std::size_t sensor_index;
+    ImuModel model;
+    long stride;  ///< physics steps per sample
+  };
+  std::vector<Imu> imus;
   int force_sensor = -1;
   std::mt19937_64 force_rng;
 
-  Machine(std::size_t idx, const MachineSpec& spec, const TruthTerrain& terrain, std::uint64_t seed)
+  Machine(std::size_t idx, const MachineSpec& spec, const TruthTerrain& terrain, std::uint64_t seed, double physics_hz)
       : index(idx), ctl(spec, terrain), controller(spec.controller, spec, streamSeed(seed, idx, 1)),
         noise_rng(streamSeed(seed, idx, 2)), estimator(spec.localisation, streamSeed(seed, idx, 3)),
         force_rng(streamSeed(seed, idx, 4)) {
     truth.id = spec.id;
     for (std::size_t s = 0; s < spec.sensors.size(); ++s) {
       const SensorSpec& ss = spec.sensors[s];
-      if (ss.type == SensorSpec::Type::Lidar) lidars.push_back({s, LidarModel(ss), 0});
-      else force_sensor = static_cast<int>(s);
+      if (ss.castsRays()) lidars.push_back({s, LidarModel(ss), 0});
+      else if (ss.type == SensorSpec::Type::Force) force_sensor = static_cast<int>(s);
+      else if (ss.type == SensorSpec::Type::Imu)
+        imus.push_back({s, ImuModel(ss, spec.id + "/" + ss.id, streamSeed(seed, idx, 100 + s)),
+                        std::max(1L, std::lround(physics_hz / ss.rate_hz))});
     }
     prev_base = ctl.T_map_base();
     prev_blade = ctl.T_map_blade();
@@ -84,6 +94,13 @@ struct Simulator::Machine {
     // The first period's twists start from the truth (no estimate exists before t = 0).
     prev_est_base = prev_base;
     prev_est_blade = prev_blade;
+    ImuSample none;
+    for (Imu& u : imus) u.model.addLinkPose(0.0, linkPose(u.model.spec()), none);
+  }
+
+  /// The true pose of the link an IMU is mounted on.
+  Eigen::Isometry3d linkPose(const SensorSpec& s) const {
+    return s.link == SensorSpec::Link::Blade ? ctl.T_map_blade() : ctl.T_map_base();
   }
 };
 
@@ -141,7 +158,7 @@ Simulator::Simulator(const Scenario& scenario, Executor::Backend backend)
   if (substeps_ < 1) throw ConfigError(sc_.source_path + ": physics_hz must be >= observation_hz");
   double min_rate = std::numeric_limits<double>::infinity();
   for (std::size_t i = 0; i < sc_.machines.size(); ++i) {
-    machines_.push_back(std::make_unique<Machine>(i, sc_.machines[i], terrain_, sc_.seed));
+    machines_.push_back(std::make_unique<Machine>(i, sc_.machines[i], terrain_, sc_.seed, sc_.physics_hz));
     view_truth_.push_back(machines_.back()->truth);
     for (const auto& L : machines_.back()->lidars)
       min_rate = std::min(min_rate, sc_.machines[i].sensors[L.sensor_index].rate_hz);
@@ -382,6 +399,17 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
   if (overlap_) rec.ctls.push_back(m.ctl);
 }
 
+void Simulator::sampleImus(Period& rec, double t) {
+  for (auto& mp : machines_)
+    for (auto& u : mp->imus) {
+      if (p_phys_step_ % u.stride != 0) continue;
+      ImuSample sample;
+      // The sample of the previous IMU instant (central differences need this pose); consume()
+      // sorts the period's events by stamp, so it lands in time order within the period.
+      if (u.model.addLinkPose(t, mp->linkPose(u.model.spec()), sample)) rec.events.emplace_back(std::move(sample));
+    }
+}
+
 void Simulator::producePeriod(Period& rec) {
   const double dt = 1.0 / sc_.physics_hz;
   for (int s = 0; s < substeps_; ++s) {
@@ -393,6 +421,7 @@ void Simulator::producePeriod(Period& rec) {
     ++p_phys_step_;
     const double t = static_cast<double>(p_phys_step_) / sc_.physics_hz;
     for (auto& mp : machines_) mp->estimator.addTruth(t, mp->ctl.T_map_base());
+    sampleImus(rec, t);
     scheduleScans(rec, t);
   }
   ++p_obs_step_;

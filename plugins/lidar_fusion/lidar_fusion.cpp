@@ -4,6 +4,8 @@
 #include <terramap/core/submap_iterator.hpp>
 #include <terramap/core/text.hpp>
 
+#include <fnmatch.h>
+
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -324,6 +326,9 @@ ParamSchema lidarFusionSchema() {
       param::real("range_noise_a_m", 0.02, 0.0, 10.0, "m", "range_based: sigma at zero range"),
       param::real("range_noise_b", 0.001, 0.0, 1.0, "m/m", "range_based: sigma growth per metre of range"),
       param::real("sensor_noise_factor", 0.05, 0.0, 100.0, "1", "depth_squared: k in v = k*z_s^2"),
+      param::texts("depth_squared_frames", {},
+                   "clouds whose frame matches one of these shell patterns (e.g. '*/cam') use depth_squared "
+                   "whatever sensor_noise says: a depth camera (points in its optical frame) beside a LiDAR"),
       param::real("min_range_m", 0.5, 0.0, inf, "m", "drop points closer to the sensor"),
       param::real("max_range_m", 100.0, 0.0, inf, "m", "drop points farther from the sensor"),
       param::real("max_height_above_sensor_m", 1.0, -inf, inf, "m",
@@ -377,7 +382,7 @@ std::pair<std::string, std::string> noiseModelProblem(const LidarFusionConfig& c
   if (c.noise_model == NoiseModel::RangeBased && c.range_noise_a_m == 0.0 && c.range_noise_b == 0.0)
     return {"range_noise_a_m", "range_noise_a_m = 0 and range_noise_b = 0 under sensor_noise: range_based model a "
                                "noise-free LiDAR; give the sensor's range noise (e.g. range_noise_a_m: 0.02)"};
-  if (c.noise_model == NoiseModel::DepthSquared && c.sensor_noise_factor == 0.0)
+  if ((c.noise_model == NoiseModel::DepthSquared || !c.depth_squared_frames.empty()) && c.sensor_noise_factor == 0.0)
     return {"sensor_noise_factor", "sensor_noise_factor = 0 under sensor_noise: depth_squared models a noise-free "
                                    "sensor; give k in v = k*z_s^2 (e.g. 0.05)"};
   return {};
@@ -391,6 +396,7 @@ LidarFusionConfig lidarFusionConfigFrom(const Params& p) {
   c.range_noise_a_m = p.getDouble("range_noise_a_m");
   c.range_noise_b = p.getDouble("range_noise_b");
   c.sensor_noise_factor = p.getDouble("sensor_noise_factor");
+  c.depth_squared_frames = p.getStrings("depth_squared_frames");
   c.min_range_m = p.getDouble("min_range_m");
   c.max_range_m = p.getDouble("max_range_m");
   c.max_height_above_sensor_m = p.getDouble("max_height_above_sensor_m");
@@ -665,6 +671,12 @@ FusionStats LidarFusion::fuse(LayeredMap& map, const Executor& ex, const PointCl
   return st;
 }
 
+bool LidarFusion::depthSquaredFrame(const std::string& frame) const {
+  for (const std::string& pattern : config_.depth_squared_frames)
+    if (::fnmatch(pattern.c_str(), frame.c_str(), 0) == 0) return true;
+  return false;
+}
+
 void LidarFusion::preparePoints(const LayeredMap& map, const Executor& ex, const PointCloud& cloud) {
   GateConsts k;
   const Geometry& g = map.geometry();
@@ -684,7 +696,7 @@ void LidarFusion::preparePoints(const LayeredMap& map, const Executor& ex, const
   k.noise_a = cf.range_noise_a_m, k.noise_b = cf.range_noise_b, k.noise_k = cf.sensor_noise_factor;
   k.min_var = cf.min_variance_m2;
   k.ramp = cf.enable_ramped_height_range;
-  k.range_based = cf.noise_model == NoiseModel::RangeBased;
+  k.range_based = cf.noise_model == NoiseModel::RangeBased && !depthSquaredFrame(cloud.frame);
   const bool rays = cf.enable_visibility_cleanup;
   const int stride = cf.cleanup_ray_stride;
 #ifdef TERRAMAP_LIDAR_AVX2

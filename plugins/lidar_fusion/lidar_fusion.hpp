@@ -63,6 +63,11 @@ struct LidarFusionConfig {
   double range_noise_a_m = 0.02;          ///< sigma at zero range (m)
   double range_noise_b = 0.001;           ///< sigma growth per metre of range (m/m)
   double sensor_noise_factor = 0.05;      ///< depth_squared: k in v = k z_s^2 (1)
+  /// Clouds whose frame matches one of these (shell patterns, fnmatch: "ctl1/cam", "*/cam*")
+  /// take the depth_squared model whatever `noise_model` says: a depth camera beside a LiDAR in
+  /// one fusion. The camera's points must be in its optical frame (z_s = depth), as the
+  /// simulator's depth cameras deliver them.
+  std::vector<std::string> depth_squared_frames;
   double min_range_m = 0.5;               ///< points closer to the sensor are dropped
   double max_range_m = 100.0;             ///< points farther are dropped
   double max_height_above_sensor_m = 1.0; ///< map-frame z above the sensor's z: dropped
@@ -215,6 +220,8 @@ class LidarFusion : public Plugin {
   void bindLayers(const LayeredMap& map);
   void buildIndexTables(const LayeredMap& map);
   void preparePoints(const LayeredMap& map, const Executor& ex, const PointCloud& cloud);
+  /// Whether `frame` matches one of config_.depth_squared_frames.
+  bool depthSquaredFrame(const std::string& frame) const;
   void binItems(const Executor& ex, std::vector<std::vector<Item>>& chunks, int ntiles);
   void driftCompensation(LayeredMap& map, const Executor& ex, const Eigen::Isometry3d& T,
                          FusionStats& st);

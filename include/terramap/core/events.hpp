@@ -82,7 +82,20 @@ struct Tick {
   double stamp = 0.0;
 };
 
-using Event = std::variant<PointCloud, Pose, BladePose, Observation, Tick>;
+/// One inertial measurement, in the IMU's own frame (x, y, z of its case; right-handed).
+/// `accel_mps2` is the specific force f = R_map_imu^T (a - g), g = (0, 0, -9.80665) m/s^2 in
+/// the map frame, so an IMU at rest reads +9.81 m/s^2 along its up axis; `gyro_radps` the angular
+/// rate. Both include the sensor's bias and noise. `stamp` is the instant measured (s): a
+/// simulated sample may be delivered one sample period after it (docs/sim.md "IMUs"). NaN =
+/// axis not measured.
+struct ImuSample {
+  double stamp = 0.0;
+  std::string frame;  ///< "<machine>/<sensor id>" in the simulator
+  Eigen::Vector3d accel_mps2 = Eigen::Vector3d::Zero();
+  Eigen::Vector3d gyro_radps = Eigen::Vector3d::Zero();
+};
+
+using Event = std::variant<PointCloud, Pose, BladePose, Observation, Tick, ImuSample>;
 
 /// Event kinds as bits, so plugins can subscribe to several.
 enum class EventKind : std::uint32_t {
@@ -91,6 +104,7 @@ enum class EventKind : std::uint32_t {
   BladePose = 1u << 2,
   Observation = 1u << 3,
   Tick = 1u << 4,
+  Imu = 1u << 5,
 };
 using EventMask = std::uint32_t;
 constexpr EventMask operator|(EventKind a, EventKind b) {
@@ -107,7 +121,7 @@ inline EventKind kindOf(const Event& e) {
 inline double stampOf(const Event& e) {
   return std::visit([](const auto& ev) { return ev.stamp; }, e);
 }
-/// Lower-case name of a kind ("point_cloud", "pose", "blade_pose", "observation", "tick").
+/// Lower-case name of a kind ("point_cloud", "pose", "blade_pose", "observation", "tick", "imu").
 TERRAMAP_API const char* kindName(EventKind k);
 /// The mask of kinds named in `names` (as kindName spells them). The first name that is not
 /// a kind is stored in `*unknown` (if given) and the mask of the valid ones is returned.

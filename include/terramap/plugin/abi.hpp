@@ -27,7 +27,8 @@
 ///    local to the caller); the fingerprint pins Eigen's alignment and names the sanitizers.
 /// 3: Params carries reported problems and the map geometry, ProcessContext a ChangeTracker,
 ///    LayeredMap per-tile write counters.
-#define TERRAMAP_PLUGIN_ABI_VERSION 3u
+/// 4: the Event variant gained ImuSample (EventKind::Imu).
+#define TERRAMAP_PLUGIN_ABI_VERSION 4u
 
 #define TERRAMAP_STR_(x) #x
 #define TERRAMAP_STR(x) TERRAMAP_STR_(x)

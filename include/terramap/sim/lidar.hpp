@@ -1,7 +1,9 @@
 #pragma once
 /// \file
 /// Ray-cast LiDAR against the truth terrain: multi-beam spinning sensors (32/64/128-beam
-/// presets) and single-line scanners, with Gaussian range noise and random dropouts.
+/// presets) and single-line scanners, with Gaussian range noise and random dropouts; and depth
+/// cameras (SensorSpec::Type::DepthCamera: a pinhole whose points are in the optical frame,
+/// row-major, depth noise growing with depth squared, depth range on the optical z).
 /// Rays are cast from one sensor pose per scan (the cloud is motion-compensated, as most
 /// drivers deliver it). Points are in the sensor frame, column-major (all beams of column 0,
 /// then column 1, ...); misses and dropouts are omitted unless keep_dropouts (then NaN).
@@ -36,6 +38,9 @@ class LidarModel {
   LidarModel& operator=(LidarModel&&) noexcept;
   const SensorSpec& spec() const { return spec_; }
   std::size_t raysPerScan() const { return dirs_.size(); }
+  /// Largest ray length t a scan can return (m): max_range_m for a LiDAR; for a depth camera
+  /// the maximum depth over the smallest optical z of its rays (the image corner).
+  double maxRayLength() const { return t_max_; }
   /// Unit ray directions in the sensor frame, in output order.
   const std::vector<Eigen::Vector3d>& directions() const { return dirs_; }
 
@@ -55,7 +60,10 @@ class LidarModel {
 
   SensorSpec spec_;
   std::vector<Eigen::Vector3d> dirs_;
-  std::vector<double> elevations_;  ///< beam elevations (rad)
+  std::vector<double> elevations_;  ///< beam elevations (rad); empty for a depth camera
+  int B_ = 0, C_ = 0;               ///< rays per chunked row (beams / pixels of an image row), rows
+  bool camera_ = false;
+  double t_max_ = 0;
   struct Scratch;                   ///< horizon table and per-chunk outputs, reused per scan
   std::unique_ptr<Scratch> scratch_;
   int columns_per_chunk_ = 16;

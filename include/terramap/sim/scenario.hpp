@@ -119,7 +119,7 @@ struct ControllerSpec {
 /// pose sensor: every pose the mapper receives comes from the machine's `localisation`.
 struct SensorSpec {
   std::string id;
-  enum class Type { Lidar, Force } type = Type::Lidar;
+  enum class Type { Lidar, Force, DepthCamera, Imu } type = Type::Lidar;
   Eigen::Isometry3d T_base_sensor = Eigen::Isometry3d::Identity();
   // LiDAR: `beams` rows at elevations spread evenly over [vfov_min, vfov_max] (one beam: the
   // mean), `columns` azimuths over hfov (centred on the sensor x axis), one scan per 1/rate.
@@ -131,8 +131,36 @@ struct SensorSpec {
   double range_noise_m = 0.02;  ///< 1-sigma Gaussian range noise
   double dropout = 0.0;         ///< probability a return is lost (returned as NaN point)
   bool keep_dropouts = false;   ///< emit NaN points for misses/dropouts (organized cloud)
+  // Depth camera (type DepthCamera; docs/sim.md "Depth cameras"): a pinhole of `width` x
+  // `height` pixels whose pixel (u, v) (u right, v down, 0-based, pixel centres) looks along
+  // ((u - cx) / fx, (v - cy) / fy, 1) in the *optical* frame (x right, y down, z along the view
+  // axis). The mount (T_base_sensor as read from offset/rotation) places the camera *body*
+  // (x forward, y left, z up, as a LiDAR); loadScenario appends the body-to-optical rotation, so
+  // for a camera T_base_sensor, the cloud's T_map_sensor and its points are in the optical
+  // frame. The cloud is organised row-major (row v = 0 first) when keep_dropouts is set.
+  // Depth is the optical z, kept in [min_range_m, max_range_m] (what a depth camera's range
+  // means); noise sigma = depth_noise_abs_m + depth_noise_k * z^2 moves a point along its ray
+  // (stereo / structured light: the disparity error maps to depth squared); `dropout` as above.
+  int width = 424, height = 240;
+  double fx = 0, fy = 0, cx = 0, cy = 0;       ///< pixels
+  double depth_noise_abs_m = 0.001;            ///< m
+  double depth_noise_k = 0.005;                ///< 1/m (sigma 2 cm at 2 m)
+  // IMU (type Imu; docs/sim.md "IMUs"): on `link`, with T_base_sensor read as T_link_sensor,
+  // sampled every physics_hz / rate_hz physics steps (a whole number). The continuous-time noise
+  // model of Kalibr / the IEEE standard: white noise of the given densities and biases that
+  // start at N(0, bias_sigma^2) per axis and random-walk with the given densities. Defaults: an
+  // ADIS16448-class MEMS unit (its datasheet densities).
+  enum class Link { Base, Blade } link = Link::Base;
+  double accel_noise_density = 2.0e-3;  ///< m/s^2/sqrt(Hz)
+  double gyro_noise_density = 1.7e-4;   ///< rad/s/sqrt(Hz)
+  double accel_bias_walk = 3.0e-3;      ///< m/s^3/sqrt(Hz)
+  double gyro_bias_walk = 2.0e-5;       ///< rad/s^2/sqrt(Hz)
+  double accel_bias_sigma = 0.05;       ///< m/s^2, initial bias (1 sigma per axis)
+  double gyro_bias_sigma = 0.002;       ///< rad/s
   // Force sensor noise: sigma = abs + rel * |F|.
   double force_noise_abs_n = 100, force_noise_rel = 0.02;
+  /// A LiDAR or a depth camera: a sensor whose cloud is ray-cast (LidarModel).
+  bool castsRays() const { return type == Type::Lidar || type == Type::DepthCamera; }
 };
 
 /// A compact track loader (CAT 299-class defaults: ALGORITHMS.md §L; docs/sim.md).

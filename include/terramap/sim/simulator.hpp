@@ -3,9 +3,12 @@
 /// The simulator: terramap's stand-in for Vortex Studio / TERA. A pull API: each `next()`
 /// advances one observation period (1/observation_hz, 60 Hz by default) of physics sub-steps
 /// and appends that period's events in time order:
-///   PointCloud  (when a LiDAR scan completes; frame "<machine>/<sensor>", stamp = scan time;
-///                rays cast from the true sensor pose, T_map_sensor = the estimated base pose
-///                at the stamp * T_base_sensor)
+///   PointCloud  (when a LiDAR or depth-camera scan completes; frame "<machine>/<sensor>",
+///                stamp = scan time; rays cast from the true sensor pose, T_map_sensor = the
+///                estimated base pose at the stamp * T_base_sensor)
+///   ImuSample   (per IMU at its rate; frame "<machine>/<sensor>", stamp = the instant it
+///                measures, which may lie up to one sample period before the period's start:
+///                sim/imu.hpp)
 ///   Pose        (per machine: the estimated base pose; frame "base" with one machine,
 ///                "<machine>/base" with several)
 ///   BladePose   (per machine: estimated base * blade from the measured cylinder lengths)
@@ -124,6 +127,8 @@ class Simulator {
   void cutPatch(Period& rec);
   /// The LiDAR scans due at physics time `t`: queued in `rec` (overlap) or cast now.
   void scheduleScans(Period& rec, double t);
+  /// Feeds every IMU the pose of physics step p_phys_step_ (time t) when it falls on its rate.
+  void sampleImus(Period& rec, double t);
   /// A machine's truth and its Pose, BladePose and Observation at period end `tp`, into `rec`.
   void observeMachine(Machine& m, Period& rec, double tp, bool single);
   bool produceOne();

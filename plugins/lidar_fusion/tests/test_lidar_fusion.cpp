@@ -104,6 +104,45 @@ TEST(LidarFusion, DepthSquaredNoise) {
   EXPECT_FLOAT_EQ(layerAt(map, L::kElevation, idx), -0.3f);
 }
 
+TEST(LidarFusion, DepthSquaredFramesTakeTheCameraModelBesideALiDAR) {
+  // One fusion, range_based for the LiDAR; clouds of frames matching "*/cam" (a depth camera,
+  // points in its optical frame) take v = k z_s^2 instead. Without the pattern the camera's
+  // point would get the LiDAR's (a + b r)^2.
+  for (bool with_pattern : {true, false}) {
+    LayeredMap map = makeMap();
+    LidarFusion f;
+    LidarFusionConfig c = plainConfig();
+    c.range_noise_a_m = 0.02;
+    c.range_noise_b = 0.0;
+    c.sensor_noise_factor = 0.01;
+    if (with_pattern) c.depth_squared_frames = {"*/cam"};
+    f.configure(c);
+    f.attach(map);
+    Executor ex(1);
+    PointCloud cam = cloudAt({0, 0, 0.5}, {{1.0f, 0.3f, -0.8f, 0}});
+    cam.frame = "ctl1/cam";
+    EXPECT_EQ(f.fuse(map, ex, cam).points_fused, 1);
+    PointCloud lidar = cloudAt({0, 0, 0.5}, {{-1.04f, -0.63f, -0.8f, 0}}, 0.1);
+    lidar.frame = "ctl1/top";
+    EXPECT_EQ(f.fuse(map, ex, lidar).points_fused, 1);
+    const double v_cam = layerAt(map, L::kVariance, cellOf(map, 1.0, 0.3));
+    const double v_lidar = layerAt(map, L::kVariance, cellOf(map, -1.04, -0.63));
+    EXPECT_NEAR(v_cam, with_pattern ? 0.01 * 0.64 : 0.02 * 0.02, 1e-8) << with_pattern;  // z_s = -0.8
+    EXPECT_NEAR(v_lidar, 0.02 * 0.02, 1e-8);
+  }
+  // A pattern with sensor_noise_factor = 0 would make the camera's points noise-free: refused.
+  LidarFusion f;
+  LidarFusionConfig c = plainConfig();
+  c.depth_squared_frames = {"*/cam"};
+  c.sensor_noise_factor = 0.0;
+  try {
+    f.configure(c);
+    ADD_FAILURE() << "expected a ConfigError";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("sensor_noise_factor"), std::string::npos) << e.what();
+  }
+}
+
 TEST(LidarFusion, NPointsInOneCellShrinkVariance) {
   // b = 0: every point has variance a^2 = 0.0025, so sequential precision-weighted fusion of
   // n points is the plain mean with variance a^2 / n.

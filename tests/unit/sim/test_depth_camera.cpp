@@ -1,0 +1,239 @@
+// The simulator's depth camera (SensorSpec::Type::DepthCamera, docs/sim.md "Depth cameras"):
+// pixels look where the pinhole says and the points are in the optical frame with depth = z,
+// the depth range is on z, the noise grows with depth squared, the machine hides the ground and
+// is seen, scans are the same bits at any thread count, the simulator delivers and records the
+// clouds, and bad keys are named.
+#include <gtest/gtest.h>
+
+#include <terramap/core/error.hpp>
+#include <terramap/core/parallel.hpp>
+#include <terramap/sim/episode.hpp>
+#include <terramap/sim/lidar.hpp>
+#include <terramap/sim/machine_shape.hpp>
+#include <terramap/sim/simulator.hpp>
+#include <terramap/sim/world.hpp>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <limits>
+#include <string>
+#include <vector>
+
+using namespace terramap;
+using namespace terramap::sim;
+
+namespace {
+
+TruthTerrain flatTerrain() {
+  TerrainSpec s;
+  s.size_x_m = 40;
+  s.size_y_m = 40;
+  s.origin_x_m = -20;
+  s.origin_y_m = -20;
+  s.resolution_m = 0.02;
+  return buildTerrain(s);
+}
+
+std::string scenarioYaml(const std::string& camera, double duration = 0.5) {
+  return "version: 1\nseed: 5\nduration_s: " + std::to_string(duration) +
+         "\nthreads: 1\n"
+         "terrain: {size_m: [16, 10], origin_m: [-4, -5], resolution_m: 0.02}\n"
+         "machines:\n  - id: ctl1\n"
+         "    controller: {type: route, start_m: [0, 0], length_m: 4, passes: 1, depth_m: 0.05}\n"
+         "    sensors:\n      - {id: cam, type: depth_camera, " +
+         camera + "}\n";
+}
+
+SensorSpec cameraOf(const std::string& keys) {
+  const Scenario sc = parseScenario(scenarioYaml(keys), "s.yaml");
+  return sc.machines.at(0).sensors.at(0);
+}
+
+}  // namespace
+
+TEST(DepthCamera, PixelsLookWhereThePinholeSaysAndDepthIsTheOpticalZ) {
+  // Mast at 2 m, pitched 30 deg down; 64 x 48 pixels, 60 deg field of view, depth 0.3-6 m.
+  const SensorSpec ss = cameraOf(
+      "width: 64, height: 48, horizontal_fov_deg: 60, depth_range_m: [0.3, 6], noise_abs_m: 0, noise_k_per_m: 0, "
+      "keep_dropouts: true, offset_m: [0, 0, 2], rotation_deg: [0, 30, 0]");
+  ASSERT_EQ(ss.type, SensorSpec::Type::DepthCamera);
+  EXPECT_NEAR(ss.fx, 32.0 / std::tan(30.0 * M_PI / 180), 1e-9);
+  EXPECT_EQ(ss.fy, ss.fx);
+  EXPECT_EQ(ss.cx, 31.5);
+  // The optical frame's z is the body's x (pitched 30 deg down), its x the body's -y, its y the body's -z.
+  const Eigen::Matrix3d R = ss.T_base_sensor.linear();
+  EXPECT_NEAR(R(0, 2), std::cos(M_PI / 6), 1e-12);
+  EXPECT_NEAR(R(2, 2), -std::sin(M_PI / 6), 1e-12);
+  EXPECT_NEAR(R(1, 0), -1.0, 1e-12);
+  const LidarModel L(ss);
+  ASSERT_EQ(L.raysPerScan(), 64u * 48u);
+  const TruthTerrain t = flatTerrain();
+  std::vector<PointXYZI> pts;
+  L.scan(t, ss.T_base_sensor, 1, nullptr, pts);
+  ASSERT_EQ(pts.size(), 64u * 48u);  // organised: one point (or NaN) per pixel, row-major
+  int seen = 0, beyond = 0;
+  for (int v = 0; v < 48; ++v)
+    for (int u = 0; u < 64; ++u) {
+      const PointXYZI& p = pts[static_cast<std::size_t>(v) * 64 + u];
+      // Where the pixel's ray meets the ground z = 0, analytically.
+      const Eigen::Vector3d d_opt((u - ss.cx) / ss.fx, (v - ss.cy) / ss.fy, 1.0);
+      const Eigen::Vector3d d_map = R * d_opt;
+      const double s = d_map.z() < 0 ? -2.0 / d_map.z() : std::numeric_limits<double>::infinity();  // ground at optical depth s
+      if (!(s <= 6.0)) {
+        EXPECT_TRUE(std::isnan(p.x)) << u << " " << v;  // farther than the depth range: none
+        ++beyond;
+        continue;
+      }
+      ASSERT_FALSE(std::isnan(p.x)) << u << " " << v;
+      EXPECT_NEAR(p.z, s, 1e-5 * s) << u << " " << v;  // depth = the optical z
+      EXPECT_NEAR(p.x / p.z, d_opt.x(), 1e-5);
+      EXPECT_NEAR(p.y / p.z, d_opt.y(), 1e-5);
+      const Eigen::Vector3d m = ss.T_base_sensor * Eigen::Vector3d(p.x, p.y, p.z);
+      EXPECT_NEAR(m.z(), 0.0, 1e-5);
+      ++seen;
+    }
+  // The vertical field is 2 atan(24 / fy) = 47 deg: the top row looks 6.6 deg down and meets
+  // the ground 17 m away, past the 6 m range; the bottom rows see it within range.
+  EXPECT_GT(seen, 1000);
+  EXPECT_GT(beyond, 100);
+}
+
+TEST(DepthCamera, NoiseGrowsWithDepthSquared) {
+  // The same scan with and without noise: the rays stop at the same t, so the depth difference
+  // of a pixel is its noise. Its spread, binned by depth, follows sigma = a + k z^2.
+  const std::string keys = "width: 320, height: 240, horizontal_fov_deg: 80, depth_range_m: [0.3, 10], "
+                           "keep_dropouts: true, offset_m: [0, 0, 1.5], rotation_deg: [0, 25, 0], ";
+  const SensorSpec noisy = cameraOf(keys + "noise_abs_m: 0.002, noise_k_per_m: 0.004");
+  const SensorSpec clean = cameraOf(keys + "noise_abs_m: 0, noise_k_per_m: 0");
+  const TruthTerrain t = flatTerrain();
+  std::vector<PointXYZI> a, b;
+  LidarModel(noisy).scan(t, noisy.T_base_sensor, 11, nullptr, a);
+  LidarModel(clean).scan(t, clean.T_base_sensor, 11, nullptr, b);
+  ASSERT_EQ(a.size(), b.size());
+  struct Bin { double lo, hi, sum2 = 0; long n = 0; double sigma2 = 0; };
+  std::vector<Bin> bins{{1.5, 2.5}, {3.0, 4.0}, {6.0, 8.0}};
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    if (std::isnan(a[k].z) || std::isnan(b[k].z)) continue;
+    const double z = b[k].z, e = static_cast<double>(a[k].z) - z;
+    for (Bin& bin : bins)
+      if (z >= bin.lo && z < bin.hi) {
+        const double s = 0.002 + 0.004 * z * z;
+        bin.sum2 += e * e;
+        bin.sigma2 += s * s;
+        ++bin.n;
+      }
+  }
+  for (const Bin& bin : bins) {
+    ASSERT_GT(bin.n, 2000) << bin.lo;
+    // Measured RMS over the modelled RMS of the bin: 1 within sampling error (n >= 2000: < 5 %).
+    EXPECT_NEAR(std::sqrt(bin.sum2 / bin.sigma2), 1.0, 0.06) << bin.lo;
+  }
+  // Far points are several times noisier than near ones (a constant sigma would give 1).
+  EXPECT_GT(std::sqrt(bins[2].sum2 / bins[2].n) / std::sqrt(bins[0].sum2 / bins[0].n), 5.0);
+}
+
+TEST(DepthCamera, TheMachineHidesTheGroundAndIsSeen) {
+  // A blade-sized box 2.5 m ahead of a camera looking forward and down: the pixels whose ground
+  // point lies in the box's shadow stop on the box; every other pixel is unchanged.
+  const SensorSpec ss = cameraOf("width: 160, height: 120, noise_abs_m: 0, noise_k_per_m: 0, keep_dropouts: true, "
+                                 "offset_m: [0, 0, 2], rotation_deg: [0, 30, 0]");
+  std::vector<PlacedBox> wall;
+  Eigen::Isometry3d Tw = Eigen::Isometry3d::Identity();
+  Tw.translation() = Eigen::Vector3d(2.6, 0, 0.4);
+  const Eigen::Vector3d half(0.1, 0.9, 0.4);
+  placeShape({ShapeBox{"blade", ShapeBox::Frame::Base, -half, half}}, Tw, Tw, wall);
+  const LidarModel L(ss);
+  const TruthTerrain t = flatTerrain();
+  std::vector<PointXYZI> bare, seen;
+  L.scan(t, ss.T_base_sensor, 2, nullptr, bare);
+  L.scan(t, ss.T_base_sensor, 2, nullptr, seen, &wall);
+  ASSERT_EQ(bare.size(), seen.size());
+  long on_box = 0, changed = 0;
+  for (std::size_t k = 0; k < seen.size(); ++k) {
+    if (std::isnan(bare[k].x) && std::isnan(seen[k].x)) continue;
+    const Eigen::Vector3d s = ss.T_base_sensor * Eigen::Vector3d(seen[k].x, seen[k].y, seen[k].z);
+    const bool box = std::abs(s.x() - 2.6) <= 0.1 + 1e-6 && std::abs(s.y()) <= 0.9 + 1e-6 && s.z() >= -1e-6 &&
+                     s.z() <= 0.8 + 1e-6;
+    if (box) {
+      ++on_box;
+      // The ray would have reached the ground beyond the box's front face.
+      const Eigen::Vector3d b = ss.T_base_sensor * Eigen::Vector3d(bare[k].x, bare[k].y, bare[k].z);
+      EXPECT_TRUE(std::isnan(bare[k].x) || b.x() > 2.5) << k;
+      ++changed;
+    } else {
+      ASSERT_EQ(0, std::memcmp(&bare[k], &seen[k], sizeof(PointXYZI))) << k;
+    }
+  }
+  EXPECT_GT(on_box, 1000);
+  EXPECT_EQ(changed, on_box);
+}
+
+TEST(DepthCamera, ScansAreTheSameBitsAtAnyThreadCount) {
+  const SensorSpec ss = cameraOf("dropout: 0.05, offset_m: [0.2, 0, 2.2], rotation_deg: [3, 25, 10]");
+  const LidarModel L(ss);
+  const TruthTerrain t = flatTerrain();
+  std::vector<PlacedBox> boxes;
+  Eigen::Isometry3d blade = Eigen::Isometry3d::Identity();
+  blade.translation() = Eigen::Vector3d(1.9, 0, -0.05);
+  placeShape(defaultCtlShape(1.6, 1.9, 1.85, 0.76), Eigen::Isometry3d::Identity(), blade, boxes);
+  std::vector<PointXYZI> a, b;
+  L.scan(t, ss.T_base_sensor, 3, nullptr, a, &boxes);
+  Executor ex(2);
+  L.scan(t, ss.T_base_sensor, 3, &ex, b, &boxes);
+  ASSERT_EQ(a.size(), b.size());
+  ASSERT_GT(a.size(), 50000u);
+  for (std::size_t k = 0; k < a.size(); ++k) ASSERT_EQ(0, std::memcmp(&a[k], &b[k], sizeof(PointXYZI))) << k;
+}
+
+TEST(DepthCamera, TheSimulatorDeliversAndRecordsItsClouds) {
+  // 15 Hz camera, 1 s: scans at the first physics step (1/240 s), then at 1/15, ..., 15/15 s, frame
+  // "ctl1/cam", points in the optical frame (positive depth), the machine's own blade in view.
+  const Scenario sc = parseScenario(
+      scenarioYaml("offset_m: [0.5, 0, 2.0], rotation_deg: [0, 35, 0]", 1.0), "s.yaml");
+  Simulator sim(sc);
+  std::vector<Event> ev;
+  std::vector<PointCloud> clouds;
+  while (sim.next(ev)) {
+    for (auto& e : ev)
+      if (auto* p = std::get_if<PointCloud>(&e)) clouds.push_back(*p);
+    ev.clear();
+  }
+  ASSERT_EQ(clouds.size(), 16u);
+  std::size_t points = 0;
+  for (std::size_t k = 0; k < clouds.size(); ++k) {
+    EXPECT_EQ(clouds[k].frame, "ctl1/cam");
+    EXPECT_NEAR(clouds[k].stamp, k == 0 ? 1 / 240.0 : k / 15.0, 1e-9);
+    points += clouds[k].points.size();
+    for (const PointXYZI& p : clouds[k].points) ASSERT_GT(p.z, 0.25f);
+  }
+  EXPECT_GT(points, 16u * 50000u);
+  const std::string dir = std::string(TERRAMAP_BINARY_DIR) + "/sim_test_depth_camera";
+  std::filesystem::remove_all(dir);
+  const std::string path = runEpisode(sc, dir);
+  std::vector<std::uint64_t> dims;
+  readEpisodeDataset(path, "/machines/ctl1/clouds/cam/points", dims);
+  ASSERT_EQ(dims.size(), 2u);
+  EXPECT_EQ(dims[0], points);
+  readEpisodeDataset(path, "/machines/ctl1/clouds/cam/count", dims);
+  EXPECT_EQ(dims[0], 16u);
+}
+
+TEST(DepthCamera, BadKeysAreNamed) {
+  auto message = [](const std::string& keys) {
+    try {
+      parseScenario(scenarioYaml(keys), "s.yaml");
+    } catch (const ConfigError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  const std::string both = message("fx: 200, horizontal_fov_deg: 80");
+  EXPECT_NE(both.find("sensors[0].fx"), std::string::npos) << both;
+  const std::string beams = message("beams: 64");
+  EXPECT_NE(beams.find("sensors[0].beams"), std::string::npos) << beams;
+  const std::string range = message("depth_range_m: [2, 1]");
+  EXPECT_NE(range.find("depth_range_m"), std::string::npos) << range;
+  const std::string width = message("width: 1");
+  EXPECT_NE(width.find("sensors[0].width"), std::string::npos) << width;
+}
