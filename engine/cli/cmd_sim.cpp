@@ -1,6 +1,7 @@
 // `terramap sim SCENARIO.yaml --out DIR`: run a simulated episode into DIR/episode.h5.
 #include "command.hpp"
 
+#include <terramap/sim/command_log.hpp>
 #include <terramap/sim/episode.hpp>
 #include <terramap/sim/scenario.hpp>
 
@@ -17,6 +18,7 @@ struct SimArgs {
   int threads = 0;
   bool no_clouds = false;
   int cloud_compression = 0;
+  std::string export_commands, export_tum;
 };
 
 Registrar reg{Command{"sim", [](CLI::App& app, std::function<int()>& run) {
@@ -31,6 +33,9 @@ Registrar reg{Command{"sim", [](CLI::App& app, std::function<int()>& run) {
   sub->add_option("--cloud-compression", args->cloud_compression,
                   "gzip level 0-9 for the stored LiDAR clouds (default 0: about 74 % of the size for more CPU than the simulation)")
       ->check(CLI::Range(0, 9));
+  sub->add_option("--export-commands", args->export_commands,
+                  "also write the first machine's commands as a replay CSV (units: si; docs/sim.md \"Replaying commands\")");
+  sub->add_option("--export-tum", args->export_tum, "also write the first machine's truth base trajectory as a TUM file");
   sub->callback([args, &run] {
     run = [args]() {
       sim::Scenario sc = sim::loadScenario(args->scenario);
@@ -48,6 +53,14 @@ Registrar reg{Command{"sim", [](CLI::App& app, std::function<int()>& run) {
                 << sc.duration_s / tm.run_s << "x real time), after " << tm.setup_s
                 << " s building the world and laying out the file (" << sc.duration_s / (tm.setup_s + tm.run_s)
                 << "x real time with it)\n";
+      if (!args->export_commands.empty()) {
+        sim::writeCommandLog(args->export_commands, sim::episodeCommands(path, sc.machines.front().id));
+        std::cout << "wrote " << args->export_commands << "\n";
+      }
+      if (!args->export_tum.empty()) {
+        sim::writeEpisodeTrajectoryTum(path, sc.machines.front().id, args->export_tum);
+        std::cout << "wrote " << args->export_tum << "\n";
+      }
       return kOk;
     };
   });

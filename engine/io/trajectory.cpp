@@ -3,6 +3,7 @@
 
 #include <terramap/core/error.hpp>
 
+#include <Eigen/Geometry>
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cerrno>
@@ -315,6 +316,70 @@ std::vector<Eigen::Isometry3d> chainRelativePoses(const std::vector<RelativePose
     T.linear() = svd.matrixU() * svd.matrixV().transpose();
     out.push_back(T);
   }
+  return out;
+}
+
+PathAlignment parsePathAlignment(const std::string& name, const std::string& what) {
+  if (name == "none") return PathAlignment::None;
+  if (name == "se2") return PathAlignment::Se2;
+  if (name == "se3") return PathAlignment::Se3;
+  throw ConfigError(what + ": unknown alignment '" + name + "' (known: none, se2, se3)");
+}
+
+PathComparison comparePaths(const Trajectory& path, const Trajectory& reference, PathAlignment alignment) {
+  std::vector<double> stamps;
+  std::vector<Eigen::Vector3d> p, r;
+  for (const StampedPose& sp : path.poses()) {
+    const std::optional<Eigen::Isometry3d> ref = reference.tryAt(sp.stamp);
+    if (!ref) continue;
+    stamps.push_back(sp.stamp);
+    p.push_back(sp.T_world_body.translation());
+    r.push_back(ref->translation());
+  }
+  const std::size_t n = p.size();
+  if (n < 2)
+    throw InputError(path.source() + " and " + reference.source() + ": " + std::to_string(n) +
+                     " stamp(s) of the path lie within the reference's span [" + formatNumber(reference.startStamp()) +
+                     ", " + formatNumber(reference.endStamp()) + "] s; at least 2 are needed to compare them");
+  PathComparison out;
+  out.pairs = n;
+  out.start_stamp = stamps.front();
+  out.end_stamp = stamps.back();
+  if (alignment != PathAlignment::None) {
+    const int dim = alignment == PathAlignment::Se2 ? 2 : 3;
+    Eigen::MatrixXd src(dim, static_cast<Eigen::Index>(n)), dst(dim, static_cast<Eigen::Index>(n));
+    for (std::size_t k = 0; k < n; ++k) {
+      src.col(static_cast<Eigen::Index>(k)) = p[k].head(dim);
+      dst.col(static_cast<Eigen::Index>(k)) = r[k].head(dim);
+    }
+    const Eigen::VectorXd spread = (src.colwise() - src.rowwise().mean()).rowwise().norm();
+    if (!(spread.maxCoeff() > 0.0))
+      throw InputError(path.source() + ": every paired position is the same point; an alignment is undefined "
+                       "(compare with alignment none)");
+    const Eigen::MatrixXd T = Eigen::umeyama(src, dst, false);
+    Eigen::Isometry3d A = Eigen::Isometry3d::Identity();
+    A.linear().topLeftCorner(dim, dim) = T.topLeftCorner(dim, dim);
+    A.translation().head(dim) = T.topRightCorner(dim, 1);
+    out.T_reference_path = A;
+    for (Eigen::Vector3d& q : p) q = A * q;
+  }
+  double sum2 = 0, sum2_xy = 0, sum = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    const Eigen::Vector3d e = p[k] - r[k];
+    const double d = e.norm();
+    sum2 += d * d;
+    sum2_xy += e.head<2>().squaredNorm();
+    sum += d;
+    out.max_m = std::max(out.max_m, d);
+    if (k > 0) {
+      out.length_m += (p[k] - p[k - 1]).norm();
+      out.reference_length_m += (r[k] - r[k - 1]).norm();
+    }
+  }
+  out.rmse_m = std::sqrt(sum2 / static_cast<double>(n));
+  out.rmse_xy_m = std::sqrt(sum2_xy / static_cast<double>(n));
+  out.mean_m = sum / static_cast<double>(n);
+  out.final_m = (p.back() - r.back()).norm();
   return out;
 }
 

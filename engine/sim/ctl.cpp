@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace terramap::sim {
 namespace {
@@ -164,7 +165,7 @@ double CompactTrackLoader::step(double dt, const CtlCommand& cmd, const CtlLoad&
 
 CtlController::CtlController(const ControllerSpec& spec, const MachineSpec& machine, std::uint64_t seed)
     : spec_(spec), gauge_(machine.track_gauge_m), heading0_(machine.yaw_rad), rng_(seed),
-      joint_max_rate_(machine.joint_max_rate) {
+      joint_max_rate_(machine.joint_max_rate), max_speed_(machine.max_speed_mps) {
   speed_ = spec.speed_mps.initial;
   depth_ = spec.depth_m.initial;
   roll_ = spec.roll_rad.initial;
@@ -200,7 +201,31 @@ int CtlController::laneOf(int pass) const {
   return k < n ? k : period - k;
 }
 
+CtlCommand CtlController::replay(double dt) {
+  // The command of the physics step that starts at steps_ * dt (zero-order hold).
+  const double t = static_cast<double>(steps_++) * dt;
+  CtlCommand c;
+  const CommandLog& log = *spec_.replay;
+  replay_row_ = log.rowAt(t, replay_row_);
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  if (replay_row_ < 0) {
+    speed_ = 0;
+    depth_ = roll_ = blade_yaw_ = heading_ = nan;
+    return c;  // before the log or after it: stand still
+  }
+  const std::array<double, 5>& u = log.u[static_cast<std::size_t>(replay_row_)];
+  const bool lever = log.units == CommandLog::Units::Lever;
+  c.v_left = lever ? u[0] * max_speed_ : u[0];
+  c.v_right = lever ? u[1] * max_speed_ : u[1];
+  for (int k = 0; k < 3; ++k) c.joint_rate[k] = lever ? u[2 + k] * joint_max_rate_[k] : u[2 + k];
+  // Set-points are a scripted controller's; a replay logs the mean track command as its speed.
+  speed_ = 0.5 * (c.v_left + c.v_right);
+  depth_ = roll_ = blade_yaw_ = heading_ = nan;
+  return c;
+}
+
 CtlCommand CtlController::update(double dt, const CompactTrackLoader& m) {
+  if (spec_.type == ControllerSpec::Type::Replay) return replay(dt);
   double omega_cmd = 0, v_cmd = 0;
   const Eigen::Vector2d p(m.x(), m.y());
   if (spec_.type == ControllerSpec::Type::RandomWalk) {

@@ -214,9 +214,25 @@ SensorSpec readSensor(MapReader& r, double physics_hz) {
   return s;
 }
 
-ControllerSpec readController(MapReader& r) {
+ControllerSpec readController(MapReader& r, const std::string& base_dir) {
   ControllerSpec c;
   const std::string type = r.str("type", "random_walk");
+  if (type == "replay") {
+    c.type = ControllerSpec::Type::Replay;
+    fs::path p(r.strRequired("file"));
+    if (p.is_relative()) p = fs::path(base_dir) / p;
+    c.replay_path = p.lexically_normal().string();
+    const std::string units = r.str("units", "lever");
+    if (units != "lever" && units != "si")
+      r.error(r.node("units"), "units", "unknown units '" + units + "' (lever: every value in [-1, 1]; si: m/s and rad/s)" +
+                                            didYouMean(units, {"lever", "si"}));
+    // The log is read once the YAML has no mistakes (parseImpl); its units ride along here.
+    auto log = std::make_shared<CommandLog>();
+    log->units = units == "si" ? CommandLog::Units::Si : CommandLog::Units::Lever;
+    c.replay = std::move(log);
+    r.finish();
+    return c;
+  }
   if (type == "random_walk") {
     c.type = ControllerSpec::Type::RandomWalk;
     c.speed_mps = readWalk(r, "speed_mps", c.speed_mps, 1.0, 0.0, 5.0);
@@ -246,7 +262,7 @@ ControllerSpec readController(MapReader& r) {
     }
   } else {
     // As for sensors: the keys depend on the type, so they are not checked against a guess.
-    r.error(r.node("type"), "type", "unknown controller type '" + type + "'" + didYouMean(type, {"random_walk", "route"}));
+    r.error(r.node("type"), "type", "unknown controller type '" + type + "'" + didYouMean(type, {"random_walk", "route", "replay"}));
     return c;
   }
   if (r.has("stall")) {
@@ -404,7 +420,8 @@ void readShape(MapReader& r, MachineSpec& m) {
   }
 }
 
-MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisation, double physics_hz) {
+MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisation, double physics_hz,
+                        const std::string& base_dir) {
   MachineSpec m;
   m.localisation = readLocalisation(r, default_localisation);
   m.id = r.strRequired("id");
@@ -438,7 +455,7 @@ MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisati
   }
   if (r.has("controller")) {
     MapReader c = r.child("controller");
-    if (c.valid()) m.controller = readController(c);
+    if (c.valid()) m.controller = readController(c, base_dir);
   }
   if (r.has("sensors")) readSensors(r, m, physics_hz);
   m.shape = defaultCtlShape(m.track_gauge_m, m.track_length_m, m.blade.width_m, m.blade.height_m);
@@ -710,7 +727,7 @@ void readSoilSection(MapReader& r, Scenario& sc) {
   r.finish();
 }
 
-void readMachines(MapReader& r, Scenario& sc, bool extent_known) {
+void readMachines(MapReader& r, Scenario& sc, bool extent_known, const std::string& base_dir) {
   const YAML::Node ms = r.node("machines");
   if (!ms.IsDefined() || ms.IsNull()) {
     r.error(r.self(), "machines", "missing (a list of at least one machine)");
@@ -724,7 +741,7 @@ void readMachines(MapReader& r, Scenario& sc, bool extent_known) {
   for (std::size_t k = 0; k < ms.size(); ++k) {
     MapReader mr(r.diagnostics(), ms[k], "machines[" + std::to_string(k) + "]");
     if (!mr.valid()) continue;
-    MachineSpec m = readMachine(mr, sc.localisation, sc.physics_hz);
+    MachineSpec m = readMachine(mr, sc.localisation, sc.physics_hz, base_dir);
     if (!m.id.empty() && !ids.insert(m.id).second) mr.error(ms[k]["id"], "id", "duplicate machine id '" + m.id + "'");
     const TerrainSpec& t = sc.terrain;
     if (extent_known && (m.x_m < t.origin_x_m || m.x_m > t.origin_x_m + t.size_x_m || m.y_m < t.origin_y_m ||
@@ -772,10 +789,13 @@ Scenario parseImpl(const std::string& text, Ctx& ctx) {
     sc.survey.block_m = v.num("block_m", sc.survey.block_m, 0.5, 1000.0);
     v.finish();
   }
-  readMachines(r, sc, extent_known);
+  readMachines(r, sc, extent_known, ctx.base_dir);
   r.finish();
   ctx.diag.throwIfAny();
   if (ctx.dem_failure) std::rethrow_exception(ctx.dem_failure);
+  for (MachineSpec& m : sc.machines)
+    if (m.controller.type == ControllerSpec::Type::Replay)
+      m.controller.replay = std::make_shared<const CommandLog>(readCommandLog(m.controller.replay_path, m.controller.replay->units));
   return sc;
 }
 

@@ -25,7 +25,7 @@ using namespace terramap_test;
 
 TEST(Cli, HelpEverywhere) {
   for (const char* sub : {"", "run", "validate", "plugins", "export", "fee", "sim", "eval", "dataset", "train", "eval-soil",
-                          "eval-soil-map", "eval-strata"}) {
+                          "eval-soil-map", "eval-strata", "path-compare"}) {
     const Result r = sh(std::string(sub) + " --help");
     EXPECT_EQ(r.code, 0) << sub << "\n" << r.out;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub;
@@ -409,4 +409,40 @@ TEST(Cli, ASurveyedSiteIsKnownUnderTheBladeFromTheFirstSweep) {
   ASSERT_GT(surveyed[0], 500);
   EXPECT_EQ(surveyed[1], 0);
   EXPECT_GT(surveyed[2], surveyed[0] / 4);
+}
+
+TEST(Cli, AnEpisodesCommandsReplayedRetraceItsPath) {
+  // A random-walk episode's commands (60 Hz, SI) replayed on the same terrain: the machine
+  // retraces the path within a few centimetres (the original controller commands every 240 Hz
+  // physics step, the log holds each 60 Hz sample), and path-compare says so.
+  const fs::path d = tempDir("replay");
+  const std::string terrain =
+      "version: 1\nseed: 4\nduration_s: 6\nterrain: {size_m: [16, 12], origin_m: [-6, -6], resolution_m: 0.02,\n"
+      "  hills: {count: 5, amplitude_m: [-0.15, 0.2], sigma_m: [1.0, 2.0], seed: 5}}\n"
+      "soil: {default: {family: loam, relative_density: 0.5}}\nmachines:\n  - id: ctl1\n    pose: {x_m: -3, y_m: 0}\n";
+  write(d / "orig.yaml", terrain + "    controller: {type: random_walk}\n");
+  write(d / "replay.yaml", terrain + "    controller: {type: replay, file: commands.csv, units: si}\n");
+  const Result a = sh("sim " + (d / "orig.yaml").string() + " --out " + (d / "orig").string() + " --no-clouds --export-commands " +
+                      (d / "commands.csv").string() + " --export-tum " + (d / "orig.tum").string());
+  ASSERT_EQ(a.code, 0) << a.out;
+  const Result b = sh("sim " + (d / "replay.yaml").string() + " --out " + (d / "replay").string() + " --no-clouds");
+  ASSERT_EQ(b.code, 0) << b.out;
+  const Result c = sh("path-compare " + (d / "replay" / "episode.h5").string() + " " + (d / "orig.tum").string() +
+                      " --json " + (d / "cmp.json").string());
+  ASSERT_EQ(c.code, 0) << c.out;
+  EXPECT_NE(c.out.find("RMSE"), std::string::npos) << c.out;
+  const auto j = nlohmann::json::parse(std::ifstream(d / "cmp.json"));
+  EXPECT_EQ(j["pairs"].get<int>(), 360);
+  EXPECT_GT(j["reference_length_m"].get<double>(), 2.5);
+  EXPECT_LT(j["rmse_m"].get<double>(), 0.1);
+  EXPECT_NEAR(j["length_m"].get<double>(), j["reference_length_m"].get<double>(), 0.05 * j["reference_length_m"].get<double>());
+  // Without the commands (a log of zeros) the machine stays put: the comparison sees it.
+  write(d / "zeros.csv", "t_s,left,right,lift,tilt,angle\n0,0,0,0,0,0\n6,0,0,0,0,0\n");
+  write(d / "still.yaml", terrain + "    controller: {type: replay, file: zeros.csv}\n");
+  ASSERT_EQ(sh("sim " + (d / "still.yaml").string() + " --out " + (d / "still").string() + " --no-clouds").code, 0);
+  const Result e = sh("path-compare " + (d / "still" / "episode.h5").string() + " " + (d / "orig" / "episode.h5").string() +
+                      " --json " + (d / "still.json").string());
+  ASSERT_EQ(e.code, 0) << e.out;
+  EXPECT_GT(nlohmann::json::parse(std::ifstream(d / "still.json"))["rmse_m"].get<double>(), 0.5);
+  EXPECT_EQ(sh("path-compare " + (d / "orig.tum").string() + " " + (d / "orig.tum").string() + " --align sim3").code, 3);
 }

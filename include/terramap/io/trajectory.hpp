@@ -117,4 +117,30 @@ std::vector<RelativePose> readRelativePoses(const std::string& path, const Traje
 /// input. Throws InputError if the rows are not consecutive.
 std::vector<Eigen::Isometry3d> chainRelativePoses(const std::vector<RelativePose>& rel);
 
+/// How comparePaths aligns a path to its reference before measuring: not at all, by the rigid
+/// motion in the horizontal plane (rotation about z and an xy shift; heights compared as they
+/// are) or by a rigid 3D motion, each the least-squares fit over the paired positions
+/// (Umeyama's method without scale, Eigen::umeyama).
+enum class PathAlignment { None, Se2, Se3 };
+/// "none", "se2", "se3". 	hrows ConfigError naming `what` and the known names otherwise.
+PathAlignment parsePathAlignment(const std::string& name, const std::string& what);
+
+/// A path against a reference path (e.g. a replayed or simulated machine against the logged
+/// one; TERA's real-versus-simulated comparison). Distances in metres.
+struct PathComparison {
+  std::size_t pairs = 0;              ///< path poses inside the reference's time span
+  double start_stamp = 0, end_stamp = 0;
+  double length_m = 0;                ///< the path's length over the paired poses
+  double reference_length_m = 0;      ///< the reference's, interpolated at the same stamps
+  double rmse_m = 0, mean_m = 0, max_m = 0, final_m = 0;  ///< 3D position errors after alignment
+  double rmse_xy_m = 0;               ///< horizontal part
+  Eigen::Isometry3d T_reference_path = Eigen::Isometry3d::Identity();  ///< the alignment applied
+};
+
+/// Pairs every pose of `path` whose stamp lies in the reference's span with the reference
+/// interpolated there (Trajectory::at), aligns (`alignment`) and measures the position errors.
+/// 	hrows InputError naming both sources when fewer than 2 stamps pair (the spans do not
+/// overlap) or, for Se2/Se3, when the paired positions are all the same point.
+PathComparison comparePaths(const Trajectory& path, const Trajectory& reference, PathAlignment alignment);
+
 }  // namespace terramap::io

@@ -83,9 +83,12 @@ class CompactTrackLoader {
   Eigen::Isometry3d T_map_base_ = Eigen::Isometry3d::Identity();
 };
 
-/// The machine's controller: random-walk set-points (paper §3.1) or scripted parallel passes.
+/// The machine's controller: random-walk set-points (paper §3.1), scripted parallel passes, or
+/// the replay of recorded commands (command_log.hpp: levers scaled by the machine's maximum
+/// track speed and joint rates, or SI commands, passed through as they are).
 /// Blade height and roll are controlled relative to the track contact plane (what the machine
-/// itself can measure); speed tracking failure raises the blade.
+/// itself can measure); speed tracking failure raises the blade (not in a replay: the recorded
+/// operator did what the log says).
 class CtlController {
  public:
   CtlController(const ControllerSpec& spec, const MachineSpec& machine, std::uint64_t seed);
@@ -112,6 +115,12 @@ class CtlController {
   bool reversing_ = false, finished_ = false;
   std::optional<double> grade_target_;  ///< edge height held on a forward pass (route grade)
   std::array<double, 3> joint_max_rate_;
+  double max_speed_;
+  // Replay state: physics steps taken (time = steps * dt, no accumulated rounding) and the
+  // last row found.
+  long steps_ = 0;
+  int replay_row_ = -1;
+  CtlCommand replay(double dt);
 };
 
 }  // namespace terramap::sim

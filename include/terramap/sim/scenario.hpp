@@ -6,6 +6,7 @@
 /// message" per mistake; unknown keys come with a did-you-mean. The YAML schema is documented in docs/sim.md; configs/scenarios/ has examples.
 /// Units: metres, seconds, radians in the structs (YAML takes *_deg keys for angles).
 #include <terramap/core/events.hpp>
+#include <terramap/sim/command_log.hpp>
 #include <terramap/sim/dem.hpp>
 #include <terramap/sim/localisation.hpp>
 #include <terramap/sim/machine_shape.hpp>
@@ -82,7 +83,11 @@ struct RandomWalk {
 
 /// Controller of a machine.
 struct ControllerSpec {
-  enum class Type { RandomWalk, Route } type = Type::RandomWalk;
+  enum class Type { RandomWalk, Route, Replay } type = Type::RandomWalk;
+  // Replay (type Replay): recorded commands (command_log.hpp), read by loadScenario from
+  // `replay_path` (the YAML's `file`, resolved against the scenario's folder).
+  std::string replay_path;
+  std::shared_ptr<const CommandLog> replay;
   // Random-walk set-points (type RandomWalk).
   RandomWalk speed_mps{0.8, 0.3, 1.4, 0.15};
   RandomWalk depth_m{0.08, 0.0, 0.2, 0.03};       ///< blade edge below the track contact plane

@@ -1,0 +1,143 @@
+// Recorded operator commands (replay controller) and episode exports.
+#include <terramap/core/error.hpp>
+#include <terramap/core/text.hpp>
+#include <terramap/io/atomic_file.hpp>
+#include <terramap/sim/command_log.hpp>
+#include <terramap/sim/episode.hpp>
+
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+
+namespace terramap::sim {
+namespace {
+
+constexpr const char* kHeader = "t_s,left,right,lift,tilt,angle";
+constexpr const char* kColumns[6] = {"t_s", "left", "right", "lift", "tilt", "angle"};
+
+std::string trim(const std::string& s) {
+  const auto b = s.find_first_not_of(" \t\r");
+  if (b == std::string::npos) return "";
+  const auto e = s.find_last_not_of(" \t\r");
+  return s.substr(b, e - b + 1);
+}
+
+std::string formatRow(double t, const std::array<double, 5>& u) {
+  char buf[256];
+  std::snprintf(buf, sizeof buf, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g\n", t, u[0], u[1], u[2], u[3], u[4]);
+  return buf;
+}
+
+}  // namespace
+
+int CommandLog::rowAt(double time, int hint) const {
+  if (t.empty() || !(time >= t.front())) return -1;
+  if (time > t.back() + hold_last_s) return -1;
+  int k = hint >= 0 && hint < static_cast<int>(t.size()) && t[hint] <= time ? hint : 0;
+  while (k + 1 < static_cast<int>(t.size()) && t[k + 1] <= time) ++k;
+  return k;
+}
+
+CommandLog readCommandLog(const std::string& path, CommandLog::Units units) {
+  std::ifstream in(path);
+  if (!in) throw InputError(path + ": cannot open the command log");
+  CommandLog log;
+  log.units = units;
+  log.source = path;
+  std::string line;
+  int lineno = 0;
+  bool header = false;
+  auto fail = [&](const std::string& what) { throw InputError(path + ":" + std::to_string(lineno) + ": " + what); };
+  while (std::getline(in, line)) {
+    ++lineno;
+    const std::string s = trim(line);
+    if (s.empty() || s[0] == '#') continue;
+    std::vector<std::string> cells;
+    std::stringstream ss(s);
+    std::string cell;
+    while (std::getline(ss, cell, ',')) cells.push_back(trim(cell));
+    if (!s.empty() && s.back() == ',') cells.push_back("");
+    if (!header) {
+      if (cells.size() != 6 || !std::equal(cells.begin(), cells.end(), kColumns))
+        fail("expected the header '" + std::string(kHeader) + "', got '" + s + "'");
+      header = true;
+      continue;
+    }
+    if (cells.size() != 6) fail("expected 6 values (" + std::string(kHeader) + "), got " + std::to_string(cells.size()));
+    double v[6];
+    for (int c = 0; c < 6; ++c) {
+      char* end = nullptr;
+      v[c] = std::strtod(cells[c].c_str(), &end);
+      if (cells[c].empty() || end != cells[c].c_str() + cells[c].size() || !std::isfinite(v[c]))
+        fail("column '" + std::string(kColumns[c]) + "': '" + cells[c] + "' is not a finite number");
+      if (c > 0 && units == CommandLog::Units::Lever && std::abs(v[c]) > 1.0)
+        fail("column '" + std::string(kColumns[c]) + "': lever " + cells[c] + " outside [-1, 1] (units: lever)");
+    }
+    if (!log.t.empty() && !(v[0] > log.t.back()))
+      fail("t_s " + cells[0] + " does not increase (the previous row's is " + formatNumber(log.t.back()) + ")");
+    log.t.push_back(v[0]);
+    log.u.push_back({v[1], v[2], v[3], v[4], v[5]});
+  }
+  if (!header) throw InputError(path + ": no header line '" + std::string(kHeader) + "' (empty command log)");
+  if (log.t.empty()) throw InputError(path + ": the command log has a header but no rows");
+  // The last row holds for the typical row spacing, so a log sampled at a fixed rate ends one
+  // period after its last stamp, as the commands it recorded did.
+  log.hold_last_s = log.t.size() >= 2 ? (log.t.back() - log.t.front()) / static_cast<double>(log.t.size() - 1) : 0.0;
+  return log;
+}
+
+void writeCommandLog(const std::string& path, const CommandLog& log) {
+  std::string text = std::string("# terramap command log (docs/sim.md \"Replaying commands\"), units: ") +
+                     (log.units == CommandLog::Units::Lever ? "lever" : "si") + "\n" + kHeader + "\n";
+  for (std::size_t k = 0; k < log.t.size(); ++k) text += formatRow(log.t[k], log.u[k]);
+  io::writeFileAtomically(path, text);
+}
+
+CommandLog episodeCommands(const std::string& episode_path, const std::string& machine_id) {
+  std::vector<std::uint64_t> dims;
+  const std::string m = "/machines/" + machine_id;
+  const std::vector<double> stamp = readEpisodeDataset(episode_path, m + "/stamp", dims);
+  const std::vector<double> action = readEpisodeDataset(episode_path, m + "/action", dims);
+  if (action.size() != 5 * stamp.size())
+    throw InputError(episode_path + ": " + m + "/action has " + std::to_string(action.size()) + " values for " +
+                     std::to_string(stamp.size()) + " stamps (expected 5 per stamp)");
+  CommandLog log;
+  log.units = CommandLog::Units::Si;
+  log.source = episode_path;
+  // An observation's action is the command of the physics step that ended at its stamp: it
+  // took effect one physics step earlier, which the replay cannot know; it holds from the stamp.
+  for (std::size_t k = 0; k < stamp.size(); ++k) {
+    log.t.push_back(stamp[k]);
+    log.u.push_back({action[5 * k], action[5 * k + 1], action[5 * k + 2], action[5 * k + 3], action[5 * k + 4]});
+  }
+  log.hold_last_s = stamp.size() >= 2 ? stamp[1] - stamp[0] : 0.0;
+  return log;
+}
+
+void writeEpisodeTrajectoryTum(const std::string& episode_path, const std::string& machine_id,
+                               const std::string& tum_path) {
+  std::vector<std::uint64_t> dims;
+  const std::string m = "/machines/" + machine_id;
+  const std::vector<double> stamp = readEpisodeDataset(episode_path, m + "/stamp", dims);
+  const std::vector<double> T = readEpisodeDataset(episode_path, m + "/T_map_base", dims);
+  if (T.size() != 16 * stamp.size())
+    throw InputError(episode_path + ": " + m + "/T_map_base does not hold one 4x4 matrix per stamp");
+  std::string text = "# " + machine_id + " truth base trajectory from " + episode_path + ": stamp tx ty tz qx qy qz qw\n";
+  char buf[320];
+  for (std::size_t k = 0; k < stamp.size(); ++k) {
+    Eigen::Matrix3d R;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) R(r, c) = T[16 * k + 4 * r + c];
+    const Eigen::Quaterniond q(R);
+    std::snprintf(buf, sizeof buf, "%.17g %.17g %.17g %.17g %.17g %.17g %.17g %.17g\n", stamp[k], T[16 * k + 3],
+                  T[16 * k + 7], T[16 * k + 11], q.x(), q.y(), q.z(), q.w());
+    text += buf;
+  }
+  io::writeFileAtomically(tum_path, text);
+}
+
+}  // namespace terramap::sim
