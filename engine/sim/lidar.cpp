@@ -3,6 +3,7 @@
 #include <terramap/sim/scan_caster.hpp>
 
 #include <algorithm>
+#include <array>
 
 #include <cmath>
 #include <limits>
@@ -90,17 +91,20 @@ namespace {
 class ScanObstacles {
  public:
   /// Keeps the boxes within `max_range` of `o` (buffers reused from scan to scan).
+  /// With `camera` (a depth camera's spec), also each box's pixel rectangle (cameraRow, hit).
   void prepare(const std::vector<PlacedBox>* obstacles, const Eigen::Vector3d& o, const Eigen::Matrix3d& R,
-               double max_range) {
+               double max_range, const SensorSpec* camera = nullptr, double z_near = 0) {
     boxes_.clear();
     cs_.clear();
     top_.clear();
+    rect_.clear();
     if (!obstacles) return;
     for (const PlacedBox& b : *obstacles) {
       if ((b.centre - o).norm() - b.radius > max_range) continue;
       boxes_.push_back(b);
       cs_.push_back(R.transpose() * (b.centre - o));  // sphere centre, sensor frame, origin-relative
       top_.push_back(b.centre.z() + b.R.row(2).cwiseAbs().dot(b.half));
+      if (camera) rect_.push_back(pixelRect(b, cs_.back(), R, *camera, z_near));
     }
     oz_ = o.z();
   }
@@ -121,13 +125,29 @@ class ScanObstacles {
     }
   }
 
-  /// Every box as a candidate (rays that share no azimuth: a camera's image row).
-  void everyBox(std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up) const {
+  /// The candidates of a depth camera's image row v, whose rays are (x, a, 1) in the optical
+  /// frame (a = (v - cy) / fy): the boxes whose pixel rectangle spans the row and whose bounding
+  /// sphere meets the row's half-plane (normal (0, -1, a) through the origin, z > 0). The plane
+  /// test culls the boxes that reach behind the camera (the machine it rides on), which get the
+  /// whole image as their rectangle.
+  void cameraRow(int v, double a, std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up) const {
     n_all = n_up = 0;
+    const double inv = 1.0 / std::sqrt(1.0 + a * a);
     for (std::size_t q = 0; q < boxes_.size(); ++q) {
+      if (v < rect_[q][2] || v > rect_[q][3]) continue;
+      const Eigen::Vector3d& cs = cs_[q];
+      const double r = boxes_[q].radius;
+      if (std::abs(a * cs.z() - cs.y()) * inv > r || cs.z() < -r) continue;
       all[n_all++] = static_cast<int>(q);
       if (top_[q] >= oz_) up[n_up++] = static_cast<int>(q);
     }
+  }
+  /// Of a camera row's candidates, those whose pixel rectangle spans column u (into `out`).
+  int cameraPixel(int u, const int* cand, int n, int* out) const {
+    int m = 0;
+    for (int k = 0; k < n; ++k)
+      if (u >= rect_[cand[k]][0] && u <= rect_[cand[k]][1]) out[m++] = cand[k];
+    return m;
   }
   /// First box entry of the ray o + t dm in [t_min, t_max] among the column's candidates;
   /// +inf when none.
@@ -140,7 +160,41 @@ class ScanObstacles {
   }
 
  private:
+  /// Pixel rectangle [u0, u1, v0, v1] (inclusive, 1 px margin) that holds every pixel whose
+  /// ray can enter the box at a depth z >= z_near: the projection of the convex body
+  /// box ∩ {z >= z_near} is the hull of its projected vertices (the corners in front and the
+  /// edges' crossings of z = z_near). A scan's rays reach no nearer than min_range along the
+  /// ray, hence z >= min_range * (least optical z of a ray): that is z_near. Empty (u0 > u1)
+  /// when the box lies wholly nearer.
+  static std::array<int, 4> pixelRect(const PlacedBox& b, const Eigen::Vector3d& cs, const Eigen::Matrix3d& R,
+                                      const SensorSpec& cam, double z_near) {
+    const Eigen::Matrix3d Rs = R.transpose() * b.R;
+    Eigen::Vector3d c[8];
+    for (int k = 0; k < 8; ++k)
+      c[k] = cs + Rs * Eigen::Vector3d((k & 1) ? b.half.x() : -b.half.x(), (k & 2) ? b.half.y() : -b.half.y(),
+                                       (k & 4) ? b.half.z() : -b.half.z());
+    double u0 = 1e300, u1 = -1e300, v0 = 1e300, v1 = -1e300;
+    auto add = [&](const Eigen::Vector3d& p) {
+      const double u = cam.fx * p.x() / p.z() + cam.cx, v = cam.fy * p.y() / p.z() + cam.cy;
+      u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
+    };
+    for (int k = 0; k < 8; ++k) {
+      if (c[k].z() >= z_near) add(c[k]);
+      for (int bit = 1; bit < 8; bit <<= 1) {  // the edges from k to its neighbours above it
+        const int j = k | bit;
+        if (j == k) continue;
+        const double zk = c[k].z() - z_near, zj = c[j].z() - z_near;
+        if ((zk < 0) != (zj < 0)) add(c[k] + (c[j] - c[k]) * (zk / (zk - zj)));
+      }
+    }
+    if (u0 > u1) return {1, 0, 1, 0};
+    auto lo = [](double x) { return static_cast<int>(std::max(-1e9, std::floor(x) - 1)); };
+    auto hi = [](double x) { return static_cast<int>(std::min(1e9, std::ceil(x) + 1)); };
+    return {lo(u0), hi(u1), lo(v0), hi(v1)};
+  }
+
   std::vector<PlacedBox> boxes_;
+  std::vector<std::array<int, 4>> rect_;
   std::vector<Eigen::Vector3d> cs_;
   std::vector<double> top_;
   double oz_ = 0;
@@ -173,6 +227,8 @@ LidarModel::LidarModel(const SensorSpec& spec) : spec_(spec), scratch_(std::make
         min_z = std::min(min_z, d.z());
       }
     t_max_ = spec.max_range_m / min_z;
+    // Ray hits lie at t >= min_range, so at depth z >= min_range * min_z (a hair less for rounding).
+    z_near_ = std::max(1e-6, 0.999 * spec.min_range_m * min_z);
     return;
   }
   const int B = spec.beams, C = spec.columns;
@@ -230,7 +286,7 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const ScanCaster& cast = caster;
   ScanObstacles& boxes = scratch_->obstacles;
-  boxes.prepare(obstacles, o, R, t_max);
+  boxes.prepare(obstacles, o, R, t_max, camera_ ? &spec_ : nullptr, z_near_);
   const std::size_t nbox = boxes.size();
   auto work = [&](int ch) {
     std::vector<PointXYZI>& pts = parts[ch];
@@ -244,12 +300,13 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
     std::vector<int> ci_may(B), cj_may(B);
     std::vector<Eigen::Vector3d> dm_may(B);
     std::vector<int> may_idx(B);
-    std::vector<int> cand(nbox), cand_up(nbox);
+    std::vector<int> cand(nbox), cand_up(nbox), px_all(nbox), px_up(nbox);
     for (int c = c0; c < c1; ++c) {
       // Boxes this column's half-plane can reach; of those, the ones an upward ray can reach.
       int n_cand = 0, n_up = 0;
-      if (nbox > 0 && camera_) boxes.everyBox(cand, n_cand, cand_up, n_up);  // an image row shares no azimuth
-      else if (nbox > 0) boxes.column(dirs_[static_cast<std::size_t>(c) * B], cand, n_cand, cand_up, n_up);
+      const Eigen::Vector3d& d0 = dirs_[static_cast<std::size_t>(c) * B];
+      if (nbox > 0 && camera_) boxes.cameraRow(c, d0.y() / d0.z(), cand, n_cand, cand_up, n_up);
+      else if (nbox > 0) boxes.column(d0, cand, n_cand, cand_up, n_up);
       // Rays that cannot hit (upwards from above the terrain: half of a spinning LiDAR's) are
       // settled here; the rest are cast as one batch.
       int n_may = 0;
@@ -277,8 +334,15 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
         double t = t_col[b];
         // A machine in front of the terrain hit (or in a ray that misses the terrain) wins.
         Eigen::Vector3d n_box;
-        const double t_box = boxes.hit(o, dm, spec_.min_range_m, std::isnan(t) ? t_max : t, cand, n_cand,
-                                       cand_up, n_up, &n_box);
+        double t_box;
+        if (camera_ && n_cand > 0) {
+          // Only the row's boxes whose pixel rectangle holds this pixel (u = b).
+          const int n_px = boxes.cameraPixel(b, cand.data(), n_cand, px_all.data());
+          const int n_px_up = boxes.cameraPixel(b, cand_up.data(), n_up, px_up.data());
+          t_box = boxes.hit(o, dm, spec_.min_range_m, std::isnan(t) ? t_max : t, px_all, n_px, px_up, n_px_up, &n_box);
+        } else {
+          t_box = boxes.hit(o, dm, spec_.min_range_m, std::isnan(t) ? t_max : t, cand, n_cand, cand_up, n_up, &n_box);
+        }
         const bool on_machine = t_box < std::numeric_limits<double>::infinity();
         if (on_machine) t = t_box;
         if (camera_ && !std::isnan(t)) {

@@ -64,6 +64,7 @@ class LidarModel {
   int B_ = 0, C_ = 0;               ///< rays per chunked row (beams / pixels of an image row), rows
   bool camera_ = false;
   double t_max_ = 0;
+  double z_near_ = 0;               ///< depth camera: least depth of a ray hit (m)
   struct Scratch;                   ///< horizon table and per-chunk outputs, reused per scan
   std::unique_ptr<Scratch> scratch_;
   int columns_per_chunk_ = 16;

@@ -169,6 +169,49 @@ TEST(DepthCamera, TheMachineHidesTheGroundAndIsSeen) {
   EXPECT_EQ(changed, on_box);
 }
 
+TEST(DepthCamera, CulledBoxTestsFindTheHitsEveryBoxWouldGive) {
+  // The scan tests a pixel's ray only against the boxes whose clipped projection holds the pixel
+  // (and whose sphere meets the row's plane). Against a brute force over every box, for a camera
+  // on the cab of a CTL whose boxes reach behind and beside it, at several poses: the same hits.
+  const TruthTerrain t = flatTerrain();
+  std::vector<PlacedBox> boxes;
+  Eigen::Isometry3d base = Eigen::Isometry3d::Identity();
+  base.translation() = Eigen::Vector3d(0, 0, 0.0);
+  Eigen::Isometry3d blade = Eigen::Isometry3d::Identity();
+  blade.translation() = Eigen::Vector3d(1.9, 0, 0.3);
+  placeShape(defaultCtlShape(1.6, 1.9, 1.85, 0.76), base, blade, boxes);
+  long on_box = 0;
+  for (const char* mount : {"offset_m: [0.6, 0, 2.1], rotation_deg: [0, 35, 0]", "offset_m: [0.2, 0.4, 2.2], rotation_deg: [5, 60, 40]",
+                            "offset_m: [-0.5, 0, 1.6], rotation_deg: [0, 10, 180]"}) {
+    const SensorSpec ss = cameraOf(std::string("width: 96, height: 64, noise_abs_m: 0, noise_k_per_m: 0, keep_dropouts: true, ") + mount);
+    const LidarModel L(ss);
+    std::vector<PointXYZI> bare, seen;
+    L.scan(t, ss.T_base_sensor, 4, nullptr, bare);
+    L.scan(t, ss.T_base_sensor, 4, nullptr, seen, &boxes);
+    ASSERT_EQ(seen.size(), L.raysPerScan());
+    const Eigen::Vector3d o = ss.T_base_sensor.translation();
+    for (std::size_t k = 0; k < seen.size(); ++k) {
+      const Eigen::Vector3d ds = L.directions()[k];
+      const Eigen::Vector3d dm = ss.T_base_sensor.linear() * ds;
+      const double t_ground = std::isnan(bare[k].x) ? L.maxRayLength() : Eigen::Vector3d(bare[k].x, bare[k].y, bare[k].z).norm();
+      const double t_box = firstBoxHit(boxes, o, dm, ss.min_range_m, t_ground, nullptr);
+      if (std::isinf(t_box)) {
+        ASSERT_EQ(0, std::memcmp(&bare[k], &seen[k], sizeof(PointXYZI))) << mount << " pixel " << k;
+        continue;
+      }
+      ++on_box;
+      const double z = ds.z() * t_box;
+      if (z < ss.min_range_m || z > ss.max_range_m) {
+        ASSERT_TRUE(std::isnan(seen[k].x)) << mount << " pixel " << k;
+      } else {
+        ASSERT_NEAR(seen[k].x, ds.x() * t_box, 1e-5) << mount << " pixel " << k;
+        ASSERT_NEAR(seen[k].z, ds.z() * t_box, 1e-5) << mount << " pixel " << k;
+      }
+    }
+  }
+  EXPECT_GT(on_box, 1000);
+}
+
 TEST(DepthCamera, ScansAreTheSameBitsAtAnyThreadCount) {
   const SensorSpec ss = cameraOf("dropout: 0.05, offset_m: [0.2, 0, 2.2], rotation_deg: [3, 25, 10]");
   const LidarModel L(ss);

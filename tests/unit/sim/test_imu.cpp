@@ -102,7 +102,7 @@ TEST(Imu, NoiseAndBiasWalksFollowTheirDensities) {
   ImuModel imu(s, "m/i", 42);
   double w2a = 0, w2g = 0, b2a = 0, b2g = 0;
   long n = 0, nb = 0;
-  Eigen::Vector3d ba_prev, bg_prev, ba_first = Eigen::Vector3d::Zero();
+  Eigen::Vector3d ba_prev = Eigen::Vector3d::Zero(), bg_prev = Eigen::Vector3d::Zero(), ba_first = Eigen::Vector3d::Zero();
   bool have_prev = false;
   for (int k = 0; k < 20000; ++k) {
     ImuSample m;
