@@ -20,20 +20,12 @@
 #include <string>
 #include <vector>
 
+#include "sim_test_terrain.hpp"
+
 using namespace terramap;
 using namespace terramap::sim;
 
 namespace {
-
-TruthTerrain flatTerrain() {
-  TerrainSpec s;
-  s.size_x_m = 40;
-  s.size_y_m = 40;
-  s.origin_x_m = -20;
-  s.origin_y_m = -20;
-  s.resolution_m = 0.02;
-  return buildTerrain(s);
-}
 
 std::string scenarioYaml(const std::string& camera, double duration = 0.5) {
   return "version: 1\nseed: 5\nduration_s: " + std::to_string(duration) +
@@ -68,7 +60,7 @@ TEST(DepthCamera, PixelsLookWhereThePinholeSaysAndDepthIsTheOpticalZ) {
   EXPECT_NEAR(R(1, 0), -1.0, 1e-12);
   const LidarModel L(ss);
   ASSERT_EQ(L.raysPerScan(), 64u * 48u);
-  const TruthTerrain t = flatTerrain();
+  const TruthTerrain t = test::flatTerrain40m();
   std::vector<PointXYZI> pts;
   L.scan(t, ss.T_base_sensor, 1, nullptr, pts);
   ASSERT_EQ(pts.size(), 64u * 48u);  // organised: one point (or NaN) per pixel, row-major
@@ -106,7 +98,7 @@ TEST(DepthCamera, NoiseGrowsWithDepthSquared) {
                            "keep_dropouts: true, offset_m: [0, 0, 1.5], rotation_deg: [0, 25, 0], ";
   const SensorSpec noisy = cameraOf(keys + "noise_abs_m: 0.002, noise_k_per_m: 0.004");
   const SensorSpec clean = cameraOf(keys + "noise_abs_m: 0, noise_k_per_m: 0");
-  const TruthTerrain t = flatTerrain();
+  const TruthTerrain t = test::flatTerrain40m();
   std::vector<PointXYZI> a, b;
   LidarModel(noisy).scan(t, noisy.T_base_sensor, 11, nullptr, a);
   LidarModel(clean).scan(t, clean.T_base_sensor, 11, nullptr, b);
@@ -144,7 +136,7 @@ TEST(DepthCamera, TheMachineHidesTheGroundAndIsSeen) {
   const Eigen::Vector3d half(0.1, 0.9, 0.4);
   placeShape({ShapeBox{"blade", ShapeBox::Frame::Base, -half, half}}, Tw, Tw, wall);
   const LidarModel L(ss);
-  const TruthTerrain t = flatTerrain();
+  const TruthTerrain t = test::flatTerrain40m();
   std::vector<PointXYZI> bare, seen;
   L.scan(t, ss.T_base_sensor, 2, nullptr, bare);
   L.scan(t, ss.T_base_sensor, 2, nullptr, seen, &wall);
@@ -173,7 +165,7 @@ TEST(DepthCamera, CulledBoxTestsFindTheHitsEveryBoxWouldGive) {
   // The scan tests a pixel's ray only against the boxes whose clipped projection holds the pixel
   // (and whose sphere meets the row's plane). Against a brute force over every box, for a camera
   // on the cab of a CTL whose boxes reach behind and beside it, at several poses: the same hits.
-  const TruthTerrain t = flatTerrain();
+  const TruthTerrain t = test::flatTerrain40m();
   std::vector<PlacedBox> boxes;
   Eigen::Isometry3d base = Eigen::Isometry3d::Identity();
   base.translation() = Eigen::Vector3d(0, 0, 0.0);
@@ -215,7 +207,7 @@ TEST(DepthCamera, CulledBoxTestsFindTheHitsEveryBoxWouldGive) {
 TEST(DepthCamera, ScansAreTheSameBitsAtAnyThreadCount) {
   const SensorSpec ss = cameraOf("dropout: 0.05, offset_m: [0.2, 0, 2.2], rotation_deg: [3, 25, 10]");
   const LidarModel L(ss);
-  const TruthTerrain t = flatTerrain();
+  const TruthTerrain t = test::flatTerrain40m();
   std::vector<PlacedBox> boxes;
   Eigen::Isometry3d blade = Eigen::Isometry3d::Identity();
   blade.translation() = Eigen::Vector3d(1.9, 0, -0.05);

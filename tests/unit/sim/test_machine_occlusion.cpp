@@ -14,20 +14,12 @@
 #include <cmath>
 #include <cstring>
 
+#include "sim_test_terrain.hpp"
+
 using namespace terramap;
 using namespace terramap::sim;
 
 namespace {
-
-TruthTerrain flatTerrain() {
-  TerrainSpec s;
-  s.size_x_m = 40;
-  s.size_y_m = 40;
-  s.origin_x_m = -20;
-  s.origin_y_m = -20;
-  s.resolution_m = 0.02;
-  return buildTerrain(s);
-}
 
 PlacedBox boxAt(const Eigen::Vector3d& centre, const Eigen::Vector3d& half, double yaw) {
   std::vector<PlacedBox> out;
@@ -72,7 +64,7 @@ TEST(MachineShape, RayEntersABoxWhereTheAnalyticSlabsSay) {
 }
 
 TEST(MachineShape, ABoxHidesTheGroundBehindItAndReturnsPointsOnItself) {
-  const TruthTerrain t = flatTerrain();
+  const TruthTerrain t = test::flatTerrain40m();
   SensorSpec ss;
   applyLidarPreset("os1_64", ss);
   ss.range_noise_m = 0;
@@ -121,7 +113,7 @@ TEST(MachineShape, ABoxHidesTheGroundBehindItAndReturnsPointsOnItself) {
 }
 
 TEST(MachineShape, ScansWithBoxesAreThreadIndependent) {
-  const TruthTerrain t = flatTerrain();
+  const TruthTerrain t = test::flatTerrain40m();
   SensorSpec ss;
   applyLidarPreset("os1_64", ss);
   ss.dropout = 0.05;
