@@ -1,5 +1,6 @@
 // Compact track loader: drive, blade joints, pose from track contact; its controllers.
 #include <terramap/sim/ctl.hpp>
+#include <terramap/sim/track_soil.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -122,12 +123,33 @@ double CompactTrackLoader::step(double dt, const CtlCommand& cmd, const CtlLoad&
   const Eigen::Vector3d fwd = T_map_base_.linear().col(0);
   const double uphill = std::asin(std::clamp(fwd.z(), -1.0, 1.0));
   const double W = spec_.mass_kg * kG;
-  const double f_lim = std::min(spec_.traction_coefficient * W * std::cos(uphill), spec_.max_drive_force_n);
-  // Tractive force saturates with slip (0.1 m/s of slip mobilises all of it).
-  const double f_trac = f_lim * std::clamp((v_d - v_) / 0.1, -1.0, 1.0);
   const double m = spec_.mass_kg;
+  double f_lim, f_trac;
+  if (spec_.track_soil) {
+    // Mohr–Coulomb limit over both tracks' contact area, mobilised with slip by Janosi–Hanamoto.
+    // The share rises steeply near zero slip (L / 2K per unit slip), so the speed it leads to is
+    // solved implicitly (bisection on the new speed) to stay stable at any drive speed.
+    const double area = 2.0 * spec_.track_width_m * spec_.track_length_m;
+    f_lim = std::min(area * load.ground_cohesion_pa + W * std::cos(uphill) * load.ground_tan_phi, spec_.max_drive_force_n);
+    const double v_ref = std::max(std::abs(v_d), 0.05);
+    auto force = [&](double v) {
+      return f_lim * janosiShare(std::clamp((v_d - v) / v_ref, -1.0, 1.0), spec_.track_length_m, load.shear_k_m);
+    };
+    const double g = W * std::sin(uphill);
+    double lo = v_ - dt / m * (f_lim + std::abs(g)) - 1e-9, hi = v_ + dt / m * (f_lim + std::abs(g)) + 1e-9;
+    for (int it = 0; it < 60; ++it) {  // v* = v + dt/m (F(v*) - g): the left side minus the right rises in v*
+      const double mid = 0.5 * (lo + hi);
+      if (mid - v_ - dt / m * (force(mid) - g) > 0) hi = mid;
+      else lo = mid;
+    }
+    f_trac = force(0.5 * (lo + hi));
+  } else {
+    f_lim = std::min(spec_.traction_coefficient * W * std::cos(uphill), spec_.max_drive_force_n);
+    // Tractive force saturates with slip (0.1 m/s of slip mobilises all of it).
+    f_trac = f_lim * std::clamp((v_d - v_) / 0.1, -1.0, 1.0);
+  }
   const double v_trial = v_ + dt / m * (f_trac - W * std::sin(uphill));
-  const double roll_res = spec_.rolling_resistance * W;
+  const double roll_res = spec_.rolling_resistance * W + (spec_.track_soil ? load.compaction_n : 0.0);
   double v_new = 0, applied = 0;
   if (v_trial > 0) {
     const double resist = roll_res + load.resist_n;

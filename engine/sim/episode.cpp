@@ -699,6 +699,7 @@ void EpisodeWriter::close(const Simulator& sim) {
   I.snap_stamp.flush();
   I.writer.drain();  // the writer thread's last HDF5 call: from here on this thread makes them
   attrDouble(I.file, "lost_volume_m3", sim.truth().lostVolume());
+  attrDouble(I.file, "compacted_volume_m3", sim.truth().compactedVolume());
   attrDouble(I.file, "bank_volume_final_m3", sim.truth().bankVolume());
   I.closeAll();
   io::sealFile(I.tmp_path);

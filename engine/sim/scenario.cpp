@@ -294,6 +294,11 @@ void readVehicle(MapReader& v, MachineSpec& m) {
   m.traction_coefficient = v.num("traction_coefficient", m.traction_coefficient, 0.0, 2.0);
   m.max_drive_force_n = v.num("max_drive_force_n", m.max_drive_force_n, 0.0, 1e7);
   m.rolling_resistance = v.num("rolling_resistance", m.rolling_resistance, 0.0, 1.0);
+  const std::string ts = v.str("track_soil", "none");
+  if (ts == "bekker") m.track_soil = true;
+  else if (ts != "none")
+    v.error(v.node("track_soil"), "track_soil", "unknown model '" + ts + "' (none, bekker)" + didYouMean(ts, {"none", "bekker"}));
+  m.track_width_m = v.num("track_width_m", m.track_width_m, 0.05, 5.0);
   m.max_speed_mps = v.num("max_speed_mps", m.max_speed_mps, 0.1, 20.0);
   m.drive_time_constant_s = v.num("drive_time_constant_s", m.drive_time_constant_s, 0.0, 10.0);
   m.yaw_time_constant_s = v.num("yaw_time_constant_s", m.yaw_time_constant_s, 0.0, 10.0);

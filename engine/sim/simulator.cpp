@@ -3,6 +3,7 @@
 #include <terramap/sim/imu.hpp>
 #include <terramap/sim/simulator.hpp>
 #include <terramap/sim/survey.hpp>
+#include <terramap/sim/track_soil.hpp>
 
 #include <tbb/task_group.h>
 
@@ -211,7 +212,9 @@ void Simulator::physicsStep(double dt, bool relax) {
     CtlLoad load;
     load.resist_n = std::max(0.0, -resisting.dot(fwd_h));
     load.up_n = bf.fee_map.z() + bf.penetration_map.z();
+    if (spec.track_soil) groundUnder(m, load);
     const double applied = m.ctl.step(dt, m.last_cmd, load, terrain_);
+    if (spec.track_soil) pressTracks(m);
     const double mob = load.resist_n > 0 ? applied / load.resist_n : (m.ctl.speed() > 0 ? 1.0 : 0.0);
     Eigen::Vector3d F = mob * resisting + bf.penetration_map;
     // Coloured (Ornstein-Uhlenbeck) noise of the soil response, only while in contact.
@@ -233,6 +236,70 @@ void Simulator::physicsStep(double dt, bool relax) {
     m.edge_acc = (vn - m.edge_vn) / dt;
     m.edge_vn = vn;
     m.edge_vz = dv.z();
+  }
+}
+
+namespace {
+
+/// Soil under a map point at the current surface (depth below the initial surface, >= 0).
+const SoilProperties& surfaceSoil(const TruthTerrain& t, const SoilField& soil, double x, double y) {
+  const double depth = std::max(0.0, t.initialHeightAt(x, y) - t.heightAt(x, y));
+  return soil.at(x, y, std::isfinite(depth) ? depth : 0.0);
+}
+
+double trackPressure(const MachineSpec& s) { return s.mass_kg * 9.80665 / (2.0 * s.track_width_m * s.track_length_m); }
+
+}  // namespace
+
+void Simulator::groundUnder(const Machine& m, CtlLoad& load) const {
+  const MachineSpec& spec = m.ctl.spec();
+  const SoilProperties& sp = surfaceSoil(terrain_, soil_, m.ctl.x(), m.ctl.y());
+  const Terramechanics tm = terramechanics(sp.family, sp.relative_density);
+  load.ground_cohesion_pa = sp.fee.c_pa;
+  load.ground_tan_phi = std::tan(sp.fee.phi_rad);
+  load.shear_k_m = tm.shear_k_m;
+  const double z = bekkerSinkage(tm, trackPressure(spec), spec.track_width_m);
+  load.compaction_n = 2.0 * compactionResistance(tm, z, spec.track_width_m);
+}
+
+void Simulator::pressTracks(Machine& m) {
+  const MachineSpec& spec = m.ctl.spec();
+  if (track_ref_h_.empty()) {
+    track_ref_h_.assign(static_cast<std::size_t>(terrain_.nx()) * terrain_.ny(), std::numeric_limits<double>::quiet_NaN());
+    track_left_h_ = track_ref_h_;
+  }
+  const double c = std::cos(m.ctl.yaw()), sn = std::sin(m.ctl.yaw());
+  const double hl = 0.5 * spec.track_length_m, hb = 0.5 * spec.track_width_m, res = terrain_.resolution();
+  const double p = trackPressure(spec);
+  for (int side = 0; side < 2; ++side) {
+    const double off = (side == 0 ? 0.5 : -0.5) * spec.track_gauge_m;
+    const double cx = m.ctl.x() - sn * off, cy = m.ctl.y() + c * off;  // the track's centre
+    const double ex = std::abs(c) * hl + std::abs(sn) * hb, ey = std::abs(sn) * hl + std::abs(c) * hb;
+    const int i0 = std::max(0, static_cast<int>(std::floor((cx - ex - terrain_.originX()) / res)));
+    const int i1 = std::min(terrain_.nx() - 1, static_cast<int>(std::ceil((cx + ex - terrain_.originX()) / res)));
+    const int j0 = std::max(0, static_cast<int>(std::floor((cy - ey - terrain_.originY()) / res)));
+    const int j1 = std::min(terrain_.ny() - 1, static_cast<int>(std::ceil((cy + ey - terrain_.originY()) / res)));
+    bool changed = false;
+    for (int j = j0; j <= j1; ++j)
+      for (int i = i0; i <= i1; ++i) {
+        const Eigen::Vector2d q = terrain_.nodePosition(i, j);
+        const double dx = q.x() - cx, dy = q.y() - cy;
+        if (std::abs(c * dx + sn * dy) > hl || std::abs(-sn * dx + c * dy) > hb) continue;
+        const std::size_t k = terrain_.index(i, j);
+        const double h = terrain_.height(i, j);
+        // The node's sinkage counts from its surface when the tracks first met it, or when
+        // something else (the blade, the spoil) last changed it: pressing again at the same
+        // pressure sinks no further.
+        if (!(h == track_left_h_[k])) track_ref_h_[k] = h;
+        const SoilProperties& sp = surfaceSoil(terrain_, soil_, q.x(), q.y());
+        const double target = track_ref_h_[k] - bekkerSinkage(terramechanics(sp.family, sp.relative_density), p, spec.track_width_m);
+        if (h > target) {
+          terrain_.compact(i, j, h - target);
+          changed = true;
+        }
+        track_left_h_[k] = terrain_.height(i, j);
+      }
+    if (changed) dirty_.add(CellRect::inclusive(i0, j0, i1, j1));
   }
 }
 

@@ -222,6 +222,22 @@ void TruthTerrain::addLoose(int i, int j, double v, double c) {
   h_[k] = u_[k] + lv_[k];
 }
 
+void TruthTerrain::compact(int i, int j, double dz) {
+  if (!(dz > 0.0)) return;
+  const auto k = index(i, j);
+  // Loose soil can lose its swell (Lv - Lc) without losing mass.
+  const double loose_room = std::max(0.0, lv_[k] - lc_[k]);
+  const double from_loose = std::min(dz, loose_room);
+  lv_[k] -= from_loose;
+  const double from_bank = dz - from_loose;
+  if (from_bank > 0.0) {
+    // Below the loose layer, bank soil: lower U under the (unchanged) loose layer.
+    u_[k] -= from_bank;
+    compacted_m3_ += from_bank * res_ * res_;
+  }
+  h_[k] = u_[k] + lv_[k];
+}
+
 double TruthTerrain::heightAt(double x, double y) const {
   const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
   if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return kNaN;
@@ -271,6 +287,7 @@ void TruthTerrain::capturePatch(int i0, int j0, int i1, int j1, Patch& out) cons
   out.i0 = std::max(0, i0); out.j0 = std::max(0, j0);
   out.i1 = std::min(nx_ - 1, i1); out.j1 = std::min(ny_ - 1, j1);
   out.lost_m3 = lost_m3_;
+  out.compacted_m3 = compacted_m3_;
   const int w = std::max(0, out.i1 - out.i0 + 1), hgt = std::max(0, out.j1 - out.j0 + 1);
   const std::size_t n = static_cast<std::size_t>(w) * hgt;
   out.u.resize(n); out.lv.resize(n); out.lc.resize(n);
@@ -284,6 +301,7 @@ void TruthTerrain::capturePatch(int i0, int j0, int i1, int j1, Patch& out) cons
 
 void TruthTerrain::applyPatch(const Patch& p) {
   lost_m3_ = p.lost_m3;
+  compacted_m3_ = p.compacted_m3;
   const int w = p.i1 - p.i0 + 1, hgt = p.j1 - p.j0 + 1;
   if (w <= 0 || hgt <= 0) return;
   if (p.i0 < 0 || p.j0 < 0 || p.i1 >= nx_ || p.j1 >= ny_ || p.u.size() != static_cast<std::size_t>(w) * hgt)

@@ -32,6 +32,10 @@ struct CtlCommand {
 struct CtlLoad {
   double resist_n = 0;   ///< soil resistance against forward motion at full mobilisation (>= 0)
   double up_n = 0;       ///< upward soil force on the blade (N; > lift_down_force stops descent)
+  /// The ground under the tracks, with MachineSpec::track_soil (else unused): Mohr–Coulomb
+  /// limit of the tractive effort (N, before the slope's cos), compaction resistance of both
+  /// tracks (N) and the shear deformation modulus K (m).
+  double ground_cohesion_pa = 0, ground_tan_phi = 0, compaction_n = 0, shear_k_m = 0.025;
 };
 
 class CompactTrackLoader {

@@ -179,7 +179,15 @@ struct MachineSpec {
   double track_gauge_m = 1.6, track_length_m = 1.9;
   double traction_coefficient = 0.75;    ///< max tractive force = coeff * weight * cos(pitch)
   double max_drive_force_n = 42000;      ///< hydrostatic drive limit
-  double rolling_resistance = 0.04;      ///< fraction of weight
+  double rolling_resistance = 0.04;      ///< fraction of weight (the running gear's own losses)
+  /// Track–soil interaction (YAML vehicle.track_soil: bekker; docs/sim.md "Track–soil
+  /// interaction"): the tractive limit becomes A c + W cos(pitch) tan(phi) of the soil under
+  /// the machine (instead of traction_coefficient W), mobilised with slip by Janosi–Hanamoto,
+  /// the Bekker compaction resistance adds to rolling_resistance, and each track presses its
+  /// static sinkage into the truth terrain (ruts). Off (false) by default: the scenarios and
+  /// figures measured before it stay as they were.
+  bool track_soil = false;
+  double track_width_m = 0.45;           ///< one track's width (CAT 299-class: 450 mm)
   double max_speed_mps = 2.5;
   double drive_time_constant_s = 0.2;    ///< track speed response to its command
   double yaw_time_constant_s = 0.25;

@@ -129,6 +129,13 @@ class Simulator {
   void scheduleScans(Period& rec, double t);
   /// Feeds every IMU the pose of physics step p_phys_step_ (time t) when it falls on its rate.
   void sampleImus(Period& rec, double t);
+  /// Track–soil interaction (MachineSpec::track_soil): the ground under the machine into `load`,
+  /// and each track's sinkage pressed into the terrain under its footprint.
+  void groundUnder(const Machine& m, CtlLoad& load) const;
+  void pressTracks(Machine& m);
+  /// Per node: the surface a track's sinkage counts from, and the height the tracks left it at
+  /// (NaN = never pressed); allocated at the first press.
+  std::vector<double> track_ref_h_, track_left_h_;
   /// A machine's truth and its Pose, BladePose and Observation at period end `tp`, into `rec`.
   void observeMachine(Machine& m, Period& rec, double tp, bool single);
   bool produceOne();

@@ -78,6 +78,14 @@ class TruthTerrain {
   Removed removeBetween(int i, int j, double z_lo, double z_hi);
   /// Adds loose soil: Lv += v, Lc += c.
   void addLoose(int i, int j, double v, double c);
+  /// Presses the surface of node (i, j) down by dz >= 0 (a track's sinkage): loose soil first
+  /// compacts towards its bank density (Lv shrinks, Lc and so the mass stay), the rest is bank
+  /// soil compacted beyond its in-situ density (U drops; its volume is added to
+  /// compactedVolume(), so bankVolume() + lostVolume() + compactedVolume() stays constant).
+  void compact(int i, int j, double dz);
+  /// Bank volume pressed out of the terrain by compact() (m^3): the mass it had is still there,
+  /// denser.
+  double compactedVolume() const { return compacted_m3_; }
   /// Moves a loose thickness dv (<= Lv) from a to b keeping a's Lc/Lv ratio.
   void moveLoose(int ia, int ja, int ib, int jb, double dv) {
     // Inline: the relaxation and the spoil settling call it for every moving edge.
@@ -156,7 +164,7 @@ class TruthTerrain {
   struct Patch {
     int i0 = 0, j0 = 0, i1 = -1, j1 = -1;
     std::vector<double> u, lv, lc;  ///< row-major over the box (H = U + Lv is derived)
-    double lost_m3 = 0;
+    double lost_m3 = 0, compacted_m3 = 0;
   };
   /// Copies the box (clamped to the grid) and the lost volume into `out` (reusing its buffers).
   void capturePatch(int i0, int j0, int i1, int j1, Patch& out) const;
@@ -201,6 +209,7 @@ class TruthTerrain {
   struct Level { int w = 0, h = 0; std::vector<float> zmax; };
   std::vector<Level> levels_;
   double lost_m3_ = 0.0;
+  double compacted_m3_ = 0.0;
 };
 
 }  // namespace terramap::sim
