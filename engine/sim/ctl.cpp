@@ -1,4 +1,5 @@
 // Compact track loader: drive, blade joints, pose from track contact; its controllers.
+#include <terramap/core/error.hpp>
 #include <terramap/sim/ctl.hpp>
 #include <terramap/sim/track_soil.hpp>
 
@@ -188,6 +189,10 @@ double CompactTrackLoader::step(double dt, const CtlCommand& cmd, const CtlLoad&
 CtlController::CtlController(const ControllerSpec& spec, const MachineSpec& machine, std::uint64_t seed)
     : spec_(spec), gauge_(machine.track_gauge_m), heading0_(machine.yaw_rad), rng_(seed),
       joint_max_rate_(machine.joint_max_rate), max_speed_(machine.max_speed_mps) {
+  if (spec.type == ControllerSpec::Type::Replay && (!spec.replay || spec.replay->t.empty()))
+    throw ConfigError("machine " + machine.id + ": a replay controller needs its command log (" +
+                      (spec.replay_path.empty() ? std::string("no file given") : spec.replay_path) +
+                      "); loadScenario reads it");
   speed_ = spec.speed_mps.initial;
   depth_ = spec.depth_m.initial;
   roll_ = spec.roll_rad.initial;

@@ -289,8 +289,9 @@ void Simulator::pressTracks(Machine& m) {
         const double h = terrain_.height(i, j);
         // The node's sinkage counts from its surface when the tracks first met it, or when
         // something else (the blade, the spoil) last changed it: pressing again at the same
-        // pressure sinks no further.
-        if (!(h == track_left_h_[k])) track_ref_h_[k] = h;
+        // pressure sinks no further, so a node the tracks left as it is needs no work.
+        if (h == track_left_h_[k]) continue;
+        track_ref_h_[k] = h;
         const SoilProperties& sp = surfaceSoil(terrain_, soil_, q.x(), q.y());
         const double target = track_ref_h_[k] - bekkerSinkage(terramechanics(sp.family, sp.relative_density), p, spec.track_width_m);
         if (h > target) {
