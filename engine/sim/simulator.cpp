@@ -264,9 +264,9 @@ void Simulator::groundUnder(const Machine& m, CtlLoad& load) const {
 
 void Simulator::pressTracks(Machine& m) {
   const MachineSpec& spec = m.ctl.spec();
-  if (track_ref_h_.empty()) {
-    track_ref_h_.assign(static_cast<std::size_t>(terrain_.nx()) * terrain_.ny(), std::numeric_limits<double>::quiet_NaN());
-    track_left_h_ = track_ref_h_;
+  if (track_left_h_.empty()) {
+    track_left_h_.assign(static_cast<std::size_t>(terrain_.nx()) * terrain_.ny(), std::numeric_limits<double>::quiet_NaN());
+    track_pressed_.assign(track_left_h_.size(), 0.0);
   }
   const double c = std::cos(m.ctl.yaw()), sn = std::sin(m.ctl.yaw());
   const double hl = 0.5 * spec.track_length_m, hb = 0.5 * spec.track_width_m, res = terrain_.resolution();
@@ -287,15 +287,19 @@ void Simulator::pressTracks(Machine& m) {
         if (std::abs(c * dx + sn * dy) > hl || std::abs(-sn * dx + c * dy) > hb) continue;
         const std::size_t k = terrain_.index(i, j);
         const double h = terrain_.height(i, j);
-        // The node's sinkage counts from its surface when the tracks first met it, or when
-        // something else (the blade, the spoil) last changed it: pressing again at the same
-        // pressure sinks no further, so a node the tracks left as it is needs no work.
+        // A node sinks by the static sinkage in all, however often the tracks pass at this
+        // pressure: a node the tracks left as it is needs no work, and one whose surface
+        // something else moved (loose soil sliding on or off) keeps what it was pressed. Only
+        // when its surface fell below the pressed layer (the blade cut it away) is the fresh
+        // soil beneath pressed anew.
         if (h == track_left_h_[k]) continue;
-        track_ref_h_[k] = h;
+        if (h < track_left_h_[k] - track_pressed_[k]) track_pressed_[k] = 0.0;
         const SoilProperties& sp = surfaceSoil(terrain_, soil_, q.x(), q.y());
-        const double target = track_ref_h_[k] - bekkerSinkage(terramechanics(sp.family, sp.relative_density), p, spec.track_width_m);
-        if (h > target) {
-          terrain_.compact(i, j, h - target);
+        const double z = bekkerSinkage(terramechanics(sp.family, sp.relative_density), p, spec.track_width_m);
+        const double dz = z - track_pressed_[k];
+        if (dz > 0) {
+          terrain_.compact(i, j, dz);
+          track_pressed_[k] = z;
           changed = true;
         }
         track_left_h_[k] = terrain_.height(i, j);

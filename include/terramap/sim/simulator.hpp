@@ -133,9 +133,9 @@ class Simulator {
   /// and each track's sinkage pressed into the terrain under its footprint.
   void groundUnder(const Machine& m, CtlLoad& load) const;
   void pressTracks(Machine& m);
-  /// Per node: the surface a track's sinkage counts from, and the height the tracks left it at
-  /// (NaN = never pressed); allocated at the first press.
-  std::vector<double> track_ref_h_, track_left_h_;
+  /// Per node: the height the tracks left it at (NaN = never pressed) and how far they have
+  /// pressed it (m); allocated at the first press.
+  std::vector<double> track_left_h_, track_pressed_;
   /// A machine's truth and its Pose, BladePose and Observation at period end `tp`, into `rec`.
   void observeMachine(Machine& m, Period& rec, double tp, bool single);
   bool produceOne();
