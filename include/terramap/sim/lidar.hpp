@@ -57,6 +57,20 @@ class LidarModel {
  private:
   /// Lower bound of d_z / |d_xy| over all rays once rotated into the map (ScanCaster input).
   double minSlope(const Eigen::Matrix3d& R_map_sensor) const;
+  /// Where a ray stopped: ray length t (m, NaN = nothing), on a machine box (its normal) or on
+  /// the terrain (the cell (ci, cj) hit).
+  struct RayHit {
+    double t;
+    bool on_machine;
+    int ci, cj;
+    Eigen::Vector3d normal;
+  };
+  /// The point ray k (ds sensor frame, dm map frame) returns from `hit`: a camera's depth range,
+  /// the dropout, the Lambertian intensity and the range or depth noise, drawn from the hash of
+  /// (noise_key, k). Appends it, or a NaN point with keep_dropouts, to `pts`.
+  void emitPoint(const TruthTerrain& terrain, const Eigen::Vector3d& o, const Eigen::Vector3d& ds,
+                 const Eigen::Vector3d& dm, const RayHit& hit, std::uint64_t noise_key, std::size_t k,
+                 std::vector<PointXYZI>& pts) const;
 
   SensorSpec spec_;
   std::vector<Eigen::Vector3d> dirs_;
