@@ -27,19 +27,7 @@ bool isEpisode(const std::string& file) {
 /// A TUM file, or an episode's truth base trajectory of `machine`.
 io::Trajectory load(const std::string& file, const std::string& machine) {
   if (!isEpisode(file)) return io::readTumTrajectory(file);
-  std::vector<std::uint64_t> dims;
-  const std::string m = "/machines/" + machine;
-  const std::vector<double> stamp = sim::readEpisodeDataset(file, m + "/stamp", dims);
-  const std::vector<double> T = sim::readEpisodeDataset(file, m + "/T_map_base", dims);
-  std::vector<io::StampedPose> poses(stamp.size());
-  for (std::size_t k = 0; k < stamp.size(); ++k) {
-    poses[k].stamp = stamp[k];
-    for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c < 3; ++c) poses[k].T_world_body.linear()(r, c) = T[16 * k + 4 * r + c];
-      poses[k].T_world_body.translation()[r] = T[16 * k + 4 * r + 3];
-    }
-  }
-  return io::Trajectory(std::move(poses), file + " (" + m + "/T_map_base)");
+  return sim::episodeTrajectory(sim::EpisodeFile(file), machine);
 }
 
 Registrar reg{Command{"path-compare", [](CLI::App& app, std::function<int()>& run) {

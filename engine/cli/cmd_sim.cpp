@@ -58,7 +58,9 @@ Registrar reg{Command{"sim", [](CLI::App& app, std::function<int()>& run) {
         std::cout << "wrote " << args->export_commands << "\n";
       }
       if (!args->export_tum.empty()) {
-        sim::writeEpisodeTrajectoryTum(path, sc.machines.front().id, args->export_tum);
+        const std::string& id = sc.machines.front().id;
+        io::writeTumTrajectory(args->export_tum, sim::episodeTrajectory(sim::EpisodeFile(path), id),
+                               id + " truth base trajectory from " + path + ": stamp tx ty tz qx qy qz qw");
         std::cout << "wrote " << args->export_tum << "\n";
       }
       return kOk;

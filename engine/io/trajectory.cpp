@@ -2,6 +2,7 @@
 #include <terramap/core/text.hpp>
 
 #include <terramap/core/error.hpp>
+#include <terramap/io/atomic_file.hpp>
 
 #include <Eigen/Geometry>
 #include <Eigen/SVD>
@@ -10,6 +11,7 @@
 #include <charconv>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <limits>
@@ -317,6 +319,19 @@ std::vector<Eigen::Isometry3d> chainRelativePoses(const std::vector<RelativePose
     out.push_back(T);
   }
   return out;
+}
+
+void writeTumTrajectory(const std::string& path, const Trajectory& traj, const std::string& comment) {
+  std::string text = comment.empty() ? std::string() : "# " + comment + "\n";
+  char buf[320];
+  for (const StampedPose& p : traj.poses()) {
+    const Eigen::Quaterniond q(p.T_world_body.linear());
+    const Eigen::Vector3d& t = p.T_world_body.translation();
+    std::snprintf(buf, sizeof buf, "%.17g %.17g %.17g %.17g %.17g %.17g %.17g %.17g\n", p.stamp, t.x(), t.y(), t.z(), q.x(),
+                  q.y(), q.z(), q.w());
+    text += buf;
+  }
+  writeFileAtomically(path, text);
 }
 
 PathAlignment parsePathAlignment(const std::string& name, const std::string& what) {

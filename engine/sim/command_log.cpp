@@ -5,8 +5,6 @@
 #include <terramap/sim/command_log.hpp>
 #include <terramap/sim/episode.hpp>
 
-#include <Eigen/Geometry>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -98,10 +96,11 @@ void writeCommandLog(const std::string& path, const CommandLog& log) {
 }
 
 CommandLog episodeCommands(const std::string& episode_path, const std::string& machine_id) {
+  const EpisodeFile file(episode_path);
   std::vector<std::uint64_t> dims;
   const std::string m = "/machines/" + machine_id;
-  const std::vector<double> stamp = readEpisodeDataset(episode_path, m + "/stamp", dims);
-  const std::vector<double> action = readEpisodeDataset(episode_path, m + "/action", dims);
+  const std::vector<double> stamp = file.read(m + "/stamp", dims);
+  const std::vector<double> action = file.read(m + "/action", dims);
   if (action.size() != 5 * stamp.size())
     throw InputError(episode_path + ": " + m + "/action has " + std::to_string(action.size()) + " values for " +
                      std::to_string(stamp.size()) + " stamps (expected 5 per stamp)");
@@ -116,28 +115,6 @@ CommandLog episodeCommands(const std::string& episode_path, const std::string& m
   }
   log.hold_last_s = stamp.size() >= 2 ? stamp[1] - stamp[0] : 0.0;
   return log;
-}
-
-void writeEpisodeTrajectoryTum(const std::string& episode_path, const std::string& machine_id,
-                               const std::string& tum_path) {
-  std::vector<std::uint64_t> dims;
-  const std::string m = "/machines/" + machine_id;
-  const std::vector<double> stamp = readEpisodeDataset(episode_path, m + "/stamp", dims);
-  const std::vector<double> T = readEpisodeDataset(episode_path, m + "/T_map_base", dims);
-  if (T.size() != 16 * stamp.size())
-    throw InputError(episode_path + ": " + m + "/T_map_base does not hold one 4x4 matrix per stamp");
-  std::string text = "# " + machine_id + " truth base trajectory from " + episode_path + ": stamp tx ty tz qx qy qz qw\n";
-  char buf[320];
-  for (std::size_t k = 0; k < stamp.size(); ++k) {
-    Eigen::Matrix3d R;
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 3; ++c) R(r, c) = T[16 * k + 4 * r + c];
-    const Eigen::Quaterniond q(R);
-    std::snprintf(buf, sizeof buf, "%.17g %.17g %.17g %.17g %.17g %.17g %.17g %.17g\n", stamp[k], T[16 * k + 3],
-                  T[16 * k + 7], T[16 * k + 11], q.x(), q.y(), q.z(), q.w());
-    text += buf;
-  }
-  io::writeFileAtomically(tum_path, text);
 }
 
 }  // namespace terramap::sim

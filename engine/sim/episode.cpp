@@ -770,6 +770,24 @@ std::vector<double> readEpisodeDataset(const std::string& path, const std::strin
   return EpisodeFile(path).read(dataset, dims);
 }
 
+io::Trajectory episodeTrajectory(const EpisodeFile& file, const std::string& machine_id) {
+  std::vector<std::uint64_t> dims;
+  const std::string m = "/machines/" + machine_id;
+  const std::vector<double> stamp = file.read(m + "/stamp", dims);
+  const std::vector<double> T = file.read(m + "/T_map_base", dims);
+  if (T.size() != 16 * stamp.size())
+    throw InputError(file.path() + ": " + m + "/T_map_base does not hold one 4x4 matrix per stamp");
+  std::vector<io::StampedPose> poses(stamp.size());
+  for (std::size_t k = 0; k < stamp.size(); ++k) {
+    poses[k].stamp = stamp[k];
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) poses[k].T_world_body.linear()(r, c) = T[16 * k + 4 * r + c];
+      poses[k].T_world_body.translation()[r] = T[16 * k + 4 * r + 3];
+    }
+  }
+  return io::Trajectory(std::move(poses), file.path() + " (" + m + "/T_map_base)");
+}
+
 std::string runEpisode(const Scenario& scenario, const std::string& dir, EpisodeOptions options,
                        EpisodeTiming* timing) {
   std::error_code ec;

@@ -157,7 +157,6 @@ void readDepthCamera(MapReader& r, SensorSpec& s) {
   s.depth_noise_k = r.num("noise_k_per_m", s.depth_noise_k, 0.0, 10.0);
   s.dropout = r.num("dropout", 0.0, 0.0, 1.0);
   s.keep_dropouts = r.boolean("keep_dropouts", s.keep_dropouts);
-  s.range_noise_m = 0;  // a LiDAR's key; the camera's noise is the depth model above
   s.T_base_sensor.linear() = s.T_base_sensor.linear() * bodyFromOptical();
 }
 
@@ -226,11 +225,8 @@ ControllerSpec readController(MapReader& r, const std::string& base_dir) {
     if (units != "lever" && units != "si")
       r.error(r.node("units"), "units", "unknown units '" + units + "' (lever: every value in [-1, 1]; si: m/s and rad/s)" +
                                             didYouMean(units, {"lever", "si"}));
-    // The log is read once the YAML has no mistakes (parseImpl); its units ride along here.
-    auto log = std::make_shared<CommandLog>();
-    log->units = units == "si" ? CommandLog::Units::Si : CommandLog::Units::Lever;
-    c.replay = std::move(log);
-    r.finish();
+    c.replay_units = units == "si" ? CommandLog::Units::Si : CommandLog::Units::Lever;
+    r.finish();  // the log itself is read once the YAML has no mistakes (parseImpl)
     return c;
   }
   if (type == "random_walk") {
@@ -800,7 +796,7 @@ Scenario parseImpl(const std::string& text, Ctx& ctx) {
   if (ctx.dem_failure) std::rethrow_exception(ctx.dem_failure);
   for (MachineSpec& m : sc.machines)
     if (m.controller.type == ControllerSpec::Type::Replay)
-      m.controller.replay = std::make_shared<const CommandLog>(readCommandLog(m.controller.replay_path, m.controller.replay->units));
+      m.controller.replay = std::make_shared<const CommandLog>(readCommandLog(m.controller.replay_path, m.controller.replay_units));
   return sc;
 }
 

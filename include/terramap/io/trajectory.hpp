@@ -79,6 +79,11 @@ class Trajectory {
 /// Hamilton quaternion, scalar last), T_world_body.
 Trajectory readTumTrajectory(const std::string& path, const TrajectoryReadOptions& options = {});
 
+/// Writes `traj` as a TUM file (`stamp tx ty tz qx qy qz qw`, full double precision, so
+/// readTumTrajectory gives the same stamps back), atomically; `comment` (may be empty) becomes
+/// a leading '#' line. \throws OutputError.
+void writeTumTrajectory(const std::string& path, const Trajectory& traj, const std::string& comment = "");
+
 /// KITTI odometry poses: one pose per line, 12 numbers = the 3x4 matrix [R | t] row-major
 /// (T_world_body of frame k on line k). No stamps.
 std::vector<Eigen::Isometry3d> readKittiPoseRows(const std::string& path, const TrajectoryReadOptions& options = {});

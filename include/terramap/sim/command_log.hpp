@@ -43,9 +43,4 @@ void writeCommandLog(const std::string& path, const CommandLog& log);
 /// units), hold_last_s = one observation period. \throws InputError (readEpisodeDataset's).
 CommandLog episodeCommands(const std::string& episode_path, const std::string& machine_id);
 
-/// Writes an episode machine's truth base trajectory (`T_map_base` at `stamp`) as a TUM file
-/// (`stamp tx ty tz qx qy qz qw`), atomically. \throws InputError, OutputError.
-void writeEpisodeTrajectoryTum(const std::string& episode_path, const std::string& machine_id,
-                               const std::string& tum_path);
-
 }  // namespace terramap::sim

@@ -4,6 +4,7 @@
 /// The file is written to "<path>.tmp-<pid>" in the same folder and renamed over <path> by
 /// close(), so a crash never leaves a half-written episode under the final name.
 #include <terramap/core/events.hpp>
+#include <terramap/io/trajectory.hpp>
 #include <terramap/sim/simulator.hpp>
 
 #include <cstdint>
@@ -75,6 +76,11 @@ class EpisodeFile {
 /// it once with EpisodeFile. \throws InputError naming file and dataset.
 std::vector<double> readEpisodeDataset(const std::string& path, const std::string& dataset,
                                        std::vector<std::uint64_t>& dims);
+
+/// A machine's truth base trajectory in an episode (`/machines/<id>/stamp`, `T_map_base`),
+/// named after the file and dataset in messages. \throws InputError (the file's, a missing
+/// machine, or matrices that do not match the stamps or are not rigid).
+io::Trajectory episodeTrajectory(const EpisodeFile& file, const std::string& machine_id);
 
 /// Wall seconds of one runEpisode call: `setup_s` builds the world (Simulator) and lays out the
 /// file with its static parts (EpisodeWriter); `run_s` simulates and writes the rest, up to the

@@ -85,8 +85,9 @@ struct RandomWalk {
 struct ControllerSpec {
   enum class Type { RandomWalk, Route, Replay } type = Type::RandomWalk;
   // Replay (type Replay): recorded commands (command_log.hpp), read by loadScenario from
-  // `replay_path` (the YAML's `file`, resolved against the scenario's folder).
+  // `replay_path` (the YAML's `file`, resolved against the scenario's folder) in `replay_units`.
   std::string replay_path;
+  CommandLog::Units replay_units = CommandLog::Units::Lever;
   std::shared_ptr<const CommandLog> replay;
   // Random-walk set-points (type RandomWalk).
   RandomWalk speed_mps{0.8, 0.3, 1.4, 0.15};
