@@ -91,6 +91,24 @@ void CompactTrackLoader::placeOnTerrain(const TruthTerrain& terrain) {
                              .toRotationMatrix();
 }
 
+double CompactTrackLoader::soilTraction(double dt, double v_d, double f_lim, double downhill_n, double shear_k_m) const {
+  // The share rises steeply near zero slip (L / 2K per unit slip): an explicit step goes
+  // unstable at low drive speeds, so the new speed v* = v + dt/m (F(v*) - downhill) is solved
+  // by bisection (the left side minus the right rises in v*) and F is taken there.
+  const double m = spec_.mass_kg, v_ref = std::max(std::abs(v_d), 0.05);
+  auto force = [&](double v) {
+    return f_lim * janosiShare(std::clamp((v_d - v) / v_ref, -1.0, 1.0), spec_.track_length_m, shear_k_m);
+  };
+  const double reach = dt / m * (f_lim + std::abs(downhill_n));
+  double lo = v_ - reach - 1e-9, hi = v_ + reach + 1e-9;
+  for (int it = 0; it < 60; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    if (mid - v_ - dt / m * (force(mid) - downhill_n) > 0) hi = mid;
+    else lo = mid;
+  }
+  return force(0.5 * (lo + hi));
+}
+
 double CompactTrackLoader::step(double dt, const CtlCommand& cmd, const CtlLoad& load, const TruthTerrain& terrain) {
   // Blade joints: damped velocity response (poles -beta +- i eta, TERA Eq. 1) or first order.
   for (int k = 0; k < 3; ++k) {
@@ -127,23 +145,10 @@ double CompactTrackLoader::step(double dt, const CtlCommand& cmd, const CtlLoad&
   const double m = spec_.mass_kg;
   double f_lim, f_trac;
   if (spec_.track_soil) {
-    // Mohr–Coulomb limit over both tracks' contact area, mobilised with slip by Janosi–Hanamoto.
-    // The share rises steeply near zero slip (L / 2K per unit slip), so the speed it leads to is
-    // solved implicitly (bisection on the new speed) to stay stable at any drive speed.
-    const double area = 2.0 * spec_.track_width_m * spec_.track_length_m;
-    f_lim = std::min(area * load.ground_cohesion_pa + W * std::cos(uphill) * load.ground_tan_phi, spec_.max_drive_force_n);
-    const double v_ref = std::max(std::abs(v_d), 0.05);
-    auto force = [&](double v) {
-      return f_lim * janosiShare(std::clamp((v_d - v) / v_ref, -1.0, 1.0), spec_.track_length_m, load.shear_k_m);
-    };
-    const double g = W * std::sin(uphill);
-    double lo = v_ - dt / m * (f_lim + std::abs(g)) - 1e-9, hi = v_ + dt / m * (f_lim + std::abs(g)) + 1e-9;
-    for (int it = 0; it < 60; ++it) {  // v* = v + dt/m (F(v*) - g): the left side minus the right rises in v*
-      const double mid = 0.5 * (lo + hi);
-      if (mid - v_ - dt / m * (force(mid) - g) > 0) hi = mid;
-      else lo = mid;
-    }
-    f_trac = force(0.5 * (lo + hi));
+    f_lim = std::min(2.0 * spec_.track_width_m * spec_.track_length_m * load.ground_cohesion_pa +
+                         W * std::cos(uphill) * load.ground_tan_phi,
+                     spec_.max_drive_force_n);
+    f_trac = soilTraction(dt, v_d, f_lim, W * std::sin(uphill), load.shear_k_m);
   } else {
     f_lim = std::min(spec_.traction_coefficient * W * std::cos(uphill), spec_.max_drive_force_n);
     // Tractive force saturates with slip (0.1 m/s of slip mobilises all of it).
@@ -234,20 +239,16 @@ CtlCommand CtlController::replay(double dt) {
   CtlCommand c;
   const CommandLog& log = *spec_.replay;
   replay_row_ = log.rowAt(t, replay_row_);
-  const double nan = std::numeric_limits<double>::quiet_NaN();
-  if (replay_row_ < 0) {
-    speed_ = 0;
-    depth_ = roll_ = blade_yaw_ = heading_ = nan;
-    return c;  // before the log or after it: stand still
-  }
+  // Set-points are a scripted controller's; a replay logs the mean track command as its speed.
+  depth_ = roll_ = blade_yaw_ = heading_ = std::numeric_limits<double>::quiet_NaN();
+  speed_ = 0;
+  if (replay_row_ < 0) return c;  // before the log or after it: stand still
   const std::array<double, 5>& u = log.u[static_cast<std::size_t>(replay_row_)];
   const bool lever = log.units == CommandLog::Units::Lever;
   c.v_left = lever ? u[0] * max_speed_ : u[0];
   c.v_right = lever ? u[1] * max_speed_ : u[1];
   for (int k = 0; k < 3; ++k) c.joint_rate[k] = lever ? u[2 + k] * joint_max_rate_[k] : u[2 + k];
-  // Set-points are a scripted controller's; a replay logs the mean track command as its speed.
   speed_ = 0.5 * (c.v_left + c.v_right);
-  depth_ = roll_ = blade_yaw_ = heading_ = nan;
   return c;
 }
 

@@ -76,6 +76,10 @@ class CompactTrackLoader {
 
  private:
   void placeOnTerrain(const TruthTerrain& terrain);
+  /// Track–soil traction (MachineSpec::track_soil): the force the tracks exert this step, the
+  /// Mohr–Coulomb limit f_lim (N) mobilised by the Janosi–Hanamoto slip at the new speed, with
+  /// the slope's pull `downhill_n` (N, W sin(pitch)) and the soil's shear modulus K (m).
+  double soilTraction(double dt, double v_d, double f_lim, double downhill_n, double shear_k_m) const;
 
   MachineSpec spec_;
   double x_, y_, yaw_;
