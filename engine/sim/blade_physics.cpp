@@ -674,4 +674,22 @@ CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   return out;
 }
 
+CutResult relaxRegion(TruthTerrain& terrain, double tan_repose, int i0, int j0, int i1, int j1, int iterations) {
+  CutResult out;
+  i0 = std::max(0, i0);
+  j0 = std::max(0, j0);
+  i1 = std::min(terrain.nx() - 1, i1);
+  j1 = std::min(terrain.ny() - 1, j1);
+  if (i1 - i0 < 1 || j1 - j0 < 1) return out;
+  const double max_step = terrain.resolution() * tan_repose;
+  for (int it = 0; it < iterations; ++it) {
+    SweepBox b = sweepBox(terrain, i0, j0, i1, j1);
+    std::fill(b.mask, b.mask + static_cast<std::size_t>(b.w) * b.h, static_cast<unsigned char>(0));
+    findLooseExtents(terrain.looseData().data(), b);
+    if (!computeFluxes(terrain.heightData().data(), terrain.looseData().data(), max_step, b)) break;
+    applyFluxes(terrain, b, out);
+  }
+  return out;
+}
+
 }  // namespace terramap::sim

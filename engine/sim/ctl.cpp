@@ -254,6 +254,9 @@ CtlCommand CtlController::replay(double dt) {
 
 CtlCommand CtlController::update(double dt, const CompactTrackLoader& m) {
   if (spec_.type == ControllerSpec::Type::Replay) return replay(dt);
+  // An excavator's undercarriage and plow stay where they are while it digs (the arm has its
+  // own controller, DigDumpController).
+  if (spec_.type == ControllerSpec::Type::DigDump) return CtlCommand{};
   double omega_cmd = 0, v_cmd = 0;
   const Eigen::Vector2d p(m.x(), m.y());
   if (spec_.type == ControllerSpec::Type::RandomWalk) {

@@ -481,6 +481,26 @@ void EpisodeWriter::Impl::openMachine(hid_t mg, const MachineSpec& spec, std::si
   add(M.truth, "t_stalled", "stalled", H5T_NATIVE_UINT8, {});
   add(M.truth, "t_setpoints", "setpoints", H5T_NATIVE_DOUBLE, {5});
   add(M.truth, "t_cut", "cut_bank_m3", H5T_NATIVE_DOUBLE, {});
+  if (spec.arm) {
+    // The manipulator's joint states (TERA's JointState: position, velocity, effort), the
+    // encoders' reading, the levers, the bucket pose and its load.
+    const hid_t arm = makeGroup(M.group, "arm", I.tmp_path);
+    attrString(arm, "joints", "slew,boom,arm,bucket");
+    attrDouble(arm, "bucket_width_m", spec.arm->bucket_width_m);
+    add(arm, "a_q", "joint_position_rad", H5T_NATIVE_DOUBLE, {4});
+    add(arm, "a_qd", "joint_velocity_radps", H5T_NATIVE_DOUBLE, {4});
+    add(arm, "a_tau", "joint_torque_Nm", H5T_NATIVE_DOUBLE, {4});
+    add(arm, "a_qm", "joint_measured_rad", H5T_NATIVE_DOUBLE, {4});
+    add(arm, "a_lever", "lever", H5T_NATIVE_DOUBLE, {4});
+    add(arm, "a_incl", "inclination_rad", H5T_NATIVE_DOUBLE, {3});
+    add(arm, "a_inclm", "inclination_measured_rad", H5T_NATIVE_DOUBLE, {3});
+    add(arm, "a_stalled", "stalled_mask", H5T_NATIVE_UINT8, {});
+    add(arm, "a_phase", "phase", H5T_NATIVE_INT32, {});
+    add(arm, "a_T_bucket", "T_map_bucket", H5T_NATIVE_DOUBLE, {4, 4});
+    add(arm, "a_force", "bucket_force_map_N", H5T_NATIVE_DOUBLE, {3});
+    add(arm, "a_load", "bucket_load", H5T_NATIVE_DOUBLE, {3});
+    add(arm, "a_moved", "bucket_moved_bank_m3", H5T_NATIVE_DOUBLE, {2});
+  }
   bool any_imu = false;
   for (const SensorSpec& s : spec.sensors) any_imu |= s.type == SensorSpec::Type::Imu;
   if (any_imu) {
@@ -675,6 +695,25 @@ void EpisodeWriter::record(const Simulator& sim, const std::vector<Event>& event
       M.a.at("t_stalled").append(&st);
       M.a.at("t_setpoints").append(tr.setpoints.data());
       M.a.at("t_cut").append(&tr.cut_bank_m3);
+      if (tr.has_arm) {
+        M.a.at("a_q").append(tr.arm_q.data());
+        M.a.at("a_qd").append(tr.arm_qd.data());
+        M.a.at("a_tau").append(tr.arm_torque_nm.data());
+        M.a.at("a_qm").append(tr.arm_q_measured.data());
+        M.a.at("a_lever").append(tr.arm_lever.data());
+        M.a.at("a_incl").append(tr.arm_inclination.data());
+        M.a.at("a_inclm").append(tr.arm_inclination_measured.data());
+        M.a.at("a_stalled").append(&tr.arm_stalled);
+        const std::int32_t phase = tr.arm_phase;
+        M.a.at("a_phase").append(&phase);
+        rowMajor4x4(tr.T_map_bucket, T);
+        M.a.at("a_T_bucket").append(T);
+        M.a.at("a_force").append(tr.bucket_force_map_N.data());
+        const double load[3] = {tr.bucket_load_kg, tr.bucket_load_m3, tr.bucket_bank_m3};
+        M.a.at("a_load").append(load);
+        const double moved[2] = {tr.bucket_dug_bank_m3, tr.bucket_dumped_bank_m3};
+        M.a.at("a_moved").append(moved);
+      }
     }
   }
   if (sim.time() + 1e-9 >= I.next_snapshot) {

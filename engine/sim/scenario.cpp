@@ -6,6 +6,7 @@
 #include <terramap/core/error.hpp>
 #include <terramap/core/text.hpp>
 #include <terramap/sim/scenario.hpp>
+#include <terramap/sim/excavator.hpp>
 #include <terramap/sim/truth_terrain.hpp>
 
 #include <Eigen/Geometry>
@@ -229,6 +230,21 @@ ControllerSpec readController(MapReader& r, const std::string& base_dir) {
     r.finish();  // the log itself is read once the YAML has no mistakes (parseImpl)
     return c;
   }
+  if (type == "dig_dump") {
+    c.type = ControllerSpec::Type::DigDump;
+    DigDumpSpec& d = c.dig_dump;
+    const auto dig = r.vec("dig_m", {d.dig.x(), d.dig.y()}, 2);
+    const auto dump = r.vec("dump_m", {d.dump.x(), d.dump.y()}, 2);
+    if (dig.size() == 2) d.dig = {dig[0], dig[1]};
+    if (dump.size() == 2) d.dump = {dump[0], dump[1]};
+    d.depth_m = r.num("depth_m", d.depth_m, 0.0, 3.0);
+    d.drag_m = r.num("drag_m", d.drag_m, 0.0, 5.0);
+    d.advance_m = r.num("advance_m", d.advance_m, 0.0, 5.0);
+    d.carry_height_m = r.num("carry_height_m", d.carry_height_m, 0.0, 5.0);
+    d.cycles = r.integer("cycles", d.cycles, 0, 100000);
+    r.finish();
+    return c;
+  }
   if (type == "random_walk") {
     c.type = ControllerSpec::Type::RandomWalk;
     c.speed_mps = readWalk(r, "speed_mps", c.speed_mps, 1.0, 0.0, 5.0);
@@ -258,7 +274,7 @@ ControllerSpec readController(MapReader& r, const std::string& base_dir) {
     }
   } else {
     // As for sensors: the keys depend on the type, so they are not checked against a guess.
-    r.error(r.node("type"), "type", "unknown controller type '" + type + "'" + didYouMean(type, {"random_walk", "route", "replay"}));
+    r.error(r.node("type"), "type", "unknown controller type '" + type + "'" + didYouMean(type, {"random_walk", "route", "replay", "dig_dump"}));
     return c;
   }
   if (r.has("stall")) {
@@ -421,13 +437,101 @@ void readShape(MapReader& r, MachineSpec& m) {
   }
 }
 
+/// `arm:` of an excavator (ArmSpec; docs/sim.md "Excavators").
+void readArm(MapReader& r, ArmSpec& a) {
+  if (r.has("slew")) {
+    MapReader s = r.child("slew");
+    a.slew_x_m = s.num("x_m", a.slew_x_m, -10.0, 10.0);
+    a.slew_z_m = s.num("z_m", a.slew_z_m, 0.0, 10.0);
+    s.finish();
+  }
+  const auto bp = r.vec("boom_pivot_m", {a.boom_pivot_x_m, a.boom_pivot_z_m}, 2);
+  if (bp.size() == 2) {
+    a.boom_pivot_x_m = bp[0];
+    a.boom_pivot_z_m = bp[1];
+  }
+  a.boom_m = r.num("boom_m", a.boom_m, 0.2, 30.0);
+  a.arm_m = r.num("arm_m", a.arm_m, 0.2, 30.0);
+  if (r.has("bucket")) {
+    MapReader b = r.child("bucket");
+    a.bucket_m = b.num("length_m", a.bucket_m, 0.1, 5.0);
+    a.bucket_depth_m = b.num("depth_m", a.bucket_depth_m, 0.05, 5.0);
+    a.bucket_width_m = b.num("width_m", a.bucket_width_m, 0.1, 5.0);
+    a.bucket_capacity_m3 = b.num("capacity_m3", a.bucket_capacity_m3, 0.0, 50.0);
+    a.pour_rate_m3ps = b.num("pour_rate_m3ps", a.pour_rate_m3ps, 1e-3, 100.0);
+    a.edge_thickness_m = b.num("edge_thickness_m", a.edge_thickness_m, 0.0, 0.5);
+    a.bucket_slices = b.integer("slices", a.bucket_slices, 1, 200);
+    if (b.has("profile_m")) {
+      const YAML::Node list = b.node("profile_m");
+      if (!list.IsSequence() || list.size() < 3) {
+        b.error(list, "profile_m", "expected a list of at least three [x, z] vertices (bucket frame, m)");
+      } else {
+        for (std::size_t k = 0; k < list.size(); ++k) {
+          std::vector<double> v;
+          if (b.numList(list[k], "profile_m[" + std::to_string(k) + "]", 2, v)) a.bucket_profile.emplace_back(v[0], v[1]);
+        }
+      }
+    }
+    b.finish();
+  }
+  const auto masses = r.vec("masses_kg", {a.mass_kg[0], a.mass_kg[1], a.mass_kg[2], a.mass_kg[3]}, 4);
+  if (masses.size() == 4) {
+    if (!std::all_of(masses.begin(), masses.end(), [](double m) { return m >= 0 && m < 1e6; }))
+      r.error(r.node("masses_kg"), "masses_kg", "masses must lie in [0, 1e6) kg ([upper structure, boom, arm, bucket])");
+    else
+      for (int k = 0; k < 4; ++k) a.mass_kg[k] = masses[k];
+  }
+  if (r.has("joints")) {
+    MapReader j = r.child("joints");
+    const char* names[4] = {"slew", "boom", "arm", "bucket"};
+    for (int k = 0; k < 4; ++k) {
+      if (!j.has(names[k])) continue;
+      MapReader jr = j.child(names[k]);
+      ArmJointSpec& J = a.joints[k];
+      readRange(jr, "range_deg", J.min_rad, J.max_rad, -2 * M_PI, 2 * M_PI, kDeg);
+      J.max_rate_rps = jr.angle("max_rate", J.max_rate_rps, 1e-3, 20.0);
+      J.max_torque_nm = jr.num("max_torque_nm", J.max_torque_nm, 0.0, 1e9);
+      J.eta = jr.num("eta", J.eta, 0.0, 1000.0);
+      J.beta = jr.num("beta", J.beta, 0.0, 1000.0);
+      J.phi = jr.angle("phi", J.phi, -M_PI, M_PI);
+      a.initial_rad[k] = jr.angle("initial", a.initial_rad[k], -2 * M_PI, 2 * M_PI);
+      jr.finish();
+    }
+    j.finish();
+  }
+  a.encoder_noise_rad = r.angle("encoder_noise", a.encoder_noise_rad, 0.0, 0.5);
+  a.inclinometer_noise_rad = r.angle("inclinometer_noise", a.inclinometer_noise_rad, 0.0, 0.5);
+  r.finish();
+}
+
+/// A compact excavator's undercarriage and plow (Takeuchi TB235-class) before its YAML keys.
+void excavatorDefaults(MachineSpec& m) {
+  m.mass_kg = 3500;
+  m.track_gauge_m = 1.25;
+  m.track_length_m = 1.85;
+  m.track_width_m = 0.3;
+  m.max_speed_mps = 1.3;
+  m.max_drive_force_n = 30000;
+  m.blade.width_m = 1.55;
+  m.blade.height_m = 0.35;
+  m.blade_mount_x_m = 1.25;
+  m.rake_rad = 90 * kDeg;
+  m.blade_slices = 15;
+}
+
 MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisation, double physics_hz,
                         const std::string& base_dir) {
   MachineSpec m;
   m.localisation = readLocalisation(r, default_localisation);
   m.id = r.strRequired("id");
   const std::string type = r.str("type", "ctl");
-  if (type != "ctl") r.error(r.node("type"), "type", "unknown machine type '" + type + "' (known: ctl)" + didYouMean(type, {"ctl"}));
+  if (type == "excavator") {
+    excavatorDefaults(m);
+    m.arm = ArmSpec{};
+  } else if (type != "ctl") {
+    r.error(r.node("type"), "type",
+            "unknown machine type '" + type + "' (known: ctl, excavator)" + didYouMean(type, {"ctl", "excavator"}));
+  }
   if (r.has("pose")) {
     MapReader p = r.child("pose");
     m.x_m = p.num("x_m", 0.0);
@@ -457,6 +561,26 @@ MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisati
   if (r.has("controller")) {
     MapReader c = r.child("controller");
     if (c.valid()) m.controller = readController(c, base_dir);
+  }
+  if (m.arm) {
+    if (r.has("arm")) {
+      MapReader a = r.child("arm");
+      if (a.valid()) readArm(a, *m.arm);
+    }
+    if (m.controller.type != ControllerSpec::Type::DigDump)
+      r.error(r.has("controller") ? r.node("controller") : r.self(), "controller",
+              "an excavator needs the dig_dump controller (controller: {type: dig_dump, dig_m: [x, y], dump_m: [x, y]})");
+    else if (m.arm->bucket_profile.size() >= 3) {
+      try {
+        bucketMesh(*m.arm);
+      } catch (const ConfigError& e) {
+        r.error(r.node("arm"), "arm.bucket.profile_m", e.what());
+      }
+    }
+  } else {
+    if (r.has("arm")) r.error(r.node("arm"), "arm", "only a machine of type excavator has an arm");
+    if (m.controller.type == ControllerSpec::Type::DigDump)
+      r.error(r.node("controller"), "controller", "dig_dump drives an excavator's arm (this machine is a ctl)");
   }
   if (r.has("sensors")) readSensors(r, m, physics_hz);
   m.shape = defaultCtlShape(m.track_gauge_m, m.track_length_m, m.blade.width_m, m.blade.height_m);

@@ -1,5 +1,6 @@
 // The simulator loop: controllers, machine dynamics, truth force, deformation, sensors.
 #include <terramap/core/error.hpp>
+#include <terramap/sim/excavator.hpp>
 #include <terramap/sim/imu.hpp>
 #include <terramap/sim/simulator.hpp>
 #include <terramap/sim/survey.hpp>
@@ -72,12 +73,27 @@ struct Simulator::Machine {
   std::vector<Imu> imus;
   int force_sensor = -1;
   std::mt19937_64 force_rng;
+  // Excavators: the manipulator, its controller and the soil in its bucket.
+  std::unique_ptr<ExcavatorArm> arm;
+  std::unique_ptr<DigDumpController> digger;
+  BucketLoad bucket;
+  double bucket_capacity_m3 = 0;
+  double lip_vn = 0, lip_vz = 0, lip_acc = 0;
+  std::mt19937_64 encoder_rng;
 
   Machine(std::size_t idx, const MachineSpec& spec, const TruthTerrain& terrain, std::uint64_t seed, double physics_hz)
       : index(idx), ctl(spec, terrain), controller(spec.controller, spec, streamSeed(seed, idx, 1)),
         noise_rng(streamSeed(seed, idx, 2)), estimator(spec.localisation, streamSeed(seed, idx, 3)),
-        force_rng(streamSeed(seed, idx, 4)) {
+        force_rng(streamSeed(seed, idx, 4)), encoder_rng(streamSeed(seed, idx, 5)) {
     truth.id = spec.id;
+    if (spec.arm) {
+      arm = std::make_unique<ExcavatorArm>(*spec.arm);
+      digger = std::make_unique<DigDumpController>(spec.controller.dig_dump, *arm);
+      bucket_capacity_m3 = spec.arm->bucket_capacity_m3 > 0 ? spec.arm->bucket_capacity_m3 : arm->mesh().volume();
+      truth.has_arm = true;
+      truth.arm_q = arm->q();
+      truth.T_map_bucket = ctl.T_map_base() * arm->T_base_bucket();
+    }
     for (std::size_t s = 0; s < spec.sensors.size(); ++s) {
       const SensorSpec& ss = spec.sensors[s];
       if (ss.castsRays()) lidars.push_back({s, LidarModel(ss), 0});
@@ -236,7 +252,54 @@ void Simulator::physicsStep(double dt, bool relax) {
     m.edge_acc = (vn - m.edge_vn) / dt;
     m.edge_vn = vn;
     m.edge_vz = dv.z();
+    if (m.arm) armStep(m, dt);
   }
+}
+
+void Simulator::armStep(Machine& m, double dt) {
+  const ArmSpec& as = *m.ctl.spec().arm;
+  const Eigen::Isometry3d T_base = m.ctl.T_map_base();
+  const ArmCommand cmd = m.digger->update(dt, *m.arm, T_base, terrain_, m.bucket, m.bucket_capacity_m3);
+  const Eigen::Isometry3d T_lip_old = m.arm->T_map_lipBlade(T_base);
+  const BladeForce bf = bladeSoilForce(terrain_, soil_, T_lip_old, m.arm->floorBlade(), as.edge_thickness_m,
+                                       as.bucket_slices, m.lip_vn, m.lip_vz, m.lip_acc);
+  const Eigen::Vector3d F = bf.fee_map + bf.inertia_map + bf.penetration_map;
+  m.arm->step(dt, cmd, T_base, F, m.bucket.mass_kg);
+  // The bucket at its new pose takes what its mesh overlaps while it has room, then pours out
+  // over the lip what it cannot hold at its new attitude.
+  const Eigen::Isometry3d T_bucket = T_base * m.arm->T_base_bucket();
+  const double hold = m.bucket_capacity_m3 * bucketHoldFraction(-T_bucket.linear().col(2));
+  const CutResult dug = bucketDig(terrain_, soil_, m.arm->mesh(), T_bucket, hold, m.bucket);
+  markDirty(dug);
+  MachineTruth& tr = m.truth;
+  tr.bucket_dug_bank_m3 += dug.cut_bank_m3 + dug.moved_loose_m3;
+  tr.cut_bank_m3 += dug.cut_bank_m3;
+  const Eigen::Isometry3d T_lip_new = m.arm->T_map_lipBlade(T_base);
+  if (m.bucket.loose_m3 > hold) {
+    const double bank_before = m.bucket.bank_m3;
+    const CutResult poured = bucketPour(terrain_, soil_, T_lip_new.translation(), 0.5 * as.bucket_width_m, 1.0,
+                                        std::min(m.bucket.loose_m3 - hold, as.pour_rate_m3ps * dt), m.bucket);
+    markDirty(poured);
+    tr.bucket_dumped_bank_m3 += bank_before - m.bucket.bank_m3;
+  }
+  const Eigen::Vector3d dv = (T_lip_new.translation() - T_lip_old.translation()) / dt;
+  const double vn = dv.dot(bf.push_dir);
+  m.lip_acc = (vn - m.lip_vn) / dt;
+  m.lip_vn = vn;
+  m.lip_vz = dv.z();
+  tr.arm_q = m.arm->q();
+  tr.arm_qd = m.arm->qd();
+  tr.arm_torque_nm = m.arm->torque();
+  tr.arm_lever = cmd.lever;
+  tr.arm_stalled = 0;
+  for (int k = 0; k < 4; ++k) tr.arm_stalled |= static_cast<std::uint8_t>(m.arm->stalled()[k] ? 1 << k : 0);
+  tr.arm_phase = static_cast<int>(m.digger->phase());
+  tr.arm_cycle = m.digger->cycle();
+  tr.T_map_bucket = T_bucket;
+  tr.bucket_force_map_N = F;
+  tr.bucket_load_kg = m.bucket.mass_kg;
+  tr.bucket_load_m3 = m.bucket.loose_m3;
+  tr.bucket_bank_m3 = m.bucket.bank_m3;
 }
 
 namespace {
@@ -428,6 +491,21 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
   m.truth.force_base_N = Tb.linear().transpose() * m.truth.force_map_N;
   m.truth.setpoints = m.controller.setpoints();
   m.truth.raise_offset_m = m.controller.raiseOffset();
+  if (m.arm) {
+    std::normal_distribution<double> N(0.0, spec.arm->encoder_noise_rad);
+    for (int k = 0; k < 4; ++k) m.truth.arm_q_measured[k] = m.truth.arm_q[k] + N(m.encoder_rng);
+    const Eigen::Isometry3d T_map_slew = Tb * m.arm->T_base_slew(m.truth.arm_q);
+    const auto c = m.arm->chain(m.truth.arm_q);
+    std::normal_distribution<double> Ni(0.0, spec.arm->inclinometer_noise_rad);
+    // Full-circle angles in the vertical plane through the upper structure's forward axis (an
+    // inclinometer's plane of measurement), so a link pointing back reads beyond +-90 deg.
+    const Eigen::Vector2d fwd = Eigen::Vector2d(T_map_slew.linear()(0, 0), T_map_slew.linear()(1, 0)).normalized();
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Vector3d d = T_map_slew.linear() * Eigen::Vector3d(c[k + 1].x() - c[k].x(), 0.0, c[k + 1].y() - c[k].y());
+      m.truth.arm_inclination[k] = std::atan2(d.z(), d.x() * fwd.x() + d.y() * fwd.y());
+      m.truth.arm_inclination_measured[k] = m.truth.arm_inclination[k] + Ni(m.encoder_rng);
+    }
+  }
   // What the machine itself knows: the localisation's base pose and the blade through the
   // measured cylinder lengths and the joint kinematics. The perfect estimator keeps the joints
   // (the inverse linkage would round them).

@@ -83,4 +83,9 @@ CutResult cutAndPush(TruthTerrain& terrain, const SoilField& soil, const Eigen::
 CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::Isometry3d& T_map_blade,
                      const BladeGeometry& blade, double ahead_m, double side_m, int iterations);
 
+/// The same sliding with no blade, over the node box [i0, i1] x [j0, j1] (clamped to the grid),
+/// at most `iterations` Jacobi sweeps (stops early once nothing moves); `tan_repose` of the loose
+/// soil. What a bucket's pile settles with. Returns the changed node box.
+CutResult relaxRegion(TruthTerrain& terrain, double tan_repose, int i0, int j0, int i1, int j1, int iterations);
+
 }  // namespace terramap::sim

@@ -17,6 +17,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -81,9 +82,68 @@ struct RandomWalk {
   double initial = 0, min = 0, max = 0, sigma = 0;  ///< sigma in units per sqrt(second)
 };
 
+/// One revolute joint of an excavator's manipulator (TERA Eq. 1: the joint rate answers a
+/// change Δ of its steady-state rate ω_ss = lever · max_rate with the transient
+/// Δ sin(η t + φ) e^{-β t}; docs/sim.md "Excavators").
+struct ArmJointSpec {
+  double min_rad = -M_PI, max_rad = M_PI;
+  double max_rate_rps = 1.0;     ///< steady-state rate at full lever, rad/s
+  double max_torque_nm = 1e5;    ///< hydraulic relief: beyond it the joint cannot lift its load
+  double eta = 20, beta = 6, phi = 0;  ///< TERA's values (Eq. 1: frequency, decay, phase)
+};
+
+/// The manipulator of an excavator (Takeuchi TB235-class defaults, TERA's example machine):
+/// slew, boom, arm and bucket joints, [0..3] in every array. Geometry in the *slew* frame (the
+/// upper structure: origin on the slew axis at the slew bearing, x forward along the boom's
+/// plane, z up): the boom pivots about the slew frame's y axis at (boom_pivot_x_m, 0,
+/// boom_pivot_z_m); every link is a straight line from its pivot to the next (boom pivot to
+/// arm pivot, arm pivot to bucket pivot, bucket pivot to the bucket's cutting edge, the lip).
+/// Joint angles: slew = yaw of the upper structure relative to the base (rad, left positive);
+/// boom = the boom line above the slew frame's horizontal; arm = the arm line relative to the
+/// boom line; bucket = the pivot→lip line relative to the arm line (positive raises, i.e.
+/// opens; curling the bucket in is negative).
+struct ArmSpec {
+  double slew_x_m = -0.2, slew_z_m = 0.55;        ///< slew axis in the base frame
+  double boom_pivot_x_m = 0.45, boom_pivot_z_m = 0.75;
+  double boom_m = 2.55, arm_m = 1.35, bucket_m = 0.72;
+  /// Bucket: a closed mesh, the prism of a convex profile (x along pivot→lip, z toward its back,
+  /// metres in the bucket frame; the opening faces -z) extruded over the width. Empty = the
+  /// default profile from bucket_m and bucket_depth_m (docs/sim.md).
+  std::vector<Eigen::Vector2d> bucket_profile;
+  double bucket_width_m = 0.6, bucket_depth_m = 0.34;
+  /// Heaped capacity (m^3 of loose soil); 0 = the mesh's own volume.
+  double bucket_capacity_m3 = 0;
+  double pour_rate_m3ps = 0.25;   ///< how fast soil beyond what the bucket can hold pours out
+  double edge_thickness_m = 0.02; ///< bearing area of the lip (penetration resistance)
+  int bucket_slices = 9;          ///< FEE slices across the bucket width
+  std::array<double, 4> mass_kg{900, 210, 105, 95};  ///< upper structure, boom, arm, bucket
+  std::array<ArmJointSpec, 4> joints{{
+      {-M_PI, M_PI, 1.0, 2.0e4, 20, 6, 0},                           // slew (9.5 rpm)
+      {-55 * M_PI / 180, 65 * M_PI / 180, 0.55, 5.2e4, 20, 6, 0},    // boom
+      {-155 * M_PI / 180, -30 * M_PI / 180, 0.75, 3.2e4, 20, 6, 0},  // arm
+      {-200 * M_PI / 180, 30 * M_PI / 180, 1.1, 1.6e4, 20, 6, 0}}};  // bucket
+  std::array<double, 4> initial_rad{0, 20 * M_PI / 180, -100 * M_PI / 180, -110 * M_PI / 180};
+  /// Joint encoders / inclinometers: 1σ white noise of the measured joint angles (rad).
+  double encoder_noise_rad = 0.1 * M_PI / 180;
+  /// Inclinometers on boom, arm and bucket (link angle to gravity): 1σ white noise (rad).
+  double inclinometer_noise_rad = 0.2 * M_PI / 180;
+};
+
+/// The dig-and-dump cycle (controller type dig_dump; an excavator only): dig at `dig` (map xy) by
+/// lowering the lip `depth_m` below the surface there and dragging it `drag_m` towards the
+/// machine, curl, lift, slew to `dump` (map xy), open the bucket over it, slew back. Each
+/// cycle digs `advance_m` further from the machine (a trench grows outwards).
+struct DigDumpSpec {
+  Eigen::Vector2d dig{3.5, 0}, dump{0, 3.5};
+  double depth_m = 0.25, drag_m = 1.0, advance_m = 0.15;
+  double carry_height_m = 1.0;   ///< lip above the dig surface while slewing
+  int cycles = 0;                ///< 0 = as many as the duration allows
+};
+
 /// Controller of a machine.
 struct ControllerSpec {
-  enum class Type { RandomWalk, Route, Replay } type = Type::RandomWalk;
+  enum class Type { RandomWalk, Route, Replay, DigDump } type = Type::RandomWalk;
+  DigDumpSpec dig_dump;  ///< type DigDump (excavators)
   // Replay (type Replay): recorded commands (command_log.hpp), read by loadScenario from
   // `replay_path` (the YAML's `file`, resolved against the scenario's folder) in `replay_units`.
   std::string replay_path;
@@ -169,7 +229,9 @@ struct SensorSpec {
   bool castsRays() const { return type == Type::Lidar || type == Type::DepthCamera; }
 };
 
-/// A compact track loader (CAT 299-class defaults: ALGORITHMS.md §L; docs/sim.md).
+/// A compact track loader (CAT 299-class defaults: ALGORITHMS.md §L; docs/sim.md), or with
+/// `arm` an excavator: the same tracked undercarriage and dozer blade (the excavator's plow,
+/// held where the controller leaves it) carrying a slewing upper structure with a manipulator.
 struct MachineSpec {
   std::string id;
   double x_m = 0, y_m = 0, yaw_rad = 0;  ///< initial pose of the base frame
@@ -212,6 +274,8 @@ struct MachineSpec {
   /// How the poses the mapper receives (base, each cloud's sensor, blade) differ from the truth
   /// (YAML `localisation:`; the scenario-wide one, else RTK-GNSS + IMU, when absent).
   LocalisationSpec localisation = LocalisationSpec::rtkImu();
+  /// `type: excavator`: the manipulator (absent for a compact track loader).
+  std::optional<ArmSpec> arm;
   /// Solid boxes the simulated LiDARs see (machine_shape.hpp); defaultCtlShape() of the track
   /// and blade dimensions unless the scenario gives `shape:`.
   std::vector<ShapeBox> shape;

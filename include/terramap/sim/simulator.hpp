@@ -65,6 +65,24 @@ struct MachineTruth {
   std::array<double, 5> setpoints{};    ///< speed, depth, roll, blade yaw, heading
   double raise_offset_m = 0;
   double cut_bank_m3 = 0;               ///< cumulative bank volume cut by this machine
+  // Excavators (MachineSpec::arm) only, zero otherwise: the manipulator (sim/excavator.hpp).
+  bool has_arm = false;
+  std::array<double, 4> arm_q{}, arm_qd{}, arm_torque_nm{};  ///< slew, boom, arm, bucket: rad, rad/s, N·m
+  std::array<double, 4> arm_q_measured{};  ///< the encoders: arm_q + white noise (ArmSpec::encoder_noise_rad)
+  std::array<double, 4> arm_lever{};       ///< the levers commanded, [-1, 1]
+  /// Inclinometers on boom, arm and bucket: each link line's angle above the map's horizontal,
+  /// full circle in the vertical plane through the upper structure's forward axis (rad; the
+  /// bucket's line runs from its pivot to the lip), true and measured (+ white noise
+  /// of ArmSpec::inclinometer_noise_rad): what a real machine reads with respect to gravity.
+  std::array<double, 3> arm_inclination{}, arm_inclination_measured{};
+  std::uint8_t arm_stalled = 0;            ///< bit k: joint k stopped by its relief in the last step
+  int arm_phase = -1;                      ///< DigDumpController::Phase, -1 without one
+  int arm_cycle = 0;                       ///< dig-and-dump cycles completed
+  Eigen::Isometry3d T_map_bucket = Eigen::Isometry3d::Identity();  ///< bucket frame (at its pivot)
+  Eigen::Vector3d bucket_force_map_N = Eigen::Vector3d::Zero();    ///< soil on the bucket's lip
+  double bucket_load_kg = 0, bucket_load_m3 = 0;  ///< soil in the bucket: mass, loose volume
+  double bucket_bank_m3 = 0;                      ///< the same soil's bank-equivalent volume
+  double bucket_dug_bank_m3 = 0, bucket_dumped_bank_m3 = 0;  ///< cumulative, bank-equivalent
 };
 
 class Simulator {
@@ -132,6 +150,9 @@ class Simulator {
   /// Track–soil interaction (MachineSpec::track_soil): the ground under the machine into `load`,
   /// and each track's sinkage pressed into the terrain under its footprint.
   void groundUnder(const Machine& m, CtlLoad& load) const;
+  /// An excavator's manipulator for one physics step: controller, soil force on the bucket,
+  /// joints, then the bucket digging the terrain and pouring what it cannot hold.
+  void armStep(Machine& m, double dt);
   void pressTracks(Machine& m);
   /// Per node: the height the tracks left it at (NaN = never pressed) and how far they have
   /// pressed it (m); allocated at the first press.
