@@ -10,6 +10,7 @@ const char* kindName(EventKind k) {
     case EventKind::Observation: return "observation";
     case EventKind::Tick: return "tick";
     case EventKind::Imu: return "imu";
+    case EventKind::JointState: return "joint_state";
   }
   return "unknown";
 }
@@ -19,7 +20,7 @@ EventMask eventMaskFromNames(const std::vector<std::string>& names, std::string*
   for (const auto& n : names) {
     bool found = false;
     for (EventKind k : {EventKind::PointCloud, EventKind::Pose, EventKind::BladePose, EventKind::Observation,
-                        EventKind::Tick, EventKind::Imu})
+                        EventKind::Tick, EventKind::Imu, EventKind::JointState})
       if (n == kindName(k)) {
         m |= mask(k);
         found = true;

@@ -545,6 +545,17 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
   rec.events.emplace_back(std::move(pose));
   rec.events.emplace_back(std::move(bp));
   rec.events.emplace_back(std::move(ob));
+  if (m.arm) {
+    JointState js;
+    js.stamp = tp;
+    js.machine_id = spec.id;
+    js.position_rad = m.truth.arm_q_measured;
+    js.velocity_radps = m.truth.arm_qd;
+    js.effort_nm = m.truth.arm_torque_nm;
+    js.T_map_bucket = Te * m.arm->T_base_bucket(js.position_rad);
+    js.bucket_load_kg = m.truth.bucket_load_kg;
+    rec.events.emplace_back(std::move(js));
+  }
   rec.truths.push_back(m.truth);
   if (overlap_) rec.ctls.push_back(m.ctl);
 }

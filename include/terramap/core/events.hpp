@@ -95,7 +95,22 @@ struct ImuSample {
   Eigen::Vector3d gyro_radps = Eigen::Vector3d::Zero();
 };
 
-using Event = std::variant<PointCloud, Pose, BladePose, Observation, Tick, ImuSample>;
+/// An excavator's manipulator as the machine itself knows it (TERA's JointState, end-effector
+/// transform and bucket mass): joints in the order slew, boom, arm, bucket. `position_rad` is the
+/// encoders' reading, `velocity_radps` the joint rates over the last physics step, `effort_nm`
+/// each actuator's static effort (N·m, positive toward positive angles; from its pressures on a
+/// real machine), `T_map_bucket` the bucket frame (at its pivot; x toward the lip, z toward its
+/// back) from the localisation's base pose and the measured joints, `bucket_load_kg` the soil
+/// in the bucket. docs/sim.md "Excavators".
+struct JointState {
+  double stamp = 0.0;
+  std::string machine_id;
+  std::array<double, 4> position_rad{}, velocity_radps{}, effort_nm{};
+  Eigen::Isometry3d T_map_bucket = Eigen::Isometry3d::Identity();
+  double bucket_load_kg = 0.0;
+};
+
+using Event = std::variant<PointCloud, Pose, BladePose, Observation, Tick, ImuSample, JointState>;
 
 /// Event kinds as bits, so plugins can subscribe to several.
 enum class EventKind : std::uint32_t {
@@ -105,6 +120,7 @@ enum class EventKind : std::uint32_t {
   Observation = 1u << 3,
   Tick = 1u << 4,
   Imu = 1u << 5,
+  JointState = 1u << 6,
 };
 using EventMask = std::uint32_t;
 constexpr EventMask operator|(EventKind a, EventKind b) {
@@ -121,7 +137,8 @@ inline EventKind kindOf(const Event& e) {
 inline double stampOf(const Event& e) {
   return std::visit([](const auto& ev) { return ev.stamp; }, e);
 }
-/// Lower-case name of a kind ("point_cloud", "pose", "blade_pose", "observation", "tick", "imu").
+/// Lower-case name of a kind ("point_cloud", "pose", "blade_pose", "observation", "tick", "imu",
+/// "joint_state").
 TERRAMAP_API const char* kindName(EventKind k);
 /// The mask of kinds named in `names` (as kindName spells them). The first name that is not
 /// a kind is stored in `*unknown` (if given) and the mask of the valid ones is returned.

@@ -28,7 +28,8 @@
 /// 3: Params carries reported problems and the map geometry, ProcessContext a ChangeTracker,
 ///    LayeredMap per-tile write counters.
 /// 4: the Event variant gained ImuSample (EventKind::Imu).
-#define TERRAMAP_PLUGIN_ABI_VERSION 4u
+/// 5: the Event variant gained JointState (EventKind::JointState).
+#define TERRAMAP_PLUGIN_ABI_VERSION 5u
 
 #define TERRAMAP_STR_(x) #x
 #define TERRAMAP_STR(x) TERRAMAP_STR_(x)

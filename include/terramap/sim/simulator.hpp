@@ -15,6 +15,8 @@
 ///   Observation (per machine: the same estimated poses and their twists, measured cylinder
 ///                lengths, true cylinder velocities and track speeds, commanded actions,
 ///                force sensor reading or NaN without a force sensor)
+///   JointState  (per excavator: the encoders' joint angles, joint rates and efforts, the bucket
+///                pose from the estimated base and the measured joints, the soil in the bucket)
 ///   Tick        (end of the period)
 /// The estimates come from one PoseEstimator per machine (MachineSpec::localisation), fed the
 /// true base pose at every physics step; `localisation: perfect` makes every event the truth.

@@ -270,6 +270,38 @@ TEST(Excavator, EncodersAndInclinometersReadTheJointsWithTheirNoise) {
   EXPECT_NEAR(std::sqrt(inc2 / (3 * n)), spec.inclinometer_noise_rad, 0.1 * spec.inclinometer_noise_rad);
 }
 
+TEST(Excavator, ItsJointStatesReachThePipelineAtTheObservationRate) {
+  Simulator sim(parseScenario(digDumpYaml(1, 5, false), "ex.yaml"));
+  std::vector<Event> ev;
+  int states = 0, periods = 0;
+  double max_load = 0;
+  while (sim.next(ev)) {
+    ++periods;
+    const Observation* ob = nullptr;
+    for (const Event& e : ev) {
+      if (const auto* o = std::get_if<Observation>(&e)) ob = o;
+      const auto* js = std::get_if<JointState>(&e);
+      if (!js) continue;
+      ++states;
+      ASSERT_NE(ob, nullptr) << "after the machine's Observation";
+      const MachineTruth& tr = sim.machineTruth(0);
+      EXPECT_EQ(js->machine_id, "ex1");
+      EXPECT_EQ(js->stamp, ob->stamp);
+      EXPECT_EQ(js->position_rad, tr.arm_q_measured);
+      EXPECT_EQ(js->effort_nm, tr.arm_torque_nm);
+      EXPECT_EQ(js->bucket_load_kg, tr.bucket_load_kg);
+      // The bucket where the machine believes it is: within the localisation's and encoders' error.
+      EXPECT_LT((js->T_map_bucket.translation() - tr.T_map_bucket.translation()).norm(), 0.1);
+      max_load = std::max(max_load, js->bucket_load_kg);
+    }
+    ev.clear();
+  }
+  EXPECT_EQ(states, periods);
+  EXPECT_GT(max_load, 10.0);
+  EXPECT_STREQ(kindName(EventKind::JointState), "joint_state");
+  EXPECT_EQ(eventMaskFromNames({"joint_state"}), mask(EventKind::JointState));
+}
+
 TEST(Excavator, ABesideALoaderWithALidarIsBitIdenticalAtOneAndTwoThreads) {
   std::vector<double> h[2];
   std::array<double, 4> q[2];
