@@ -9,6 +9,8 @@ namespace terramap::plugins {
 
 namespace {
 constexpr double kPi = 3.14159265358979323846;
+/// Enough for a pile of a few m^3 at 5 cm cells (the soil moves a cell per sweep at most).
+constexpr int kMaxPileSweeps = 4000;
 
 void num(std::ostringstream& os, double v) {
   if (!std::isfinite(v)) {
@@ -170,6 +172,19 @@ ParamSchema BladeSweep::schema() const {
       param::real("track_gauge_m", 1.6, 0.1, 20.0, "m", "ground anchor: distance between the track centrelines"),
       param::real("ground_anchor_tau_s", 10.0, 0.0, 1e4, "s", "ground anchor: low-pass time constant (0 = no filter)"),
       param::real("ground_anchor_max_m", 0.15, 0.0, 10.0, "m", "ground anchor: larger differences are ignored"),
+      param::real("bucket_length_m", BucketConfig{}.length_m, 0.05, 10.0, "m",
+                  "excavator bucket: pivot to cutting edge (default profile, README \"Buckets\")"),
+      param::real("bucket_depth_m", BucketConfig{}.depth_m, 0.02, 10.0, "m", "excavator bucket: depth of its profile"),
+      param::real("bucket_width_m", BucketConfig{}.width_m, 0.05, 10.0, "m", "excavator bucket: width"),
+      param::real("pile_repose_rad", BucketConfig{}.pile_repose_rad, 0.05, 1.5, "rad",
+                  "slope a dumped pile's loose soil settles to"),
+      param::real("pile_reach_m", BucketConfig{}.pile_reach_m, 0.1, 20.0, "m", "how far a dumped pile may spread"),
+      param::real("min_load_drop_kg", BucketConfig{}.min_load_drop_kg, 0.0, 1e5, "kg",
+                  "a drop of the bucket's load below this is noise, not a pour"),
+      param::integer("bucket_pose_window", BucketConfig{}.pose_window, 1, 99,
+                     "bucket poses averaged (centred) before they sweep: the union of noisy stations widens the cut"),
+      param::real("bucket_capacity_m3", 0.0, 0.0, 100.0, "m^3",
+                  "loose soil the bucket holds (0 = the volume of its mesh); a full bucket cuts no more"),
   };
 }
 
@@ -193,6 +208,16 @@ void BladeSweep::configure(const Params& p) {
   anchor_cfg_.track_gauge_m = p.getDouble("track_gauge_m");
   anchor_cfg_.tau_s = p.getDouble("ground_anchor_tau_s");
   anchor_cfg_.max_m = p.getDouble("ground_anchor_max_m");
+  bucket_cfg_.length_m = p.getDouble("bucket_length_m");
+  bucket_cfg_.depth_m = p.getDouble("bucket_depth_m");
+  bucket_cfg_.width_m = p.getDouble("bucket_width_m");
+  bucket_cfg_.pile_repose_rad = p.getDouble("pile_repose_rad");
+  bucket_cfg_.pile_reach_m = p.getDouble("pile_reach_m");
+  bucket_cfg_.min_load_drop_kg = p.getDouble("min_load_drop_kg");
+  bucket_cfg_.capacity_m3 = p.getDouble("bucket_capacity_m3");
+  bucket_cfg_.pose_window = static_cast<int>(p.getInt("bucket_pose_window"));
+  if (bucket_cfg_.pose_window % 2 == 0) p.fail("bucket_pose_window", "must be odd (a centred window)");
+  tool_ = bucket_cfg_.mesh();
   if (cfg_.max_jump_m <= cfg_.min_translation_m)
     p.fail("max_jump_m", "must be larger than min_translation_m (" + std::to_string(cfg_.min_translation_m) + ")");
 }
@@ -287,6 +312,10 @@ void BladeSweep::process(ProcessContext& ctx, const Event& event) {
     anchorToGround(ctx, *pose);
     return;
   }
+  if (const auto* js = std::get_if<JointState>(&event)) {
+    processJointState(ctx, *js);
+    return;
+  }
   const auto* bp_in = std::get_if<BladePose>(&event);
   if (!bp_in) return;
   // The blade pose shifted by its machine's ground anchor (the id's own, else the "base" one).
@@ -379,7 +408,131 @@ void BladeSweep::sweepHistory(ProcessContext& ctx, MachineState& st, const std::
   st.history.push_back(last);
 }
 
+void BladeSweep::processJointState(ProcessContext& ctx, const JointState& js) {
+  if (!finitePose(js.T_map_bucket) || !std::isfinite(js.stamp)) {
+    ctx.countDrop("non_finite_pose");
+    return;
+  }
+  Eigen::Isometry3d T = js.T_map_bucket;
+  if (anchor_cfg_.enabled) {  // the same height correction as the machine's blade
+    auto it = anchors_.find(js.machine_id);
+    if (it == anchors_.end()) it = anchors_.find("");
+    if (it != anchors_.end() && it->second.init) T.translation().z() += it->second.offset_m;
+  }
+  BucketState& st = buckets_[js.machine_id];
+  if (!st.raw.empty() && (T.translation() - st.raw.back().translation()).norm() > cfg_.max_jump_m) {
+    ctx.addCounter("pose_jumps", 1);
+    advanceBucket(ctx, st, true);
+    st.raw.clear();
+    st.poses.clear();
+  }
+  st.raw.push_back(T);
+  advanceBucket(ctx, st, false);
+  // A pour: the machine weighs its bucket. What it lost, as a share of what it held, leaves the
+  // soil the map has the bucket carry, over the lip, after the bucket's motion so far has cut.
+  const double load = js.bucket_load_kg;
+  if (std::isfinite(load) && std::isfinite(st.last_load_kg) && st.last_load_kg - load > bucket_cfg_.min_load_drop_kg) {
+    sweepBucket(ctx, st);
+    const double share = std::clamp((st.last_load_kg - load) / st.last_load_kg, 0.0, 1.0);
+    const double bank = st.carried_bank_m3 * share;
+    // A few sweeps per pour keep the pile from standing as a column while it grows; it settles
+    // fully once the pour ends (below).
+    const BucketResult r = pourBucket(ctx.map(), ids_, cfg_, bucket_cfg_, T * tool_.lip, bank, 8);
+    st.pile_pending = true;
+    st.pile_at = T * tool_.lip;
+    if (r.dropped) {
+      ctx.countDrop("tile_budget");
+    } else {
+      st.carried_bank_m3 -= bank;
+      st.last_load_kg = load;
+      ctx.addCounter("bucket_pours", 1);
+      ctx.addCounter("bucket_poured_bank_m3", r.deposit_bank_m3);
+      ctx.addCounter("deposit_unknown_volume_m3", r.unknown_bank_m3 * cfg_.swell);
+      ctx.addCounter("lost_volume_m3", r.lost_bank_m3 * cfg_.swell);
+      if (r.lost_bank_m3 > 0) ctx.countDrop("deposit_off_map");
+    }
+  }
+  else if (st.pile_pending) settleBucketPile(ctx, st);  // the pour has ended
+  // Drops below the threshold accumulate until they pass it; a rising load is the new reference.
+  if (std::isfinite(load) && !(load <= st.last_load_kg)) st.last_load_kg = load;
+}
+
+void BladeSweep::settleBucketPile(ProcessContext& ctx, BucketState& st) {
+  const int sweeps = settlePile(ctx.map(), ids_, bucket_cfg_, st.pile_at, kMaxPileSweeps);
+  ctx.addCounter("bucket_pile_settle_sweeps", sweeps);
+  if (sweeps == kMaxPileSweeps) ctx.addCounter("bucket_pile_unsettled", 1);
+  st.pile_pending = false;
+}
+
+void BladeSweep::advanceBucket(ProcessContext& ctx, BucketState& st, bool flush) {
+  const std::size_t win = static_cast<std::size_t>(std::max(1, bucket_cfg_.pose_window)), half = win / 2;
+  auto smoothed = [&](std::size_t centre) {
+    // The mean over the window around `centre` (shrunk to stay symmetric inside st.raw):
+    // translations averaged, rotations by the normalised sum of sign-aligned quaternions.
+    const std::size_t h = std::min({half, centre, st.raw.size() - 1 - centre});
+    Eigen::Vector3d t = Eigen::Vector3d::Zero();
+    const Eigen::Quaterniond q0(st.raw[centre].linear());
+    Eigen::Vector4d qs = Eigen::Vector4d::Zero();
+    for (std::size_t k = centre - h; k <= centre + h; ++k) {
+      t += st.raw[k].translation();
+      Eigen::Quaterniond q(st.raw[k].linear());
+      if (q.dot(q0) < 0) q.coeffs() = -q.coeffs();
+      qs += q.coeffs();
+    }
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.translation() = t / static_cast<double>(2 * h + 1);
+    T.linear() = Eigen::Quaterniond(qs.normalized()).toRotationMatrix();
+    return T;
+  };
+  const double min_t = std::max(cfg_.min_translation_m, ctx.map().geometry().resolution() * std::sqrt(2.0));
+  auto append = [&](const Eigen::Isometry3d& T) {
+    st.poses.push_back(T);
+    if (st.poses.size() < 2) return;
+    const Eigen::Isometry3d& first = st.poses.front();
+    const bool moved = ((T * tool_.lip) - (first * tool_.lip)).norm() > min_t;
+    if (moved || rotationBetween(first, T) > cfg_.min_rotation_rad) sweepBucket(ctx, st);
+  };
+  if (flush) {
+    // The poses not smoothed yet (the last `half`, or all when fewer arrived), their windows
+    // shrinking at the end.
+    for (std::size_t c = st.raw.size() > half ? st.raw.size() - half : 0; c < st.raw.size(); ++c) append(smoothed(c));
+    st.raw.clear();
+    return;
+  }
+  // One smoothed pose per received pose: the one `half` poses back (the first ones with the
+  // part of their window that exists, symmetric).
+  if (st.raw.size() > half) append(smoothed(st.raw.size() - 1 - half));
+  if (st.raw.size() > win) st.raw.erase(st.raw.begin());
+}
+
+void BladeSweep::sweepBucket(ProcessContext& ctx, BucketState& st) {
+  if (st.poses.size() < 2) return;
+  const double capacity = bucket_cfg_.capacity_m3 > 0 ? bucket_cfg_.capacity_m3 : tool_.volume_m3;
+  const double room = std::max(0.0, capacity / cfg_.swell - st.carried_bank_m3);
+  const BucketResult r = runBucketSweep(ctx.map(), ids_, cfg_, tool_, st.poses, room, ctx.executor());
+  if (r.dropped) {
+    ctx.countDrop("tile_budget");
+  } else {
+    st.carried_bank_m3 += r.cut_bank_m3;
+    ctx.addCounter("bucket_sweeps", 1);
+    ctx.addCounter("bucket_cut_bank_m3", r.cut_bank_m3);
+    ctx.addCounter("cells_cut", static_cast<double>(r.cells_cut));
+    if (r.cells_unknown > 0) ctx.countDrop("bucket_over_unknown", r.cells_unknown);
+  }
+  const Eigen::Isometry3d last = st.poses.back();
+  st.poses.clear();
+  st.poses.push_back(last);
+}
+
 void BladeSweep::finish(ProcessContext& ctx) {
+  for (auto& [id, st] : buckets_) {
+    advanceBucket(ctx, st, true);
+    sweepBucket(ctx, st);
+    if (st.pile_pending) settleBucketPile(ctx, st);
+    // Soil still in a bucket at the end is neither in the map nor lost: reported.
+    ctx.addCounter("bucket_carried_bank_m3", st.carried_bank_m3);
+  }
+  buckets_.clear();
   // The blade's last motion is shorter than a sweep's minimum travel (it stopped, or the run
   // ended mid-motion): cut it now, or the soil it moved would never reach the map. Machines in
   // id order (std::map), so the flush is deterministic.

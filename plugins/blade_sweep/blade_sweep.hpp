@@ -29,10 +29,12 @@
 /// Without a `variance` layer (blind-only pipeline) none of this is written; the layer is not
 /// created (nobody would read it, and `height_sigma` already carries the same sigma).
 #include <terramap/plugin/plugin.hpp>
+#include <terramap/core/map_window.hpp>
 #include <terramap/plugin/records/sweep_record.hpp>
 
 #include <Eigen/Geometry>
 #include <array>
+#include <limits>
 #include <map>
 #include <memory>
 #include <string>
@@ -121,6 +123,77 @@ struct SweepLayers {
   static SweepLayers of(const LayeredMap& map);
 };
 
+/// How a sweep changed a cell (the height contract's cases).
+enum SweepChange : std::uint8_t { kSweepUnchanged = 0, kSweepCut = 1, kSweepDeposit = 2, kSweepDepositUnknown = 3 };
+
+/// The height contract (docs/height_contract.md) on lidar_fusion's layers over `win` for the
+/// cells `change` marks (H the new elevation, S0 and S the height sigma before and after), as
+/// the blade's sweep applies it; the bucket's sweep and pour apply the same.
+void applyHeightContract(LayeredMap& map, const SweepLayers& ids, const MapWindow& win,
+                         const std::vector<std::uint8_t>& change, const std::vector<double>& H,
+                         const std::vector<double>& S0, const std::vector<double>& S);
+
+/// A tool given as a closed triangle mesh in its own frame (m): an excavator's bucket, in the
+/// frame of JointState::T_map_bucket (origin at the bucket pivot, x toward the lip, y across,
+/// z toward the bucket's back; the opening faces -z).
+struct ToolMesh {
+  std::vector<Triangle> faces;   ///< closed surface, tool frame
+  Eigen::Vector3d lip = Eigen::Vector3d::Zero();  ///< where poured soil leaves the tool (tool frame)
+  double width_m = 0;
+  double volume_m3 = 0;  ///< the closed mesh's volume
+  /// The prism of a convex profile (points (x, z), either orientation) extruded over
+  /// [-width/2, width/2]; the lip is the profile vertex farthest along x.
+  /// 	hrows ConfigError for fewer than three vertices or a width <= 0.
+  static ToolMesh prism(const std::vector<Eigen::Vector2d>& profile, double width_m);
+};
+
+/// The bucket of the plugin's excavators (`bucket_*` params; TB235-class defaults).
+struct BucketConfig {
+  double length_m = 0.72, depth_m = 0.34, width_m = 0.6;  ///< default profile: docs/sim.md "Excavators"
+  double pile_repose_rad = 0.6;    ///< loose soil of a dump pile settles to this slope
+  double pile_reach_m = 1.5;       ///< how far from the pour point the pile may spread
+  double min_load_drop_kg = 0.5;   ///< a drop of the bucket's load below this is noise, not a pour
+  double capacity_m3 = 0;          ///< loose m^3 the bucket holds; 0 = its mesh's volume
+  /// Bucket poses averaged over this many consecutive JointStates (centred, odd; 1 = none): the
+  /// swept volume is a union, so the pose noise's extremes would widen and deepen the cut.
+  int pose_window = 9;
+  /// The default profile's mesh: (0, 0), (L, 0), (0.62 L, D), (0.12 L, 0.88 D) x width.
+  ToolMesh mesh() const;
+};
+
+/// What a bucket sweep or pour did (volumes in m^3; bank = what the soil occupied in the ground,
+/// loose soil counted at 1/swell).
+struct BucketResult {
+  double cut_volume_m3 = 0, cut_bank_m3 = 0;       ///< sweep: height removed, its bank equivalent
+  double deposit_bank_m3 = 0, unknown_bank_m3 = 0, lost_bank_m3 = 0;  ///< pour: on known, unknown, off the map
+  long cells_cut = 0, cells_unknown = 0, cells_deposit = 0;
+  bool dropped = false;  ///< a sparse map had no room for the tiles (nothing written)
+};
+
+/// The bucket's swept volume over `poses` (T_map_bucket, at least two): stations interpolated so
+/// no mesh vertex moves more than half a cell between two, each in turn cutting the cells whose
+/// elevation lies above the mesh's bottom down to it (loose soil first), until `room_bank_m3`
+/// (bank m^3 the bucket can still take) is used: the station that fills it cuts all its cells
+/// by the same fraction, later ones nothing (a full bucket takes no more). Nothing is deposited:
+/// the soil goes into the bucket (the caller carries cut_bank_m3). Unknown cells under it are
+/// counted, not cut.
+BucketResult runBucketSweep(LayeredMap& map, const SweepLayers& layers, const SweepConfig& cfg, const ToolMesh& tool,
+                            const std::vector<Eigen::Isometry3d>& poses, double room_bank_m3, const Executor& ex);
+
+/// Pours `bank_m3` of carried soil (swelled by cfg.swell) onto the cells within the tool's half
+/// width of map point `at` (at least its own cell) and lets the loose soil slide toward
+/// pile_repose_rad within pile_reach_m for at most `max_sweeps` Jacobi sweeps (loose soil moves
+/// at most a cell per sweep; settlePile finishes the pile). Mass-conserving: Σ[(H − L) + L/s]
+/// grows by bank_m3 less what fell off the map (lost_bank_m3).
+BucketResult pourBucket(LayeredMap& map, const SweepLayers& layers, const SweepConfig& cfg, const BucketConfig& bucket,
+                        const Eigen::Vector3d& at, double bank_m3, int max_sweeps);
+
+/// Lets a pile's loose soil around `at` settle until no neighbouring pair of known cells is
+/// steeper than pile_repose_rad by more than 0.1 mm per cell (or `max_sweeps`); returns the
+/// sweeps run. Mass-conserving.
+int settlePile(LayeredMap& map, const SweepLayers& layers, const BucketConfig& bucket, const Eigen::Vector3d& at,
+               int max_sweeps);
+
 /// Blade angle from the horizontal in the vertical plane along `t_hat`, measured through the
 /// soil behind the edge (pi/2 upright, < pi/2 leaning back). NaN if the face is parallel to
 /// the travel direction.
@@ -147,7 +220,9 @@ class BladeSweep : public Plugin {
   ParamSchema schema() const override;
   void configure(const Params& params) override;
   std::vector<LayerSpec> layers() const override;
-  EventMask events() const override { return mask(EventKind::BladePose) | mask(EventKind::Pose); }
+  EventMask events() const override {
+    return mask(EventKind::BladePose) | mask(EventKind::Pose) | mask(EventKind::JointState);
+  }
   void start(ProcessContext& ctx) override;
   void process(ProcessContext& ctx, const Event& event) override;
   void finish(ProcessContext& ctx) override;
@@ -175,6 +250,25 @@ class BladeSweep : public Plugin {
   void sweepHistory(ProcessContext& ctx, MachineState& st, const std::string& machine_id, double stamp);
   std::map<std::string, MachineState> machines_;
   long sweeps_ = 0;
+
+  // Excavator buckets (JointState events; docs in the README, "Buckets").
+  struct BucketState {
+    std::vector<Eigen::Isometry3d> raw;    ///< the latest received poses (the smoothing window)
+    std::vector<Eigen::Isometry3d> poses;  ///< smoothed, since the last bucket sweep (first = its start)
+    bool pile_pending = false;             ///< poured since the pile last settled, at `pile_at`
+    Eigen::Vector3d pile_at = Eigen::Vector3d::Zero();
+    double carried_bank_m3 = 0;            ///< soil cut and not yet poured
+    double last_load_kg = std::numeric_limits<double>::quiet_NaN();
+  };
+  void processJointState(ProcessContext& ctx, const JointState& js);
+  /// Appends the smoothed pose of the window's centre (or, when `flush`, of every pose left,
+  /// with the window shrinking at the end) to st.poses; sweeps when the lip has moved enough.
+  void advanceBucket(ProcessContext& ctx, BucketState& st, bool flush);
+  void sweepBucket(ProcessContext& ctx, BucketState& st);
+  void settleBucketPile(ProcessContext& ctx, BucketState& st);
+  BucketConfig bucket_cfg_;
+  ToolMesh tool_;
+  std::map<std::string, BucketState> buckets_;
 };
 
 }  // namespace terramap::plugins

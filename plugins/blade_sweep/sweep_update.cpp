@@ -547,6 +547,16 @@ SweepStep stepValues(const std::vector<BladePose>& history, size_t k, const Swee
 
 }  // namespace
 
+static_assert(kChangeNone == kSweepUnchanged && kChangeCut == kSweepCut && kChangeDeposit == kSweepDeposit &&
+                  kChangeDepositUnknown == kSweepDepositUnknown,
+              "the bucket sweep shares the blade's change codes");
+
+void applyHeightContract(LayeredMap& map, const SweepLayers& ids, const MapWindow& win,
+                         const std::vector<std::uint8_t>& change, const std::vector<double>& H,
+                         const std::vector<double>& S0, const std::vector<double>& S) {
+  updateFusionLayers(map, ids, win, change, H, S0, S);
+}
+
 std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, const SweepConfig& cfg,
                                       const std::vector<BladePose>& history, const Executor& ex) {
   TERRAMAP_CHECK(history.size() >= 2, "runSweep needs at least two poses");
