@@ -153,6 +153,18 @@ Eigen::Isometry3d ExcavatorArm::T_base_bucket(const std::array<double, 4>& q) co
   return T_base_slew(q) * T;
 }
 
+std::array<Eigen::Isometry3d, 4> ExcavatorArm::linkFrames(const std::array<double, 4>& q) const {
+  const Eigen::Isometry3d S = T_base_slew(q);
+  const std::array<Eigen::Vector2d, 4> c = chain(q);
+  auto link = [&](const Eigen::Vector2d& pivot, double a) {
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.translation() = inPlane(pivot);
+    T.linear() = Eigen::AngleAxisd(-a, Eigen::Vector3d::UnitY()).toRotationMatrix();
+    return S * T;
+  };
+  return {S, link(c[0], q[kBoom]), link(c[1], q[kBoom] + q[kArm]), T_base_bucket(q)};
+}
+
 Eigen::Vector3d ExcavatorArm::lipInBase(const std::array<double, 4>& q) const {
   const Eigen::Vector2d lip = mesh_.profile[static_cast<std::size_t>(mesh_.lip)];
   return T_base_bucket(q) * inPlane(lip);

@@ -24,10 +24,35 @@ std::vector<ShapeBox> defaultCtlShape(double gauge_m, double track_length_m, dou
   return s;
 }
 
+std::vector<ShapeBox> defaultExcavatorShape(double gauge_m, double track_length_m, double track_width_m,
+                                            double plow_width_m, double plow_height_m, double boom_m, double arm_m,
+                                            const Eigen::Vector3d& bucket_min, const Eigen::Vector3d& bucket_max) {
+  using F = ShapeBox::Frame;
+  // TB235-2 figures rounded from its spec sheet (width over the tracks 1.55 m, height to the cab
+  // top 2.5 m, tail swing radius 0.78 m); the split into boxes is an estimate. The slew frame's
+  // origin is on the slew bearing, 0.55 m above the track contact plane (ArmSpec).
+  const double half_gauge = 0.5 * gauge_m, tw = track_width_m, tl = 0.5 * track_length_m + 0.2;
+  std::vector<ShapeBox> s;
+  s.push_back({"track_left", F::Base, {-tl, half_gauge - 0.5 * tw, 0.0}, {tl, half_gauge + 0.5 * tw, 0.5}});
+  s.push_back({"track_right", F::Base, {-tl, -half_gauge - 0.5 * tw, 0.0}, {tl, -half_gauge + 0.5 * tw, 0.5}});
+  s.push_back({"house", F::Slew, {-0.78, -0.75, 0.0}, {0.45, 0.75, 0.65}});
+  s.push_back({"cab", F::Slew, {-0.45, -0.05, 0.65}, {0.45, 0.75, 1.85}});
+  s.push_back({"plow", F::Blade, {-0.05, -0.5 * plow_width_m, 0.0}, {0.0, 0.5 * plow_width_m, plow_height_m}});
+  s.push_back({"boom", F::Boom, {0.0, -0.12, -0.17}, {boom_m, 0.12, 0.17}});
+  s.push_back({"arm", F::Arm, {0.0, -0.09, -0.12}, {arm_m, 0.09, 0.12}});
+  s.push_back({"bucket", F::Bucket, bucket_min, bucket_max});
+  return s;
+}
+
 void placeShape(const std::vector<ShapeBox>& shape, const Eigen::Isometry3d& T_map_base,
-                const Eigen::Isometry3d& T_map_blade, std::vector<PlacedBox>& out) {
+                const Eigen::Isometry3d& T_map_blade, std::vector<PlacedBox>& out,
+                const std::array<Eigen::Isometry3d, 4>* T_map_links) {
   for (const ShapeBox& b : shape) {
-    const Eigen::Isometry3d& T = b.frame == ShapeBox::Frame::Base ? T_map_base : T_map_blade;
+    const bool link = b.frame != ShapeBox::Frame::Base && b.frame != ShapeBox::Frame::Blade;
+    if (link && !T_map_links) continue;
+    const Eigen::Isometry3d& T = b.frame == ShapeBox::Frame::Base    ? T_map_base
+                                 : b.frame == ShapeBox::Frame::Blade ? T_map_blade
+                                 : (*T_map_links)[static_cast<int>(b.frame) - static_cast<int>(ShapeBox::Frame::Slew)];
     PlacedBox p;
     p.centre = T * (0.5 * (b.min + b.max));
     p.R = T.linear();

@@ -404,8 +404,9 @@ LocalisationSpec readLocalisation(MapReader& parent, const LocalisationSpec& def
   return s;
 }
 
-/// `shape:` a list of {name, frame: base|blade, min: [x, y, z], max: [x, y, z]} replacing the
-/// default boxes ([] = a machine the LiDARs cannot see).
+/// `shape:` a list of {name, frame: base|blade (an excavator also slew|boom|arm|bucket), min: [x,
+/// y, z], max: [x, y, z]} replacing the default boxes ([] = a machine the LiDARs cannot see).
+/// The arm must be read before (it decides the frames allowed).
 void readShape(MapReader& r, MachineSpec& m) {
   const YAML::Node list = r.node("shape");
   if (!list.IsSequence()) {
@@ -419,9 +420,13 @@ void readShape(MapReader& r, MachineSpec& m) {
     ShapeBox box;
     box.name = b.str("name", "box" + std::to_string(k));
     const std::string frame = b.str("frame", "base");
-    if (frame == "blade") box.frame = ShapeBox::Frame::Blade;
-    else if (frame != "base")
-      b.error(b.node("frame"), "frame", "must be base or blade (got '" + frame + "')" + didYouMean(frame, {"base", "blade"}));
+    const std::vector<std::string> frames = m.arm ? std::vector<std::string>{"base", "blade", "slew", "boom", "arm", "bucket"}
+                                                  : std::vector<std::string>{"base", "blade"};
+    const auto it = std::find(frames.begin(), frames.end(), frame);
+    if (it != frames.end())
+      box.frame = static_cast<ShapeBox::Frame>(it - frames.begin());
+    else
+      b.error(b.node("frame"), "frame", "must be " + joinStrings(frames) + " (got '" + frame + "')" + didYouMean(frame, frames));
     const std::vector<double> lo = b.vec("min", {}, 3), hi = b.vec("max", {}, 3);
     if (lo.size() == 3 && hi.size() == 3) {
       box.min = Eigen::Vector3d(lo[0], lo[1], lo[2]);
@@ -583,7 +588,23 @@ MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisati
       r.error(r.node("controller"), "controller", "dig_dump drives an excavator's arm (this machine is a ctl)");
   }
   if (r.has("sensors")) readSensors(r, m, physics_hz);
-  m.shape = defaultCtlShape(m.track_gauge_m, m.track_length_m, m.blade.width_m, m.blade.height_m);
+  if (m.arm) {
+    // The bucket's box: its mesh's extent in the bucket frame.
+    Eigen::Vector3d lo(1e9, -0.5 * m.arm->bucket_width_m, 1e9), hi(-1e9, 0.5 * m.arm->bucket_width_m, -1e9);
+    try {
+      for (const Eigen::Vector2d& v : bucketMesh(*m.arm).profile) {
+        lo.x() = std::min(lo.x(), v.x()); lo.z() = std::min(lo.z(), v.y());
+        hi.x() = std::max(hi.x(), v.x()); hi.z() = std::max(hi.z(), v.y());
+      }
+    } catch (const ConfigError&) {  // reported above; any box will do until then
+      lo = Eigen::Vector3d(0, -0.3, 0);
+      hi = Eigen::Vector3d(0.7, 0.3, 0.3);
+    }
+    m.shape = defaultExcavatorShape(m.track_gauge_m, m.track_length_m, m.track_width_m, m.blade.width_m,
+                                    m.blade.height_m, m.arm->boom_m, m.arm->arm_m, lo, hi);
+  } else {
+    m.shape = defaultCtlShape(m.track_gauge_m, m.track_length_m, m.blade.width_m, m.blade.height_m);
+  }
   if (r.has("shape")) readShape(r, m);
   r.finish();
   return m;

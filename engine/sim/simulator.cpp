@@ -459,8 +459,16 @@ void Simulator::scheduleScans(Period& rec, double t) {
       q.key = streamSeed(sc_.seed, 1000 + m.index * 64 + L.sensor_index, static_cast<std::uint64_t>(L.next_scan));
       if (sc_.lidar_sees_machines && !obstacles) {
         obstacles = std::make_shared<std::vector<PlacedBox>>();
-        for (const auto& other : machines_)
-          placeShape(other->ctl.spec().shape, other->ctl.T_map_base(), other->ctl.T_map_blade(), *obstacles);
+        for (const auto& other : machines_) {
+          if (!other->arm) {
+            placeShape(other->ctl.spec().shape, other->ctl.T_map_base(), other->ctl.T_map_blade(), *obstacles);
+            continue;
+          }
+          const Eigen::Isometry3d Tb = other->ctl.T_map_base();
+          std::array<Eigen::Isometry3d, 4> links = other->arm->linkFrames(other->arm->q());
+          for (Eigen::Isometry3d& T : links) T = Tb * T;
+          placeShape(other->ctl.spec().shape, Tb, other->ctl.T_map_blade(), *obstacles, &links);
+        }
       }
       q.obstacles = obstacles;
       ++L.next_scan;
@@ -552,7 +560,9 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
     js.position_rad = m.truth.arm_q_measured;
     js.velocity_radps = m.truth.arm_qd;
     js.effort_nm = m.truth.arm_torque_nm;
-    js.T_map_bucket = Te * m.arm->T_base_bucket(js.position_rad);
+    const std::array<Eigen::Isometry3d, 4> links = m.arm->linkFrames(js.position_rad);
+    for (int k = 0; k < 4; ++k) js.T_map_link[k] = Te * links[k];
+    js.T_map_bucket = js.T_map_link[3];
     js.bucket_load_kg = m.truth.bucket_load_kg;
     rec.events.emplace_back(std::move(js));
   }

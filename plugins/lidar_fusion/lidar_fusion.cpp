@@ -367,6 +367,11 @@ ParamSchema lidarFusionSchema() {
                    "self-filter boxes in the base frame, [xmin, ymin, zmin, xmax, ymax, zmax] per box"),
       param::reals("self_filter_blade_m", {}, -1, -100.0, 100.0, "m",
                    "self-filter boxes in the blade frame, 6 numbers per box"),
+      param::reals("self_filter_slew_m", {}, -1, -100.0, 100.0, "m",
+                   "self-filter boxes on an excavator's upper structure (JointState slew frame), 6 numbers per box"),
+      param::reals("self_filter_boom_m", {}, -1, -100.0, 100.0, "m", "the same in the boom frame"),
+      param::reals("self_filter_arm_m", {}, -1, -100.0, 100.0, "m", "the same in the arm frame"),
+      param::reals("self_filter_bucket_m", {}, -1, -100.0, 100.0, "m", "the same in the bucket frame"),
       param::real("self_filter_margin_m", 0.1, 0.0, 10.0, "m", "self-filter boxes grown by this on every side"),
       param::boolean("follow_robot", false,
                      "re-centre the map on each Pose (or, before any Pose, on the sensor)"),
@@ -425,6 +430,8 @@ LidarFusionConfig lidarFusionConfigFrom(const Params& p) {
   c.follow_robot = p.getBool("follow_robot");
   c.self_filter_base_m = p.getDoubles("self_filter_base_m");
   c.self_filter_blade_m = p.getDoubles("self_filter_blade_m");
+  const char* link_keys[4] = {"self_filter_slew_m", "self_filter_boom_m", "self_filter_arm_m", "self_filter_bucket_m"};
+  for (int k = 0; k < 4; ++k) c.self_filter_link_m[k] = p.getDoubles(link_keys[k]);
   c.self_filter_margin_m = p.getDouble("self_filter_margin_m");
   if (!(c.min_range_m < c.max_range_m))
     p.fail("min_range_m", "must be smaller than max_range_m (" + formatNumber(c.max_range_m) + "), got " +
@@ -462,6 +469,8 @@ void LidarFusion::configure(const LidarFusionConfig& c) {
     bad("drift_compensation_alpha", "must be in [0, 1] (got " + formatNumber(c.drift_compensation_alpha) + ")");
   self_filter_.configure(c.self_filter_base_m, c.self_filter_blade_m, c.self_filter_margin_m, "self_filter_base_m",
                          "self_filter_blade_m");
+  self_filter_.configureLinks(c.self_filter_link_m,
+                              {"self_filter_slew_m", "self_filter_boom_m", "self_filter_arm_m", "self_filter_bucket_m"});
   config_ = c;
 }
 
@@ -483,7 +492,7 @@ std::vector<LayerSpec> LidarFusion::layers() const {
 }
 
 EventMask LidarFusion::events() const {
-  return EventKind::PointCloud | EventKind::Pose | EventKind::BladePose | EventKind::Tick;
+  return EventKind::PointCloud | EventKind::Pose | EventKind::BladePose | EventKind::Tick | EventKind::JointState;
 }
 
 void LidarFusion::bindLayers(const LayeredMap& map) {
@@ -1525,6 +1534,10 @@ void LidarFusion::process(ProcessContext& ctx, const Event& event) {
     followTo(map, pose->T_map_base.translation());
   } else if (const auto* bp = std::get_if<BladePose>(&event)) {
     if (bp->T_map_blade.matrix().allFinite()) self_filter_.setBladePose(bp->machine_id, bp->T_map_blade);
+  } else if (const auto* js = std::get_if<JointState>(&event)) {
+    bool finite = true;
+    for (const Eigen::Isometry3d& T : js->T_map_link) finite = finite && T.matrix().allFinite();
+    if (finite) self_filter_.setLinkPoses(js->machine_id, js->T_map_link);
   } else if (const auto* tick = std::get_if<Tick>(&event)) {
     advanceTime(map, ctx.executor(), tick->stamp);
   }

@@ -106,6 +106,8 @@ struct LidarFusionConfig {
   /// in the base frame (placed with each machine's latest Pose) or the blade frame (latest
   /// BladePose); empty = no filter. Points inside are dropped as `self`.
   std::vector<double> self_filter_base_m, self_filter_blade_m;
+  /// The same on an excavator's links (slew, boom, arm, bucket frames of its JointState events).
+  std::array<std::vector<double>, 4> self_filter_link_m;
   double self_filter_margin_m = 0.1;      ///< boxes grown by this on every side (m): 3-5 sigma of range noise plus the motion since the pose
 };
 

@@ -29,13 +29,22 @@ void SelfFilter::configure(const std::vector<double>& base_m, const std::vector<
   if (!(margin_m >= 0.0) || !std::isfinite(margin_m))
     throw ConfigError("lidar_fusion: self_filter_margin_m must be >= 0 and finite (got " + formatNumber(margin_m) + ")");
   boxes_.clear();
+  margin_m_ = margin_m;
   readBoxes(base_m, SelfFilterBox::Frame::Base, margin_m, base_key, boxes_);
   readBoxes(blade_m, SelfFilterBox::Frame::Blade, margin_m, blade_key, boxes_);
 }
 
+void SelfFilter::configureLinks(const std::array<std::vector<double>, 4>& link_m, const std::array<std::string, 4>& keys) {
+  for (int k = 0; k < 4; ++k)
+    readBoxes(link_m[k], static_cast<SelfFilterBox::Frame>(static_cast<int>(SelfFilterBox::Frame::Slew) + k), margin_m_,
+              keys[k], boxes_);
+}
+
 bool SelfFilter::placed() const {
-  for (const SelfFilterBox& b : boxes_)
-    if ((b.frame == SelfFilterBox::Frame::Base ? base_ : blade_).empty()) return false;
+  for (const SelfFilterBox& b : boxes_) {
+    if (b.frame == SelfFilterBox::Frame::Base && base_.empty()) return false;
+    if (b.frame == SelfFilterBox::Frame::Blade && blade_.empty()) return false;
+  }
   return true;
 }
 
@@ -52,9 +61,16 @@ std::size_t SelfFilter::apply(const PointCloud& in, PointCloud& out) const {
   };
   std::vector<Placed> placed;
   for (const SelfFilterBox& b : boxes_) {
-    const auto& poses = b.frame == SelfFilterBox::Frame::Base ? base_ : blade_;
-    for (const auto& [id, T] : poses) {
-      const Eigen::Isometry3d A = T.inverse() * in.T_map_sensor;
+    if (b.frame == SelfFilterBox::Frame::Base || b.frame == SelfFilterBox::Frame::Blade) {
+      for (const auto& [id, T] : b.frame == SelfFilterBox::Frame::Base ? base_ : blade_) {
+        const Eigen::Isometry3d A = T.inverse() * in.T_map_sensor;
+        placed.push_back({A.linear(), A.translation(), b.min, b.max});
+      }
+      continue;
+    }
+    const int link = static_cast<int>(b.frame) - static_cast<int>(SelfFilterBox::Frame::Slew);
+    for (const auto& [id, L] : links_) {
+      const Eigen::Isometry3d A = L[link].inverse() * in.T_map_sensor;
       placed.push_back({A.linear(), A.translation(), b.min, b.max});
     }
   }

@@ -13,6 +13,7 @@
 
 #include <Eigen/Geometry>
 
+#include <array>
 #include <map>
 #include <string>
 #include <vector>
@@ -20,7 +21,8 @@
 namespace terramap::plugins {
 
 struct SelfFilterBox {
-  enum class Frame { Base, Blade } frame = Frame::Base;
+  /// Slew, Boom, Arm, Bucket: an excavator's link frames (JointState::T_map_link, in that order).
+  enum class Frame { Base, Blade, Slew, Boom, Arm, Bucket } frame = Frame::Base;
   Eigen::Vector3d min = Eigen::Vector3d::Zero(), max = Eigen::Vector3d::Zero();
 };
 
@@ -31,9 +33,14 @@ class SelfFilter {
   ///   max, or the margin is negative.
   void configure(const std::vector<double>& base_m, const std::vector<double>& blade_m, double margin_m,
                  const std::string& base_key, const std::string& blade_key);
+  /// Adds boxes on an excavator's links (6 numbers per box in that link's frame, `keys` naming
+  /// the four lists in messages), grown by the margin configure() was given; placed with every
+  /// machine's latest JointState. Call after configure(). \throws ConfigError as configure().
+  void configureLinks(const std::array<std::vector<double>, 4>& link_m, const std::array<std::string, 4>& keys);
   bool enabled() const { return !boxes_.empty(); }
   /// True once every frame the boxes use has a pose (a base box needs a Pose, a blade box a
-  /// BladePose): before that, lidar_fusion drops whole clouds (`self_no_pose`).
+  /// BladePose): before that, lidar_fusion drops whole clouds (`self_no_pose`). Link boxes do not
+  /// wait (a pipeline may have no excavator): an excavator's are placed from its first JointState.
   bool placed() const;
   const std::vector<SelfFilterBox>& boxes() const { return boxes_; }
 
@@ -44,6 +51,11 @@ class SelfFilter {
     blade_[machine_id] = T_map_blade;
   }
 
+  /// The latest link frames (slew, boom, arm, bucket) of excavator `machine_id`.
+  void setLinkPoses(const std::string& machine_id, const std::array<Eigen::Isometry3d, 4>& T_map_link) {
+    links_[machine_id] = T_map_link;
+  }
+
   /// Copies `in`'s points that lie outside every placed box into `out` (same order, same
   /// stamp, frame and pose) and returns how many it dropped. Boxes of a frame no pose has been
   /// received for yet are not placed. NaN points pass through (the gates count them).
@@ -52,6 +64,8 @@ class SelfFilter {
  private:
   std::vector<SelfFilterBox> boxes_;
   std::map<std::string, Eigen::Isometry3d> base_, blade_;
+  std::map<std::string, std::array<Eigen::Isometry3d, 4>> links_;
+  double margin_m_ = 0;
 };
 
 }  // namespace terramap::plugins

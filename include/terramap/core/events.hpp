@@ -101,12 +101,16 @@ struct ImuSample {
 /// each actuator's static effort (N·m, positive toward positive angles; from its pressures on a
 /// real machine), `T_map_bucket` the bucket frame (at its pivot; x toward the lip, z toward its
 /// back) from the localisation's base pose and the measured joints, `bucket_load_kg` the soil
-/// in the bucket. docs/sim.md "Excavators".
+/// in the bucket, `T_map_link` the four link frames the same way (slew = the upper structure on
+/// the slew bearing; boom and arm at their pivots, x along the link; the bucket's frame as
+/// T_map_bucket): where a self-filter places the arm's boxes. docs/sim.md "Excavators".
 struct JointState {
   double stamp = 0.0;
   std::string machine_id;
   std::array<double, 4> position_rad{}, velocity_radps{}, effort_nm{};
   Eigen::Isometry3d T_map_bucket = Eigen::Isometry3d::Identity();
+  std::array<Eigen::Isometry3d, 4> T_map_link{Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity(),
+                                              Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity()};
   double bucket_load_kg = 0.0;
 };
 

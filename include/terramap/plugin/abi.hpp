@@ -29,7 +29,8 @@
 ///    LayeredMap per-tile write counters.
 /// 4: the Event variant gained ImuSample (EventKind::Imu).
 /// 5: the Event variant gained JointState (EventKind::JointState).
-#define TERRAMAP_PLUGIN_ABI_VERSION 5u
+/// 6: JointState carries the four link frames (T_map_link).
+#define TERRAMAP_PLUGIN_ABI_VERSION 6u
 
 #define TERRAMAP_STR_(x) #x
 #define TERRAMAP_STR(x) TERRAMAP_STR_(x)

@@ -94,6 +94,10 @@ class ExcavatorArm {
   /// The bucket frame (at the bucket pivot) in the base frame for joints q.
   Eigen::Isometry3d T_base_bucket(const std::array<double, 4>& q) const;
   Eigen::Isometry3d T_base_bucket() const { return T_base_bucket(q_); }
+  /// The four link frames in the base frame for joints q: slew (T_base_slew), boom (at its pivot,
+  /// x along the boom line, y the slew frame's y), arm (at its pivot, x along the arm line) and
+  /// bucket (T_base_bucket). What the shape boxes, the IMUs' links and JointState use.
+  std::array<Eigen::Isometry3d, 4> linkFrames(const std::array<double, 4>& q) const;
   /// The lip (centre of the cutting edge) in the base frame.
   Eigen::Vector3d lipInBase(const std::array<double, 4>& q) const;
   /// Pivots of boom, arm and bucket and the lip in the slew frame's (x, z) plane.

@@ -11,6 +11,8 @@
 /// z up the face. Dimensions in metres. Not thread-safe to build; the casting is const.
 #include <Eigen/Geometry>
 
+#include <array>
+
 #include <limits>
 #include <string>
 #include <vector>
@@ -20,7 +22,9 @@ namespace terramap::sim {
 /// One box of a machine's shape, axis-aligned in its frame.
 struct ShapeBox {
   std::string name;                 ///< for messages and docs ("body", "track_left", ...)
-  enum class Frame { Base, Blade } frame = Frame::Base;
+  /// Base and Blade on every machine; Slew (the upper structure), Boom, Arm and Bucket on an
+  /// excavator (frames of ExcavatorArm::linkFrames, sim/excavator.hpp).
+  enum class Frame { Base, Blade, Slew, Boom, Arm, Bucket } frame = Frame::Base;
   Eigen::Vector3d min = Eigen::Vector3d::Zero(), max = Eigen::Vector3d::Zero();  ///< corners, m
 };
 
@@ -30,6 +34,13 @@ struct ShapeBox {
 std::vector<ShapeBox> defaultCtlShape(double gauge_m, double track_length_m, double blade_width_m,
                                       double blade_height_m);
 
+/// A compact excavator (Takeuchi TB235-class estimates): tracks on the base, the plow in the
+/// blade frame, the house and cab on the slew frame, boom and arm as boxes along their lines, the
+/// bucket as its mesh's bounding box (`bucket_*`: the bucket frame's extents, m).
+std::vector<ShapeBox> defaultExcavatorShape(double gauge_m, double track_length_m, double track_width_m,
+                                            double plow_width_m, double plow_height_m, double boom_m, double arm_m,
+                                            const Eigen::Vector3d& bucket_min, const Eigen::Vector3d& bucket_max);
+
 /// A box placed in the map frame: centre, rotation (columns = box axes) and half extents.
 struct PlacedBox {
   Eigen::Vector3d centre = Eigen::Vector3d::Zero();
@@ -38,9 +49,11 @@ struct PlacedBox {
   double radius = 0;  ///< of the bounding sphere (|half|)
 };
 
-/// The boxes of one machine at (true) base and blade poses.
+/// The boxes of one machine at (true) base and blade poses and, for an excavator, its link poses
+/// (slew, boom, arm, bucket; boxes of those frames are left out when `T_map_links` is null).
 void placeShape(const std::vector<ShapeBox>& shape, const Eigen::Isometry3d& T_map_base,
-                const Eigen::Isometry3d& T_map_blade, std::vector<PlacedBox>& out);
+                const Eigen::Isometry3d& T_map_blade, std::vector<PlacedBox>& out,
+                const std::array<Eigen::Isometry3d, 4>* T_map_links = nullptr);
 
 /// First entry of the ray o + t d (|d| = 1) into any box for t in [t_min, t_max]; +inf when
 /// none. A ray that starts inside a box ignores that box (a sensor mounted on the machine sees

@@ -59,6 +59,49 @@ TEST(SelfFilter, DropsExactlyThePointsInsideThePlacedBoxes) {
   EXPECT_GT(g.apply(cloud, out), dropped);
 }
 
+TEST(SelfFilter, LinkBoxesFollowEachExcavatorsJointStates) {
+  // A bucket box [0, 0.72] x [-0.3, 0.3] x [0, 0.34] on two excavators' bucket frames, no margin.
+  SelfFilter f;
+  f.configure({}, {}, 0.0, "base", "blade");
+  f.configureLinks({std::vector<double>{}, {}, {}, {0, -0.3, 0, 0.72, 0.3, 0.34}},
+                   {"slew", "boom", "arm", "bucket"});
+  EXPECT_TRUE(f.placed()) << "link boxes do not hold clouds back (a pipeline may have no excavator)";
+  std::array<Eigen::Isometry3d, 4> a, b;
+  a.fill(Eigen::Isometry3d::Identity());
+  b.fill(Eigen::Isometry3d::Identity());
+  a[3].translation() = Eigen::Vector3d(3, 0, 0.5);
+  a[3].linear() = Eigen::AngleAxisd(1.2, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  b[3].translation() = Eigen::Vector3d(-2, 4, 0.2);
+  b[3].linear() = Eigen::AngleAxisd(-0.4, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  PointCloud cloud;
+  cloud.T_map_sensor = Eigen::Isometry3d(Eigen::Translation3d(0.5, 1.0, 2.3));
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(-4, 4);
+  for (int k = 0; k < 40000; ++k)
+    cloud.points.push_back({static_cast<float>(u(rng)), static_cast<float>(u(rng)), static_cast<float>(0.5 * u(rng) - 2), 1});
+  PointCloud out;
+  EXPECT_EQ(f.apply(cloud, out), 0u) << "no JointState yet: nothing placed";
+  f.setLinkPoses("ex1", a);
+  f.setLinkPoses("ex2", b);
+  std::size_t expect = 0;
+  for (const PointXYZI& p : cloud.points) {
+    const Eigen::Vector3d pm = cloud.T_map_sensor * Eigen::Vector3d(p.x, p.y, p.z);
+    bool in = false;
+    for (const auto* L : {&a, &b}) {
+      const Eigen::Vector3d q = (*L)[3].inverse() * pm;
+      in = in || (q.x() >= 0 && q.x() <= 0.72 && std::abs(q.y()) <= 0.3 && q.z() >= 0 && q.z() <= 0.34);
+    }
+    expect += in ? 1 : 0;
+  }
+  EXPECT_GT(expect, 20u);
+  EXPECT_EQ(f.apply(cloud, out), expect);
+  EXPECT_EQ(out.points.size(), cloud.points.size() - expect);
+  // The boxes move with the next JointState.
+  a[3].translation().x() += 10;
+  f.setLinkPoses("ex1", a);
+  EXPECT_LT(f.apply(cloud, out), expect);
+}
+
 TEST(SelfFilter, BadBoxesAreConfigurationErrors) {
   SelfFilter f;
   EXPECT_THROW(f.configure({1, 2, 3, 4, 5}, {}, 0.05, "self_filter_base_m", "b"), ConfigError);

@@ -10,6 +10,7 @@
 #include <terramap/sim/simulator.hpp>
 
 #include <cmath>
+#include <cstdio>
 #include <random>
 #include <string>
 
@@ -300,6 +301,38 @@ TEST(Excavator, ItsJointStatesReachThePipelineAtTheObservationRate) {
   EXPECT_GT(max_load, 10.0);
   EXPECT_STREQ(kindName(EventKind::JointState), "joint_state");
   EXPECT_EQ(eventMaskFromNames({"joint_state"}), mask(EventKind::JointState));
+}
+
+TEST(Excavator, ItsCameraSeesItsOwnArmAndBucket) {
+  // The depth camera on the cab looks at the dig: points more than 5 cm above the true surface
+  // can only lie on the machine (its plow is outside the view), i.e. on the boom, arm or bucket.
+  // Without the arm's boxes (shape: tracks only) there are none.
+  auto above = [](bool arm_boxes) {
+    // Noise-free camera and perfect poses, so a point above the surface is an object there.
+    std::string y = digDumpYaml(2, 4, false) +
+                    "    localisation: perfect\n"
+                    "    sensors:\n      - {id: cam, type: depth_camera, offset_m: [0.2, 0.45, 2.3], rotation_deg: [0, 35, 0],"
+                    " noise_abs_m: 0, noise_k_per_m: 0}\n";
+    if (!arm_boxes) y += "    shape: [{name: t, frame: base, min: [-1.1, -0.8, 0], max: [1.1, 0.8, 0.5]}]\n";
+    Simulator sim(parseScenario(y, "ex.yaml"));
+    std::vector<Event> ev;
+    long n = 0;
+    while (sim.next(ev)) {
+      for (const Event& e : ev)
+        if (const auto* pc = std::get_if<PointCloud>(&e))
+          for (const PointXYZI& p : pc->points) {
+            if (!std::isfinite(p.x)) continue;
+            const Eigen::Vector3d m = pc->T_map_sensor * Eigen::Vector3d(p.x, p.y, p.z);
+            if (m.z() > sim.truth().heightAt(m.x(), m.y()) + 0.05) ++n;
+          }
+      ev.clear();
+    }
+    return n;
+  };
+  const long with = above(true), without = above(false);
+  std::printf("[ camera-sees-arm ] points above the surface: %ld with the arm's boxes, %ld without\n", with, without);
+  EXPECT_GT(with, 500);
+  EXPECT_EQ(without, 0);
 }
 
 TEST(Excavator, ABesideALoaderWithALidarIsBitIdenticalAtOneAndTwoThreads) {
