@@ -96,7 +96,7 @@ void BM_SimRealtimeDepthCameraImus(benchmark::State& state) {
 BENCHMARK(BM_SimRealtimeDepthCameraImus)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
 
 // #19's excavator figure (goal 20x): configs/scenarios/excavator_dig_dump.yaml's excavator alone
-// (its 15 Hz depth camera at the D435-class defaults and a chassis IMU) over 16 s, one whole
+// (its 15 Hz depth camera at the D435-class defaults and IMUs on chassis, boom, arm and bucket) over 16 s, one whole
 // dig-and-dump cycle; /camera:0 drops the camera (the arm, bucket and soil physics alone).
 void BM_SimExcavator(benchmark::State& state) {
   Scenario sc = loadScenario(std::string(TERRAMAP_CONFIG_DIR) + "/scenarios/excavator_dig_dump.yaml");

@@ -15,7 +15,8 @@ namespace terramap::sim {
 namespace {
 
 constexpr const char* kHeader = "t_s,left,right,lift,tilt,angle";
-constexpr const char* kColumns[6] = {"t_s", "left", "right", "lift", "tilt", "angle"};
+constexpr const char* kHeaderArm = "t_s,left,right,lift,tilt,angle,slew,boom,arm,bucket";
+constexpr const char* kColumns[10] = {"t_s", "left", "right", "lift", "tilt", "angle", "slew", "boom", "arm", "bucket"};
 
 std::string trim(const std::string& s) {
   const auto b = s.find_first_not_of(" \t\r");
@@ -24,10 +25,13 @@ std::string trim(const std::string& s) {
   return s.substr(b, e - b + 1);
 }
 
-std::string formatRow(double t, const std::array<double, 5>& u) {
-  char buf[256];
-  std::snprintf(buf, sizeof buf, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g\n", t, u[0], u[1], u[2], u[3], u[4]);
-  return buf;
+std::string formatRow(double t, const std::array<double, 5>& u, const std::array<double, 4>* arm) {
+  char buf[512];
+  int n = std::snprintf(buf, sizeof buf, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g", t, u[0], u[1], u[2], u[3], u[4]);
+  if (arm)
+    n += std::snprintf(buf + n, sizeof buf - static_cast<std::size_t>(n), ",%.17g,%.17g,%.17g,%.17g", (*arm)[0],
+                       (*arm)[1], (*arm)[2], (*arm)[3]);
+  return std::string(buf, static_cast<std::size_t>(n)) + "\n";
 }
 
 }  // namespace
@@ -49,6 +53,7 @@ CommandLog readCommandLog(const std::string& path, CommandLog::Units units) {
   std::string line;
   int lineno = 0;
   bool header = false;
+  std::size_t ncol = 6;
   auto fail = [&](const std::string& what) { throw InputError(path + ":" + std::to_string(lineno) + ": " + what); };
   while (std::getline(in, line)) {
     ++lineno;
@@ -60,14 +65,18 @@ CommandLog readCommandLog(const std::string& path, CommandLog::Units units) {
     while (std::getline(ss, cell, ',')) cells.push_back(trim(cell));
     if (!s.empty() && s.back() == ',') cells.push_back("");
     if (!header) {
-      if (cells.size() != 6 || !std::equal(cells.begin(), cells.end(), kColumns))
-        fail("expected the header '" + std::string(kHeader) + "', got '" + s + "'");
+      if ((cells.size() != 6 && cells.size() != 10) || !std::equal(cells.begin(), cells.end(), kColumns))
+        fail("expected the header '" + std::string(kHeader) + "' (a loader) or '" + kHeaderArm + "' (an excavator), got '" +
+             s + "'");
       header = true;
+      ncol = cells.size();
       continue;
     }
-    if (cells.size() != 6) fail("expected 6 values (" + std::string(kHeader) + "), got " + std::to_string(cells.size()));
-    double v[6];
-    for (int c = 0; c < 6; ++c) {
+    if (cells.size() != ncol)
+      fail("expected " + std::to_string(ncol) + " values (" + (ncol == 6 ? kHeader : kHeaderArm) + "), got " +
+           std::to_string(cells.size()));
+    double v[10];
+    for (std::size_t c = 0; c < ncol; ++c) {
       char* end = nullptr;
       v[c] = std::strtod(cells[c].c_str(), &end);
       if (cells[c].empty() || end != cells[c].c_str() + cells[c].size() || !std::isfinite(v[c]))
@@ -79,6 +88,7 @@ CommandLog readCommandLog(const std::string& path, CommandLog::Units units) {
       fail("t_s " + cells[0] + " does not increase (the previous row's is " + formatNumber(log.t.back()) + ")");
     log.t.push_back(v[0]);
     log.u.push_back({v[1], v[2], v[3], v[4], v[5]});
+    if (ncol == 10) log.arm.push_back({v[6], v[7], v[8], v[9]});
   }
   if (!header) throw InputError(path + ": no header line '" + std::string(kHeader) + "' (empty command log)");
   if (log.t.empty()) throw InputError(path + ": the command log has a header but no rows");
@@ -90,8 +100,9 @@ CommandLog readCommandLog(const std::string& path, CommandLog::Units units) {
 
 void writeCommandLog(const std::string& path, const CommandLog& log) {
   std::string text = std::string("# terramap command log (docs/sim.md \"Replaying commands\"), units: ") +
-                     (log.units == CommandLog::Units::Lever ? "lever" : "si") + "\n" + kHeader + "\n";
-  for (std::size_t k = 0; k < log.t.size(); ++k) text += formatRow(log.t[k], log.u[k]);
+                     (log.units == CommandLog::Units::Lever ? "lever" : "si") + "\n" +
+                     (log.arm.empty() ? kHeader : kHeaderArm) + "\n";
+  for (std::size_t k = 0; k < log.t.size(); ++k) text += formatRow(log.t[k], log.u[k], log.arm.empty() ? nullptr : &log.arm[k]);
   io::writeFileAtomically(path, text);
 }
 
@@ -112,6 +123,14 @@ CommandLog episodeCommands(const std::string& episode_path, const std::string& m
   for (std::size_t k = 0; k < stamp.size(); ++k) {
     log.t.push_back(stamp[k]);
     log.u.push_back({action[5 * k], action[5 * k + 1], action[5 * k + 2], action[5 * k + 3], action[5 * k + 4]});
+  }
+  const std::string cmd = m + "/arm/command_radps";
+  if (file.has(cmd)) {
+    const std::vector<double> a = file.read(cmd, dims);
+    if (a.size() != 4 * stamp.size())
+      throw InputError(episode_path + ": " + cmd + " has " + std::to_string(a.size()) + " values for " +
+                       std::to_string(stamp.size()) + " stamps (expected 4 per stamp)");
+    for (std::size_t k = 0; k < stamp.size(); ++k) log.arm.push_back({a[4 * k], a[4 * k + 1], a[4 * k + 2], a[4 * k + 3]});
   }
   log.hold_last_s = stamp.size() >= 2 ? stamp[1] - stamp[0] : 0.0;
   return log;

@@ -492,6 +492,7 @@ void EpisodeWriter::Impl::openMachine(hid_t mg, const MachineSpec& spec, std::si
     add(arm, "a_tau", "joint_torque_Nm", H5T_NATIVE_DOUBLE, {4});
     add(arm, "a_qm", "joint_measured_rad", H5T_NATIVE_DOUBLE, {4});
     add(arm, "a_lever", "lever", H5T_NATIVE_DOUBLE, {4});
+    add(arm, "a_cmd", "command_radps", H5T_NATIVE_DOUBLE, {4});
     add(arm, "a_incl", "inclination_rad", H5T_NATIVE_DOUBLE, {3});
     add(arm, "a_inclm", "inclination_measured_rad", H5T_NATIVE_DOUBLE, {3});
     add(arm, "a_stalled", "stalled_mask", H5T_NATIVE_UINT8, {});
@@ -509,7 +510,8 @@ void EpisodeWriter::Impl::openMachine(hid_t mg, const MachineSpec& spec, std::si
       if (s.type != SensorSpec::Type::Imu) continue;
       MachineSets::Imu u;
       u.group = makeGroup(imus, s.id, I.tmp_path);
-      attrString(u.group, "link", s.link == SensorSpec::Link::Blade ? "blade" : "base");
+      static const char* kLinks[] = {"base", "blade", "slew", "boom", "arm", "bucket"};
+      attrString(u.group, "link", kLinks[static_cast<int>(s.link)]);
       attrDouble(u.group, "rate_hz", s.rate_hz);
       double T[16];
       rowMajor4x4(s.T_base_sensor, T);
@@ -701,6 +703,12 @@ void EpisodeWriter::record(const Simulator& sim, const std::vector<Event>& event
         M.a.at("a_tau").append(tr.arm_torque_nm.data());
         M.a.at("a_qm").append(tr.arm_q_measured.data());
         M.a.at("a_lever").append(tr.arm_lever.data());
+        // The steady-state rates the levers asked for (lever x max rate): what a replay in SI
+        // units gives back.
+        const ArmSpec& as = *sim.scenario().machines[it->second].arm;
+        std::array<double, 4> cmd;
+        for (int k = 0; k < 4; ++k) cmd[k] = tr.arm_lever[k] * as.joints[k].max_rate_rps;
+        M.a.at("a_cmd").append(cmd.data());
         M.a.at("a_incl").append(tr.arm_inclination.data());
         M.a.at("a_inclm").append(tr.arm_inclination_measured.data());
         M.a.at("a_stalled").append(&tr.arm_stalled);
@@ -788,6 +796,19 @@ std::vector<double> EpisodeFile::read(const std::string& dataset, std::vector<st
   if (rc < 0) throw InputError(path_ + ": cannot read dataset '" + dataset + "' as numbers");
   dims.assign(d.begin(), d.end());
   return v;
+}
+
+bool EpisodeFile::has(const std::string& dataset) const {
+  // H5Lexists needs every group on the way to exist: test the path one component at a time.
+  std::size_t pos = 0;
+  while (pos < dataset.size()) {
+    const std::size_t next = dataset.find('/', pos + 1);
+    const std::string prefix = dataset.substr(0, next);
+    if (!prefix.empty() && prefix != "/" && H5Lexists(file_, prefix.c_str(), H5P_DEFAULT) <= 0) return false;
+    if (next == std::string::npos) break;
+    pos = next;
+  }
+  return true;
 }
 
 std::string EpisodeFile::rootAttribute(const std::string& name) const {

@@ -161,11 +161,13 @@ void readDepthCamera(MapReader& r, SensorSpec& s) {
   s.T_base_sensor.linear() = s.T_base_sensor.linear() * bodyFromOptical();
 }
 
-void readImu(MapReader& r, SensorSpec& s, double physics_hz) {
+void readImu(MapReader& r, SensorSpec& s, double physics_hz, bool excavator) {
   const std::string link = r.str("link", "base");
-  if (link == "base") s.link = SensorSpec::Link::Base;
-  else if (link == "blade") s.link = SensorSpec::Link::Blade;
-  else r.error(r.node("link"), "link", "unknown link '" + link + "' (known: base, blade)" + didYouMean(link, {"base", "blade"}));
+  const std::vector<std::string> links = excavator ? std::vector<std::string>{"base", "blade", "slew", "boom", "arm", "bucket"}
+                                                   : std::vector<std::string>{"base", "blade"};
+  const auto it = std::find(links.begin(), links.end(), link);
+  if (it != links.end()) s.link = static_cast<SensorSpec::Link>(it - links.begin());
+  else r.error(r.node("link"), "link", "unknown link '" + link + "' (known: " + joinStrings(links) + ")" + didYouMean(link, links));
   s.rate_hz = r.num("rate_hz", 120.0, 0.1, 10000.0);
   const double ratio = physics_hz / s.rate_hz;
   if (std::abs(ratio - std::round(ratio)) > 1e-9 || ratio < 1)
@@ -178,7 +180,7 @@ void readImu(MapReader& r, SensorSpec& s, double physics_hz) {
   s.gyro_bias_sigma = r.num("gyro_bias_sigma", s.gyro_bias_sigma, 0.0, 10.0);
 }
 
-SensorSpec readSensor(MapReader& r, double physics_hz) {
+SensorSpec readSensor(MapReader& r, double physics_hz, bool excavator) {
   SensorSpec s;
   s.id = r.strRequired("id");
   const std::string type = r.strRequired("type");
@@ -205,7 +207,7 @@ SensorSpec readSensor(MapReader& r, double physics_hz) {
   } else if (s.type == SensorSpec::Type::DepthCamera) {
     readDepthCamera(r, s);
   } else if (s.type == SensorSpec::Type::Imu) {
-    readImu(r, s, physics_hz);
+    readImu(r, s, physics_hz, excavator);
   } else {
     s.force_noise_abs_n = r.num("noise_abs_n", s.force_noise_abs_n, 0.0, 1e7);
     s.force_noise_rel = r.num("noise_rel", s.force_noise_rel, 0.0, 10.0);
@@ -348,7 +350,7 @@ void readSensors(MapReader& r, MachineSpec& m, double physics_hz) {
   std::set<std::string> ids;
   for (std::size_t k = 0; k < ss.size(); ++k) {
     MapReader sr(r.diagnostics(), ss[k], r.join("sensors[" + std::to_string(k) + "]"));
-    SensorSpec s = readSensor(sr, physics_hz);
+    SensorSpec s = readSensor(sr, physics_hz, m.arm.has_value());
     if (!s.id.empty() && !ids.insert(s.id).second) sr.error(ss[k]["id"], "id", "duplicate sensor id '" + s.id + "'");
     m.sensors.push_back(std::move(s));
   }
@@ -572,10 +574,11 @@ MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisati
       MapReader a = r.child("arm");
       if (a.valid()) readArm(a, *m.arm);
     }
-    if (m.controller.type != ControllerSpec::Type::DigDump)
+    if (m.controller.type != ControllerSpec::Type::DigDump && m.controller.type != ControllerSpec::Type::Replay)
       r.error(r.has("controller") ? r.node("controller") : r.self(), "controller",
-              "an excavator needs the dig_dump controller (controller: {type: dig_dump, dig_m: [x, y], dump_m: [x, y]})");
-    else if (m.arm->bucket_profile.size() >= 3) {
+              "an excavator needs the dig_dump controller (controller: {type: dig_dump, dig_m: [x, y], dump_m: [x, y]}) "
+              "or a replay of its levers (controller: {type: replay, file: ...})");
+    if (m.arm->bucket_profile.size() >= 3) {
       try {
         bucketMesh(*m.arm);
       } catch (const ConfigError& e) {

@@ -80,6 +80,21 @@ struct Simulator::Machine {
   double bucket_capacity_m3 = 0;
   double lip_vn = 0, lip_vz = 0, lip_acc = 0;
   std::mt19937_64 encoder_rng;
+  long arm_steps = 0;  ///< replay: physics steps taken (time = steps * dt, no accumulated rounding)
+  int arm_row = -1;    ///< replay: the log row last in force
+
+  /// The replayed levers of physics step arm_steps (zero-order hold of the log's arm columns;
+  /// rad/s in si units become levers of the joints' max rates; none before or after the log).
+  ArmCommand replayArm(double dt) {
+    ArmCommand c;
+    const CommandLog& log = *ctl.spec().controller.replay;
+    arm_row = log.rowAt(static_cast<double>(arm_steps++) * dt, arm_row);
+    if (arm_row < 0 || log.arm.empty()) return c;
+    const std::array<double, 4>& a = log.arm[static_cast<std::size_t>(arm_row)];
+    for (int k = 0; k < 4; ++k)
+      c.lever[k] = log.units == CommandLog::Units::Lever ? a[k] : a[k] / ctl.spec().arm->joints[k].max_rate_rps;
+    return c;
+  }
 
   Machine(std::size_t idx, const MachineSpec& spec, const TruthTerrain& terrain, std::uint64_t seed, double physics_hz)
       : index(idx), ctl(spec, terrain), controller(spec.controller, spec, streamSeed(seed, idx, 1)),
@@ -88,7 +103,8 @@ struct Simulator::Machine {
     truth.id = spec.id;
     if (spec.arm) {
       arm = std::make_unique<ExcavatorArm>(*spec.arm);
-      digger = std::make_unique<DigDumpController>(spec.controller.dig_dump, *arm);
+      if (spec.controller.type == ControllerSpec::Type::DigDump)
+        digger = std::make_unique<DigDumpController>(spec.controller.dig_dump, *arm);
       bucket_capacity_m3 = spec.arm->bucket_capacity_m3 > 0 ? spec.arm->bucket_capacity_m3 : arm->mesh().volume();
       truth.has_arm = true;
       truth.arm_q = arm->q();
@@ -117,7 +133,10 @@ struct Simulator::Machine {
 
   /// The true pose of the link an IMU is mounted on.
   Eigen::Isometry3d linkPose(const SensorSpec& s) const {
-    return s.link == SensorSpec::Link::Blade ? ctl.T_map_blade() : ctl.T_map_base();
+    if (s.link == SensorSpec::Link::Base) return ctl.T_map_base();
+    if (s.link == SensorSpec::Link::Blade) return ctl.T_map_blade();
+    return ctl.T_map_base() *
+           arm->linkFrames(arm->q())[static_cast<int>(s.link) - static_cast<int>(SensorSpec::Link::Slew)];
   }
 };
 
@@ -259,7 +278,8 @@ void Simulator::physicsStep(double dt, bool relax) {
 void Simulator::armStep(Machine& m, double dt) {
   const ArmSpec& as = *m.ctl.spec().arm;
   const Eigen::Isometry3d T_base = m.ctl.T_map_base();
-  const ArmCommand cmd = m.digger->update(dt, *m.arm, T_base, terrain_, m.bucket, m.bucket_capacity_m3);
+  const ArmCommand cmd =
+      m.digger ? m.digger->update(dt, *m.arm, T_base, terrain_, m.bucket, m.bucket_capacity_m3) : m.replayArm(dt);
   const Eigen::Isometry3d T_lip_old = m.arm->T_map_lipBlade(T_base);
   const BladeForce bf = bladeSoilForce(terrain_, soil_, T_lip_old, m.arm->floorBlade(), as.edge_thickness_m,
                                        as.bucket_slices, m.lip_vn, m.lip_vz, m.lip_acc);
@@ -293,8 +313,8 @@ void Simulator::armStep(Machine& m, double dt) {
   tr.arm_lever = cmd.lever;
   tr.arm_stalled = 0;
   for (int k = 0; k < 4; ++k) tr.arm_stalled |= static_cast<std::uint8_t>(m.arm->stalled()[k] ? 1 << k : 0);
-  tr.arm_phase = static_cast<int>(m.digger->phase());
-  tr.arm_cycle = m.digger->cycle();
+  tr.arm_phase = m.digger ? static_cast<int>(m.digger->phase()) : -1;
+  tr.arm_cycle = m.digger ? m.digger->cycle() : 0;
   tr.T_map_bucket = T_bucket;
   tr.bucket_force_map_N = F;
   tr.bucket_load_kg = m.bucket.mass_kg;

@@ -63,6 +63,8 @@ class EpisodeFile {
   /// "/machines/ctl1/force_base_N". \throws InputError naming file and dataset (missing, over
   /// the memory budget, not numbers).
   std::vector<double> read(const std::string& dataset, std::vector<std::uint64_t>& dims) const;
+  /// Whether `dataset` (an absolute path such as "/machines/ex1/arm/command_radps") exists.
+  bool has(const std::string& dataset) const;
   /// A string attribute of the root group. \throws InputError naming it when missing or not a string.
   std::string rootAttribute(const std::string& name) const;
   const std::string& path() const { return path_; }

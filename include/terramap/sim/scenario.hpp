@@ -216,7 +216,9 @@ struct SensorSpec {
   // model of Kalibr / the IEEE standard: white noise of the given densities and biases that
   // start at N(0, bias_sigma^2) per axis and random-walk with the given densities. Defaults: an
   // ADIS16448-class MEMS unit (its datasheet densities).
-  enum class Link { Base, Blade } link = Link::Base;
+  /// Slew, Boom, Arm, Bucket: an excavator's link frames (ExcavatorArm::linkFrames, TERA's IMUs
+  /// on chassis, boom, arm and bucket).
+  enum class Link { Base, Blade, Slew, Boom, Arm, Bucket } link = Link::Base;
   double accel_noise_density = 2.0e-3;  ///< m/s^2/sqrt(Hz)
   double gyro_noise_density = 1.7e-4;   ///< rad/s/sqrt(Hz)
   double accel_bias_walk = 3.0e-3;      ///< m/s^3/sqrt(Hz)

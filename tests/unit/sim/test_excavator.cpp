@@ -335,6 +335,30 @@ TEST(Excavator, ItsCameraSeesItsOwnArmAndBucket) {
   EXPECT_EQ(without, 0);
 }
 
+TEST(Excavator, AnImuOnTheBoomTurnsWithTheBoom) {
+  // On level ground with the base still, the boom frame turns about its own y axis by -(boom
+  // angle) and about the vertical with the slew, which has no y component there: the integrated
+  // y rate of a boom IMU (biases off) is minus the boom's angle change, all along the run.
+  const std::string y = digDumpYaml(1, 12, false) + "    localisation: perfect\n    sensors:\n"
+                        "      - {id: imu_boom, type: imu, link: boom, rate_hz: 120, offset_m: [1.0, 0.0, 0.2],"
+                        " gyro_bias_sigma: 0, gyro_bias_walk: 0}\n";
+  Simulator sim(parseScenario(y, "ex.yaml"));
+  std::vector<Event> ev;
+  double integral = 0, worst = 0, travel = 0, q0 = NAN, q_prev = NAN;
+  while (sim.next(ev)) {
+    for (const Event& e : ev)
+      if (const auto* u = std::get_if<ImuSample>(&e)) integral += u->gyro_radps.y() / 120.0;
+    ev.clear();
+    const double q = sim.machineTruth(0).arm_q[kBoom];
+    if (std::isnan(q0)) q0 = q;
+    if (!std::isnan(q_prev)) travel += std::abs(q - q_prev);
+    q_prev = q;
+    worst = std::max(worst, std::abs(integral + (q - q0)));
+  }
+  EXPECT_GT(travel, 0.3) << "the boom worked";
+  EXPECT_LT(worst, 0.02) << "rad";
+}
+
 TEST(Excavator, ABesideALoaderWithALidarIsBitIdenticalAtOneAndTwoThreads) {
   std::vector<double> h[2];
   std::array<double, 4> q[2];
