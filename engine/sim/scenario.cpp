@@ -578,6 +578,27 @@ MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisati
       r.error(r.has("controller") ? r.node("controller") : r.self(), "controller",
               "an excavator needs the dig_dump controller (controller: {type: dig_dump, dig_m: [x, y], dump_m: [x, y]}) "
               "or a replay of its levers (controller: {type: replay, file: ...})");
+    if (m.controller.type == ControllerSpec::Type::DigDump) {
+      // The dig and dump points must lie within the arm's reach around the slew axis (the lip
+      // held straight out: boom pivot + boom + arm + bucket).
+      const ArmSpec& a = *m.arm;
+      const double reach = a.boom_pivot_x_m + a.boom_m + a.arm_m + a.bucket_m;
+      const Eigen::Vector2d axis(m.x_m + std::cos(m.yaw_rad) * a.slew_x_m, m.y_m + std::sin(m.yaw_rad) * a.slew_x_m);
+      MapReader c = r.child("controller");
+      for (const auto& [key, p] : {std::pair<const char*, Eigen::Vector2d>{"dig_m", m.controller.dig_dump.dig},
+                                   std::pair<const char*, Eigen::Vector2d>{"dump_m", m.controller.dig_dump.dump}}) {
+        const double d = (p - axis).norm();
+        auto cm = [](double v) {  // metres to the centimetre, for the message
+          char b[32];
+          std::snprintf(b, sizeof b, "%.2f", v);
+          return std::string(b);
+        };
+        if (d > reach || d < 1.0)
+          c.error(c.has(key) ? c.node(key) : c.self(), key,
+                  "[" + formatNumber(p.x()) + ", " + formatNumber(p.y()) + "] is " + cm(d) +
+                      " m from the excavator's slew axis; the arm reaches from 1 m to " + cm(reach) + " m");
+      }
+    }
     if (m.arm->bucket_profile.size() >= 3) {
       try {
         bucketMesh(*m.arm);

@@ -387,6 +387,10 @@ TEST(Excavator, ScenarioMistakesAreNamed) {
     return std::string("no error");
   };
   EXPECT_NE(message("  - {id: ex, type: excavator}\n").find("dig_dump"), std::string::npos);
+  const std::string far = message("  - {id: ex, type: excavator, controller: {type: dig_dump, dig_m: [4.0, 0], dump_m: [0, 7]}}\n");
+  EXPECT_NE(far.find("dump_m: [0, 7] is"), std::string::npos) << far;
+  EXPECT_NE(far.find("reaches from 1 m to 5.07 m"), std::string::npos) << far;
+  EXPECT_EQ(far.find("dig_m"), std::string::npos) << "the dig point is within reach: " << far;
   EXPECT_NE(message("  - {id: c, arm: {boom_m: 2}}\n").find("only a machine of type excavator"), std::string::npos);
   EXPECT_NE(message("  - {id: c, controller: {type: dig_dump}}\n").find("excavator"), std::string::npos);
   const std::string bent = message(
