@@ -376,6 +376,35 @@ void bindEngine(py::module_& m) {
           py::arg("T_map_blade"), py::arg("stamp"), py::arg("machine_id") = "", py::arg("width_m") = 1.85,
           py::arg("height_m") = 0.76)
       .def(
+          "push_joint_state",
+          [](PyEngine& e, const py::array_t<double, py::array::c_style | py::array::forcecast>& T_links, double stamp,
+             const std::string& machine_id, const std::vector<double>& position_rad, double bucket_load_kg) {
+            // An excavator's links (slew, boom, arm, bucket) as a 4 x 4 x 4 array: what
+            // blade_sweep's bucket and lidar_fusion's link self-filter need.
+            if (T_links.ndim() != 3 || T_links.shape(0) != 4 || T_links.shape(1) != 4 || T_links.shape(2) != 4)
+              throw py::value_error("push_joint_state: T_map_link: expected 4 x 4 x 4 (slew, boom, arm, bucket frames)");
+            if (!position_rad.empty() && position_rad.size() != 4)
+              throw py::value_error("push_joint_state: position_rad: expected 4 angles (slew, boom, arm, bucket) or none");
+            JointState j;
+            j.stamp = stamp;
+            j.machine_id = machine_id;
+            const char* names[4] = {"push_joint_state: T_map_link[0] (slew)", "push_joint_state: T_map_link[1] (boom)",
+                                    "push_joint_state: T_map_link[2] (arm)", "push_joint_state: T_map_link[3] (bucket)"};
+            for (py::ssize_t k = 0; k < 4; ++k) {
+              py::array_t<double> one({4, 4});
+              auto o = one.mutable_unchecked<2>();
+              for (py::ssize_t r = 0; r < 4; ++r)
+                for (py::ssize_t c = 0; c < 4; ++c) o(r, c) = T_links.at(k, r, c);
+              j.T_map_link[static_cast<std::size_t>(k)] = isometryFrom(one, names[k]);
+            }
+            j.T_map_bucket = j.T_map_link[3];
+            for (std::size_t k = 0; k < position_rad.size(); ++k) j.position_rad[k] = position_rad[k];
+            j.bucket_load_kg = bucket_load_kg;
+            e.push(j);
+          },
+          py::arg("T_map_link"), py::arg("stamp"), py::arg("machine_id") = "", py::arg("position_rad") = std::vector<double>{},
+          py::arg("bucket_load_kg") = std::numeric_limits<double>::quiet_NaN())
+      .def(
           "push_tick", [](PyEngine& e, double stamp) { e.push(Tick{stamp}); }, py::arg("stamp"))
       .def("play", &PyEngine::play, py::arg("max_events") = -1)
       .def(

@@ -63,6 +63,9 @@ push_cloud(points, T_map_sensor, stamp): points N x 3 (x, y, z) or N x 4 (+ inte
     sensor frame, any float dtype; T_map_sensor a rigid 4 x 4 transform (ValueError otherwise).
 push_pose(T_map_base, stamp), push_blade_pose(T_map_blade, stamp, machine_id="", width_m=1.85,
     height_m=0.76), push_tick(stamp): the other events (see include/terramap/core/events.hpp).
+push_joint_state(T_map_link, stamp, machine_id="", position_rad=[], bucket_load_kg=nan): an
+    excavator's links (4 x 4 x 4: slew, boom, arm, bucket frames; the bucket frame as in
+    docs/sim.md "Excavators") for blade_sweep's bucket and lidar_fusion's link self-filter.
 play(max_events=-1): plays the pipeline's `source` (sequence folder, simulator, none) through
     the engine; returns the number of events pushed. Call again to continue.
 compare_with_truth(): after play() on a source that knows the truth (the simulator), adds

@@ -237,3 +237,27 @@ def test_a_pipeline_built_in_code_runs_like_one_from_yaml():
         eng.add_stage("bad", "test_probe", {"events": [1, "tick"]})
     with pytest.raises(ValueError, match="no source"):
         eng.play()
+
+
+def test_an_embedders_excavator_bucket_cuts_the_map_and_carries_the_soil():
+    # A real excavator's joint states pushed from Python: blade_sweep's bucket cuts a trench
+    # along the lip's path into flat ground and carries the soil (nothing deposited beside it).
+    eng = terramap.Engine.create(0.05, (80, 80), layers=[{"name": "elevation", "unit": "m", "fill": 0.0}], tile=16)
+    eng.add_stage("blade", "blade_sweep", {})
+    c, s = np.cos(np.radians(80)), np.sin(np.radians(80))
+    bucket_R = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])  # x (toward the lip) pointing down
+    lip = np.array([0.72, 0.0, 0.0])
+    for k in range(40):
+        links = np.tile(np.eye(4), (4, 1, 1))
+        links[3, :3, :3] = bucket_R
+        links[3, :3, 3] = np.array([1.0 - 0.025 * k, 0.0, -0.2]) - bucket_R @ lip
+        eng.push_joint_state(links, 0.1 * k, machine_id="ex1", bucket_load_kg=10.0 * k)
+    eng.finish()
+    h = eng.snapshot().layer("elevation")
+    assert np.nanmin(h) == pytest.approx(-0.2, abs=0.03)
+    assert np.nanmax(h) <= 0.0
+    counters = eng.report()["stages"][0]["counters"]
+    assert counters["bucket_carried_bank_m3"] == pytest.approx(counters["bucket_cut_bank_m3"])
+    assert counters["bucket_cut_bank_m3"] > 0.05
+    with pytest.raises(ValueError, match="4 x 4 x 4"):
+        eng.push_joint_state(np.eye(4), 5.0)
