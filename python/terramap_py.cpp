@@ -38,24 +38,27 @@ namespace {
 
 using MapPtr = std::shared_ptr<const LayeredMap>;
 
+/// A rigid transform from a 4 x 4 matrix. \throws ValueError naming `what` when it is not one.
+Eigen::Isometry3d isometryFrom(const Eigen::Matrix4d& m, const std::string& what) {
+  if (!m.allFinite()) throw py::value_error(what + ": non-finite entry");
+  const Eigen::Matrix3d R = m.topLeftCorner<3, 3>();
+  if ((R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-6 ||
+      std::abs(R.determinant() - 1.0) > 1e-6 || (m.row(3) - Eigen::RowVector4d(0, 0, 0, 1)).cwiseAbs().maxCoeff() > 0)
+    throw py::value_error(what + ": not a rigid transform (rotation must be orthonormal, last row 0 0 0 1)");
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = R;
+  T.translation() = m.topRightCorner<3, 1>();
+  return T;
+}
+
 Eigen::Isometry3d isometryFrom(const py::array_t<double, py::array::c_style | py::array::forcecast>& a,
                                const char* what) {
   if (a.ndim() != 2 || a.shape(0) != 4 || a.shape(1) != 4)
     throw py::value_error(std::string(what) + ": expected a 4x4 matrix");
   Eigen::Matrix4d m;
   for (int i = 0; i < 4; ++i)
-    for (int j = 0; j < 4; ++j) {
-      m(i, j) = a.at(i, j);
-      if (!std::isfinite(m(i, j))) throw py::value_error(std::string(what) + ": non-finite entry");
-    }
-  const Eigen::Matrix3d R = m.topLeftCorner<3, 3>();
-  if ((R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-6 ||
-      std::abs(R.determinant() - 1.0) > 1e-6 || (m.row(3) - Eigen::RowVector4d(0, 0, 0, 1)).cwiseAbs().maxCoeff() > 0)
-    throw py::value_error(std::string(what) + ": not a rigid transform (rotation must be orthonormal, last row 0 0 0 1)");
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = R;
-  T.translation() = m.topRightCorner<3, 1>();
-  return T;
+    for (int j = 0; j < 4; ++j) m(i, j) = a.at(i, j);
+  return isometryFrom(m, what);
 }
 
 py::object jsonToPython(const std::string& text) { return py::module_::import("json").attr("loads")(text); }
@@ -295,41 +298,9 @@ void bindMap(py::module_& m) {
       py::arg("path"));
 }
 
-/// Engine: pipelines from files, text or code; events from numpy; play, snapshots, report.
-void bindEngine(py::module_& m) {
-  py::class_<PyEngine>(m, "Engine")
-      .def_static(
-          "from_file", [](const std::string& path, int threads) { return new PyEngine(parsePipelineFile(path), threads); },
-          py::arg("path"), py::arg("threads") = 0, py::return_value_policy::take_ownership)
-      .def_static(
-          "from_yaml",
-          [](const std::string& text, const std::string& base_dir, int threads) {
-            return new PyEngine(parsePipelineString(text, "<python>", base_dir), threads);
-          },
-          py::arg("text"), py::arg("base_dir") = ".", py::arg("threads") = 0, py::return_value_policy::take_ownership)
-      .def_static(
-          "create",
-          [](double resolution, std::pair<int, int> size, std::pair<double, double> center, py::list layers,
-             int tile, bool sparse, int threads, std::vector<std::string> plugin_paths) {
-            EngineOptions o;
-            o.geometry = Geometry(resolution, Size(size.first, size.second), Position(center.first, center.second));
-            o.map.tile_size = tile;
-            o.map.sparse = sparse;
-            o.threads = threads;
-            for (const auto& l : layers) {
-              const py::dict d = l.cast<py::dict>();
-              LayerDecl decl;
-              decl.name = d["name"].cast<std::string>();
-              decl.unit = d.contains("unit") ? d["unit"].cast<std::string>() : "";
-              if (d.contains("fill")) decl.fill = d["fill"].cast<float>();
-              o.layers.push_back(decl);
-            }
-            return new PyEngine(o, std::move(plugin_paths));
-          },
-          py::arg("resolution"), py::arg("size"), py::arg("center") = std::pair<double, double>{0.0, 0.0},
-          py::arg("layers") = py::list(), py::arg("tile") = 64, py::arg("sparse") = false, py::arg("threads") = 2,
-          py::arg("plugin_paths") = std::vector<std::string>{}, py::return_value_policy::take_ownership)
-      .def("add_stage", &PyEngine::addStage, py::arg("name"), py::arg("type"), py::arg("params") = py::dict())
+/// Engine.push_*: the events, from numpy arrays and numbers.
+void bindEvents(py::class_<PyEngine>& engine) {
+  engine
       .def(
           "push_cloud",
           [](PyEngine& e, const py::array_t<float, py::array::c_style | py::array::forcecast>& points,
@@ -388,14 +359,13 @@ void bindEngine(py::module_& m) {
             JointState j;
             j.stamp = stamp;
             j.machine_id = machine_id;
-            const char* names[4] = {"push_joint_state: T_map_link[0] (slew)", "push_joint_state: T_map_link[1] (boom)",
-                                    "push_joint_state: T_map_link[2] (arm)", "push_joint_state: T_map_link[3] (bucket)"};
-            for (py::ssize_t k = 0; k < 4; ++k) {
-              py::array_t<double> one({4, 4});
-              auto o = one.mutable_unchecked<2>();
-              for (py::ssize_t r = 0; r < 4; ++r)
-                for (py::ssize_t c = 0; c < 4; ++c) o(r, c) = T_links.at(k, r, c);
-              j.T_map_link[static_cast<std::size_t>(k)] = isometryFrom(one, names[k]);
+            const char* names[4] = {"slew", "boom", "arm", "bucket"};
+            for (int k = 0; k < 4; ++k) {
+              Eigen::Matrix4d T;
+              for (int r = 0; r < 4; ++r)
+                for (int c = 0; c < 4; ++c) T(r, c) = T_links.at(k, r, c);
+              j.T_map_link[static_cast<std::size_t>(k)] =
+                  isometryFrom(T, "push_joint_state: T_map_link[" + std::to_string(k) + "] (" + names[k] + ")");
             }
             j.T_map_bucket = j.T_map_link[3];
             for (std::size_t k = 0; k < position_rad.size(); ++k) j.position_rad[k] = position_rad[k];
@@ -405,7 +375,47 @@ void bindEngine(py::module_& m) {
           py::arg("T_map_link"), py::arg("stamp"), py::arg("machine_id") = "", py::arg("position_rad") = std::vector<double>{},
           py::arg("bucket_load_kg") = std::numeric_limits<double>::quiet_NaN())
       .def(
-          "push_tick", [](PyEngine& e, double stamp) { e.push(Tick{stamp}); }, py::arg("stamp"))
+          "push_tick", [](PyEngine& e, double stamp) { e.push(Tick{stamp}); }, py::arg("stamp"));
+}
+
+/// Engine: pipelines from files, text or code; events from numpy; play, snapshots, report.
+void bindEngine(py::module_& m) {
+  py::class_<PyEngine> engine(m, "Engine");
+  engine
+      .def_static(
+          "from_file", [](const std::string& path, int threads) { return new PyEngine(parsePipelineFile(path), threads); },
+          py::arg("path"), py::arg("threads") = 0, py::return_value_policy::take_ownership)
+      .def_static(
+          "from_yaml",
+          [](const std::string& text, const std::string& base_dir, int threads) {
+            return new PyEngine(parsePipelineString(text, "<python>", base_dir), threads);
+          },
+          py::arg("text"), py::arg("base_dir") = ".", py::arg("threads") = 0, py::return_value_policy::take_ownership)
+      .def_static(
+          "create",
+          [](double resolution, std::pair<int, int> size, std::pair<double, double> center, py::list layers,
+             int tile, bool sparse, int threads, std::vector<std::string> plugin_paths) {
+            EngineOptions o;
+            o.geometry = Geometry(resolution, Size(size.first, size.second), Position(center.first, center.second));
+            o.map.tile_size = tile;
+            o.map.sparse = sparse;
+            o.threads = threads;
+            for (const auto& l : layers) {
+              const py::dict d = l.cast<py::dict>();
+              LayerDecl decl;
+              decl.name = d["name"].cast<std::string>();
+              decl.unit = d.contains("unit") ? d["unit"].cast<std::string>() : "";
+              if (d.contains("fill")) decl.fill = d["fill"].cast<float>();
+              o.layers.push_back(decl);
+            }
+            return new PyEngine(o, std::move(plugin_paths));
+          },
+          py::arg("resolution"), py::arg("size"), py::arg("center") = std::pair<double, double>{0.0, 0.0},
+          py::arg("layers") = py::list(), py::arg("tile") = 64, py::arg("sparse") = false, py::arg("threads") = 2,
+          py::arg("plugin_paths") = std::vector<std::string>{}, py::return_value_policy::take_ownership)
+      .def("add_stage", &PyEngine::addStage, py::arg("name"), py::arg("type"), py::arg("params") = py::dict());
+  bindEvents(engine);
+  engine
       .def("play", &PyEngine::play, py::arg("max_events") = -1)
       .def(
           "finish",

@@ -392,7 +392,7 @@ const char* DigDumpController::phaseName(Phase p) {
   return "?";
 }
 
-DigDumpController::DigDumpController(const DigDumpSpec& spec, const ExcavatorArm&) : spec_(spec) {}
+DigDumpController::DigDumpController(const DigDumpSpec& spec) : spec_(spec) {}
 
 double DigDumpController::lever(const ExcavatorArm& arm, int k, double target) const {
   const ArmJointSpec& J = arm.spec().joints[k];
@@ -512,6 +512,7 @@ ArmCommand DigDumpController::update(double dt, const ExcavatorArm& arm, const E
       break;
     case Phase::Done: break;
   }
+  // A dump that just started the next cycle heads for the dig at once.
   if (phase_ == Phase::SwingToDig) yaw = yaw_dig_;
   std::array<double, 4> target = arm.inverse(q, lip_r_, lip_z_, bucket);
   target[kSlew] = yaw;

@@ -104,7 +104,7 @@ struct Simulator::Machine {
     if (spec.arm) {
       arm = std::make_unique<ExcavatorArm>(*spec.arm);
       if (spec.controller.type == ControllerSpec::Type::DigDump)
-        digger = std::make_unique<DigDumpController>(spec.controller.dig_dump, *arm);
+        digger = std::make_unique<DigDumpController>(spec.controller.dig_dump);
       bucket_capacity_m3 = spec.arm->bucket_capacity_m3 > 0 ? spec.arm->bucket_capacity_m3 : arm->mesh().volume();
       truth.has_arm = true;
       truth.arm_q = arm->q();
@@ -135,8 +135,47 @@ struct Simulator::Machine {
   Eigen::Isometry3d linkPose(const SensorSpec& s) const {
     if (s.link == SensorSpec::Link::Base) return ctl.T_map_base();
     if (s.link == SensorSpec::Link::Blade) return ctl.T_map_blade();
-    return ctl.T_map_base() *
-           arm->linkFrames(arm->q())[static_cast<int>(s.link) - static_cast<int>(SensorSpec::Link::Slew)];
+    return mapLinks(ctl.T_map_base(), arm->q())[static_cast<int>(s.link) - static_cast<int>(SensorSpec::Link::Slew)];
+  }
+
+  /// An excavator's four link frames (slew, boom, arm, bucket) in the map for base pose T_map_base
+  /// and joints q: the truth's with the true pose and joints, the JointState's with the estimates.
+  std::array<Eigen::Isometry3d, 4> mapLinks(const Eigen::Isometry3d& T_map_base, const std::array<double, 4>& q) const {
+    std::array<Eigen::Isometry3d, 4> links = arm->linkFrames(q);
+    for (Eigen::Isometry3d& T : links) T = T_map_base * T;
+    return links;
+  }
+
+  /// The encoders' and inclinometers' readings of this period into `truth` (base pose Tb).
+  void measureArm(const Eigen::Isometry3d& Tb) {
+    const ArmSpec& as = *ctl.spec().arm;
+    std::normal_distribution<double> N(0.0, as.encoder_noise_rad), Ni(0.0, as.inclinometer_noise_rad);
+    for (int k = 0; k < 4; ++k) truth.arm_q_measured[k] = truth.arm_q[k] + N(encoder_rng);
+    const Eigen::Isometry3d T_map_slew = Tb * arm->T_base_slew(truth.arm_q);
+    const auto c = arm->chain(truth.arm_q);
+    // Full-circle angles in the vertical plane through the upper structure's forward axis (an
+    // inclinometer's plane of measurement), so a link pointing back reads beyond +-90 deg.
+    const Eigen::Vector2d fwd = Eigen::Vector2d(T_map_slew.linear()(0, 0), T_map_slew.linear()(1, 0)).normalized();
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Vector3d d = T_map_slew.linear() * Eigen::Vector3d(c[k + 1].x() - c[k].x(), 0.0, c[k + 1].y() - c[k].y());
+      truth.arm_inclination[k] = std::atan2(d.z(), d.x() * fwd.x() + d.y() * fwd.y());
+      truth.arm_inclination_measured[k] = truth.arm_inclination[k] + Ni(encoder_rng);
+    }
+  }
+
+  /// The JointState of period end `tp`: what the machine knows of its arm (the encoders, the
+  /// estimated base pose Te), after measureArm.
+  JointState jointState(double tp, const Eigen::Isometry3d& Te) const {
+    JointState js;
+    js.stamp = tp;
+    js.machine_id = ctl.spec().id;
+    js.position_rad = truth.arm_q_measured;
+    js.velocity_radps = truth.arm_qd;
+    js.effort_nm = truth.arm_torque_nm;
+    js.T_map_link = mapLinks(Te, js.position_rad);
+    js.T_map_bucket = js.T_map_link[3];
+    js.bucket_load_kg = truth.bucket_load_kg;
+    return js;
   }
 };
 
@@ -484,10 +523,8 @@ void Simulator::scheduleScans(Period& rec, double t) {
             placeShape(other->ctl.spec().shape, other->ctl.T_map_base(), other->ctl.T_map_blade(), *obstacles);
             continue;
           }
-          const Eigen::Isometry3d Tb = other->ctl.T_map_base();
-          std::array<Eigen::Isometry3d, 4> links = other->arm->linkFrames(other->arm->q());
-          for (Eigen::Isometry3d& T : links) T = Tb * T;
-          placeShape(other->ctl.spec().shape, Tb, other->ctl.T_map_blade(), *obstacles, &links);
+          const std::array<Eigen::Isometry3d, 4> links = other->mapLinks(other->ctl.T_map_base(), other->arm->q());
+          placeShape(other->ctl.spec().shape, other->ctl.T_map_base(), other->ctl.T_map_blade(), *obstacles, &links);
         }
       }
       q.obstacles = obstacles;
@@ -519,21 +556,7 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
   m.truth.force_base_N = Tb.linear().transpose() * m.truth.force_map_N;
   m.truth.setpoints = m.controller.setpoints();
   m.truth.raise_offset_m = m.controller.raiseOffset();
-  if (m.arm) {
-    std::normal_distribution<double> N(0.0, spec.arm->encoder_noise_rad);
-    for (int k = 0; k < 4; ++k) m.truth.arm_q_measured[k] = m.truth.arm_q[k] + N(m.encoder_rng);
-    const Eigen::Isometry3d T_map_slew = Tb * m.arm->T_base_slew(m.truth.arm_q);
-    const auto c = m.arm->chain(m.truth.arm_q);
-    std::normal_distribution<double> Ni(0.0, spec.arm->inclinometer_noise_rad);
-    // Full-circle angles in the vertical plane through the upper structure's forward axis (an
-    // inclinometer's plane of measurement), so a link pointing back reads beyond +-90 deg.
-    const Eigen::Vector2d fwd = Eigen::Vector2d(T_map_slew.linear()(0, 0), T_map_slew.linear()(1, 0)).normalized();
-    for (int k = 0; k < 3; ++k) {
-      const Eigen::Vector3d d = T_map_slew.linear() * Eigen::Vector3d(c[k + 1].x() - c[k].x(), 0.0, c[k + 1].y() - c[k].y());
-      m.truth.arm_inclination[k] = std::atan2(d.z(), d.x() * fwd.x() + d.y() * fwd.y());
-      m.truth.arm_inclination_measured[k] = m.truth.arm_inclination[k] + Ni(m.encoder_rng);
-    }
-  }
+  if (m.arm) m.measureArm(Tb);
   // What the machine itself knows: the localisation's base pose and the blade through the
   // measured cylinder lengths and the joint kinematics. The perfect estimator keeps the joints
   // (the inverse linkage would round them).
@@ -573,19 +596,7 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
   rec.events.emplace_back(std::move(pose));
   rec.events.emplace_back(std::move(bp));
   rec.events.emplace_back(std::move(ob));
-  if (m.arm) {
-    JointState js;
-    js.stamp = tp;
-    js.machine_id = spec.id;
-    js.position_rad = m.truth.arm_q_measured;
-    js.velocity_radps = m.truth.arm_qd;
-    js.effort_nm = m.truth.arm_torque_nm;
-    const std::array<Eigen::Isometry3d, 4> links = m.arm->linkFrames(js.position_rad);
-    for (int k = 0; k < 4; ++k) js.T_map_link[k] = Te * links[k];
-    js.T_map_bucket = js.T_map_link[3];
-    js.bucket_load_kg = m.truth.bucket_load_kg;
-    rec.events.emplace_back(std::move(js));
-  }
+  if (m.arm) rec.events.emplace_back(m.jointState(tp, Te));
   rec.truths.push_back(m.truth);
   if (overlap_) rec.ctls.push_back(m.ctl);
 }

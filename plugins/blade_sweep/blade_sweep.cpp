@@ -321,14 +321,10 @@ void BladeSweep::process(ProcessContext& ctx, const Event& event) {
   // The blade pose shifted by its machine's ground anchor (the id's own, else the "base" one).
   BladePose anchored;
   const BladePose* bp = bp_in;
-  if (anchor_cfg_.enabled) {
-    auto it = anchors_.find(bp_in->machine_id);
-    if (it == anchors_.end()) it = anchors_.find("");
-    if (it != anchors_.end() && it->second.init) {
-      anchored = *bp_in;
-      anchored.T_map_blade.translation().z() += it->second.offset_m;
-      bp = &anchored;
-    }
+  if (const double dz = anchorOffset(bp_in->machine_id); dz != 0.0) {
+    anchored = *bp_in;
+    anchored.T_map_blade.translation().z() += dz;
+    bp = &anchored;
   }
   const BladeGeometry& g = bp->geometry;
   if (!(g.width_m > 0) || !(g.height_m >= 0) || !std::isfinite(g.width_m) || !std::isfinite(g.height_m)) {
@@ -408,53 +404,59 @@ void BladeSweep::sweepHistory(ProcessContext& ctx, MachineState& st, const std::
   st.history.push_back(last);
 }
 
+double BladeSweep::anchorOffset(const std::string& machine_id) const {
+  if (!anchor_cfg_.enabled) return 0.0;
+  auto it = anchors_.find(machine_id);
+  if (it == anchors_.end()) it = anchors_.find("");  // one machine: the Pose frame "base"
+  return it != anchors_.end() && it->second.init ? it->second.offset_m : 0.0;
+}
+
 void BladeSweep::processJointState(ProcessContext& ctx, const JointState& js) {
   if (!finitePose(js.T_map_bucket) || !std::isfinite(js.stamp)) {
     ctx.countDrop("non_finite_pose");
     return;
   }
   Eigen::Isometry3d T = js.T_map_bucket;
-  if (anchor_cfg_.enabled) {  // the same height correction as the machine's blade
-    auto it = anchors_.find(js.machine_id);
-    if (it == anchors_.end()) it = anchors_.find("");
-    if (it != anchors_.end() && it->second.init) T.translation().z() += it->second.offset_m;
-  }
+  T.translation().z() += anchorOffset(js.machine_id);  // the same height correction as the machine's blade
   BucketState& st = buckets_[js.machine_id];
   if (!st.raw.empty() && (T.translation() - st.raw.back().translation()).norm() > cfg_.max_jump_m) {
     ctx.addCounter("pose_jumps", 1);
     advanceBucket(ctx, st, true);
-    st.raw.clear();
     st.poses.clear();
   }
   st.raw.push_back(T);
   advanceBucket(ctx, st, false);
-  // A pour: the machine weighs its bucket. What it lost, as a share of what it held, leaves the
-  // soil the map has the bucket carry, over the lip, after the bucket's motion so far has cut.
+  // The machine weighs its bucket: a drop beyond the threshold is a pour; drops below it
+  // accumulate until they pass it; a rising load is the new reference.
   const double load = js.bucket_load_kg;
-  if (std::isfinite(load) && std::isfinite(st.last_load_kg) && st.last_load_kg - load > bucket_cfg_.min_load_drop_kg) {
-    sweepBucket(ctx, st);
-    const double share = std::clamp((st.last_load_kg - load) / st.last_load_kg, 0.0, 1.0);
-    const double bank = st.carried_bank_m3 * share;
-    // A few sweeps per pour keep the pile from standing as a column while it grows; it settles
-    // fully once the pour ends (below).
-    const BucketResult r = pourBucket(ctx.map(), ids_, cfg_, bucket_cfg_, T * tool_.lip, bank, 8);
-    st.pile_pending = true;
-    st.pile_at = T * tool_.lip;
-    if (r.dropped) {
-      ctx.countDrop("tile_budget");
-    } else {
-      st.carried_bank_m3 -= bank;
-      st.last_load_kg = load;
-      ctx.addCounter("bucket_pours", 1);
-      ctx.addCounter("bucket_poured_bank_m3", r.deposit_bank_m3);
-      ctx.addCounter("deposit_unknown_volume_m3", r.unknown_bank_m3 * cfg_.swell);
-      ctx.addCounter("lost_volume_m3", r.lost_bank_m3 * cfg_.swell);
-      if (r.lost_bank_m3 > 0) ctx.countDrop("deposit_off_map");
-    }
-  }
-  else if (st.pile_pending) settleBucketPile(ctx, st);  // the pour has ended
-  // Drops below the threshold accumulate until they pass it; a rising load is the new reference.
+  if (std::isfinite(load) && std::isfinite(st.last_load_kg) && st.last_load_kg - load > bucket_cfg_.min_load_drop_kg)
+    pourShare(ctx, st, T * tool_.lip, load);
+  else if (st.pile_pending)
+    settleBucketPile(ctx, st);  // the pour has ended
   if (std::isfinite(load) && !(load <= st.last_load_kg)) st.last_load_kg = load;
+}
+
+void BladeSweep::pourShare(ProcessContext& ctx, BucketState& st, const Eigen::Vector3d& lip, double load_kg) {
+  // What the bucket lost, as a share of what it held, leaves the soil the map has it carry, over
+  // the lip, after the bucket's motion so far has cut.
+  sweepBucket(ctx, st);
+  const double bank = st.carried_bank_m3 * std::clamp((st.last_load_kg - load_kg) / st.last_load_kg, 0.0, 1.0);
+  // A few sweeps per pour keep the pile from standing as a column while it grows; it settles
+  // fully once the pour ends.
+  const BucketResult r = pourBucket(ctx.map(), ids_, cfg_, bucket_cfg_, lip, bank, 8);
+  if (r.dropped) {
+    ctx.countDrop("tile_budget");
+    return;
+  }
+  st.carried_bank_m3 -= bank;
+  st.last_load_kg = load_kg;
+  st.pile_pending = true;
+  st.pile_at = lip;
+  ctx.addCounter("bucket_pours", 1);
+  ctx.addCounter("bucket_poured_bank_m3", r.deposit_bank_m3);
+  ctx.addCounter("deposit_unknown_volume_m3", r.unknown_bank_m3 * cfg_.swell);
+  ctx.addCounter("lost_volume_m3", r.lost_bank_m3 * cfg_.swell);
+  if (r.lost_bank_m3 > 0) ctx.countDrop("deposit_off_map");
 }
 
 void BladeSweep::settleBucketPile(ProcessContext& ctx, BucketState& st) {

@@ -121,17 +121,25 @@ struct SweepLayers {
   /// elevation, loose, height_sigma (must exist), and the contract layers the map has.
   /// \throws LayerError if one of the first three is missing.
   static SweepLayers of(const LayeredMap& map);
+  /// MapWindow::tryAllocate for every layer a sweep may write (false: a sparse map's budget).
+  bool allocate(LayeredMap& map, const MapWindow& win) const;
 };
 
 /// How a sweep changed a cell (the height contract's cases).
 enum SweepChange : std::uint8_t { kSweepUnchanged = 0, kSweepCut = 1, kSweepDeposit = 2, kSweepDepositUnknown = 3 };
 
-/// The height contract (docs/height_contract.md) on lidar_fusion's layers over `win` for the
-/// cells `change` marks (H the new elevation, S0 and S the height sigma before and after), as
-/// the blade's sweep applies it; the bucket's sweep and pour apply the same.
-void applyHeightContract(LayeredMap& map, const SweepLayers& ids, const MapWindow& win,
-                         const std::vector<std::uint8_t>& change, const std::vector<double>& H,
-                         const std::vector<double>& S0, const std::vector<double>& S);
+/// The elevation, loose and height-sigma layers over a window as gathered (H0, L0, S0) and as a
+/// sweep, a bucket or a pour changes them (H, L, S, with `change` per cell): what every blind
+/// update reads first and writes last.
+struct SweepSoil {
+  std::vector<double> H0, L0, S0, H, L, S;
+  std::vector<std::uint8_t> change;  ///< SweepChange per window cell
+  /// Gathers the three layers over `win` (H, L, S start as copies; change all unchanged).
+  SweepSoil(const LayeredMap& map, const SweepLayers& ids, const MapWindow& win);
+  /// Scatters the cells that changed and applies the height contract (docs/height_contract.md)
+  /// to lidar_fusion's layers where `change` marks a cut or a deposit.
+  void write(LayeredMap& map, const SweepLayers& ids, const MapWindow& win) const;
+};
 
 /// A tool given as a closed triangle mesh in its own frame (m): an excavator's bucket, in the
 /// frame of JointState::T_map_bucket (origin at the bucket pivot, x toward the lip, y across,
@@ -266,6 +274,10 @@ class BladeSweep : public Plugin {
   void advanceBucket(ProcessContext& ctx, BucketState& st, bool flush);
   void sweepBucket(ProcessContext& ctx, BucketState& st);
   void settleBucketPile(ProcessContext& ctx, BucketState& st);
+  /// Pours the share of the carried soil the load's drop to `load_kg` stands for, at `lip`.
+  void pourShare(ProcessContext& ctx, BucketState& st, const Eigen::Vector3d& lip, double load_kg);
+  /// The ground anchor's height correction of machine `machine_id` (m; 0 without one).
+  double anchorOffset(const std::string& machine_id) const;
   BucketConfig bucket_cfg_;
   ToolMesh tool_;
   std::map<std::string, BucketState> buckets_;

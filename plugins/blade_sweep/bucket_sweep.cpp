@@ -33,8 +33,9 @@ Eigen::Isometry3d interpolate(const Eigen::Isometry3d& a, const Eigen::Isometry3
 /// snapshot, a cell gives at most the loose soil it has; height and loose thickness move
 /// together, so Σ[(H − L) + L/s] is kept), only between known cells, until no pair is steeper
 /// than the repose by more than 0.1 mm or `max_sweeps` have run. Returns the sweeps run.
-int settle(std::vector<double>& H, std::vector<double>& L, std::vector<std::uint8_t>& change, int R, int C, double res,
-           double repose_rad, int max_sweeps) {
+int settle(SweepSoil& soil, int R, int C, double res, double repose_rad, int max_sweeps) {
+  std::vector<double>&H = soil.H, &L = soil.L;
+  std::vector<std::uint8_t>& change = soil.change;
   const double max_step = res * std::tan(repose_rad);
   std::vector<double> fx(H.size()), fy(H.size()), scale(H.size());
   int it = 0;
@@ -90,8 +91,7 @@ MapWindow pileWindow(LayeredMap& map, const SweepLayers& ids, const BucketConfig
   const double reach = bucket.pile_reach_m + 0.5 * bucket.width_m;
   const MapWindow win = MapWindow::covering(map, {at.head<2>() - Eigen::Vector2d(reach, reach),
                                                   at.head<2>() + Eigen::Vector2d(reach, reach)});
-  dropped = !win.empty() && !win.tryAllocate(map, {ids.elevation, ids.loose, ids.sigma, ids.variance, ids.is_valid,
-                                                   ids.upper_bound, ids.is_upper_bound});
+  dropped = !win.empty() && !ids.allocate(map, win);
   return dropped ? MapWindow() : win;
 }
 
@@ -149,30 +149,31 @@ BucketResult runBucketSweep(LayeredMap& map, const SweepLayers& ids, const Sweep
     for (int s = 1; s <= n; ++s) stations.push_back(s == n ? poses[k] : interpolate(poses[k - 1], poses[k], double(s) / n));
   }
   std::vector<std::vector<Triangle>> tris(stations.size());
-  std::vector<Triangle> all;
+  std::vector<CellRect> blocks(stations.size());
+  CellRect block;
   for (std::size_t k = 0; k < stations.size(); ++k) {
     for (const Triangle& t : tool.faces) tris[k].push_back({stations[k] * t.a, stations[k] * t.b, stations[k] * t.c});
-    all.insert(all.end(), tris[k].begin(), tris[k].end());
+    blocks[k] = footprintBlock(tris[k], geo);
+    block.add(blocks[k]);
   }
-  const CellRect block = footprintBlock(all, geo);
   if (block.empty()) return out;
   const MapWindow win(map, block.r0, block.c0, block.rows, block.cols);
-  if (!win.tryAllocate(map, {ids.elevation, ids.loose, ids.sigma, ids.variance, ids.is_valid, ids.upper_bound,
-                             ids.is_upper_bound})) {
+  if (!ids.allocate(map, win)) {
     out.dropped = true;
     return out;
   }
-  std::vector<double> H0, L0, S0;
-  win.gather(map, ids.elevation, H0);
-  win.gather(map, ids.loose, L0);
-  win.gather(map, ids.sigma, S0);
-  std::vector<double> H = H0, L = L0, S = S0;
-  std::vector<std::uint8_t> change(H.size(), kSweepUnchanged), unknown(H.size(), 0);
-  const double s = cfg.swell;
+  SweepSoil soil(map, ids, win);
+  std::vector<double>&H = soil.H, &L = soil.L, &S = soil.S;
+  std::vector<std::uint8_t> unknown(H.size(), 0);
+  // Bank-equivalent volume of cutting dh from a cell with loose thickness L (loose soil first).
+  auto bankOf = [&](double l, double dh) {
+    const double dh_l = std::min(std::max(0.0, orZero(l)), dh);
+    return ((dh - dh_l) + dh_l / cfg.swell) * cell;
+  };
   const Executor serial(1);  // one station's mesh is a dozen triangles
   std::vector<double> zlow;
   for (std::size_t k = 0; k < stations.size() && out.cut_bank_m3 < room_bank_m3; ++k) {
-    const CellRect b = footprintBlock(tris[k], geo);
+    const CellRect& b = blocks[k];
     if (b.empty()) continue;
     lowestIntersection(tris[k], geo, b, zlow, serial);
     // This station's cuts, then scaled down together if they overfill the bucket.
@@ -182,7 +183,7 @@ BucketResult runBucketSweep(LayeredMap& map, const SweepLayers& ids, const Sweep
     for (int r = 0; r < b.rows; ++r)
       for (int c = 0; c < b.cols; ++c) {
         const double zl = zlow[static_cast<std::size_t>(r) * b.cols + c];
-        if (!std::isfinite(zl) || !win.contains(b.r0 + r, b.c0 + c)) continue;
+        if (!std::isfinite(zl)) continue;
         const std::size_t w = static_cast<std::size_t>(win.local(b.r0 + r, b.c0 + c));
         if (!std::isfinite(H[w])) {
           unknown[w] = 1;
@@ -190,28 +191,23 @@ BucketResult runBucketSweep(LayeredMap& map, const SweepLayers& ids, const Sweep
         }
         const double dh = H[w] - zl;
         if (!(dh > cfg.min_cut_m)) continue;
-        const double la = std::max(0.0, orZero(L[w])), dh_l = std::min(la, dh);
-        bank += ((dh - dh_l) + dh_l / s) * cell;
+        bank += bankOf(L[w], dh);
         cuts.push_back({w, dh});
       }
     const double f = bank > room_bank_m3 - out.cut_bank_m3 ? (room_bank_m3 - out.cut_bank_m3) / bank : 1.0;
     for (const Cut& ct : cuts) {
       const double dh = ct.dh * f;
-      const double la = std::max(0.0, orZero(L[ct.w])), dh_l = std::min(la, dh);
       out.cut_volume_m3 += dh * cell;
-      out.cut_bank_m3 += ((dh - dh_l) + dh_l / s) * cell;
+      out.cut_bank_m3 += bankOf(L[ct.w], dh);
       H[ct.w] -= dh;
-      L[ct.w] = std::max(la - dh, 0.0);
+      L[ct.w] = std::max(std::max(0.0, orZero(L[ct.w])) - dh, 0.0);
       S[ct.w] = std::isfinite(S[ct.w]) ? std::max(S[ct.w], cfg.sigma_sv_m) : cfg.sigma_sv_m;
-      if (change[ct.w] != kSweepCut) ++out.cells_cut;
-      change[ct.w] = kSweepCut;
+      if (soil.change[ct.w] != kSweepCut) ++out.cells_cut;
+      soil.change[ct.w] = kSweepCut;
     }
   }
   for (std::uint8_t u : unknown) out.cells_unknown += u;
-  win.scatterChanged(map, ids.elevation, H0, H);
-  win.scatterChanged(map, ids.loose, L0, L);
-  win.scatterChanged(map, ids.sigma, S0, S);
-  applyHeightContract(map, ids, win, change, H, S0, S);
+  soil.write(map, ids, win);
   return out;
 }
 
@@ -227,12 +223,9 @@ BucketResult pourBucket(LayeredMap& map, const SweepLayers& ids, const SweepConf
     out.lost_bank_m3 = bank_m3;
     return out;
   }
-  std::vector<double> H0, L0, S0;
-  win.gather(map, ids.elevation, H0);
-  win.gather(map, ids.loose, L0);
-  win.gather(map, ids.sigma, S0);
-  std::vector<double> H = H0, L = L0, S = S0;
-  std::vector<std::uint8_t> change(H.size(), kSweepUnchanged);
+  SweepSoil soil(map, ids, win);
+  std::vector<double>&H = soil.H, &L = soil.L, &S = soil.S;
+  std::vector<std::uint8_t>& change = soil.change;
   // The disc under the lip (its own cell at least).
   std::vector<std::size_t> disc;
   const double r2 = 0.25 * bucket.width_m * bucket.width_m;
@@ -264,11 +257,8 @@ BucketResult pourBucket(LayeredMap& map, const SweepLayers& ids, const SweepConf
     out.deposit_bank_m3 += dep / cfg.swell * cell;
     ++out.cells_deposit;
   }
-  settle(H, L, change, win.rows(), win.cols(), res, bucket.pile_repose_rad, max_sweeps);
-  win.scatterChanged(map, ids.elevation, H0, H);
-  win.scatterChanged(map, ids.loose, L0, L);
-  win.scatterChanged(map, ids.sigma, S0, S);
-  applyHeightContract(map, ids, win, change, H, S0, S);
+  settle(soil, win.rows(), win.cols(), res, bucket.pile_repose_rad, max_sweeps);
+  soil.write(map, ids, win);
   return out;
 }
 
@@ -277,16 +267,9 @@ int settlePile(LayeredMap& map, const SweepLayers& ids, const BucketConfig& buck
   bool dropped = false;
   const MapWindow win = pileWindow(map, ids, bucket, at, dropped);
   if (win.empty()) return 0;
-  std::vector<double> H0, L0, S;
-  win.gather(map, ids.elevation, H0);
-  win.gather(map, ids.loose, L0);
-  win.gather(map, ids.sigma, S);
-  std::vector<double> H = H0, L = L0;
-  std::vector<std::uint8_t> change(H.size(), kSweepUnchanged);
-  const int n = settle(H, L, change, win.rows(), win.cols(), map.geometry().resolution(), bucket.pile_repose_rad, max_sweeps);
-  win.scatterChanged(map, ids.elevation, H0, H);
-  win.scatterChanged(map, ids.loose, L0, L);
-  applyHeightContract(map, ids, win, change, H, S, S);
+  SweepSoil soil(map, ids, win);
+  const int n = settle(soil, win.rows(), win.cols(), map.geometry().resolution(), bucket.pile_repose_rad, max_sweeps);
+  soil.write(map, ids, win);
   return n;
 }
 

@@ -345,7 +345,6 @@ void averageSlices(bool any_cut, double res, SweepRecord& rec) {
 
 // What cutAndDeposit did to a window cell (cut and deposit cells are disjoint: deposits land
 // off the footprint).
-constexpr std::uint8_t kChangeNone = 0, kChangeCut = 1, kChangeDeposit = 2, kChangeDepositUnknown = 3;
 
 // Cut and deposit (Alg. 3, mass-conserving) on the window's copies H, L, S: each cut cell's soil
 // goes, swollen, to the first cell off the footprint along m̂.
@@ -374,7 +373,7 @@ void cutAndDeposit(const std::vector<CutCell>& cuts, const SweptCells& sc, const
     H[wa] = a.zl;
     L[wa] = std::max(la - dh, 0.0);
     S[wa] = std::isfinite(S[wa]) ? std::max(S[wa], ssv) : ssv;
-    change[wa] = kChangeCut;
+    change[wa] = kSweepCut;
 
     // Walk from the centre of a along m̂ to the first cell off the footprint.
     GridLine walk = GridLine::fromCellCentre(Index(a.i, a.j), du, dv);
@@ -399,7 +398,7 @@ void cutAndDeposit(const std::vector<CutCell>& cuts, const SweptCells& sc, const
       // Unknown ground: keep the soil as loose thickness of known amount on it (its elevation
       // stays unknown until a sensor sees it), so no volume disappears.
       L[wb] = orZero(L[wb]) + dep;
-      change[wb] = kChangeDepositUnknown;
+      change[wb] = kSweepDepositUnknown;
       rec.deposit_unknown_volume_m3 += dep * cell;
       ++rec.cells_deposit_unknown;
       continue;
@@ -415,7 +414,7 @@ void cutAndDeposit(const std::vector<CutCell>& cuts, const SweptCells& sc, const
     L[wb] = orZero(L[wb]) + dep;
     const double sb = orZero(S[wb]);
     S[wb] = std::sqrt(sb * sb + 0.25 * dh_max * dh_max);
-    change[wb] = kChangeDeposit;
+    change[wb] = kSweepDeposit;
     rec.deposit_volume_m3 += dep * cell;
     if (!deposited[wb]) {
       deposited[wb] = 1;
@@ -449,8 +448,8 @@ void updateFusionLayers(LayeredMap& map, const SweepLayers& ids, const MapWindow
   std::vector<double> V = V0, VAL = VAL0, UB = UB0, ISUB = ISUB0;
   for (size_t k = 0; k < change.size(); ++k) {
     const std::uint8_t c = change[k];
-    if (c == kChangeNone) continue;
-    if (c == kChangeDepositUnknown) {
+    if (c == kSweepUnchanged) continue;
+    if (c == kSweepDepositUnknown) {
       if (ub) {
         UB[k] = kNaN;
         ISUB[k] = 0.0;
@@ -458,7 +457,7 @@ void updateFusionLayers(LayeredMap& map, const SweepLayers& ids, const MapWindow
       continue;
     }
     if (var) {
-      if (c == kChangeCut) {
+      if (c == kSweepCut) {
         V[k] = S[k] * S[k];
       } else {
         // A known height the LiDAR never measured (no variance) inherits the blind sigma so far.
@@ -467,7 +466,7 @@ void updateFusionLayers(LayeredMap& map, const SweepLayers& ids, const MapWindow
         V[k] = base + (S[k] * S[k] - s0 * s0);
       }
     }
-    if (valid && c == kChangeCut) VAL[k] = 1.0;
+    if (valid && c == kSweepCut) VAL[k] = 1.0;
     if (ub) {
       UB[k] = H[k];
       ISUB[k] = 0.0;
@@ -547,13 +546,25 @@ SweepStep stepValues(const std::vector<BladePose>& history, size_t k, const Swee
 
 }  // namespace
 
-static_assert(kChangeNone == kSweepUnchanged && kChangeCut == kSweepCut && kChangeDeposit == kSweepDeposit &&
-                  kChangeDepositUnknown == kSweepDepositUnknown,
-              "the bucket sweep shares the blade's change codes");
+bool SweepLayers::allocate(LayeredMap& map, const MapWindow& win) const {
+  return win.tryAllocate(map, {elevation, loose, sigma, variance, is_valid, upper_bound, is_upper_bound});
+}
 
-void applyHeightContract(LayeredMap& map, const SweepLayers& ids, const MapWindow& win,
-                         const std::vector<std::uint8_t>& change, const std::vector<double>& H,
-                         const std::vector<double>& S0, const std::vector<double>& S) {
+SweepSoil::SweepSoil(const LayeredMap& map, const SweepLayers& ids, const MapWindow& win) {
+  win.gather(map, ids.elevation, H0);
+  win.gather(map, ids.loose, L0);
+  win.gather(map, ids.sigma, S0);
+  H = H0;
+  L = L0;
+  S = S0;
+  change.assign(H.size(), kSweepUnchanged);
+}
+
+void SweepSoil::write(LayeredMap& map, const SweepLayers& ids, const MapWindow& win) const {
+  // Only what changed, so snapshots keep sharing untouched tiles.
+  win.scatterChanged(map, ids.elevation, H0, H);
+  win.scatterChanged(map, ids.loose, L0, L);
+  win.scatterChanged(map, ids.sigma, S0, S);
   updateFusionLayers(map, ids, win, change, H, S0, S);
 }
 
@@ -570,14 +581,9 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
   const MapWindow win = sweepWindow(map, sc.fp, cfg, dir.t_hat, res);
   // A sparse map at its memory budget: the sweep is dropped whole (the caller counts it) rather
   // than written in part.
-  if (!win.tryAllocate(map, {ids.elevation, ids.loose, ids.sigma, ids.variance, ids.is_valid, ids.upper_bound,
-                             ids.is_upper_bound}))
-    return nullptr;
-  std::vector<double> H0, L0, S0;
-  win.gather(map, ids.elevation, H0);
-  win.gather(map, ids.loose, L0);
-  win.gather(map, ids.sigma, S0);
-  std::vector<double> H = H0, L = L0, S = S0;
+  if (!ids.allocate(map, win)) return nullptr;
+  SweepSoil soil(map, ids, win);
+  const std::vector<double>&H0 = soil.H0, &L0 = soil.L0;
 
   const std::vector<CutCell> cuts = cutCells(sc, win, H0, geo, cfg, *rec);
   extractSlices(cuts, win, H0, L0, geo, cfg, dir, ex, *rec);
@@ -586,9 +592,8 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
   // Surcharge ahead of the blade before the cut, the cut and deposit, the surcharge after.
   const auto vq0 = surchargeVolume(rec->T_map_blade0, bg, dir.t_hat, cfg.fit_length_m, geo, win, L0);
   rec->vq0_m3 = vq0.first;
-  std::vector<std::uint8_t> change(H.size(), kChangeNone);
-  cutAndDeposit(cuts, sc, win, geo, cfg, dir.m_hat, H, L, S, change, *rec);
-  const auto vq1 = surchargeVolume(rec->T_map_blade1, bg, dir.t_hat, cfg.fit_length_m, geo, win, L);
+  cutAndDeposit(cuts, sc, win, geo, cfg, dir.m_hat, soil.H, soil.L, soil.S, soil.change, *rec);
+  const auto vq1 = surchargeVolume(rec->T_map_blade1, bg, dir.t_hat, cfg.fit_length_m, geo, win, soil.L);
   rec->vq1_m3 = vq1.first;
   const double gamma_l = rec->loose_unit_weight_n_m3;
   rec->q0_n = gamma_l * rec->vq0_m3;
@@ -598,11 +603,7 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
   rec->steps.reserve(history.size());
   for (size_t k = 0; k < history.size(); ++k) rec->steps.push_back(stepValues(history, k, dir, res, *rec));
 
-  // Write back only what changed, so snapshots keep sharing untouched tiles.
-  win.scatterChanged(map, ids.elevation, H0, H);
-  win.scatterChanged(map, ids.loose, L0, L);
-  win.scatterChanged(map, ids.sigma, S0, S);
-  updateFusionLayers(map, ids, win, change, H, S0, S);
+  soil.write(map, ids, win);
   return rec;
 }
 

@@ -148,7 +148,7 @@ CutResult bucketPour(TruthTerrain& terrain, const SoilField& soil, const Eigen::
 class DigDumpController {
  public:
   enum class Phase { SwingToDig, Penetrate, Drag, Curl, Lift, SwingToDump, Dump, Done };
-  DigDumpController(const DigDumpSpec& spec, const ExcavatorArm& arm);
+  explicit DigDumpController(const DigDumpSpec& spec);
   ArmCommand update(double dt, const ExcavatorArm& arm, const Eigen::Isometry3d& T_map_base,
                     const TruthTerrain& terrain, const BucketLoad& load, double capacity_m3);
   Phase phase() const { return phase_; }
