@@ -450,7 +450,7 @@ TEST(Cli, AnEpisodesCommandsReplayedRetraceItsPath) {
 TEST(Cli, TheExcavatorPipelineFiltersItsArmAndMapsItsBucket) {
   // configs/excavator.yaml as shipped (30 s: two dig-and-dump cycles beside a grading loader):
   // the excavator's camera sees its own boom, arm and bucket, which the link boxes of the
-  // self-filter drop (RMSE 4.97 cm with them, 13.2 cm without: docs/sim.md "Excavators"), and
+  // self-filter drop (RMSE 4.97 cm with them, 13.2 cm without: plugins/lidar_fusion/README.md), and
   // blade_sweep carries what the bucket digs to the pile.
   const fs::path d = tempDir("excavator");
   const Result r = sh("run " + std::string(TERRAMAP_SOURCE_DIR) + "/configs/excavator.yaml --quiet --out " + d.string());

@@ -8,7 +8,8 @@
 
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
+#include <map>
+#include <memory>
 
 #include "blade_sweep.hpp"
 
@@ -80,17 +81,48 @@ TEST(BucketSweep, CutSoilIsCarriedAndPouredAsAPileWithTheMassKept) {
   EXPECT_GT(steepest / 0.05, std::tan(bucket.pile_repose_rad) - 0.05) << "a pile, not a flat layer";
 }
 
-TEST(BucketBlind, ADigAndDumpCycleAgainstTheSimulatorsTruth) {
-  // configs/scenarios/excavator_dig_dump.yaml's excavator alone, with its realistic localisation
-  // (rtk_imu) and encoders: the map starts from the true initial surface and only the bucket's
-  // JointStates (and the plow's BladePoses, which never touch the ground) update it.
-  const std::string yaml =
-      "version: 1\nseed: 5\nduration_s: 32\nthreads: 1\n"
-      "terrain: {size_m: [12, 12], origin_m: [-6, -6], resolution_m: 0.02}\n"
-      "soil: {default: {family: loam, relative_density: 0.4}}\n"
-      "machines:\n  - id: ex1\n    type: excavator\n"
-      "    controller: {type: dig_dump, dig_m: [3.4, 0], dump_m: [0.3, 3.2], depth_m: 0.25, drag_m: 1.0}\n";
-  sim::Simulator sim(sim::parseScenario(yaml, "dig.yaml"));
+namespace {
+
+/// One simulated dig-and-dump run: the events the mapper receives and the truth at the end.
+struct DigRun {
+  std::vector<Event> events;
+  std::unique_ptr<sim::Simulator> sim;  ///< after the run: truth() and machineTruth(0)
+};
+
+const DigRun& digRun() {
+  // configs/scenarios/excavator_dig_dump.yaml's excavator alone, with its realistic
+  // localisation (rtk_imu) and encoders, 32 s: two dig-and-dump cycles.
+  static const DigRun run = [] {
+    DigRun r;
+    r.sim = std::make_unique<sim::Simulator>(sim::parseScenario(
+        "version: 1\nseed: 5\nduration_s: 32\nthreads: 1\n"
+        "terrain: {size_m: [12, 12], origin_m: [-6, -6], resolution_m: 0.02}\n"
+        "soil: {default: {family: loam, relative_density: 0.4}}\n"
+        "machines:\n  - id: ex1\n    type: excavator\n"
+        "    controller: {type: dig_dump, dig_m: [3.4, 0], dump_m: [0.3, 3.2], depth_m: 0.25, drag_m: 1.0}\n",
+        "dig.yaml"));
+    std::vector<Event> ev;
+    while (r.sim->next(ev)) {
+      for (Event& e : ev) r.events.push_back(std::move(e));
+      ev.clear();
+    }
+    return r;
+  }();
+  return run;
+}
+
+/// What blade_sweep (with `overrides`) makes of the run, against the truth.
+struct BlindFigures {
+  double rmse = 0, rmse_static = 0, rmse_pile = 0, rmse_pile_static = 0;
+  long cells = 0, pile_cells = 0;
+  double cut = 0, poured = 0, carried = 0, balance = 0;  ///< bank m^3; balance: soil0 - (map + carried)
+};
+
+BlindFigures mapDigRun(const std::map<std::string, ParamValue>& overrides) {
+  const DigRun& run = digRun();
+  const sim::TruthTerrain& truth = run.sim->truth();
+  // The map starts from the true initial surface; only the bucket's JointStates (and the plow's
+  // BladePoses, which never touch the ground) update it.
   LayeredMap map(Geometry(0.05, Size(160, 160), Position(1.5, 1.5)));
   const LayerId h = map.addLayer("elevation", "m");
   map.addLayer("loose", "m", 0.0f);
@@ -100,7 +132,7 @@ TEST(BucketBlind, ADigAndDumpCycleAgainstTheSimulatorsTruth) {
   for (int i = 0; i < geo.size().x(); ++i)
     for (int j = 0; j < geo.size().y(); ++j) {
       const Position p = geo.positionOf(Index(i, j));
-      h0(i, j) = static_cast<float>(sim.truth().initialHeightAt(p.x(), p.y()));
+      h0(i, j) = static_cast<float>(truth.initialHeightAt(p.x(), p.y()));
     }
   map.fromMatrix(h, h0);
   Executor ex(2);
@@ -108,83 +140,73 @@ TEST(BucketBlind, ADigAndDumpCycleAgainstTheSimulatorsTruth) {
   PluginStats stats;
   ProcessContext ctx(map, ex, bus, stats, "blade");
   BladeSweep plugin;
-  plugin.configure(makeParams("blade", plugin.schema()));
+  plugin.configure(makeParams("blade", plugin.schema(), overrides));
   plugin.start(ctx);
-  const double swell = 1.2;  // the plugin's default
+  const double swell = plugin.config().swell;
   const double soil0 = mapSoil(map, swell);
-  std::vector<Event> events;
-  while (sim.next(events)) {
-    for (const Event& e : events)
-      if (plugin.events() & mask(kindOf(e))) plugin.process(ctx, e);
-    events.clear();
-  }
+  for (const Event& e : run.events)
+    if (plugin.events() & mask(kindOf(e))) plugin.process(ctx, e);
   plugin.finish(ctx);
-  const sim::MachineTruth& tr = sim.machineTruth(0);
-  ASSERT_GE(tr.arm_cycle, 2) << "two dig-and-dump cycles, the second deepening the trench";
-  const double cut = stats.counters["bucket_cut_bank_m3"], poured = stats.counters["bucket_poured_bank_m3"];
-  const double carried = stats.counters["bucket_carried_bank_m3"];
-  // The map's own balance: what it lost is what its buckets still carry.
-  EXPECT_NEAR(mapSoil(map, swell) + carried, soil0, 1e-4);
-  EXPECT_NEAR(cut - poured, carried, 1e-9);
-  // Heights inside the dig: the cells the truth lowered by more than 3 cm, away from the pile.
+  BlindFigures f;
+  f.cut = stats.counters["bucket_cut_bank_m3"];
+  f.poured = stats.counters["bucket_poured_bank_m3"];
+  f.carried = stats.counters["bucket_carried_bank_m3"];
+  f.balance = soil0 - (mapSoil(map, swell) + f.carried);
+  // Heights inside the dig (the cells the truth lowered by more than 3 cm, away from the pile)
+  // and on the pile (where the truth or the map rose by more than 1 cm within 1.5 m of the dump
+  // point).
   const Eigen::MatrixXf h1 = map.toMatrix(h);
-  double se = 0, se_static = 0;
-  long n = 0;
+  double se = 0, se_static = 0, se_pile = 0, se_pile_static = 0;
   for (int i = 0; i < geo.size().x(); ++i)
     for (int j = 0; j < geo.size().y(); ++j) {
       const Position p = geo.positionOf(Index(i, j));
-      const double truth = sim.truth().heightAt(p.x(), p.y());
-      if (!(truth < h0(i, j) - 0.03) || (p - Eigen::Vector2d(0.3, 3.2)).norm() < 1.5) continue;
-      se += (h1(i, j) - truth) * (h1(i, j) - truth);
-      if (std::getenv("BUCKET_BLIND_DUMP") && std::abs(h1(i, j) - truth) > 0.05)
-        std::printf("cell %.2f %.2f map %.3f truth %.3f init %.3f\n", p.x(), p.y(), h1(i, j), truth, h0(i, j));
-      se_static += (h0(i, j) - truth) * (h0(i, j) - truth);
-      ++n;
+      const double t = truth.heightAt(p.x(), p.y()), e = h1(i, j) - t, e0 = h0(i, j) - t;
+      const bool near_pile = (p - Eigen::Vector2d(0.3, 3.2)).norm() <= 1.5;
+      if (!near_pile && t < h0(i, j) - 0.03) {
+        se += e * e;
+        se_static += e0 * e0;
+        ++f.cells;
+      } else if (near_pile && (t > h0(i, j) + 0.01 || h1(i, j) > h0(i, j) + 0.01)) {
+        se_pile += e * e;
+        se_pile_static += e0 * e0;
+        ++f.pile_cells;
+      }
     }
-  ASSERT_GT(n, 100);
-  const double rmse = std::sqrt(se / n), rmse_static = std::sqrt(se_static / n);
-  // The pile, where the truth or the map rose by more than 1 cm within 1.5 m of the dump point.
-  double se_pile = 0, se_pile_static = 0;
-  long n_pile = 0;
-  for (int i = 0; i < geo.size().x(); ++i)
-    for (int j = 0; j < geo.size().y(); ++j) {
-      const Position p = geo.positionOf(Index(i, j));
-      const double truth = sim.truth().heightAt(p.x(), p.y());
-      if ((p - Eigen::Vector2d(0.3, 3.2)).norm() > 1.5 || !(truth > h0(i, j) + 0.01 || h1(i, j) > h0(i, j) + 0.01)) continue;
-      se_pile += (h1(i, j) - truth) * (h1(i, j) - truth);
-      se_pile_static += (h0(i, j) - truth) * (h0(i, j) - truth);
-      ++n_pile;
-    }
-  ASSERT_GT(n_pile, 50);
-  const double rmse_pile = std::sqrt(se_pile / n_pile), rmse_pile_static = std::sqrt(se_pile_static / n_pile);
-  if (std::getenv("BUCKET_BLIND_DUMP")) {
-    // Volume change per 10 cm band of x over |y| < 1.5 m: map and truth.
-    for (double x0 = 2.0; x0 < 4.2; x0 += 0.1) {
-      double vm = 0, vt = 0;
-      for (int i = 0; i < geo.size().x(); ++i)
-        for (int j = 0; j < geo.size().y(); ++j) {
-          const Position p = geo.positionOf(Index(i, j));
-          if (p.x() < x0 || p.x() >= x0 + 0.1 || std::abs(p.y()) > 1.5) continue;
-          vm += (h1(i, j) - h0(i, j)) * 0.0025;
-          vt += (sim.truth().heightAt(p.x(), p.y()) - h0(i, j)) * 0.0025;
-        }
-      std::printf("band %.1f map %.4f truth %.4f\n", x0, vm, vt);
-    }
-  }
-  if (std::getenv("BUCKET_BLIND_DUMP"))
-    for (double x = 1.5; x < 4.6; x += 0.1) {
-      const auto idx = geo.indexAt(Position(x, 0.01));
-      std::printf("x %.2f map %.3f truth %.3f init %.3f\n", x, map.at(h, *idx), sim.truth().heightAt(x, 0.01),
-                  sim.truth().initialHeightAt(x, 0.01));
-    }
+  f.rmse = std::sqrt(se / std::max(1L, f.cells));
+  f.rmse_static = std::sqrt(se_static / std::max(1L, f.cells));
+  f.rmse_pile = std::sqrt(se_pile / std::max(1L, f.pile_cells));
+  f.rmse_pile_static = std::sqrt(se_pile_static / std::max(1L, f.pile_cells));
+  return f;
+}
+
+}  // namespace
+
+TEST(BucketBlind, ADigAndDumpCycleAgainstTheSimulatorsTruth) {
+  const sim::MachineTruth& tr = digRun().sim->machineTruth(0);
+  ASSERT_GE(tr.arm_cycle, 2) << "two dig-and-dump cycles, the second deepening the trench";
+  const BlindFigures f = mapDigRun({});
+  // The map's own balance: what it lost is what its buckets still carry.
+  EXPECT_NEAR(f.balance, 0.0, 1e-4);
+  EXPECT_NEAR(f.cut - f.poured, f.carried, 1e-9);
+  ASSERT_GT(f.cells, 100);
+  ASSERT_GT(f.pile_cells, 50);
   std::printf("[ bucket-blind ] dig: %ld cells, rmse %.4f m (un-updated %.4f m) | pile: %ld cells, rmse %.4f m "
               "(un-updated %.4f m) | bank dug map %.4f truth %.4f m3, poured map %.4f truth %.4f m3, carried map %.4f "
               "truth %.4f m3\n",
-              n, rmse, rmse_static, n_pile, rmse_pile, rmse_pile_static, cut, tr.bucket_dug_bank_m3, poured,
-              tr.bucket_dumped_bank_m3, carried, tr.bucket_bank_m3);
-  EXPECT_LT(rmse, 0.03) << "#19: RMSE inside the dig <= 3 cm";
-  EXPECT_LT(rmse_pile, 0.5 * rmse_pile_static) << "the pile is where the truth's is";
+              f.cells, f.rmse, f.rmse_static, f.pile_cells, f.rmse_pile, f.rmse_pile_static, f.cut,
+              tr.bucket_dug_bank_m3, f.poured, tr.bucket_dumped_bank_m3, f.carried, tr.bucket_bank_m3);
+  EXPECT_LT(f.rmse, 0.03) << "#19: RMSE inside the dig <= 3 cm";
+  EXPECT_LT(f.rmse_pile, 0.5 * f.rmse_pile_static) << "the pile is where the truth's is";
   // #19: mass balance within 1 % (the map moved what the truth's bucket moved).
-  EXPECT_NEAR(cut, tr.bucket_dug_bank_m3, 0.01 * tr.bucket_dug_bank_m3);
-  EXPECT_NEAR(poured, tr.bucket_dumped_bank_m3, 0.01 * tr.bucket_dumped_bank_m3);
+  EXPECT_NEAR(f.cut, tr.bucket_dug_bank_m3, 0.01 * tr.bucket_dug_bank_m3);
+  EXPECT_NEAR(f.poured, tr.bucket_dumped_bank_m3, 0.01 * tr.bucket_dumped_bank_m3);
+
+  // Each part switched off: raw bucket poses (the union of noisy stations widens and deepens the
+  // trench) and a bucket without a capacity (it cuts all its mesh sweeps through).
+  const BlindFigures raw = mapDigRun({{"bucket_pose_window", 1L}});
+  const BlindFigures bottomless = mapDigRun({{"bucket_capacity_m3", 100.0}});
+  std::printf("[ bucket-blind ] switched off: raw poses rmse %.4f m | no capacity: bank dug %.4f m3\n", raw.rmse,
+              bottomless.cut);
+  EXPECT_GT(raw.rmse, 2.0 * f.rmse);
+  EXPECT_GT(bottomless.cut, 1.2 * tr.bucket_dug_bank_m3);
 }
