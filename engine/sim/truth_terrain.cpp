@@ -378,12 +378,19 @@ inline double TruthTerrain::cellHitZ(int ci, int cj, double z00, double z10, dou
   } else {
     const double disc = B * B - 4.0 * A * C;
     if (disc >= 0.0) {
+      // The roots are q / A and C / q (the stable pair). With C > 0 only one of them can be
+      // the first non-negative root, so one division: for B < 0, q > 0 and C / q is the
+      // smaller positive root (A > 0) or the only one (A < 0); for B >= 0, q < 0, C / q < 0 and
+      // q / A is positive only when A < 0 (B^2 >= 4AC makes C / q the smaller root when both are
+      // positive; at a tangent the two may round either way).
       const double sq = std::sqrt(disc);
-      const double q = -0.5 * (B + (B >= 0 ? sq : -sq));
-      double r1 = q / A, r2 = (q != 0.0) ? C / q : kNaN;
-      if (r1 > r2) std::swap(r1, r2);
-      if (r1 >= 0.0 && r1 <= len) best = r1;
-      else if (r2 >= 0.0 && r2 <= len) best = r2;
+      if (B < 0.0) {
+        const double r = C / (-0.5 * (B - sq));
+        if (r <= len) best = r;
+      } else if (A < 0.0) {
+        const double r = (-0.5 * (B + sq)) / A;
+        if (r >= 0.0 && r <= len) best = r;
+      }
     }
   }
   return std::isnan(best) ? kNaN : ta + best;
@@ -462,12 +469,16 @@ Eigen::Vector2d TruthTerrain::cellGradient(int ci, int cj, double x, double y) c
 
 double TruthTerrain::castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_a, double t_b, int* cell_i,
                                int* cell_j) const {
+  return castCells(o, d, d.x() != 0.0 ? 1.0 / d.x() : 0.0, d.y() != 0.0 ? 1.0 / d.y() : 0.0, t_a, t_b, cell_i, cell_j);
+}
+
+double TruthTerrain::castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double inv_dx, double inv_dy,
+                               double t_a, double t_b, int* cell_i, int* cell_j) const {
   if (!(t_b >= t_a)) return kNaN;
   // Cell of the start point (clamped: the caller clipped [t_a, t_b] to the grid, so only
   // rounding can put it a hair outside).
-  // Two divisions instead of six (this runs ~45k times per LiDAR scan): the reciprocals
-  // below differ from the quotients by an ulp at most, and a root at a cell boundary is found
-  // by either neighbouring cell.
+  // Reciprocals instead of quotients (this runs for every ray of a scan): they differ from the
+  // quotients by an ulp at most, and a root at a cell boundary is found by either neighbouring cell.
   const double inv_res = 1.0 / res_;
   const double px = (o.x() + d.x() * t_a - ox_) * inv_res, py = (o.y() + d.y() * t_a - oy_) * inv_res;
   // Truncation equals floor here once clamped to >= 0 (and avoids a libm floor call).
@@ -477,7 +488,6 @@ double TruthTerrain::castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& 
   // Ray parameter of the next cell boundary in x / y: exact (as in the pyramid walk and the
   // reference) for the first boundary, then stepped by res / |d| (the walk is short, so the
   // accumulated rounding stays ~1e-15 relative; a root at a boundary is found by either cell).
-  const double inv_dx = d.x() != 0.0 ? 1.0 / d.x() : 0.0, inv_dy = d.y() != 0.0 ? 1.0 / d.y() : 0.0;
   const double tx0 = d.x() != 0.0 ? (ox_ + (ci + (sx > 0 ? 1 : 0)) * res_ - o.x()) * inv_dx : INFINITY;
   const double ty0 = d.y() != 0.0 ? (oy_ + (cj + (sy > 0 ? 1 : 0)) * res_ - o.y()) * inv_dy : INFINITY;
   const double dtx = d.x() != 0.0 ? res_ * std::abs(inv_dx) : INFINITY;
@@ -498,11 +508,10 @@ double TruthTerrain::castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& 
       // anyway): two cache lines, no pyramid access.
       const double z00 = h[k], z10 = h[k + 1], z01 = h[k + nx_], z11 = h[k + nx_ + 1];
       if (!(std::min(za, zb) > std::max(std::max(z00, z10), std::max(z01, z11)))) {
-        const int cci = static_cast<int>(k % static_cast<std::size_t>(nx_)), ccj = static_cast<int>(k / nx_);
-        const double hit = cellHitZ(cci, ccj, z00, z10, z01, z11, o, d, t, te);
+        const double hit = cellHitZ(ci, cj, z00, z10, z01, z11, o, d, t, te);
         if (!std::isnan(hit)) {
-          if (cell_i) *cell_i = cci;
-          if (cell_j) *cell_j = ccj;
+          if (cell_i) *cell_i = ci;
+          if (cell_j) *cell_j = cj;
           return hit;
         }
       }
@@ -510,13 +519,16 @@ double TruthTerrain::castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& 
       za = zb;
     }
     if (te >= t_b) return kNaN;
+    // The cell is tracked as (ci, cj) beside k: recovering it from k costs a 64-bit division.
     if (tx <= ty) {
       if (--left_x < 0) return kNaN;
       k += kx;
+      ci += sx;
       tx += dtx;
     } else {
       if (--left_y < 0) return kNaN;
       k += ky;
+      cj += sy;
       ty += dty;
     }
   }

@@ -68,9 +68,10 @@ class ScanCaster {
   struct Ray {
     enum Mode { Miss, Direct, Bins } mode = Miss;
     double t0 = 0, t1 = 0, ta = 0, dxy = 0, m = 0;
+    double inv_d[2] = {0, 0};  ///< 1 / d.x(), 1 / d.y() (0 where the component is 0), from the grid clip
     int a = 0, r = 0, r_last = 0;
   };
-  Ray prepare(const Eigen::Vector3d& d, double t_min, double t_max) const;
+  void prepare(const Eigen::Vector3d& d, double t_min, double t_max, Ray& ray) const;
   void prefetch(const Eigen::Vector3d& d, const Ray& ray) const;
   double finish(const Eigen::Vector3d& d, const Ray& ray, int* cell_i, int* cell_j) const;
   /// build()'s last step: the group, running and row maxima of bound_ (rows on `exec`).
@@ -80,6 +81,7 @@ class ScanCaster {
   Eigen::Vector3d o_ = Eigen::Vector3d::Zero();
   int na_ = 0, nr_ = 0, ng_ = 0, level_ = 0;
   double ds_ = 1, inv_ds_ = 1;
+  double inv_res_ = 1;         ///< 1 / terrain resolution (prefetch addresses only)
   double top_ = 0;             ///< highest point of the terrain (pyramid root)
   bool covers_grid_ = false;   ///< the table reaches every grid point (max range >= farthest corner)
   std::vector<float> bound_;      ///< [a * nr_ + r]: slope bound, -inf where no block
