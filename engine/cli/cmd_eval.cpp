@@ -23,6 +23,7 @@ struct EvalArgs {
   std::string scenario, out = "out/eval", pipeline;
   bool fit_map = false, lidar = false, quiet = false;
   std::string localisation;
+  std::string track_soil;
   int threads = 0;
   double duration = -1, change_threshold = 0.01, error_range = 0.10;
   long long seed = -1;
@@ -103,10 +104,13 @@ Registrar reg{Command{"eval", [](CLI::App& app, std::function<int()>& run) {
   sub->add_flag("--quiet,-q", a->quiet, "Print only the files written");
   sub->add_option("--localisation", a->localisation,
                   "Override every machine's localisation: perfect or rtk_imu (ablation; default: the scenario's)");
+  sub->add_option("--track-soil", a->track_soil,
+                  "Override every machine's track-soil model: bekker or none (ablation; default: the scenario's)");
   sub->callback([&run, a] {
     run = [a]() -> int {
       sim::Scenario sc = sim::loadScenario(a->scenario);
       sim::overrideLocalisation(sc, a->localisation, "--localisation");
+      sim::overrideTrackSoil(sc, a->track_soil, "--track-soil");
       if (a->duration > 0) sc.duration_s = a->duration;
       if (a->seed >= 0) sc.seed = static_cast<std::uint64_t>(a->seed);
       const bool embedded = a->pipeline.empty();

@@ -353,8 +353,9 @@ HeightSums compareHeights(EvalRun& run, const EvalOptions& options, const Eigen:
       mb.added_blind_m3 += std::max(0.0, h1 - h0) * a;
       mb.removed_truth_m3 += std::max(0.0, h0 - t1) * a;
       mb.added_truth_m3 += std::max(0.0, t1 - h0) * a;
-      // Only a blade lowers the truth's bank surface U (sliding loose soil moves on top of it),
-      // so "carved" is the truth's own record of the cut, whatever the mapper believed.
+      // Only a tool lowers the truth's bank surface U once the tracks' ruts are added back
+      // (TruthSurface::Carved; sliding loose soil moves on top of it), so "carved" is the
+      // truth's own record of the cut, whatever the mapper believed.
       const bool carved = tg.under1(i, j) < tg.under0(i, j) - options.cut_threshold_m;
       EvalRegion r = EvalRegion::Untouched;
       if (carved) r = EvalRegion::Cut;
@@ -396,8 +397,9 @@ EvalRun runBlindEvaluation(Simulator& sim, Engine& engine, const EvalOptions& op
   if (has_loose) map.fromMatrix(map.layerId(options.loose_layer), zeros);
   TruthGrids tg;
   tg.bank0 = truthOnGeometryD(truth0, geo, TruthSurface::Bank);
-  tg.under0 = truthOnGeometryD(truth0, geo, TruthSurface::Undisturbed);
+  tg.under0 = truthOnGeometryD(truth0, geo, TruthSurface::Carved);
   const double truth_vol0 = truth0.bankVolume(), truth_lost0 = truth0.lostVolume();
+  const double truth_compacted0 = truth0.compactedVolume();
 
   Replay rp;
   rp.swept = Eigen::MatrixXi::Zero(geo.size().x(), geo.size().y());
@@ -418,7 +420,7 @@ EvalRun runBlindEvaluation(Simulator& sim, Engine& engine, const EvalOptions& op
   tg.current1 = truthOnGeometryD(truth1, geo, TruthSurface::Current);
   run.truth = tg.current1.cast<float>();
   tg.bank1 = truthOnGeometryD(truth1, geo, TruthSurface::Bank);
-  tg.under1 = truthOnGeometryD(truth1, geo, TruthSurface::Undisturbed);
+  tg.under1 = truthOnGeometryD(truth1, geo, TruthSurface::Carved);
   const HeightSums sums = compareHeights(run, options, loose1, tg, rp.swept, rp.swell);
 
   // Mass: the blind map's change against what it lost, the truth's against its own.
@@ -431,7 +433,8 @@ EvalRun runBlindEvaluation(Simulator& sim, Engine& engine, const EvalOptions& op
   mb.blind_residual_m3 = mb.blind_change_m3 + mb.blind_lost_loose_m3 / mb.swell;
   mb.truth_change_m3 = truth1.bankVolume() - truth_vol0;
   mb.truth_lost_m3 = truth1.lostVolume() - truth_lost0;
-  mb.truth_residual_m3 = mb.truth_change_m3 + mb.truth_lost_m3;
+  mb.truth_compacted_m3 = truth1.compactedVolume() - truth_compacted0;
+  mb.truth_residual_m3 = mb.truth_change_m3 + mb.truth_lost_m3 + mb.truth_compacted_m3;
   mb.truth_change_on_map_m3 = sums.truth_on_map * a;
   for (std::size_t i = 0; i < sim.machineCount(); ++i) mb.cut_bank_truth_m3 += sim.machineTruth(i).cut_bank_m3;
 
@@ -479,6 +482,7 @@ std::string evalJson(const EvalRun& run) {
                {"blind_residual_m3", m.blind_residual_m3},
                {"truth_change_m3", m.truth_change_m3},
                {"truth_lost_m3", m.truth_lost_m3},
+               {"truth_compacted_m3", m.truth_compacted_m3},
                {"truth_residual_m3", m.truth_residual_m3},
                {"truth_change_on_map_m3", m.truth_change_on_map_m3},
                {"cut_bank_blind_m3", m.cut_bank_blind_m3},

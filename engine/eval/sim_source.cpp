@@ -82,11 +82,13 @@ class SimEventSource : public Source {
 
 std::unique_ptr<Source> makeSim(const PipelineSpec& spec) {
   const SourceSpec& s = spec.source;
-  checkSourceKeys(s, {"scenario", "max_time_s", "localisation", "lidar_sees_machines"});
+  checkSourceKeys(s, {"scenario", "max_time_s", "localisation", "lidar_sees_machines", "track_soil"});
   Scenario sc = loadScenario(spec.resolvePath(sourceString(s, "scenario", true)));
   // Ablations of the honest reference without editing the scenario.
   if (s.settings.count("localisation"))
     overrideLocalisation(sc, sourceString(s, "localisation", false), s.settings.at("localisation").where + ": localisation");
+  if (s.settings.count("track_soil"))
+    overrideTrackSoil(sc, sourceString(s, "track_soil", false), s.settings.at("track_soil").where + ": track_soil");
   if (const auto it = s.settings.find("lidar_sees_machines"); it != s.settings.end()) {
     const bool* b = std::get_if<bool>(&it->second.value);
     if (!b) throw ConfigError(it->second.where + ": lidar_sees_machines must be true or false");

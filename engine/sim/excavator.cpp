@@ -376,6 +376,9 @@ namespace {
 constexpr double kDeg = M_PI / 180;
 constexpr double kBucketDig = -80 * kDeg, kBucketDragEnd = -125 * kDeg, kBucketCurled = -200 * kDeg,
                  kBucketOpen = -30 * kDeg, kBucketReach = -60 * kDeg;
+/// Lift: the bucket angle the inverse kinematics is given lies at most this far (rad) from the
+/// bucket's own toward curled (its lever saturates at that error anyway).
+constexpr double kLiftCurlStep = 0.3;
 }  // namespace
 
 const char* DigDumpController::phaseName(Phase p) {
@@ -484,8 +487,13 @@ ArmCommand DigDumpController::update(double dt, const ExcavatorArm& arm, const E
       hold.lever[kBucket] = lever(arm, kBucket, kBucketCurled - curl_hold_[0] - curl_hold_[1]);
       return hold;
     }
-    case Phase::Lift:
-      bucket = kBucketCurled;
+    case Phase::Lift: {
+      // Toward the curled angle from where the bucket is: a curl the soil stalled (the curl phase
+      // timed out) must not make the lift's inverse kinematics place the pivot for a curled
+      // bucket, which drove the pivot, and the full bucket, down through the trench wall.
+      const double now = q[kBoom] + q[kArm] + q[kBucket], left = kBucketCurled - now;
+      bucket = std::abs(left) <= kLiftCurlStep ? kBucketCurled : now + std::copysign(kLiftCurlStep, left);
+    }
       if ((moveTo(lip_z_, z_surface_ + spec_.carry_height_m, 0.8) && lip_err < 0.1) || phase_t_ > 5)
         enter(Phase::SwingToDump);
       break;

@@ -308,9 +308,9 @@ void readVehicle(MapReader& v, MachineSpec& m) {
   m.traction_coefficient = v.num("traction_coefficient", m.traction_coefficient, 0.0, 2.0);
   m.max_drive_force_n = v.num("max_drive_force_n", m.max_drive_force_n, 0.0, 1e7);
   m.rolling_resistance = v.num("rolling_resistance", m.rolling_resistance, 0.0, 1.0);
-  const std::string ts = v.str("track_soil", "none");
-  if (ts == "bekker") m.track_soil = true;
-  else if (ts != "none")
+  const std::string ts = v.str("track_soil", m.track_soil ? "bekker" : "none");
+  m.track_soil = ts == "bekker";
+  if (ts != "bekker" && ts != "none")
     v.error(v.node("track_soil"), "track_soil", "unknown model '" + ts + "' (none, bekker)" + didYouMean(ts, {"none", "bekker"}));
   m.track_width_m = v.num("track_width_m", m.track_width_m, 0.05, 5.0);
   m.max_speed_mps = v.num("max_speed_mps", m.max_speed_mps, 0.1, 20.0);
@@ -978,6 +978,13 @@ void overrideLocalisation(Scenario& sc, const std::string& name, const std::stri
   else if (name == "rtk_imu") spec = LocalisationSpec::rtkImu();
   else throw ConfigError(what + ": '" + name + "' is not a localisation (perfect or rtk_imu)" + didYouMean(name, {"perfect", "rtk_imu"}));
   for (MachineSpec& m : sc.machines) m.localisation = spec;
+}
+
+void overrideTrackSoil(Scenario& sc, const std::string& model, const std::string& what) {
+  if (model.empty()) return;
+  if (model != "bekker" && model != "none")
+    throw ConfigError(what + ": '" + model + "' is not a track-soil model (bekker or none)" + didYouMean(model, {"bekker", "none"}));
+  for (MachineSpec& m : sc.machines) m.track_soil = model == "bekker";
 }
 
 Scenario parseScenario(const std::string& yaml_text, const std::string& name_for_errors, const std::string& base_dir) {

@@ -17,6 +17,7 @@ double sampleTruth(const TruthTerrain& t, double x, double y, TruthSurface s) {
     case TruthSurface::Initial: return t.initialHeightAt(x, y);
     case TruthSurface::Bank: return t.undisturbedAt(x, y) + t.looseBankAt(x, y);
     case TruthSurface::Undisturbed: return t.undisturbedAt(x, y);
+    case TruthSurface::Carved: return t.undisturbedAt(x, y) + t.pressedAt(x, y);
   }
   return std::numeric_limits<double>::quiet_NaN();
 }

@@ -234,6 +234,8 @@ void TruthTerrain::compact(int i, int j, double dz) {
     // Below the loose layer, bank soil: lower U under the (unchanged) loose layer.
     u_[k] -= from_bank;
     compacted_m3_ += from_bank * res_ * res_;
+    if (pressed_.empty()) pressed_.assign(u_.size(), 0.0);
+    pressed_[k] += from_bank;
   }
   h_[k] = u_[k] + lv_[k];
 }
@@ -249,6 +251,14 @@ double TruthTerrain::heightAt(double x, double y) const {
 }
 
 double TruthTerrain::undisturbedAt(double x, double y) const { return bilinear(u_, x, y); }
+
+double TruthTerrain::pressedAt(double x, double y) const {
+  if (pressed_.empty()) {
+    const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
+    return fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1 ? 0.0 : kNaN;
+  }
+  return bilinear(pressed_, x, y);
+}
 
 double TruthTerrain::initialHeightAt(double x, double y) const {
   const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;

@@ -98,9 +98,10 @@ struct MassBalance {
   double blind_lost_loose_m3 = 0;  ///< deposits off the map (SweepRecord::lost_volume_m3, loose)
   /// blind_change + lost/s: zero up to float rounding for a mass-conserving mapper.
   double blind_residual_m3 = 0;
-  /// Truth over its whole grid: Σ res_t² (U + Lc) change, bank volume that left the grid, and
-  /// their sum (zero up to rounding: the simulator conserves mass).
-  double truth_change_m3 = 0, truth_lost_m3 = 0, truth_residual_m3 = 0;
+  /// Truth over its whole grid: Σ res_t² (U + Lc) change, bank volume that left the grid, bank
+  /// volume the tracks pressed denser (TruthTerrain::compactedVolume), and their sum (zero up to
+  /// rounding: the simulator conserves mass).
+  double truth_change_m3 = 0, truth_lost_m3 = 0, truth_compacted_m3 = 0, truth_residual_m3 = 0;
   /// Truth bank column U + Lc sampled at the map's cell centres, change × res²: soil that the
   /// truth moved into (> 0) or out of the map's area. The blind map's change should match it.
   double truth_change_on_map_m3 = 0;

@@ -249,9 +249,10 @@ struct MachineSpec {
   /// interaction"): the tractive limit becomes A c + W cos(pitch) tan(phi) of the soil under
   /// the machine (instead of traction_coefficient W), mobilised with slip by Janosi–Hanamoto,
   /// the Bekker compaction resistance adds to rolling_resistance, and each track presses its
-  /// static sinkage into the truth terrain (ruts). Off (false) by default: the scenarios and
-  /// figures measured before it stay as they were.
-  bool track_soil = false;
+  /// static sinkage into the truth terrain (ruts). On for every tracked machine (CTL and
+  /// excavator) unless the scenario says `track_soil: none` (the ablation: fixed traction
+  /// coefficient, no ruts).
+  bool track_soil = true;
   double track_width_m = 0.45;           ///< one track's width (CAT 299-class: 450 mm)
   double max_speed_mps = 2.5;
   double drive_time_constant_s = 0.2;    ///< track speed response to its command
@@ -331,6 +332,9 @@ struct Scenario {
 /// Ablations on a loaded scenario: every machine's localisation replaced by `name` ("perfect"
 /// or "rtk_imu"; "" leaves them). \throws ConfigError naming `what` on another name.
 void overrideLocalisation(Scenario& sc, const std::string& name, const std::string& what);
+/// Ablation: every machine's track–soil model set to `model` ("bekker", the default, or "none":
+/// fixed traction coefficient, no ruts; "" leaves them). \throws ConfigError naming `what`.
+void overrideTrackSoil(Scenario& sc, const std::string& model, const std::string& what);
 
 Scenario loadScenario(const std::string& yaml_path);
 /// Same from a YAML string; `name_for_errors` stands in for the file name in messages and

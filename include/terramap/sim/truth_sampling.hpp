@@ -16,7 +16,8 @@ enum class TruthSurface {
   Current,  ///< H = U + Lv now (bank plus loose as it lies): what a height map should show
   Initial,  ///< the surface at t = 0 (stored by the truth as float)
   Bank,     ///< U + Lc now: the bank-equivalent column (soil mass per area / bank density)
-  Undisturbed,  ///< U now: the bank surface, which only a blade lowers (loose soil lies on it)
+  Undisturbed,  ///< U now: the bank surface, which a blade, a bucket or a track's rut lowers
+  Carved,  ///< U + what the tracks pressed out of it: the bank surface as only the tools left it
 };
 
 /// The truth surface sampled at the centres of the cells of `geometry`, bilinearly between

@@ -86,6 +86,11 @@ class TruthTerrain {
   /// Bank volume pressed out of the terrain by compact() (m^3): the mass it had is still there,
   /// denser.
   double compactedVolume() const { return compacted_m3_; }
+  /// Bank thickness compact() has pressed out of U at a point (m, >= 0; bilinear between nodes,
+  /// 0 where nothing was pressed, NaN off the grid): U + pressed is the bank surface as only the
+  /// tools left it (an evaluation tells a blade's cut from a track's rut with it). Not carried
+  /// by capturePatch / applyPatch (the LiDAR view does not need it).
+  double pressedAt(double x, double y) const;
   /// Moves a loose thickness dv (<= Lv) from a to b keeping a's Lc/Lv ratio.
   void moveLoose(int ia, int ja, int ib, int jb, double dv) {
     // Inline: the relaxation and the spoil settling call it for every moving edge.
@@ -215,6 +220,7 @@ class TruthTerrain {
   std::vector<Level> levels_;
   double lost_m3_ = 0.0;
   double compacted_m3_ = 0.0;
+  std::vector<double> pressed_;  ///< per node, what compact() took from U (empty until it first does)
 };
 
 }  // namespace terramap::sim

@@ -29,6 +29,8 @@ std::string scenarioYaml(const std::string& soil, const std::string& model, doub
 struct Outcome {
   double distance = 0, mean_speed = 0, bank = 0, lost = 0, compacted = 0, bank0 = 0;
   std::vector<double> drop;  ///< initial minus final height per node
+  double uncarved = 0;       ///< max |initial - (U + pressed)| over nodes: what no rut explains
+  double pressed_m3 = 0;     ///< Σ pressed × res² (the rut record's volume)
 };
 
 Outcome simulate(const std::string& yaml) {
@@ -45,7 +47,13 @@ Outcome simulate(const std::string& yaml) {
   r.lost = t.lostVolume();
   r.compacted = t.compactedVolume();
   for (int j = 0; j < t.ny(); ++j)
-    for (int i = 0; i < t.nx(); ++i) r.drop.push_back(t.initialHeight(i, j) - t.height(i, j));
+    for (int i = 0; i < t.nx(); ++i) {
+      r.drop.push_back(t.initialHeight(i, j) - t.height(i, j));
+      const Eigen::Vector2d p = t.nodePosition(i, j);
+      const double pressed = t.pressedAt(p.x(), p.y());
+      r.uncarved = std::max(r.uncarved, std::abs(t.initialHeight(i, j) - (t.undisturbedAt(p.x(), p.y()) + pressed)));
+      r.pressed_m3 += pressed * t.resolution() * t.resolution();
+    }
   return r;
 }
 
@@ -97,6 +105,10 @@ TEST(TrackSoil, TracksPressRutsAsDeepAsTheSinkageOnceAndKeepTheMass) {
   EXPECT_GT(one.compacted, 0.0);
   EXPECT_NEAR(one.bank + one.lost + one.compacted, one.bank0, 1e-9 * std::abs(one.bank0) + 1e-9);
   EXPECT_NEAR(two.bank + two.lost + two.compacted, two.bank0, 1e-9 * std::abs(two.bank0) + 1e-9);
+  // The truth records what it pressed (TruthSurface::Carved adds it back, so an evaluation does
+  // not take the ruts for a cut): with the blade up, U + pressed is the initial surface.
+  EXPECT_LT(one.uncarved, 1e-12);
+  EXPECT_NEAR(one.pressed_m3, one.compacted, 1e-9 * one.compacted);
   // Without the model no rut at all.
   const Outcome none = simulate(scenarioYaml("sand, relative_density: 0.0", "none", -0.2, 1, 8));
   double max_none = 0;
@@ -136,5 +148,35 @@ TEST(TrackSoil, AnUnknownModelIsNamed) {
     FAIL() << "expected a ConfigError";
   } catch (const ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("vehicle.track_soil"), std::string::npos) << e.what();
+  }
+}
+
+TEST(TrackSoil, OnForEveryTrackedMachineUnlessSwitchedOff) {
+  // The default (no vehicle key) for a CTL and an excavator; `none` in the scenario, and the
+  // ablation override (terramap eval --track-soil, the sim source's track_soil) for all.
+  const std::string yaml =
+      "version: 1\nduration_s: 1\nterrain: {size_m: [12, 12], origin_m: [-6, -6], resolution_m: 0.02}\n"
+      "machines:\n  - id: ctl1\n    controller: {type: route, start_m: [-4, -4], length_m: 2}\n"
+      "  - id: ex1\n    type: excavator\n    pose: {x_m: 2, y_m: 2}\n"
+      "    controller: {type: dig_dump, dig_m: [5, 2], dump_m: [2, 5]}\n"
+      "  - id: ctl2\n    vehicle: {track_soil: none}\n    controller: {type: route, start_m: [-4, 4], length_m: 2}\n";
+  Scenario sc = parseScenario(yaml, "s.yaml");
+  ASSERT_EQ(sc.machines.size(), 3u);
+  EXPECT_TRUE(sc.machines[0].track_soil);
+  EXPECT_TRUE(sc.machines[1].track_soil);
+  EXPECT_FALSE(sc.machines[2].track_soil);
+  overrideTrackSoil(sc, "none", "--track-soil");
+  for (const MachineSpec& m : sc.machines) EXPECT_FALSE(m.track_soil);
+  overrideTrackSoil(sc, "bekker", "--track-soil");
+  for (const MachineSpec& m : sc.machines) EXPECT_TRUE(m.track_soil);
+  overrideTrackSoil(sc, "", "--track-soil");  // leaves them
+  EXPECT_TRUE(sc.machines[2].track_soil);
+  try {
+    overrideTrackSoil(sc, "beker", "--track-soil");
+    FAIL() << "expected a ConfigError";
+  } catch (const ConfigError& e) {
+    const std::string w = e.what();
+    EXPECT_NE(w.find("--track-soil"), std::string::npos) << w;
+    EXPECT_NE(w.find("bekker"), std::string::npos) << w;
   }
 }
