@@ -386,10 +386,7 @@ void Simulator::groundUnder(const Machine& m, CtlLoad& load) const {
 
 void Simulator::pressTracks(Machine& m) {
   const MachineSpec& spec = m.ctl.spec();
-  if (track_left_h_.empty()) {
-    track_left_h_.assign(static_cast<std::size_t>(terrain_.nx()) * terrain_.ny(), std::numeric_limits<double>::quiet_NaN());
-    track_pressed_.assign(track_left_h_.size(), 0.0);
-  }
+  if (track_.empty()) track_.reset(terrain_.nx(), terrain_.ny(), TrackNode{});
   const double c = std::cos(m.ctl.yaw()), sn = std::sin(m.ctl.yaw());
   const double hl = 0.5 * spec.track_length_m, hb = 0.5 * spec.track_width_m, res = terrain_.resolution();
   const double p = trackPressure(spec);
@@ -401,32 +398,37 @@ void Simulator::pressTracks(Machine& m) {
     const int i1 = std::min(terrain_.nx() - 1, static_cast<int>(std::ceil((cx + ex - terrain_.originX()) / res)));
     const int j0 = std::max(0, static_cast<int>(std::floor((cy - ey - terrain_.originY()) / res)));
     const int j1 = std::min(terrain_.ny() - 1, static_cast<int>(std::ceil((cy + ey - terrain_.originY()) / res)));
-    bool changed = false;
+    // The nodes actually pressed, not the track's box: driving on, only a strip at the track's
+    // front sinks each step, and the box made every step's LiDAR-view patch 50 % larger.
+    int ci0 = i1 + 1, ci1 = i0 - 1, cj0 = j1 + 1, cj1 = j0 - 1;
     for (int j = j0; j <= j1; ++j)
       for (int i = i0; i <= i1; ++i) {
         const Eigen::Vector2d q = terrain_.nodePosition(i, j);
         const double dx = q.x() - cx, dy = q.y() - cy;
         if (std::abs(c * dx + sn * dy) > hl || std::abs(-sn * dx + c * dy) > hb) continue;
-        const std::size_t k = terrain_.index(i, j);
         const double h = terrain_.height(i, j);
         // A node sinks by the static sinkage in all, however often the tracks pass at this
         // pressure: a node the tracks left as it is needs no work, and one whose surface
         // something else moved (loose soil sliding on or off) keeps what it was pressed. Only
         // when its surface fell below the pressed layer (the blade cut it away) is the fresh
         // soil beneath pressed anew.
-        if (h == track_left_h_[k]) continue;
-        if (h < track_left_h_[k] - track_pressed_[k]) track_pressed_[k] = 0.0;
+        if (h == track_.get(i, j).left_h) continue;
+        TrackNode& tn = track_.at(i, j);
+        if (h < tn.left_h - tn.pressed) tn.pressed = 0.0;
         const SoilProperties& sp = surfaceSoil(terrain_, soil_, q.x(), q.y());
         const double z = bekkerSinkage(terramechanics(sp.family, sp.relative_density), p, spec.track_width_m);
-        const double dz = z - track_pressed_[k];
+        const double dz = z - tn.pressed;
         if (dz > 0) {
           terrain_.compact(i, j, dz);
-          track_pressed_[k] = z;
-          changed = true;
+          tn.pressed = z;
+          ci0 = std::min(ci0, i);
+          ci1 = std::max(ci1, i);
+          cj0 = std::min(cj0, j);
+          cj1 = std::max(cj1, j);
         }
-        track_left_h_[k] = terrain_.height(i, j);
+        tn.left_h = terrain_.height(i, j);
       }
-    if (changed) dirty_.add(CellRect::inclusive(i0, j0, i1, j1));
+    if (ci1 >= ci0) dirty_.add(CellRect::inclusive(ci0, cj0, ci1, cj1));
   }
 }
 

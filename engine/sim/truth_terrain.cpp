@@ -234,8 +234,8 @@ void TruthTerrain::compact(int i, int j, double dz) {
     // Below the loose layer, bank soil: lower U under the (unchanged) loose layer.
     u_[k] -= from_bank;
     compacted_m3_ += from_bank * res_ * res_;
-    if (pressed_.empty()) pressed_.assign(u_.size(), 0.0);
-    pressed_[k] += from_bank;
+    if (pressed_.empty()) pressed_.reset(nx_, ny_, 0.0);
+    pressed_.at(i, j) += from_bank;
   }
   h_[k] = u_[k] + lv_[k];
 }
@@ -253,11 +253,13 @@ double TruthTerrain::heightAt(double x, double y) const {
 double TruthTerrain::undisturbedAt(double x, double y) const { return bilinear(u_, x, y); }
 
 double TruthTerrain::pressedAt(double x, double y) const {
-  if (pressed_.empty()) {
-    const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
-    return fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1 ? 0.0 : kNaN;
-  }
-  return bilinear(pressed_, x, y);
+  const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
+  if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return kNaN;
+  if (pressed_.empty()) return 0.0;
+  const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
+  const double u = fx - i, v = fy - j;
+  return (1 - u) * (1 - v) * pressed_.get(i, j) + u * (1 - v) * pressed_.get(i + 1, j) +
+         (1 - u) * v * pressed_.get(i, j + 1) + u * v * pressed_.get(i + 1, j + 1);
 }
 
 double TruthTerrain::initialHeightAt(double x, double y) const {

@@ -39,6 +39,7 @@
 #include <terramap/sim/ctl.hpp>
 #include <terramap/sim/lidar.hpp>
 #include <terramap/sim/localisation.hpp>
+#include <terramap/sim/node_tiles.hpp>
 #include <terramap/sim/scenario.hpp>
 #include <terramap/sim/truth_terrain.hpp>
 #include <terramap/sim/world.hpp>
@@ -156,9 +157,13 @@ class Simulator {
   /// joints, then the bucket digging the terrain and pouring what it cannot hold.
   void armStep(Machine& m, double dt);
   void pressTracks(Machine& m);
-  /// Per node: the height the tracks left it at (NaN = never pressed) and how far they have
-  /// pressed it (m); allocated at the first press.
-  std::vector<double> track_left_h_, track_pressed_;
+  /// Per node under the tracks: the surface they left it at (NaN: never pressed) and the sinkage
+  /// pressed into it since its surface last fell below the pressed layer.
+  struct TrackNode {
+    double left_h = std::numeric_limits<double>::quiet_NaN();
+    double pressed = 0.0;
+  };
+  NodeTiles<TrackNode> track_;
   /// A machine's truth and its Pose, BladePose and Observation at period end `tp`, into `rec`.
   void observeMachine(Machine& m, Period& rec, double tp, bool single);
   bool produceOne();

@@ -15,6 +15,8 @@
 /// Ray casting uses a max-height pyramid (quadtree of 2x2 node blocks) so rays skip empty
 /// space; const members (ray casting included) are thread-safe; mutators are not (the simulator
 /// mutates between scans, then calls `refreshPyramid` over the changed nodes before casting).
+#include <terramap/sim/node_tiles.hpp>
+
 #include <Eigen/Core>
 
 #include <algorithm>
@@ -220,7 +222,7 @@ class TruthTerrain {
   std::vector<Level> levels_;
   double lost_m3_ = 0.0;
   double compacted_m3_ = 0.0;
-  std::vector<double> pressed_;  ///< per node, what compact() took from U (empty until it first does)
+  NodeTiles<double> pressed_;  ///< per node, what compact() took from U (tiles allocated where it did)
 };
 
 }  // namespace terramap::sim

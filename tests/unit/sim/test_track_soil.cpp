@@ -180,3 +180,19 @@ TEST(TrackSoil, OnForEveryTrackedMachineUnlessSwitchedOff) {
     EXPECT_NE(w.find("bekker"), std::string::npos) << w;
   }
 }
+
+TEST(TrackSoil, NodeTilesAllocateOnlyWhatIsWritten) {
+  // The per-node records of the tracks and of the pressed soil live in tiles allocated on first
+  // write: a lane across a large site touches a few of them, not the whole grid.
+  NodeTiles<double> t(3000, 3000, -1.0);
+  EXPECT_EQ(t.get(2999, 2999), -1.0);
+  EXPECT_EQ(t.allocatedTiles(), 0u);
+  for (int i = 100; i < 300; ++i) t.at(i, 1500) = i;
+  EXPECT_EQ(t.allocatedTiles(), 4u);  // nodes 100..299 of one row: tiles 1..4 of 64
+  EXPECT_EQ(t.get(200, 1500), 200.0);
+  EXPECT_EQ(t.get(200, 1501), -1.0);  // same tile, not written
+  NodeTiles<double> copy = t;
+  copy.at(200, 1500) = 7.0;
+  EXPECT_EQ(t.get(200, 1500), 200.0) << "a copy owns its tiles";
+  EXPECT_EQ(copy.allocatedTiles(), 4u);
+}
