@@ -203,6 +203,27 @@ TEST(Cli, EvalSoilMapComparesTheSoilLayersWithTheTruthZones) {
   EXPECT_EQ(sh("eval-soil-map /nonexistent.yaml").code, 2);
 }
 
+TEST(Cli, EvalTrackSoilAblationTakesTheRutsAwayAndNamesABadModel) {
+  // terramap eval --track-soil: the ablation of docs/sim.md "Track–soil interaction". With the
+  // default model the truth's tracks compact soil (eval.json's truth mass balance carries it);
+  // with `none` nothing is compacted; a misspelt model is a configuration error naming the option.
+  const std::string scen = std::string(TERRAMAP_SOURCE_DIR) + "/configs/scenarios/fig10_berm_cut.yaml";
+  auto compacted = [&](const std::string& extra) {
+    const fs::path d = tempDir("eval_track_soil");
+    const Result r = sh("eval " + scen + " --duration 4 -q --out " + d.string() + extra);
+    EXPECT_EQ(r.code, 0) << r.out;
+    const auto j = nlohmann::json::parse(std::ifstream(d / "eval.json"));
+    EXPECT_LT(std::abs(j["mass"]["truth_residual_m3"].get<double>()), 1e-9);
+    return j["mass"]["truth_compacted_m3"].get<double>();
+  };
+  EXPECT_GT(compacted(""), 0.0);
+  EXPECT_EQ(compacted(" --track-soil none"), 0.0);
+  const Result bad = sh("eval " + scen + " --duration 1 -q --track-soil beker --out " + tempDir("eval_ts_bad").string());
+  EXPECT_EQ(bad.code, 3) << bad.out;
+  EXPECT_NE(bad.out.find("--track-soil"), std::string::npos) << bad.out;
+  EXPECT_NE(bad.out.find("bekker"), std::string::npos) << bad.out;
+}
+
 TEST(Cli, EvalStrataComparesTheNextPassIndicesAndTheBoundaryWithTheTruth) {
   // The strata's command on the first three passes (35 s) of its scenario.
   const fs::path d = tempDir("eval_strata");
