@@ -14,6 +14,8 @@ namespace terramap::sim {
 template <typename T>
 class NodeTiles {
  public:
+  static constexpr int kTile = 64;  ///< 64 x 64 nodes (1.28 m at 2 cm; 32 KB of doubles)
+
   /// nx x ny nodes, every value `fill` until written.
   NodeTiles(int nx = 0, int ny = 0, T fill = T{}) { reset(nx, ny, fill); }
 
@@ -32,6 +34,12 @@ class NodeTiles {
   T get(int i, int j) const {
     const auto& t = tiles_[tileIndex(i, j)];
     return t ? t[inTile(i, j)] : fill_;
+  }
+  /// Node (i, j)'s value in place, or null while its tile is unallocated (every value `fill`).
+  /// Nodes i .. (i | 63) of row j follow it contiguously (one tile's row).
+  const T* find(int i, int j) const {
+    const auto& t = tiles_[tileIndex(i, j)];
+    return t ? &t[inTile(i, j)] : nullptr;
   }
   /// A reference to node (i, j)'s value, allocating its tile (filled) on first use.
   T& at(int i, int j) {
@@ -69,7 +77,6 @@ class NodeTiles {
   NodeTiles& operator=(NodeTiles&&) noexcept = default;
 
  private:
-  static constexpr int kTile = 64;  ///< 64 x 64 nodes (1.28 m at 2 cm; 32 KB of doubles)
   std::size_t tileIndex(int i, int j) const {
     return static_cast<std::size_t>(j / kTile) * static_cast<std::size_t>(tx_) + static_cast<std::size_t>(i / kTile);
   }
