@@ -493,10 +493,10 @@ ArmCommand DigDumpController::update(double dt, const ExcavatorArm& arm, const E
       // bucket, which drove the pivot, and the full bucket, down through the trench wall.
       const double now = q[kBoom] + q[kArm] + q[kBucket], left = kBucketCurled - now;
       bucket = std::abs(left) <= kLiftCurlStep ? kBucketCurled : now + std::copysign(kLiftCurlStep, left);
-    }
       if ((moveTo(lip_z_, z_surface_ + spec_.carry_height_m, 0.8) && lip_err < 0.1) || phase_t_ > 5)
         enter(Phase::SwingToDump);
       break;
+    }
     case Phase::SwingToDump: {
       yaw = yaw_dump_;
       bucket = kBucketCurled;

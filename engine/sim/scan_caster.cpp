@@ -307,7 +307,6 @@ inline void ScanCaster::prepare(const Eigen::Vector3d& d, double t_min, double t
   ray.r = std::max(r_first, lo);
   ray.mode = Ray::Bins;
   ray.ta = std::max(ray.t0, ray.r * ds_ / ray.dxy * (1.0 - 1e-12));
-  return;
 }
 
 inline void ScanCaster::prefetch(const Eigen::Vector3d& d, const Ray& ray) const {

@@ -17,6 +17,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <optional>
 #include <set>
 #include <sstream>
 
@@ -161,10 +162,16 @@ void readDepthCamera(MapReader& r, SensorSpec& s) {
   s.T_base_sensor.linear() = s.T_base_sensor.linear() * bodyFromOptical();
 }
 
+/// The frames an IMU or a shape box can hang on, in the order of SensorSpec::Link and
+/// ShapeBox::Frame: a loader's base and blade, and an excavator's four links besides.
+std::vector<std::string> linkNames(bool excavator) {
+  if (excavator) return {"base", "blade", "slew", "boom", "arm", "bucket"};
+  return {"base", "blade"};
+}
+
 void readImu(MapReader& r, SensorSpec& s, double physics_hz, bool excavator) {
   const std::string link = r.str("link", "base");
-  const std::vector<std::string> links = excavator ? std::vector<std::string>{"base", "blade", "slew", "boom", "arm", "bucket"}
-                                                   : std::vector<std::string>{"base", "blade"};
+  const std::vector<std::string> links = linkNames(excavator);
   const auto it = std::find(links.begin(), links.end(), link);
   if (it != links.end()) s.link = static_cast<SensorSpec::Link>(it - links.begin());
   else r.error(r.node("link"), "link", "unknown link '" + link + "' (known: " + joinStrings(links) + ")" + didYouMean(link, links));
@@ -301,6 +308,13 @@ void readBlade(MapReader& b, MachineSpec& m) {
   b.finish();
 }
 
+/// A track-soil model's name: true for bekker, false for none, nothing for any other.
+std::optional<bool> trackSoilModel(const std::string& name) {
+  if (name == "bekker") return true;
+  if (name == "none") return false;
+  return std::nullopt;
+}
+
 void readVehicle(MapReader& v, MachineSpec& m) {
   m.mass_kg = v.num("mass_kg", m.mass_kg, 100.0, 1e6);
   m.track_gauge_m = v.num("track_gauge_m", m.track_gauge_m, 0.3, 10.0);
@@ -309,9 +323,8 @@ void readVehicle(MapReader& v, MachineSpec& m) {
   m.max_drive_force_n = v.num("max_drive_force_n", m.max_drive_force_n, 0.0, 1e7);
   m.rolling_resistance = v.num("rolling_resistance", m.rolling_resistance, 0.0, 1.0);
   const std::string ts = v.str("track_soil", m.track_soil ? "bekker" : "none");
-  m.track_soil = ts == "bekker";
-  if (ts != "bekker" && ts != "none")
-    v.error(v.node("track_soil"), "track_soil", "unknown model '" + ts + "' (none, bekker)" + didYouMean(ts, {"none", "bekker"}));
+  if (const std::optional<bool> on = trackSoilModel(ts)) m.track_soil = *on;
+  else v.error(v.node("track_soil"), "track_soil", "unknown model '" + ts + "' (none, bekker)" + didYouMean(ts, {"none", "bekker"}));
   m.track_width_m = v.num("track_width_m", m.track_width_m, 0.05, 5.0);
   m.max_speed_mps = v.num("max_speed_mps", m.max_speed_mps, 0.1, 20.0);
   m.drive_time_constant_s = v.num("drive_time_constant_s", m.drive_time_constant_s, 0.0, 10.0);
@@ -422,8 +435,7 @@ void readShape(MapReader& r, MachineSpec& m) {
     ShapeBox box;
     box.name = b.str("name", "box" + std::to_string(k));
     const std::string frame = b.str("frame", "base");
-    const std::vector<std::string> frames = m.arm ? std::vector<std::string>{"base", "blade", "slew", "boom", "arm", "bucket"}
-                                                  : std::vector<std::string>{"base", "blade"};
+    const std::vector<std::string> frames = linkNames(m.arm.has_value());
     const auto it = std::find(frames.begin(), frames.end(), frame);
     if (it != frames.end())
       box.frame = static_cast<ShapeBox::Frame>(it - frames.begin());
@@ -569,6 +581,7 @@ MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisati
     MapReader c = r.child("controller");
     if (c.valid()) m.controller = readController(c, base_dir);
   }
+  std::vector<Eigen::Vector2d> bucket_profile;  ///< the bucket mesh's, for its shape box (empty if bad)
   if (m.arm) {
     if (r.has("arm")) {
       MapReader a = r.child("arm");
@@ -585,26 +598,24 @@ MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisati
       const double reach = a.boom_pivot_x_m + a.boom_m + a.arm_m + a.bucket_m;
       const Eigen::Vector2d axis(m.x_m + std::cos(m.yaw_rad) * a.slew_x_m, m.y_m + std::sin(m.yaw_rad) * a.slew_x_m);
       MapReader c = r.child("controller");
+      auto cm = [](double v) {  // metres to the centimetre, for the message
+        char b[32];
+        std::snprintf(b, sizeof b, "%.2f", v);
+        return std::string(b);
+      };
       for (const auto& [key, p] : {std::pair<const char*, Eigen::Vector2d>{"dig_m", m.controller.dig_dump.dig},
                                    std::pair<const char*, Eigen::Vector2d>{"dump_m", m.controller.dig_dump.dump}}) {
         const double d = (p - axis).norm();
-        auto cm = [](double v) {  // metres to the centimetre, for the message
-          char b[32];
-          std::snprintf(b, sizeof b, "%.2f", v);
-          return std::string(b);
-        };
         if (d > reach || d < 1.0)
           c.error(c.has(key) ? c.node(key) : c.self(), key,
                   "[" + formatNumber(p.x()) + ", " + formatNumber(p.y()) + "] is " + cm(d) +
                       " m from the excavator's slew axis; the arm reaches from 1 m to " + cm(reach) + " m");
       }
     }
-    if (m.arm->bucket_profile.size() >= 3) {
-      try {
-        bucketMesh(*m.arm);
-      } catch (const ConfigError& e) {
-        r.error(r.node("arm"), "arm.bucket.profile_m", e.what());
-      }
+    try {
+      bucket_profile = bucketMesh(*m.arm).profile;
+    } catch (const ConfigError& e) {
+      if (m.arm->bucket_profile.size() >= 3) r.error(r.node("arm"), "arm.bucket.profile_m", e.what());
     }
   } else {
     if (r.has("arm")) r.error(r.node("arm"), "arm", "only a machine of type excavator has an arm");
@@ -615,12 +626,11 @@ MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisati
   if (m.arm) {
     // The bucket's box: its mesh's extent in the bucket frame.
     Eigen::Vector3d lo(1e9, -0.5 * m.arm->bucket_width_m, 1e9), hi(-1e9, 0.5 * m.arm->bucket_width_m, -1e9);
-    try {
-      for (const Eigen::Vector2d& v : bucketMesh(*m.arm).profile) {
-        lo.x() = std::min(lo.x(), v.x()); lo.z() = std::min(lo.z(), v.y());
-        hi.x() = std::max(hi.x(), v.x()); hi.z() = std::max(hi.z(), v.y());
-      }
-    } catch (const ConfigError&) {  // reported above; any box will do until then
+    for (const Eigen::Vector2d& v : bucket_profile) {
+      lo.x() = std::min(lo.x(), v.x()); lo.z() = std::min(lo.z(), v.y());
+      hi.x() = std::max(hi.x(), v.x()); hi.z() = std::max(hi.z(), v.y());
+    }
+    if (bucket_profile.empty()) {  // a bad profile, reported above: any box will do until then
       lo = Eigen::Vector3d(0, -0.3, 0);
       hi = Eigen::Vector3d(0.7, 0.3, 0.3);
     }
@@ -982,9 +992,9 @@ void overrideLocalisation(Scenario& sc, const std::string& name, const std::stri
 
 void overrideTrackSoil(Scenario& sc, const std::string& model, const std::string& what) {
   if (model.empty()) return;
-  if (model != "bekker" && model != "none")
-    throw ConfigError(what + ": '" + model + "' is not a track-soil model (bekker or none)" + didYouMean(model, {"bekker", "none"}));
-  for (MachineSpec& m : sc.machines) m.track_soil = model == "bekker";
+  const std::optional<bool> on = trackSoilModel(model);
+  if (!on) throw ConfigError(what + ": '" + model + "' is not a track-soil model (bekker or none)" + didYouMean(model, {"bekker", "none"}));
+  for (MachineSpec& m : sc.machines) m.track_soil = *on;
 }
 
 Scenario parseScenario(const std::string& yaml_text, const std::string& name_for_errors, const std::string& base_dir) {

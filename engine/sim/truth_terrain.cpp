@@ -240,36 +240,16 @@ void TruthTerrain::compact(int i, int j, double dz) {
   h_[k] = u_[k] + lv_[k];
 }
 
-double TruthTerrain::heightAt(double x, double y) const {
-  const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
-  if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return kNaN;
-  const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
-  const double u = fx - i, v = fy - j;
-  const std::size_t k = index(i, j);
-  auto H = [&](std::size_t m) { return h_[m]; };
-  return (1 - u) * (1 - v) * H(k) + u * (1 - v) * H(k + 1) + (1 - u) * v * H(k + nx_) + u * v * H(k + nx_ + 1);
-}
+double TruthTerrain::heightAt(double x, double y) const { return bilinear(h_, x, y); }
 
 double TruthTerrain::undisturbedAt(double x, double y) const { return bilinear(u_, x, y); }
 
 double TruthTerrain::pressedAt(double x, double y) const {
-  const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
-  if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return kNaN;
-  if (pressed_.empty()) return 0.0;
-  const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
-  const double u = fx - i, v = fy - j;
-  return (1 - u) * (1 - v) * pressed_.get(i, j) + u * (1 - v) * pressed_.get(i + 1, j) +
-         (1 - u) * v * pressed_.get(i, j + 1) + u * v * pressed_.get(i + 1, j + 1);
+  return bilinearAt(x, y, [this](int i, int j) { return pressed_.empty() ? 0.0 : pressed_.get(i, j); });
 }
 
 double TruthTerrain::initialHeightAt(double x, double y) const {
-  const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
-  if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return kNaN;
-  const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
-  const double u = fx - i, v = fy - j;
-  const std::size_t k = index(i, j);
-  return (1 - u) * (1 - v) * h0_[k] + u * (1 - v) * h0_[k + 1] + (1 - u) * v * h0_[k + nx_] +
-         u * v * h0_[k + nx_ + 1];
+  return bilinearAt(x, y, [this](int i, int j) { return static_cast<double>(h0_[index(i, j)]); });
 }
 
 Eigen::Vector2d TruthTerrain::gradientAt(double x, double y) const {

@@ -136,7 +136,7 @@ class TruthTerrain {
                    int* cell_i = nullptr, int* cell_j = nullptr) const;
   /// The same with the ray's reciprocals 1 / d.x() and 1 / d.y() given (0 where that component
   /// is 0), as a caller that clipped the ray to the grid already has them: bit-identical, two
-  /// divisions fewer per ray (the divider, not the walk, bounds a depth camera's cast).
+  /// divisions fewer per ray.
   double castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double inv_dx, double inv_dy, double t_a,
                    double t_b, int* cell_i, int* cell_j) const;
   /// Clips [t0, t1] to the part of the ray o + t d whose xy lies in the grid extent; false if
@@ -197,14 +197,19 @@ class TruthTerrain {
                  double t1) const;
   double cellHitZ(int ci, int cj, double z00, double z10, double z01, double z11, const Eigen::Vector3d& o,
                   const Eigen::Vector3d& d, double t0, double t1) const;
-  // Defined here so the physics' many surface look-ups inline it.
-  double bilinear(const std::vector<double>& a, double x, double y) const {
+  // Defined here so the physics' many surface look-ups inline it. `node(i, j)` is the value at
+  // node (i, j); NaN off the grid.
+  template <typename Node>
+  double bilinearAt(double x, double y, Node node) const {
     const double fx = (x - ox_) / res_, fy = (y - oy_) / res_;
     if (!(fx >= 0 && fy >= 0 && fx <= nx_ - 1 && fy <= ny_ - 1)) return std::numeric_limits<double>::quiet_NaN();
     const int i = std::min(static_cast<int>(fx), nx_ - 2), j = std::min(static_cast<int>(fy), ny_ - 2);
     const double u = fx - i, v = fy - j;
-    const std::size_t k = index(i, j);
-    return (1 - u) * (1 - v) * a[k] + u * (1 - v) * a[k + 1] + (1 - u) * v * a[k + nx_] + u * v * a[k + nx_ + 1];
+    return (1 - u) * (1 - v) * node(i, j) + u * (1 - v) * node(i + 1, j) + (1 - u) * v * node(i, j + 1) +
+           u * v * node(i + 1, j + 1);
+  }
+  double bilinear(const std::vector<double>& a, double x, double y) const {
+    return bilinearAt(x, y, [this, &a](int i, int j) { return a[index(i, j)]; });
   }
   double nodeMaxCell(int ci, int cj) const;
 
