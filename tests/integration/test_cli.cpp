@@ -471,7 +471,7 @@ TEST(Cli, AnEpisodesCommandsReplayedRetraceItsPath) {
 TEST(Cli, TheExcavatorPipelineFiltersItsArmAndMapsItsBucket) {
   // configs/excavator.yaml as shipped (30 s: two dig-and-dump cycles beside a grading loader):
   // the excavator's camera sees its own boom, arm and bucket, which the link boxes of the
-  // self-filter drop (RMSE 4.97 cm with them, 13.2 cm without: plugins/lidar_fusion/README.md), and
+  // self-filter drop (RMSE 5.07 cm with them, 12.4 cm without: plugins/lidar_fusion/README.md), and
   // blade_sweep carries what the bucket digs to the pile.
   const fs::path d = tempDir("excavator");
   const Result r = sh("run " + std::string(TERRAMAP_SOURCE_DIR) + "/configs/excavator.yaml --quiet --out " + d.string());
@@ -491,7 +491,7 @@ TEST(Cli, TheExcavatorPipelineFiltersItsArmAndMapsItsBucket) {
 TEST(Cli, TheDepthCameraPipelineMapsTheGroundBesideItsLiDAR) {
   // configs/depth_camera.yaml as shipped: a mast LiDAR and a depth camera fused by one
   // lidar_fusion (the camera's frame through depth_squared_frames), IMU events in the stream
-  // that no stage takes. Its docs/sim.md figures: coverage 0.968, RMSE 1.53 cm.
+  // that no stage takes. Its docs/sim.md figures: coverage 0.994, RMSE 1.80 cm.
   const fs::path d = tempDir("depth_camera");
   const Result r = sh("run " + std::string(TERRAMAP_SOURCE_DIR) + "/configs/depth_camera.yaml --quiet --out " + d.string());
   ASSERT_EQ(r.code, 0) << r.out;
