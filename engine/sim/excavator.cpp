@@ -42,6 +42,22 @@ Eigen::Vector3d BucketMesh::centroid() const {
   return {cx / (3 * a), 0.0, cz / (3 * a)};
 }
 
+double BucketMesh::sideCoverage(const Eigen::Isometry3d& T_map_bucket, double x, double y, double res,
+                                Eigen::Vector2d* to_wall) const {
+  if (to_wall) to_wall->setZero();
+  const Eigen::Vector3d n = T_map_bucket.linear().col(1);  // the side walls' normal
+  const double nh = std::hypot(n.x(), n.y());
+  if (!(nh > 1e-9)) return 1.0;  // walls lying flat: no side in the projection
+  // Horizontal distance inside the nearer wall, and the cell's extent along the wall's normal.
+  const Eigen::Vector2d u(n.x() / nh, n.y() / nh);
+  const double along = (x - T_map_bucket.translation().x()) * u.x() + (y - T_map_bucket.translation().y()) * u.y();
+  const double inside = 0.5 * width_m * nh - std::abs(along);
+  const double extent = res * (std::abs(u.x()) + std::abs(u.y()));
+  // A node outside the wall whose cell the bucket still covers in part: its span is the wall's.
+  if (inside < 0 && to_wall) *to_wall = (along > 0 ? -1.0 : 1.0) * (1e-9 - inside) * u;
+  return std::clamp(inside / extent + 0.5, 0.0, 1.0);
+}
+
 bool BucketMesh::verticalSpan(const Eigen::Isometry3d& T_map_bucket, double x, double y, double& z_lo,
                               double& z_hi) const {
   // The vertical line in the bucket frame is a + z d; every face of the prism is a half-space
@@ -307,10 +323,18 @@ CutResult bucketDig(TruthTerrain& terrain, const SoilField& soil, const BucketMe
       if (!(load.loose_m3 < room_loose_m3)) return out;
       const Eigen::Vector2d p = terrain.nodePosition(i, j);
       double zlo, zhi;
-      if (!mesh.verticalSpan(T_map_bucket, p.x(), p.y(), zlo, zhi)) continue;
+      // A node near a side wall gives the share of its cell the bucket covers (its layer's top
+      // part): a node counts its whole cell, and taken whole or not at all by where it stands, a
+      // bucket as wide as a whole number of nodes, square to the grid, took a row of nodes too
+      // many or too few by rounding.
+      Eigen::Vector2d to_wall;
+      const double cover = mesh.sideCoverage(T_map_bucket, p.x(), p.y(), terrain.resolution(), &to_wall);
+      if (!(cover > 0)) continue;
+      if (!mesh.verticalSpan(T_map_bucket, p.x() + to_wall.x(), p.y() + to_wall.y(), zlo, zhi)) continue;
       const double H = terrain.height(i, j), U = terrain.undisturbed(i, j), Lv = terrain.loose(i, j);
       double top = std::min(H, zhi);
       if (!(top > zlo)) continue;
+      zlo = top - (top - zlo) * cover;
       const SoilProperties& sp = soil.at(p.x(), p.y(), std::max(0.0, terrain.initialHeight(i, j) - 0.5 * (zlo + top)));
       // Loose volume this layer would add to the bucket: bank soil swells, loose soil is loose.
       const double loose_part = std::min(Lv, std::max(0.0, top - std::max(zlo, U)));

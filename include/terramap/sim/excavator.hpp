@@ -63,6 +63,12 @@ struct BucketMesh {
   /// Where the map's vertical line through (x, y) runs inside the mesh at pose T_map_bucket:
   /// [z_lo, z_hi] (map heights); false when it misses the mesh.
   bool verticalSpan(const Eigen::Isometry3d& T_map_bucket, double x, double y, double& z_lo, double& z_hi) const;
+  /// Share (0..1) of the res x res cell around (x, y) that lies between the bucket's two side
+  /// walls (their horizontal projection; linear across the cell's extent along their normal).
+  /// `to_wall` (if given): the horizontal shift that brings a point outside the walls onto the
+  /// nearer one (zero inside), where its cell's covered part takes its span.
+  double sideCoverage(const Eigen::Isometry3d& T_map_bucket, double x, double y, double res,
+                      Eigen::Vector2d* to_wall = nullptr) const;
 };
 
 /// The mesh of an arm spec (its profile, or the default one from bucket_m and bucket_depth_m).

@@ -209,6 +209,36 @@ TEST(Excavator, TheBucketMeshsVerticalSpanMatchesPointSampling) {
   EXPECT_GT(hits, lines / 10);
 }
 
+TEST(Excavator, ABucketTakesItsWidthWhereverItStandsOnTheNodeGrid) {
+  // A bucket 0.61 m wide (30.5 node spacings at 2 cm), square to the grid, 0.1 m into flat
+  // ground, centred at several offsets. Each node counts its whole 2 cm cell, so the volume is
+  // the cross-section times the width wherever the walls fall; a node taken whole or not at all
+  // made the bucket 0.60 or 0.62 m wide by where it stood.
+  BucketMesh mesh = bucketMesh(ArmSpec{});
+  mesh.width_m = 0.61;
+  const SoilField soil(soilProperties(SoilFamily::Loam, 0.4), {});
+  auto dig = [&](double yc, double& cross_m2) {
+    TruthTerrain t(-1.0, -1.0, 0.02, 101, 101);
+    t.captureInitial();
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.translation() = Eigen::Vector3d(0.0, yc, -0.1);
+    BucketLoad load;
+    const CutResult r = bucketDig(t, soil, mesh, T, 1e9, load);
+    // The cross-section along the node row through the bucket's middle.
+    int ic, jc;
+    t.nearestNode(0.3, yc, ic, jc);
+    cross_m2 = 0;
+    for (int i = 0; i < t.nx(); ++i) cross_m2 += (t.initialHeight(i, jc) - t.height(i, jc)) * t.resolution();
+    return r.cut_bank_m3;
+  };
+  for (double yc : {0.0, 0.01, 0.005, -0.013}) {
+    double cross = 0;
+    const double v = dig(yc, cross);
+    ASSERT_GT(cross, 0.01);
+    EXPECT_NEAR(v / (cross * mesh.width_m), 1.0, 1e-6) << "bucket centred at y = " << yc;
+  }
+}
+
 TEST(Excavator, DigAndDumpMovesSoilFromTheTrenchToThePileKeepingItsMass) {
   Simulator sim(parseScenario(digDumpYaml(2, 15, false), "ex.yaml"));
   const TruthTerrain before = sim.truth();
