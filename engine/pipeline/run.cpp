@@ -13,8 +13,13 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
+#include <deque>
+#include <exception>
 #include <filesystem>
+#include <mutex>
+#include <thread>
 
 namespace terramap {
 
@@ -104,6 +109,84 @@ class SeriesRecorder {
   nlohmann::json series_ = nlohmann::json::array();
 };
 
+/// Runs a source on a thread of its own, at most `capacity` events ahead of the stages: the
+/// simulator computes the next events while the stages process these (each side keeps the
+/// other's idle core busy). The events arrive in the source's order, so the results are the
+/// same as without it. progress() is the one of the event last handed over. An exception of
+/// the source is rethrown by next() at that point of the stream.
+class PrefetchSource {
+ public:
+  PrefetchSource(Source& source, std::size_t capacity) : source_(source), capacity_(capacity) {
+    thread_ = std::thread([this] { produce(); });
+  }
+  ~PrefetchSource() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stop_ = true;
+    }
+    changed_.notify_all();
+    thread_.join();
+  }
+  PrefetchSource(const PrefetchSource&) = delete;
+  PrefetchSource& operator=(const PrefetchSource&) = delete;
+
+  bool next(Event& e) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    changed_.wait(lock, [&] { return !queue_.empty() || done_; });
+    if (queue_.empty()) {
+      if (error_) std::rethrow_exception(error_);
+      return false;
+    }
+    e = std::move(queue_.front().event);
+    progress_ = queue_.front().progress;
+    queue_.pop_front();
+    lock.unlock();
+    changed_.notify_all();
+    return true;
+  }
+  double progress() const { return progress_; }
+
+ private:
+  struct Item {
+    Event event;
+    double progress;
+  };
+  void produce() {
+    try {
+      while (true) {
+        Item item;
+        const bool more = source_.next(item.event);
+        item.progress = source_.progress();
+        std::unique_lock<std::mutex> lock(mutex_);
+        if (!more) break;
+        changed_.wait(lock, [&] { return queue_.size() < capacity_ || stop_; });
+        if (stop_) break;
+        queue_.push_back(std::move(item));
+        lock.unlock();
+        changed_.notify_all();
+      }
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      error_ = std::current_exception();
+    }
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      done_ = true;
+    }
+    changed_.notify_all();
+  }
+
+  Source& source_;
+  const std::size_t capacity_;
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  std::deque<Item> queue_;
+  bool done_ = false, stop_ = false;
+  std::exception_ptr error_;
+  double progress_ = -1.0;
+  std::thread thread_;  // last: started once everything above exists
+};
+
 /// map.tif, the PNGs and the snapshot the outputs ask for; appends each file written to `files`.
 void writeMapOutputs(const PipelineSpec& spec, const Engine& engine, const TruthComparison& truth,
                      std::vector<std::string>& files) {
@@ -185,12 +268,20 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   long n = 0;
   Event e;
   SeriesRecorder series(spec.outputs.series_interval_s, *engine, *source, options, t0);
-  while (source->next(e)) {
-    engine->push(e);
-    ++n;
-    series.afterEvent(stampOf(e), n);
-    if (options.on_progress) options.on_progress(source->progress(), n);
-    if (options.on_event) options.on_event(engine->map(), stampOf(e));
+  {
+    // The source runs ahead on its own thread unless the run has one thread or its series
+    // compares the map with the source's truth between events (the source must be at the
+    // event being processed then).
+    std::unique_ptr<PrefetchSource> ahead;
+    if (spec.threads > 1 && !(series.enabled() && options.truth_stats)) ahead = std::make_unique<PrefetchSource>(*source, 64);
+    auto pull = [&](Event& ev) { return ahead ? ahead->next(ev) : source->next(ev); };
+    while (pull(e)) {
+      engine->push(e);
+      ++n;
+      series.afterEvent(stampOf(e), n);
+      if (options.on_progress) options.on_progress(ahead ? ahead->progress() : source->progress(), n);
+      if (options.on_event) options.on_event(engine->map(), stampOf(e));
+    }
   }
   engine->finish();
   for (const auto& [reason, count] : source->dropped()) engine->countSourceDrop(reason, count);

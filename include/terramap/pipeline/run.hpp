@@ -61,6 +61,11 @@ struct RunResult {
 /// Memory stays bounded over long runs: the stages' report records are spooled to an anonymous
 /// temporary file (RecordSpool) and written into report.json at the end, so RunResult::report
 /// holds their counts (StageReport::records_total), not the records.
+/// With `threads` >= 2 the source runs on a thread of its own, up to 64 events ahead of the
+/// stages (the events reach them in the source's order, so results do not change), except when
+/// outputs.series_interval_s and RunOptions::truth_stats compare the map with the source's
+/// truth between events. A source's exception is rethrown where it happened in the stream;
+/// on_progress gets the progress of the event just processed.
 /// \throws ConfigError (invalid pipeline: every problem at once), InputError (bad data),
 ///   PluginError, LayerError, OutputError. Outputs are written only after a complete run.
 TERRAMAP_API RunResult runPipeline(const PipelineSpec& spec, const RunOptions& options = {});

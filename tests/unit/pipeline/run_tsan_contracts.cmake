@@ -1,7 +1,8 @@
 # Driven by CTest (so CI's `make test` runs it: the short sanitizer pass, next to the ASan host):
 # builds the engine and the threading tests with ThreadSanitizer in a scratch build tree (Debug:
 # compiles fast) and runs the tests of the threading contracts: the engine's (engine.hpp:
-# push()/editMap() on one thread, snapshot() on any, snapshots read while the engine writes),
+# push()/editMap() on one thread, snapshot() on any, snapshots read while the engine writes;
+# runPipeline's source running ahead on its own thread),
 # the executor's (every index once, slots, exceptions, a tile kernel bit for bit) and the
 # simulator's (physics overlapping the scans, stopped while it runs ahead). Executor and the
 # simulator run their tasks on std::threads in TSan builds (parallel.hpp), so every
@@ -24,7 +25,7 @@ if(rc)
   message(FATAL_ERROR "building the ThreadSanitizer tests failed: ${rc}\n${log}")
 endif()
 foreach(run
-    "test_pipeline;Engine.EditMapAndPushOnOneThreadSnapshotsOnAnother:Engine.SnapshotIsConsistentWhileTheEngineKeepsWriting"
+    "test_pipeline;Engine.EditMapAndPushOnOneThreadSnapshotsOnAnother:Engine.SnapshotIsConsistentWhileTheEngineKeepsWriting:Run.TheSourceRunsAheadOnItsOwnThreadAndItsProgressAndErrorsArriveInStep"
     "test_core;Executor.*:LayeredMap.TileKernelIsBitIdenticalAtOneAndTwoThreads"
     "test_sim;Simulator.SameSeedIsBitIdenticalForAnyThreadCount:Simulator.StopsCleanlyWhileThePhysicsRunsAhead")
   list(GET run 0 program)

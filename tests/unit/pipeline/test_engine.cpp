@@ -1,6 +1,8 @@
 #include <terramap/core/error.hpp>
 #include <terramap/pipeline/engine.hpp>
 #include <terramap/pipeline/report.hpp>
+#include <terramap/pipeline/run.hpp>
+#include <terramap/pipeline/source.hpp>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -357,4 +359,85 @@ TEST(Engine, EditMapAndPushOnOneThreadSnapshotsOnAnother) {
   reader.join();
   EXPECT_GE(snapshots.load(), 50);
   EXPECT_EQ(inconsistent.load(), 0);
+}
+
+namespace {
+/// `count` Tick events 0.1 s apart; throws an InputError instead of event `fail_at` (if >= 0).
+/// `produced` counts the events handed out so far (shared with the test).
+std::atomic<long> g_produced{0};
+class CountingSource : public Source {
+ public:
+  CountingSource(long count, long fail_at) : count_(count), fail_at_(fail_at) {}
+  bool next(Event& e) override {
+    if (k_ == fail_at_) throw InputError("counting source: event " + std::to_string(k_) + " is bad");
+    if (k_ >= count_) return false;
+    e = Tick{0.1 * static_cast<double>(k_++)};
+    g_produced = k_;
+    return true;
+  }
+  double progress() const override { return static_cast<double>(k_) / static_cast<double>(count_); }
+
+ private:
+  long count_, fail_at_, k_ = 0;
+};
+PipelineSpec countingSpec(int threads, long fail_at) {
+  static const bool registered = [] {
+    registerSource("test_counting", [](const PipelineSpec& s) {
+      return std::make_unique<CountingSource>(static_cast<long>(sourceDouble(s.source, "count", true)),
+                                              static_cast<long>(sourceDouble(s.source, "fail_at", false, -1.0)));
+    });
+    return true;
+  }();
+  (void)registered;
+  return parsePipelineString("version: 1\nmap: {resolution: 0.1, size: [20, 20], tile: 16}\nthreads: " +
+                                 std::to_string(threads) + "\nsource: {type: test_counting, count: 400, fail_at: " +
+                                 std::to_string(fail_at) + "}\npipeline:\n  - {name: a, type: test_probe, params: {output_layer: a}}\n"
+                                 "outputs: {report: false, snapshot: false}\nplugin_paths: [" + kTestDir + "]\n",
+                             "p.yaml", ".");
+}
+}  // namespace
+
+TEST(Run, TheSourceRunsAheadOnItsOwnThreadAndItsProgressAndErrorsArriveInStep) {
+  // With two threads the source produces events ahead of the stages (its own thread, a bounded
+  // queue); the stages still see them in order, the progress passed on is the one of the event
+  // being processed, and a source's error surfaces where it happened in the stream.
+  const std::string out = (std::filesystem::temp_directory_path() / ("terramap_run_" + std::to_string(getpid()))).string();
+  for (int threads : {1, 2}) {
+    RunOptions o;
+    o.out_dir = out;
+    long ahead = 0, events = 0;
+    double last_stamp = -1;
+    bool in_order = true, progress_in_step = true;
+    o.on_progress = [&](double p, long n) {
+      events = n;
+      // The first events take a while (a slow stage): time for a source ahead to fill its queue.
+      if (n <= 3) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+      ahead = std::max(ahead, g_produced.load() - n);
+      progress_in_step = progress_in_step && p == static_cast<double>(n) / 400.0;
+    };
+    o.on_event = [&](const LayeredMap&, double stamp) {
+      in_order = in_order && stamp > last_stamp;
+      last_stamp = stamp;
+    };
+    const RunResult r = runPipeline(countingSpec(threads, -1), o);
+    EXPECT_EQ(events, 400);
+    EXPECT_EQ(r.report.events.at("tick"), 400);
+    EXPECT_TRUE(in_order);
+    EXPECT_TRUE(progress_in_step) << threads << " threads";
+    if (threads == 1) EXPECT_EQ(ahead, 0) << "one thread: the source is read as the stages need it";
+    else EXPECT_GT(ahead, 1) << "two threads: the source runs ahead";
+
+    RunOptions f;
+    f.out_dir = out;
+    long seen = 0;
+    f.on_progress = [&](double, long n) { seen = n; };
+    try {
+      runPipeline(countingSpec(threads, 250), f);
+      ADD_FAILURE() << "the source's error was lost";
+    } catch (const InputError& e) {
+      expectHas(e.what(), "event 250 is bad");
+    }
+    EXPECT_EQ(seen, 250) << "the stages processed every event before the bad one";
+  }
+  std::filesystem::remove_all(out);
 }
