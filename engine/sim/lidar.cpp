@@ -86,15 +86,20 @@ namespace {
 
 /// The machines' boxes one scan can hit, with what culls them cheaply. A column's rays all lie
 /// in the half-plane of its azimuth through the sensor's z axis, so a box whose bounding sphere
-/// misses that half-plane cannot be hit by the column; an upward ray cannot hit a box whose top
-/// is below the origin.
+/// misses that half-plane cannot be hit by the column, and of those that meet it only the beams
+/// whose elevation reaches the box's slice by that plane can (a beam range per box and column);
+/// an upward ray cannot hit a box whose top is below the origin.
 class ScanObstacles {
  public:
   /// Keeps the boxes within `max_range` of `o` (buffers reused from scan to scan).
   /// With `camera` (a depth camera's spec), also each box's pixel rectangle (cameraRow, hit).
+  /// `elevations`: a LiDAR's beam elevations (rad, ascending, beam order), null for a camera.
   void prepare(const std::vector<PlacedBox>* obstacles, const Eigen::Vector3d& o, const Eigen::Matrix3d& R,
-               double max_range, const SensorSpec* camera = nullptr, double z_near = 0) {
+               double max_range, const SensorSpec* camera = nullptr, double z_near = 0,
+               const std::vector<double>* elevations = nullptr) {
+    elevations_ = elevations;
     boxes_.clear();
+    corners_.clear();
     cs_.clear();
     top_.clear();
     rect_.clear();
@@ -104,6 +109,14 @@ class ScanObstacles {
       if ((b.centre - o).norm() - b.radius > max_range) continue;
       boxes_.push_back(b);
       cs_.push_back(R.transpose() * (b.centre - o));  // sphere centre, sensor frame, origin-relative
+      if (elevations) {
+        const Eigen::Matrix3d Rs = R.transpose() * b.R;
+        std::array<Eigen::Vector3d, 8> c;
+        for (int k = 0; k < 8; ++k)
+          c[k] = cs_.back() + Rs * Eigen::Vector3d((k & 1) ? b.half.x() : -b.half.x(), (k & 2) ? b.half.y() : -b.half.y(),
+                                                   (k & 4) ? b.half.z() : -b.half.z());
+        corners_.push_back(c);
+      }
       top_.push_back(b.centre.z() + b.R.row(2).cwiseAbs().dot(b.half));
       if (camera) rect_.push_back(pixelRect(b, cs_.back(), R, *camera, z_near));
     }
@@ -113,24 +126,89 @@ class ScanObstacles {
 
   /// The candidates of scan row `row` (a LiDAR's column, a camera's image row) whose first
   /// sensor-frame ray is `d0`: for all rays (`all`) and for upward rays (`up`); each sized size().
-  void row(int row, const Eigen::Vector3d& d0, std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up) const {
+  /// For a LiDAR column also, per box, the beams [beams[q][0], beams[q][1]] that can reach it.
+  void row(int row, const Eigen::Vector3d& d0, std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up,
+           std::vector<std::array<int, 2>>& beams) const {
     if (camera_) cameraRow(row, d0.y() / d0.z(), all, n_all, up, n_up);
-    else column(d0, all, n_all, up, n_up);
+    else column(d0, all, n_all, up, n_up, beams);
   }
 
  private:
-  /// A LiDAR column's candidates (see the class comment).
-  void column(const Eigen::Vector3d& d0, std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up) const {
+  /// A LiDAR column's candidates (see the class comment), each with the beams that can reach
+  /// it: the box's slice by the column's plane is the convex hull of where its edges cross the
+  /// plane; the column's rays run from the origin at their elevations within the half-plane
+  /// ahead (along >= 0), so a beam reaches the slice iff its elevation lies within the angles
+  /// the slice's part ahead spans from the origin (all of them if the slice holds the origin).
+  void column(const Eigen::Vector3d& d0, std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up,
+              std::vector<std::array<int, 2>>& beams) const {
     n_all = n_up = 0;
     const double hx = d0.x(), hy = d0.y(), hn = std::hypot(hx, hy);
+    const double ux = hx / hn, uy = hy / hn;
     for (std::size_t q = 0; q < boxes_.size(); ++q) {
       const Eigen::Vector3d& cs = cs_[q];
       const double r = boxes_[q].radius;
-      const double across = (-hy * cs.x() + hx * cs.y()) / hn, along = (hx * cs.x() + hy * cs.y()) / hn;
+      const double across = -uy * cs.x() + ux * cs.y(), along = ux * cs.x() + uy * cs.y();
       if (std::abs(across) > r || along < -r) continue;
+      std::array<int, 2> span{0, std::numeric_limits<int>::max()};
+      if (elevations_ && !slice(corners_[q], ux, uy, span)) continue;
+      beams[q] = span;
       all[n_all++] = static_cast<int>(q);
       if (top_[q] >= oz_) up[n_up++] = static_cast<int>(q);
     }
+  }
+
+  /// The beams [span[0], span[1]] whose rays in the column of unit direction (ux, uy) can reach
+  /// the box of corners `c` (sensor frame); false when none can.
+  bool slice(const std::array<Eigen::Vector3d, 8>& c, double ux, double uy, std::array<int, 2>& span) const {
+    double ac[8], al[8];
+    for (int k = 0; k < 8; ++k) {
+      ac[k] = -uy * c[k].x() + ux * c[k].y();
+      al[k] = ux * c[k].x() + uy * c[k].y();
+    }
+    // Where the box's edges cross the plane (along, z); a corner on it counts as a crossing.
+    double pa[12], pz[12];
+    int n = 0;
+    for (int k = 0; k < 8; ++k)
+      for (int bit = 1; bit < 8; bit <<= 1) {
+        const int j = k | bit;
+        if (j == k) continue;
+        if ((ac[k] > 0 && ac[j] > 0) || (ac[k] < 0 && ac[j] < 0)) continue;
+        const double f = ac[k] == ac[j] ? 0.0 : ac[k] / (ac[k] - ac[j]);
+        pa[n] = al[k] + f * (al[j] - al[k]);
+        pz[n] = c[k].z() + f * (c[j].z() - c[k].z());
+        if (++n == 12) break;
+      }
+    if (n == 0) return false;
+    // The slice's angles from the origin over its part ahead: the points ahead, and where the
+    // hull crosses along = 0 (between pairs of points on either side).
+    constexpr double kEps = 1e-9;
+    double lo = INFINITY, hi = -INFINITY, zlo0 = INFINITY, zhi0 = -INFINITY;
+    for (int k = 0; k < n; ++k) {
+      if (pa[k] >= 0) {
+        const double e = std::atan2(pz[k], pa[k]);
+        lo = std::min(lo, e);
+        hi = std::max(hi, e);
+      }
+      if (pa[k] <= 0)
+        for (int j = 0; j < n; ++j)
+          if (pa[j] >= 0 && (pa[k] < 0 || pa[j] > 0)) {
+            const double z = pa[j] == pa[k] ? pz[k] : pz[k] + (pz[j] - pz[k]) * (-pa[k] / (pa[j] - pa[k]));
+            zlo0 = std::min(zlo0, z);
+            zhi0 = std::max(zhi0, z);
+          }
+    }
+    if (zlo0 <= zhi0) {
+      if (zlo0 <= kEps && zhi0 >= -kEps) return true;  // the slice holds the origin: every beam
+      const double e = zlo0 > 0 ? M_PI / 2 : -M_PI / 2;
+      lo = std::min(lo, e);
+      hi = std::max(hi, e);
+    }
+    if (!(lo <= hi)) return false;  // wholly behind
+    const auto first = std::lower_bound(elevations_->begin(), elevations_->end(), lo - kEps);
+    const auto last = std::upper_bound(elevations_->begin(), elevations_->end(), hi + kEps);
+    if (first == last) return false;
+    span = {static_cast<int>(first - elevations_->begin()), static_cast<int>(last - elevations_->begin()) - 1};
+    return true;
   }
 
   /// The candidates of a depth camera's image row v, whose rays are (x, a, 1) in the optical
@@ -155,15 +233,22 @@ class ScanObstacles {
   /// First box entry of the ray o + t dm in [t_min, t_max] among its row's candidates (row());
   /// for a camera only those whose pixel rectangle holds the ray's pixel column `u`, gathered in
   /// `px` (scratch sized size()). +inf when none.
+  /// For a LiDAR, `u` is the beam and only the boxes whose beam range holds it are tried.
   double hit(const Eigen::Vector3d& o, const Eigen::Vector3d& dm, double t_min, double t_max, const std::vector<int>& all,
-             int n_all, const std::vector<int>& up, int n_up, int u, std::vector<int>& px, Eigen::Vector3d* normal) const {
+             int n_all, const std::vector<int>& up, int n_up, int u, std::vector<int>& px,
+             const std::vector<std::array<int, 2>>& beams, Eigen::Vector3d* normal) const {
     const bool upward = dm.z() >= 0.0;
     const int* idx = upward ? up.data() : all.data();
     int n = upward ? n_up : n_all;
-    if (camera_ && n > 0) {
+    if (n > 0) {
       int m = 0;
-      for (int k = 0; k < n; ++k)
-        if (u >= rect_[idx[k]][0] && u <= rect_[idx[k]][1]) px[m++] = idx[k];
+      if (camera_) {
+        for (int k = 0; k < n; ++k)
+          if (u >= rect_[idx[k]][0] && u <= rect_[idx[k]][1]) px[m++] = idx[k];
+      } else {
+        for (int k = 0; k < n; ++k)
+          if (u >= beams[idx[k]][0] && u <= beams[idx[k]][1]) px[m++] = idx[k];
+      }
       idx = px.data();
       n = m;
     }
@@ -206,7 +291,9 @@ class ScanObstacles {
   }
 
   bool camera_ = false;
+  const std::vector<double>* elevations_ = nullptr;
   std::vector<PlacedBox> boxes_;
+  std::vector<std::array<Eigen::Vector3d, 8>> corners_;  ///< a LiDAR scan's: each box's, sensor frame
   std::vector<std::array<int, 4>> rect_;
   std::vector<Eigen::Vector3d> cs_;
   std::vector<double> top_;
@@ -339,7 +426,7 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
   if (static_cast<int>(parts.size()) < chunks) parts.resize(chunks);
   const ScanCaster& cast = caster;
   ScanObstacles& boxes = scratch_->obstacles;
-  boxes.prepare(obstacles, o, R, t_max, camera_ ? &spec_ : nullptr, z_near_);
+  boxes.prepare(obstacles, o, R, t_max, camera_ ? &spec_ : nullptr, z_near_, camera_ ? nullptr : &elevations_);
   const std::size_t nbox = boxes.size();
   auto work = [&](int ch) {
     std::vector<PointXYZI>& pts = parts[ch];
@@ -354,10 +441,11 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
     std::vector<Eigen::Vector3d> dm_may(B);
     std::vector<int> may_idx(B);
     std::vector<int> cand(nbox), cand_up(nbox), px(nbox);
+    std::vector<std::array<int, 2>> beams(nbox);
     for (int c = c0; c < c1; ++c) {
       // Boxes this row can reach; of those, the ones an upward ray can reach.
       int n_cand = 0, n_up = 0;
-      if (nbox > 0) boxes.row(c, dirs_[static_cast<std::size_t>(c) * B], cand, n_cand, cand_up, n_up);
+      if (nbox > 0) boxes.row(c, dirs_[static_cast<std::size_t>(c) * B], cand, n_cand, cand_up, n_up, beams);
       // Rays that cannot hit (upwards from above the terrain: half of a spinning LiDAR's) are
       // settled here; the rest are cast as one batch.
       int n_may = 0;
@@ -386,7 +474,7 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
         hit.cj = cj_col[b];
         // A machine in front of the terrain hit (or in a ray that misses the terrain) wins.
         const double t_box = boxes.hit(o, dm_col[b], spec_.min_range_m, std::isnan(hit.t) ? t_max : hit.t, cand, n_cand,
-                                       cand_up, n_up, b, px, &hit.normal);
+                                       cand_up, n_up, b, px, beams, &hit.normal);
         if (t_box < std::numeric_limits<double>::infinity()) {
           hit.t = t_box;
           hit.on_machine = true;
