@@ -98,6 +98,9 @@ class ScanObstacles {
                double max_range, const SensorSpec* camera = nullptr, double z_near = 0,
                const std::vector<double>* elevations = nullptr) {
     elevations_ = elevations;
+    slopes_.clear();
+    if (elevations)
+      for (double e : *elevations) slopes_.push_back(std::tan(e));
     boxes_.clear();
     corners_.clear();
     cs_.clear();
@@ -179,15 +182,16 @@ class ScanObstacles {
         if (++n == 12) break;
       }
     if (n == 0) return false;
-    // The slice's angles from the origin over its part ahead: the points ahead, and where the
-    // hull crosses along = 0 (between pairs of points on either side).
+    // The slice's slopes (z / along, monotonic in the elevation angle) from the origin over its
+    // part ahead: the points ahead, and where the hull crosses along = 0 (between pairs of
+    // points on either side), straight up or down.
     constexpr double kEps = 1e-9;
     double lo = INFINITY, hi = -INFINITY, zlo0 = INFINITY, zhi0 = -INFINITY;
     for (int k = 0; k < n; ++k) {
-      if (pa[k] >= 0) {
-        const double e = std::atan2(pz[k], pa[k]);
-        lo = std::min(lo, e);
-        hi = std::max(hi, e);
+      if (pa[k] > 0) {
+        const double m = pz[k] / pa[k];
+        lo = std::min(lo, m);
+        hi = std::max(hi, m);
       }
       if (pa[k] <= 0)
         for (int j = 0; j < n; ++j)
@@ -199,15 +203,15 @@ class ScanObstacles {
     }
     if (zlo0 <= zhi0) {
       if (zlo0 <= kEps && zhi0 >= -kEps) return true;  // the slice holds the origin: every beam
-      const double e = zlo0 > 0 ? M_PI / 2 : -M_PI / 2;
-      lo = std::min(lo, e);
-      hi = std::max(hi, e);
+      if (zlo0 > 0) hi = INFINITY;
+      else lo = -INFINITY;
     }
     if (!(lo <= hi)) return false;  // wholly behind
-    const auto first = std::lower_bound(elevations_->begin(), elevations_->end(), lo - kEps);
-    const auto last = std::upper_bound(elevations_->begin(), elevations_->end(), hi + kEps);
+    // A hair wider than the slopes against rounding.
+    const auto first = std::lower_bound(slopes_.begin(), slopes_.end(), lo - kEps * (1.0 + std::abs(lo)));
+    const auto last = std::upper_bound(slopes_.begin(), slopes_.end(), hi + kEps * (1.0 + std::abs(hi)));
     if (first == last) return false;
-    span = {static_cast<int>(first - elevations_->begin()), static_cast<int>(last - elevations_->begin()) - 1};
+    span = {static_cast<int>(first - slopes_.begin()), static_cast<int>(last - slopes_.begin()) - 1};
     return true;
   }
 
@@ -292,6 +296,7 @@ class ScanObstacles {
 
   bool camera_ = false;
   const std::vector<double>* elevations_ = nullptr;
+  std::vector<double> slopes_;  ///< tan of the beam elevations (ascending)
   std::vector<PlacedBox> boxes_;
   std::vector<std::array<Eigen::Vector3d, 8>> corners_;  ///< a LiDAR scan's: each box's, sensor frame
   std::vector<std::array<int, 4>> rect_;
@@ -301,6 +306,9 @@ class ScanObstacles {
 };
 
 }  // namespace
+
+/// Scans of fewer rays build a coarser horizon table (ScanCaster::setSparse).
+constexpr std::size_t kSparseRays = 4096;
 
 struct LidarModel::Scratch {
   ScanCaster caster;
@@ -421,6 +429,7 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
   // One horizon table per scan (the ray-casting view is frozen while the scan is cast); the
   // model keeps its buffers, so a scan allocates nothing after the first.
   ScanCaster& caster = scratch_->caster;
+  caster.setSparse(dirs_.size() < kSparseRays);
   caster.build(terrain, o, t_max, minSlope(R), exec);
   std::vector<std::vector<PointXYZI>>& parts = scratch_->parts;
   if (static_cast<int>(parts.size()) < chunks) parts.resize(chunks);

@@ -43,11 +43,11 @@ inline float upperBound(double v) {
   return f + (std::abs(f) * 1.2e-7f + 1e-30f);
 }
 
-/// Pyramid level of the blocks: kBlockLevel, coarser while the disc within `reach` (or the
+/// Pyramid level of the blocks: `preferred`, coarser while the disc within `reach` (or the
 /// grid, if smaller) holds more than kMaxBlocks blocks.
-int chooseBlockLevel(const TruthTerrain& terrain, double reach) {
+int chooseBlockLevel(const TruthTerrain& terrain, double reach, int preferred) {
   const double res = terrain.resolution();
-  int level = std::min(kBlockLevel, terrain.pyramidLevels() - 1);
+  int level = std::min(preferred, terrain.pyramidLevels() - 1);
   while (level + 1 < terrain.pyramidLevels()) {
     const double bs = std::ldexp(res, level);
     const double area = std::min(M_PI * reach * reach, (terrain.maxX() - terrain.originX() + bs) *
@@ -191,11 +191,14 @@ void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origi
   const double reach = std::min(far, std::max(0.0, max_range_m));
   covers_grid_ = far <= max_range_m;
   top_ = terrain.pyramidMax(terrain.pyramidLevels() - 1)[0];
-  level_ = chooseBlockLevel(terrain, reach);
+  // A sparse scan (a few hundred rays) casts too few rays to pay for the fine table: a quarter
+  // of the azimuth bins and blocks twice as wide build it ~8x cheaper, and its rays walk a few
+  // more cells.
+  level_ = chooseBlockLevel(terrain, reach, sparse_ ? kBlockLevel + 1 : kBlockLevel);
   const double bs = std::ldexp(res, level_);
   ds_ = 0.5 * bs;
   inv_ds_ = 1.0 / ds_;
-  na_ = kAzimuthBins;
+  na_ = sparse_ ? kAzimuthBins / 4 : kAzimuthBins;
   nr_ = static_cast<int>(std::floor(reach * inv_ds_)) + 1;
   ng_ = (nr_ + kGroup - 1) / kGroup;
   const std::size_t cells = static_cast<std::size_t>(na_) * nr_;

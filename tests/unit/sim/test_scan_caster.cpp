@@ -28,6 +28,7 @@ TruthTerrain roughTerrain(std::uint64_t seed) {
 }  // namespace
 
 TEST(ScanCaster, AgreesWithBruteForceFromManyOrigins) {
+  // Dense and sparse tables (ScanCaster::setSparse) alike.
   const TruthTerrain t = roughTerrain(7);
   std::mt19937_64 rng(21);
   std::uniform_real_distribution<double> U(-1, 1);
@@ -52,9 +53,13 @@ TEST(ScanCaster, AgreesWithBruteForceFromManyOrigins) {
         const double dxy = std::hypot(d.x(), d.y());
         if (dxy >= 1e-9) min_slope = std::min(min_slope, d.z() / dxy);
       }
-      for (const double slope_bound : {-std::numeric_limits<double>::infinity(), min_slope}) {
+      for (const double slope_bound : {-std::numeric_limits<double>::infinity(), min_slope})
+      for (const bool sparse : {false, true}) {  // the coarser table of a scan of few rays too
         ScanCaster sc;
+        sc.setSparse(sparse);
         sc.build(t, o, max_range, slope_bound);
+        EXPECT_EQ(sc.azimuthBins(), sparse ? 256 : 1024);
+        EXPECT_EQ(sc.blockLevel(), sparse ? 5 : 4);
         for (const double t_min : {0.0, 0.3}) {
           for (const auto& d : dirs) {
             const double a = sc.cast(d, t_min, max_range);
