@@ -4,8 +4,10 @@
 
 #include <terramap/soil/fee.hpp>
 
+#include <Eigen/Cholesky>
 #include <Eigen/SVD>
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -154,6 +156,90 @@ PinnInference::PinnInference(std::vector<PinnMemberWeights> members, std::vector
     if (!(s > 0) || !std::isfinite(s)) throw std::invalid_argument("PinnInference: observation std must be > 0");
 }
 
+double PinnInputDistance::d2(const std::vector<double>& f) const {
+  const std::size_t n = mean.size();
+  if (n == 0 || f.size() != n || whiten.size() != n * n) return std::numeric_limits<double>::quiet_NaN();
+  double s = 0;
+  for (std::size_t r = 0; r < n; ++r) {
+    double z = 0;
+    for (std::size_t c = 0; c <= r; ++c) z += whiten[r * n + c] * (f[c] - mean[c]);  // lower triangular
+    s += z * z;
+  }
+  return s;
+}
+
+double PinnInputDistance::share(double d2v) const {
+  if (!(d2v > q) || !(q > 0)) return 0.0;
+  return 1.0 - std::exp(-(d2v - q) / q);
+}
+
+void PinnInputDistance::applyTo(const std::vector<double>& features, PinnEstimate& e) const {
+  if (empty()) return;
+  e.input_d2 = d2(features);
+  e.input_share = share(e.input_d2);
+  for (std::size_t k = 0; k < e.var_epistemic.size(); ++k) {
+    e.var_epistemic[k] += e.input_share * prior_var[k];
+    e.var_total[k] = e.var_nullspace[k] + e.var_epistemic[k];
+  }
+}
+
+PinnInputDistance PinnInputDistance::fit(const std::vector<std::vector<double>>& features,
+                                         const std::array<double, 5>& prior_var) {
+  if (features.empty() || features.front().empty())
+    throw std::invalid_argument("PinnInputDistance::fit: no features");
+  const std::size_t n = features.front().size();
+  if (features.size() < n + 1) throw std::invalid_argument("PinnInputDistance::fit: fewer samples than features + 1");
+  Eigen::VectorXd mu = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(n));
+  for (const auto& f : features) {
+    if (f.size() != n) throw std::invalid_argument("PinnInputDistance::fit: ragged features");
+    mu += Eigen::Map<const Eigen::VectorXd>(f.data(), static_cast<Eigen::Index>(n));
+  }
+  mu /= static_cast<double>(features.size());
+  Eigen::MatrixXd C = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(n), static_cast<Eigen::Index>(n));
+  for (const auto& f : features) {
+    const Eigen::VectorXd d = Eigen::Map<const Eigen::VectorXd>(f.data(), static_cast<Eigen::Index>(n)) - mu;
+    C.noalias() += d * d.transpose();
+  }
+  C /= static_cast<double>(features.size() - 1);
+  C.diagonal().array() += 1e-6 * std::max(C.diagonal().mean(), 1e-12);
+  const Eigen::LLT<Eigen::MatrixXd> llt(C);
+  if (llt.info() != Eigen::Success) throw std::invalid_argument("PinnInputDistance::fit: covariance not positive definite");
+  const Eigen::MatrixXd W = llt.matrixL().solve(Eigen::MatrixXd::Identity(C.rows(), C.cols()));
+  PinnInputDistance out;
+  out.prior_var = prior_var;
+  out.mean.assign(mu.data(), mu.data() + n);
+  out.whiten.resize(n * n);
+  for (std::size_t r = 0; r < n; ++r)
+    for (std::size_t c = 0; c < n; ++c)
+      out.whiten[r * n + c] = c <= r ? W(static_cast<Eigen::Index>(r), static_cast<Eigen::Index>(c)) : 0.0;
+  std::vector<double> d2s;
+  d2s.reserve(features.size());
+  for (const auto& f : features) d2s.push_back(out.d2(f));
+  // The 99th percentile (nearest rank).
+  const std::size_t k = std::min(d2s.size() - 1, static_cast<std::size_t>(std::ceil(0.99 * static_cast<double>(d2s.size()))) - 1);
+  std::nth_element(d2s.begin(), d2s.begin() + static_cast<std::ptrdiff_t>(k), d2s.end());
+  out.q = d2s[k];
+  return out;
+}
+
+std::vector<double> pinnInputFeatures(const float* obs_raw, int T_stored, int T, int D_o, const float* obs_mean,
+                                      const float* obs_std, const float* theta_k, int P_stored,
+                                      const float* theta_mean, const float* theta_std) {
+  std::vector<double> f(static_cast<std::size_t>(kThetaKCols + D_o), 0.0);
+  const float* tk = theta_k + static_cast<std::ptrdiff_t>(P_stored - 1) * kThetaKCols;
+  for (int k = 0; k < kThetaKCols; ++k) {
+    const float z = (tk[k] - theta_mean[k]) / theta_std[k];
+    f[static_cast<std::size_t>(k)] = std::isfinite(z) ? z : 0.0f;
+  }
+  for (int t = T_stored - T; t < T_stored; ++t)
+    for (int k = 0; k < D_o; ++k) {
+      const float z = (obs_raw[t * D_o + k] - obs_mean[k]) / obs_std[k];
+      f[static_cast<std::size_t>(kThetaKCols + k)] += std::isfinite(z) ? z : 0.0f;
+    }
+  for (int k = 0; k < D_o; ++k) f[static_cast<std::size_t>(kThetaKCols + k)] /= T;
+  return f;
+}
+
 PinnEstimate PinnInference::estimate(const float* obs_raw, int T_stored, const float* theta_k, int P_stored,
                                      const PinnInferenceOptions& opt) const {
   PinnEstimate e;
@@ -194,6 +280,12 @@ PinnEstimate PinnInference::estimate(const float* obs_raw, int T_stored, const f
     e.var_nullspace[ku] = vn[k] / M;
     e.var_epistemic[ku] = sq[k] / M;  // population variance, as the libtorch path
     e.var_total[ku] = e.var_nullspace[ku] + e.var_epistemic[ku];
+  }
+  if (!distance_.empty()) {
+    const PinnMemberWeights& m0 = members_.front();
+    distance_.applyTo(pinnInputFeatures(obs_raw, T_stored, T, D, obs_mean_.data(), obs_std_.data(), theta_k, P_stored,
+                                        m0.theta_k_mean.data(), m0.theta_k_std.data()),
+                      e);
   }
   e.F_r = {fr.x() / M, fr.y() / M};
   for (const auto& f : F) e.F.push_back({f.x() / M, f.y() / M});

@@ -15,7 +15,8 @@ namespace terramap::pinn {
 namespace {
 constexpr const char* kEstimatorKey = "terramap_estimator";
 constexpr const char* kEstimatorFormat = "terramap.soil_estimator";
-constexpr int kEstimatorVersion = 1;
+/// Version 2: the input distance ("input_distance"; version 1 files have none).
+constexpr int kEstimatorVersion = 2;
 }  // namespace
 
 SoilEstimator::SoilEstimator(std::vector<PinnNet> members, std::vector<float> obs_mean, std::vector<float> obs_std,
@@ -37,6 +38,7 @@ SoilEstimator::SoilEstimator(std::vector<PinnNet> members, std::vector<float> ob
     if (!(s > 0) || !std::isfinite(s)) throw std::invalid_argument("SoilEstimator: observation std must be > 0");
   std::vector<soil::PinnMemberWeights> weights;
   for (const PinnNet& m : members_) weights.push_back(m->exportWeights());
+  weights0_ = weights.front();
   fast_ = soil::PinnInference(std::move(weights), obs_mean_, obs_std_);
   const at::Tensor sa = defaultAmbiguityVariance();
   for (int k = 0; k < kSoilCount; ++k) ambiguity_var_[static_cast<std::size_t>(k)] = sa[k].item<double>();
@@ -123,8 +125,23 @@ std::vector<SoilEstimate> SoilEstimator::estimate(const float* obs_raw, const fl
     e.beta_rad = beta_a[b];
     e.valid_members = static_cast<int>(nv[b]);
     e.valid = 2 * e.valid_members > M;
+    applyInputDistance(obs_raw + b * T_stored * weights0_.D_o, T_stored, theta_k + b * P_stored * 6, P_stored, e);
   }
   return res;
+}
+
+void SoilEstimator::setInputDistance(soil::PinnInputDistance d) {
+  distance_ = d;
+  fast_.setInputDistance(std::move(d));
+}
+
+void SoilEstimator::applyInputDistance(const float* obs_raw, int T_stored, const float* theta_k, int P_stored,
+                                       SoilEstimate& e) const {
+  if (distance_.empty()) return;
+  const soil::PinnMemberWeights& m0 = weights0_;
+  distance_.applyTo(soil::pinnInputFeatures(obs_raw, T_stored, T(), m0.D_o, obs_mean_.data(), obs_std_.data(), theta_k,
+                                            P_stored, m0.theta_k_mean.data(), m0.theta_k_std.data()),
+                    e);
 }
 
 SoilEstimate SoilEstimator::estimate(const soil::PinnSample& s, const NullspaceTolerances& tol) const {
@@ -155,6 +172,8 @@ void saveEstimator(const SoilEstimator& e, const std::string& path) {
   j["obs_std"] = e.obsStd();
   j["obs_features"] = soil::obsFeatureNames();
   j["training"] = nlohmann::json::parse(e.trainingJson());
+  if (const soil::PinnInputDistance& d = e.inputDistance(); !d.empty())
+    j["input_distance"] = {{"mean", d.mean}, {"whiten", d.whiten}, {"q", d.q}, {"prior_var", d.prior_var}};
   root.write(kEstimatorKey, c10::IValue(j.dump()));
   saveArchiveAtomically(root, path, "the soil estimator");
 }
@@ -192,10 +211,25 @@ SoilEstimator loadEstimator(const std::string& path) {
     members.push_back(loadPinnFrom(sub, path + " (member " + std::to_string(m) + ")"));
   }
   try {
-    return SoilEstimator(std::move(members), j.at("obs_mean").get<std::vector<float>>(),
-                         j.at("obs_std").get<std::vector<float>>(), j.value("training", nlohmann::json::object()).dump());
+    SoilEstimator est(std::move(members), j.at("obs_mean").get<std::vector<float>>(),
+                      j.at("obs_std").get<std::vector<float>>(), j.value("training", nlohmann::json::object()).dump());
+    if (j.contains("input_distance")) {
+      const nlohmann::json& dj = j.at("input_distance");
+      soil::PinnInputDistance d;
+      d.mean = dj.at("mean").get<std::vector<double>>();
+      d.whiten = dj.at("whiten").get<std::vector<double>>();
+      d.q = dj.at("q").get<double>();
+      d.prior_var = dj.at("prior_var").get<std::array<double, 5>>();
+      const std::size_t n = 6 + est.obsMean().size();  // theta_k and the observation features
+      if (d.mean.size() != n || d.whiten.size() != n * n || !(d.q > 0))
+        throw InputError(path + ": input_distance does not match the model's " + std::to_string(n) + " features");
+      est.setInputDistance(std::move(d));
+    }
+    return est;
   } catch (const std::invalid_argument& ex) {
     throw InputError(path + ": " + ex.what());
+  } catch (const nlohmann::json::exception& ex) {
+    throw InputError(path + ": bad input_distance: " + ex.what());
   }
 }
 

@@ -65,17 +65,27 @@ class SoilEstimator {
   SoilEstimate estimateFast(const soil::PinnSample& s, const NullspaceTolerances& tol = {}) const;
   const soil::PinnInference& inference() const { return fast_; }
 
+  /// The input-distance term of the epistemic variance (soil::PinnInputDistance; empty: none),
+  /// for both estimate() and estimateFast(). The trainer fits it on the training split.
+  void setInputDistance(soil::PinnInputDistance d);
+  const soil::PinnInputDistance& inputDistance() const { return distance_; }
+
  private:
+  /// Adds the input-distance term to `e` (one sample's raw arrays, as estimate() takes them).
+  void applyInputDistance(const float* obs_raw, int T_stored, const float* theta_k, int P_stored, SoilEstimate& e) const;
   std::vector<PinnNet> members_;
   std::vector<float> obs_mean_, obs_std_;
   std::string training_json_;
   soil::PinnInference fast_;
+  soil::PinnMemberWeights weights0_;  ///< the first member's (its theta_k normalisation)
+  soil::PinnInputDistance distance_;
   std::array<double, kSoilCount> ambiguity_var_{};  ///< defaultAmbiguityVariance()
 };
 
 /// One file: a torch archive with a sub-archive per member (savePinnTo) and the key
 /// "terramap_estimator" holding JSON {format "terramap.soil_estimator", version, members,
-/// obs_mean, obs_std, obs_features, training}. Atomic (temp + rename). \throws OutputError.
+/// obs_mean, obs_std, obs_features, training, input_distance (version 2; absent: none)}.
+/// Atomic (temp + rename). \throws OutputError.
 void saveEstimator(const SoilEstimator& e, const std::string& path);
 /// \throws InputError naming the file on anything that is not such a model (or a newer version,
 /// or observation features other than this build's soil::obsFeatureNames()).

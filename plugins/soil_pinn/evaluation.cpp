@@ -29,6 +29,8 @@ struct Accum {
   long rows = 0, stalled_rows = 0;
   std::vector<std::array<double, 2>> forces;  // for the constant-force baseline
   std::vector<double> q_ratio;                // mapped Q / simulator's q, per sample
+  long input_measured = 0, input_beyond = 0;  // samples with an input distance, and beyond q
+  double input_share = 0;                     // Σ share of the prior variance added
 };
 
 // One sample's view of the dataset arrays (row r, the model's last P horizon steps).
@@ -86,6 +88,11 @@ void addForceErrors(Accum& a, const SampleView& v, const SoilEstimate& e, int P)
 }
 
 void addSoilErrors(Accum& a, Fig11Bin* bin, const fee::Soil& truth_soil, const SoilEstimate& e) {
+  if (std::isfinite(e.input_d2)) {
+    ++a.input_measured;
+    a.input_beyond += e.input_share > 0;
+    a.input_share += e.input_share;
+  }
   const double truth[kSoilCount] = {truth_soil.c_pa, truth_soil.phi_rad, truth_soil.ca_pa, truth_soil.delta_rad,
                                     truth_soil.gamma_n_m3};
   for (int k = 0; k < kSoilCount; ++k) {
@@ -130,6 +137,10 @@ SplitMetrics finishSplit(int split, Accum& a) {
     auto mid = a.q_ratio.begin() + static_cast<long>(a.q_ratio.size() / 2);
     std::nth_element(a.q_ratio.begin(), mid, a.q_ratio.end());
     m.surcharge_ratio_median = *mid;
+  }
+  if (a.input_measured > 0) {
+    m.input_beyond_fraction = static_cast<double>(a.input_beyond) / static_cast<double>(a.input_measured);
+    m.input_share_mean = a.input_share / static_cast<double>(a.input_measured);
   }
   const double v = static_cast<double>(std::max<long>(1, m.valid));
   for (int k = 0; k < kSoilCount; ++k)
@@ -224,6 +235,10 @@ std::string evaluationJson(const SoilEvaluation& e) {
     s["force_error_truth_soil_simulator_model_pct"] = m.force_error_simulator_model_pct;
     s["truth_geometry_samples"] = m.truth_geometry_samples;
     s["mapped_over_simulator_surcharge_median"] = m.surcharge_ratio_median;
+    if (std::isfinite(m.input_beyond_fraction)) {
+      s["input_beyond_training_q99_fraction"] = m.input_beyond_fraction;
+      s["input_prior_share_mean"] = m.input_share_mean;
+    }
     for (int k = 0; k < kSoilCount; ++k) {
       nlohmann::ordered_json p;
       p["mae"] = m.mae[k];
@@ -275,6 +290,14 @@ std::string evaluationMarkdown(const SoilEvaluation& e) {
     for (int k = 0; k < kSoilCount; ++k) {
       std::snprintf(buf, sizeof buf, " %.2f / %.2f / %.2f |", m.coverage_aleatoric[k], m.coverage_nullspace[k],
                     m.coverage_total[k]);
+      os << buf;
+    }
+    os << "\n";
+  }
+  if (std::any_of(e.splits.begin(), e.splits.end(), [](const SplitMetrics& m) { return std::isfinite(m.input_beyond_fraction); })) {
+    os << "\nInputs beyond the training split's 99th percentile of input distance (mean share of the prior variance added):";
+    for (const auto& m : e.splits) {
+      std::snprintf(buf, sizeof buf, " %s %.3f (%.3f)", m.split.c_str(), m.input_beyond_fraction, m.input_share_mean);
       os << buf;
     }
     os << "\n";

@@ -46,6 +46,10 @@ struct SplitMetrics {
   /// Fraction of valid samples whose truth lies within ±1σ, per variance kind.
   std::array<double, kSoilCount> coverage_aleatoric{}, coverage_nullspace{}, coverage_total{};
   std::array<double, kSoilCount> mean_var_aleatoric{}, mean_var_epistemic{}, mean_var_total{};
+  /// Valid samples whose inputs lie beyond the training split's 99th percentile of input
+  /// distance (soil::PinnInputDistance; share > 0), as a fraction, and the mean share of the
+  /// prior variance added (NaN for a model without the statistics).
+  double input_beyond_fraction = NAN, input_share_mean = NAN;
 };
 
 /// One row of the Fig. 11 analogue: estimates binned by family and I_d (10 bins of 0.1).

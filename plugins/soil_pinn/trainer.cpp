@@ -303,7 +303,27 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   tj["validation_samples"] = report.validation_samples;
   for (const MemberReport& r : report.members)
     tj["members"].push_back({{"epochs", r.epochs}, {"best_epoch", r.best_epoch}, {"best_validation_loss", r.best_validation_loss}});
-  const SoilEstimator est(best_members, obs_mean, obs_std, tj.dump());
+  SoilEstimator est(best_members, obs_mean, obs_std, tj.dump());
+  // The input distance of the epistemic variance (soil::PinnInputDistance), on the training
+  // split's samples; the prior variance of a property is its range's (uniform: span^2 / 12).
+  {
+    const at::Tensor oc = data.obs_raw.contiguous(), tc = data.theta_k.contiguous();
+    const int Ts = static_cast<int>(oc.size(1)), Ds = static_cast<int>(oc.size(2)), Ps = static_cast<int>(tc.size(1));
+    std::vector<std::vector<double>> feats;
+    feats.reserve(train_idx.size());
+    for (long i : train_idx)
+      feats.push_back(soil::pinnInputFeatures(oc.data_ptr<float>() + i * Ts * Ds, Ts, cfg.T, Ds, obs_mean.data(),
+                                              obs_std.data(), tc.data_ptr<float>() + i * Ps * 6, Ps, th_mean.data(),
+                                              th_std.data()));
+    std::array<double, 5> prior{};
+    for (int k = 0; k < kSoilCount; ++k) {
+      const double span = kSoilRanges[k].hi - kSoilRanges[k].lo;
+      prior[static_cast<std::size_t>(k)] = span * span / 12.0;
+    }
+    // (A toy dataset may hold fewer samples than the covariance needs: no input distance then.)
+    if (!feats.empty() && feats.size() > feats.front().size() + 1)
+      est.setInputDistance(soil::PinnInputDistance::fit(feats, prior));
+  }
   saveEstimator(est, cfg.out);
   report.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
   return report;

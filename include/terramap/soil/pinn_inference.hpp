@@ -21,6 +21,8 @@
 #include <Eigen/Core>
 
 #include <array>
+#include <limits>
+#include <utility>
 #include <vector>
 
 namespace terramap::soil {
@@ -45,9 +47,52 @@ struct PinnMemberWeights {
   Eigen::VectorXf gate_b;
 };
 
+/// How far a sample's inputs lie from the training samples', and what that adds to the
+/// epistemic variance. The ensemble's members agree off the training distribution as much as on
+/// it (they extrapolate alike: the held-out soil and blade pitch had 0.7-1.4 times the test
+/// split's epistemic variance), so the spread alone cannot say "never seen". Like a Gaussian
+/// process, whose variance returns to the prior's away from its data, a sample whose features lie
+/// beyond the training samples' 99th percentile of Mahalanobis distance gets a share of each
+/// property's prior variance (its physical range's, span^2 / 12) added to the spread:
+/// share = 1 - exp(-(d^2 - q) / q) for d^2 > q, 0 within. The features (pinnInputFeatures): the
+/// sweep geometry theta_k of the last horizon step and the observations averaged over the
+/// history, both normalised as the network sees them.
+struct PinnInputDistance {
+  std::vector<double> mean;           ///< the training features' mean (n = 6 + D_o)
+  std::vector<double> whiten;         ///< row-major n x n, L^-1 with L L^T the features' covariance
+  double q = 0;                       ///< the training samples' 99th percentile of d^2
+  std::array<double, 5> prior_var{};  ///< per property, parameter units squared
+  bool empty() const { return mean.empty(); }
+  /// Squared Mahalanobis distance of `f` (n values); NaN when empty or f's size differs.
+  double d2(const std::vector<double>& f) const;
+  /// The share of the prior variance added at d2 (0..1; 0 for NaN).
+  double share(double d2) const;
+  /// Sets e.input_d2 and e.input_share from the sample's features and adds the share of the
+  /// prior variance to e.var_epistemic and e.var_total (nothing when empty).
+  void applyTo(const std::vector<double>& features, struct PinnEstimate& e) const;
+  /// From the training samples' features (each n long, n >= 1, at least n + 1 of them): mean,
+  /// covariance (+ 1e-6 of its mean diagonal, so a constant feature does not make it singular),
+  /// its Cholesky factor's inverse and the 99th percentile of the samples' d^2.
+  /// \throws std::invalid_argument on too few or ragged features.
+  static PinnInputDistance fit(const std::vector<std::vector<double>>& features, const std::array<double, 5>& prior_var);
+};
+
+/// The features PinnInputDistance measures, from one sample as PinnInference::estimate takes it
+/// (the last T of T_stored observation rows, the last of P_stored theta_k rows): theta_k
+/// normalised with theta_mean / theta_std [6], then each of the D_o observation features
+/// normalised with obs_mean / obs_std and averaged over the T rows (non-finite: 0, the mean).
+std::vector<double> pinnInputFeatures(const float* obs_raw, int T_stored, int T, int D_o, const float* obs_mean,
+                                      const float* obs_std, const float* theta_k, int P_stored,
+                                      const float* theta_mean, const float* theta_std);
+
 /// What one estimate holds (the members' aggregate, as pinn::SoilEstimate documents).
 struct PinnEstimate {
   std::array<double, 5> mean{}, var_aleatoric{}, var_nullspace{}, var_epistemic{}, var_total{};
+  /// Squared Mahalanobis distance of the sample's inputs from the training samples'
+  /// (PinnInputDistance; NaN for a model without the statistics). var_epistemic includes its
+  /// term.
+  double input_d2 = std::numeric_limits<double>::quiet_NaN();
+  double input_share = 0;  ///< PinnInputDistance::share(input_d2): the prior variance's share added
   std::array<double, 2> F_r{};                  ///< N
   std::vector<std::array<double, 2>> F;         ///< predicted force per horizon step, N
   double d_res_m = 0, beta_res_rad = 0;
@@ -68,6 +113,10 @@ class PinnInference {
   /// layer sizes that do not chain, or obs_mean/obs_std not D_o long (std > 0).
   PinnInference(std::vector<PinnMemberWeights> members, std::vector<float> obs_mean, std::vector<float> obs_std);
 
+  /// The input-distance term of the epistemic variance (empty: none, the spread alone).
+  void setInputDistance(PinnInputDistance d) { distance_ = std::move(d); }
+  const PinnInputDistance& inputDistance() const { return distance_; }
+
   int T() const { return members_.front().T; }
   int P() const { return members_.front().P; }
   std::size_t size() const { return members_.size(); }
@@ -81,6 +130,7 @@ class PinnInference {
  private:
   std::vector<PinnMemberWeights> members_;
   std::vector<float> obs_mean_, obs_std_;
+  PinnInputDistance distance_;
 };
 
 }  // namespace terramap::soil

@@ -222,6 +222,8 @@ int expectFastPathMatches(const SoilEstimator& est, const TrainingData& d) {
       for (int c = 0; c < 2; ++c)
         EXPECT_NEAR(f.F[p][c], t.F[p][c], 1e-4 * std::max(1.0, std::hypot(t.F[p][0], t.F[p][1])));
     EXPECT_NEAR(f.beta_rad, t.beta_rad, 1e-6);
+    EXPECT_EQ(std::isnan(f.input_d2), std::isnan(t.input_d2));
+    if (!std::isnan(t.input_d2)) EXPECT_NEAR(f.input_d2, t.input_d2, 1e-9 * (1.0 + t.input_d2));
     EXPECT_NEAR(f.d_res_m, t.d_res_m, 1e-7);
     EXPECT_NEAR(f.F_r[0], t.F_r[0], 1e-3);
   }
@@ -245,6 +247,38 @@ TEST(Trainer, TheTorchFreeInferenceGivesTheLibtorchEstimate) {
   const SoilEstimator trained = loadEstimator(c.out);
   EXPECT_GT(expectFastPathMatches(trained, td), td.size() / 2);
   expectFastPathMatches(trained, mixed);
+  {
+    // With the input-distance term (its statistics fitted here on standard-normal features: the
+    // toy dataset is too small to fit them): the same share in both paths, read back from a file.
+    SoilEstimator far_aware = loadEstimator(c.out);
+    std::mt19937_64 rng(4);
+    std::normal_distribution<double> N(0.0, 1.0);
+    std::vector<std::vector<double>> feats(400, std::vector<double>(6 + soil::kObsFeatures));
+    for (auto& f : feats)
+      for (double& x : f) x = N(rng);
+    far_aware.setInputDistance(soil::PinnInputDistance::fit(feats, {1e6, 0.04, 1e6, 0.04, 1e6}));
+    expectFastPathMatches(far_aware, td);
+    expectFastPathMatches(far_aware, mixed);
+    saveEstimator(far_aware, (data / "far.pt").string());
+    const SoilEstimator back = loadEstimator((data / "far.pt").string());
+    EXPECT_EQ(back.inputDistance().mean, far_aware.inputDistance().mean);
+    EXPECT_EQ(back.inputDistance().whiten, far_aware.inputDistance().whiten);
+    EXPECT_EQ(back.inputDistance().q, far_aware.inputDistance().q);
+    // A blade pitch 100 of the training's standard deviations off: nearly the whole prior is added.
+    soil::PinnSample s;
+    s.T = kT;
+    s.P = kP;
+    s.obs.assign(td.obs_raw[0].data_ptr<float>(), td.obs_raw[0].data_ptr<float>() + kT * soil::kObsFeatures);
+    s.theta_k.assign(td.theta_k[0].data_ptr<float>(), td.theta_k[0].data_ptr<float>() + kP * 6);
+    const SoilEstimate near = back.estimateFast(s);
+    const float std_rho = back.members().front()->exportWeights().theta_k_std[0];
+    for (int p = 0; p < kP; ++p) s.theta_k[static_cast<std::size_t>(p * 6)] += 100.0f * std_rho;
+    const SoilEstimate far = back.estimateFast(s), far_slow = back.estimate(s);
+    EXPECT_GT(far.input_share, 0.99);
+    EXPECT_NEAR(far.input_share, far_slow.input_share, 1e-6);
+    EXPECT_GT(far.var_epistemic[1], near.var_epistemic[1] + 0.99 * 0.04);
+    EXPECT_NEAR(far.var_total[1], far.var_nullspace[1] + far.var_epistemic[1], 1e-12);
+  }
   std::vector<PinnNet> members;
   for (int64_t seed : {5, 6, 7})
     members.emplace_back(PinnConfig{kT, kP, soil::kObsFeatures, {16, 8}, seed, BetaBase::Nominal});
@@ -289,6 +323,9 @@ TEST(DefaultModel, TheCommittedModelHasTheDocumentedSettingsAndRuns) {
   const nlohmann::json tj = nlohmann::json::parse(est.trainingJson());
   EXPECT_EQ(tj.at("train_config_hash").get<std::string>(), trainConfigHash(tc));
   EXPECT_EQ(tj.at("train_samples").get<long>(), 12439);  // the pinn_v5 dataset (docs/soil_estimator.md)
+  // The input distance fitted on those samples: the 40 features (theta_k and the observations).
+  EXPECT_EQ(est.inputDistance().mean.size(), 6u + soil::kObsFeatures);
+  EXPECT_GT(est.inputDistance().q, 0.0);
   // A plausible cut: a valid estimate inside the soil ranges, the same by both paths.
   soil::PinnSample s;
   s.T = 30;

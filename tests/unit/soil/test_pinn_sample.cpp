@@ -1,11 +1,13 @@
 // The soil estimator's input: features of an observation and the per-sweep sample
 // (soil/pinn_sample.hpp), checked against values worked out by hand.
+#include <terramap/soil/pinn_inference.hpp>
 #include <terramap/soil/pinn_sample.hpp>
 
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <random>
 
 using namespace terramap;
 using namespace terramap::soil;
@@ -164,4 +166,49 @@ TEST(PinnSample, HistoryIgnoresObservationsFromThePastAndKeepsItsCapacity) {
   ASSERT_EQ(h.rows().size(), 8u);
   EXPECT_DOUBLE_EQ(h.rows().back().stamp, 19 * kDt);
   EXPECT_DOUBLE_EQ(h.rows().front().stamp, 12 * kDt);
+}
+
+TEST(PinnInputDistance, NothingIsAddedWithinTheTrainingSamplesAndThePriorFarFromThem) {
+  // Features of a correlated Gaussian cloud (the whitening must undo the correlation): the fit's
+  // mean sits at the cloud's, its 99th percentile leaves 1 % of the samples beyond it, a point
+  // far along a direction the cloud never varies in gets almost the whole prior variance, and
+  // the share grows with the distance.
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> N(0.0, 1.0);
+  const int n = 6;
+  std::vector<std::vector<double>> f;
+  for (int s = 0; s < 2000; ++s) {
+    const double a = N(rng), b = N(rng);
+    f.push_back({a, a + 0.1 * b, 2.0 * b, N(rng), 5.0 + N(rng), 0.01 * N(rng)});
+  }
+  const std::array<double, 5> prior{1, 2, 3, 4, 5};
+  const soil::PinnInputDistance d = soil::PinnInputDistance::fit(f, prior);
+  ASSERT_EQ(d.mean.size(), static_cast<std::size_t>(n));
+  EXPECT_NEAR(d.mean[4], 5.0, 0.1);
+  EXPECT_NEAR(d.d2(d.mean), 0.0, 1e-12);
+  EXPECT_EQ(d.share(d.d2(d.mean)), 0.0);
+  long beyond = 0;
+  for (const auto& x : f) beyond += d.share(d.d2(x)) > 0;
+  EXPECT_LE(beyond, 20);  // 1 % of 2000
+  EXPECT_GE(beyond, 15);
+  // Mahalanobis, not Euclidean: 0.05 off along the direction of feature 5 (std 0.01) is far; 3
+  // along feature 1's is not.
+  std::vector<double> across = d.mean, along = d.mean;
+  across[5] += 0.05;
+  along[0] += 3.0;
+  along[1] += 3.0;
+  EXPECT_GT(d.d2(across), d.d2(along));
+  std::vector<double> far = d.mean;
+  far[5] += 1.0;  // 100 standard deviations
+  EXPECT_GT(d.share(d.d2(far)), 0.99);
+  double last = -1;
+  for (double off : {0.01, 0.03, 0.05, 0.1, 0.3}) {
+    std::vector<double> x = d.mean;
+    x[5] += off;
+    const double sh = d.share(d.d2(x));
+    EXPECT_GE(sh, last);
+    last = sh;
+  }
+  EXPECT_TRUE(std::isnan(d.d2({1.0, 2.0})));  // the wrong length
+  EXPECT_THROW(soil::PinnInputDistance::fit({{1.0, 2.0}}, prior), std::invalid_argument);
 }
