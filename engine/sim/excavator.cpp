@@ -42,19 +42,27 @@ Eigen::Vector3d BucketMesh::centroid() const {
   return {cx / (3 * a), 0.0, cz / (3 * a)};
 }
 
-double BucketMesh::sideCoverage(const Eigen::Isometry3d& T_map_bucket, double x, double y, double res,
-                                Eigen::Vector2d* to_wall) const {
-  if (to_wall) to_wall->setZero();
+BucketMesh::SideWalls BucketMesh::sideWalls(const Eigen::Isometry3d& T_map_bucket, double res) const {
+  SideWalls w;
   const Eigen::Vector3d n = T_map_bucket.linear().col(1);  // the side walls' normal
   const double nh = std::hypot(n.x(), n.y());
-  if (!(nh > 1e-9)) return 1.0;  // walls lying flat: no side in the projection
-  // Horizontal distance inside the nearer wall, and the cell's extent along the wall's normal.
-  const Eigen::Vector2d u(n.x() / nh, n.y() / nh);
-  const double along = (x - T_map_bucket.translation().x()) * u.x() + (y - T_map_bucket.translation().y()) * u.y();
-  const double inside = 0.5 * width_m * nh - std::abs(along);
-  const double extent = res * (std::abs(u.x()) + std::abs(u.y()));
+  if (!(nh > 1e-9)) return w;  // walls lying flat
+  w.flat = false;
+  w.normal = Eigen::Vector2d(n.x() / nh, n.y() / nh);
+  w.centre = T_map_bucket.translation().head<2>();
+  w.half = 0.5 * width_m * nh;
+  w.extent = res * (std::abs(w.normal.x()) + std::abs(w.normal.y()));
+  return w;
+}
+
+double BucketMesh::SideWalls::coverage(double x, double y, Eigen::Vector2d* to_wall) const {
+  if (to_wall) to_wall->setZero();
+  if (flat) return 1.0;
+  // Horizontal distance inside the nearer wall.
+  const double along = (x - centre.x()) * normal.x() + (y - centre.y()) * normal.y();
+  const double inside = half - std::abs(along);
   // A node outside the wall whose cell the bucket still covers in part: its span is the wall's.
-  if (inside < 0 && to_wall) *to_wall = (along > 0 ? -1.0 : 1.0) * (1e-9 - inside) * u;
+  if (inside < 0 && to_wall) *to_wall = (along > 0 ? -1.0 : 1.0) * (1e-9 - inside) * normal;
   return std::clamp(inside / extent + 0.5, 0.0, 1.0);
 }
 
@@ -318,6 +326,7 @@ CutResult bucketDig(TruthTerrain& terrain, const SoilField& soil, const BucketMe
   int i0, j0, i1, j1;
   if (!meshBox(terrain, mesh, T_map_bucket, i0, j0, i1, j1)) return out;
   const double a = terrain.resolution() * terrain.resolution();
+  const BucketMesh::SideWalls walls = mesh.sideWalls(T_map_bucket, terrain.resolution());
   for (int j = j0; j <= j1; ++j)
     for (int i = i0; i <= i1; ++i) {
       if (!(load.loose_m3 < room_loose_m3)) return out;
@@ -328,7 +337,7 @@ CutResult bucketDig(TruthTerrain& terrain, const SoilField& soil, const BucketMe
       // bucket as wide as a whole number of nodes, square to the grid, took a row of nodes too
       // many or too few by rounding.
       Eigen::Vector2d to_wall;
-      const double cover = mesh.sideCoverage(T_map_bucket, p.x(), p.y(), terrain.resolution(), &to_wall);
+      const double cover = walls.coverage(p.x(), p.y(), &to_wall);
       if (!(cover > 0)) continue;
       if (!mesh.verticalSpan(T_map_bucket, p.x() + to_wall.x(), p.y() + to_wall.y(), zlo, zhi)) continue;
       const double H = terrain.height(i, j), U = terrain.undisturbed(i, j), Lv = terrain.loose(i, j);

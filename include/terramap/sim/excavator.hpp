@@ -63,12 +63,20 @@ struct BucketMesh {
   /// Where the map's vertical line through (x, y) runs inside the mesh at pose T_map_bucket:
   /// [z_lo, z_hi] (map heights); false when it misses the mesh.
   bool verticalSpan(const Eigen::Isometry3d& T_map_bucket, double x, double y, double& z_lo, double& z_hi) const;
-  /// Share (0..1) of the res x res cell around (x, y) that lies between the bucket's two side
-  /// walls (their horizontal projection; linear across the cell's extent along their normal).
-  /// `to_wall` (if given): the horizontal shift that brings a point outside the walls onto the
-  /// nearer one (zero inside), where its cell's covered part takes its span.
-  double sideCoverage(const Eigen::Isometry3d& T_map_bucket, double x, double y, double res,
-                      Eigen::Vector2d* to_wall = nullptr) const;
+  /// The bucket's side walls at one pose, seen from above, for the share of a node's cell
+  /// between them (sideWalls()).
+  struct SideWalls {
+    Eigen::Vector2d centre = Eigen::Vector2d::Zero(), normal = Eigen::Vector2d::UnitY();  ///< unit, horizontal
+    double half = 0, extent = 1;  ///< half the width between the walls; a cell's extent along `normal`
+    bool flat = true;             ///< walls lying flat: no side in the projection (every share 1)
+    /// Share (0..1) of the cell around (x, y) between the walls (linear across its extent).
+    /// `to_wall` (if given): the horizontal shift that brings a point outside the walls onto the
+    /// nearer one (zero inside), where its cell's covered part takes its span.
+    double coverage(double x, double y, Eigen::Vector2d* to_wall = nullptr) const;
+  };
+  /// The side walls at T_map_bucket for cells of side `res`: a node counts its whole cell, so
+  /// without the share a node on a side wall is taken whole or not at all.
+  SideWalls sideWalls(const Eigen::Isometry3d& T_map_bucket, double res) const;
 };
 
 /// The mesh of an arm spec (its profile, or the default one from bucket_m and bucket_depth_m).
