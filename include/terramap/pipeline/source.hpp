@@ -18,6 +18,11 @@
 
 namespace terramap {
 
+/// Threading: runPipeline with two threads or more calls next() and progress() on a thread of
+/// its own, ahead of the stages (never two calls at once, always from that one thread);
+/// dropped() and truth() are called on the caller's thread once next() has returned false, or
+/// between events when a report series compares the map with the truth (then next() runs on the
+/// caller's thread too). A source that shares state with a RunOptions callback must guard it.
 class TERRAMAP_API Source {
  public:
   virtual ~Source();
