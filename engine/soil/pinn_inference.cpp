@@ -240,6 +240,16 @@ std::vector<double> pinnInputFeatures(const float* obs_raw, int T_stored, int T,
   return f;
 }
 
+void PinnInference::applyInputDistance(const float* obs_raw, int T_stored, const float* theta_k, int P_stored,
+                                       PinnEstimate& e) const {
+  if (distance_.empty()) return;
+  // Every member was trained with the same theta_k normalisation.
+  const PinnMemberWeights& m0 = members_.front();
+  distance_.applyTo(pinnInputFeatures(obs_raw, T_stored, T(), m0.D_o, obs_mean_.data(), obs_std_.data(), theta_k,
+                                      P_stored, m0.theta_k_mean.data(), m0.theta_k_std.data()),
+                    e);
+}
+
 PinnEstimate PinnInference::estimate(const float* obs_raw, int T_stored, const float* theta_k, int P_stored,
                                      const PinnInferenceOptions& opt) const {
   PinnEstimate e;
@@ -281,12 +291,7 @@ PinnEstimate PinnInference::estimate(const float* obs_raw, int T_stored, const f
     e.var_epistemic[ku] = sq[k] / M;  // population variance, as the libtorch path
     e.var_total[ku] = e.var_nullspace[ku] + e.var_epistemic[ku];
   }
-  if (!distance_.empty()) {
-    const PinnMemberWeights& m0 = members_.front();
-    distance_.applyTo(pinnInputFeatures(obs_raw, T_stored, T, D, obs_mean_.data(), obs_std_.data(), theta_k, P_stored,
-                                        m0.theta_k_mean.data(), m0.theta_k_std.data()),
-                      e);
-  }
+  applyInputDistance(obs_raw, T_stored, theta_k, P_stored, e);
   e.F_r = {fr.x() / M, fr.y() / M};
   for (const auto& f : F) e.F.push_back({f.x() / M, f.y() / M});
   e.d_res_m /= M;

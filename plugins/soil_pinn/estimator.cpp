@@ -38,7 +38,6 @@ SoilEstimator::SoilEstimator(std::vector<PinnNet> members, std::vector<float> ob
     if (!(s > 0) || !std::isfinite(s)) throw std::invalid_argument("SoilEstimator: observation std must be > 0");
   std::vector<soil::PinnMemberWeights> weights;
   for (const PinnNet& m : members_) weights.push_back(m->exportWeights());
-  weights0_ = weights.front();
   fast_ = soil::PinnInference(std::move(weights), obs_mean_, obs_std_);
   const at::Tensor sa = defaultAmbiguityVariance();
   for (int k = 0; k < kSoilCount; ++k) ambiguity_var_[static_cast<std::size_t>(k)] = sa[k].item<double>();
@@ -125,23 +124,10 @@ std::vector<SoilEstimate> SoilEstimator::estimate(const float* obs_raw, const fl
     e.beta_rad = beta_a[b];
     e.valid_members = static_cast<int>(nv[b]);
     e.valid = 2 * e.valid_members > M;
-    applyInputDistance(obs_raw + b * T_stored * weights0_.D_o, T_stored, theta_k + b * P_stored * 6, P_stored, e);
+    fast_.applyInputDistance(obs_raw + b * T_stored * members_.front()->config().D_o, T_stored,
+                             theta_k + b * P_stored * 6, P_stored, e);
   }
   return res;
-}
-
-void SoilEstimator::setInputDistance(soil::PinnInputDistance d) {
-  distance_ = d;
-  fast_.setInputDistance(std::move(d));
-}
-
-void SoilEstimator::applyInputDistance(const float* obs_raw, int T_stored, const float* theta_k, int P_stored,
-                                       SoilEstimate& e) const {
-  if (distance_.empty()) return;
-  const soil::PinnMemberWeights& m0 = weights0_;
-  distance_.applyTo(soil::pinnInputFeatures(obs_raw, T_stored, T(), m0.D_o, obs_mean_.data(), obs_std_.data(), theta_k,
-                                            P_stored, m0.theta_k_mean.data(), m0.theta_k_std.data()),
-                    e);
 }
 
 SoilEstimate SoilEstimator::estimate(const soil::PinnSample& s, const NullspaceTolerances& tol) const {

@@ -67,18 +67,14 @@ class SoilEstimator {
 
   /// The input-distance term of the epistemic variance (soil::PinnInputDistance; empty: none),
   /// for both estimate() and estimateFast(). The trainer fits it on the training split.
-  void setInputDistance(soil::PinnInputDistance d);
-  const soil::PinnInputDistance& inputDistance() const { return distance_; }
+  void setInputDistance(soil::PinnInputDistance d) { fast_.setInputDistance(std::move(d)); }
+  const soil::PinnInputDistance& inputDistance() const { return fast_.inputDistance(); }
 
  private:
-  /// Adds the input-distance term to `e` (one sample's raw arrays, as estimate() takes them).
-  void applyInputDistance(const float* obs_raw, int T_stored, const float* theta_k, int P_stored, SoilEstimate& e) const;
   std::vector<PinnNet> members_;
   std::vector<float> obs_mean_, obs_std_;
   std::string training_json_;
   soil::PinnInference fast_;
-  soil::PinnMemberWeights weights0_;  ///< the first member's (its theta_k normalisation)
-  soil::PinnInputDistance distance_;
   std::array<double, kSoilCount> ambiguity_var_{};  ///< defaultAmbiguityVariance()
 };
 

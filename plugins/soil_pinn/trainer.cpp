@@ -194,6 +194,29 @@ bool loadCheckpoint(const fs::path& path, const std::string& hash, PinnNet& net,
   return true;
 }
 
+/// The input distance of the epistemic variance (soil::PinnInputDistance) fitted on the
+/// training split's samples, each property's prior variance its range's (uniform: span^2 / 12);
+/// empty when the split holds fewer samples than the covariance needs (a toy dataset).
+soil::PinnInputDistance fitInputDistance(const TrainingData& data, const std::vector<long>& train_idx, int T,
+                                         const std::vector<float>& obs_mean, const std::vector<float>& obs_std,
+                                         const std::vector<float>& th_mean, const std::vector<float>& th_std) {
+  const at::Tensor oc = data.obs_raw.contiguous(), tc = data.theta_k.contiguous();
+  const int Ts = static_cast<int>(oc.size(1)), Ds = static_cast<int>(oc.size(2)), Ps = static_cast<int>(tc.size(1));
+  if (train_idx.size() < static_cast<std::size_t>(6 + Ds + 1)) return {};
+  std::vector<std::vector<double>> feats;
+  feats.reserve(train_idx.size());
+  for (long i : train_idx)
+    feats.push_back(soil::pinnInputFeatures(oc.data_ptr<float>() + i * Ts * Ds, Ts, T, Ds, obs_mean.data(),
+                                            obs_std.data(), tc.data_ptr<float>() + i * Ps * 6, Ps, th_mean.data(),
+                                            th_std.data()));
+  std::array<double, 5> prior{};
+  for (int k = 0; k < kSoilCount; ++k) {
+    const double span = kSoilRanges[k].hi - kSoilRanges[k].lo;
+    prior[static_cast<std::size_t>(k)] = span * span / 12.0;
+  }
+  return soil::PinnInputDistance::fit(feats, prior);
+}
+
 }  // namespace
 
 TrainReport trainEnsemble(const TrainConfig& cfg,
@@ -304,26 +327,7 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   for (const MemberReport& r : report.members)
     tj["members"].push_back({{"epochs", r.epochs}, {"best_epoch", r.best_epoch}, {"best_validation_loss", r.best_validation_loss}});
   SoilEstimator est(best_members, obs_mean, obs_std, tj.dump());
-  // The input distance of the epistemic variance (soil::PinnInputDistance), on the training
-  // split's samples; the prior variance of a property is its range's (uniform: span^2 / 12).
-  {
-    const at::Tensor oc = data.obs_raw.contiguous(), tc = data.theta_k.contiguous();
-    const int Ts = static_cast<int>(oc.size(1)), Ds = static_cast<int>(oc.size(2)), Ps = static_cast<int>(tc.size(1));
-    std::vector<std::vector<double>> feats;
-    feats.reserve(train_idx.size());
-    for (long i : train_idx)
-      feats.push_back(soil::pinnInputFeatures(oc.data_ptr<float>() + i * Ts * Ds, Ts, cfg.T, Ds, obs_mean.data(),
-                                              obs_std.data(), tc.data_ptr<float>() + i * Ps * 6, Ps, th_mean.data(),
-                                              th_std.data()));
-    std::array<double, 5> prior{};
-    for (int k = 0; k < kSoilCount; ++k) {
-      const double span = kSoilRanges[k].hi - kSoilRanges[k].lo;
-      prior[static_cast<std::size_t>(k)] = span * span / 12.0;
-    }
-    // (A toy dataset may hold fewer samples than the covariance needs: no input distance then.)
-    if (!feats.empty() && feats.size() > feats.front().size() + 1)
-      est.setInputDistance(soil::PinnInputDistance::fit(feats, prior));
-  }
+  est.setInputDistance(fitInputDistance(data, train_idx, cfg.T, obs_mean, obs_std, th_mean, th_std));
   saveEstimator(est, cfg.out);
   report.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
   return report;

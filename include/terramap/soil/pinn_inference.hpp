@@ -116,6 +116,9 @@ class PinnInference {
   /// The input-distance term of the epistemic variance (empty: none, the spread alone).
   void setInputDistance(PinnInputDistance d) { distance_ = std::move(d); }
   const PinnInputDistance& inputDistance() const { return distance_; }
+  /// Adds that term to `e`, an estimate of the sample (obs_raw, theta_k) as estimate() takes it
+  /// (the libtorch path's aggregate gets it here too, so both measure the same features).
+  void applyInputDistance(const float* obs_raw, int T_stored, const float* theta_k, int P_stored, PinnEstimate& e) const;
 
   int T() const { return members_.front().T; }
   int P() const { return members_.front().P; }
