@@ -93,14 +93,11 @@ class ScanObstacles {
  public:
   /// Keeps the boxes within `max_range` of `o` (buffers reused from scan to scan).
   /// With `camera` (a depth camera's spec), also each box's pixel rectangle (cameraRow, hit).
-  /// `elevations`: a LiDAR's beam elevations (rad, ascending, beam order), null for a camera.
+  /// `beam_slopes`: a LiDAR's tan(beam elevation), ascending in beam order (null for a camera).
   void prepare(const std::vector<PlacedBox>* obstacles, const Eigen::Vector3d& o, const Eigen::Matrix3d& R,
                double max_range, const SensorSpec* camera = nullptr, double z_near = 0,
-               const std::vector<double>* elevations = nullptr) {
-    elevations_ = elevations;
-    slopes_.clear();
-    if (elevations)
-      for (double e : *elevations) slopes_.push_back(std::tan(e));
+               const std::vector<double>* beam_slopes = nullptr) {
+    slopes_ = beam_slopes;
     boxes_.clear();
     corners_.clear();
     cs_.clear();
@@ -112,7 +109,7 @@ class ScanObstacles {
       if ((b.centre - o).norm() - b.radius > max_range) continue;
       boxes_.push_back(b);
       cs_.push_back(R.transpose() * (b.centre - o));  // sphere centre, sensor frame, origin-relative
-      if (elevations) {
+      if (slopes_) {
         const Eigen::Matrix3d Rs = R.transpose() * b.R;
         std::array<Eigen::Vector3d, 8> c;
         for (int k = 0; k < 8; ++k)
@@ -129,11 +126,12 @@ class ScanObstacles {
 
   /// The candidates of scan row `row` (a LiDAR's column, a camera's image row) whose first
   /// sensor-frame ray is `d0`: for all rays (`all`) and for upward rays (`up`); each sized size().
-  /// For a LiDAR column also, per box, the beams [beams[q][0], beams[q][1]] that can reach it.
+  /// Per candidate box q also the rays of the row that can reach it, [spans[q][0], spans[q][1]]:
+  /// a LiDAR column's beams, a camera row's pixel columns.
   void row(int row, const Eigen::Vector3d& d0, std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up,
-           std::vector<std::array<int, 2>>& beams) const {
-    if (camera_) cameraRow(row, d0.y() / d0.z(), all, n_all, up, n_up);
-    else column(d0, all, n_all, up, n_up, beams);
+           std::vector<std::array<int, 2>>& spans) const {
+    if (camera_) cameraRow(row, d0.y() / d0.z(), all, n_all, up, n_up, spans);
+    else column(d0, all, n_all, up, n_up, spans);
   }
 
  private:
@@ -143,7 +141,7 @@ class ScanObstacles {
   /// ahead (along >= 0), so a beam reaches the slice iff its elevation lies within the angles
   /// the slice's part ahead spans from the origin (all of them if the slice holds the origin).
   void column(const Eigen::Vector3d& d0, std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up,
-              std::vector<std::array<int, 2>>& beams) const {
+              std::vector<std::array<int, 2>>& spans) const {
     n_all = n_up = 0;
     const double hx = d0.x(), hy = d0.y(), hn = std::hypot(hx, hy);
     const double ux = hx / hn, uy = hy / hn;
@@ -153,8 +151,8 @@ class ScanObstacles {
       const double across = -uy * cs.x() + ux * cs.y(), along = ux * cs.x() + uy * cs.y();
       if (std::abs(across) > r || along < -r) continue;
       std::array<int, 2> span{0, std::numeric_limits<int>::max()};
-      if (elevations_ && !slice(corners_[q], ux, uy, span)) continue;
-      beams[q] = span;
+      if (slopes_ && !slice(corners_[q], ux, uy, span)) continue;
+      spans[q] = span;
       all[n_all++] = static_cast<int>(q);
       if (top_[q] >= oz_) up[n_up++] = static_cast<int>(q);
     }
@@ -208,10 +206,10 @@ class ScanObstacles {
     }
     if (!(lo <= hi)) return false;  // wholly behind
     // A hair wider than the slopes against rounding.
-    const auto first = std::lower_bound(slopes_.begin(), slopes_.end(), lo - kEps * (1.0 + std::abs(lo)));
-    const auto last = std::upper_bound(slopes_.begin(), slopes_.end(), hi + kEps * (1.0 + std::abs(hi)));
+    const auto first = std::lower_bound(slopes_->begin(), slopes_->end(), lo - kEps * (1.0 + std::abs(lo)));
+    const auto last = std::upper_bound(slopes_->begin(), slopes_->end(), hi + kEps * (1.0 + std::abs(hi)));
     if (first == last) return false;
-    span = {static_cast<int>(first - slopes_.begin()), static_cast<int>(last - slopes_.begin()) - 1};
+    span = {static_cast<int>(first - slopes_->begin()), static_cast<int>(last - slopes_->begin()) - 1};
     return true;
   }
 
@@ -220,7 +218,8 @@ class ScanObstacles {
   /// sphere meets the row's half-plane (normal (0, -1, a) through the origin, z > 0). The plane
   /// test culls the boxes that reach behind the camera (the machine it rides on), which get the
   /// whole image as their rectangle.
-  void cameraRow(int v, double a, std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up) const {
+  void cameraRow(int v, double a, std::vector<int>& all, int& n_all, std::vector<int>& up, int& n_up,
+                 std::vector<std::array<int, 2>>& spans) const {
     n_all = n_up = 0;
     const double inv = 1.0 / std::sqrt(1.0 + a * a);
     for (std::size_t q = 0; q < boxes_.size(); ++q) {
@@ -228,34 +227,26 @@ class ScanObstacles {
       const Eigen::Vector3d& cs = cs_[q];
       const double r = boxes_[q].radius;
       if (std::abs(a * cs.z() - cs.y()) * inv > r || cs.z() < -r) continue;
+      spans[q] = {rect_[q][0], rect_[q][1]};
       all[n_all++] = static_cast<int>(q);
       if (top_[q] >= oz_) up[n_up++] = static_cast<int>(q);
     }
   }
 
  public:
-  /// First box entry of the ray o + t dm in [t_min, t_max] among its row's candidates (row());
-  /// for a camera only those whose pixel rectangle holds the ray's pixel column `u`, gathered in
-  /// `px` (scratch sized size()). +inf when none.
-  /// For a LiDAR, `u` is the beam and only the boxes whose beam range holds it are tried.
+  /// First box entry of the ray o + t dm in [t_min, t_max] among its row's candidates (row()):
+  /// only those whose span (row()) holds the ray's index `u` in the row (its beam, its pixel
+  /// column), gathered in `px` (scratch sized size()). +inf when none.
   double hit(const Eigen::Vector3d& o, const Eigen::Vector3d& dm, double t_min, double t_max, const std::vector<int>& all,
              int n_all, const std::vector<int>& up, int n_up, int u, std::vector<int>& px,
-             const std::vector<std::array<int, 2>>& beams, Eigen::Vector3d* normal) const {
+             const std::vector<std::array<int, 2>>& spans, Eigen::Vector3d* normal) const {
     const bool upward = dm.z() >= 0.0;
     const int* idx = upward ? up.data() : all.data();
-    int n = upward ? n_up : n_all;
-    if (n > 0) {
-      int m = 0;
-      if (camera_) {
-        for (int k = 0; k < n; ++k)
-          if (u >= rect_[idx[k]][0] && u <= rect_[idx[k]][1]) px[m++] = idx[k];
-      } else {
-        for (int k = 0; k < n; ++k)
-          if (u >= beams[idx[k]][0] && u <= beams[idx[k]][1]) px[m++] = idx[k];
-      }
-      idx = px.data();
-      n = m;
-    }
+    const int n_row = upward ? n_up : n_all;
+    int n = 0;
+    for (int k = 0; k < n_row; ++k)
+      if (u >= spans[idx[k]][0] && u <= spans[idx[k]][1]) px[n++] = idx[k];
+    idx = px.data();
     if (n == 0) return std::numeric_limits<double>::infinity();
     return firstBoxHit(boxes_.data(), idx, n, o, dm, t_min, t_max, normal);
   }
@@ -295,8 +286,7 @@ class ScanObstacles {
   }
 
   bool camera_ = false;
-  const std::vector<double>* elevations_ = nullptr;
-  std::vector<double> slopes_;  ///< tan of the beam elevations (ascending)
+  const std::vector<double>* slopes_ = nullptr;  ///< a LiDAR's tan(beam elevation), ascending
   std::vector<PlacedBox> boxes_;
   std::vector<std::array<Eigen::Vector3d, 8>> corners_;  ///< a LiDAR scan's: each box's, sensor frame
   std::vector<std::array<int, 4>> rect_;
@@ -355,7 +345,10 @@ LidarModel::LidarModel(const SensorSpec& spec) : spec_(spec), scratch_(std::make
       const double el = B == 1 ? 0.5 * (spec.vfov_min_rad + spec.vfov_max_rad)
                                : spec.vfov_min_rad + b * (spec.vfov_max_rad - spec.vfov_min_rad) / (B - 1);
       dirs_.emplace_back(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
-      if (c == 0) elevations_.push_back(el);
+      if (c == 0) {
+        elevations_.push_back(el);
+        beam_slopes_.push_back(std::tan(el));
+      }
     }
   }
 }
@@ -435,7 +428,7 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
   if (static_cast<int>(parts.size()) < chunks) parts.resize(chunks);
   const ScanCaster& cast = caster;
   ScanObstacles& boxes = scratch_->obstacles;
-  boxes.prepare(obstacles, o, R, t_max, camera_ ? &spec_ : nullptr, z_near_, camera_ ? nullptr : &elevations_);
+  boxes.prepare(obstacles, o, R, t_max, camera_ ? &spec_ : nullptr, z_near_, camera_ ? nullptr : &beam_slopes_);
   const std::size_t nbox = boxes.size();
   auto work = [&](int ch) {
     std::vector<PointXYZI>& pts = parts[ch];
@@ -450,11 +443,11 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
     std::vector<Eigen::Vector3d> dm_may(B);
     std::vector<int> may_idx(B);
     std::vector<int> cand(nbox), cand_up(nbox), px(nbox);
-    std::vector<std::array<int, 2>> beams(nbox);
+    std::vector<std::array<int, 2>> spans(nbox);
     for (int c = c0; c < c1; ++c) {
       // Boxes this row can reach; of those, the ones an upward ray can reach.
       int n_cand = 0, n_up = 0;
-      if (nbox > 0) boxes.row(c, dirs_[static_cast<std::size_t>(c) * B], cand, n_cand, cand_up, n_up, beams);
+      if (nbox > 0) boxes.row(c, dirs_[static_cast<std::size_t>(c) * B], cand, n_cand, cand_up, n_up, spans);
       // Rays that cannot hit (upwards from above the terrain: half of a spinning LiDAR's) are
       // settled here; the rest are cast as one batch.
       int n_may = 0;
@@ -483,7 +476,7 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
         hit.cj = cj_col[b];
         // A machine in front of the terrain hit (or in a ray that misses the terrain) wins.
         const double t_box = boxes.hit(o, dm_col[b], spec_.min_range_m, std::isnan(hit.t) ? t_max : hit.t, cand, n_cand,
-                                       cand_up, n_up, b, px, beams, &hit.normal);
+                                       cand_up, n_up, b, px, spans, &hit.normal);
         if (t_box < std::numeric_limits<double>::infinity()) {
           hit.t = t_box;
           hit.on_machine = true;

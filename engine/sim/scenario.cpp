@@ -16,8 +16,8 @@
 #include <exception>
 #include <filesystem>
 #include <fstream>
-#include <random>
 #include <optional>
+#include <random>
 #include <set>
 #include <sstream>
 

@@ -75,6 +75,7 @@ class LidarModel {
   SensorSpec spec_;
   std::vector<Eigen::Vector3d> dirs_;
   std::vector<double> elevations_;  ///< beam elevations (rad); empty for a depth camera
+  std::vector<double> beam_slopes_;  ///< their tangents (the machine boxes' per-beam culling)
   int B_ = 0, C_ = 0;               ///< rays per chunked row (beams / pixels of an image row), rows
   bool camera_ = false;
   double t_max_ = 0;

@@ -20,8 +20,6 @@ class NodeTiles {
   NodeTiles(int nx = 0, int ny = 0, T fill = T{}) { reset(nx, ny, fill); }
 
   void reset(int nx, int ny, T fill) {
-    nx_ = nx;
-    ny_ = ny;
     fill_ = fill;
     tx_ = (nx + kTile - 1) / kTile;
     const int ty = (ny + kTile - 1) / kTile;
@@ -60,8 +58,6 @@ class NodeTiles {
   NodeTiles(const NodeTiles& o) { *this = o; }
   NodeTiles& operator=(const NodeTiles& o) {
     if (this == &o) return *this;
-    nx_ = o.nx_;
-    ny_ = o.ny_;
     tx_ = o.tx_;
     fill_ = o.fill_;
     tiles_.clear();
@@ -82,7 +78,7 @@ class NodeTiles {
   }
   static std::size_t inTile(int i, int j) { return static_cast<std::size_t>((j % kTile) * kTile + (i % kTile)); }
 
-  int nx_ = 0, ny_ = 0, tx_ = 0;
+  int tx_ = 0;  ///< tiles per row
   T fill_{};
   std::vector<std::unique_ptr<T[]>> tiles_;
 };

@@ -31,6 +31,15 @@ PlacedBox boxAt(const Eigen::Vector3d& centre, const Eigen::Vector3d& half, doub
   return out.front();
 }
 
+/// An OS1-64 at 512 columns without range noise (the exact geometry the tests compare).
+SensorSpec noiselessOs1() {
+  SensorSpec ss;
+  applyLidarPreset("os1_64", ss);
+  ss.range_noise_m = 0;
+  ss.columns = 512;
+  return ss;
+}
+
 }  // namespace
 
 TEST(MachineShape, RayEntersABoxWhereTheAnalyticSlabsSay) {
@@ -66,11 +75,7 @@ TEST(MachineShape, RayEntersABoxWhereTheAnalyticSlabsSay) {
 
 TEST(MachineShape, ABoxHidesTheGroundBehindItAndReturnsPointsOnItself) {
   const TruthTerrain t = test::flatTerrain40m();
-  SensorSpec ss;
-  applyLidarPreset("os1_64", ss);
-  ss.range_noise_m = 0;
-  ss.columns = 512;
-  const LidarModel L(ss);
+  const LidarModel L(noiselessOs1());
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
   T.translation() = Eigen::Vector3d(0, 0, 2.0);
   // A wall 3 m ahead: x in [3, 3.2], y in [-1, 1], z in [0, 1.5] (a blade-sized obstacle).
@@ -223,10 +228,7 @@ TEST(MachineShape, AColumnsBeamRangesKeepEveryRayThatHitsABox) {
   // a tilted 64-beam sensor, above, below, behind, astride its vertical and around it, turned
   // every way; the organised, noise-free cloud must be the same ray for ray.
   const TruthTerrain t = test::flatTerrain40m();
-  SensorSpec ss;
-  applyLidarPreset("os1_64", ss);
-  ss.columns = 512;
-  ss.range_noise_m = 0;
+  SensorSpec ss = noiselessOs1();
   ss.dropout = 0;
   ss.keep_dropouts = true;
   const LidarModel L(ss);
