@@ -44,22 +44,84 @@ const CrcTables& crcTables() {
 
 }  // namespace
 
-std::uint64_t crc64(const void* data, std::size_t n, std::uint64_t crc) {
+namespace {
+
+/// One slicing-by-8 step: 8 bytes folded into the (pre-conditioned) register c.
+inline std::uint64_t crcStep8(const std::uint64_t (&T)[8][256], std::uint64_t c, const unsigned char* p) {
+  // Byte-wise assembly keeps this independent of host endianness (compilers make it one load).
+  std::uint64_t w = 0;
+  for (int k = 7; k >= 0; --k) w = (w << 8) | p[k];
+  c ^= w;
+  return T[7][c & 0xFF] ^ T[6][(c >> 8) & 0xFF] ^ T[5][(c >> 16) & 0xFF] ^ T[4][(c >> 24) & 0xFF] ^
+         T[3][(c >> 32) & 0xFF] ^ T[2][(c >> 40) & 0xFF] ^ T[1][(c >> 48) & 0xFF] ^ T[0][c >> 56];
+}
+
+/// The table-driven CRC (one stream).
+std::uint64_t crc64Serial(const unsigned char* p, std::size_t n, std::uint64_t crc) {
   const auto& T = crcTables().t;
-  const auto* p = static_cast<const unsigned char*>(data);
   std::uint64_t c = ~crc;
-  while (n >= 8) {
-    // Byte-wise assembly keeps this independent of host endianness.
-    std::uint64_t w = 0;
-    for (int k = 7; k >= 0; --k) w = (w << 8) | p[k];
-    c ^= w;
-    c = T[7][c & 0xFF] ^ T[6][(c >> 8) & 0xFF] ^ T[5][(c >> 16) & 0xFF] ^ T[4][(c >> 24) & 0xFF] ^
-        T[3][(c >> 32) & 0xFF] ^ T[2][(c >> 40) & 0xFF] ^ T[1][(c >> 48) & 0xFF] ^ T[0][c >> 56];
-    p += 8;
-    n -= 8;
-  }
+  for (; n >= 8; p += 8, n -= 8) c = crcStep8(T, c, p);
   while (n-- > 0) c = T[0][(c ^ *p++) & 0xFF] ^ (c >> 8);
   return ~c;
+}
+
+/// a(x) b(x) mod P(x) in the reflected representation (bit 63 is x^0), as zlib's multmodp.
+std::uint64_t mulModP(std::uint64_t a, std::uint64_t b) {
+  std::uint64_t m = std::uint64_t{1} << 63, p = 0;
+  for (;;) {
+    if (a & m) {
+      p ^= b;
+      if ((a & (m - 1)) == 0) break;
+    }
+    m >>= 1;
+    b = (b & 1) ? (b >> 1) ^ kCrcPoly : b >> 1;
+  }
+  return p;
+}
+
+/// x^(8 n) mod P: the operator that moves a CRC past n zero bytes (squarings of x^8).
+std::uint64_t xPow8nModP(std::uint64_t n) {
+  std::uint64_t p = std::uint64_t{1} << 63;  // x^0
+  std::uint64_t sq = std::uint64_t{1} << (63 - 8);  // x^8
+  while (n) {
+    if (n & 1) p = mulModP(sq, p);
+    n >>= 1;
+    if (n) sq = mulModP(sq, sq);
+  }
+  return p;
+}
+
+}  // namespace
+
+std::uint64_t crc64Combine(std::uint64_t crc_a, std::uint64_t crc_b, std::size_t len_b) {
+  return mulModP(xPow8nModP(len_b), crc_a) ^ crc_b;
+}
+
+std::uint64_t crc64(const void* data, std::size_t n, std::uint64_t crc) {
+  const auto* p = static_cast<const unsigned char*>(data);
+  // Long inputs (a sealed episode is read through here, hundreds of MB) run as four
+  // independent streams over consecutive quarters, interleaved in one loop: a single stream is
+  // bound by the latency of its table look-ups (each step needs the previous register), four
+  // keep the load ports busy (measured: 1.45 -> 3.9 GB/s on the Xeon VM of BENCHMARKS.md).
+  // The quarters' CRCs are then combined (crc64Combine), so the value is the serial one.
+  constexpr std::size_t kStreams = 4, kMinParallel = 1 << 16;
+  if (n < kMinParallel) return crc64Serial(p, n, crc);
+  const std::size_t quarter = (n / kStreams) & ~std::size_t{7};
+  const auto& T = crcTables().t;
+  std::uint64_t c[kStreams] = {~crc, ~std::uint64_t{0}, ~std::uint64_t{0}, ~std::uint64_t{0}};
+  const unsigned char* q[kStreams] = {p, p + quarter, p + 2 * quarter, p + 3 * quarter};
+  for (std::size_t off = 0; off < quarter; off += 8) {
+    c[0] = crcStep8(T, c[0], q[0] + off);
+    c[1] = crcStep8(T, c[1], q[1] + off);
+    c[2] = crcStep8(T, c[2], q[2] + off);
+    c[3] = crcStep8(T, c[3], q[3] + off);
+  }
+  std::uint64_t out = ~c[0];
+  for (std::size_t s = 1; s + 1 < kStreams; ++s) out = crc64Combine(out, ~c[s], quarter);
+  // The last stream also takes the remainder after the four quarters.
+  const std::size_t tail = n - kStreams * quarter;
+  const std::uint64_t last = crc64Serial(q[3] + quarter, tail, ~c[3]);
+  return crc64Combine(out, last, quarter + tail);
 }
 
 namespace {

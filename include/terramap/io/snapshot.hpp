@@ -64,6 +64,9 @@ inline constexpr std::size_t kSnapshotHeaderBytes = 72;
 
 /// CRC-64/XZ, continuable like zlib's crc32: crc64(b, nb, crc64(a, na)) == crc64(a+b).
 std::uint64_t crc64(const void* data, std::size_t n, std::uint64_t crc = 0);
+/// The CRC of a followed by b from crc64(a) and crc64(b) (b len_b bytes long), as zlib's
+/// crc32_combine: crc64Combine(crc64(a, na), crc64(b, nb), nb) == crc64(a+b). O(log len_b).
+std::uint64_t crc64Combine(std::uint64_t crc_a, std::uint64_t crc_b, std::size_t len_b);
 
 /// Writes `map` to `path` atomically (atomic_file.hpp): the old file stays intact on failure.
 /// \throws OutputError naming the path and the system error; OutputError if a layer name or
