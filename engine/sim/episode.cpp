@@ -355,6 +355,12 @@ struct MachineSets {
 }  // namespace
 
 struct EpisodeWriter::Impl {
+  /// Snapshot grids the writer thread is done with, for the next snapshot: a fresh pair of
+  /// 2-cm grids is tens of MB of zeroed pages, faulted in on the simulating thread every second.
+  /// Declared before the writer, so they outlive the jobs it may still hold when it goes.
+  using Grids = std::array<std::vector<float>, 2>;
+  std::mutex grid_pool_mutex;
+  std::vector<std::unique_ptr<Grids>> grid_pool;
   WriterThread writer;  // started once the file is laid out; stopped by closeAll() before any other HDF5 call
   std::string final_path, tmp_path;
   EpisodeOptions opt;
@@ -368,24 +374,42 @@ struct EpisodeWriter::Impl {
   std::map<std::string, std::size_t> machine_index;
   bool closed = false;
 
+  /// The terrain now, as float grids handed to the writer thread. This runs on the simulating
+  /// thread between two periods, so it only converts (the node arrays are row-major like the
+  /// grids); the change detection, shuffling and deflating happen on the writer thread.
   void snapshot(const Simulator& sim) {
     const TruthTerrain& t = sim.truth();
-    std::vector<float> h(static_cast<std::size_t>(nx) * ny), l(h.size());
-    for (int j = 0; j < ny; ++j)
-      for (int i = 0; i < nx; ++i) {
-        h[static_cast<std::size_t>(j) * nx + i] = static_cast<float>(t.height(i, j));
-        l[static_cast<std::size_t>(j) * nx + i] = static_cast<float>(t.loose(i, j));
+    const std::size_t n = static_cast<std::size_t>(nx) * static_cast<std::size_t>(ny);
+    std::unique_ptr<Grids> grids;
+    {
+      const std::lock_guard<std::mutex> lock(grid_pool_mutex);
+      if (!grid_pool.empty()) {
+        grids = std::move(grid_pool.back());
+        grid_pool.pop_back();
       }
+    }
+    if (!grids) grids = std::make_unique<Grids>();
+    (*grids)[0].resize(n);
+    (*grids)[1].resize(n);
+    const double* H = t.heightData().data();
+    const double* L = t.looseData().data();
+    float* h = (*grids)[0].data();
+    float* l = (*grids)[1].data();
+    for (std::size_t k = 0; k < n; ++k) h[k] = static_cast<float>(H[k]);
+    for (std::size_t k = 0; k < n; ++k) l[k] = static_cast<float>(L[k]);
     const double st = sim.time();
     snap_stamp.append(&st);
-    auto grids = std::make_shared<std::array<std::vector<float>, 2>>();
-    (*grids)[0] = std::move(h);
-    (*grids)[1] = std::move(l);
-    auto job = [this, grids] {
-      snap_height.write((*grids)[0]);
-      snap_loose.write((*grids)[1]);
+    // std::function needs a copyable job: the grids travel as a shared pointer and go back to
+    // the pool once written.
+    auto held = std::shared_ptr<Grids>(grids.release(), [this](Grids* g) {
+      const std::lock_guard<std::mutex> lock(grid_pool_mutex);
+      grid_pool.emplace_back(g);
+    });
+    auto job = [this, held] {
+      snap_height.write((*held)[0]);
+      snap_loose.write((*held)[1]);
     };
-    writer.submit(job, 2 * (*grids)[0].size() * sizeof(float));
+    writer.submit(job, 2 * n * sizeof(float));
     last_snapshot_t = st;
   }
   void closeAll() {
