@@ -46,13 +46,15 @@ ParamSchema SoilBayes::schema() const {
       param::real("c_s", d.c_s, 0.0, 50.0, "1",
                   "C_s: the estimate's variance grows by exp(C_s x / x_max) with the distance x into the wedge"),
       param::real("x_min_m", d.x_min_m, 0.0, 100.0, "m", "the wedge reaches at least this far ahead of the blade"),
-      param::text("prior", "config", {"config", "none"},
-                  "a cell's first estimate is fused with the prior_* beliefs (config) or taken as is (none)"),
+      param::text("prior", "none", {"config", "none"},
+                  "a cell's first estimate is taken as is (none: the estimator's variance already holds the "
+                  "prior's where the force cannot tell the property) or fused with the prior_* beliefs "
+                  "(config: knowledge of the site)"),
       param::real("cut_depth_m", d.cut_depth_m, 1e-3, 100.0, "m",
                   "a cut this much below the surface the soil was fused at inflates the variances "
                   "by exp(depth / cut_depth_m)"),
   };
-  soil::addPriorParams(s, "in a cell no estimate reached yet");
+  soil::addPriorParams(s, "in a cell no estimate reached yet (with prior: config)");
   return s;
 }
 

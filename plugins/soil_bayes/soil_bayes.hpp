@@ -56,7 +56,9 @@ double wedgeLength(double d_m, double d_res_m, double alpha_rad, double beta_rad
 struct SoilBayesConfig {
   double c_s = 1.0;             ///< C_s: variance inflation with distance into the wedge
   double x_min_m = 0.1;         ///< the wedge reaches at least this far ahead of the blade
-  bool use_prior = true;        ///< false (`prior: none`): a cell's first estimate is taken as is
+  /// false (`prior: none`, the default): a cell's first estimate is taken as is; true (`prior:
+  /// config`): it is fused with prior_mean / prior_var (README, "Why no prior by default").
+  bool use_prior = false;
   SoilEstimateRecord::SoilVector prior_mean{};  ///< [c, φ, c_a, δ, γ] in SI units
   SoilEstimateRecord::SoilVector prior_var{};   ///< their variances
   double cut_depth_m = 0.2;     ///< a cut deeper than this below the fused surface inflates

@@ -113,8 +113,8 @@ TEST(SoilBayes, TheWedgeAheadOfTheBladeIsFusedWithVarianceGrowingWithDistance) {
   EXPECT_EQ(n, cells);
 }
 
-TEST(SoilBayes, ShortWedgesReachXMinAndThePriorIsFusedFirst) {
-  Harness h(1, {{"x_min_m", 0.2}});
+TEST(SoilBayes, ShortWedgesReachXMinAndAConfiguredPriorIsFusedFirst) {
+  Harness h(1, {{"x_min_m", 0.2}, {"prior", std::string("config")}});
   SoilEstimateRecord e = estimate({0.0, 0.0}, {1.0, 0.0});
   e.d_m = 0.05;  // x_max 0.05 < x_min 0.2
   h.plugin.fuse(h.ctx, e);
@@ -122,11 +122,32 @@ TEST(SoilBayes, ShortWedgesReachXMinAndThePriorIsFusedFirst) {
   const Eigen::Vector2d centre = h.map.geometry().positionOf(*h.map.geometry().indexAt(p));
   EXPECT_FALSE(std::isnan(h.at("soil_c", p)));
   EXPECT_TRUE(std::isnan(h.at("soil_c", {0.21, 0.01})));
-  // Prior [30e3, 3e8] (the default) fused with N(12e3, 4e6 exp(x / 0.05)).
+  // Prior [30e3, 3e8] (prior_c_pa's default) fused with N(12e3, 4e6 exp(x / 0.05)).
   const double r = 4e6 * std::exp(centre.x() / 0.05);
   const Belief want = fuseBelief({30e3, 60e3 * 60e3 / 12.0}, 12e3, r);
   EXPECT_FLOAT_EQ(h.at("soil_c", p), static_cast<float>(want.mean));
   EXPECT_FLOAT_EQ(h.at("soil_c_var", p), static_cast<float>(want.var));
+}
+
+TEST(SoilBayes, ByDefaultACellTakesItsFirstEstimateAsItIs) {
+  // The estimator's variance already holds the prior's where the force cannot tell a property
+  // (Eq. 7's ambiguity variance is the physical range's span^2 / 12, prior_*'s default), so the
+  // default does not fuse the prior again (README, "Why no prior by default").
+  Harness h(1, {{"c_s", 0.0}});
+  SoilEstimateRecord e = estimate({0.0, 0.0}, {1.0, 0.0}, 5e3);
+  e.var_total[0] = 4e8;
+  h.plugin.fuse(h.ctx, e);
+  const Eigen::Vector2d p(0.15, 0.01);
+  EXPECT_FLOAT_EQ(h.at("soil_c", p), 5e3f);
+  EXPECT_FLOAT_EQ(h.at("soil_c_var", p), 4e8f);
+  // The second estimate is fused with the first.
+  e.mean[0] = 9e3;
+  e.var_total[0] = 1e8;
+  h.plugin.fuse(h.ctx, e);
+  const Belief want = fuseBelief({5e3, 4e8}, 9e3, 1e8);
+  EXPECT_FLOAT_EQ(h.at("soil_c", p), static_cast<float>(want.mean));
+  EXPECT_FLOAT_EQ(h.at("soil_c_var", p), static_cast<float>(want.var));
+  EXPECT_FLOAT_EQ(h.at("soil_n", p), 2.0f);
 }
 
 TEST(SoilBayes, EachEstimateIsFusedOncePerCellWhateverTheWedgeOrientation) {
