@@ -55,7 +55,10 @@ const Ziggurat& ziggurat() {
 }
 }  // namespace
 
-double gaussianFromBits(std::uint64_t h) {
+namespace {
+/// gaussianFromBits, inlinable into the per-ray loop (the exported one may be interposed, and
+/// a call through the PLT per returned point cost more than the common path's draw).
+inline double gaussian(std::uint64_t h) {
   const Ziggurat& z = ziggurat();
   std::uint64_t s = h;
   for (int draw = 1;; ++draw) {
@@ -81,6 +84,9 @@ double gaussianFromBits(std::uint64_t h) {
     s = mix(s ^ 0x632be59bd9b4e019ULL);
   }
 }
+}  // namespace
+
+double gaussianFromBits(std::uint64_t h) { return gaussian(h); }
 
 namespace {
 
@@ -404,9 +410,9 @@ __attribute__((always_inline)) inline void LidarModel::emitPoint(const TruthTerr
     // Depth noise sigma(z) along the ray: z -> z + sigma n moves the point by sigma n / d_z.
     const double z = ds.z() * t;
     const double sigma = spec_.depth_noise_abs_m + spec_.depth_noise_k * z * z;
-    if (sigma > 0) t += sigma * gaussianFromBits(h) / ds.z();
+    if (sigma > 0) t += sigma * gaussian(h) / ds.z();
   } else if (spec_.range_noise_m > 0) {
-    t += spec_.range_noise_m * gaussianFromBits(h);
+    t += spec_.range_noise_m * gaussian(h);
   }
   pts.push_back({static_cast<float>(ds.x() * t), static_cast<float>(ds.y() * t), static_cast<float>(ds.z() * t), inten});
 }

@@ -451,14 +451,6 @@ bool TruthTerrain::clipToGrid(const Eigen::Vector3d& o, const Eigen::Vector3d& d
   return slabXY(o, d, ox_, maxX(), oy_, maxY(), t0, t1);
 }
 
-Eigen::Vector2d TruthTerrain::cellGradient(int ci, int cj, double x, double y) const {
-  const double u = (x - (ox_ + ci * res_)) / res_, v = (y - (oy_ + cj * res_)) / res_;
-  const std::size_t k = index(ci, cj);
-  const double z00 = h_[k], z10 = h_[k + 1], z01 = h_[k + nx_], z11 = h_[k + nx_ + 1];
-  const double c = z00 - z10 - z01 + z11;
-  return {((z10 - z00) + c * v) / res_, ((z01 - z00) + c * u) / res_};
-}
-
 double TruthTerrain::castCells(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_a, double t_b, int* cell_i,
                                int* cell_j) const {
   return castCells(o, d, d.x() != 0.0 ? 1.0 / d.x() : 0.0, d.y() != 0.0 ? 1.0 / d.y() : 0.0, t_a, t_b, cell_i, cell_j);

@@ -143,8 +143,15 @@ class TruthTerrain {
   /// nothing is left.
   bool clipToGrid(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double& t0, double& t1) const;
   /// Surface gradient (dH/dx, dH/dy) of one cell's bilinear patch at map (x, y) (which should
-  /// lie in or on that cell): the normal at a ray hit without re-locating the cell.
-  Eigen::Vector2d cellGradient(int ci, int cj, double x, double y) const;
+  /// lie in or on that cell): the normal at a ray hit without re-locating the cell. Inline: a
+  /// scan calls it for every point it returns.
+  Eigen::Vector2d cellGradient(int ci, int cj, double x, double y) const {
+    const double u = (x - (ox_ + ci * res_)) / res_, v = (y - (oy_ + cj * res_)) / res_;
+    const std::size_t k = index(ci, cj);
+    const double z00 = h_[k], z10 = h_[k + 1], z01 = h_[k + nx_], z11 = h_[k + nx_ + 1];
+    const double c = z00 - z10 - z01 + z11;
+    return {((z10 - z00) + c * v) / res_, ((z01 - z00) + c * u) / res_};
+  }
 
   /// Max-height pyramid, read-only (ScanCaster builds on it). Level 0 = cells ((nx-1) x
   /// (ny-1)); level l block (bx, by) covers cells [bx 2^l, (bx+1) 2^l) x [by 2^l, (by+1) 2^l)
