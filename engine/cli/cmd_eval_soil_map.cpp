@@ -36,6 +36,7 @@ namespace fs = std::filesystem;
 
 struct SoilMapArgs {
   std::string scenario, pipeline, model, out = "out/eval_soil_map";
+  std::vector<std::string> set;
   int threads = 0;
   double duration = -1;
   bool quiet = false;
@@ -163,6 +164,8 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
   sub->add_option("--out,-o", a->out, "Output folder");
   sub->add_option("--threads,-j", a->threads, "Worker threads")->check(CLI::Range(1, 256));
   sub->add_option("--duration", a->duration, "Simulate at most this many seconds")->check(CLI::PositiveNumber);
+  sub->add_option("--set", a->set,
+                  "Stage parameter for this run, STAGE.KEY=VALUE (repeatable; e.g. --set bayes.prior=config)");
   sub->add_flag("--quiet,-q", a->quiet, "Print nothing but errors");
   sub->callback([&run, a] {
     run = [a]() -> int {
@@ -180,6 +183,7 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
         if (!a->model.empty()) st.params["model"] = RawParam{ParamValue{fs::absolute(a->model).string()}, "--model"};
       }
       if (!has_pinn) throw ConfigError(spec.file + ": eval-soil-map needs a soil_pinn stage");
+      applyParamOverrides(spec, a->set);
       RunOptions o;
       o.out_dir = a->out;
       o.threads = a->threads;

@@ -158,9 +158,16 @@ Stages findStages(PipelineSpec& spec, const StrataArgs& a) {
   if (!strata || !surface || !next)
     throw ConfigError(spec.file + ": eval-strata needs an octomap_strata stage and two fee_index stages, one over "
                       "soil_* and one with soil_prefix: strata_next_");
+  // STAGE.KEY=VALUE sets any stage's parameter (applyParamOverrides); a bare KEY=VALUE, a
+  // numeric octomap_strata one.
+  std::vector<std::string> staged;
   for (const std::string& kv : a.set) {
     const auto eq = kv.find('=');
-    if (eq == std::string::npos) throw ConfigError("--set " + kv + ": expected KEY=VALUE");
+    if (eq != std::string::npos && kv.substr(0, eq).find('.') != std::string::npos) {
+      staged.push_back(kv);
+      continue;
+    }
+    if (eq == std::string::npos) throw ConfigError("--set " + kv + ": expected KEY=VALUE or STAGE.KEY=VALUE");
     try {
       const std::string v = kv.substr(eq + 1);
       std::size_t used = 0;
@@ -171,6 +178,7 @@ Stages findStages(PipelineSpec& spec, const StrataArgs& a) {
       throw ConfigError("--set " + kv + ": the value must be a number");
     }
   }
+  applyParamOverrides(spec, staged);
   out.surface_index = stageParams(spec, *surface).getString("output");
   out.next_index = stageParams(spec, *next).getString("output");
   out.cut = feeIndexConfigOf(spec, *surface);
@@ -400,7 +408,9 @@ Registrar reg{Command{"eval-strata", [](CLI::App& app, std::function<int()>& run
   sub->add_option("--duration", a->duration, "Simulate at most this many seconds")->check(CLI::PositiveNumber);
   sub->add_option("--threads,-j", a->threads, "Worker threads")->check(CLI::Range(1, 256));
   sub->add_flag("--boundary-only", a->boundary_only, "The boundary figure only (no per-pass comparison)");
-  sub->add_option("--set", a->set, "Numeric octomap_strata parameter for this run, KEY=VALUE (repeatable)");
+  sub->add_option("--set", a->set,
+                  "Numeric octomap_strata parameter for this run, KEY=VALUE, or any stage's, STAGE.KEY=VALUE "
+                  "(repeatable; e.g. --set bayes.prior=config)");
   sub->add_flag("--quiet,-q", a->quiet, "Print nothing but errors");
   sub->callback([&run, a] { run = [a]() -> int { return runEvalStrata(*a); }; });
 }}};

@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <iostream>
 #include <memory>
+#include <vector>
 
 namespace terramap::cli {
 namespace {
@@ -19,6 +20,7 @@ namespace {
 struct RunArgs {
   std::string file;
   std::string out;
+  std::vector<std::string> set;
   int threads = 0;
   bool quiet = false;
   bool no_progress = false;
@@ -61,13 +63,17 @@ Registrar reg{Command{"run", [](CLI::App& app, std::function<int()>& run) {
   sub->add_option("pipeline", a->file, "Pipeline YAML file (default: the embedded demo)");
   sub->add_option("--out,-o", a->out, "Output folder (overrides outputs.dir)");
   sub->add_option("--threads,-j", a->threads, "Worker threads (overrides `threads`)")->check(CLI::Range(1, 256));
+  sub->add_option("--set", a->set,
+                  "Stage parameter for this run, STAGE.KEY=VALUE, the value as YAML (repeatable; e.g. "
+                  "--set bayes.prior=config --set lidar.max_range_m=20)");
   sub->add_flag("--quiet,-q", a->quiet, "Print nothing but errors");
   sub->add_flag("--no-progress", a->no_progress, "No progress bar (it is shown only on a terminal anyway)");
   sub->callback([&run, a] {
     run = [a]() -> int {
-      const PipelineSpec spec = a->file.empty()
+      PipelineSpec spec = a->file.empty()
           ? parsePipelineString(embeddedDemoPipeline(), "<embedded demo.yaml>", embeddedDemoBaseDir())
           : parsePipelineFile(a->file);
+      applyParamOverrides(spec, a->set);
       RunOptions o;
       o.out_dir = a->out;
       o.threads = a->threads;

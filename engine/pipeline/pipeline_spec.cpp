@@ -3,6 +3,7 @@
 
 #include "yaml_util.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -207,6 +208,48 @@ PipelineSpec parsePipelineFile(const std::string& path) {
 
 PipelineSpec parsePipelineString(const std::string& yaml, const std::string& name, const std::string& base_dir) {
   return parseText(yaml, name, base_dir);
+}
+
+void applyParamOverrides(PipelineSpec& spec, const std::vector<std::string>& overrides) {
+  std::vector<std::string> errors;
+  for (const std::string& ov : overrides) {
+    const std::string where = "--set " + ov;
+    const auto eq = ov.find('=');
+    const auto dot = ov.find('.');
+    if (eq == std::string::npos || dot == std::string::npos || dot > eq || dot == 0 || dot + 1 == eq) {
+      errors.push_back(where + ": expected STAGE.KEY=VALUE (e.g. --set bayes.prior=config)");
+      continue;
+    }
+    const std::string stage = ov.substr(0, dot), key = ov.substr(dot + 1, eq - dot - 1), text = ov.substr(eq + 1);
+    auto it = std::find_if(spec.stages.begin(), spec.stages.end(), [&](const StageSpec& s) { return s.name == stage; });
+    if (it == spec.stages.end()) {
+      std::string names;
+      for (const StageSpec& s : spec.stages) names += (names.empty() ? "" : ", ") + s.name;
+      errors.push_back(where + ": no stage named '" + stage + "' (the pipeline's: " + names + ")");
+      continue;
+    }
+    yaml::Diagnostics d;
+    d.file = where;
+    YAML::Node n;
+    try {
+      n = yaml::load(text.empty() ? std::string("\"\"") : text, where);
+    } catch (const ConfigError& e) {
+      errors.push_back(e.what());
+      continue;
+    }
+    RawParam r = yaml::toRaw(d, n, key);
+    if (r.is_map) {
+      errors.push_back(where + ": the value must be a scalar or a list of scalars");
+      continue;
+    }
+    r.where = where;
+    it->params[key] = r;
+  }
+  if (!errors.empty()) {
+    std::string all;
+    for (const auto& e : errors) all += (all.empty() ? "" : "\n") + e;
+    throw ConfigError(all);
+  }
 }
 
 }  // namespace terramap

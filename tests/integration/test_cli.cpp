@@ -105,6 +105,30 @@ outputs: {dir: out, geotiff: [elevation, elevation_smooth], png: all}
   EXPECT_NE(ex2.out.find("did you mean 'elevation'"), std::string::npos) << ex2.out;
 }
 
+TEST(Cli, RunSetsStageParamsFromTheCommandLine) {
+  const fs::path d = tempDir("run_set");
+  write(d / "p.yaml", R"(version: 1
+map: {resolution: 0.5, size: [24, 20], tile: 16, layers: [{name: elevation, unit: m, fill: 2.5}]}
+threads: 1
+source: {type: none}
+pipeline:
+  - {name: s, type: smooth_filter, params: {run_on: []}}
+outputs: {dir: out, png: all}
+)");
+  // The override reaches the plugin: its output layer is renamed.
+  const Result r = sh("run " + (d / "p.yaml").string() + " -q --set s.output_layer=smoothed --set s.sigma_m=0.2");
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_TRUE(fs::exists(d / "out" / "smoothed.png"));
+  EXPECT_FALSE(fs::exists(d / "out" / "elevation_smooth.png"));
+  // A value the plugin refuses: a configuration error naming the override.
+  const Result bad = sh("run " + (d / "p.yaml").string() + " -q --set s.sigma_m=-1");
+  EXPECT_EQ(bad.code, 3) << bad.out;
+  EXPECT_NE(bad.out.find("--set s.sigma_m=-1"), std::string::npos) << bad.out;
+  const Result no_stage = sh("run " + (d / "p.yaml").string() + " -q --set lidar.max_range_m=10");
+  EXPECT_EQ(no_stage.code, 3) << no_stage.out;
+  EXPECT_NE(no_stage.out.find("no stage named 'lidar'"), std::string::npos) << no_stage.out;
+}
+
 TEST(Cli, TheSeriesLastEntryIsTheRunsEndAfterFinish) {
   // test_probe reports a record per event and one more in finish(): the series' last entry
   // must include it (it is taken after finish()), so it matches the report's totals.

@@ -51,6 +51,39 @@ outputs: {dir: out/x, geotiff: [elevation], png: all}
   EXPECT_TRUE(spec.outputs.png_all);
 }
 
+TEST(PipelineSpec, CommandLineOverridesSetStageParamsAndNameThemselves) {
+  PipelineSpec spec = parsePipelineString(R"(
+version: 1
+source: {type: none}
+pipeline:
+  - {name: s, type: smooth_filter, params: {sigma_m: 0.2}}
+  - {name: t, type: smooth_filter}
+)",
+                                          "p.yaml");
+  applyParamOverrides(spec, {"s.sigma_m=0.5", "s.run_on=[tick, pose]", "t.fill_holes=true", "t.output_layer='3'",
+                             "t.radius_m=2"});
+  EXPECT_DOUBLE_EQ(std::get<double>(spec.stages[0].params.at("sigma_m").value), 0.5);
+  EXPECT_EQ(spec.stages[0].params.at("sigma_m").where, "--set s.sigma_m=0.5");
+  EXPECT_EQ(std::get<std::vector<std::string>>(spec.stages[0].params.at("run_on").value),
+            (std::vector<std::string>{"tick", "pose"}));
+  EXPECT_TRUE(std::get<bool>(spec.stages[1].params.at("fill_holes").value));
+  EXPECT_EQ(std::get<std::string>(spec.stages[1].params.at("output_layer").value), "3");  // quoted: text
+  EXPECT_EQ(std::get<long>(spec.stages[1].params.at("radius_m").value), 2);
+  // Every malformed override at once, each named.
+  try {
+    applyParamOverrides(spec, {"s.sigma_m", "sigma_m=1", "u.x=1", "s.x={a: 1}", "s.y=[1,"});
+    FAIL() << "no ConfigError";
+  } catch (const ConfigError& e) {
+    const std::string m = e.what();
+    expectHas(m, "--set s.sigma_m: expected STAGE.KEY=VALUE");
+    expectHas(m, "--set sigma_m=1: expected STAGE.KEY=VALUE");
+    expectHas(m, "--set u.x=1: no stage named 'u' (the pipeline's: s, t)");
+    expectHas(m, "--set s.x={a: 1}: the value must be a scalar or a list of scalars");
+    expectHas(m, "--set s.y=[1,");
+  }
+  EXPECT_DOUBLE_EQ(std::get<double>(spec.stages[0].params.at("sigma_m").value), 0.5);  // left as it was
+}
+
 TEST(PipelineSpec, UnknownKeyHasLocationPathAndDidYouMean) {
   const auto m = errorOf("version: 1\nmap: {resolution: 0.1, sise: [10, 10]}\npipeline: []\n");
   expectHas(m, "p.yaml:2:24: map.sise: unknown key (did you mean 'size'?)");
