@@ -70,16 +70,21 @@ pipeline:
   EXPECT_EQ(sh("validate " + (d / "missing.yaml").string()).code, 8);
 }
 
+/// A 24 x 20 map of elevation 2.5 and one smooth_filter stage `s` that runs once at the end,
+/// written to dir/p.yaml; `outputs` is its outputs: mapping.
+static void writeSmoothRun(const fs::path& dir, int threads, const std::string& outputs) {
+  write(dir / "p.yaml", "version: 1\n"
+                        "map: {resolution: 0.5, size: [24, 20], tile: 16, layers: [{name: elevation, unit: m, fill: 2.5}]}\n"
+                        "threads: " + std::to_string(threads) + "\n"
+                        "source: {type: none}\n"
+                        "pipeline:\n"
+                        "  - {name: s, type: smooth_filter, params: {run_on: []}}\n"
+                        "outputs: " + outputs + "\n");
+}
+
 TEST(Cli, RunWritesOutputsAndExportReadsTheSnapshot) {
   const fs::path d = tempDir("run");
-  write(d / "p.yaml", R"(version: 1
-map: {resolution: 0.5, size: [24, 20], tile: 16, layers: [{name: elevation, unit: m, fill: 2.5}]}
-threads: 2
-source: {type: none}
-pipeline:
-  - {name: s, type: smooth_filter, params: {run_on: []}}
-outputs: {dir: out, geotiff: [elevation, elevation_smooth], png: all}
-)");
+  writeSmoothRun(d, 2, "{dir: out, geotiff: [elevation, elevation_smooth], png: all}");
   const Result r = sh("run " + (d / "p.yaml").string());
   ASSERT_EQ(r.code, 0) << r.out;
   const fs::path out = d / "out";
@@ -107,14 +112,7 @@ outputs: {dir: out, geotiff: [elevation, elevation_smooth], png: all}
 
 TEST(Cli, RunSetsStageParamsFromTheCommandLine) {
   const fs::path d = tempDir("run_set");
-  write(d / "p.yaml", R"(version: 1
-map: {resolution: 0.5, size: [24, 20], tile: 16, layers: [{name: elevation, unit: m, fill: 2.5}]}
-threads: 1
-source: {type: none}
-pipeline:
-  - {name: s, type: smooth_filter, params: {run_on: []}}
-outputs: {dir: out, png: all}
-)");
+  writeSmoothRun(d, 1, "{dir: out, png: all}");
   // The override reaches the plugin: its output layer is renamed.
   const Result r = sh("run " + (d / "p.yaml").string() + " -q --set s.output_layer=smoothed --set s.sigma_m=0.2");
   ASSERT_EQ(r.code, 0) << r.out;
