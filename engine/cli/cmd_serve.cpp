@@ -35,6 +35,7 @@ namespace fs = std::filesystem;
 
 struct ServeArgs {
   std::string file;
+  std::vector<std::string> set;  ///< --set STAGE.KEY=VALUE
   int port = 8765;
   double speed = 1.0;
   double frame_period_s = 0.1;
@@ -65,6 +66,7 @@ class Player {
  public:
   Player(const ServeArgs& a, LiveServer& server) : a_(a), server_(server) {
     PipelineSpec spec = parsePipelineFile(a.file);
+    applyParamOverrides(spec, a.set);
     if (a.threads > 0) spec.threads = a.threads;
     engine_ = Engine::fromSpec(spec, PluginRegistry(spec.plugin_paths));
     source_ = makeSource(spec);
@@ -258,6 +260,7 @@ Registrar reg{Command{"serve", [](CLI::App& app, std::function<int()>& run) {
   sub->add_option("--max-grid", a->max_grid, "Largest grid side sent to the page (cells; the map is sampled)")
       ->capture_default_str()->check(CLI::Range(16, 2048));
   sub->add_option("--threads,-j", a->threads, "Worker threads (overrides `threads`)")->check(CLI::Range(1, 256));
+  sub->add_option("--set", a->set, "Stage parameter for this run, STAGE.KEY=VALUE (repeatable)");
   sub->add_option("--exit-after", a->exit_after_s, "Stop this many seconds after the source ends (default: never)");
   sub->add_flag("--wait-for-viewer", a->wait_for_viewer, "Start playing when the first page connects");
   sub->add_option("--web-root", a->web_root, "Folder of the page (default: the installed one)");

@@ -7,6 +7,8 @@
 
 #include <iostream>
 #include <memory>
+#include <string>
+#include <vector>
 
 namespace terramap::cli {
 namespace {
@@ -17,13 +19,16 @@ Registrar reg{Command{"validate", [](CLI::App& app, std::function<int()>& run) {
       "(types, ranges, unknown keys with did-you-mean), layer flow, source settings.\n"
       "Prints every problem, one per line as file:line:col: key.path: message. Exit 0 if valid, 8 if not.");
   auto file = std::make_shared<std::string>();
+  auto set = std::make_shared<std::vector<std::string>>();
   sub->add_option("pipeline", *file, "Pipeline YAML file")->required();
-  sub->callback([&run, file] {
-    run = [file]() -> int {
+  sub->add_option("--set", *set, "Stage parameter as `run --set` would apply it, STAGE.KEY=VALUE (repeatable)");
+  sub->callback([&run, file, set] {
+    run = [file, set]() -> int {
       std::vector<std::string> errors;
       PipelineSpec spec;
       try {
         spec = parsePipelineFile(*file);
+        applyParamOverrides(spec, *set);
       } catch (const ConfigError& e) {
         std::cerr << e.what() << "\n";
         std::cerr << *file << ": invalid (structure errors above; fix them to check plugins and layers)\n";

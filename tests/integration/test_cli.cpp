@@ -67,6 +67,11 @@ pipeline:
 )");
   const Result ok = sh("validate " + (d / "good.yaml").string());
   EXPECT_EQ(ok.code, 0) << ok.out;
+  // With the override run --set would apply: checked the same way, named in the message.
+  const Result set_bad = sh("validate " + (d / "good.yaml").string() + " --set t.sigma_m=-1");
+  EXPECT_EQ(set_bad.code, 8) << set_bad.out;
+  EXPECT_NE(set_bad.out.find("--set t.sigma_m=-1"), std::string::npos) << set_bad.out;
+  EXPECT_EQ(sh("validate " + (d / "good.yaml").string() + " --set t.sigma_m=0.3").code, 0);
   EXPECT_EQ(sh("validate " + (d / "missing.yaml").string()).code, 8);
 }
 
