@@ -50,11 +50,9 @@ at::Tensor soilVariances(const at::Tensor& J_steps, const at::Tensor& log_var, c
 }
 
 at::Tensor defaultAmbiguityVariance() {
+  const soil::SoilParamVector u = soil::uniformRangeVariances();
   at::Tensor v = at::empty({kSoilCount}, at::kDouble);
-  for (int k = 0; k < kSoilCount; ++k) {
-    const double span = kSoilRanges[k].hi - kSoilRanges[k].lo;
-    v[k] = span * span / 12.0;
-  }
+  for (int k = 0; k < kSoilCount; ++k) v[k] = u[static_cast<std::size_t>(k)];
   return v;
 }
 

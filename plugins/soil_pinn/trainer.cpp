@@ -195,7 +195,7 @@ bool loadCheckpoint(const fs::path& path, const std::string& hash, PinnNet& net,
 }
 
 /// The input distance of the epistemic variance (soil::PinnInputDistance) fitted on the
-/// training split's samples, each property's prior variance its range's (uniform: span^2 / 12);
+/// training split's samples, each property's prior variance its range's (soil::uniformRangeVariances);
 /// empty when the split holds fewer samples than the covariance needs (a toy dataset).
 soil::PinnInputDistance fitInputDistance(const TrainingData& data, const std::vector<long>& train_idx, int T,
                                          const std::vector<float>& obs_mean, const std::vector<float>& obs_std,
@@ -209,12 +209,7 @@ soil::PinnInputDistance fitInputDistance(const TrainingData& data, const std::ve
     feats.push_back(soil::pinnInputFeatures(oc.data_ptr<float>() + i * Ts * Ds, Ts, T, Ds, obs_mean.data(),
                                             obs_std.data(), tc.data_ptr<float>() + i * Ps * 6, Ps, th_mean.data(),
                                             th_std.data()));
-  std::array<double, 5> prior{};
-  for (int k = 0; k < kSoilCount; ++k) {
-    const double span = kSoilRanges[k].hi - kSoilRanges[k].lo;
-    prior[static_cast<std::size_t>(k)] = span * span / 12.0;
-  }
-  return soil::PinnInputDistance::fit(feats, prior);
+  return soil::PinnInputDistance::fit(feats, soil::uniformRangeVariances());
 }
 
 }  // namespace

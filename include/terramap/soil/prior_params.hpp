@@ -17,10 +17,11 @@ inline constexpr const char* kPriorKeys[kSoilParamCount] = {"prior_c_pa", "prior
 /// Appends the five prior parameters to `schema`; `where` ends their documentation ("prior
 /// [mean, variance] of c <where>").
 inline void addPriorParams(ParamSchema& schema, const std::string& where) {
+  const SoilParamVector uniform_var = uniformRangeVariances();
   for (int k = 0; k < kSoilParamCount; ++k) {
     const SoilParamInfo& info = kSoilParams[k];
-    const double mid = 0.5 * (info.lo + info.hi), span = info.hi - info.lo;
-    schema.push_back(param::reals(kPriorKeys[k], {mid, span * span / 12.0}, 2, 0.0, 1e12, info.unit,
+    const double mid = 0.5 * (info.lo + info.hi);
+    schema.push_back(param::reals(kPriorKeys[k], {mid, uniform_var[static_cast<std::size_t>(k)]}, 2, 0.0, 1e12, info.unit,
                                   std::string("prior [mean, variance] of ") + info.name + " " + where));
   }
 }

@@ -35,6 +35,19 @@ inline constexpr SoilParamInfo kSoilParams[kSoilParamCount] = {
 
 using SoilParamVector = std::array<double, kSoilParamCount>;
 
+/// The variance of the uniform distribution over each parameter's physical range, span² / 12:
+/// what "no knowledge beyond the range" means as a variance. One value for everyone who uses
+/// it: the estimator's ambiguity variance (paper Eq. 7) and its input-distance term, and the
+/// default prior of the soil layers and the strata (prior_params.hpp).
+inline SoilParamVector uniformRangeVariances() {
+  SoilParamVector v{};
+  for (int k = 0; k < kSoilParamCount; ++k) {
+    const double span = kSoilParams[k].hi - kSoilParams[k].lo;
+    v[static_cast<std::size_t>(k)] = span * span / 12.0;
+  }
+  return v;
+}
+
 /// [c, φ, c_a, δ, γ] -> fee::Soil.
 inline fee::Soil toFee(const SoilParamVector& v) {
   return {v[kParamC], v[kParamPhi], v[kParamGamma], v[kParamCa], v[kParamDelta]};
