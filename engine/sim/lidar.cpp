@@ -90,6 +90,17 @@ double gaussianFromBits(std::uint64_t h) { return gaussian(h); }
 
 namespace {
 
+/// The eight corners of box `b` in the sensor frame (rotation R of the sensor in the map), the
+/// origin at the sensor: `cs` is the box centre there, R^T (b.centre - o).
+std::array<Eigen::Vector3d, 8> sensorCorners(const PlacedBox& b, const Eigen::Vector3d& cs, const Eigen::Matrix3d& R) {
+  const Eigen::Matrix3d Rs = R.transpose() * b.R;
+  std::array<Eigen::Vector3d, 8> c;
+  for (int k = 0; k < 8; ++k)
+    c[k] = cs + Rs * Eigen::Vector3d((k & 1) ? b.half.x() : -b.half.x(), (k & 2) ? b.half.y() : -b.half.y(),
+                                     (k & 4) ? b.half.z() : -b.half.z());
+  return c;
+}
+
 /// The machines' boxes one scan can hit, with what culls them cheaply. A column's rays all lie
 /// in the half-plane of its azimuth through the sensor's z axis, so a box whose bounding sphere
 /// misses that half-plane cannot be hit by the column, and of those that meet it only the beams
@@ -115,14 +126,7 @@ class ScanObstacles {
       if ((b.centre - o).norm() - b.radius > max_range) continue;
       boxes_.push_back(b);
       cs_.push_back(R.transpose() * (b.centre - o));  // sphere centre, sensor frame, origin-relative
-      if (slopes_) {
-        const Eigen::Matrix3d Rs = R.transpose() * b.R;
-        std::array<Eigen::Vector3d, 8> c;
-        for (int k = 0; k < 8; ++k)
-          c[k] = cs_.back() + Rs * Eigen::Vector3d((k & 1) ? b.half.x() : -b.half.x(), (k & 2) ? b.half.y() : -b.half.y(),
-                                                   (k & 4) ? b.half.z() : -b.half.z());
-        corners_.push_back(c);
-      }
+      if (slopes_) corners_.push_back(sensorCorners(b, cs_.back(), R));
       top_.push_back(b.centre.z() + b.R.row(2).cwiseAbs().dot(b.half));
       if (camera) rect_.push_back(pixelRect(b, cs_.back(), R, *camera, z_near));
     }
@@ -266,11 +270,7 @@ class ScanObstacles {
   /// when the box lies wholly nearer.
   static std::array<int, 4> pixelRect(const PlacedBox& b, const Eigen::Vector3d& cs, const Eigen::Matrix3d& R,
                                       const SensorSpec& cam, double z_near) {
-    const Eigen::Matrix3d Rs = R.transpose() * b.R;
-    Eigen::Vector3d c[8];
-    for (int k = 0; k < 8; ++k)
-      c[k] = cs + Rs * Eigen::Vector3d((k & 1) ? b.half.x() : -b.half.x(), (k & 2) ? b.half.y() : -b.half.y(),
-                                       (k & 4) ? b.half.z() : -b.half.z());
+    const std::array<Eigen::Vector3d, 8> c = sensorCorners(b, cs, R);
     double u0 = 1e300, u1 = -1e300, v0 = 1e300, v1 = -1e300;
     auto add = [&](const Eigen::Vector3d& p) {
       const double u = cam.fx * p.x() / p.z() + cam.cx, v = cam.fy * p.y() / p.z() + cam.cy;
