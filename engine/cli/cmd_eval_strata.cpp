@@ -158,27 +158,16 @@ Stages findStages(PipelineSpec& spec, const StrataArgs& a) {
   if (!strata || !surface || !next)
     throw ConfigError(spec.file + ": eval-strata needs an octomap_strata stage and two fee_index stages, one over "
                       "soil_* and one with soil_prefix: strata_next_");
-  // STAGE.KEY=VALUE sets any stage's parameter (applyParamOverrides); a bare KEY=VALUE, a
-  // numeric octomap_strata one.
-  std::vector<std::string> staged;
+  // A bare KEY=VALUE is the octomap_strata stage's (the form this command took first); every
+  // override then goes through the pipeline's one mechanism (values read as YAML, checked by the
+  // stage's schema).
+  std::vector<std::string> overrides;
   for (const std::string& kv : a.set) {
     const auto eq = kv.find('=');
-    if (eq != std::string::npos && kv.substr(0, eq).find('.') != std::string::npos) {
-      staged.push_back(kv);
-      continue;
-    }
-    if (eq == std::string::npos) throw ConfigError("--set " + kv + ": expected KEY=VALUE or STAGE.KEY=VALUE");
-    try {
-      const std::string v = kv.substr(eq + 1);
-      std::size_t used = 0;
-      const long n = std::stol(v, &used);
-      strata->params[kv.substr(0, eq)] = used == v.size() ? RawParam{ParamValue{n}, "--set"}
-                                                           : RawParam{ParamValue{std::stod(v)}, "--set"};
-    } catch (const std::exception&) {
-      throw ConfigError("--set " + kv + ": the value must be a number");
-    }
+    const bool staged = eq != std::string::npos && kv.substr(0, eq).find('.') != std::string::npos;
+    overrides.push_back(staged || eq == std::string::npos ? kv : strata->name + "." + kv);
   }
-  applyParamOverrides(spec, staged);
+  applyParamOverrides(spec, overrides);
   out.surface_index = stageParams(spec, *surface).getString("output");
   out.next_index = stageParams(spec, *next).getString("output");
   out.cut = feeIndexConfigOf(spec, *surface);
@@ -409,8 +398,8 @@ Registrar reg{Command{"eval-strata", [](CLI::App& app, std::function<int()>& run
   sub->add_option("--threads,-j", a->threads, "Worker threads")->check(CLI::Range(1, 256));
   sub->add_flag("--boundary-only", a->boundary_only, "The boundary figure only (no per-pass comparison)");
   sub->add_option("--set", a->set,
-                  "Numeric octomap_strata parameter for this run, KEY=VALUE, or any stage's, STAGE.KEY=VALUE "
-                  "(repeatable; e.g. --set bayes.prior=config)");
+                  "octomap_strata parameter for this run, KEY=VALUE, or any stage's, STAGE.KEY=VALUE "
+                  "(repeatable; e.g. --set change_min_voxels=2 --set bayes.prior=config)");
   sub->add_flag("--quiet,-q", a->quiet, "Print nothing but errors");
   sub->callback([&run, a] { run = [a]() -> int { return runEvalStrata(*a); }; });
 }}};
