@@ -12,8 +12,14 @@ the mean index, the mean posterior cohesion and its standard deviation, and the 
 
 OUT is the --out folder of `terramap eval-soil-map SCENARIO` (its map.tif holds fee_index,
 soil_c, soil_c_var, soil_n and truth_soil_zone; -1 = default soil, ZONE_ID = the zone, 0 by
-default). Needs Debian's python3-gdal (not a build dependency).
+default). With OUT/report.json beside it, also the median standard deviation (`sd_total`) of
+the valid soil estimates against the uniform prior's over each property's range
+(plugins/soil_bayes/README.md, "Why no prior by default"). Needs Debian's python3-gdal (not a
+build dependency).
 """
+import json
+import math
+import os
 import sys
 
 sys.path.insert(0, "/usr/lib/python3/dist-packages")  # Debian's GDAL under a non-Debian python
@@ -56,6 +62,31 @@ def main():
             print(f"{name:8} {m:6d} {s.sum():6d} {loss[s].sum():10.1f} {f[mask][s].mean() / 1e3:9.1f} "
                   f"{bands['soil_c'][mask][s].mean() / 1e3:6.1f} {np.sqrt(bands['soil_c_var'][mask][s]).mean() / 1e3:8.1f} "
                   f"{bands['soil_n'][mask][s].mean():6.2f}")
+    report = os.path.join(os.path.dirname(os.path.abspath(sys.argv[1])), "report.json")
+    if os.path.exists(report):
+        estimate_spread(report)
+
+
+# Physical ranges of [c, phi, c_a, delta, gamma] (include/terramap/soil/soil_parameters.hpp).
+RANGES = [("c", 0.0, 60e3, 1e-3, "kPa"), ("phi", math.radians(10), math.radians(50), 180 / math.pi, "deg"),
+          ("c_a", 0.0, 30e3, 1e-3, "kPa"), ("delta", math.radians(5), math.radians(40), 180 / math.pi, "deg"),
+          ("gamma", 12e3, 22e3, 1e-3, "kN/m^3")]
+
+
+def estimate_spread(report_path):
+    with open(report_path) as f:
+        report = json.load(f)
+    sds = [[] for _ in RANGES]
+    for stage in report.get("stages", []):
+        for rec in stage.get("records", []):
+            if rec.get("type") == "terramap.soil_estimate.v1" and rec.get("valid"):
+                for k in range(len(RANGES)):
+                    sds[k].append(rec["sd_total"][k])
+    if not sds[0]:
+        return
+    print(f"median sd_total of {len(sds[0])} valid estimates against the uniform prior's sd, span / sqrt(12):")
+    for (name, lo, hi, scale, unit), v in zip(RANGES, sds):
+        print(f"  {name:6} {float(np.median(v)) * scale:8.2f} vs {(hi - lo) / math.sqrt(12) * scale:8.2f} {unit}")
 
 
 if __name__ == "__main__":
