@@ -23,6 +23,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <stdexcept>
 #include <thread>
 
 namespace terramap::sim {
@@ -43,6 +44,7 @@ hid_t createChunked(hid_t parent, const std::string& name, hid_t type, const std
   const int rank = static_cast<int>(dims.size());
   const hid_t space = H5Screate_simple(rank, dims.data(), maxd.empty() ? nullptr : maxd.data());
   const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+  H5Pset_obj_track_times(dcpl, 0);  // see h5detail::makeGroup
   H5Pset_chunk(dcpl, rank, chunk.data());
   if (gzip > 0) {
     H5Pset_shuffle(dcpl);
@@ -227,11 +229,13 @@ class Appender {
 
 /// A series of ny x nx float grids (the terrain snapshots): dataset [k, ny, nx] in chunks of
 /// 1 x 256 x 256, HDF5's shuffle and deflate filters when compressed. The terrain changes only
-/// where the machines work, so most chunks of a snapshot equal the previous snapshot's: those
-/// are written as the bytes already compressed for it (H5Dwrite_chunk), and only the changed
-/// ones are shuffled and deflated here, the way HDF5's own filters encode them (any HDF5 reader
-/// decodes the file as before). Deflating every 18 MB snapshot whole cost more CPU than the
-/// simulation it records.
+/// where the machines work, so most chunks of a snapshot equal the previous snapshot's: the
+/// simulating thread converts only the chunks the terrain's revisions say may have changed
+/// (TruthTerrain::changedSince), the others are written as the bytes already compressed for them
+/// (H5Dwrite_chunk), and a converted chunk is shuffled and deflated only when its values did
+/// change, the way HDF5's own filters encode them (any HDF5 reader decodes the file as before).
+/// Deflating every 18 MB snapshot whole cost more CPU than the simulation it records; converting
+/// every node of it on the simulating thread, a quarter of what the writer added to a run.
 class GridSeries {
  public:
   static constexpr int kChunk = 256;
@@ -260,47 +264,62 @@ class GridSeries {
   ~GridSeries() {
     if (ds_ >= 0) H5Dclose(ds_);
   }
-  /// Appends one grid (row-major, ny rows of nx). HDF5 calls: on the writer thread's side.
-  void write(const std::vector<float>& g) {
+  int chunks() const { return ncx_ * ncy_; }
+  std::size_t chunkValues() const { return static_cast<std::size_t>(cx_) * static_cast<std::size_t>(cy_); }
+  /// Node box of chunk k (inclusive, clipped to the grid).
+  void chunkBox(int k, int& i0, int& j0, int& i1, int& j1) const {
+    i0 = (k % ncx_) * cx_, j0 = (k / ncx_) * cy_;
+    i1 = std::min(nx_, i0 + cx_) - 1, j1 = std::min(ny_, j0 + cy_) - 1;
+  }
+  /// Chunk k of the row-major grid `g` as stored: cy x cx floats, the part past the grid's edge 0.
+  /// Reads only immutable geometry: callable on the simulating thread beside write().
+  void packChunk(int k, const double* g, float* out) const {
+    int i0, j0, i1, j1;
+    chunkBox(k, i0, j0, i1, j1);
+    std::fill(out, out + chunkValues(), 0.0f);
+    for (int j = j0; j <= j1; ++j) {
+      const double* src = g + static_cast<std::size_t>(j) * nx_ + i0;
+      float* dst = out + static_cast<std::size_t>(j - j0) * cx_;
+      for (int i = 0; i <= i1 - i0; ++i) dst[i] = static_cast<float>(src[i]);
+    }
+  }
+  /// Appends one grid: the chunks listed in `changed` (ascending) come from `data`
+  /// (changed.size() x chunkValues(), as packChunk gives them), every other chunk equals the
+  /// previous grid's. The first grid must list every chunk. HDF5 calls: on the writer thread's side.
+  void write(const std::vector<int>& changed, const float* data) {
     if (ds_ < 0) return;
+    if (count_ == 0 && static_cast<int>(changed.size()) != chunks())
+      throw std::logic_error("GridSeries::write: the first grid must give every chunk");
     hsize_t dims[3] = {count_ + 1, static_cast<hsize_t>(ny_), static_cast<hsize_t>(nx_)};
     if (H5Dset_extent(ds_, dims) < 0) throw OutputError(path_ + ": cannot extend '" + name_ + "'");
-    const std::size_t n = static_cast<std::size_t>(cx_) * static_cast<std::size_t>(cy_);
-    std::vector<float> raw(n);
-    std::vector<unsigned char> shuffled(n * sizeof(float));
-    for (int by = 0; by < ncy_; ++by)
-      for (int bx = 0; bx < ncx_; ++bx) {
-        // The chunk as stored: cy x cx, the part past the grid's edge filled with 0.
-        std::fill(raw.begin(), raw.end(), 0.0f);
-        for (int y = 0; y < cy_ && by * cy_ + y < ny_; ++y) {
-          const int w = std::min(cx_, nx_ - bx * cx_);
-          std::memcpy(&raw[static_cast<std::size_t>(y) * cx_],
-                      &g[static_cast<std::size_t>(by * cy_ + y) * nx_ + static_cast<std::size_t>(bx * cx_)],
-                      static_cast<std::size_t>(w) * sizeof(float));
-        }
-        const std::size_t k = static_cast<std::size_t>(by) * ncx_ + bx;
-        std::vector<unsigned char>& packed = packed_[k];
-        if (count_ == 0 || std::memcmp(prev_[k].data(), raw.data(), n * sizeof(float)) != 0) {
-          prev_[k] = raw;
-          if (gzip_ > 0) {
-            // HDF5's shuffle filter: byte b of every element, for b = 0..3, one plane after another.
-            const unsigned char* src = reinterpret_cast<const unsigned char*>(raw.data());
-            for (std::size_t e = 0; e < n; ++e)
-              for (std::size_t b = 0; b < sizeof(float); ++b) shuffled[b * n + e] = src[e * sizeof(float) + b];
-            uLongf len = compressBound(static_cast<uLong>(shuffled.size()));
-            packed.resize(len);
-            if (compress2(packed.data(), &len, shuffled.data(), static_cast<uLong>(shuffled.size()), gzip_) != Z_OK)
-              throw OutputError(path_ + ": cannot compress a chunk of '" + name_ + "'");
-            packed.resize(len);
-          } else {
-            packed.assign(reinterpret_cast<const unsigned char*>(raw.data()),
-                          reinterpret_cast<const unsigned char*>(raw.data()) + n * sizeof(float));
-          }
-        }
-        const hsize_t offset[3] = {count_, static_cast<hsize_t>(by * cy_), static_cast<hsize_t>(bx * cx_)};
-        if (H5Dwrite_chunk(ds_, H5P_DEFAULT, 0, offset, packed.size(), packed.data()) < 0)
-          throw OutputError(path_ + ": cannot write '" + name_ + "' (disk full?)");
+    const std::size_t n = chunkValues();
+    std::vector<unsigned char> shuffled(gzip_ > 0 ? n * sizeof(float) : 0);
+    for (std::size_t c = 0; c < changed.size(); ++c) {
+      const std::size_t k = static_cast<std::size_t>(changed[c]);
+      const float* raw = data + c * n;
+      if (count_ > 0 && std::memcmp(prev_[k].data(), raw, n * sizeof(float)) == 0) continue;
+      prev_[k].assign(raw, raw + n);
+      std::vector<unsigned char>& packed = packed_[k];
+      if (gzip_ > 0) {
+        // HDF5's shuffle filter: byte b of every element, for b = 0..3, one plane after another.
+        const unsigned char* src = reinterpret_cast<const unsigned char*>(raw);
+        for (std::size_t e = 0; e < n; ++e)
+          for (std::size_t b = 0; b < sizeof(float); ++b) shuffled[b * n + e] = src[e * sizeof(float) + b];
+        uLongf len = compressBound(static_cast<uLong>(shuffled.size()));
+        packed.resize(len);
+        if (compress2(packed.data(), &len, shuffled.data(), static_cast<uLong>(shuffled.size()), gzip_) != Z_OK)
+          throw OutputError(path_ + ": cannot compress a chunk of '" + name_ + "'");
+        packed.resize(len);
+      } else {
+        packed.assign(reinterpret_cast<const unsigned char*>(raw), reinterpret_cast<const unsigned char*>(raw + n));
       }
+    }
+    for (int k = 0; k < chunks(); ++k) {
+      const hsize_t offset[3] = {count_, static_cast<hsize_t>((k / ncx_) * cy_), static_cast<hsize_t>((k % ncx_) * cx_)};
+      const std::vector<unsigned char>& packed = packed_[static_cast<std::size_t>(k)];
+      if (H5Dwrite_chunk(ds_, H5P_DEFAULT, 0, offset, packed.size(), packed.data()) < 0)
+        throw OutputError(path_ + ": cannot write '" + name_ + "' (disk full?)");
+    }
     ++count_;
   }
 
@@ -355,12 +374,15 @@ struct MachineSets {
 }  // namespace
 
 struct EpisodeWriter::Impl {
-  /// Snapshot grids the writer thread is done with, for the next snapshot: a fresh pair of
-  /// 2-cm grids is tens of MB of zeroed pages, faulted in on the simulating thread every second.
-  /// Declared before the writer, so they outlive the jobs it may still hold when it goes.
-  using Grids = std::array<std::vector<float>, 2>;
-  std::mutex grid_pool_mutex;
-  std::vector<std::unique_ptr<Grids>> grid_pool;
+  /// Snapshot buffers the writer thread is done with, for the next snapshot (a fresh one is MB
+  /// of zeroed pages faulted in on the simulating thread). Declared before the writer, so they
+  /// outlive the jobs it may still hold when it goes.
+  struct SnapshotChunks {
+    std::vector<int> changed;   // chunk indices, ascending
+    std::vector<float> h, l;    // changed.size() x chunkValues() each (height, loose)
+  };
+  std::mutex snap_pool_mutex;
+  std::vector<std::unique_ptr<SnapshotChunks>> snap_pool;
   WriterThread writer;  // started once the file is laid out; stopped by closeAll() before any other HDF5 call
   std::string final_path, tmp_path;
   EpisodeOptions opt;
@@ -370,46 +392,56 @@ struct EpisodeWriter::Impl {
   int nx = 0, ny = 0;
   double next_snapshot = 0, snapshot_interval = 1;
   double last_snapshot_t = -1;
+  const TruthTerrain* snap_terrain = nullptr;  // the terrain the last snapshot read
+  std::uint64_t snap_revision = 0;             // its revision() then
   std::vector<MachineSets> machines;
   std::map<std::string, std::size_t> machine_index;
   bool closed = false;
 
-  /// The terrain now, as float grids handed to the writer thread. This runs on the simulating
-  /// thread between two periods, so it only converts (the node arrays are row-major like the
-  /// grids); the change detection, shuffling and deflating happen on the writer thread.
+  /// The terrain now, handed to the writer thread. This runs on the simulating thread between
+  /// two periods, so it only converts, and only the chunks that may have changed since the last
+  /// snapshot (all of them the first time); the comparison, shuffling and deflating happen on
+  /// the writer thread.
   void snapshot(const Simulator& sim) {
     const TruthTerrain& t = sim.truth();
-    const std::size_t n = static_cast<std::size_t>(nx) * static_cast<std::size_t>(ny);
-    std::unique_ptr<Grids> grids;
+    std::unique_ptr<SnapshotChunks> s;
     {
-      const std::lock_guard<std::mutex> lock(grid_pool_mutex);
-      if (!grid_pool.empty()) {
-        grids = std::move(grid_pool.back());
-        grid_pool.pop_back();
+      const std::lock_guard<std::mutex> lock(snap_pool_mutex);
+      if (!snap_pool.empty()) {
+        s = std::move(snap_pool.back());
+        snap_pool.pop_back();
       }
     }
-    if (!grids) grids = std::make_unique<Grids>();
-    (*grids)[0].resize(n);
-    (*grids)[1].resize(n);
-    const double* H = t.heightData().data();
-    const double* L = t.looseData().data();
-    float* h = (*grids)[0].data();
-    float* l = (*grids)[1].data();
-    for (std::size_t k = 0; k < n; ++k) h[k] = static_cast<float>(H[k]);
-    for (std::size_t k = 0; k < n; ++k) l[k] = static_cast<float>(L[k]);
+    if (!s) s = std::make_unique<SnapshotChunks>();
+    const bool all = snap_terrain != &t;
+    s->changed.clear();
+    for (int k = 0; k < snap_height.chunks(); ++k) {
+      int i0, j0, i1, j1;
+      snap_height.chunkBox(k, i0, j0, i1, j1);
+      if (all || t.changedSince(snap_revision, i0, j0, i1, j1)) s->changed.push_back(k);
+    }
+    snap_terrain = &t;
+    snap_revision = t.revision();
+    const std::size_t per = snap_height.chunkValues();
+    s->h.resize(s->changed.size() * per);
+    s->l.resize(s->changed.size() * per);
+    for (std::size_t c = 0; c < s->changed.size(); ++c) {
+      snap_height.packChunk(s->changed[c], t.heightData().data(), &s->h[c * per]);
+      snap_loose.packChunk(s->changed[c], t.looseData().data(), &s->l[c * per]);
+    }
     const double st = sim.time();
     snap_stamp.append(&st);
-    // std::function needs a copyable job: the grids travel as a shared pointer and go back to
+    // std::function needs a copyable job: the buffers travel as a shared pointer and go back to
     // the pool once written.
-    auto held = std::shared_ptr<Grids>(grids.release(), [this](Grids* g) {
-      const std::lock_guard<std::mutex> lock(grid_pool_mutex);
-      grid_pool.emplace_back(g);
+    auto held = std::shared_ptr<SnapshotChunks>(s.release(), [this](SnapshotChunks* p) {
+      const std::lock_guard<std::mutex> lock(snap_pool_mutex);
+      snap_pool.emplace_back(p);
     });
     auto job = [this, held] {
-      snap_height.write((*held)[0]);
-      snap_loose.write((*held)[1]);
+      snap_height.write(held->changed, held->h.data());
+      snap_loose.write(held->changed, held->l.data());
     };
-    writer.submit(job, 2 * n * sizeof(float));
+    writer.submit(job, (held->h.size() + held->l.size()) * sizeof(float));
     last_snapshot_t = st;
   }
   void closeAll() {
@@ -586,6 +618,7 @@ EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, Epis
   // Room for the seal (io/file_seal.hpp), written once the file is complete.
   const hid_t fcpl = H5Pcreate(H5P_FILE_CREATE);
   H5Pset_userblock(fcpl, io::kSealBytes);
+  H5Pset_obj_track_times(fcpl, 0);  // the root group too (h5detail::makeGroup)
   I.file = H5Fcreate(I.tmp_path.c_str(), H5F_ACC_TRUNC, fcpl, H5P_DEFAULT);
   H5Pclose(fcpl);
   if (I.file < 0) throw OutputError(I.tmp_path + ": cannot create HDF5 file");

@@ -12,8 +12,13 @@
 
 namespace terramap::h5detail {
 
+// Objects are created without HDF5's modification/creation times (on by default), so the same
+// content gives the same file, byte for byte: an episode's sha1 is then a reproducibility check.
 inline hid_t makeGroup(hid_t parent, const std::string& name, const std::string& path) {
-  const hid_t g = H5Gcreate2(parent, name.c_str(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  const hid_t gcpl = H5Pcreate(H5P_GROUP_CREATE);
+  H5Pset_obj_track_times(gcpl, 0);
+  const hid_t g = H5Gcreate2(parent, name.c_str(), H5P_DEFAULT, gcpl, H5P_DEFAULT);
+  H5Pclose(gcpl);
   if (g < 0) throw OutputError(path + ": cannot create group '" + name + "'");
   return g;
 }
@@ -59,6 +64,7 @@ inline void writeArray(hid_t parent, const std::string& name, hid_t memtype, con
                        const std::vector<hsize_t>& dims, int gzip, const std::string& path) {
   const hid_t space = H5Screate_simple(static_cast<int>(dims.size()), dims.data(), nullptr);
   const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+  H5Pset_obj_track_times(dcpl, 0);
   bool empty = false;
   for (hsize_t d : dims) empty = empty || d == 0;
   if (!empty && gzip > 0) {

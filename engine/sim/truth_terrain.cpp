@@ -161,6 +161,8 @@ TruthTerrain::TruthTerrain(double origin_x_m, double origin_y_m, double resoluti
   lc_.assign(n, 0.0);
   h_.assign(n, height_m);
   h0_.assign(n, static_cast<float>(height_m));
+  rev_w_ = (nx + kRevisionBlock - 1) / kRevisionBlock;
+  block_rev_.assign(static_cast<std::size_t>(rev_w_) * static_cast<std::size_t>((ny + kRevisionBlock - 1) / kRevisionBlock), 0);
   // Pyramid levels over cells.
   int w = nx - 1, h = ny - 1;
   while (true) {
@@ -307,7 +309,27 @@ void TruthTerrain::applyPatch(const Patch& p) {
   }
 }
 
+bool TruthTerrain::changedSince(std::uint64_t r, int i0, int j0, int i1, int j1) const {
+  const int a0 = std::max(0, std::min(i0, i1)), a1 = std::min(nx_ - 1, std::max(i0, i1));
+  const int b0 = std::max(0, std::min(j0, j1)), b1 = std::min(ny_ - 1, std::max(j0, j1));
+  if (a0 > a1 || b0 > b1) return false;
+  for (int bj = b0 / kRevisionBlock; bj <= b1 / kRevisionBlock; ++bj)
+    for (int bi = a0 / kRevisionBlock; bi <= a1 / kRevisionBlock; ++bi)
+      if (block_rev_[static_cast<std::size_t>(bj) * rev_w_ + bi] > r) return true;
+  return false;
+}
+
 void TruthTerrain::refreshPyramid(int i0, int j0, int i1, int j1) {
+  {
+    const int a0 = std::max(0, std::min(i0, i1)), a1 = std::min(nx_ - 1, std::max(i0, i1));
+    const int b0 = std::max(0, std::min(j0, j1)), b1 = std::min(ny_ - 1, std::max(j0, j1));
+    if (a0 <= a1 && b0 <= b1) {
+      ++revision_;
+      for (int bj = b0 / kRevisionBlock; bj <= b1 / kRevisionBlock; ++bj)
+        for (int bi = a0 / kRevisionBlock; bi <= a1 / kRevisionBlock; ++bi)
+          block_rev_[static_cast<std::size_t>(bj) * rev_w_ + bi] = revision_;
+    }
+  }
   // Cells touching the node box.
   int c0 = std::max(0, std::min(i0, i1) - 1), c1 = std::min(nx_ - 2, std::max(i0, i1));
   int r0 = std::max(0, std::min(j0, j1) - 1), r1 = std::min(ny_ - 2, std::max(j0, j1));

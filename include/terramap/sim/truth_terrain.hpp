@@ -171,6 +171,20 @@ class TruthTerrain {
   void refreshPyramid(int i0, int j0, int i1, int j1);
   void refreshPyramid() { refreshPyramid(0, 0, nx_ - 1, ny_ - 1); }
 
+  /// Which parts changed, for writers that store the terrain piecewise (an episode's snapshots
+  /// rewrite only the chunks that changed). Every refreshPyramid stamps the blocks of
+  /// kRevisionBlock x kRevisionBlock nodes its box overlaps with a new revision; since every
+  /// change must be followed by a refreshPyramid over it (the contract above, which the
+  /// simulator keeps before any scan and in Simulator::truth()), a node box for which
+  /// changedSince(r, ...) is false holds the values it held when revision() was r. Conservative:
+  /// a whole block counts as changed when any node of it may have (revision 0 = the terrain as
+  /// constructed). Not thread-safe against refreshPyramid.
+  static constexpr int kRevisionBlock = 64;
+  std::uint64_t revision() const { return revision_; }
+  /// Whether the node box [i0, i1] x [j0, j1] (inclusive, clamped) may differ from what it was
+  /// when revision() returned r.
+  bool changedSince(std::uint64_t r, int i0, int j0, int i1, int j1) const;
+
   /// Sum over nodes of (U + Lc) * res^2, relative to `datum` (m^3 of bank soil).
   double bankVolume(double datum = 0.0) const;
   /// Bank volume that left the grid (deposits that would land outside), m^3.
@@ -232,6 +246,9 @@ class TruthTerrain {
   // (rounded up to float).
   struct Level { int w = 0, h = 0; std::vector<float> zmax; };
   std::vector<Level> levels_;
+  std::uint64_t revision_ = 0;
+  int rev_w_ = 0;                          ///< revision blocks per row
+  std::vector<std::uint64_t> block_rev_;  ///< per revision block, the revision of its last refresh
   double lost_m3_ = 0.0;
   double compacted_m3_ = 0.0;
   NodeTiles<double> pressed_;  ///< per node, what compact() took from U (tiles allocated where it did)
