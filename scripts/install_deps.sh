@@ -4,7 +4,7 @@
 set -euo pipefail
 PKGS=(build-essential cmake ninja-build pkg-config
   libtbb-dev libeigen3-dev liboctomap-dev libyaml-cpp-dev libboost-dev libboost-filesystem-dev
-  libbenchmark-dev libgtest-dev googletest libpcl-dev libgdal-dev gdal-bin libhdf5-dev zlib1g-dev
+  libbenchmark-dev libgtest-dev googletest libpcl-dev libgdal-dev gdal-bin libhdf5-dev libdeflate-dev
   libtorch-dev libopenblas0-openmp nlohmann-json3-dev libcli11-dev libopenmpi-dev openmpi-bin
   pybind11-dev python3-dev python3-numpy python3-pytest python3-matplotlib
   libfreetype-dev fonts-dejavu-core chromium)

@@ -3,9 +3,11 @@
 // no seal) is an InputError saying which.
 #include <terramap/core/error.hpp>
 #include <terramap/io/file_seal.hpp>
+#include <terramap/io/snapshot.hpp>
 
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <fstream>
 #include <string>
 #include <vector>
@@ -59,6 +61,32 @@ TEST_F(FileSeal, ASealedFileVerifiesAndItsBlockSaysWhatItCovers) {
   std::string head(40, '\0');
   f.read(head.data(), 40);
   EXPECT_EQ(head.rfind("terramap-seal 1\nbytes 1053409\ncrc64 ", 0), 0u) << head;
+}
+
+TEST_F(FileSeal, ALargeFileCheckedInPiecesOnThreadsGivesTheOneCallChecksum) {
+  // Past 64 MiB the checksum is read in pieces on their own threads (two or more where the
+  // machine has the cores) and combined: the seal must still hold the CRC of the whole content,
+  // and damage in the last piece must still show.
+  const std::size_t n = (std::size_t{64} << 20) + 12345;
+  const fs::path p = unsealed("large.h5", n);
+  std::vector<char> bytes(n);
+  {
+    std::ifstream f(p, std::ios::binary);
+    f.seekg(static_cast<std::streamoff>(io::kSealBytes));
+    f.read(bytes.data(), static_cast<std::streamsize>(n));
+  }
+  char want[40];
+  std::snprintf(want, sizeof want, "crc64 %016llx\n", static_cast<unsigned long long>(io::crc64(bytes.data(), n)));
+  bytes = {};
+  io::sealFile(p);
+  std::ifstream f(p, std::ios::binary);
+  std::string head(io::kSealBytes, '\0');
+  f.read(head.data(), static_cast<std::streamsize>(head.size()));
+  f.close();
+  EXPECT_TRUE(has(head, want)) << head.substr(0, 60) << " vs " << want;
+  EXPECT_NO_THROW(io::verifySeal(p));
+  flipByte(p, io::kSealBytes + n - 77);
+  EXPECT_TRUE(has(refusal(p), "damaged: checksum")) << refusal(p);
 }
 
 TEST_F(FileSeal, AFlippedByteAnywhereAfterTheBlockIsDamage) {
