@@ -201,6 +201,21 @@ class Appender {
     buf_.insert(buf_.end(), p, p + nrows * row_elems_ * elem_size_);
     if (buf_.size() > (1u << 20)) flush();
   }
+  /// Appends the rows of `rows` (whole rows of this dataset's element type), taking the vector
+  /// instead of copying it into the buffer; the rows buffered before it go first.
+  template <class T>
+  void appendOwned(std::vector<T>&& rows) {
+    if (rows.empty()) return;
+    flush();
+    if (ds_ < 0) return;
+    const std::size_t bytes = rows.size() * sizeof(T);
+    if (!writer_) {
+      write(reinterpret_cast<const char*>(rows.data()), bytes);
+      return;
+    }
+    auto held = std::make_shared<std::vector<T>>(std::move(rows));
+    writer_->submit([this, held, bytes] { write(reinterpret_cast<const char*>(held->data()), bytes); }, bytes);
+  }
   void flush() {
     if (buf_.empty() || ds_ < 0) return;
     if (!writer_) {
@@ -512,6 +527,8 @@ struct EpisodeWriter::Impl {
     writeback_fd = -1;
   }
   void writeSoilMaps(const Simulator& sim, const EpisodeOptions& options);
+  /// EpisodeWriter::record; `owned`: the same vector as `events` when its clouds may be taken.
+  void record(const Simulator& sim, const std::vector<Event>& events, std::vector<Event>* owned);
   void openMachine(hid_t mg, const MachineSpec& spec, std::size_t mi, const EpisodeOptions& options);
 };
 
@@ -716,9 +733,14 @@ EpisodeWriter::~EpisodeWriter() {
   }
 }
 
-void EpisodeWriter::record(const Simulator& sim, const std::vector<Event>& events) {
-  Impl& I = *impl_;
-  for (const Event& e : events) {
+void EpisodeWriter::record(const Simulator& sim, const std::vector<Event>& events) { impl_->record(sim, events, nullptr); }
+
+void EpisodeWriter::record(const Simulator& sim, std::vector<Event>&& events) { impl_->record(sim, events, &events); }
+
+void EpisodeWriter::Impl::record(const Simulator& sim, const std::vector<Event>& events, std::vector<Event>* owned) {
+  Impl& I = *this;
+  for (std::size_t ei = 0; ei < events.size(); ++ei) {
+    const Event& e = events[ei];
     if (const auto* pc = std::get_if<PointCloud>(&e)) {
       if (!I.opt.clouds) continue;
       const std::string& frame = pc->frame;
@@ -735,7 +757,10 @@ void EpisodeWriter::record(const Simulator& sim, const std::vector<Event>& event
       c.T.append(T);
       c.offset.append(&off);
       c.count.append(&cnt);
-      if (cnt) c.points.append(reinterpret_cast<const float*>(pc->points.data()), cnt);
+      static_assert(sizeof(PointXYZI) == 4 * sizeof(float), "a stored point is 4 floats");
+      // The clouds are most of an episode's bytes: taken, not copied, when the caller gives the events away.
+      if (cnt && owned) c.points.appendOwned(std::move(std::get<PointCloud>((*owned)[ei]).points));
+      else if (cnt) c.points.append(reinterpret_cast<const float*>(pc->points.data()), cnt);
       c.total += cnt;
     } else if (const auto* im = std::get_if<ImuSample>(&e)) {
       const auto mit = I.machine_index.find(im->frame.substr(0, im->frame.find('/')));
@@ -962,7 +987,7 @@ std::string runEpisode(const Scenario& scenario, const std::string& dir, Episode
   const Clock::time_point t1 = Clock::now();
   std::vector<Event> ev;
   while (sim.next(ev)) {
-    w.record(sim, ev);
+    w.record(sim, std::move(ev));
     ev.clear();
   }
   w.close(sim);

@@ -36,6 +36,9 @@ class EpisodeWriter {
   /// every successful next()). Writes a terrain snapshot when its interval has elapsed.
   /// \throws OutputError
   void record(const Simulator& sim, const std::vector<Event>& events);
+  /// The same, taking the point clouds' buffers instead of copying them (they are most of an
+  /// episode's bytes); `events` is left valid but its clouds' points unspecified (clear() it).
+  void record(const Simulator& sim, std::vector<Event>&& events);
   /// Writes the final terrain snapshot, flushes, closes, seals (io/file_seal.hpp) and renames
   /// into place.
   void close(const Simulator& sim);

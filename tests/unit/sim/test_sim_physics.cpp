@@ -684,6 +684,7 @@ TEST(Episode, HdfLayoutReadsBack) {
   std::vector<Observation> obs;
   std::vector<MachineTruth> truths;
   std::size_t top_points = 0, top_scans = 0;
+  std::vector<PointXYZI> top_values;
   while (sim.next(ev)) {
     for (auto& e : ev) {
       if (auto* o = std::get_if<Observation>(&e)) {
@@ -693,6 +694,7 @@ TEST(Episode, HdfLayoutReadsBack) {
       if (auto* p = std::get_if<PointCloud>(&e); p && p->frame == "ctl1/top") {
         top_points += p->points.size();
         ++top_scans;
+        top_values.insert(top_values.end(), p->points.begin(), p->points.end());
       }
     }
     ev.clear();
@@ -738,6 +740,17 @@ TEST(Episode, HdfLayoutReadsBack) {
   EXPECT_GT(max_err, 0.0);
   const auto pts = readDoubles("/machines/ctl1/clouds/top/points", dims);
   EXPECT_EQ(dims[0], top_points);
+  // The points themselves, in order (runEpisode hands the clouds' buffers to the writer).
+  ASSERT_EQ(pts.size(), 4 * top_values.size());
+  long wrong_points = 0;
+  for (std::size_t k = 0; k < top_values.size(); ++k) {
+    const PointXYZI& q = top_values[k];
+    const float got[4] = {static_cast<float>(pts[4 * k]), static_cast<float>(pts[4 * k + 1]),
+                          static_cast<float>(pts[4 * k + 2]), static_cast<float>(pts[4 * k + 3])};
+    const float want[4] = {q.x, q.y, q.z, q.intensity};
+    for (int a = 0; a < 4; ++a) wrong_points += !(got[a] == want[a] || (std::isnan(got[a]) && std::isnan(want[a])));
+  }
+  EXPECT_EQ(wrong_points, 0);
   const auto cnt = readDoubles("/machines/ctl1/clouds/top/count", dims);
   EXPECT_EQ(dims[0], top_scans);
   const auto h = readDoubles("/terrain/height", dims);
