@@ -4,7 +4,9 @@
 # then scripts/bench/render.py turns OUTDIR into the tables of BENCHMARKS.md.
 #
 # Usage: scripts/bench/reference.sh [OUTDIR] [BIN_DIR]     (defaults: out/bench, build/bin)
-#        REPS=3 (repetitions where the figure is a median), MIN_TIME=1 (seconds per benchmark)
+#        REPS=3 (repetitions where the figure is a median), MIN_TIME=1 (seconds per benchmark),
+#        ONLY='sim sim_h5' (a space-separated subset of the entry names below, plus demo and
+#        sim_h5, for a targeted re-measurement; render.py prints what the folder holds)
 # Needs a Release build with -DTERRAMAP_BUILD_BENCHMARKS=ON (the default build of `make`).
 # Takes about 10 minutes on the 2-core VM; run it with nothing else on the machine.
 set -euo pipefail
@@ -22,9 +24,11 @@ mkdir -p "$out"
 : > "$out/load.txt"
 
 # name program filter extra-args...: one JSON per entry, the load average around it.
+wanted() { [[ -z "${ONLY:-}" || " $ONLY " == *" $1 "* ]]; }
 bench() {
   local name=$1 prog=$2 filter=$3
   shift 3
+  wanted "$name" || return 0
   if [[ ! -x "$bin/$prog" ]]; then
     echo "reference.sh: $bin/$prog missing (build with -DTERRAMAP_BUILD_BENCHMARKS=ON)" >&2
     exit 1
@@ -56,6 +60,7 @@ if [[ -x "$bin/bench_strata" ]]; then bench strata bench_strata '.'; fi
 # The whole demo pipeline (simulator + lidar + blade + erosion + soil chain), as `make demo`
 # runs it: simulated seconds per wall second from report.json, three runs.
 for r in $(seq 1 "$reps"); do
+  wanted demo || break
   l0=$(cut -d' ' -f1 /proc/loadavg)
   "$bin/terramap" run --out "$out/demo_run$r" -q > /dev/null
   l1=$(cut -d' ' -f1 /proc/loadavg)
@@ -66,9 +71,9 @@ done
 # workload without the writer, the file's 2 s against BM_SimRealtime/2 and 16 s against
 # BM_SimRealtimeSustained/2 (a short episode carries the close's fixed cost: the last snapshot,
 # the seal's checksum and fsync).
-: > "$out/sim_h5.txt"
-: > "$out/sim_h5_16s.txt"
+if wanted sim_h5; then : > "$out/sim_h5.txt"; : > "$out/sim_h5_16s.txt"; fi
 for r in $(seq 1 "$reps"); do
+  wanted sim_h5 || break
   l0=$(cut -d' ' -f1 /proc/loadavg)
   "$bin/terramap" sim configs/scenarios/bench_ctl_os1_64.yaml --out "$out/sim_h5_run$r" >> "$out/sim_h5.txt"
   "$bin/terramap" sim configs/scenarios/bench_ctl_os1_64.yaml --duration 16 --out "$out/sim_h5_16s_run$r" >> "$out/sim_h5_16s.txt"
