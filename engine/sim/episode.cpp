@@ -266,7 +266,7 @@ class Appender {
 };
 
 /// A series of ny x nx float grids (the terrain snapshots): dataset [k, ny, nx] in chunks of
-/// 1 x 256 x 256, HDF5's shuffle and deflate filters when compressed. The terrain changes only
+/// 1 x 128 x 128, HDF5's shuffle and deflate filters when compressed. The terrain changes only
 /// where the machines work, so most chunks of a snapshot equal the previous snapshot's: the
 /// simulating thread converts only the chunks the terrain's revisions say may have changed
 /// (TruthTerrain::changedSince), the others are written as the bytes already compressed for them
@@ -275,10 +275,19 @@ class Appender {
 /// file as before). Deflating every 18 MB snapshot whole cost more CPU than the simulation it
 /// records; converting every node of it on the simulating thread, a quarter of what the writer
 /// added to a run. libdeflate rather than zlib: the same zlib stream format, half the CPU for the
-/// snapshot chunks of the 16 s benchmark episode (0.30 -> 0.15 s, thread CPU time).
+/// snapshot chunks of the 16 s benchmark episode (0.30 -> 0.15 s, thread CPU time). 128 rather
+/// than 256 nodes a side: a working machine changes a few square metres a second, and smaller
+/// chunks deflate less of what did not change (that episode's deflate 0.18 -> 0.13 s of thread
+/// CPU, its file 2 % larger).
+///
+/// Tried and not kept (2026-11-27): each chunk version stored once and <name> an HDF5 virtual
+/// dataset mapping every (snapshot, chunk) onto its version. The 16 s episode halved (165 -> 86
+/// MB) but the run was only ~2 % faster, and virtual datasets scale with their mappings: at 801
+/// snapshots (snapshot_interval_s 0.02) h5py read one snapshot in 0.41 s instead of 0.035 s and
+/// the writer peaked at 1.6 GB instead of 0.76 GB; an hour at 1 s would be 130 k mappings.
 class GridSeries {
  public:
-  static constexpr int kChunk = 256;
+  static constexpr int kChunk = 128;  // nodes a side
   GridSeries() = default;
   GridSeries(hid_t parent, const std::string& name, int nx, int ny, int gzip, const std::string& path)
       : nx_(nx), ny_(ny), gzip_(gzip), path_(path), name_(name) {

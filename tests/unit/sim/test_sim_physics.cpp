@@ -785,7 +785,7 @@ TEST(Episode, TerrainSnapshotsReadBackBitForBitAsTheTruthTheyRecorded) {
   // previous snapshot's bytes (engine/sim/episode.cpp, GridSeries), on its writer thread. Read
   // back through libhdf5's own filters, every snapshot must be the truth terrain (as float) at
   // the time it was taken: unchanged chunks, cut chunks, partial edge chunks, with and without
-  // compression. 14 m x 6 m at 2 cm = 701 x 301 nodes: 3 x 2 chunks of 256, the last ones partial;
+  // compression. 14 m x 6 m at 2 cm = 701 x 301 nodes: 6 x 3 chunks of 128, the last ones partial;
   // the blade cuts along y = 0 only, so chunks away from it stay the same between snapshots.
   for (int gzip : {1, 0}) {
     const std::string dir = std::string(TERRAMAP_BINARY_DIR) + "/sim_test_snapshots_" + std::to_string(gzip);
