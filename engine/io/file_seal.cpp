@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstring>
 #include <string>
+#include <system_error>
 #include <thread>
 #include <vector>
 
@@ -79,12 +80,24 @@ bool crcAfterBlock(int fd, std::uint64_t size, std::uint64_t& crc) {
   std::vector<char> ok(parts, 0);
   std::vector<int> err(parts, 0);
   auto begin = [&](std::size_t p) { return kSealBytes + n * p / parts; };
-  auto run = [&](std::size_t p) {
-    ok[p] = crcOfRange(fd, begin(p), begin(p + 1), part_crc[p]);
-    err[p] = errno;
+  auto run = [&](std::size_t p) noexcept {
+    try {
+      ok[p] = crcOfRange(fd, begin(p), begin(p + 1), part_crc[p]);
+      err[p] = errno;
+    } catch (...) {  // the read buffer: nothing may escape a helper thread
+      ok[p] = 0;
+      err[p] = ENOMEM;
+    }
   };
   std::vector<std::thread> helpers;
-  for (std::size_t p = 1; p < parts; ++p) helpers.emplace_back(run, p);
+  helpers.reserve(parts);
+  for (std::size_t p = 1; p < parts; ++p) {
+    try {
+      helpers.emplace_back(run, p);
+    } catch (const std::system_error&) {
+      run(p);  // no thread to be had: this part here
+    }
+  }
   run(0);
   for (std::thread& t : helpers) t.join();
   crc = part_crc[0];
@@ -119,14 +132,26 @@ void sealFile(const fs::path& path) {
   // The data goes to disk while its checksum is computed (the seal of a 165 MB episode waited
   // ~10 ms for the last writes after the checksum); the final fsync then covers the seal block.
   int flush_rc = 0, flush_errno = 0;
-  std::thread flusher([&] {
+  auto flush = [&]() noexcept {
     flush_rc = ::fdatasync(f.fd);
     flush_errno = errno;
-  });
+  };
+  std::thread flusher;
+  try {
+    flusher = std::thread(flush);
+  } catch (const std::system_error&) {
+    flush();  // no thread to be had: flush first, then read
+  }
   std::uint64_t crc = 0;
-  const bool read_ok = crcAfterBlock(f.fd, size, crc);
+  bool read_ok = false;
+  try {
+    read_ok = crcAfterBlock(f.fd, size, crc);
+  } catch (...) {
+    if (flusher.joinable()) flusher.join();
+    throw;
+  }
   const int read_errno = errno;
-  flusher.join();
+  if (flusher.joinable()) flusher.join();
   errno = read_errno;
   if (!read_ok) throw OutputError(p + ": cannot read the file to seal it" + errnoSuffix());
   errno = flush_errno;
