@@ -211,13 +211,13 @@ PipelineSpec parsePipelineString(const std::string& yaml, const std::string& nam
 }
 
 void applyParamOverrides(PipelineSpec& spec, const std::vector<std::string>& overrides) {
-  std::vector<std::string> errors;
+  yaml::Diagnostics diag;  // every malformed override, thrown at once
   for (const std::string& ov : overrides) {
     const std::string where = "--set " + ov;
     const auto eq = ov.find('=');
     const auto dot = ov.find('.');
     if (eq == std::string::npos || dot == std::string::npos || dot > eq || dot == 0 || dot + 1 == eq) {
-      errors.push_back(where + ": expected STAGE.KEY=VALUE (e.g. --set bayes.prior=config)");
+      diag.errors.push_back(where + ": expected STAGE.KEY=VALUE (e.g. --set bayes.prior=config)");
       continue;
     }
     const std::string stage = ov.substr(0, dot), key = ov.substr(dot + 1, eq - dot - 1), text = ov.substr(eq + 1);
@@ -225,31 +225,25 @@ void applyParamOverrides(PipelineSpec& spec, const std::vector<std::string>& ove
     if (it == spec.stages.end()) {
       std::string names;
       for (const StageSpec& s : spec.stages) names += (names.empty() ? "" : ", ") + s.name;
-      errors.push_back(where + ": no stage named '" + stage + "' (the pipeline's: " + names + ")");
+      diag.errors.push_back(where + ": no stage named '" + stage + "' (the pipeline's: " + names + ")");
       continue;
     }
-    yaml::Diagnostics d;
-    d.file = where;
     YAML::Node n;
     try {
       n = yaml::load(text.empty() ? std::string("\"\"") : text, where);
     } catch (const ConfigError& e) {
-      errors.push_back(e.what());
+      diag.errors.push_back(e.what());
       continue;
     }
-    RawParam r = yaml::toRaw(d, n, key);
+    RawParam r = yaml::toRaw(diag, n, key);
     if (r.is_map) {
-      errors.push_back(where + ": the value must be a scalar or a list of scalars");
+      diag.errors.push_back(where + ": the value must be a scalar or a list of scalars");
       continue;
     }
-    r.where = where;
+    r.where = where;  // what the stage's schema names in its messages
     it->params[key] = r;
   }
-  if (!errors.empty()) {
-    std::string all;
-    for (const auto& e : errors) all += (all.empty() ? "" : "\n") + e;
-    throw ConfigError(all);
-  }
+  diag.throwIfAny();
 }
 
 }  // namespace terramap

@@ -100,7 +100,7 @@ TERRAMAP_API PipelineSpec parsePipelineString(const std::string& yaml, const std
 /// it (0.5, 3, true, none, [1, 2], "quoted text"). The value replaces the file's (or adds the
 /// key); the stage's declared params check it later (Engine::validate), and their messages name
 /// the override ("--set bayes.prior=nonee: ..."). Every malformed override is reported at once.
-/// 	hrows ConfigError listing the overrides without '=', without a "STAGE." prefix, naming no
+/// \throws ConfigError listing the overrides without '=', without a "STAGE." prefix, naming no
 ///         stage of the pipeline, or whose value is not a scalar or a list of scalars.
 TERRAMAP_API void applyParamOverrides(PipelineSpec& spec, const std::vector<std::string>& overrides);
 
