@@ -309,26 +309,28 @@ void TruthTerrain::applyPatch(const Patch& p) {
   }
 }
 
-bool TruthTerrain::changedSince(std::uint64_t r, int i0, int j0, int i1, int j1) const {
+bool TruthTerrain::revisionBlocks(int i0, int j0, int i1, int j1, int& bi0, int& bj0, int& bi1, int& bj1) const {
   const int a0 = std::max(0, std::min(i0, i1)), a1 = std::min(nx_ - 1, std::max(i0, i1));
   const int b0 = std::max(0, std::min(j0, j1)), b1 = std::min(ny_ - 1, std::max(j0, j1));
-  if (a0 > a1 || b0 > b1) return false;
-  for (int bj = b0 / kRevisionBlock; bj <= b1 / kRevisionBlock; ++bj)
-    for (int bi = a0 / kRevisionBlock; bi <= a1 / kRevisionBlock; ++bi)
+  bi0 = a0 / kRevisionBlock, bi1 = a1 / kRevisionBlock, bj0 = b0 / kRevisionBlock, bj1 = b1 / kRevisionBlock;
+  return a0 <= a1 && b0 <= b1;
+}
+
+bool TruthTerrain::changedSince(std::uint64_t r, int i0, int j0, int i1, int j1) const {
+  int bi0, bj0, bi1, bj1;
+  if (!revisionBlocks(i0, j0, i1, j1, bi0, bj0, bi1, bj1)) return false;
+  for (int bj = bj0; bj <= bj1; ++bj)
+    for (int bi = bi0; bi <= bi1; ++bi)
       if (block_rev_[static_cast<std::size_t>(bj) * rev_w_ + bi] > r) return true;
   return false;
 }
 
 void TruthTerrain::refreshPyramid(int i0, int j0, int i1, int j1) {
-  {
-    const int a0 = std::max(0, std::min(i0, i1)), a1 = std::min(nx_ - 1, std::max(i0, i1));
-    const int b0 = std::max(0, std::min(j0, j1)), b1 = std::min(ny_ - 1, std::max(j0, j1));
-    if (a0 <= a1 && b0 <= b1) {
-      ++revision_;
-      for (int bj = b0 / kRevisionBlock; bj <= b1 / kRevisionBlock; ++bj)
-        for (int bi = a0 / kRevisionBlock; bi <= a1 / kRevisionBlock; ++bi)
-          block_rev_[static_cast<std::size_t>(bj) * rev_w_ + bi] = revision_;
-    }
+  int bi0, bj0, bi1, bj1;
+  if (revisionBlocks(i0, j0, i1, j1, bi0, bj0, bi1, bj1)) {
+    ++revision_;
+    for (int bj = bj0; bj <= bj1; ++bj)
+      std::fill_n(&block_rev_[static_cast<std::size_t>(bj) * rev_w_ + bi0], bi1 - bi0 + 1, revision_);
   }
   // Cells touching the node box.
   int c0 = std::max(0, std::min(i0, i1) - 1), c1 = std::min(nx_ - 2, std::max(i0, i1));

@@ -233,6 +233,8 @@ class TruthTerrain {
     return bilinearAt(x, y, [this, &a](int i, int j) { return a[index(i, j)]; });
   }
   double nodeMaxCell(int ci, int cj) const;
+  /// The revision blocks [bi0, bi1] x [bj0, bj1] over the node box (clamped); false if it is empty.
+  bool revisionBlocks(int i0, int j0, int i1, int j1, int& bi0, int& bj0, int& bi1, int& bj1) const;
 
   double ox_, oy_, res_;
   int nx_, ny_;
