@@ -86,22 +86,6 @@ class WriterThread {
     queued_bytes_ += bytes;
     work_.notify_one();
   }
-  /// A buffer for rows on their way to a job, empty, with the capacity of one given back before
-  /// (an Appender's buffer grew by doubling from nothing after each flush, copying its rows again
-  /// and faulting in fresh pages on the simulating thread).
-  std::vector<char> takeBuffer() {
-    std::lock_guard<std::mutex> lk(spare_m_);
-    if (spare_.empty()) return {};
-    std::vector<char> b = std::move(spare_.back());
-    spare_.pop_back();
-    return b;
-  }
-  /// Keeps a buffer a job is done with for takeBuffer() (a few; the rest are freed).
-  void giveBack(std::vector<char>&& b) {
-    b.clear();
-    std::lock_guard<std::mutex> lk(spare_m_);  // not m_: jobs are destroyed with m_ held
-    if (spare_.size() < 16) spare_.push_back(std::move(b));
-  }
   /// Waits until every queued job ran. \throws the first job's exception.
   void drain() {
     std::unique_lock<std::mutex> lk(m_);
@@ -158,8 +142,6 @@ class WriterThread {
   std::mutex m_;
   std::condition_variable work_, space_, idle_;
   std::deque<Job> jobs_;
-  std::mutex spare_m_;
-  std::vector<std::vector<char>> spare_;
   std::size_t queued_bytes_ = 0;
   bool async_ = false, busy_ = false, quit_ = false;
   std::exception_ptr error_;
@@ -225,12 +207,8 @@ class Appender {
     }
     // The rows go to the writer; this Appender stays where it is until the writer is drained
     // (both live in the EpisodeWriter's Impl), so the job may refer to it.
-    WriterThread* w = writer_;
-    auto rows = std::shared_ptr<std::vector<char>>(new std::vector<char>(std::move(buf_)), [w](std::vector<char>* b) {
-      w->giveBack(std::move(*b));
-      delete b;
-    });
-    buf_ = writer_->takeBuffer();
+    auto rows = std::make_shared<std::vector<char>>(std::move(buf_));
+    buf_ = std::vector<char>();
     const std::size_t bytes = rows->size();
     writer_->submit([this, rows] { write(rows->data(), rows->size()); }, bytes);
   }
@@ -430,15 +408,11 @@ struct MachineSets {
 }  // namespace
 
 struct EpisodeWriter::Impl {
-  /// Snapshot buffers the writer thread is done with, for the next snapshot (a fresh one is MB
-  /// of zeroed pages faulted in on the simulating thread). Declared before the writer, so they
-  /// outlive the jobs it may still hold when it goes.
+  /// What one snapshot hands the writer thread: only the chunks that may have changed.
   struct SnapshotChunks {
     std::vector<int> changed;   // chunk indices, ascending
     std::vector<float> h, l;    // changed.size() x chunkValues() each (height, loose)
   };
-  std::mutex snap_pool_mutex;
-  std::vector<std::unique_ptr<SnapshotChunks>> snap_pool;
   WriterThread writer;  // started once the file is laid out; stopped by closeAll() before any other HDF5 call
   std::string final_path, tmp_path;
   EpisodeOptions opt;
@@ -464,17 +438,9 @@ struct EpisodeWriter::Impl {
   /// the writer thread.
   void snapshot(const Simulator& sim) {
     const TruthTerrain& t = sim.truth();
-    std::unique_ptr<SnapshotChunks> s;
-    {
-      const std::lock_guard<std::mutex> lock(snap_pool_mutex);
-      if (!snap_pool.empty()) {
-        s = std::move(snap_pool.back());
-        snap_pool.pop_back();
-      }
-    }
-    if (!s) s = std::make_unique<SnapshotChunks>();
+    // Shared: std::function needs a copyable job.
+    const auto s = std::make_shared<SnapshotChunks>();
     const bool all = snap_terrain != &t;
-    s->changed.clear();
     for (int k = 0; k < snap_height.chunks(); ++k) {
       int i0, j0, i1, j1;
       snap_height.chunkBox(k, i0, j0, i1, j1);
@@ -491,17 +457,11 @@ struct EpisodeWriter::Impl {
     }
     const double st = sim.time();
     snap_stamp.append(&st);
-    // std::function needs a copyable job: the buffers travel as a shared pointer and go back to
-    // the pool once written.
-    auto held = std::shared_ptr<SnapshotChunks>(s.release(), [this](SnapshotChunks* p) {
-      const std::lock_guard<std::mutex> lock(snap_pool_mutex);
-      snap_pool.emplace_back(p);
-    });
-    auto job = [this, held] {
-      snap_height.write(held->changed, held->h.data());
-      snap_loose.write(held->changed, held->l.data());
+    auto job = [this, s] {
+      snap_height.write(s->changed, s->h.data());
+      snap_loose.write(s->changed, s->l.data());
     };
-    writer.submit(job, (held->h.size() + held->l.size()) * sizeof(float));
+    writer.submit(job, (s->h.size() + s->l.size()) * sizeof(float));
     if (writeback_fd >= 0) {
       const int fd = writeback_fd;
       // Only starts the writeback (no wait) and cannot lose data: a failure here leaves it to fsync.
