@@ -52,7 +52,9 @@ Registrar reg{Command{"sim", [](CLI::App& app, std::function<int()>& run) {
       std::cout << "wrote " << path << ": " << sc.duration_s << " s simulated in " << tm.run_s << " s wall ("
                 << sc.duration_s / tm.run_s << "x real time), after " << tm.setup_s
                 << " s building the world and laying out the file (" << sc.duration_s / (tm.setup_s + tm.run_s)
-                << "x real time with it)\n";
+                << "x real time with it); the writer thread used " << tm.writer_cpu_s
+                << " s of CPU beside the simulation, closing the file (last writes, checksum, flush to disk) "
+                << tm.close_s << " s of the run\n";
       if (!args->export_commands.empty()) {
         sim::writeCommandLog(args->export_commands, sim::episodeCommands(path, sc.machines.front().id));
         std::cout << "wrote " << args->export_commands << "\n";

@@ -66,8 +66,8 @@ bool crcOfRange(int fd, std::uint64_t a, std::uint64_t b, std::uint64_t& crc) {
 }
 
 /// CRC-64 of bytes [kSealBytes, size) of `fd`: a large file in up to four pieces read on their
-/// own threads, combined with crc64Combine (the seal of a 165 MB episode is on the critical path
-/// of `terramap sim`, after the simulation, when the cores are free). Read with pread, not
+/// own threads, combined with crc64Combine (an episode's seal, hundreds of MB, is on the critical
+/// path of `terramap sim`, after the simulation, when the cores are free). Read with pread, not
 /// mapped: a file cut short meanwhile is an error, not a SIGBUS.
 bool crcAfterBlock(int fd, std::uint64_t size, std::uint64_t& crc) {
   crc = 0;
@@ -129,8 +129,8 @@ void sealFile(const fs::path& path) {
   if (std::any_of(block, block + sizeof block, [](unsigned char c) { return c != 0; }))
     throw OutputError(p + ": its first " + std::to_string(kSealBytes) +
                       " bytes are not an empty HDF5 user block (create the file with H5Pset_userblock)");
-  // The data goes to disk while its checksum is computed (the seal of a 165 MB episode waited
-  // ~10 ms for the last writes after the checksum); the final fsync then covers the seal block.
+  // The data goes to disk while its checksum is computed, instead of after it; the final fsync
+  // then covers only the seal block.
   int flush_rc = 0, flush_errno = 0;
   auto flush = [&]() noexcept {
     flush_rc = ::fdatasync(f.fd);

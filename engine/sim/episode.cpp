@@ -8,6 +8,7 @@
 
 #include <hdf5.h>
 #include <fcntl.h>
+#include <time.h>
 #include <unistd.h>
 #include <libdeflate.h>
 
@@ -103,6 +104,8 @@ class WriterThread {
     }
     if (thread_.joinable()) thread_.join();
   }
+  /// CPU seconds the thread used (its jobs and its waits' overhead); valid after stop().
+  double cpuSeconds() const { return cpu_s_; }
 
  private:
   struct Job {
@@ -116,7 +119,12 @@ class WriterThread {
     std::unique_lock<std::mutex> lk(m_);
     while (true) {
       work_.wait(lk, [&] { return quit_ || !jobs_.empty(); });
-      if (quit_) return;
+      if (quit_) {
+        timespec ts{};
+        if (::clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts) == 0)
+          cpu_s_ = static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+        return;
+      }
       Job job = std::move(jobs_.front());
       jobs_.pop_front();
       busy_ = true;
@@ -145,6 +153,7 @@ class WriterThread {
   std::size_t queued_bytes_ = 0;
   bool async_ = false, busy_ = false, quit_ = false;
   std::exception_ptr error_;
+  double cpu_s_ = 0.0;  // written by the thread as it ends, read after join
   std::thread thread_;
 };
 
@@ -250,19 +259,16 @@ class Appender {
 /// (TruthTerrain::changedSince), the others are written as the bytes already compressed for them
 /// (H5Dwrite_chunk), and a converted chunk is shuffled and deflated only when its values did
 /// change, in the layout HDF5's shuffle and deflate filters decode (any HDF5 reader reads the
-/// file as before). Deflating every 18 MB snapshot whole cost more CPU than the simulation it
-/// records; converting every node of it on the simulating thread, a quarter of what the writer
-/// added to a run. libdeflate rather than zlib: the same zlib stream format, half the CPU for the
-/// snapshot chunks of the 16 s benchmark episode (0.30 -> 0.15 s, thread CPU time). 128 rather
-/// than 256 nodes a side: a working machine changes a few square metres a second, and smaller
-/// chunks deflate less of what did not change (that episode's deflate 0.18 -> 0.13 s of thread
-/// CPU, its file 2 % larger).
+/// file as before). Why each step: the writer thread's CPU is taken from the simulation's two
+/// cores, so deflating only what changed, with libdeflate (the same zlib stream, about half
+/// zlib's CPU), in chunks of 128 nodes a side (a working machine changes a few square metres a
+/// second; larger chunks deflate more of what did not change) is what keeps `terramap sim` near
+/// the benchmark (docs/sim.md, "Writing the episode", has the before/after and their commands).
 ///
-/// Tried and not kept (2026-11-27): each chunk version stored once and <name> an HDF5 virtual
-/// dataset mapping every (snapshot, chunk) onto its version. The 16 s episode halved (165 -> 86
-/// MB) but the run was only ~2 % faster, and virtual datasets scale with their mappings: at 801
-/// snapshots (snapshot_interval_s 0.02) h5py read one snapshot in 0.41 s instead of 0.035 s and
-/// the writer peaked at 1.6 GB instead of 0.76 GB; an hour at 1 s would be 130 k mappings.
+/// Tried and not kept: each chunk version stored once and <name> an HDF5 virtual dataset mapping
+/// every (snapshot, chunk) onto its version. The file halves, but reading and writing a virtual
+/// dataset scale with its mappings (an hour of 1 s snapshots would be 130 k per layer); see
+/// docs/sim.md for what was measured.
 class GridSeries {
  public:
   static constexpr int kChunk = 128;  // nodes a side
@@ -418,8 +424,8 @@ struct EpisodeWriter::Impl {
   EpisodeOptions opt;
   hid_t file = -1, terrain = -1;
   /// The temporary file once more, read-only: the writer thread asks the kernel to start writing
-  /// its pages to disk after each snapshot (sync_file_range), so the seal's fsync at close finds
-  /// little left to wait for (it was 0.07 s of a 1 s run, after the simulation).
+  /// its pages to disk after each snapshot (sync_file_range), so the seal's fsync at close, after
+  /// the simulation, finds little left to wait for (`terramap sim` prints the close's time).
   int writeback_fd = -1;
   Appender snap_stamp;
   GridSeries snap_height, snap_loose;
@@ -431,6 +437,7 @@ struct EpisodeWriter::Impl {
   std::vector<MachineSets> machines;
   std::map<std::string, std::size_t> machine_index;
   bool closed = false;
+  double writer_cpu_s = 0.0;  // the writer thread's CPU seconds, once closed
 
   /// The terrain now, handed to the writer thread. This runs on the simulating thread between
   /// two periods, so it only converts, and only the chunks that may have changed since the last
@@ -471,6 +478,7 @@ struct EpisodeWriter::Impl {
   }
   void closeAll() {
     writer.stop();
+    writer_cpu_s = writer.cpuSeconds();
     for (auto& m : machines) {
       for (auto& [k, c] : m.cloud) {
         c.stamp = Appender(); c.T = Appender(); c.offset = Appender(); c.count = Appender(); c.points = Appender();
@@ -706,6 +714,8 @@ void EpisodeWriter::record(const Simulator& sim, const std::vector<Event>& event
 
 void EpisodeWriter::record(const Simulator& sim, std::vector<Event>&& events) { impl_->record(sim, events, &events); }
 
+double EpisodeWriter::writerCpuSeconds() const { return impl_->writer_cpu_s; }
+
 void EpisodeWriter::Impl::record(const Simulator& sim, const std::vector<Event>& events, std::vector<Event>* owned) {
   Impl& I = *this;
   for (std::size_t ei = 0; ei < events.size(); ++ei) {
@@ -839,7 +849,7 @@ void EpisodeWriter::close(const Simulator& sim) {
     }
   }
   I.snap_stamp.flush();
-  // Summed over every node (4 ms on the benchmark's 1501 x 1501 grid) while the writer drains.
+  // Summed over every node: done while the writer drains rather than after it.
   const double bank_final = sim.truth().bankVolume();
   I.writer.drain();  // the writer thread's last HDF5 call: from here on this thread makes them
   attrDouble(I.file, "lost_volume_m3", sim.truth().lostVolume());
@@ -961,10 +971,14 @@ std::string runEpisode(const Scenario& scenario, const std::string& dir, Episode
     w.record(sim, std::move(ev));
     ev.clear();
   }
+  const Clock::time_point t2 = Clock::now();
   w.close(sim);
   if (timing) {
+    const Clock::time_point t3 = Clock::now();
     timing->setup_s = std::chrono::duration<double>(t1 - t0).count();
-    timing->run_s = std::chrono::duration<double>(Clock::now() - t1).count();
+    timing->run_s = std::chrono::duration<double>(t3 - t1).count();
+    timing->close_s = std::chrono::duration<double>(t3 - t2).count();
+    timing->writer_cpu_s = w.writerCpuSeconds();
   }
   return path;
 }

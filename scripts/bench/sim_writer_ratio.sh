@@ -1,16 +1,23 @@
 #!/usr/bin/env bash
-# #15's "terramap sim within 20 % of the benchmark", measured so that the VM's drift falls on both
-# sides alike: ROUNDS rounds, each one BM_SimRealtimeSustained/2 (the 16 s workload without the
-# writer) and one `terramap sim --duration 16` of the same scenario file (the run's time as it
-# prints it, the set-up apart), then the medians and their ratio. DURATION=2 compares the
-# scenario file's own 2 s with BM_SimRealtime/2 instead (a short episode carries the close's fixed
-# cost: the last snapshot, the seal's checksum and fsync).
+# `terramap sim` measured so that the VM's drift falls on both sides alike: ROUNDS rounds, each
+# one run of the reference and one `terramap sim` of configs/scenarios/bench_ctl_os1_64.yaml
+# (the run's time as it prints it, the set-up apart), then the medians.
 #
-# Usage: [DURATION=16|2] scripts/bench/sim_writer_ratio.sh [ROUNDS] [BIN_DIR]     (defaults: 7, build/bin)
+#   scripts/bench/sim_writer_ratio.sh [ROUNDS] [BIN_DIR]            (defaults: 7, build/bin)
+#     #15's "within 20 % of the benchmark": the reference is the same workload without the writer,
+#     BM_SimRealtimeSustained/2 against `--duration 16`; DURATION=2 compares the file's own 2 s
+#     with BM_SimRealtime/2 (a short episode carries the close's fixed cost).
+#   BASE_BIN=OTHER/bin scripts/bench/sim_writer_ratio.sh [ROUNDS] [BIN_DIR]
+#     before/after: the reference is `terramap sim` of another build (e.g. a `git worktree` of the
+#     commit before, built with `cmake --build B --target terramap`).
+#
+# Also prints the medians of the writer thread's CPU seconds and of the close, as terramap sim
+# reports them.
 set -euo pipefail
 rounds=${1:-7}
 bin=${2:-build/bin}
 duration=${DURATION:-16}
+base_bin=${BASE_BIN:-}
 case "$duration" in
   16) filter='BM_SimRealtimeSustained/2/' ;;
   2) filter='BM_SimRealtime/2/' ;;
@@ -18,22 +25,34 @@ case "$duration" in
 esac
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
-bench=() sim=()
-for r in $(seq 1 "$rounds"); do
-  b=$("$bin/bench_sim" --benchmark_filter="$filter" --benchmark_format=json 2>/dev/null |
-      python3 -c 'import json,sys; b=json.load(sys.stdin)["benchmarks"][0]; print(b["real_time"])  # per iteration, ms')
-  s=$("$bin/terramap" sim configs/scenarios/bench_ctl_os1_64.yaml --duration "$duration" --out "$out/ep" |
-      sed -n 's/.*simulated in \([0-9.]*\) s wall.*/\1/p')
+
+# One `terramap sim` run of BIN: "run_s writer_cpu_s close_s" (nan where an older build does not
+# print the last two).
+sim_run() {
+  "$1/terramap" sim configs/scenarios/bench_ctl_os1_64.yaml --duration "$duration" --out "$out/ep" | python3 -c '
+import re, sys
+t = sys.stdin.read()
+f = lambda p: (re.search(p, t) or [None, "nan"])[1]
+print(f(r"simulated in ([0-9.e+-]+) s wall"), f(r"writer thread used ([0-9.e+-]+) s of CPU"), f(r"to disk\) ([0-9.e+-]+) s of the run"))'
   rm -rf "$out/ep"
-  bench+=("$b") sim+=("$s")
-  echo "round $r: ${filter%/} ${b} ms, terramap sim ${s} s" >&2
+}
+
+: > "$out/ref" ; : > "$out/new"
+for r in $(seq 1 "$rounds"); do
+  if [[ -n "$base_bin" ]]; then
+    sim_run "$base_bin" >> "$out/ref"
+  else
+    "$bin/bench_sim" --benchmark_filter="$filter" --benchmark_format=json 2>/dev/null |
+      python3 -c 'import json,sys; b=json.load(sys.stdin)["benchmarks"][0]; print(b["real_time"] / 1000.0)' >> "$out/ref"
+  fi
+  sim_run "$bin" >> "$out/new"
+  echo "round $r: reference $(tail -1 "$out/ref"), terramap sim (run, writer CPU, close) $(tail -1 "$out/new")" >&2
 done
-python3 - "${bench[*]}" "${sim[*]}" "$duration" "${filter%/}" <<'PY'
+python3 - "$out/ref" "$out/new" "$duration" "${base_bin:-${filter%/}}" <<'PY'
 import statistics, sys
-b = statistics.median(float(x) for x in sys.argv[1].split()) / 1000.0
-s = statistics.median(float(x) for x in sys.argv[2].split())
-d, name = float(sys.argv[3]), sys.argv[4]
-print(f"median {name} {b:.3f} s ({d / b:.1f}x), terramap sim --duration {d:g} {s:.3f} s "
-      f"({d / s:.1f}x): the writer costs {100 * (s / b - 1):.0f} % of the time, "
-      f"{100 * (1 - b / s):.0f} % below the benchmark's real-time factor")
+col = lambda path, k: statistics.median(float(line.split()[k]) for line in open(path) if line.strip())
+ref, new, d, name = col(sys.argv[1], 0), col(sys.argv[2], 0), float(sys.argv[3]), sys.argv[4]
+print(f"median {name} {ref:.3f} s ({d / ref:.1f}x), terramap sim --duration {d:g} {new:.3f} s ({d / new:.1f}x): "
+      f"{100 * (new / ref - 1):+.0f} % of the time, {100 * (1 - ref / new):.0f} % below the reference's real-time factor; "
+      f"writer thread {col(sys.argv[2], 1):.3f} s CPU, close {col(sys.argv[2], 2):.3f} s")
 PY

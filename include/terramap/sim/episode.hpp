@@ -42,6 +42,9 @@ class EpisodeWriter {
   /// Writes the final terrain snapshot, flushes, closes, seals (io/file_seal.hpp) and renames
   /// into place.
   void close(const Simulator& sim);
+  /// CPU seconds the writer thread used (deflating snapshot chunks, HDF5 writes, the kernel's
+  /// copies); 0 before close(). The simulation's cores pay for it: `terramap sim` prints it.
+  double writerCpuSeconds() const;
 
   struct Impl;
 
@@ -91,7 +94,10 @@ io::Trajectory episodeTrajectory(const EpisodeFile& file, const std::string& mac
 /// file with its static parts (EpisodeWriter); `run_s` simulates and writes the rest, up to the
 /// sealed file in place: the part BM_SimRealtime measures, plus the HDF5 writer.
 struct EpisodeTiming {
-  double setup_s = 0.0, run_s = 0.0;
+  double setup_s = 0.0;       ///< building the world and laying out the file (wall s)
+  double run_s = 0.0;         ///< the simulation and its writes, close included (wall s)
+  double close_s = 0.0;       ///< of run_s, EpisodeWriter::close: the last writes, HDF5 close, seal, fsync
+  double writer_cpu_s = 0.0;  ///< CPU seconds of the writer thread during the run
 };
 
 /// Runs a whole scenario into `dir`/episode.h5 (creating `dir`). Returns the file path; fills

@@ -904,3 +904,18 @@ TEST(TruthTerrain, ChangedSinceNamesTheBlocksARefreshCovered) {
   EXPECT_EQ(copy.revision(), t.revision());
   EXPECT_TRUE(copy.changedSince(r1, 128, 64, 128, 64));
 }
+
+TEST(Episode, ItsTimingSaysWhatTheWriterCost) {
+  // What `terramap sim` prints beside the real-time factor: the writer thread's CPU (it runs on
+  // the simulation's cores) and the close's share of the run (last writes, checksum, fsync).
+  const std::string dir = std::string(TERRAMAP_BINARY_DIR) + "/sim_test_episode_timing";
+  std::filesystem::remove_all(dir);
+  const Scenario sc = parseScenario(scenarioYaml("{family: loam, relative_density: 0.4}", 0.1, 0.15, 1.0, 2, true), "s.yaml");
+  EpisodeTiming tm;
+  runEpisode(sc, dir, EpisodeOptions{}, &tm);
+  EXPECT_GT(tm.setup_s, 0.0);
+  EXPECT_GT(tm.writer_cpu_s, 0.0);  // it wrote the clouds and snapshots
+  EXPECT_GT(tm.close_s, 0.0);
+  EXPECT_LT(tm.close_s, tm.run_s);
+  std::filesystem::remove_all(dir);
+}
