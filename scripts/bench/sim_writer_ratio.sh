@@ -48,11 +48,16 @@ for r in $(seq 1 "$rounds"); do
   sim_run "$bin" >> "$out/new"
   echo "round $r: reference $(tail -1 "$out/ref"), terramap sim (run, writer CPU, close) $(tail -1 "$out/new")" >&2
 done
-python3 - "$out/ref" "$out/new" "$duration" "${base_bin:-${filter%/}}" <<'PY'
+python3 - "$out/ref" "$out/new" "$duration" "${base_bin:-${filter%/}}" "${base_bin:+builds}" <<'PY'
 import statistics, sys
 col = lambda path, k: statistics.median(float(line.split()[k]) for line in open(path) if line.strip())
 ref, new, d, name = col(sys.argv[1], 0), col(sys.argv[2], 0), float(sys.argv[3]), sys.argv[4]
-print(f"median {name} {ref:.3f} s ({d / ref:.1f}x), terramap sim --duration {d:g} {new:.3f} s ({d / new:.1f}x): "
-      f"{100 * (new / ref - 1):+.0f} % of the time, {100 * (1 - ref / new):.0f} % below the reference's real-time factor; "
-      f"writer thread {col(sys.argv[2], 1):.3f} s CPU, close {col(sys.argv[2], 2):.3f} s")
+writer = f"writer thread {col(sys.argv[2], 1):.3f} s CPU, close {col(sys.argv[2], 2):.3f} s"
+if sys.argv[5]:  # before/after of two builds
+    print(f"terramap sim --duration {d:g}, medians: {name} {ref:.3f} s ({d / ref:.1f}x) -> this build {new:.3f} s "
+          f"({d / new:.1f}x), {100 * (new / ref - 1):+.0f} % of the time; {writer}")
+else:
+    print(f"median {name} {ref:.3f} s ({d / ref:.1f}x), terramap sim --duration {d:g} {new:.3f} s ({d / new:.1f}x): "
+          f"the writer adds {100 * (new / ref - 1):.0f} % to the time, {100 * (1 - ref / new):.0f} % below the "
+          f"benchmark's real-time factor; {writer}")
 PY
