@@ -49,10 +49,11 @@ def main():
         sys.exit("no cells with an index in the zone or in the default soil")
     fz, fd = np.sort(f[zone]), np.sort(f[dflt])
     # Per zone cell: default cells above it (+ half the ties); per default cell: zone cells below.
-    loss_zone = 1.0 - (np.searchsorted(fd, f[zone], "left") + 0.5 * (np.searchsorted(fd, f[zone], "right")
-                                                                        - np.searchsorted(fd, f[zone], "left"))) / fd.size
-    loss_dflt = (np.searchsorted(fz, f[dflt], "left") + 0.5 * (np.searchsorted(fz, f[dflt], "right")
-                                                               - np.searchsorted(fz, f[dflt], "left"))) / fz.size
+    def below(sorted_other, values):  # other cells below each value, ties counted half
+        lo, hi = np.searchsorted(sorted_other, values, "left"), np.searchsorted(sorted_other, values, "right")
+        return lo + 0.5 * (hi - lo)
+    loss_zone = 1.0 - below(fd, f[zone]) / fd.size
+    loss_dflt = below(fz, f[dflt]) / fz.size
     print(f"AUC {1.0 - loss_zone.mean():.4f}: {fz.size} zone cells, {fd.size} default cells")
     print(f"{'side':8} {'x [m]':>6} {'cells':>6} {'loss units':>10} {'index kN':>9} {'c kPa':>6} {'sd c kPa':>8} {'fused':>6}")
     for name, mask, loss in (("zone", zone, loss_zone), ("default", dflt, loss_dflt)):
