@@ -198,21 +198,23 @@ bool computeFluxes(const double* Hg, const double* Lg, double max_step, SweepBox
 /// terrain patches have to cover.
 void applyFluxes(TruthTerrain& terrain, const SweepBox& b, CellRect& changed) {
   const int w = b.w, h = b.h, i0 = b.i0, j0 = b.j0;
+  const std::size_t stride = b.stride;
   const double* fxp = b.fx;
   const double* fyp = b.fy;
   const double* op = b.out_scale;
   int ci0 = w, ci1 = -1, cj0 = h, cj1 = -1;
   for (int j = 0; j < h; ++j) {
     int ri0 = w, ri1 = -1;
+    const std::size_t row = b.idx(0, j), grow = b.gidx(0, j);
     for (int i = b.span_lo[j]; i <= b.span_hi[j]; ++i) {
-      const std::size_t a = b.idx(i, j);
+      const std::size_t a = row + i, g = grow + i;
       const double ax = fxp[a];
       const double ay = fyp[a];
       if (ax == 0.0 && ay == 0.0) continue;
-      if (ax > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i + 1, j0 + j, ax * op[a]);
-      else if (ax < 0) terrain.moveLoose(i0 + i + 1, j0 + j, i0 + i, j0 + j, -ax * op[a + 1]);
-      if (ay > 0) terrain.moveLoose(i0 + i, j0 + j, i0 + i, j0 + j + 1, ay * op[a]);
-      else if (ay < 0) terrain.moveLoose(i0 + i, j0 + j + 1, i0 + i, j0 + j, -ay * op[a + w]);
+      if (ax > 0) terrain.moveLooseAt(g, g + 1, ax * op[a]);
+      else if (ax < 0) terrain.moveLooseAt(g + 1, g, -ax * op[a + 1]);
+      if (ay > 0) terrain.moveLooseAt(g, g + stride, ay * op[a]);
+      else if (ay < 0) terrain.moveLooseAt(g + stride, g, -ay * op[a + w]);
       ri0 = std::min(ri0, i);
       ri1 = std::max(ri1, ax != 0.0 ? i + 1 : i);
       cj0 = std::min(cj0, j);

@@ -284,7 +284,11 @@ void TruthTerrain::capturePatch(int i0, int j0, int i1, int j1, Patch& out) cons
   out.compacted_m3 = compacted_m3_;
   const int w = std::max(0, out.i1 - out.i0 + 1), hgt = std::max(0, out.j1 - out.j0 + 1);
   const std::size_t n = static_cast<std::size_t>(w) * hgt;
-  out.u.resize(n); out.lv.resize(n); out.lc.resize(n);
+  if (out.u.size() < n) {
+    out.u.resize(n);
+    out.lv.resize(n);
+    out.lc.resize(n);
+  }
   for (int j = 0; j < hgt; ++j) {
     const std::size_t src = index(out.i0, out.j0 + j), dst = static_cast<std::size_t>(j) * w;
     std::copy_n(&u_[src], w, &out.u[dst]);
@@ -298,7 +302,8 @@ void TruthTerrain::applyPatch(const Patch& p) {
   compacted_m3_ = p.compacted_m3;
   const int w = p.i1 - p.i0 + 1, hgt = p.j1 - p.j0 + 1;
   if (w <= 0 || hgt <= 0) return;
-  if (p.i0 < 0 || p.j0 < 0 || p.i1 >= nx_ || p.j1 >= ny_ || p.u.size() != static_cast<std::size_t>(w) * hgt)
+  if (p.i0 < 0 || p.j0 < 0 || p.i1 >= nx_ || p.j1 >= ny_ || p.u.size() < p.nodes() || p.lv.size() < p.nodes() ||
+      p.lc.size() < p.nodes())
     throw std::invalid_argument("TruthTerrain::applyPatch: the patch does not fit this grid");
   for (int j = 0; j < hgt; ++j) {
     const std::size_t src = static_cast<std::size_t>(j) * w, dst = index(p.i0, p.j0 + j);

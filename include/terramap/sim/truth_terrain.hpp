@@ -94,9 +94,10 @@ class TruthTerrain {
   /// by capturePatch / applyPatch (the LiDAR view does not need it).
   double pressedAt(double x, double y) const;
   /// Moves a loose thickness dv (<= Lv) from a to b keeping a's Lc/Lv ratio.
-  void moveLoose(int ia, int ja, int ib, int jb, double dv) {
+  void moveLoose(int ia, int ja, int ib, int jb, double dv) { moveLooseAt(index(ia, ja), index(ib, jb), dv); }
+  /// The same between nodes given by index(i, j) (the relaxation's inner loop has them).
+  void moveLooseAt(std::size_t a, std::size_t b, double dv) {
     // Inline: the relaxation and the spoil settling call it for every moving edge.
-    const std::size_t a = index(ia, ja), b = index(ib, jb);
     if (!(dv > 0.0) || lv_[a] <= 0.0) return;
     dv = std::min(dv, lv_[a]);
     const double dc = (dv == lv_[a]) ? lc_[a] : dv * (lc_[a] / lv_[a]);
@@ -196,10 +197,17 @@ class TruthTerrain {
   /// simulator's LiDAR view follows its physics terrain this way). Units as the node arrays.
   struct Patch {
     int i0 = 0, j0 = 0, i1 = -1, j1 = -1;
-    std::vector<double> u, lv, lc;  ///< row-major over the box (H = U + Lv is derived)
+    /// Row-major over the box (H = U + Lv is derived). They may be longer than the box (a
+    /// reused patch keeps its largest size, so refilling it never zero-fills): the first
+    /// nodes() entries are the patch.
+    std::vector<double> u, lv, lc;
     double lost_m3 = 0, compacted_m3 = 0;
+    std::size_t nodes() const {
+      return i1 < i0 || j1 < j0 ? 0 : static_cast<std::size_t>(i1 - i0 + 1) * static_cast<std::size_t>(j1 - j0 + 1);
+    }
   };
-  /// Copies the box (clamped to the grid) and the lost volume into `out` (reusing its buffers).
+  /// Copies the box (clamped to the grid) and the lost volume into `out` (reusing its buffers,
+  /// which only grow).
   void capturePatch(int i0, int j0, int i1, int j1, Patch& out) const;
   /// Overwrites the patch's box with its values (bit for bit; H recomputed as U + Lv, as every
   /// mutator keeps it) and sets the lost volume. The

@@ -905,6 +905,30 @@ TEST(TruthTerrain, ChangedSinceNamesTheBlocksARefreshCovered) {
   EXPECT_TRUE(copy.changedSince(r1, 128, 64, 128, 64));
 }
 
+TEST(TruthTerrain, APatchReusedForASmallerBoxCarriesOnlyThatBox) {
+  // The simulator hands applied patches back to the physics, whose buffers then only grow: a
+  // patch refilled for a smaller box holds stale nodes past nodes() that must not be applied.
+  TruthTerrain src(0, 0, 0.02, 120, 80, 1.0), dst(0, 0, 0.02, 120, 80, 1.0);
+  for (int j = 0; j < 80; ++j)
+    for (int i = 0; i < 120; ++i) src.setUndisturbed(i, j, 1.0 + 0.001 * i + 0.01 * j);
+  TruthTerrain::Patch p;
+  src.capturePatch(0, 0, 119, 79, p);  // the whole grid: the buffers' size
+  EXPECT_EQ(p.nodes(), 120u * 80u);
+  src.capturePatch(10, 20, 29, 24, p);  // 20 x 5 nodes into the same buffers
+  EXPECT_EQ(p.nodes(), 100u);
+  EXPECT_GE(p.u.size(), 120u * 80u);
+  dst.applyPatch(p);
+  for (int j = 0; j < 80; ++j)
+    for (int i = 0; i < 120; ++i) {
+      const bool in = i >= 10 && i <= 29 && j >= 20 && j <= 24;
+      ASSERT_EQ(dst.height(i, j), in ? src.height(i, j) : 1.0) << i << ", " << j;
+    }
+  // A patch whose arrays are shorter than its box is refused, not read past its end.
+  TruthTerrain::Patch bad = p;
+  bad.lc.resize(99);
+  EXPECT_THROW(dst.applyPatch(bad), std::invalid_argument);
+}
+
 TEST(Episode, ItsTimingSaysWhatTheWriterCost) {
   // What `terramap sim` prints beside the real-time factor: the writer thread's CPU (it runs on
   // the simulation's cores) and the close's share of the run (last writes, checksum, fsync).
