@@ -717,17 +717,16 @@ void EpisodeWriter::record(const Simulator& sim, std::vector<Event>&& events) { 
 double EpisodeWriter::writerCpuSeconds() const { return impl_->writer_cpu_s; }
 
 void EpisodeWriter::Impl::record(const Simulator& sim, const std::vector<Event>& events, std::vector<Event>* owned) {
-  Impl& I = *this;
   for (std::size_t ei = 0; ei < events.size(); ++ei) {
     const Event& e = events[ei];
     if (const auto* pc = std::get_if<PointCloud>(&e)) {
-      if (!I.opt.clouds) continue;
+      if (!opt.clouds) continue;
       const std::string& frame = pc->frame;
       const std::size_t slash = frame.find('/');
-      const auto mit = I.machine_index.find(frame.substr(0, slash));
-      if (mit == I.machine_index.end()) continue;
-      auto cit = I.machines[mit->second].cloud.find(frame);
-      if (cit == I.machines[mit->second].cloud.end()) continue;
+      const auto mit = machine_index.find(frame.substr(0, slash));
+      if (mit == machine_index.end()) continue;
+      auto cit = machines[mit->second].cloud.find(frame);
+      if (cit == machines[mit->second].cloud.end()) continue;
       MachineSets::Cloud& c = cit->second;
       double T[16];
       rowMajor4x4(pc->T_map_sensor, T);
@@ -742,10 +741,10 @@ void EpisodeWriter::Impl::record(const Simulator& sim, const std::vector<Event>&
       else if (cnt) c.points.append(reinterpret_cast<const float*>(pc->points.data()), cnt);
       c.total += cnt;
     } else if (const auto* im = std::get_if<ImuSample>(&e)) {
-      const auto mit = I.machine_index.find(im->frame.substr(0, im->frame.find('/')));
-      if (mit == I.machine_index.end()) continue;
-      auto uit = I.machines[mit->second].imu.find(im->frame);
-      if (uit == I.machines[mit->second].imu.end()) continue;
+      const auto mit = machine_index.find(im->frame.substr(0, im->frame.find('/')));
+      if (mit == machine_index.end()) continue;
+      auto uit = machines[mit->second].imu.find(im->frame);
+      if (uit == machines[mit->second].imu.end()) continue;
       uit->second.stamp.append(&im->stamp);
       uit->second.accel.append(im->accel_mps2.data());
       uit->second.gyro.append(im->gyro_radps.data());
@@ -754,17 +753,17 @@ void EpisodeWriter::Impl::record(const Simulator& sim, const std::vector<Event>&
       std::size_t mi = 0;
       const std::size_t slash = ps->frame.find('/');
       if (slash != std::string::npos) {
-        const auto it = I.machine_index.find(ps->frame.substr(0, slash));
-        if (it == I.machine_index.end()) continue;
+        const auto it = machine_index.find(ps->frame.substr(0, slash));
+        if (it == machine_index.end()) continue;
         mi = it->second;
       }
       double T[16];
       rowMajor4x4(ps->T_map_base, T);
-      I.machines[mi].a.at("pose_T_map_base").append(T);
+      machines[mi].a.at("pose_T_map_base").append(T);
     } else if (const auto* ob = std::get_if<Observation>(&e)) {
-      const auto it = I.machine_index.find(ob->machine_id);
-      if (it == I.machine_index.end()) continue;
-      MachineSets& M = I.machines[it->second];
+      const auto it = machine_index.find(ob->machine_id);
+      if (it == machine_index.end()) continue;
+      MachineSets& M = machines[it->second];
       const MachineTruth& tr = sim.machineTruth(it->second);
       double T[16];
       M.a.at("stamp").append(&ob->stamp);
@@ -829,9 +828,9 @@ void EpisodeWriter::Impl::record(const Simulator& sim, const std::vector<Event>&
       }
     }
   }
-  if (sim.time() + 1e-9 >= I.next_snapshot) {
-    I.snapshot(sim);
-    while (I.next_snapshot <= sim.time() + 1e-9) I.next_snapshot += I.snapshot_interval;
+  if (sim.time() + 1e-9 >= next_snapshot) {
+    snapshot(sim);
+    while (next_snapshot <= sim.time() + 1e-9) next_snapshot += snapshot_interval;
   }
 }
 

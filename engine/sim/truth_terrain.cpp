@@ -283,7 +283,7 @@ void TruthTerrain::capturePatch(int i0, int j0, int i1, int j1, Patch& out) cons
   out.lost_m3 = lost_m3_;
   out.compacted_m3 = compacted_m3_;
   const int w = std::max(0, out.i1 - out.i0 + 1), hgt = std::max(0, out.j1 - out.j0 + 1);
-  const std::size_t n = static_cast<std::size_t>(w) * hgt;
+  const std::size_t n = out.nodes();
   if (out.u.size() < n) {
     out.u.resize(n);
     out.lv.resize(n);
