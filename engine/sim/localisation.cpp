@@ -34,10 +34,15 @@ LocalisationSpec LocalisationSpec::rtkImu() {
   s.latency_s = 0.002;
   s.cylinder_white_m = 0.0005;
   s.cylinder_bias_m = 0.001;
+  // Velocities from the RTK/INS solution (a few cm/s) and body rates from the IMU's gyros
+  // (hundredths of a degree per second after the observation period's averaging).
+  s.velocity_white_mps = 0.02;
+  s.angular_rate_white_radps = 0.05 * kDeg;
   return s;
 }
 
-PoseEstimator::PoseEstimator(const LocalisationSpec& spec, std::uint64_t seed) : spec_(spec), rng_(seed) {
+PoseEstimator::PoseEstimator(const LocalisationSpec& spec, std::uint64_t seed)
+    : spec_(spec), rng_(seed), twist_rng_(seed ^ 0x5851f42d4c957f2dULL) {
   if (!(spec.latency_s >= 0.0) || !std::isfinite(spec.latency_s))
     throw std::invalid_argument("localisation: latency_s must be >= 0 and finite");
   for (int k = 0; k < 3; ++k) {
@@ -51,6 +56,8 @@ PoseEstimator::PoseEstimator(const LocalisationSpec& spec, std::uint64_t seed) :
     throw std::invalid_argument("localisation: drift_time_constant_s must be > 0 (infinity: a random walk)");
   checkSigma(spec.cylinder_white_m, "cylinder_white_m");
   checkSigma(spec.cylinder_bias_m, "cylinder_bias_m");
+  checkSigma(spec.velocity_white_mps, "velocity_white_mps");
+  checkSigma(spec.angular_rate_white_radps, "angular_rate_white_radps");
   if (spec.perfect) return;
   for (int k = 0; k < 3; ++k) {
     bias_[k] = normal_(rng_) * spec.position[k].bias;
@@ -119,6 +126,14 @@ std::array<double, 3> PoseEstimator::cylinders(const std::array<double, 3>& L) {
   if (spec_.perfect) return L;
   std::array<double, 3> out{};
   for (int k = 0; k < 3; ++k) out[k] = L[k] + cylinder_bias_[k] + normal_(rng_) * spec_.cylinder_white_m;
+  return out;
+}
+
+Eigen::Matrix<double, 6, 1> PoseEstimator::twist(const Eigen::Matrix<double, 6, 1>& truth) {
+  if (spec_.perfect) return truth;
+  Eigen::Matrix<double, 6, 1> out = truth;
+  for (int k = 0; k < 6; ++k)
+    out[k] += twist_normal_(twist_rng_) * (k < 3 ? spec_.velocity_white_mps : spec_.angular_rate_white_radps);
   return out;
 }
 

@@ -415,6 +415,8 @@ LocalisationSpec readLocalisation(MapReader& parent, const LocalisationSpec& def
   s.drift_time_constant_s = r.num("drift_time_constant_s", s.drift_time_constant_s, 1e-3, INFINITY);
   s.cylinder_white_m = r.num("cylinder_white_m", s.cylinder_white_m, 0.0, 1.0);
   s.cylinder_bias_m = r.num("cylinder_bias_m", s.cylinder_bias_m, 0.0, 1.0);
+  s.velocity_white_mps = r.num("velocity_white_mps", s.velocity_white_mps, 0.0, 10.0);
+  s.angular_rate_white_radps = kDeg * r.num("angular_rate_white_degps", s.angular_rate_white_radps / kDeg, 0.0, 100.0);
   r.finish();
   return s;
 }

@@ -58,7 +58,6 @@ struct Simulator::Machine {
   /// The localisation: fed the true base pose at every physics step (producer side, in
   /// simulated-time order, so its draws do not depend on threads or the overlap).
   PoseEstimator estimator;
-  Eigen::Isometry3d prev_est_base, prev_est_blade;  ///< estimates at the previous period end
   struct Lidar {
     std::size_t sensor_index;
     LidarModel model;
@@ -124,9 +123,6 @@ struct Simulator::Machine {
     truth.T_map_blade = prev_blade;
     truth.cylinder_length_m = ctl.cylinderLengths();
     estimator.addTruth(0.0, prev_base);
-    // The first period's twists start from the truth (no estimate exists before t = 0).
-    prev_est_base = prev_base;
-    prev_est_blade = prev_blade;
     ImuSample none;
     for (Imu& u : imus) u.model.addLinkPose(0.0, linkPose(u.model.spec()), none);
   }
@@ -605,9 +601,12 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
   ob.stamp = tp;
   ob.machine_id = spec.id;
   ob.T_map_base = Te;
-  ob.twist_base = bodyTwist(m.prev_est_base, Te, period);
+  // The machine's own velocities come from its inertial navigation (the true twist over the
+  // period with its noise), not from differencing two pose estimates: their white noise, a few
+  // millimetres at 60 Hz, would make a velocity noise of ~0.5 m/s (docs/sim.md, Localisation).
+  ob.twist_base = m.estimator.twist(m.truth.twist_base);
   ob.T_map_blade = Tble;
-  ob.twist_blade = bodyTwist(m.prev_est_blade, Tble, period);
+  ob.twist_blade = m.estimator.twist(m.truth.twist_blade);
   ob.cylinder_length_m = cyl;
   ob.cylinder_velocity_mps = m.ctl.cylinderVelocities();
   const auto ts = m.ctl.trackSpeeds();
@@ -618,8 +617,6 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
   if (m.force_sensor >= 0) ob.force_base_N = noisyForce(m.truth.force_base_N, spec.sensors[m.force_sensor], m.force_rng);
   m.prev_base = Tb;
   m.prev_blade = Tbl;
-  m.prev_est_base = Te;
-  m.prev_est_blade = Tble;
   rec.events.emplace_back(std::move(pose));
   rec.events.emplace_back(std::move(bp));
   rec.events.emplace_back(std::move(ob));

@@ -52,6 +52,11 @@ struct LocalisationSpec {
   double drift_time_constant_s = std::numeric_limits<double>::infinity();
   double cylinder_white_m = 0.0;    ///< blade cylinder length sensors: white noise, 1-sigma
   double cylinder_bias_m = 0.0;     ///< ... constant bias per cylinder, 1-sigma
+  /// The twists the machine reports (Observation::twist_base / twist_blade) come from its
+  /// inertial navigation, not from differencing poses: the true body twist over the observation
+  /// period plus white noise per axis, 1-sigma, linear (m/s) and angular (rad/s).
+  double velocity_white_mps = 0.0;
+  double angular_rate_white_radps = 0.0;
 
   /// The perfect estimator.
   static LocalisationSpec none();
@@ -79,6 +84,10 @@ class PoseEstimator {
   const Eigen::Matrix<double, 6, 1>& lastError() const { return last_error_; }
   /// Noisy cylinder lengths for true lengths `L` (white noise + the per-cylinder bias).
   std::array<double, 3> cylinders(const std::array<double, 3>& L);
+  /// The reported body twist [v (m/s), w (rad/s)] for the true one: white noise of
+  /// velocity_white_mps / angular_rate_white_radps per axis, from a generator of its own (so
+  /// asking for twists changes no pose estimate); the perfect estimator returns it unchanged.
+  Eigen::Matrix<double, 6, 1> twist(const Eigen::Matrix<double, 6, 1>& truth);
   const LocalisationSpec& spec() const { return spec_; }
 
  private:
@@ -87,6 +96,8 @@ class PoseEstimator {
 
   LocalisationSpec spec_;
   std::mt19937_64 rng_;
+  std::mt19937_64 twist_rng_;  ///< twist() only
+  std::normal_distribution<double> twist_normal_{0.0, 1.0};  ///< its own: a distribution caches draws
   std::normal_distribution<double> normal_{0.0, 1.0};
   Eigen::Matrix<double, 6, 1> bias_ = Eigen::Matrix<double, 6, 1>::Zero();
   Eigen::Matrix<double, 6, 1> walk_ = Eigen::Matrix<double, 6, 1>::Zero();

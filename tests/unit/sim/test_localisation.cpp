@@ -159,6 +159,36 @@ TEST(Localisation, CylinderSensorsAddBiasAndNoise) {
   EXPECT_NEAR(std::sqrt(ss / 4000), 0.001, 0.001 * 4 / std::sqrt(8000.0));
 }
 
+// The reported twist: white noise of its own sigma per axis, no memory, and drawn from a stream
+// of its own (asking for twists leaves the pose estimates as they were).
+TEST(Localisation, TwistsCarryTheirOwnWhiteNoiseAndLeaveThePosesAlone) {
+  LocalisationSpec s = LocalisationSpec::rtkImu();
+  s.velocity_white_mps = 0.02;
+  s.angular_rate_white_radps = 0.001;
+  PoseEstimator with(s, 9), without(s, 9);
+  Eigen::Matrix<double, 6, 1> truth;
+  truth << 0.8, -0.1, 0.05, 0.01, -0.2, 0.3;
+  const int n = 8000;
+  double ss[6] = {}, lag = 0, prev = 0;
+  for (int k = 0; k < n; ++k) {
+    const double t = k / 60.0;
+    with.addTruth(t, along(t));
+    without.addTruth(t, along(t));
+    const Eigen::Matrix<double, 6, 1> e = with.twist(truth) - truth;
+    for (int a = 0; a < 6; ++a) ss[a] += e[a] * e[a];
+    lag += e[2] * prev;
+    prev = e[2];
+    ASSERT_TRUE(with.estimate(t).matrix() == without.estimate(t).matrix()) << k;
+  }
+  for (int a = 0; a < 6; ++a) {
+    const double sigma = a < 3 ? 0.02 : 0.001;
+    EXPECT_NEAR(std::sqrt(ss[a] / n), sigma, sigma * 4 / std::sqrt(2.0 * n)) << "axis " << a;
+  }
+  EXPECT_NEAR(lag / ss[2], 0.0, 4 / std::sqrt(static_cast<double>(n)));
+  PoseEstimator perfect(LocalisationSpec::none(), 9);
+  EXPECT_TRUE(perfect.twist(truth) == truth);
+}
+
 TEST(Localisation, BadSettingsAreRefused) {
   LocalisationSpec s;
   s.latency_s = -0.1;
@@ -168,6 +198,12 @@ TEST(Localisation, BadSettingsAreRefused) {
   EXPECT_THROW(PoseEstimator(s, 1), std::invalid_argument);
   s = LocalisationSpec{};
   s.drift_time_constant_s = 0.0;
+  EXPECT_THROW(PoseEstimator(s, 1), std::invalid_argument);
+  s = LocalisationSpec{};
+  s.velocity_white_mps = -0.01;
+  EXPECT_THROW(PoseEstimator(s, 1), std::invalid_argument);
+  s = LocalisationSpec{};
+  s.angular_rate_white_radps = INFINITY;
   EXPECT_THROW(PoseEstimator(s, 1), std::invalid_argument);
   PoseEstimator ok(LocalisationSpec::rtkImu(), 1);
   EXPECT_THROW(ok.estimate(0.0), std::logic_error);
