@@ -26,6 +26,7 @@ struct Accum {
   // Σ‖F̂ − F‖ of the estimator and of each baseline, Σ‖F‖ over the same steps.
   double ferr = 0, fnorm = 0, ferr_truth = 0, ferr_tg = 0, ferr_sim = 0, fnorm_tg = 0;
   double ferr_truth_min = 0, ferr_moving = 0, fnorm_moving = 0;
+  double ferr_x = 0, ferr_z = 0;  // Σ|F̂x − Fx|, Σ|F̂z − Fz|
   long rows = 0, stalled_rows = 0;
   std::vector<std::array<double, 2>> forces;  // for the constant-force baseline
   std::vector<double> q_ratio;                // mapped Q / simulator's q, per sample
@@ -60,6 +61,8 @@ void addForceErrors(Accum& a, const SampleView& v, const SoilEstimate& e, int P)
   for (int p = 0; p < P; ++p) {
     const double fx = v.force[p * 2], fz = v.force[p * 2 + 1];
     a.ferr += std::hypot(e.F[static_cast<std::size_t>(p)][0] - fx, e.F[static_cast<std::size_t>(p)][1] - fz);
+    a.ferr_x += std::abs(e.F[static_cast<std::size_t>(p)][0] - fx);
+    a.ferr_z += std::abs(e.F[static_cast<std::size_t>(p)][1] - fz);
     a.fnorm += std::hypot(fx, fz);
     a.forces.push_back({fx, fz});
     ++a.rows;
@@ -121,6 +124,8 @@ SplitMetrics finishSplit(int split, Accum& a) {
   m.force_error_truth_fee_pct = pct(a.ferr_truth, a.fnorm);
   m.force_error_truth_fee_min_pct = pct(a.ferr_truth_min, a.fnorm);
   m.force_error_moving_pct = pct(a.ferr_moving, a.fnorm_moving);
+  m.force_error_x_pct = pct(a.ferr_x, a.fnorm);
+  m.force_error_z_pct = pct(a.ferr_z, a.fnorm);
   m.stalled_row_fraction = a.rows > 0 ? static_cast<double>(a.stalled_rows) / static_cast<double>(a.rows) : NAN;
   m.force_error_truth_geometry_pct = pct(a.ferr_tg, a.fnorm_tg);
   m.force_error_simulator_model_pct = pct(a.ferr_sim, a.fnorm_tg);
@@ -227,6 +232,8 @@ std::string evaluationJson(const SoilEvaluation& e) {
     s["valid"] = m.valid;
     s["force_error_pct"] = m.force_error_pct;
     s["force_error_moving_rows_pct"] = m.force_error_moving_pct;
+    s["force_error_along_x_pct"] = m.force_error_x_pct;
+    s["force_error_along_z_pct"] = m.force_error_z_pct;
     s["stalled_row_fraction"] = m.stalled_row_fraction;
     s["force_error_truth_soil_fee_pct"] = m.force_error_truth_fee_pct;
     s["force_error_truth_soil_fee_beta_min_pct"] = m.force_error_truth_fee_min_pct;
@@ -262,14 +269,15 @@ std::string evaluationJson(const SoilEvaluation& e) {
 std::string evaluationMarkdown(const SoilEvaluation& e) {
   std::ostringstream os;
   char buf[256];
-  os << "| split | samples (valid) | force error % | ... moving rows % (stalled rows) | FEE with truth soil % | ... at β* % | ... and truth geometry % | simulator's F_total at β* % | constant force % | mapped Q / sim. Q (median) |";
+  os << "| split | samples (valid) | force error % (along x / z) | ... moving rows % (stalled rows) | FEE with truth soil % | ... at β* % | ... and truth geometry % | simulator's F_total at β* % | constant force % | mapped Q / sim. Q (median) |";
   for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " MAE (" << kDisplayUnit[k] << ") |";
   os << "\n|---|---|---|---|---|---|---|---|---|---|";
   for (int k = 0; k < kSoilCount; ++k) os << "---|";
   os << "\n";
   for (const auto& m : e.splits) {
-    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f | %.1f (%.1f %%) | %.1f | %.1f | %.1f | %.1f | %.1f | %.2f |",
-                  m.split.c_str(), m.samples, m.valid, m.force_error_pct, m.force_error_moving_pct,
+    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f (%.1f / %.1f) | %.1f (%.1f %%) | %.1f | %.1f | %.1f | %.1f | %.1f | %.2f |",
+                  m.split.c_str(), m.samples, m.valid, m.force_error_pct, m.force_error_x_pct, m.force_error_z_pct,
+                  m.force_error_moving_pct,
                   100.0 * m.stalled_row_fraction, m.force_error_truth_fee_pct, m.force_error_truth_fee_min_pct,
                   m.force_error_truth_geometry_pct,
                   m.force_error_simulator_model_pct, m.force_error_mean_pct, m.surcharge_ratio_median);

@@ -27,6 +27,8 @@ struct SplitMetrics {
   /// The estimator's force error over the horizon rows where the machine was moving (not
   /// soil::stalledRow), the rows training fits; and the share of rows left out.
   double force_error_moving_pct = 0, stalled_row_fraction = 0;
+  /// 100 Σ|F̂x − Fx| / Σ‖F‖ and the same along z (up): where the force error lies.
+  double force_error_x_pct = 0, force_error_z_pct = 0;
   /// As force_error_truth_fee_pct but the paper's F at beta* (the angle the simulator's wedge
   /// fails at, the physics layer's default base angle): what the layer could explain with the
   /// truth soil and no residuals.

@@ -16,6 +16,14 @@ Two analyses, both with the truth soil (so only geometry and physics are in ques
       descends and where it does not, then with the edge's penetration resistance
       (terramap.fee's soil, q_b = c N_c + gamma d N_q over 0.025 m x w) added on descending steps.
 
+  python3 scripts/analysis/pinn_force_gap.py gate DATASET_DIR [SPLIT]
+      Per horizon row of a `terramap dataset` split: whether the observations tell when the
+      cutting edge descends. The edge's vertical speed in the map frame from the row's observed
+      blade twist and attitudes; F_total at beta* of the truth soil on the mapped geometry, plus
+      the edge's penetration resistance on the rows where that speed is negative. Prints the
+      force error (and its parts along x and z) without and with the penetration so gated, and
+      the median measured vertical force on rows observed descending and rising.
+
 Needs Debian's python3-h5py and terramap's Python module (build/python; PYTHONPATH or run from
 the repository root after `make`).
 """
@@ -113,12 +121,63 @@ def episode(path):
         np.median(meas[down, 1]), np.median(fee_only[down, 1])))
     print("  + penetration on descending steps: force error %.1f %%" % force_error(with_pen, meas))
 
+def rot_rpy(r, p, y):
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def gate(dataset, split):
+    rows = []
+    for fn in sorted(glob.glob(os.path.join(dataset, "episodes", "*.h5"))):
+        with h5py.File(fn, "r") as f:
+            if f.attrs["split"].decode() != split:
+                continue
+            names = f.attrs["obs_features"].decode().split(",")
+            obs, tk, force, truth = f["obs"][:], f["theta_k"][:], f["force"][:], f["truth"][:]
+        col = {n: i for i, n in enumerate(names)}
+        P, T = tk.shape[1], obs.shape[1]
+        for i in range(len(tk)):
+            c, phi, ca, delta, gamma = map(float, truth[i])
+            nc, nq = bearing(phi)
+            for p in range(P):
+                rho, alpha, w, d, q, _v = map(float, tk[i, p])
+                o = obs[i, T - P + p]
+                # Yaw does not change a vertical component: the base's roll and pitch, then the
+                # blade's attitude in the base frame, rotate the blade-frame velocity.
+                R = rot_rpy(o[col["base_roll_rad"]], o[col["base_pitch_rad"]], 0.0) @ rot_rpy(
+                    o[col["blade_roll_rad"]], o[col["blade_pitch_rad"]], o[col["blade_yaw_rad"]])
+                vz = (R @ np.array([o[col["blade_vx_mps"]], o[col["blade_vy_mps"]], o[col["blade_vz_mps"]]]))[2]
+                fee, pen = (0.0, 0.0), 0.0
+                if d > 0:
+                    r = tm.fee(c, phi, gamma, ca, delta, alpha, rho, d, w, q, beta="min")
+                    if r["valid"]:
+                        fee, pen = r["F_total_N"], (c * nc + gamma * d * nq) * EDGE_M * w
+                rows.append((force[i, p, 0], force[i, p, 1], fee[0], fee[1], pen, vz))
+    if not rows:
+        sys.exit(dataset + ": no samples in split " + split)
+    R = np.array(rows, dtype=float)
+    meas, down = R[:, 0:2], R[:, 5] < 0
+    norm = np.sum(np.hypot(meas[:, 0], meas[:, 1]))
+
+    def parts(fz):
+        return (100 * np.sum(np.hypot(R[:, 2] - meas[:, 0], fz - meas[:, 1])) / norm,
+                100 * np.sum(np.abs(R[:, 2] - meas[:, 0])) / norm, 100 * np.sum(np.abs(fz - meas[:, 1])) / norm)
+    print("%d horizon rows of split %s, %d observed descending" % (len(R), split, down.sum()))
+    print("  F_total at beta*: force error %.1f %% (along x %.1f, z %.1f)" % parts(R[:, 3]))
+    print("  + penetration where the observed edge descends: %.1f %% (along x %.1f, z %.1f)" % parts(R[:, 3] - down * R[:, 4]))
+    print("  median measured vertical force, observed descending / rising: %.0f N / %.0f N" % (
+        np.median(meas[down, 1]), np.median(meas[~down, 1])))
+
 
 def main():
-    if len(sys.argv) < 3 or sys.argv[1] not in ("geometry", "episode"):
+    if len(sys.argv) < 3 or sys.argv[1] not in ("geometry", "episode", "gate"):
         sys.exit(__doc__)
     if sys.argv[1] == "geometry":
         geometry(sys.argv[2], sys.argv[3] if len(sys.argv) > 3 else "test")
+    elif sys.argv[1] == "gate":
+        gate(sys.argv[2], sys.argv[3] if len(sys.argv) > 3 else "test")
     else:
         episode(sys.argv[2])
 
