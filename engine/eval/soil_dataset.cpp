@@ -149,6 +149,7 @@ SoilDatasetConfig parseSoilDatasetConfig(const std::string& text, const std::str
     r.error(r.node("rake_deg"), "rake_deg", "must not include the held-out rake (" +
             yaml::showBound(c.held_out_rake_rad / kDeg) + " deg by default): give a held_out block");
   }
+  c.route_fraction = r.num("route_fraction", c.route_fraction, 0.0, 1.0);
   if (r.has("hills")) {
     MapReader h = r.child("hills");
     c.hill_count = readRange(h, "count", c.hill_count, 0, 1000);
@@ -213,10 +214,24 @@ EpisodePlan planEpisode(const SoilDatasetConfig& cfg, int index) {
   p.hill_seed = g.next();
   p.seed = g.next() >> 11;  // below 2^53: survives a round trip through JSON and HDF5 doubles
   for (double& f : p.initial_setpoints) f = g.u01();
+  // Drawn last, so the draws above (and the episodes of a dataset without routes) stay as they were.
+  p.route = g.u01() < cfg.route_fraction;
   return p;
 }
 
 namespace {
+
+/// The terrain's analytic surface (base, slope and hills; the dataset's scenario has no DEM) at p.
+double analyticHeight(const sim::TerrainSpec& t, const Eigen::Vector2d& p) {
+  double h = t.base_height_m + t.slope_x * (p.x() - t.origin_x_m) + t.slope_y * (p.y() - t.origin_y_m);
+  for (const sim::GaussianBump& b : t.bumps) {
+    const double dx = p.x() - b.x_m, dy = p.y() - b.y_m;
+    h += b.amplitude_m * std::exp(-0.5 * (dx * dx + dy * dy) / (b.sigma_m * b.sigma_m));
+  }
+  return h;
+}
+
+}  // namespace
 
 sim::Scenario episodeScenario(const SoilDatasetConfig& cfg, const EpisodePlan& plan) {
   sim::Scenario sc = sim::loadScenario(cfg.scenario);
@@ -240,11 +255,27 @@ sim::Scenario episodeScenario(const SoilDatasetConfig& cfg, const EpisodePlan& p
     sim::ControllerSpec& c = m.controller;
     sim::RandomWalk* walks[5] = {&c.speed_mps, &c.depth_m, &c.roll_rad, &c.yaw_rad, &c.heading_rad};
     for (int k = 0; k < 5; ++k) walks[k]->initial = walks[k]->min + plan.initial_setpoints[k] * (walks[k]->max - walks[k]->min);
+    if (plan.route) {
+      // One forward pass from the machine's pose, long enough for the episode, the edge held at
+      // a grade this far below the ground under the machine's start (the terrain's hills make
+      // the cut deeper or nothing along the way, as on a site graded to a plane).
+      const double heading = m.yaw_rad + c.heading_rad.initial;
+      const Eigen::Vector2d start(m.x_m, m.y_m);
+      const Eigen::Vector2d edge = start + m.blade_mount_x_m * Eigen::Vector2d(std::cos(heading), std::sin(heading));
+      c.type = sim::ControllerSpec::Type::Route;
+      c.route_start = start;
+      c.route_heading_rad = heading;
+      c.route_speed_mps = c.speed_mps.initial;
+      c.route_length_m = c.route_speed_mps * cfg.duration_s + 2.0;
+      c.route_passes = 1;
+      c.route_grade = true;
+      c.grade_first_m = analyticHeight(t, edge) - std::max(0.03, c.depth_m.initial);
+      c.grade_step_m = 0.0;
+    }
   }
   return sc;
 }
 
-}  // namespace
 
 EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& plan, int threads,
                               const std::function<void(double, double)>& on_progress) {
@@ -352,9 +383,9 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
     sweep.push_back(s.sweep_index);
   }
   const EpisodePlan& p = ep.plan;
-  const double plan[8] = {static_cast<double>(p.file_index), static_cast<double>(p.split), static_cast<double>(p.family),
+  const double plan[9] = {static_cast<double>(p.file_index), static_cast<double>(p.split), static_cast<double>(p.family),
                           p.relative_density, p.rake_rad, static_cast<double>(p.hills), static_cast<double>(p.seed),
-                          ep.simulated_s};
+                          ep.simulated_s, p.route ? 1.0 : 0.0};
   std::string skipped;
   for (const auto& [k, v] : ep.skipped) skipped += (skipped.empty() ? "" : ",") + k + "=" + std::to_string(v);
   io::replaceFileAtomically(path, [&](const fs::path& tmp) {
@@ -371,12 +402,12 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
       attrString(f, "obs_features", joinStrings(soil::obsFeatureNames(), ","));
       attrString(f, "theta_k", joinStrings(soil::thetaKNames(), ","));
       attrString(f, "truth", "c_pa,phi_rad,ca_pa,delta_rad,gamma_n_m3");
-      attrString(f, "plan", "index,split,family,relative_density,rake_rad,hills,seed,simulated_s");
+      attrString(f, "plan", "index,split,family,relative_density,rake_rad,hills,seed,simulated_s,route");
       attrString(f, "split", datasetSplitName(p.split));
       attrString(f, "family", soil::soilFamilyName(p.family));
       attrString(f, "skipped", skipped);
       attrU64(f, "sweeps", static_cast<std::uint64_t>(ep.sweeps));
-      writeArray(f, "plan", H5T_NATIVE_DOUBLE, plan, {8}, 0, path);
+      writeArray(f, "plan", H5T_NATIVE_DOUBLE, plan, {9}, 0, path);
       writeArray(f, "obs", H5T_NATIVE_FLOAT, obs.data(), {n, T, static_cast<hsize_t>(soil::kObsFeatures)}, 4, path);
       writeArray(f, "theta_k", H5T_NATIVE_FLOAT, theta.data(), {n, P, static_cast<hsize_t>(soil::kThetaK)}, 4, path);
       writeArray(f, "force", H5T_NATIVE_FLOAT, force.data(), {n, P, 2}, 4, path);
@@ -428,7 +459,8 @@ std::string datasetManifestJson(const std::string& dir) {
     if (hash.empty()) hash = file.rootAttribute("config_hash");
     std::vector<std::uint64_t> dims;
     const std::vector<double> plan = file.read("plan", dims);
-    if (plan.size() != 8) throw InputError(path + ": dataset 'plan' must hold 8 values");
+    // 9 values since the route flag; files written before it hold the first 8.
+    if (plan.size() != 8 && plan.size() != 9) throw InputError(path + ": dataset 'plan' must hold 8 or 9 values");
     file.read("truth", dims);
     const long n = dims.empty() ? 0 : static_cast<long>(dims[0]);
     const std::string split = datasetSplitName(static_cast<DatasetSplit>(static_cast<int>(plan[1])));
@@ -474,7 +506,8 @@ SoilDataset readSoilDataset(const std::string& dir) {
                          d.config_hash + "); a dataset folder holds one configuration's episodes");
     }
     const std::vector<double> plan = file.read("plan", dims);
-    if (plan.size() != 8) throw InputError(path + ": dataset 'plan' must hold 8 values");
+    // 9 values since the route flag; files written before it hold the first 8.
+    if (plan.size() != 8 && plan.size() != 9) throw InputError(path + ": dataset 'plan' must hold 8 or 9 values");
     const std::vector<double> obs = file.read("obs", dims);
     if (dims.size() != 3 || dims[2] != static_cast<std::uint64_t>(soil::kObsFeatures))
       throw InputError(path + ": dataset 'obs' must be [N, T, " + std::to_string(soil::kObsFeatures) + "]");

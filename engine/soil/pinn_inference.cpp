@@ -63,7 +63,13 @@ MemberOut runMember(const PinnMemberWeights& m, const Eigen::VectorXf& obs_flat,
   o.beta_res = static_cast<double>(m.beta_res_max_rad * std::tanh(zr[1]));
   o.F_r = Eigen::Vector2d(m.force_res_scale_n * zf[0], m.force_res_scale_n * zf[1]);
   Eigen::VectorXf gate;
-  if (m.edge_thickness_m > 0) gate = (m.gate_W * x + m.gate_b).unaryExpr([](float z) { return sigmoid(z); });
+  if (m.edge_thickness_m > 0) {
+    gate = m.gate_W * x + m.gate_b;
+    if (m.gate_feature >= 0)
+      for (int p = 0; p < P; ++p)
+        gate[p] += m.gate_feature_w * obs_flat[static_cast<Eigen::Index>(m.T - P + p) * m.D_o + m.gate_feature];
+    gate = gate.unaryExpr([](float z) { return sigmoid(z); });
+  }
 
   // Physics layer per horizon step, in double.
   const fee::Soil s = toSoil(o.theta);
@@ -147,6 +153,8 @@ PinnInference::PinnInference(std::vector<PinnMemberWeights> members, std::vector
     head(m.res_W, m.res_b, 2, "res");
     head(m.fr_W, m.fr_b, 2, "force_res");
     if (m.edge_thickness_m > 0) head(m.gate_W, m.gate_b, m.P, "pen_gate");
+    if (m.gate_feature >= m.D_o || m.gate_feature < -1 || (m.gate_feature >= 0 && !(m.edge_thickness_m > 0)))
+      throw std::invalid_argument("PinnInference: gate_feature is not an observation column of a gated model");
     if (m.theta_k_mean.size() != kThetaKCols || m.theta_k_std.size() != kThetaKCols)
       throw std::invalid_argument("PinnInference: theta_k normalisation needs 6 values");
   }

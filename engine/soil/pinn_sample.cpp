@@ -15,7 +15,7 @@ const std::vector<std::string>& obsFeatureNames() {
       "blade_vx_mps", "blade_vy_mps", "blade_vz_mps", "blade_wx_radps", "blade_wy_radps", "blade_wz_radps",
       "lift_cyl_m", "tilt_cyl_m", "angle_cyl_m", "lift_cyl_mps", "tilt_cyl_mps", "angle_cyl_mps",
       "track_left_mps", "track_right_mps", "engine_rpm",
-      "cmd_track_left", "cmd_track_right", "cmd_lift", "cmd_tilt", "cmd_angle"};
+      "cmd_track_left", "cmd_track_right", "cmd_lift", "cmd_tilt", "cmd_angle", "blade_vz_map_mps"};
   return names;
 }
 
@@ -56,7 +56,7 @@ Eigen::Vector3d rollPitchYaw(const Eigen::Matrix3d& R) {
 }  // namespace
 
 ObsRow observationRow(const Observation& o) {
-  static_assert(kObsFeatures == 34, "obsFeatureNames() and observationRow() list the same features");
+  static_assert(kObsFeatures == 35, "obsFeatureNames() and observationRow() list the same features");
   ObsRow r;
   r.stamp = o.stamp;
   float* f = r.features;
@@ -77,10 +77,14 @@ ObsRow observationRow(const Observation& o) {
   for (double v : o.track_speed_mps) f[k++] = static_cast<float>(v);
   f[k++] = static_cast<float>(o.engine_speed_rpm);
   for (double v : o.action) f[k++] = static_cast<float>(v);
+  r.blade_velocity_map = o.T_map_blade.linear() * o.twist_blade.head<3>();
+  // The edge's vertical speed in the map frame: whether it descends into the soil (and meets
+  // the bearing resistance the penetration term models) is a product of the attitudes above and
+  // the blade twist, which a small network learns poorly from the separate features.
+  f[k++] = static_cast<float>(r.blade_velocity_map.z());
   // The sensor reports the soil's force on the blade in the base frame; the FEE's F is the
   // blade's force on the soil.
   r.force_map_N = -(o.T_map_base.linear() * o.force_base_N);
-  r.blade_velocity_map = o.T_map_blade.linear() * o.twist_blade.head<3>();
   return r;
 }
 

@@ -20,7 +20,8 @@ namespace {
 
 // 2: the config holds beta_base (version 1 files load with BetaBase::Nominal).
 // 3: the config holds edge_thickness_m (older files load with 0: no penetration term).
-constexpr int kFormatVersion = 3;
+// 4: the config holds gate_feature (older files load with -1: the gate from the encoder only).
+constexpr int kFormatVersion = 4;
 constexpr const char* kFormat = "terramap.soil_pinn";
 constexpr const char* kMetadataKey = "terramap_metadata";
 
@@ -28,6 +29,7 @@ nlohmann::json configJson(const PinnConfig& c, int format_version = kFormatVersi
   nlohmann::json j = {{"T", c.T}, {"P", c.P}, {"D_o", c.D_o}, {"hidden", c.hidden}, {"seed", c.seed}};
   if (format_version >= 2) j["beta_base"] = betaBaseName(c.beta_base);
   if (format_version >= 3) j["edge_thickness_m"] = c.edge_thickness_m;
+  if (format_version >= 4) j["gate_feature"] = c.gate_feature;
   return j;
 }
 
@@ -64,6 +66,9 @@ PinnNetImpl::PinnNetImpl(PinnConfig cfg) : cfg_(std::move(cfg)) {
     throw std::invalid_argument("PinnConfig: edge_thickness_m must be in [0, 1) m");
   for (int h : cfg_.hidden)
     if (h < 1) throw std::invalid_argument("PinnConfig: hidden widths must be >= 1");
+  if (cfg_.gate_feature >= cfg_.D_o || cfg_.gate_feature < -1 || (cfg_.gate_feature >= 0 && !(cfg_.edge_thickness_m > 0)))
+    throw std::invalid_argument("PinnConfig: gate_feature must be -1 or an observation column (< D_o), and needs "
+                                "edge_thickness_m > 0");
   // Initialise from cfg.seed, then give the global generator its state back so building a
   // network (or loading one) does not disturb anyone else's random stream.
   at::Generator gen = at::detail::getDefaultCPUGenerator();
@@ -82,6 +87,7 @@ PinnNetImpl::PinnNetImpl(PinnConfig cfg) : cfg_(std::move(cfg)) {
   head_fr_ = register_module("head_force_res", torch::nn::Linear(width, 2));
   if (cfg_.edge_thickness_m > 0) head_gate_ = register_module("head_pen_gate", torch::nn::Linear(width, cfg_.P));
   gen.set_state(saved_state);
+  if (cfg_.gate_feature >= 0) gate_feature_w_ = register_parameter("pen_gate_feature_weight", at::full({1}, -1.0f));
   theta_mean_ = register_buffer("theta_k_mean", at::zeros({kThetaKCount}, at::kFloat));
   theta_std_ = register_buffer("theta_k_std", at::ones({kThetaKCount}, at::kFloat));
   std::vector<float> off(kLogVarCount);
@@ -141,7 +147,10 @@ PinnOutput PinnNetImpl::forward(const at::Tensor& obs, const at::Tensor& theta_k
   // Eq. 5/6, the base angle's dependence on the soil chained in.
   at::Tensor J = feeJacobianChained(soil, rho, alpha, w, d, q, beta_res, cfg_.beta_base);
   if (cfg_.edge_thickness_m > 0) {
-    out.pen_gate = at::sigmoid(head_gate_(h));
+    at::Tensor logit = head_gate_(h);
+    if (cfg_.gate_feature >= 0)
+      logit = logit + gate_feature_w_ * obs.to(at::kFloat).slice(1, cfg_.T - P, cfg_.T).select(2, cfg_.gate_feature);
+    out.pen_gate = at::sigmoid(logit);
     const PenetrationOut pen = penetrationForward(soil, w, d, out.pen_gate.to(at::kDouble), cfg_.edge_thickness_m);
     const at::Tensor zero = at::zeros_like(pen.Fz);
     out.F = out.F + at::stack({zero, at::where(fee.valid, pen.Fz, zero)}, -1);
@@ -208,6 +217,8 @@ soil::PinnMemberWeights PinnNetImpl::exportWeights() const {
     w.gate_W = mat(head_gate_->weight);
     w.gate_b = vec(head_gate_->bias);
   }
+  w.gate_feature = cfg_.gate_feature;
+  if (cfg_.gate_feature >= 0) w.gate_feature_w = gate_feature_w_.detach().to(at::kFloat).item<float>();
   return w;
 }
 
@@ -275,6 +286,7 @@ PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path
     cfg.seed = c.at("seed").get<int64_t>();
     cfg.beta_base = version >= 2 ? parseBetaBase(c.at("beta_base").get<std::string>()) : BetaBase::Nominal;
     cfg.edge_thickness_m = version >= 3 ? c.at("edge_thickness_m").get<double>() : 0.0;
+    cfg.gate_feature = version >= 4 ? c.at("gate_feature").get<int>() : -1;
     if (configHash(cfg, version) != j.at("config_hash").get<std::string>())
       throw InputError(path + ": config_hash does not match the stored config");
   } catch (const nlohmann::json::exception& e) {

@@ -84,6 +84,12 @@ struct PinnConfig {
   /// the soil says how much); F_z -= g q_b t_e w where the FEE is valid. 0 = no such term (and
   /// no head: model files of format version <= 2 load so).
   double edge_thickness_m = 0.0;
+  /// An observation feature (index into obs' D_o columns; -1 = none) whose normalised value at
+  /// each horizon step enters that step's gate logit with one learned weight
+  /// ("pen_gate_feature_weight", initialised to -1): the edge's vertical speed in the map frame
+  /// says directly whether it descends, which the encoder's tanh layers learned poorly from
+  /// the flattened history. Needs edge_thickness_m > 0. Files of format version <= 3 load with -1.
+  int gate_feature = -1;
 };
 
 /// What forward() returns. B batch, P horizon.
@@ -140,6 +146,7 @@ class PinnNetImpl : public torch::nn::Module {
   torch::nn::Sequential encoder_{nullptr};
   torch::nn::Linear head_theta_{nullptr}, head_logvar_{nullptr}, head_res_{nullptr}, head_fr_{nullptr};
   torch::nn::Linear head_gate_{nullptr};  ///< only with edge_thickness_m > 0
+  at::Tensor gate_feature_w_;              ///< [1], only with gate_feature >= 0
   at::Tensor theta_mean_, theta_std_, logvar_offset_;
 };
 TORCH_MODULE(PinnNet);
@@ -166,7 +173,8 @@ void savePinnTo(PinnNet& net, torch::serialize::OutputArchive& ar);
 PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path);
 
 /// FNV-1a 64 of the config's canonical JSON, as 16 hex digits. `format_version` 1 hashes the
-/// JSON without beta_base (the files written before it existed), 2 without edge_thickness_m.
-std::string configHash(const PinnConfig& cfg, int format_version = 3);
+/// JSON without beta_base (the files written before it existed), 2 without edge_thickness_m,
+/// 3 without gate_feature.
+std::string configHash(const PinnConfig& cfg, int format_version = 4);
 
 }  // namespace terramap::pinn

@@ -90,6 +90,7 @@ std::string trainConfigHash(const TrainConfig& c) {
   j["mask_stalled"] = c.mask_stalled;
   // Only when set, so the hashes of configs written before the key existed stay valid.
   if (c.edge_thickness_m != 0) j["edge_thickness_m"] = c.edge_thickness_m;
+  if (c.gate_feature >= 0) j["gate_feature"] = c.gate_feature;
   const LossWeights& w = c.weights;
   j["weights"] = {w.lambda_F, w.lambda_NLL, w.lambda_beta, w.lambda_range, w.lambda_res, w.lambda_Fr, w.w_xz[0],
                   w.w_xz[1], w.sigma_floor_n2};
@@ -247,9 +248,11 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   std::vector<PinnNet> best_members;
   for (int m = 0; m < cfg.members; ++m) {
     const std::int64_t seed = cfg.seed * 1000 + m;
-    PinnNet net(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m});
+    PinnNet net(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m,
+                           cfg.gate_feature});
     net->setThetaNormalisation(at::tensor(th_mean), at::tensor(th_std));
-    PinnNet best(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m});
+    PinnNet best(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m,
+                           cfg.gate_feature});
     copyInto(best, net);
     torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(cfg.learning_rate));
     MemberState st;

@@ -42,6 +42,9 @@ struct TrainConfig {
   /// Cutting-edge thickness of the physics layer's penetration term (PinnConfig; YAML
   /// `edge_thickness_m`, m; 0 = no term).
   double edge_thickness_m = 0.0;
+  /// Observation feature feeding the penetration gate directly (PinnConfig::gate_feature; YAML
+  /// `gate_feature: NAME` of soil::obsFeatureNames(); -1 = none).
+  int gate_feature = -1;
   LossWeights weights;
 };
 

@@ -3,12 +3,14 @@
 #include "command.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/soil/pinn_sample.hpp>
 
 #include "trainer.hpp"
 #include "yaml/reader.hpp"
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -69,6 +71,19 @@ pinn::TrainConfig loadTrainConfig(const std::string& path) {
   }
   c.mask_stalled = r.boolean("mask_stalled", c.mask_stalled);
   c.edge_thickness_m = r.num("edge_thickness_m", c.edge_thickness_m, 0.0, 0.5);
+  if (r.has("gate_feature")) {
+    const std::string g = r.str("gate_feature", "");
+    const std::vector<std::string>& names = soil::obsFeatureNames();
+    const auto it = std::find(names.begin(), names.end(), g);
+    if (g == "none")
+      c.gate_feature = -1;
+    else if (it == names.end())
+      r.error(r.node("gate_feature"), "gate_feature", "must name an observation feature (e.g. blade_vz_map_mps) or be none, got '" + g + "'");
+    else if (!(c.edge_thickness_m > 0))
+      r.error(r.node("gate_feature"), "gate_feature", "needs edge_thickness_m > 0 (the gate belongs to the penetration term)");
+    else
+      c.gate_feature = static_cast<int>(it - names.begin());
+  }
   if (r.has("loss")) {
     yaml::MapReader l = r.child("loss");
     pinn::LossWeights& w = c.weights;

@@ -22,6 +22,7 @@
 /// skip reason), `config.yaml` (the config as given). Units: SI (Pa, rad, N/m³, m, N, s).
 /// Threading: planning and reading are pure; runEpisode() drives its own Simulator and Engine.
 #include <terramap/core/export.hpp>
+#include <terramap/sim/scenario.hpp>
 #include <terramap/soil/pinn_sample.hpp>
 #include <terramap/soil/soil_table.hpp>
 
@@ -65,6 +66,12 @@ struct SoilDatasetConfig {
   Range hill_count{5, 25};
   Range hill_amplitude_m{-0.25, 0.3};
   Range hill_sigma_m{1.0, 4.0};
+  /// Share of the episodes (in-distribution and held-out alike) driven as a site is graded:
+  /// one pass of a route controller holding the cutting edge at a grade below the start
+  /// (GNSS machine control: the edge holds a plane while the chassis pitches over the hills)
+  /// instead of the random-walk set-points. The grade depth, speed and heading come from the
+  /// episode's initial set-points (depth at least 3 cm).
+  double route_fraction = 0.0;
   /// Base scenario (machine, sensors, controller ranges, terrain size); per episode the soil,
   /// seed, duration, hills, rake and the controller's initial set-points are replaced.
   std::string scenario;
@@ -90,6 +97,7 @@ struct EpisodePlan {
   int hills = 0;
   std::uint64_t hill_seed = 0;
   std::array<double, 5> initial_setpoints{};  ///< speed, depth, roll, yaw, heading
+  bool route = false;  ///< graded by a route controller (SoilDatasetConfig::route_fraction)
 };
 TERRAMAP_API int episodeCount(const SoilDatasetConfig& cfg);
 /// \throws std::out_of_range when index is not in [0, episodeCount(cfg)).
@@ -109,6 +117,10 @@ struct EpisodeData {
   double simulated_s = 0, wall_s = 0;
 };
 
+/// The simulator scenario of one episode: the config's base scenario with the plan's seed,
+/// soil, hills, blade rake and controller (random-walk set-points, or a graded route pass when
+/// plan.route). \throws as sim::loadScenario.
+TERRAMAP_API sim::Scenario episodeScenario(const SoilDatasetConfig& cfg, const EpisodePlan& plan);
 /// Runs episode `plan` through the simulator and the mapping pipeline.
 /// `threads` > 0 overrides the simulator's ray-casting threads and the pipeline's threads
 /// (results do not depend on either). `on_progress(t, duration)` is called after each

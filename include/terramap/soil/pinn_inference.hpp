@@ -45,6 +45,10 @@ struct PinnMemberWeights {
   double edge_thickness_m = 0;
   Eigen::MatrixXf gate_W;
   Eigen::VectorXf gate_b;
+  /// The observation column whose normalised value at each horizon step adds gate_feature_w
+  /// times itself to that step's gate logit (-1 = none).
+  int gate_feature = -1;
+  float gate_feature_w = 0;
 };
 
 /// How far a sample's inputs lie from the training samples', and what that adds to the

@@ -30,7 +30,7 @@
 namespace terramap::soil {
 
 /// Observation features per time step (see obsFeatureNames()).
-constexpr int kObsFeatures = 34;
+constexpr int kObsFeatures = 35;
 /// Known FEE parameters per horizon step: rho, alpha, w, d, Q, v.
 constexpr int kThetaK = 6;
 enum ThetaK : int { kRho = 0, kAlpha, kWidth, kDepth, kSurcharge, kSpeed };
@@ -38,7 +38,8 @@ enum ThetaK : int { kRho = 0, kAlpha, kWidth, kDepth, kSurcharge, kSpeed };
 /// Names (with units) of the kObsFeatures observation features, in order:
 /// base twist (6, body frame), base roll and pitch (2), blade pose in the base frame
 /// (x, y, z, roll, pitch, yaw; 6), blade twist (6, blade frame), cylinder lengths (3) and
-/// velocities (3), track speeds (2), engine speed (1), commanded actions (5).
+/// velocities (3), track speeds (2), engine speed (1), commanded actions (5), and the blade's
+/// vertical speed in the map frame (1; from the blade's attitude and twist).
 const std::vector<std::string>& obsFeatureNames();
 /// Names of the kThetaK columns ("rho_rad", "alpha_rad", "w_m", "d_m", "q_n", "v_mps").
 const std::vector<std::string>& thetaKNames();

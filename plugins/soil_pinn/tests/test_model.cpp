@@ -338,6 +338,45 @@ TEST_F(PinnModel, ThePenetrationTermPushesDownWhereTheFeeIsValidAndRoundTrips) {
   for (const std::string& p : {old, no_key}) std::remove(p.c_str());
 }
 
+// The gate feature: each horizon step's gate logit moves by the learned weight times that
+// step's value of the named observation column, and nothing else changes.
+TEST_F(PinnModel, AGateFeatureMovesEachStepsGateByItsValue) {
+  PinnNet pen(PinnConfig{kT, kP, kDo, {8}, 21, BetaBase::Min, 0.025});
+  PinnNet fed(PinnConfig{kT, kP, kDo, {8}, 21, BetaBase::Min, 0.025, 1});
+  {
+    at::NoGradGuard no_grad;
+    fed->named_parameters()["pen_gate_feature_weight"].fill_(-2.5f);
+  }
+  const Dataset& ds = dataset();
+  const PinnOutput a = pen->forward(ds.obs, ds.theta_k), b = fed->forward(ds.obs, ds.theta_k);
+  ASSERT_TRUE(at::equal(a.theta_u, b.theta_u));
+  auto logit = [](const at::Tensor& g) { return at::log(g / (1 - g)); };
+  const at::Tensor feature = ds.obs.slice(1, kT - kP, kT).select(2, 1);
+  EXPECT_TRUE(at::allclose(logit(b.pen_gate) - logit(a.pen_gate), -2.5f * feature, 1e-4, 1e-4));
+  // A strongly negative value (an edge going down fast) opens the gate, a positive one closes it.
+  at::Tensor down = ds.obs.clone(), up = ds.obs.clone();
+  down.slice(1, kT - kP, kT).select(2, 1).fill_(-10.0f);
+  up.slice(1, kT - kP, kT).select(2, 1).fill_(10.0f);
+  EXPECT_TRUE((fed->forward(down, ds.theta_k).pen_gate > 0.999).all().item<bool>());
+  EXPECT_TRUE((fed->forward(up, ds.theta_k).pen_gate < 0.001).all().item<bool>());
+  // The column and the weight survive a file; a version-3 file (before the key) has no feature.
+  const std::string path = tempPath("fed.pt");
+  savePinn(fed, path);
+  PinnNet loaded = loadPinn(path);
+  EXPECT_EQ(loaded->config().gate_feature, 1);
+  EXPECT_TRUE(at::equal(loaded->forward(ds.obs, ds.theta_k).pen_gate, b.pen_gate));
+  std::remove(path.c_str());
+  const PinnConfig& c = pen->config();
+  nlohmann::json v3{{"T", c.T}, {"P", c.P}, {"D_o", c.D_o}, {"hidden", c.hidden}, {"seed", c.seed},
+                    {"beta_base", "min"}, {"edge_thickness_m", 0.025}};
+  const std::string old = writeWithMetadata(pen, "v3.pt", 3, v3, configHash(c, 3));
+  EXPECT_EQ(loadPinn(old)->config().gate_feature, -1);
+  std::remove(old.c_str());
+  // A column past the observations, or a gate without the penetration term, is refused.
+  EXPECT_THROW(PinnNet(PinnConfig{kT, kP, kDo, {8}, 21, BetaBase::Min, 0.025, kDo}), std::invalid_argument);
+  EXPECT_THROW(PinnNet(PinnConfig{kT, kP, kDo, {8}, 21, BetaBase::Min, 0.0, 1}), std::invalid_argument);
+}
+
 TEST_F(PinnModel, LoadRejectsWhatIsNotAModel) {
   EXPECT_THROW(loadPinn(tempPath("does_not_exist.pt")), InputError);
   const std::string junk = tempPath("junk.pt");

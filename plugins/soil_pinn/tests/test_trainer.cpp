@@ -291,6 +291,18 @@ TEST(Trainer, TheTorchFreeInferenceGivesTheLibtorchEstimate) {
   const SoilEstimator penetrating(std::move(pen), trained.obsMean(), trained.obsStd());
   EXPECT_GT(expectFastPathMatches(penetrating, td), td.size() / 2);
   expectFastPathMatches(penetrating, mixed);
+  // And with the gate fed directly by an observation column (the edge's vertical speed), its
+  // weight moved off the initial -1 so a wrong column or sign would show.
+  std::vector<PinnNet> gated;
+  for (int64_t seed : {11, 12, 13}) {
+    gated.emplace_back(PinnConfig{kT, kP, soil::kObsFeatures, {16, 8}, seed, BetaBase::Min, 0.025,
+                                  soil::kObsFeatures - 1});
+    at::NoGradGuard no_grad;
+    gated.back()->named_parameters()["pen_gate_feature_weight"].fill_(-3.0f - static_cast<float>(seed));
+  }
+  const SoilEstimator gate_fed(std::move(gated), trained.obsMean(), trained.obsStd());
+  EXPECT_GT(expectFastPathMatches(gate_fed, td), td.size() / 2);
+  expectFastPathMatches(gate_fed, mixed);
   fs::remove_all(data);
 }
 
@@ -319,11 +331,14 @@ TEST(DefaultModel, TheCommittedModelHasTheDocumentedSettingsAndRuns) {
   tc.beta_base = BetaBase::Min;
   tc.mask_stalled = true;
   tc.edge_thickness_m = 0.025;
+  tc.gate_feature = soil::kObsFeatures - 1;  // blade_vz_map_mps
   EXPECT_EQ(c.edge_thickness_m, 0.025);
+  EXPECT_EQ(c.gate_feature, soil::kObsFeatures - 1);
+  EXPECT_EQ(soil::obsFeatureNames()[static_cast<std::size_t>(c.gate_feature)], "blade_vz_map_mps");
   const nlohmann::json tj = nlohmann::json::parse(est.trainingJson());
   EXPECT_EQ(tj.at("train_config_hash").get<std::string>(), trainConfigHash(tc));
-  EXPECT_EQ(tj.at("train_samples").get<long>(), 12439);  // the pinn_v5 dataset (docs/soil_estimator.md)
-  // The input distance fitted on those samples: the 40 features (theta_k and the observations).
+  EXPECT_EQ(tj.at("train_samples").get<long>(), 12407);  // the pinn_v8 dataset (docs/soil_estimator.md)
+  // The input distance fitted on those samples: the 41 features (theta_k and the observations).
   EXPECT_EQ(est.inputDistance().mean.size(), 6u + soil::kObsFeatures);
   EXPECT_GT(est.inputDistance().q, 0.0);
   // A plausible cut: a valid estimate inside the soil ranges, the same by both paths.

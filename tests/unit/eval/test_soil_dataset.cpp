@@ -83,6 +83,55 @@ TEST(SoilDataset, AnEpisodesPlanDependsOnlyOnTheSeedAndItsIndex) {
   EXPECT_NE(planEpisode(c, 0).seed, planEpisode(a, 0).seed);
 }
 
+// route_fraction: that share of the episodes is graded by one route pass holding the edge at a
+// grade below the ground ahead of the machine; every other draw of every plan stays as it was.
+TEST(SoilDataset, GradedEpisodesTakeTheirShareAndLeaveTheOtherDrawsAlone) {
+  const SoilDatasetConfig plain = config(400, 40, 10), mixed = config(400, 40, 10, "route_fraction: 0.3\n");
+  int routes = 0;
+  for (int i = 0; i < episodeCount(plain); ++i) {
+    const EpisodePlan a = planEpisode(plain, i), b = planEpisode(mixed, i);
+    EXPECT_FALSE(a.route);
+    routes += b.route;
+    EXPECT_EQ(a.seed, b.seed);
+    EXPECT_EQ(a.hill_seed, b.hill_seed);
+    EXPECT_EQ(a.relative_density, b.relative_density);
+    EXPECT_EQ(a.initial_setpoints, b.initial_setpoints);
+    const sim::Scenario sa = episodeScenario(plain, a), sb = episodeScenario(mixed, b);
+    const sim::ControllerSpec &ca = sa.machines[0].controller, &cb = sb.machines[0].controller;
+    EXPECT_EQ(ca.type, sim::ControllerSpec::Type::RandomWalk);
+    if (!b.route) {
+      EXPECT_EQ(cb.type, sim::ControllerSpec::Type::RandomWalk);
+      continue;
+    }
+    ASSERT_EQ(cb.type, sim::ControllerSpec::Type::Route);
+    EXPECT_TRUE(cb.route_grade);
+    EXPECT_EQ(cb.route_passes, 1);
+    EXPECT_EQ(cb.grade_step_m, 0.0);
+    EXPECT_EQ(cb.route_speed_mps, ca.speed_mps.initial);
+    EXPECT_GE(cb.route_length_m, cb.route_speed_mps * 10);  // the whole episode forward
+    EXPECT_NEAR(cb.route_heading_rad, ca.heading_rad.initial, 1e-12);  // the base scenario starts at yaw 0
+    // The grade lies the set-point depth (at least 3 cm) below the ground under the blade's start.
+    const sim::MachineSpec& m = sb.machines[0];
+    const Eigen::Vector2d edge =
+        cb.route_start + m.blade_mount_x_m * Eigen::Vector2d(std::cos(cb.route_heading_rad), std::sin(cb.route_heading_rad));
+    double ground = sb.terrain.base_height_m;
+    for (const sim::GaussianBump& h : sb.terrain.bumps)
+      ground += h.amplitude_m * std::exp(-0.5 * (edge - Eigen::Vector2d(h.x_m, h.y_m)).squaredNorm() / (h.sigma_m * h.sigma_m));
+    EXPECT_NEAR(ground - cb.grade_first_m, std::max(0.03, ca.depth_m.initial), 1e-9);
+  }
+  // 30 % of 440: 132 expected, binomial sd ~ 9.6.
+  EXPECT_NEAR(routes, 132, 5 * 9.6);
+  EXPECT_THROW(config(10, 2, 10, "route_fraction: 1.5\n"), ConfigError);
+  // A graded episode runs through the mapping pipeline and gives samples of a cut.
+  const SoilDatasetConfig graded = config(1, 0, 5.0, "route_fraction: 1.0\n");
+  const EpisodePlan plan = planEpisode(graded, 0);
+  ASSERT_TRUE(plan.route);
+  const EpisodeData ep = runDatasetEpisode(graded, plan, 1);
+  ASSERT_GT(ep.samples.size(), 2u) << "sweeps " << ep.sweeps;
+  for (const auto& smp : ep.samples)
+    for (float f : smp.force) EXPECT_TRUE(std::isfinite(f));
+}
+
 TEST(SoilDataset, ConfigErrorsNameTheFileLineAndKey) {
   try {
     parseSoilDatasetConfig(configText(10, 2, 10, "rake_deg: [60, 75]\nhistory_typo: 1\n"), "bad.yaml", ".");
