@@ -257,8 +257,8 @@ sim::Scenario episodeScenario(const SoilDatasetConfig& cfg, const EpisodePlan& p
     for (int k = 0; k < 5; ++k) walks[k]->initial = walks[k]->min + plan.initial_setpoints[k] * (walks[k]->max - walks[k]->min);
     if (plan.route) {
       // One forward pass from the machine's pose, long enough for the episode, the edge held at
-      // a grade this far below the ground under the machine's start (the terrain's hills make
-      // the cut deeper or nothing along the way, as on a site graded to a plane).
+      // a grade this far below the ground under the blade's start (the terrain's hills make the
+      // cut deeper, or nothing, along the way, as on a site graded to a plane).
       const double heading = m.yaw_rad + c.heading_rad.initial;
       const Eigen::Vector2d start(m.x_m, m.y_m);
       const Eigen::Vector2d edge = start + m.blade_mount_x_m * Eigen::Vector2d(std::cos(heading), std::sin(heading));
@@ -427,6 +427,15 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
 
 namespace {
 
+// An episode file's plan (writeEpisodeFile's layout): 9 values since the route flag, the first 8
+// in files written before it.
+std::vector<double> readPlan(const sim::EpisodeFile& file, const std::string& path) {
+  std::vector<std::uint64_t> dims;
+  std::vector<double> plan = file.read("plan", dims);
+  if (plan.size() != 8 && plan.size() != 9) throw InputError(path + ": dataset 'plan' must hold 8 or 9 values");
+  return plan;
+}
+
 // ep_NNNNN.h5 then held_NNNNN.h5 of DIR/episodes in index order (temporaries of a killed writer are not listed).
 std::vector<fs::path> episodeFiles(const std::string& dir) {
   const fs::path ep_dir = fs::path(dir) / "episodes";
@@ -458,9 +467,7 @@ std::string datasetManifestJson(const std::string& dir) {
     const sim::EpisodeFile file(path);
     if (hash.empty()) hash = file.rootAttribute("config_hash");
     std::vector<std::uint64_t> dims;
-    const std::vector<double> plan = file.read("plan", dims);
-    // 9 values since the route flag; files written before it hold the first 8.
-    if (plan.size() != 8 && plan.size() != 9) throw InputError(path + ": dataset 'plan' must hold 8 or 9 values");
+    const std::vector<double> plan = readPlan(file, path);
     file.read("truth", dims);
     const long n = dims.empty() ? 0 : static_cast<long>(dims[0]);
     const std::string split = datasetSplitName(static_cast<DatasetSplit>(static_cast<int>(plan[1])));
@@ -505,9 +512,7 @@ SoilDataset readSoilDataset(const std::string& dir) {
         throw InputError(path + ": written with another configuration (config_hash " + hash + ", the first file has " +
                          d.config_hash + "); a dataset folder holds one configuration's episodes");
     }
-    const std::vector<double> plan = file.read("plan", dims);
-    // 9 values since the route flag; files written before it hold the first 8.
-    if (plan.size() != 8 && plan.size() != 9) throw InputError(path + ": dataset 'plan' must hold 8 or 9 values");
+    const std::vector<double> plan = readPlan(file, path);
     const std::vector<double> obs = file.read("obs", dims);
     if (dims.size() != 3 || dims[2] != static_cast<std::uint64_t>(soil::kObsFeatures))
       throw InputError(path + ": dataset 'obs' must be [N, T, " + std::to_string(soil::kObsFeatures) + "]");
