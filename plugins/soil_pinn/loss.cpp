@@ -65,8 +65,17 @@ LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWei
 
   t.force_res = (at::abs(out.F_r.to(at::kDouble)) * wxz).sum() / static_cast<double>(B);
 
+  at::Tensor prior = at::zeros({B}, at::kDouble);
+  for (int k = 0; k < kSoilCount; ++k) {
+    const double mid = 0.5 * (kSoilRanges[k].lo + kSoilRanges[k].hi), span = kSoilRanges[k].hi - kSoilRanges[k].lo;
+    const at::Tensor z = (th.select(1, k) - mid) / span;
+    prior = prior + z * z;
+  }
+  t.prior = prior.mean();
+
   t.total = w.lambda_F * t.force_mae + w.lambda_NLL * t.nll + w.lambda_beta * t.dngamma +
             w.lambda_range * t.range + w.lambda_res * t.residual + w.lambda_Fr * t.force_res;
+  if (w.lambda_prior != 0) t.total = t.total + w.lambda_prior * t.prior;
   return t;
 }
 

@@ -13,6 +13,9 @@
 ///                 (model.hpp logVarLo/Hi)                                               [1]
 ///  - residual   = 1/N sum m (d_res^2 + beta_res^2)  (MSE towards 0 of each residual)   [m^2, rad^2]
 ///  - force_res  = 1/B sum_b (w_x |F^r_x| + w_z |F^r_z|)  (every sample)                 [N]
+///  - prior      = 1/B sum_b sum_theta ((theta - mid)/span)^2 over theta_u (every sample): a weak
+///                 Gaussian prior at the middle of each physical range, which decides the
+///                 directions the force does not (the FEE's null space: gamma, c vs c_a)    [1]
 /// A per-sample quantity (range, residual) counts once per valid step, so a sample whose
 /// steps are all invalid (eta, beta or rho out of limits, d + d_res <= 0) contributes only its
 /// F^r term, and one partly valid counts in proportion. Invalid entries are replaced by
@@ -39,6 +42,7 @@ struct LossWeights {
   double lambda_range = 1.0;
   double lambda_res = 10.0;
   double lambda_Fr = 2e-4;
+  double lambda_prior = 0.0;  ///< 0 = no prior term (the paper has none)
   std::array<double, 2> w_xz{1.0, 0.5};  ///< paper's x/z weights of both wMAE terms
   /// N^2 added to Sigma_F's diagonal inside the NLL: a 1 N floor (far below force-sensor noise)
   /// that keeps Sigma invertible where J is rank-deficient.
@@ -47,7 +51,7 @@ struct LossWeights {
 
 /// Each term unweighted (see the file comment) and the weighted total; float64 scalars.
 struct LossTerms {
-  at::Tensor force_mae, nll, dngamma, range, residual, force_res;
+  at::Tensor force_mae, nll, dngamma, range, residual, force_res, prior;
   at::Tensor total;
 };
 

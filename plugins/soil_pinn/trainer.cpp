@@ -91,6 +91,7 @@ std::string trainConfigHash(const TrainConfig& c) {
   // Only when set, so the hashes of configs written before the key existed stay valid.
   if (c.edge_thickness_m != 0) j["edge_thickness_m"] = c.edge_thickness_m;
   if (c.gate_feature >= 0) j["gate_feature"] = c.gate_feature;
+  if (c.weights.lambda_prior != 0) j["lambda_prior"] = c.weights.lambda_prior;
   const LossWeights& w = c.weights;
   j["weights"] = {w.lambda_F, w.lambda_NLL, w.lambda_beta, w.lambda_range, w.lambda_res, w.lambda_Fr, w.w_xz[0],
                   w.w_xz[1], w.sigma_floor_n2};

@@ -197,6 +197,31 @@ double gradNorm(const torch::nn::Linear& l) {
   return g.defined() ? g.abs().sum().item<double>() : 0.0;
 }
 
+// The optional prior term: the squared distance of each soil property from the middle of its
+// range in spans (only c and phi are off the middle in the hand-made sample), added with its
+// weight, 0 by default; its gradient reaches the soil head and not the log-variances.
+TEST_F(PinnLoss, ThePriorTermIsTheSquaredDistanceFromTheRangesMiddle) {
+  const HandMade h = handMade(false);
+  LossWeights w = noFloor();
+  auto z = [](int k, double v) {
+    return (v - 0.5 * (kSoilRanges[k].lo + kSoilRanges[k].hi)) / (kSoilRanges[k].hi - kSoilRanges[k].lo);
+  };
+  const double prior = std::pow(z(kSoilC, 70e3), 2) + std::pow(z(kSoilPhi, 5 * kDeg), 2);
+  const LossTerms off = pinnLoss(h.out, h.force, w);
+  EXPECT_NEAR(off.prior.item<double>(), prior, 1e-12);
+  w.lambda_prior = 2;
+  const LossTerms on = pinnLoss(h.out, h.force, w);
+  EXPECT_NEAR(on.total.item<double>() - off.total.item<double>(), 2 * prior, 1e-9);
+  NetCase c;
+  const PinnOutput out = c.net->forward(c.obs, c.theta_k);
+  LossWeights only;
+  only.lambda_F = only.lambda_NLL = only.lambda_beta = only.lambda_range = only.lambda_res = only.lambda_Fr = 0;
+  only.lambda_prior = 1;
+  pinnLoss(out, c.force, only).total.backward();
+  EXPECT_GT(gradNorm(c.net->headTheta()), 0.0);
+  EXPECT_EQ(gradNorm(c.net->headLogVar()), 0.0);
+}
+
 TEST_F(PinnLoss, NllGradientReachesLogVariancesOnly) {
   NetCase c;
   const PinnOutput out = c.net->forward(c.obs, c.theta_k);
