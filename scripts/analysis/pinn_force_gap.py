@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Where the soil estimator's physics misses the measured blade force (docs/soil_estimator.md).
 
-Two analyses, both with the truth soil (so only geometry and physics are in question):
+Three analyses, all with the truth soil (so only geometry, physics and observations are in question):
 
   python3 scripts/analysis/pinn_force_gap.py geometry DATASET_DIR [SPLIT]
       Per sample of a `terramap dataset` (split default: test), the force of the last horizon
@@ -11,10 +11,12 @@ Two analyses, both with the truth soil (so only geometry and physics are in ques
       predicted horizontal force per substitution.
 
   python3 scripts/analysis/pinn_force_gap.py episode EPISODE_H5
-      On one `terramap sim` episode (truth geometry and soil logged per step, stalled steps left
-      out): F_total at beta* against the measured force, on steps where the cutting edge
-      descends and where it does not, then with the edge's penetration resistance
-      (terramap.fee's soil, q_b = c N_c + gamma d N_q over 0.025 m x w) added on descending steps.
+      On one `terramap sim` episode: first the blade's vertical speed as the machine reports it
+      against the truth (map frame; noise and sign agreement); then, with the truth geometry
+      and soil logged per step (stalled steps left out), F_total at beta* against the measured
+      force on steps where the cutting edge descends and where it does not, and with the edge's
+      penetration resistance (terramap.fee's soil, q_b = c N_c + gamma d N_q over 0.025 m x w)
+      added on descending steps.
 
   python3 scripts/analysis/pinn_force_gap.py gate DATASET_DIR [SPLIT]
       Per horizon row of a `terramap dataset` split: whether the observations tell when the
@@ -45,13 +47,17 @@ def force_error(pred, meas):
     return 100 * np.sum(np.hypot(pred[:, 0] - meas[:, 0], pred[:, 1] - meas[:, 1])) / np.sum(np.hypot(meas[:, 0], meas[:, 1]))
 
 
-def geometry(dataset, split):
-    rows = []
+def split_episodes(dataset, split, names):
+    """The named datasets (and the observation feature names) of every episode file of a split."""
     for fn in sorted(glob.glob(os.path.join(dataset, "episodes", "*.h5"))):
         with h5py.File(fn, "r") as f:
-            if f.attrs["split"].decode() != split:
-                continue
-            tk, force, truth, tg = f["theta_k"][:], f["force"][:], f["truth"][:], f["truth_geometry"][:]
+            if f.attrs["split"].decode() == split:
+                yield [f[n][:] for n in names], f.attrs["obs_features"].decode().split(",")
+
+
+def geometry(dataset, split):
+    rows = []
+    for (tk, force, truth, tg), _ in split_episodes(dataset, split, ["theta_k", "force", "truth", "truth_geometry"]):
         for i in range(len(tk)):
             rows.append((tuple(map(float, truth[i])), tuple(map(float, tk[i, -1])), tuple(map(float, tg[i])), force[i, -1]))
     if not rows:
@@ -89,6 +95,13 @@ def episode(path):
         fee, soil, stalled = f[m + "truth/fee"][:], f[m + "truth/soil"][:], f[m + "truth/stalled"][:]
         T_blade, T_base, stamp = f[m + "T_map_blade"][:], f[m + "T_map_base"][:], f[m + "stamp"][:]
         measured, truth_base = f[m + "force_base_N"][:][:, [0, 2]], f[m + "truth/force_base_N"][:][:, [0, 2]]
+        tw_true, tw_est = f[m + "twist_blade"][:], f[m + "estimate/twist_blade"][:]
+        T_blade_est = f[m + "estimate/T_map_blade"][:]
+    # The blade's vertical speed in the map frame, as the machine reports it and as it was.
+    vz_true = np.einsum("kij,kj->ki", T_blade[:, :3, :3], tw_true[:, :3])[:, 2]
+    vz_est = np.einsum("kij,kj->ki", T_blade_est[:, :3, :3], tw_est[:, :3])[:, 2]
+    print("blade vertical speed (map frame), reported - true: sd %.3f m/s (true RMS %.3f m/s), same sign %.1f %%" % (
+        np.std(vz_est - vz_true), np.sqrt(np.mean(vz_true ** 2)), 100 * np.mean(np.sign(vz_est) == np.sign(vz_true))))
     # The truth force (the soil's response with its coloured noise) is compared below; the
     # force sensor adds its own noise on top, a floor no estimator of the sensor reading passes.
     contact = np.hypot(truth_base[:, 0], truth_base[:, 1]) > 500
@@ -130,12 +143,7 @@ def rot_rpy(r, p, y):
 
 def gate(dataset, split):
     rows = []
-    for fn in sorted(glob.glob(os.path.join(dataset, "episodes", "*.h5"))):
-        with h5py.File(fn, "r") as f:
-            if f.attrs["split"].decode() != split:
-                continue
-            names = f.attrs["obs_features"].decode().split(",")
-            obs, tk, force, truth = f["obs"][:], f["theta_k"][:], f["force"][:], f["truth"][:]
+    for (obs, tk, force, truth), names in split_episodes(dataset, split, ["obs", "theta_k", "force", "truth"]):
         col = {n: i for i, n in enumerate(names)}
         P, T = tk.shape[1], obs.shape[1]
         for i in range(len(tk)):
@@ -145,7 +153,8 @@ def gate(dataset, split):
                 rho, alpha, w, d, q, _v = map(float, tk[i, p])
                 o = obs[i, T - P + p]
                 # Yaw does not change a vertical component: the base's roll and pitch, then the
-                # blade's attitude in the base frame, rotate the blade-frame velocity.
+                # blade's attitude in the base frame, rotate the blade-frame velocity. (Datasets
+                # since 2026-11-27 carry this as blade_vz_map_mps; recomputing it reads older ones.)
                 R = rot_rpy(o[col["base_roll_rad"]], o[col["base_pitch_rad"]], 0.0) @ rot_rpy(
                     o[col["blade_roll_rad"]], o[col["blade_pitch_rad"]], o[col["blade_yaw_rad"]])
                 vz = (R @ np.array([o[col["blade_vx_mps"]], o[col["blade_vy_mps"]], o[col["blade_vz_mps"]]]))[2]
