@@ -60,15 +60,17 @@ void addForceErrors(Accum& a, const SampleView& v, const SoilEstimate& e, int P)
   const fee::Result sim_tg = tg_known ? fee::evaluateAtBetaMin(v.soil, truth_geo) : fee::Result{};
   for (int p = 0; p < P; ++p) {
     const double fx = v.force[p * 2], fz = v.force[p * 2 + 1];
-    a.ferr += std::hypot(e.F[static_cast<std::size_t>(p)][0] - fx, e.F[static_cast<std::size_t>(p)][1] - fz);
-    a.ferr_x += std::abs(e.F[static_cast<std::size_t>(p)][0] - fx);
-    a.ferr_z += std::abs(e.F[static_cast<std::size_t>(p)][1] - fz);
-    a.fnorm += std::hypot(fx, fz);
+    const double dx = e.F[static_cast<std::size_t>(p)][0] - fx, dz = e.F[static_cast<std::size_t>(p)][1] - fz;
+    const double miss = std::hypot(dx, dz), norm = std::hypot(fx, fz);
+    a.ferr += miss;
+    a.ferr_x += std::abs(dx);
+    a.ferr_z += std::abs(dz);
+    a.fnorm += norm;
     a.forces.push_back({fx, fz});
     ++a.rows;
     if (v.moving[p]) {
-      a.ferr_moving += std::hypot(e.F[static_cast<std::size_t>(p)][0] - fx, e.F[static_cast<std::size_t>(p)][1] - fz);
-      a.fnorm_moving += std::hypot(fx, fz);
+      a.ferr_moving += miss;
+      a.fnorm_moving += norm;
     } else {
       ++a.stalled_rows;
     }
@@ -81,7 +83,7 @@ void addForceErrors(Accum& a, const SampleView& v, const SoilEstimate& e, int P)
     if (tg_known) {
       a.ferr_tg += missBy(paper_tg.F_N, fx, fz, paper_tg.valid());
       a.ferr_sim += missBy(sim_tg.F_total_N, fx, fz, sim_tg.valid());
-      a.fnorm_tg += std::hypot(fx, fz);
+      a.fnorm_tg += norm;
     }
   }
   if (tg_known) {

@@ -249,11 +249,11 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   std::vector<PinnNet> best_members;
   for (int m = 0; m < cfg.members; ++m) {
     const std::int64_t seed = cfg.seed * 1000 + m;
-    PinnNet net(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m,
-                           cfg.gate_feature});
+    const PinnConfig pc{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m,
+                        cfg.gate_feature};
+    PinnNet net(pc);
     net->setThetaNormalisation(at::tensor(th_mean), at::tensor(th_std));
-    PinnNet best(PinnConfig{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m,
-                           cfg.gate_feature});
+    PinnNet best(pc);
     copyInto(best, net);
     torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(cfg.learning_rate));
     MemberState st;
