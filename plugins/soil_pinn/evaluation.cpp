@@ -32,6 +32,8 @@ struct Accum {
   std::vector<double> q_ratio;                // mapped Q / simulator's q, per sample
   long input_measured = 0, input_beyond = 0;  // samples with an input distance, and beyond q
   double input_share = 0;                     // Σ share of the prior variance added
+  // Per property, truth and estimate of every valid sample (the skill statistics).
+  std::array<std::vector<double>, kSoilCount> truth, estimate;
 };
 
 // One sample's view of the dataset arrays (row r, the model's last P horizon steps).
@@ -101,6 +103,8 @@ void addSoilErrors(Accum& a, Fig11Bin* bin, const fee::Soil& truth_soil, const S
   const double truth[kSoilCount] = {truth_soil.c_pa, truth_soil.phi_rad, truth_soil.ca_pa, truth_soil.delta_rad,
                                     truth_soil.gamma_n_m3};
   for (int k = 0; k < kSoilCount; ++k) {
+    a.truth[k].push_back(truth[k]);
+    a.estimate[k].push_back(e.mean[k]);
     const double err = e.mean[k] - truth[k];
     a.m.mae[k] += std::abs(err);
     a.m.bias[k] += err;
@@ -118,8 +122,22 @@ void addSoilErrors(Accum& a, Fig11Bin* bin, const fee::Soil& truth_soil, const S
   }
 }
 
-SplitMetrics finishSplit(int split, Accum& a) {
+/// Median of v (NaN when empty); reorders a copy.
+double median(std::vector<double> v) {
+  if (v.empty()) return NAN;
+  auto mid = v.begin() + static_cast<long>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
+}
+
+/// `constant`: per property, the constant estimate the skill is measured against.
+SplitMetrics finishSplit(int split, Accum& a, const std::array<double, kSoilCount>& constant) {
   SplitMetrics m = a.m;
+  for (int k = 0; k < kSoilCount; ++k) {
+    const PropertySkill s = propertySkill(a.truth[k], a.estimate[k], constant[k]);
+    m.mae_constant[k] = s.mae_constant;
+    m.correlation[k] = s.correlation;
+  }
   m.split = eval::datasetSplitName(static_cast<eval::DatasetSplit>(split));
   auto pct = [](double err, double norm) { return norm > 0 ? 100.0 * err / norm : NAN; };
   m.force_error_pct = pct(a.ferr, a.fnorm);
@@ -140,11 +158,7 @@ SplitMetrics finishSplit(int split, Accum& a) {
   mz /= static_cast<double>(std::max<std::size_t>(1, a.forces.size()));
   for (const auto& fv : a.forces) em += std::hypot(fv[0] - mx, fv[1] - mz);
   m.force_error_mean_pct = pct(em, a.fnorm);
-  if (!a.q_ratio.empty()) {
-    auto mid = a.q_ratio.begin() + static_cast<long>(a.q_ratio.size() / 2);
-    std::nth_element(a.q_ratio.begin(), mid, a.q_ratio.end());
-    m.surcharge_ratio_median = *mid;
-  }
+  m.surcharge_ratio_median = median(a.q_ratio);
   if (a.input_measured > 0) {
     m.input_beyond_fraction = static_cast<double>(a.input_beyond) / static_cast<double>(a.input_measured);
     m.input_share_mean = a.input_share / static_cast<double>(a.input_measured);
@@ -158,6 +172,30 @@ SplitMetrics finishSplit(int split, Accum& a) {
 }
 
 }  // namespace
+
+PropertySkill propertySkill(const std::vector<double>& truth, const std::vector<double>& estimate, double constant) {
+  PropertySkill s;
+  const std::size_t n = std::min(truth.size(), estimate.size());
+  if (n == 0) return s;
+  double mt = 0, me = 0, err = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    mt += truth[i];
+    me += estimate[i];
+    err += std::abs(constant - truth[i]);
+  }
+  s.mae_constant = err / static_cast<double>(n);
+  mt /= static_cast<double>(n);
+  me /= static_cast<double>(n);
+  double stt = 0, see = 0, ste = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double dt = truth[i] - mt, de = estimate[i] - me;
+    stt += dt * dt;
+    see += de * de;
+    ste += dt * de;
+  }
+  if (stt > 0 && see > 0) s.correlation = ste / std::sqrt(stt * see);
+  return s;
+}
 
 SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& data) {
   const long n = data.size();
@@ -204,7 +242,12 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
     }
   }
   SoilEvaluation out;
-  for (auto& [split, a] : acc) out.splits.push_back(finishSplit(split, a));
+  // The constant the skill is measured against: what the training soils alone suggest.
+  std::array<double, kSoilCount> constant;
+  constant.fill(NAN);
+  if (auto it = acc.find(static_cast<int>(eval::DatasetSplit::Train)); it != acc.end())
+    for (int k = 0; k < kSoilCount; ++k) constant[k] = median(it->second.truth[k]);
+  for (auto& [split, a] : acc) out.splits.push_back(finishSplit(split, a, constant));
   for (auto& [key, b] : bins) {
     for (int k = 0; k < kSoilCount; ++k) {
       b.truth[k] /= static_cast<double>(b.samples);
@@ -252,6 +295,10 @@ std::string evaluationJson(const SoilEvaluation& e) {
       nlohmann::ordered_json p;
       p["mae"] = m.mae[k];
       p["bias"] = m.bias[k];
+      p["mae_constant_train_median"] = std::isfinite(m.mae_constant[k]) ? nlohmann::ordered_json(m.mae_constant[k])
+                                                                        : nlohmann::ordered_json();
+      p["correlation_with_truth"] = std::isfinite(m.correlation[k]) ? nlohmann::ordered_json(m.correlation[k])
+                                                                    : nlohmann::ordered_json();
       p["coverage_1sigma_aleatoric"] = m.coverage_aleatoric[k];
       p["coverage_1sigma_nullspace"] = m.coverage_nullspace[k];
       p["coverage_1sigma_total"] = m.coverage_total[k];
@@ -286,6 +333,21 @@ std::string evaluationMarkdown(const SoilEvaluation& e) {
     os << buf;
     for (int k = 0; k < kSoilCount; ++k) {
       std::snprintf(buf, sizeof buf, " %.2f |", m.mae[k] * kDisplayScale[k]);
+      os << buf;
+    }
+    os << "\n";
+  }
+  os << "\nSkill: MAE of the estimates / of a constant (the training split's median truth), and the correlation "
+        "of estimate with truth:\n\n| split |";
+  for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " (" << kDisplayUnit[k] << ") |";
+  os << "\n|---|";
+  for (int k = 0; k < kSoilCount; ++k) os << "---|";
+  os << "\n";
+  for (const auto& m : e.splits) {
+    os << "| " << m.split << " |";
+    for (int k = 0; k < kSoilCount; ++k) {
+      std::snprintf(buf, sizeof buf, " %.2f / %.2f, r %.2f |", m.mae[k] * kDisplayScale[k],
+                    m.mae_constant[k] * kDisplayScale[k], m.correlation[k]);
       os << buf;
     }
     os << "\n";

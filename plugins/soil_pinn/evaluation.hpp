@@ -45,6 +45,11 @@ struct SplitMetrics {
   double surcharge_ratio_median = NAN;
   std::array<double, kSoilCount> mae{};        ///< |mean − truth|, SI units
   std::array<double, kSoilCount> bias{};       ///< mean − truth
+  /// Skill against ignorance: the MAE of a constant estimate, the training split's median truth
+  /// (NaN without a training split), and the Pearson correlation of estimate with truth over
+  /// the valid samples (NaN when either does not vary). An estimator whose MAE is not clearly
+  /// below mae_constant, or whose correlation is near 0, has not learnt that property.
+  std::array<double, kSoilCount> mae_constant{}, correlation{};
   /// Fraction of valid samples whose truth lies within ±1σ, per variance kind.
   std::array<double, kSoilCount> coverage_aleatoric{}, coverage_nullspace{}, coverage_total{};
   std::array<double, kSoilCount> mean_var_aleatoric{}, mean_var_epistemic{}, mean_var_total{};
@@ -68,6 +73,14 @@ struct SoilEvaluation {
   /// mean_var_epistemic(held_out) / mean_var_epistemic(test), per property (NaN without both).
   std::array<double, kSoilCount> epistemic_ratio{};
 };
+
+/// The two skill statistics of SplitMetrics for one property: the MAE of `constant` against
+/// `truth`, and the Pearson correlation of `estimate` with `truth` (same length; NaN when empty
+/// or when either has no spread).
+struct PropertySkill {
+  double mae_constant = NAN, correlation = NAN;
+};
+PropertySkill propertySkill(const std::vector<double>& truth, const std::vector<double>& estimate, double constant);
 
 /// Runs the estimator over every sample of `data` in batches. Single-threaded ATen.
 SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& data);

@@ -123,6 +123,10 @@ TEST(Trainer, LearnsTheForceBetterThanAConstantAndReproducesBitForBit) {
     if (m.split == "train") {
       EXPECT_LT(m.force_error_pct, 0.6 * m.force_error_mean_pct) << m.force_error_pct;
     }
+    // The constant baseline is the training split's: measured on every split present.
+    for (int k = 0; k < kSoilCount; ++k) {
+      EXPECT_TRUE(std::isfinite(m.mae_constant[k])) << m.split << " " << k;
+    }
   }
   // Same config, another output: the same bits.
   TrainConfig c2 = c;
@@ -223,7 +227,9 @@ int expectFastPathMatches(const SoilEstimator& est, const TrainingData& d) {
         EXPECT_NEAR(f.F[p][c], t.F[p][c], 1e-4 * std::max(1.0, std::hypot(t.F[p][0], t.F[p][1])));
     EXPECT_NEAR(f.beta_rad, t.beta_rad, 1e-6);
     EXPECT_EQ(std::isnan(f.input_d2), std::isnan(t.input_d2));
-    if (!std::isnan(t.input_d2)) EXPECT_NEAR(f.input_d2, t.input_d2, 1e-9 * (1.0 + t.input_d2));
+    if (!std::isnan(t.input_d2)) {
+      EXPECT_NEAR(f.input_d2, t.input_d2, 1e-9 * (1.0 + t.input_d2));
+    }
     EXPECT_NEAR(f.d_res_m, t.d_res_m, 1e-7);
     EXPECT_NEAR(f.F_r[0], t.F_r[0], 1e-3);
   }
@@ -358,4 +364,20 @@ TEST(DefaultModel, TheCommittedModelHasTheDocumentedSettingsAndRuns) {
     EXPECT_LE(fast.mean[k], kSoilRanges[k].hi);
     EXPECT_NEAR(fast.mean[k], slow.mean[k], 1e-5 * (kSoilRanges[k].hi - kSoilRanges[k].lo));
   }
+}
+
+TEST(Evaluation, SkillIsAConstantsMaeAndThePearsonCorrelation) {
+  const std::vector<double> truth{1, 2, 3, 4};
+  PropertySkill s = propertySkill(truth, {2, 4, 6, 8}, 2.5);
+  EXPECT_DOUBLE_EQ(s.mae_constant, 1.0);  // (1.5 + 0.5 + 0.5 + 1.5) / 4
+  EXPECT_NEAR(s.correlation, 1.0, 1e-15);
+  EXPECT_NEAR(propertySkill(truth, {8, 6, 4, 2}, 0).correlation, -1.0, 1e-15);
+  // Deviations (-1.5, -0.5, 0.5, 1.5) and (-1.5, 0.5, -0.5, 1.5): 4 / 5.
+  EXPECT_NEAR(propertySkill(truth, {1, 3, 2, 4}, 0).correlation, 0.8, 1e-15);
+  EXPECT_DOUBLE_EQ(propertySkill(truth, {1, 3, 2, 4}, 0).mae_constant, 2.5);
+  // A constant estimate has no correlation; nothing to measure gives NaN.
+  EXPECT_TRUE(std::isnan(propertySkill(truth, {5, 5, 5, 5}, 0).correlation));
+  s = propertySkill({}, {}, 1.0);
+  EXPECT_TRUE(std::isnan(s.mae_constant));
+  EXPECT_TRUE(std::isnan(s.correlation));
 }
