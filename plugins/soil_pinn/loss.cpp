@@ -27,13 +27,16 @@ at::Tensor nll2(const at::Tensor& r, const at::Tensor& Sigma, const at::Tensor& 
 
 }  // namespace
 
-LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWeights& w, const at::Tensor& row_mask) {
+LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWeights& w, const at::Tensor& row_mask,
+                   const at::Tensor& truth) {
   if (!out.F.defined() || force.sizes() != out.F.sizes())
     throw std::invalid_argument("pinnLoss: force must be [B,P,2] like the prediction, got " + c10::str(force.sizes()));
   const int64_t B = out.F.size(0), P = out.F.size(1);
   const double N = static_cast<double>(B * P);
   if (row_mask.defined() && row_mask.sizes() != out.valid.sizes())
     throw std::invalid_argument("pinnLoss: row_mask must be [B,P] like the prediction, got " + c10::str(row_mask.sizes()));
+  if (truth.defined() && (truth.dim() != 2 || truth.size(0) != B || truth.size(1) != kSoilCount))
+    throw std::invalid_argument("pinnLoss: truth must be [B,5] like the soil estimate, got " + c10::str(truth.sizes()));
   const at::Tensor m = row_mask.defined() ? out.valid & row_mask.to(at::kBool) : out.valid;
   const at::Tensor mf = m.to(at::kDouble);
   const at::Tensor valid_frac = mf.mean(1);  // [B]: per-sample terms count once per valid step
@@ -73,9 +76,21 @@ LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWei
   }
   t.prior = prior.mean();
 
+  t.soil = at::zeros({}, at::kDouble);
+  if (truth.defined()) {
+    at::Tensor sq = at::zeros({B}, at::kDouble);
+    const at::Tensor tt = truth.to(at::kDouble);
+    for (int k = 0; k < kSoilCount; ++k) {
+      const at::Tensor z = (th.select(1, k) - tt.select(1, k)) / (kSoilRanges[k].hi - kSoilRanges[k].lo);
+      sq = sq + z * z;
+    }
+    t.soil = sq.mean();
+  }
+
   t.total = w.lambda_F * t.force_mae + w.lambda_NLL * t.nll + w.lambda_beta * t.dngamma +
             w.lambda_range * t.range + w.lambda_res * t.residual + w.lambda_Fr * t.force_res;
   if (w.lambda_prior != 0) t.total = t.total + w.lambda_prior * t.prior;
+  if (w.lambda_soil != 0) t.total = t.total + w.lambda_soil * t.soil;
   return t;
 }
 

@@ -16,6 +16,12 @@
 ///  - prior      = 1/B sum_b sum_theta ((theta - mid)/span)^2 over theta_u (every sample): a weak
 ///                 Gaussian prior at the middle of each physical range, which decides the
 ///                 directions the force does not (the FEE's null space: gamma, c vs c_a)    [1]
+///  - soil       = 1/B sum_b sum_theta ((theta - theta_true)/span)^2 over theta_u, for the samples
+///                 whose truth soil is given (pinnLoss's `truth`; 0 without): supervision by the
+///                 simulator's truth, beyond the paper (whose loss sees only forces). The force
+///                 alone leaves the c-phi-delta-gamma trade-off of the FEE to the initialisation
+///                 (docs/soil_estimator.md "Skill"); a network trained in simulation knows the
+///                 truth and may use it. Its gradient reaches theta_u only                  [1]
 /// A per-sample quantity (range, residual) counts once per valid step, so a sample whose
 /// steps are all invalid (eta, beta or rho out of limits, d + d_res <= 0) contributes only its
 /// F^r term, and one partly valid counts in proportion. Invalid entries are replaced by
@@ -43,6 +49,7 @@ struct LossWeights {
   double lambda_res = 10.0;
   double lambda_Fr = 2e-4;
   double lambda_prior = 0.0;  ///< 0 = no prior term (the paper has none)
+  double lambda_soil = 0.0;   ///< 0 = no supervision by the truth soil (the paper has none)
   std::array<double, 2> w_xz{1.0, 0.5};  ///< paper's x/z weights of both wMAE terms
   /// N^2 added to Sigma_F's diagonal inside the NLL: a 1 N floor (far below force-sensor noise)
   /// that keeps Sigma invertible where J is rank-deficient.
@@ -51,7 +58,7 @@ struct LossWeights {
 
 /// Each term unweighted (see the file comment) and the weighted total; float64 scalars.
 struct LossTerms {
-  at::Tensor force_mae, nll, dngamma, range, residual, force_res, prior;
+  at::Tensor force_mae, nll, dngamma, range, residual, force_res, prior, soil;
   at::Tensor total;
 };
 
@@ -59,8 +66,10 @@ struct LossTerms {
 /// row_mask: optional [B,P] bool; a false row is left out of every term as an invalid FEE step
 /// is (the trainer masks rows where the machine stood stalled: its measured force is not the
 /// soil's failure force), so m above is validity AND row_mask.
-/// \throws std::invalid_argument if force is not [B,P,2] matching out.F, or row_mask not [B,P].
+/// truth: optional [B,5] truth soil (SI, SoilCol order) for the soil term; without it the term is 0.
+/// \throws std::invalid_argument if force is not [B,P,2] matching out.F, row_mask not [B,P] or
+/// truth not [B,5].
 LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWeights& w = {},
-                   const at::Tensor& row_mask = {});
+                   const at::Tensor& row_mask = {}, const at::Tensor& truth = {});
 
 }  // namespace terramap::pinn

@@ -92,6 +92,7 @@ std::string trainConfigHash(const TrainConfig& c) {
   if (c.edge_thickness_m != 0) j["edge_thickness_m"] = c.edge_thickness_m;
   if (c.gate_feature >= 0) j["gate_feature"] = c.gate_feature;
   if (c.weights.lambda_prior != 0) j["lambda_prior"] = c.weights.lambda_prior;
+  if (c.weights.lambda_soil != 0) j["lambda_soil"] = c.weights.lambda_soil;
   const LossWeights& w = c.weights;
   j["weights"] = {w.lambda_F, w.lambda_NLL, w.lambda_beta, w.lambda_range, w.lambda_res, w.lambda_Fr, w.w_xz[0],
                   w.w_xz[1], w.sigma_floor_n2};
@@ -238,6 +239,11 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   const at::Tensor all_rows = at::ones_like(data.moving);
   const at::Tensor& use = cfg.mask_stalled ? data.moving : all_rows;
   const at::Tensor m_tr = rows(use, train_idx), m_va = rows(use, val_idx);
+  // The truth soil only when the loss supervises by it (an undefined tensor turns the term off).
+  const bool supervise = cfg.weights.lambda_soil != 0;
+  const at::Tensor s_tr = supervise ? rows(data.truth, train_idx) : at::Tensor();
+  const at::Tensor s_va = supervise ? rows(data.truth, val_idx) : at::Tensor();
+  auto part = [](const at::Tensor& t, auto&& pick) { return t.defined() ? pick(t) : at::Tensor(); };
   const std::string hash = trainConfigHash(cfg) + "-" + ds.config_hash;
   std::error_code ec;
   fs::create_directories(checkpointPath(cfg, 0).parent_path(), ec);
@@ -268,7 +274,8 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
       for (long b0 = 0; b0 < obs_va.size(0); b0 += cfg.batch) {
         const long len = std::min<long>(cfg.batch, obs_va.size(0) - b0);
         const LossTerms t = pinnLoss(net->forward(obs_va.narrow(0, b0, len), th_va.narrow(0, b0, len)),
-                                     f_va.narrow(0, b0, len), cfg.weights, m_va.narrow(0, b0, len));
+                                     f_va.narrow(0, b0, len), cfg.weights, m_va.narrow(0, b0, len),
+                                     part(s_va, [&](const at::Tensor& t) { return t.narrow(0, b0, len); }));
         sum += t.total.item<double>() * static_cast<double>(len);
         fsum += t.force_mae.item<double>() * static_cast<double>(len);
         n += len;
@@ -287,7 +294,8 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
         const long len = std::min<long>(cfg.batch, perm.size(0) - b0);
         const at::Tensor idx = perm.narrow(0, b0, len);
         const LossTerms t = pinnLoss(net->forward(obs_tr.index_select(0, idx), th_tr.index_select(0, idx)),
-                                     f_tr.index_select(0, idx), cfg.weights, m_tr.index_select(0, idx));
+                                     f_tr.index_select(0, idx), cfg.weights, m_tr.index_select(0, idx),
+                                     part(s_tr, [&](const at::Tensor& t) { return t.index_select(0, idx); }));
         opt.zero_grad();
         t.total.backward();
         opt.step();

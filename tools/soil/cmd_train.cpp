@@ -94,6 +94,7 @@ pinn::TrainConfig loadTrainConfig(const std::string& path) {
     w.lambda_res = l.num("lambda_res", w.lambda_res, 0, 1e6);
     w.lambda_Fr = l.num("lambda_Fr", w.lambda_Fr, 0, 1e6);
     w.lambda_prior = l.num("lambda_prior", w.lambda_prior, 0, 1e6);
+    w.lambda_soil = l.num("lambda_soil", w.lambda_soil, 0, 1e6);
     l.finish();
   }
   r.finish();

@@ -222,6 +222,38 @@ TEST_F(PinnLoss, ThePriorTermIsTheSquaredDistanceFromTheRangesMiddle) {
   EXPECT_EQ(gradNorm(c.net->headLogVar()), 0.0);
 }
 
+// The optional supervision by the truth soil: the squared distance of the estimate from the
+// truth in spans, 0 without a truth, added with its weight; its gradient reaches the soil head
+// and not the log-variances; a truth of the wrong shape is refused.
+TEST_F(PinnLoss, TheSoilTermIsTheSquaredDistanceFromTheTruthInSpans) {
+  const HandMade h = handMade(false);
+  const at::Tensor est = h.out.theta_u.to(at::kDouble);
+  // The truth: the estimate with c 6 kPa higher and phi 2 deg lower (one sample).
+  at::Tensor truth = est.clone();
+  truth.select(1, kSoilC).add_(6e3);
+  truth.select(1, kSoilPhi).sub_(2 * kDeg);
+  auto span = [](int k) { return kSoilRanges[k].hi - kSoilRanges[k].lo; };
+  const double soil = std::pow(6e3 / span(kSoilC), 2) + std::pow(2 * kDeg / span(kSoilPhi), 2);
+  LossWeights w = noFloor();
+  const LossTerms none = pinnLoss(h.out, h.force, w);
+  EXPECT_EQ(none.soil.item<double>(), 0.0);
+  const LossTerms off = pinnLoss(h.out, h.force, w, {}, truth);
+  EXPECT_NEAR(off.soil.item<double>(), soil, 1e-12);
+  EXPECT_EQ(off.total.item<double>(), none.total.item<double>());  // lambda_soil 0: not in the total
+  w.lambda_soil = 3;
+  const LossTerms on = pinnLoss(h.out, h.force, w, {}, truth);
+  EXPECT_NEAR(on.total.item<double>() - off.total.item<double>(), 3 * soil, 1e-9);
+  EXPECT_THROW(pinnLoss(h.out, h.force, w, {}, truth.narrow(1, 0, 4)), std::invalid_argument);
+  NetCase c;
+  const PinnOutput out = c.net->forward(c.obs, c.theta_k);
+  LossWeights only;
+  only.lambda_F = only.lambda_NLL = only.lambda_beta = only.lambda_range = only.lambda_res = only.lambda_Fr = 0;
+  only.lambda_soil = 1;
+  pinnLoss(out, c.force, only, {}, out.theta_u.detach().to(at::kDouble) + 1.0).total.backward();
+  EXPECT_GT(gradNorm(c.net->headTheta()), 0.0);
+  EXPECT_EQ(gradNorm(c.net->headLogVar()), 0.0);
+}
+
 TEST_F(PinnLoss, NllGradientReachesLogVariancesOnly) {
   NetCase c;
   const PinnOutput out = c.net->forward(c.obs, c.theta_k);
