@@ -26,6 +26,15 @@ Three analyses, all with the truth soil (so only geometry, physics and observati
       force error (and its parts along x and z) without and with the penetration so gated, and
       the median measured vertical force on rows observed descending and rising.
 
+  [ROWS=N] python3 scripts/analysis/pinn_force_gap.py phifit DATASET_DIR [SPLIT]
+      How much the horizontal force tells about phi when everything else is known: per sample
+      (its last N horizon rows, default 1; every row's FEE valid), the phi in 10..50 deg whose F_total at beta*, with the
+      truth c, c_a, delta and gamma, best matches the measured force along x (least absolute
+      error summed over the rows), on the mapped geometry (each row's) and on the simulator's
+      own (logged once per sample). Prints the fitted phi's MAE and correlation with the
+      truth beside a constant's (the split's median truth): an upper bound of what an estimator
+      of phi could do from that force with that geometry.
+
 Needs Debian's python3-h5py and terramap's Python module (build/python; PYTHONPATH or run from
 the repository root after `make`).
 """
@@ -82,6 +91,45 @@ def geometry(dataset, split):
             "+".join(sub) or "(mapped only)", len(pred), force_error(np.array(pred), np.array(meas)), np.median(ratio)))
 
 
+def phifit(dataset, split, rows):
+    grid = np.radians(np.arange(10.0, 50.01, 0.5))
+    truth_phi, fitted = [], {"mapped": [], "truth": []}
+    for (tk, force, truth, tg), _ in split_episodes(dataset, split, ["theta_k", "force", "truth", "truth_geometry"]):
+        for i in range(len(tk)):
+            c, phi, ca, delta, gamma = map(float, truth[i])
+            a2, r2, d2, w2, q2 = map(float, tg[i])
+            fx = force[i, -rows:, 0].astype(float)
+            mapped = [(a, r, ww, dd, qq) for r, a, ww, dd, qq, _v in tk[i, -rows:].astype(float)]
+            if not (np.isfinite([a2, r2, d2, w2, q2]).all() and d2 > 0 and min(g[3] for g in mapped) > 0):
+                continue
+            best = {}
+            # Mapped: each row's own geometry; truth: the simulator's, logged once per sample.
+            for name, geos in (("mapped", [(a, r, dd, ww, qq) for a, r, ww, dd, qq in mapped]),
+                               ("truth", [(a2, r2, d2, w2, q2)] * rows)):
+                err = []
+                for p in grid:
+                    e = 0.0
+                    for g, f in zip(geos, fx):
+                        r = tm.fee(c, p, gamma, ca, delta, *g, beta="min")
+                        e += abs(r["F_total_N"][0] - f) if r["valid"] else np.inf
+                    err.append(e)
+                best[name] = grid[int(np.argmin(err))] if np.isfinite(np.min(err)) else np.nan
+            if not np.isfinite([best["mapped"], best["truth"]]).all():
+                continue
+            truth_phi.append(phi)
+            for name in fitted:
+                fitted[name].append(best[name])
+    t = np.degrees(np.array(truth_phi))
+    if len(t) == 0:
+        sys.exit(dataset + ": no samples in split " + split)
+    print("%d samples of split %s, the last %d horizon row(s); a constant (the median truth, %.1f deg): phi MAE %.2f deg" % (
+        len(t), split, rows, np.median(t), np.mean(np.abs(t - np.median(t)))))
+    for name in ("mapped", "truth"):
+        f = np.degrees(np.array(fitted[name]))
+        print("  phi fitted to Fx on the %-6s geometry (truth c, c_a, delta, gamma): MAE %.2f deg, r %.2f" % (
+            name, np.mean(np.abs(f - t)), np.corrcoef(f, t)[0, 1]))
+
+
 def bearing(phi):
     t = math.tan(math.pi / 4 + phi / 2)
     nq = math.exp(math.pi * math.tan(phi)) * t * t
@@ -133,6 +181,29 @@ def episode(path):
     print("  median measured / FEE vertical force on descending steps: %.0f N / %.0f N" % (
         np.median(meas[down, 1]), np.median(fee_only[down, 1])))
     print("  + penetration on descending steps: force error %.1f %%" % force_error(with_pen, meas))
+    # What one step's horizontal force says about phi, all else (geometry, c, c_a, delta, gamma)
+    # the truth: the phi in 10..50 deg whose F_total at beta* matches it best.
+    grid = np.radians(np.arange(10.0, 50.01, 0.5))
+    fits, truth_phi = [], []
+    for k in range(len(F)):
+        alpha, rho, d, w, q, _beta = fee[k]
+        if not d > 0 or stalled[k]:
+            continue
+        c, phi, gamma, ca, delta = soil[k][:5]
+        heading = T_base[k, :2, 0]
+        fx = -(F[k, 0] * heading[0] + F[k, 1] * heading[1])
+        err = []
+        for p in grid:
+            r = tm.fee(c, p, gamma, ca, delta, alpha, rho, d, w, q, beta="min")
+            err.append(abs(r["F_total_N"][0] - fx) if r["valid"] else np.inf)
+        if np.isfinite(np.min(err)):
+            fits.append(math.degrees(grid[int(np.argmin(err))]))
+            truth_phi.append(math.degrees(phi))
+    fits, truth_phi = np.array(fits), np.array(truth_phi)
+    print("  phi fitted to each step's horizontal force (truth geometry, c, c_a, delta, gamma): "
+          "median %.1f deg (truth %.1f), quartiles %.1f-%.1f, MAE %.2f deg; measured / F_total along x: median %.2f (quartiles %.2f-%.2f)" % (
+              np.median(fits), np.median(truth_phi), *np.percentile(fits, [25, 75]), np.mean(np.abs(fits - truth_phi)),
+              np.median(meas[:, 0] / fee_only[:, 0]), *np.percentile(meas[:, 0] / fee_only[:, 0], [25, 75])))
 
 def rot_rpy(r, p, y):
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
@@ -181,12 +252,14 @@ def gate(dataset, split):
 
 
 def main():
-    if len(sys.argv) < 3 or sys.argv[1] not in ("geometry", "episode", "gate"):
+    if len(sys.argv) < 3 or sys.argv[1] not in ("geometry", "episode", "gate", "phifit"):
         sys.exit(__doc__)
     if sys.argv[1] == "geometry":
         geometry(sys.argv[2], sys.argv[3] if len(sys.argv) > 3 else "test")
     elif sys.argv[1] == "gate":
         gate(sys.argv[2], sys.argv[3] if len(sys.argv) > 3 else "test")
+    elif sys.argv[1] == "phifit":
+        phifit(sys.argv[2], sys.argv[3] if len(sys.argv) > 3 else "test", int(os.environ.get("ROWS", "1")))
     else:
         episode(sys.argv[2])
 
