@@ -315,6 +315,28 @@ std::string evaluationJson(const SoilEvaluation& e) {
   return j.dump(2);
 }
 
+namespace {
+/// A markdown table after a blank line and `intro`: one row per split, one column per property
+/// (its display unit in the header when `units`); `cell(split, property)` formats an entry.
+template <class Cell>
+void propertyTable(std::ostringstream& os, const SoilEvaluation& e, const char* intro, bool units, Cell cell) {
+  os << "\n" << intro << "\n\n| split |";
+  for (int k = 0; k < kSoilCount; ++k) {
+    os << " " << kName[k];
+    if (units) os << " (" << kDisplayUnit[k] << ")";
+    os << " |";
+  }
+  os << "\n|---|";
+  for (int k = 0; k < kSoilCount; ++k) os << "---|";
+  os << "\n";
+  for (const auto& m : e.splits) {
+    os << "| " << m.split << " |";
+    for (int k = 0; k < kSoilCount; ++k) os << " " << cell(m, k) << " |";
+    os << "\n";
+  }
+}
+}  // namespace
+
 std::string evaluationMarkdown(const SoilEvaluation& e) {
   std::ostringstream os;
   char buf[256];
@@ -337,35 +359,22 @@ std::string evaluationMarkdown(const SoilEvaluation& e) {
     }
     os << "\n";
   }
-  os << "\nSkill: MAE of the estimates / of a constant (the training split's median truth), and the correlation "
-        "of estimate with truth:\n\n| split |";
-  for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " (" << kDisplayUnit[k] << ") |";
-  os << "\n|---|";
-  for (int k = 0; k < kSoilCount; ++k) os << "---|";
-  os << "\n";
-  for (const auto& m : e.splits) {
-    os << "| " << m.split << " |";
-    for (int k = 0; k < kSoilCount; ++k) {
-      std::snprintf(buf, sizeof buf, " %.2f / %.2f, r %.2f |", m.mae[k] * kDisplayScale[k],
-                    m.mae_constant[k] * kDisplayScale[k], m.correlation[k]);
-      os << buf;
-    }
-    os << "\n";
-  }
-  os << "\nFraction of truth within ±1σ (aleatoric / nullspace-inflated / total with epistemic):\n\n| split |";
-  for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " |";
-  os << "\n|---|";
-  for (int k = 0; k < kSoilCount; ++k) os << "---|";
-  os << "\n";
-  for (const auto& m : e.splits) {
-    os << "| " << m.split << " |";
-    for (int k = 0; k < kSoilCount; ++k) {
-      std::snprintf(buf, sizeof buf, " %.2f / %.2f / %.2f |", m.coverage_aleatoric[k], m.coverage_nullspace[k],
-                    m.coverage_total[k]);
-      os << buf;
-    }
-    os << "\n";
-  }
+  propertyTable(os, e,
+                "Skill: MAE of the estimates / of a constant (the training split's median truth), and the correlation "
+                "of estimate with truth:",
+                true, [](const SplitMetrics& m, int k) {
+                  char cell[64];
+                  std::snprintf(cell, sizeof cell, "%.2f / %.2f, r %.2f", m.mae[k] * kDisplayScale[k],
+                                m.mae_constant[k] * kDisplayScale[k], m.correlation[k]);
+                  return std::string(cell);
+                });
+  propertyTable(os, e, "Fraction of truth within ±1σ (aleatoric / nullspace-inflated / total with epistemic):", false,
+                [](const SplitMetrics& m, int k) {
+                  char cell[64];
+                  std::snprintf(cell, sizeof cell, "%.2f / %.2f / %.2f", m.coverage_aleatoric[k], m.coverage_nullspace[k],
+                                m.coverage_total[k]);
+                  return std::string(cell);
+                });
   if (std::any_of(e.splits.begin(), e.splits.end(), [](const SplitMetrics& m) { return std::isfinite(m.input_beyond_fraction); })) {
     os << "\nInputs beyond the training split's 99th percentile of input distance (mean share of the prior variance added):";
     for (const auto& m : e.splits) {
