@@ -82,7 +82,7 @@ MemberOut runMember(const PinnMemberWeights& m, const Eigen::VectorXf& obs_flat,
     g.alpha_rad = k[1];
     g.w_m = k[2];
     g.d_m = static_cast<double>(k[3]) + o.d_res;
-    g.q_n = k[4];
+    g.q_n = m.q_gamma_ref_n_m3 > 0 ? k[4] * s.gamma_n_m3 / m.q_gamma_ref_n_m3 : k[4];
     double base = std::nan("");
     Eigen::Vector2d dbase(-0.5, 0.0);  // d base / d (phi, delta) of Rankine's angle
     if (m.beta_min) {
@@ -102,6 +102,7 @@ MemberOut runMember(const PinnMemberWeights& m, const Eigen::VectorXf& obs_flat,
       J.block<2, 1>(2 * p, 2) = Jf.col(fee::kCa);
       J.block<2, 1>(2 * p, 3) = Jf.col(fee::kDelta) + dbase[1] * Jf.col(fee::kBeta);
       J.block<2, 1>(2 * p, 4) = Jf.col(fee::kGamma);
+      if (m.q_gamma_ref_n_m3 > 0) J.block<2, 1>(2 * p, 4) += Jf.col(fee::kQ) * (k[4] / m.q_gamma_ref_n_m3);
       if (m.edge_thickness_m > 0) {
         const double gp = static_cast<double>(gate[p]);
         const fee::Penetration pen = fee::penetration(s, g.d_m, g.w_m, m.edge_thickness_m);
@@ -155,6 +156,8 @@ PinnInference::PinnInference(std::vector<PinnMemberWeights> members, std::vector
     if (m.edge_thickness_m > 0) head(m.gate_W, m.gate_b, m.P, "pen_gate");
     if (m.gate_feature >= m.D_o || m.gate_feature < -1 || (m.gate_feature >= 0 && !(m.edge_thickness_m > 0)))
       throw std::invalid_argument("PinnInference: gate_feature is not an observation column of a gated model");
+    if (!(m.q_gamma_ref_n_m3 >= 0 && std::isfinite(m.q_gamma_ref_n_m3)))
+      throw std::invalid_argument("PinnInference: q_gamma_ref_n_m3 must be >= 0");
     if (m.theta_k_mean.size() != kThetaKCols || m.theta_k_std.size() != kThetaKCols)
       throw std::invalid_argument("PinnInference: theta_k normalisation needs 6 values");
   }

@@ -21,7 +21,8 @@ namespace {
 // 2: the config holds beta_base (version 1 files load with BetaBase::Nominal).
 // 3: the config holds edge_thickness_m (older files load with 0: no penetration term).
 // 4: the config holds gate_feature (older files load with -1: the gate from the encoder only).
-constexpr int kFormatVersion = 4;
+// 5: the config holds q_gamma_ref_n_m3 (older files load with 0: Q as extracted).
+constexpr int kFormatVersion = 5;
 constexpr const char* kFormat = "terramap.soil_pinn";
 constexpr const char* kMetadataKey = "terramap_metadata";
 
@@ -30,6 +31,7 @@ nlohmann::json configJson(const PinnConfig& c, int format_version = kFormatVersi
   if (format_version >= 2) j["beta_base"] = betaBaseName(c.beta_base);
   if (format_version >= 3) j["edge_thickness_m"] = c.edge_thickness_m;
   if (format_version >= 4) j["gate_feature"] = c.gate_feature;
+  if (format_version >= 5) j["q_gamma_ref_n_m3"] = c.q_gamma_ref_n_m3;
   return j;
 }
 
@@ -69,6 +71,8 @@ PinnNetImpl::PinnNetImpl(PinnConfig cfg) : cfg_(std::move(cfg)) {
   if (cfg_.gate_feature >= cfg_.D_o || cfg_.gate_feature < -1 || (cfg_.gate_feature >= 0 && !(cfg_.edge_thickness_m > 0)))
     throw std::invalid_argument("PinnConfig: gate_feature must be -1 or an observation column (< D_o), and needs "
                                 "edge_thickness_m > 0");
+  if (!(cfg_.q_gamma_ref_n_m3 >= 0 && std::isfinite(cfg_.q_gamma_ref_n_m3)))
+    throw std::invalid_argument("PinnConfig: q_gamma_ref_n_m3 must be >= 0 (0 = Q as extracted)");
   // Initialise from cfg.seed, then give the global generator its state back so building a
   // network (or loading one) does not disturb anyone else's random stream.
   at::Generator gen = at::detail::getDefaultCPUGenerator();
@@ -134,7 +138,11 @@ PinnOutput PinnNetImpl::forward(const at::Tensor& obs, const at::Tensor& theta_k
   // Physics layer in float64.
   const at::Tensor soil = out.theta_u.to(at::kDouble);
   const at::Tensor k = tk.to(at::kDouble);
-  const at::Tensor rho = k.select(2, kKRho), alpha = k.select(2, kKAlpha), w = k.select(2, kKW), q = k.select(2, kKQ);
+  const at::Tensor rho = k.select(2, kKRho), alpha = k.select(2, kKAlpha), w = k.select(2, kKW);
+  const at::Tensor q_k = k.select(2, kKQ);
+  // The surcharge weighed with the estimated gamma (PinnConfig::q_gamma_ref_n_m3), or as extracted.
+  const bool q_gamma = cfg_.q_gamma_ref_n_m3 > 0;
+  const at::Tensor q = q_gamma ? q_k * (soil.select(1, kSoilGamma) / cfg_.q_gamma_ref_n_m3).unsqueeze(1) : q_k;
   const at::Tensor d = k.select(2, kKD) + out.d_res.to(at::kDouble).unsqueeze(1);
   const at::Tensor phi = soil.select(1, kSoilPhi), delta = soil.select(1, kSoilDelta);
   const at::Tensor base = failureAngle(cfg_.beta_base, phi, delta, alpha, rho);  // [B,P]
@@ -146,6 +154,18 @@ PinnOutput PinnNetImpl::forward(const at::Tensor& obs, const at::Tensor& theta_k
 
   // Eq. 5/6, the base angle's dependence on the soil chained in.
   at::Tensor J = feeJacobianChained(soil, rho, alpha, w, d, q, beta_res, cfg_.beta_base);
+  if (q_gamma) {
+    // F is linear in Q (beta* does not depend on it): dF/dQ = F(Q = 1) - F(Q = 0), and
+    // Q = Q_k gamma / ref adds dF/dQ Q_k / ref to the gamma column.
+    at::NoGradGuard ng;
+    const at::Tensor sd = soil.detach(), dd = d.detach(), bd = out.beta.detach();
+    const at::Tensor dFdQ = feeForward(sd, rho, alpha, w, dd, at::ones_like(q_k), bd).F -
+                            feeForward(sd, rho, alpha, w, dd, at::zeros_like(q_k), bd).F;  // [B,P,2]
+    const at::Tensor chain = at::where(fee.valid.unsqueeze(-1), dFdQ * (q_k / cfg_.q_gamma_ref_n_m3).unsqueeze(-1),
+                                       at::zeros_like(dFdQ));
+    J = J.clone();
+    J.select(3, kSoilGamma).add_(chain);
+  }
   if (cfg_.edge_thickness_m > 0) {
     at::Tensor logit = head_gate_(h);
     if (cfg_.gate_feature >= 0)
@@ -218,6 +238,7 @@ soil::PinnMemberWeights PinnNetImpl::exportWeights() const {
     w.gate_b = vec(head_gate_->bias);
   }
   w.gate_feature = cfg_.gate_feature;
+  w.q_gamma_ref_n_m3 = cfg_.q_gamma_ref_n_m3;
   if (cfg_.gate_feature >= 0) w.gate_feature_w = gate_feature_w_.detach().to(at::kFloat).item<float>();
   return w;
 }
@@ -287,6 +308,7 @@ PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path
     cfg.beta_base = version >= 2 ? parseBetaBase(c.at("beta_base").get<std::string>()) : BetaBase::Nominal;
     cfg.edge_thickness_m = version >= 3 ? c.at("edge_thickness_m").get<double>() : 0.0;
     cfg.gate_feature = version >= 4 ? c.at("gate_feature").get<int>() : -1;
+    cfg.q_gamma_ref_n_m3 = version >= 5 ? c.at("q_gamma_ref_n_m3").get<double>() : 0.0;
     if (configHash(cfg, version) != j.at("config_hash").get<std::string>())
       throw InputError(path + ": config_hash does not match the stored config");
   } catch (const nlohmann::json::exception& e) {

@@ -90,6 +90,12 @@ struct PinnConfig {
   /// says directly whether it descends, which the encoder's tanh layers learned poorly from
   /// the flattened history. Needs edge_thickness_m > 0. Files of format version <= 3 load with -1.
   int gate_feature = -1;
+  /// The unit weight (N/m^3) the sweep computed its surcharge Q with (blade_sweep's
+  /// `unit_weight_n_m3`, 14636 by default); > 0 makes the physics layer weigh the pushed soil
+  /// with the estimated gamma instead, Q gamma / q_gamma_ref_n_m3, so the surcharge term carries
+  /// gamma too (the Jacobian's gamma column gains dF/dQ Q / ref). 0 = Q as extracted (the
+  /// paper's). Files of format version <= 4 load with 0.
+  double q_gamma_ref_n_m3 = 0.0;
 };
 
 /// What forward() returns. B batch, P horizon.
@@ -174,7 +180,7 @@ PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path
 
 /// FNV-1a 64 of the config's canonical JSON, as 16 hex digits. `format_version` 1 hashes the
 /// JSON without beta_base (the files written before it existed), 2 without edge_thickness_m,
-/// 3 without gate_feature.
-std::string configHash(const PinnConfig& cfg, int format_version = 4);
+/// 3 without gate_feature, 4 without q_gamma_ref_n_m3.
+std::string configHash(const PinnConfig& cfg, int format_version = 5);
 
 }  // namespace terramap::pinn

@@ -91,6 +91,7 @@ std::string trainConfigHash(const TrainConfig& c) {
   // Only when set, so the hashes of configs written before the key existed stay valid.
   if (c.edge_thickness_m != 0) j["edge_thickness_m"] = c.edge_thickness_m;
   if (c.gate_feature >= 0) j["gate_feature"] = c.gate_feature;
+  if (c.q_gamma_ref_n_m3 > 0) j["q_gamma_ref_n_m3"] = c.q_gamma_ref_n_m3;
   if (c.weights.lambda_prior != 0) j["lambda_prior"] = c.weights.lambda_prior;
   if (c.weights.lambda_soil != 0) j["lambda_soil"] = c.weights.lambda_soil;
   const LossWeights& w = c.weights;
@@ -256,7 +257,7 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   for (int m = 0; m < cfg.members; ++m) {
     const std::int64_t seed = cfg.seed * 1000 + m;
     const PinnConfig pc{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m,
-                        cfg.gate_feature};
+                        cfg.gate_feature, cfg.q_gamma_ref_n_m3};
     PinnNet net(pc);
     net->setThetaNormalisation(at::tensor(th_mean), at::tensor(th_std));
     PinnNet best(pc);

@@ -45,6 +45,10 @@ struct TrainConfig {
   /// Observation feature feeding the penetration gate directly (PinnConfig::gate_feature; YAML
   /// `gate_feature: NAME` of soil::obsFeatureNames(); -1 = none).
   int gate_feature = -1;
+  /// The unit weight the dataset's sweeps computed Q with, for a surcharge weighed with the
+  /// estimated gamma (PinnConfig::q_gamma_ref_n_m3; YAML `surcharge_gamma_ref_n_m3`; 0 = Q as
+  /// extracted).
+  double q_gamma_ref_n_m3 = 0.0;
   LossWeights weights;
 };
 

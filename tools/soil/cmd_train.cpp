@@ -84,6 +84,7 @@ pinn::TrainConfig loadTrainConfig(const std::string& path) {
     else
       c.gate_feature = static_cast<int>(it - names.begin());
   }
+  c.q_gamma_ref_n_m3 = r.num("surcharge_gamma_ref_n_m3", c.q_gamma_ref_n_m3, 0.0, 1e5);
   if (r.has("loss")) {
     yaml::MapReader l = r.child("loss");
     pinn::LossWeights& w = c.weights;

@@ -49,6 +49,9 @@ struct PinnMemberWeights {
   /// times itself to that step's gate logit (-1 = none).
   int gate_feature = -1;
   float gate_feature_w = 0;
+  /// > 0: the surcharge is weighed with the estimated gamma, Q gamma / q_gamma_ref_n_m3
+  /// (pinn::PinnConfig); 0 = Q as extracted.
+  double q_gamma_ref_n_m3 = 0;
 };
 
 /// How far a sample's inputs lie from the training samples', and what that adds to the

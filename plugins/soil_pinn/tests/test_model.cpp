@@ -106,8 +106,12 @@ class PinnModel : public ::testing::Test {
 /// The network's physics layer against the C++ FEE for one base angle: beta per step, F, J
 /// (the base angle's dependence on phi and delta chained in, by central differences of
 /// fee::betaMin for beta*), Sigma_F.
-void checkPhysicsLayer(BetaBase base) {
-  PinnNet net(PinnConfig{kT, kP, kDo, {8}, 3, base});
+/// With q_ref > 0 the surcharge is weighed with the estimated gamma (Q gamma / q_ref) and J's
+/// gamma column carries dF/dQ Q / q_ref.
+void checkPhysicsLayer(BetaBase base, double q_ref = 0.0) {
+  PinnConfig cfg{kT, kP, kDo, {8}, 3, base};
+  cfg.q_gamma_ref_n_m3 = q_ref;
+  PinnNet net(cfg);
   const Dataset& ds = dataset();
   const int64_t B = 16;
   const PinnOutput o = net->forward(ds.obs.narrow(0, 0, B), ds.theta_k.narrow(0, 0, B));
@@ -127,9 +131,10 @@ void checkPhysicsLayer(BetaBase base) {
     const double res = o.beta_res[b].item<float>();
     for (int p = 0; p < kP; ++p) {
       const at::Tensor k = ds.theta_k[b][p].to(at::kDouble);
+      const double q_k = k[kKQ].item<double>();
       fee::Geometry g{k[kKAlpha].item<double>(), k[kKRho].item<double>(),
                       k[kKD].item<double>() + static_cast<double>(o.d_res[b].item<float>()), k[kKW].item<double>(),
-                      k[kKQ].item<double>()};
+                      q_ref > 0 ? q_k * s.gamma_n_m3 / q_ref : q_k};
       const double beta = o.beta[b][p].item<double>();
       EXPECT_NEAR(beta, baseAngle(s, g) + res, 1e-9);
       const fee::Result r = fee::evaluate(s, g, beta);
@@ -150,6 +155,7 @@ void checkPhysicsLayer(BetaBase base) {
       sp.delta_rad += h;
       sm.delta_rad -= h;
       Ja.col(fee::kDelta) += (baseAngle(sp, g) - baseAngle(sm, g)) / (2 * h) * Ja.col(fee::kBeta);
+      if (q_ref > 0) Ja.col(fee::kGamma) += Ja.col(fee::kQ) * (q_k / q_ref);
       const int cols[kLogVarCount] = {fee::kC, fee::kPhi, fee::kCa, fee::kDelta, fee::kGamma, fee::kD, fee::kBeta};
       Eigen::Matrix<double, 2, kLogVarCount> J;
       for (int j = 0; j < kLogVarCount; ++j) {
@@ -172,6 +178,54 @@ void checkPhysicsLayer(BetaBase base) {
 
 TEST_F(PinnModel, PhysicsLayerMatchesCppFeeAtBetaMin) { checkPhysicsLayer(BetaBase::Min); }
 TEST_F(PinnModel, PhysicsLayerMatchesCppFeeAtRankinesBeta) { checkPhysicsLayer(BetaBase::Nominal); }
+TEST_F(PinnModel, PhysicsLayerMatchesCppFeeWithTheSurchargeWeighedByGamma) {
+  checkPhysicsLayer(BetaBase::Min, 14636.0);
+}
+
+// The surcharge weighed with the estimated gamma: the force differs from Q as extracted
+// wherever the estimate's gamma is not the reference, the gamma column of J is the total
+// derivative (central differences of the C++ FEE with Q following gamma), and the setting
+// survives a save and load (format 5).
+TEST_F(PinnModel, TheSurchargeFollowsTheEstimatedGammaAndRoundTrips) {
+  PinnConfig cfg{kT, kP, kDo, {8}, 3, BetaBase::Min};
+  PinnNet plain(cfg);
+  cfg.q_gamma_ref_n_m3 = 10000.0;
+  PinnNet weighed(cfg);
+  const Dataset& ds = dataset();
+  const PinnOutput a = plain->forward(ds.obs, ds.theta_k), b = weighed->forward(ds.obs, ds.theta_k);
+  ASSERT_TRUE(at::equal(a.theta_u, b.theta_u));  // same seed, same weights: only the physics differs
+  EXPECT_GT((a.F - b.F).abs().max().item<double>(), 1.0);
+  int checked = 0;
+  for (int64_t i = 0; i < 8; ++i) {
+    const at::Tensor th = b.theta_u[i].to(at::kDouble);
+    const fee::Soil s{th[kSoilC].item<double>(), th[kSoilPhi].item<double>(), th[kSoilGamma].item<double>(),
+                      th[kSoilCa].item<double>(), th[kSoilDelta].item<double>()};
+    const at::Tensor k = ds.theta_k[i][0].to(at::kDouble);
+    const double q_k = k[kKQ].item<double>(), beta = b.beta[i][0].item<double>();
+    if (!b.valid[i][0].item<bool>() || !(q_k > 0)) continue;
+    auto force = [&](double gamma) {
+      fee::Soil x = s;
+      x.gamma_n_m3 = gamma;
+      const fee::Geometry g{k[kKAlpha].item<double>(), k[kKRho].item<double>(),
+                            k[kKD].item<double>() + static_cast<double>(b.d_res[i].item<float>()),
+                            k[kKW].item<double>(), q_k * gamma / 10000.0};
+      return fee::evaluate(x, g, beta).F_N;  // beta held: beta* does not depend on gamma or Q
+    };
+    const double h = 1.0;
+    const Eigen::Vector2d fd = (force(s.gamma_n_m3 + h) - force(s.gamma_n_m3 - h)) / (2 * h);
+    for (int r = 0; r < 2; ++r) EXPECT_NEAR(b.J[i][0][r][kSoilGamma].item<double>(), fd[r], 1e-5 * (1 + fd.norm()));
+    ++checked;
+  }
+  EXPECT_GT(checked, 2);
+  const std::string path = tempPath("q_gamma.pt");
+  savePinn(weighed, path);
+  PinnNet loaded = loadPinn(path);
+  EXPECT_EQ(loaded->config().q_gamma_ref_n_m3, 10000.0);
+  EXPECT_TRUE(at::equal(loaded->forward(ds.obs, ds.theta_k).F, b.F));
+  std::remove(path.c_str());
+  cfg.q_gamma_ref_n_m3 = -1;
+  EXPECT_THROW(PinnNet{cfg}, std::invalid_argument);
+}
 
 TEST_F(PinnModel, BaseAngleChangesTheForce) {
   // Same weights, the two base angles: the same soil estimate gives other forces (beta* is

@@ -309,6 +309,16 @@ TEST(Trainer, TheTorchFreeInferenceGivesTheLibtorchEstimate) {
   const SoilEstimator gate_fed(std::move(gated), trained.obsMean(), trained.obsStd());
   EXPECT_GT(expectFastPathMatches(gate_fed, td), td.size() / 2);
   expectFastPathMatches(gate_fed, mixed);
+  // And with the surcharge weighed by the estimated gamma (its force and the Jacobian's gamma column).
+  std::vector<PinnNet> weighed;
+  for (int64_t seed : {14, 15, 16}) {
+    PinnConfig pc{kT, kP, soil::kObsFeatures, {16, 8}, seed, BetaBase::Min, 0.025, soil::kObsFeatures - 1};
+    pc.q_gamma_ref_n_m3 = 14636.0;
+    weighed.emplace_back(pc);
+  }
+  const SoilEstimator q_gamma(std::move(weighed), trained.obsMean(), trained.obsStd());
+  EXPECT_GT(expectFastPathMatches(q_gamma, td), td.size() / 2);
+  expectFastPathMatches(q_gamma, mixed);
   fs::remove_all(data);
 }
 
