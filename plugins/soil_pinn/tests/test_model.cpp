@@ -98,6 +98,15 @@ std::string tempPath(const std::string& name) {
   return ::testing::TempDir() + "/soil_pinn_" + std::to_string(::getpid()) + "_" + name;
 }
 
+/// `net` saved to a temporary file `name` and loaded back (the file removed).
+PinnNet throughFile(PinnNet& net, const std::string& name) {
+  const std::string path = tempPath(name);
+  savePinn(net, path);
+  PinnNet loaded = loadPinn(path);
+  std::remove(path.c_str());
+  return loaded;
+}
+
 class PinnModel : public ::testing::Test {
  protected:
   void SetUp() override { at::set_num_threads(1); }
@@ -217,12 +226,9 @@ TEST_F(PinnModel, TheSurchargeFollowsTheEstimatedGammaAndRoundTrips) {
     ++checked;
   }
   EXPECT_GT(checked, 2);
-  const std::string path = tempPath("q_gamma.pt");
-  savePinn(weighed, path);
-  PinnNet loaded = loadPinn(path);
+  PinnNet loaded = throughFile(weighed, "q_gamma.pt");
   EXPECT_EQ(loaded->config().q_gamma_ref_n_m3, 10000.0);
   EXPECT_TRUE(at::equal(loaded->forward(ds.obs, ds.theta_k).F, b.F));
-  std::remove(path.c_str());
   cfg.q_gamma_ref_n_m3 = -1;
   EXPECT_THROW(PinnNet{cfg}, std::invalid_argument);
 }
@@ -376,12 +382,9 @@ TEST_F(PinnModel, ThePenetrationTermPushesDownWhereTheFeeIsValidAndRoundTrips) {
   // The z row of the Jacobian carries the term's soil sensitivities (so does Sigma_F), the x row not.
   EXPECT_FALSE(at::equal(b.J.select(2, 1), a.J.select(2, 1)));
   EXPECT_TRUE(at::equal(b.J.select(2, 0), a.J.select(2, 0)));
-  const std::string path = tempPath("pen.pt");
-  savePinn(pen, path);
-  PinnNet loaded = loadPinn(path);
+  PinnNet loaded = throughFile(pen, "pen.pt");
   EXPECT_EQ(loaded->config().edge_thickness_m, 0.025);
   EXPECT_TRUE(at::equal(loaded->forward(ds.obs, ds.theta_k).F, b.F));
-  std::remove(path.c_str());
   // A version-2 file (before the key) loads without the term; a version-3 one must name it.
   const PinnConfig& c = plain->config();
   nlohmann::json v2{{"T", c.T}, {"P", c.P}, {"D_o", c.D_o}, {"hidden", c.hidden}, {"seed", c.seed}, {"beta_base", "min"}};
@@ -414,12 +417,9 @@ TEST_F(PinnModel, AGateFeatureMovesEachStepsGateByItsValue) {
   EXPECT_TRUE((fed->forward(down, ds.theta_k).pen_gate > 0.999).all().item<bool>());
   EXPECT_TRUE((fed->forward(up, ds.theta_k).pen_gate < 0.001).all().item<bool>());
   // The column and the weight survive a file; a version-3 file (before the key) has no feature.
-  const std::string path = tempPath("fed.pt");
-  savePinn(fed, path);
-  PinnNet loaded = loadPinn(path);
+  PinnNet loaded = throughFile(fed, "fed.pt");
   EXPECT_EQ(loaded->config().gate_feature, 1);
   EXPECT_TRUE(at::equal(loaded->forward(ds.obs, ds.theta_k).pen_gate, b.pen_gate));
-  std::remove(path.c_str());
   const PinnConfig& c = pen->config();
   nlohmann::json v3{{"T", c.T}, {"P", c.P}, {"D_o", c.D_o}, {"hidden", c.hidden}, {"seed", c.seed},
                     {"beta_base", "min"}, {"edge_thickness_m", 0.025}};
