@@ -26,6 +26,7 @@
 #include <memory>
 #include <mutex>
 #include <stdexcept>
+#include <string_view>
 #include <thread>
 
 namespace terramap::sim {
@@ -435,7 +436,15 @@ struct EpisodeWriter::Impl {
   const TruthTerrain* snap_terrain = nullptr;  // the terrain the last snapshot read
   std::uint64_t snap_revision = 0;             // its revision() then
   std::vector<MachineSets> machines;
-  std::map<std::string, std::size_t> machine_index;
+  std::map<std::string, std::size_t, std::less<>> machine_index;
+  /// The machine of a frame "<machine>/<name>" (-1 if no such machine); `bare` for a frame
+  /// without the prefix (a lone machine's "base": 0; a sensor's frame always has one: -1).
+  long machineOfFrame(std::string_view frame, long bare) const {
+    const std::size_t slash = frame.find('/');
+    if (slash == std::string_view::npos) return bare;
+    const auto it = machine_index.find(frame.substr(0, slash));
+    return it == machine_index.end() ? -1 : static_cast<long>(it->second);
+  }
   bool closed = false;
   double writer_cpu_s = 0.0;  // the writer thread's CPU seconds, once closed
 
@@ -721,12 +730,10 @@ void EpisodeWriter::Impl::record(const Simulator& sim, const std::vector<Event>&
     const Event& e = events[ei];
     if (const auto* pc = std::get_if<PointCloud>(&e)) {
       if (!opt.clouds) continue;
-      const std::string& frame = pc->frame;
-      const std::size_t slash = frame.find('/');
-      const auto mit = machine_index.find(frame.substr(0, slash));
-      if (mit == machine_index.end()) continue;
-      auto cit = machines[mit->second].cloud.find(frame);
-      if (cit == machines[mit->second].cloud.end()) continue;
+      const long mi = machineOfFrame(pc->frame, -1);
+      if (mi < 0) continue;
+      auto cit = machines[static_cast<std::size_t>(mi)].cloud.find(pc->frame);
+      if (cit == machines[static_cast<std::size_t>(mi)].cloud.end()) continue;
       MachineSets::Cloud& c = cit->second;
       double T[16];
       rowMajor4x4(pc->T_map_sensor, T);
@@ -741,25 +748,20 @@ void EpisodeWriter::Impl::record(const Simulator& sim, const std::vector<Event>&
       else if (cnt) c.points.append(reinterpret_cast<const float*>(pc->points.data()), cnt);
       c.total += cnt;
     } else if (const auto* im = std::get_if<ImuSample>(&e)) {
-      const auto mit = machine_index.find(im->frame.substr(0, im->frame.find('/')));
-      if (mit == machine_index.end()) continue;
-      auto uit = machines[mit->second].imu.find(im->frame);
-      if (uit == machines[mit->second].imu.end()) continue;
+      const long mi = machineOfFrame(im->frame, -1);
+      if (mi < 0) continue;
+      auto uit = machines[static_cast<std::size_t>(mi)].imu.find(im->frame);
+      if (uit == machines[static_cast<std::size_t>(mi)].imu.end()) continue;
       uit->second.stamp.append(&im->stamp);
       uit->second.accel.append(im->accel_mps2.data());
       uit->second.gyro.append(im->gyro_radps.data());
     } else if (const auto* ps = std::get_if<Pose>(&e)) {
       // Pose frames are "base" (one machine) or "<machine>/base".
-      std::size_t mi = 0;
-      const std::size_t slash = ps->frame.find('/');
-      if (slash != std::string::npos) {
-        const auto it = machine_index.find(ps->frame.substr(0, slash));
-        if (it == machine_index.end()) continue;
-        mi = it->second;
-      }
+      const long mi = machineOfFrame(ps->frame, 0);
+      if (mi < 0) continue;
       double T[16];
       rowMajor4x4(ps->T_map_base, T);
-      machines[mi].a.at("pose_T_map_base").append(T);
+      machines[static_cast<std::size_t>(mi)].a.at("pose_T_map_base").append(T);
     } else if (const auto* ob = std::get_if<Observation>(&e)) {
       const auto it = machine_index.find(ob->machine_id);
       if (it == machine_index.end()) continue;
