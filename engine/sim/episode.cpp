@@ -293,6 +293,7 @@ class GridSeries {
     count_ = o.count_, path_ = o.path_, name_ = o.name_;
     prev_ = std::move(o.prev_);
     packed_ = std::move(o.packed_);
+    shuffled_ = std::move(o.shuffled_);
     deflater_ = std::move(o.deflater_);
     return *this;
   }
@@ -328,7 +329,8 @@ class GridSeries {
     hsize_t dims[3] = {count_ + 1, static_cast<hsize_t>(ny_), static_cast<hsize_t>(nx_)};
     if (H5Dset_extent(ds_, dims) < 0) throw OutputError(path_ + ": cannot extend '" + name_ + "'");
     const std::size_t n = chunkValues();
-    std::vector<unsigned char> shuffled(gzip_ > 0 ? n * sizeof(float) : 0);
+    std::vector<unsigned char>& shuffled = shuffled_;
+    shuffled.resize(gzip_ > 0 ? n * sizeof(float) : 0);
     for (std::size_t c = 0; c < changed.size(); ++c) {
       const std::size_t k = static_cast<std::size_t>(changed[c]);
       const float* raw = data + c * n;
@@ -367,6 +369,7 @@ class GridSeries {
   std::string path_, name_;
   std::vector<std::vector<float>> prev_;            // per chunk: its last stored values
   std::vector<std::vector<unsigned char>> packed_;  // per chunk: its last stored bytes
+  std::vector<unsigned char> shuffled_;             // one chunk in the shuffle filter's byte order
   struct FreeDeflater {
     void operator()(libdeflate_compressor* c) const { libdeflate_free_compressor(c); }
   };
