@@ -1,5 +1,6 @@
 #include "evaluation.hpp"
 
+#include <terramap/eval/statistics.hpp>
 #include <terramap/soil/fee.hpp>
 #include <terramap/soil/soil_table.hpp>
 
@@ -122,12 +123,10 @@ void addSoilErrors(Accum& a, Fig11Bin* bin, const fee::Soil& truth_soil, const S
   }
 }
 
-/// Median of v (NaN when empty); reorders a copy.
+/// Median of v (NaN when empty), as every evaluation reports percentiles (eval/statistics.hpp).
 double median(std::vector<double> v) {
-  if (v.empty()) return NAN;
-  auto mid = v.begin() + static_cast<long>(v.size() / 2);
-  std::nth_element(v.begin(), mid, v.end());
-  return *mid;
+  std::sort(v.begin(), v.end());
+  return eval::percentileSorted(v, 50.0);
 }
 
 /// `constant`: per property, the constant estimate the skill is measured against.
