@@ -25,6 +25,18 @@ at::Tensor nll2(const at::Tensor& r, const at::Tensor& Sigma, const at::Tensor& 
   return at::where(m, 0.5 * (quad + at::log(det)), zero);
 }
 
+/// The prior's and the soil term's shape: the batch mean of sum_k ((th_k - centre(k)) / span_k)^2
+/// over the soil properties, centre(k) a value or a [B] column.
+template <class Centre>
+at::Tensor spanDistance2(const at::Tensor& th, Centre centre) {
+  at::Tensor sq = at::zeros({th.size(0)}, at::kDouble);
+  for (int k = 0; k < kSoilCount; ++k) {
+    const at::Tensor z = (th.select(1, k) - centre(k)) / (kSoilRanges[k].hi - kSoilRanges[k].lo);
+    sq = sq + z * z;
+  }
+  return sq.mean();
+}
+
 }  // namespace
 
 LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWeights& w, const at::Tensor& row_mask,
@@ -68,23 +80,12 @@ LossTerms pinnLoss(const PinnOutput& out, const at::Tensor& force, const LossWei
 
   t.force_res = (at::abs(out.F_r.to(at::kDouble)) * wxz).sum() / static_cast<double>(B);
 
-  at::Tensor prior = at::zeros({B}, at::kDouble);
-  for (int k = 0; k < kSoilCount; ++k) {
-    const double mid = 0.5 * (kSoilRanges[k].lo + kSoilRanges[k].hi), span = kSoilRanges[k].hi - kSoilRanges[k].lo;
-    const at::Tensor z = (th.select(1, k) - mid) / span;
-    prior = prior + z * z;
-  }
-  t.prior = prior.mean();
-
-  t.soil = at::zeros({}, at::kDouble);
+  t.prior = spanDistance2(th, [](int k) { return 0.5 * (kSoilRanges[k].lo + kSoilRanges[k].hi); });
   if (truth.defined()) {
-    at::Tensor sq = at::zeros({B}, at::kDouble);
     const at::Tensor tt = truth.to(at::kDouble);
-    for (int k = 0; k < kSoilCount; ++k) {
-      const at::Tensor z = (th.select(1, k) - tt.select(1, k)) / (kSoilRanges[k].hi - kSoilRanges[k].lo);
-      sq = sq + z * z;
-    }
-    t.soil = sq.mean();
+    t.soil = spanDistance2(th, [&](int k) { return tt.select(1, k); });
+  } else {
+    t.soil = at::zeros({}, at::kDouble);
   }
 
   t.total = w.lambda_F * t.force_mae + w.lambda_NLL * t.nll + w.lambda_beta * t.dngamma +
