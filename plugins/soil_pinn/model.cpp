@@ -155,16 +155,13 @@ PinnOutput PinnNetImpl::forward(const at::Tensor& obs, const at::Tensor& theta_k
   // Eq. 5/6, the base angle's dependence on the soil chained in.
   at::Tensor J = feeJacobianChained(soil, rho, alpha, w, d, q, beta_res, cfg_.beta_base);
   if (q_gamma) {
-    // F is linear in Q (beta* does not depend on it): dF/dQ = F(Q = 1) - F(Q = 0), and
-    // Q = Q_k gamma / ref adds dF/dQ Q_k / ref to the gamma column.
+    // Q = Q_k gamma / ref adds dF/dQ Q_k / ref to the gamma column; F = f [sin, cos](rho + delta
+    // - alpha) with f linear in Q, so dF/dQ = N_Q [sin, cos] (N_Q is 0 where the FEE is invalid).
     at::NoGradGuard ng;
-    const at::Tensor sd = soil.detach(), dd = d.detach(), bd = out.beta.detach();
-    const at::Tensor dFdQ = feeForward(sd, rho, alpha, w, dd, at::ones_like(q_k), bd).F -
-                            feeForward(sd, rho, alpha, w, dd, at::zeros_like(q_k), bd).F;  // [B,P,2]
-    const at::Tensor chain = at::where(fee.valid.unsqueeze(-1), dFdQ * (q_k / cfg_.q_gamma_ref_n_m3).unsqueeze(-1),
-                                       at::zeros_like(dFdQ));
+    const at::Tensor th = rho + delta.detach().unsqueeze(1) - alpha;
+    const at::Tensor dFdQ = fee.N_Q.detach().unsqueeze(-1) * at::stack({at::sin(th), at::cos(th)}, -1);  // [B,P,2]
     J = J.clone();
-    J.select(3, kSoilGamma).add_(chain);
+    J.select(3, kSoilGamma).add_(dFdQ * (q_k / cfg_.q_gamma_ref_n_m3).unsqueeze(-1));
   }
   if (cfg_.edge_thickness_m > 0) {
     at::Tensor logit = head_gate_(h);
