@@ -216,6 +216,108 @@ soil::PinnInputDistance fitInputDistance(const TrainingData& data, const std::ve
   return soil::PinnInputDistance::fit(feats, soil::uniformRangeVariances());
 }
 
+/// One split's tensors as the loss takes them (obs normalised; `mask` the rows the force terms
+/// use; `truth` only when the loss supervises by it, else undefined, which turns its term off).
+struct SplitTensors {
+  at::Tensor obs, theta_k, force, mask, truth;
+  long size() const { return obs.size(0); }
+  /// The rows `idx` ([n] long) or [b0, b0 + len) of every tensor.
+  SplitTensors select(const at::Tensor& idx) const { return map([&](const at::Tensor& t) { return t.index_select(0, idx); }); }
+  SplitTensors slice(long b0, long len) const { return map([&](const at::Tensor& t) { return t.narrow(0, b0, len); }); }
+  LossTerms loss(PinnNet& net, const LossWeights& w) const {
+    return pinnLoss(net->forward(obs, theta_k), force, w, mask, truth);
+  }
+
+ private:
+  template <class F>
+  SplitTensors map(F f) const {
+    return {f(obs), f(theta_k), f(force), f(mask), truth.defined() ? f(truth) : at::Tensor()};
+  }
+};
+
+SplitTensors splitTensors(const TrainingData& data, const at::Tensor& obs, const at::Tensor& mask,
+                          const std::vector<long>& idx, bool with_truth) {
+  return {rows(obs, idx), rows(data.theta_k, idx), rows(data.force, idx), rows(mask, idx),
+          with_truth ? rows(data.truth, idx) : at::Tensor()};
+}
+
+/// The validation loss (total and force MAE) in batches, without gradients.
+double validationLoss(PinnNet& net, const SplitTensors& va, const TrainConfig& cfg, double& force_mae) {
+  torch::NoGradGuard g;
+  double sum = 0, fsum = 0;
+  for (long b0 = 0; b0 < va.size(); b0 += cfg.batch) {
+    const long len = std::min<long>(cfg.batch, va.size() - b0);
+    const LossTerms t = va.slice(b0, len).loss(net, cfg.weights);
+    sum += t.total.item<double>() * static_cast<double>(len);
+    fsum += t.force_mae.item<double>() * static_cast<double>(len);
+  }
+  force_mae = fsum / static_cast<double>(va.size());
+  return sum / static_cast<double>(va.size());
+}
+
+/// One epoch of Adam over the training split; the mean training loss. The batch order comes
+/// from (seed, epoch) alone, so a resumed run draws the same batches.
+double trainEpoch(PinnNet& net, torch::optim::Adam& opt, const SplitTensors& tr, const TrainConfig& cfg,
+                  std::int64_t seed, int epoch) {
+  auto gen = at::make_generator<at::CPUGeneratorImpl>(static_cast<std::uint64_t>(seed) * 7919u + epoch);
+  const at::Tensor perm = at::randperm(tr.size(), gen, at::kLong);
+  double sum = 0;
+  net->train();
+  for (long b0 = 0; b0 < perm.size(0); b0 += cfg.batch) {
+    const long len = std::min<long>(cfg.batch, perm.size(0) - b0);
+    const LossTerms t = tr.select(perm.narrow(0, b0, len)).loss(net, cfg.weights);
+    opt.zero_grad();
+    t.total.backward();
+    opt.step();
+    sum += t.total.item<double>() * static_cast<double>(len);
+  }
+  net->eval();
+  return sum / static_cast<double>(perm.size(0));
+}
+
+/// Member m of the ensemble, from its checkpoint if one matches `hash`, trained until early
+/// stopping; its best copy goes to `best_members`.
+MemberReport trainMember(int m, const TrainConfig& cfg, const std::string& hash, const SplitTensors& tr,
+                         const SplitTensors& va, const std::vector<float>& th_mean, const std::vector<float>& th_std,
+                         const std::function<void(int, int, double, double, double)>& on_progress,
+                         std::vector<PinnNet>& best_members) {
+  const std::int64_t seed = cfg.seed * 1000 + m;
+  const PinnConfig pc{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m,
+                      cfg.gate_feature, cfg.q_gamma_ref_n_m3};
+  PinnNet net(pc);
+  net->setThetaNormalisation(at::tensor(th_mean), at::tensor(th_std));
+  PinnNet best(pc);
+  copyInto(best, net);
+  torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(cfg.learning_rate));
+  MemberState st;
+  MemberReport mr;
+  const fs::path ck = checkpointPath(cfg, m);
+  mr.resumed = loadCheckpoint(ck, hash, net, best, opt, st);
+  while (!st.done && st.epoch < cfg.max_epochs) {
+    st.last_train = trainEpoch(net, opt, tr, cfg, seed, st.epoch);
+    double val_force_mae = 0;
+    const double val = validationLoss(net, va, cfg, val_force_mae);
+    ++st.epoch;
+    if (val < st.best_val) {
+      st.best_val = val;
+      st.best_epoch = st.epoch;
+      st.stale = 0;
+      copyInto(best, net);
+    } else if (++st.stale >= cfg.patience) {
+      st.done = true;
+    }
+    if (st.epoch >= cfg.max_epochs) st.done = true;
+    saveCheckpoint(ck, hash, net, best, opt, st);
+    if (on_progress) on_progress(m, st.epoch, st.last_train, val, val_force_mae);
+  }
+  mr.epochs = st.epoch;
+  mr.best_epoch = st.best_epoch;
+  mr.best_validation_loss = st.best_val;
+  mr.final_train_loss = st.last_train;
+  best_members.push_back(best);
+  return mr;
+}
+
 }  // namespace
 
 TrainReport trainEnsemble(const TrainConfig& cfg,
@@ -233,18 +335,11 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   featureStats(data.obs_raw, train_idx, obs_mean, obs_std);
   featureStats(data.theta_k, train_idx, th_mean, th_std);
   // Normalise once; the estimator applies the same mean/std at inference.
-  const at::Tensor om = at::tensor(obs_mean), os = at::tensor(obs_std);
-  const at::Tensor obs = at::nan_to_num((data.obs_raw - om) / os, 0.0, 0.0, 0.0);
-  const at::Tensor obs_tr = rows(obs, train_idx), th_tr = rows(data.theta_k, train_idx), f_tr = rows(data.force, train_idx);
-  const at::Tensor obs_va = rows(obs, val_idx), th_va = rows(data.theta_k, val_idx), f_va = rows(data.force, val_idx);
-  const at::Tensor all_rows = at::ones_like(data.moving);
-  const at::Tensor& use = cfg.mask_stalled ? data.moving : all_rows;
-  const at::Tensor m_tr = rows(use, train_idx), m_va = rows(use, val_idx);
-  // The truth soil only when the loss supervises by it (an undefined tensor turns the term off).
+  const at::Tensor obs = at::nan_to_num((data.obs_raw - at::tensor(obs_mean)) / at::tensor(obs_std), 0.0, 0.0, 0.0);
+  const at::Tensor mask = cfg.mask_stalled ? data.moving : at::ones_like(data.moving);
   const bool supervise = cfg.weights.lambda_soil != 0;
-  const at::Tensor s_tr = supervise ? rows(data.truth, train_idx) : at::Tensor();
-  const at::Tensor s_va = supervise ? rows(data.truth, val_idx) : at::Tensor();
-  auto part = [](const at::Tensor& t, auto&& pick) { return t.defined() ? pick(t) : at::Tensor(); };
+  const SplitTensors tr = splitTensors(data, obs, mask, train_idx, supervise);
+  const SplitTensors va = splitTensors(data, obs, mask, val_idx, supervise);
   const std::string hash = trainConfigHash(cfg) + "-" + ds.config_hash;
   std::error_code ec;
   fs::create_directories(checkpointPath(cfg, 0).parent_path(), ec);
@@ -254,78 +349,8 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   report.train_samples = static_cast<long>(train_idx.size());
   report.validation_samples = static_cast<long>(val_idx.size());
   std::vector<PinnNet> best_members;
-  for (int m = 0; m < cfg.members; ++m) {
-    const std::int64_t seed = cfg.seed * 1000 + m;
-    const PinnConfig pc{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m,
-                        cfg.gate_feature, cfg.q_gamma_ref_n_m3};
-    PinnNet net(pc);
-    net->setThetaNormalisation(at::tensor(th_mean), at::tensor(th_std));
-    PinnNet best(pc);
-    copyInto(best, net);
-    torch::optim::Adam opt(net->parameters(), torch::optim::AdamOptions(cfg.learning_rate));
-    MemberState st;
-    MemberReport mr;
-    const fs::path ck = checkpointPath(cfg, m);
-    mr.resumed = loadCheckpoint(ck, hash, net, best, opt, st);
-    double val_force_mae = 0;
-    auto validation = [&] {
-      torch::NoGradGuard g;
-      double sum = 0, fsum = 0;
-      long n = 0;
-      for (long b0 = 0; b0 < obs_va.size(0); b0 += cfg.batch) {
-        const long len = std::min<long>(cfg.batch, obs_va.size(0) - b0);
-        const LossTerms t = pinnLoss(net->forward(obs_va.narrow(0, b0, len), th_va.narrow(0, b0, len)),
-                                     f_va.narrow(0, b0, len), cfg.weights, m_va.narrow(0, b0, len),
-                                     part(s_va, [&](const at::Tensor& t) { return t.narrow(0, b0, len); }));
-        sum += t.total.item<double>() * static_cast<double>(len);
-        fsum += t.force_mae.item<double>() * static_cast<double>(len);
-        n += len;
-      }
-      val_force_mae = fsum / static_cast<double>(n);
-      return sum / static_cast<double>(n);
-    };
-    while (!st.done && st.epoch < cfg.max_epochs) {
-      // Batch order from (seed, epoch) alone, so a resumed run draws the same batches.
-      auto gen = at::make_generator<at::CPUGeneratorImpl>(static_cast<std::uint64_t>(seed) * 7919u + st.epoch);
-      const at::Tensor perm = at::randperm(obs_tr.size(0), gen, at::kLong);
-      double sum = 0;
-      long n = 0;
-      net->train();
-      for (long b0 = 0; b0 < perm.size(0); b0 += cfg.batch) {
-        const long len = std::min<long>(cfg.batch, perm.size(0) - b0);
-        const at::Tensor idx = perm.narrow(0, b0, len);
-        const LossTerms t = pinnLoss(net->forward(obs_tr.index_select(0, idx), th_tr.index_select(0, idx)),
-                                     f_tr.index_select(0, idx), cfg.weights, m_tr.index_select(0, idx),
-                                     part(s_tr, [&](const at::Tensor& t) { return t.index_select(0, idx); }));
-        opt.zero_grad();
-        t.total.backward();
-        opt.step();
-        sum += t.total.item<double>() * static_cast<double>(len);
-        n += len;
-      }
-      net->eval();
-      st.last_train = sum / static_cast<double>(n);
-      const double val = validation();
-      ++st.epoch;
-      if (val < st.best_val) {
-        st.best_val = val;
-        st.best_epoch = st.epoch;
-        st.stale = 0;
-        copyInto(best, net);
-      } else if (++st.stale >= cfg.patience) {
-        st.done = true;
-      }
-      if (st.epoch >= cfg.max_epochs) st.done = true;
-      saveCheckpoint(ck, hash, net, best, opt, st);
-      if (on_progress) on_progress(m, st.epoch, st.last_train, val, val_force_mae);
-    }
-    mr.epochs = st.epoch;
-    mr.best_epoch = st.best_epoch;
-    mr.best_validation_loss = st.best_val;
-    mr.final_train_loss = st.last_train;
-    report.members.push_back(mr);
-    best_members.push_back(best);
-  }
+  for (int m = 0; m < cfg.members; ++m)
+    report.members.push_back(trainMember(m, cfg, hash, tr, va, th_mean, th_std, on_progress, best_members));
   nlohmann::json tj;
   tj["train_config_hash"] = trainConfigHash(cfg);
   tj["dataset_config_hash"] = ds.config_hash;
