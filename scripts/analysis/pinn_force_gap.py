@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
 """Where the soil estimator's physics misses the measured blade force (docs/soil_estimator.md).
 
-Three analyses, all with the truth soil (so only geometry, physics and observations are in question):
+Analyses, all with the truth soil (so only geometry, physics and observations are in question):
 
   python3 scripts/analysis/pinn_force_gap.py geometry DATASET_DIR [SPLIT]
       Per sample of a `terramap dataset` (split default: test), the force of the last horizon
       row against F_total at beta* of the truth soil on the mapped geometry, then with each
       mapped FEE parameter (alpha, rho, d, w, Q) replaced by the simulator's own: which one
-      closes the gap. Prints the force error (sum |dF| / sum |F|) and the median measured /
+      closes the gap; last, the mapped Q weighed with the truth gamma (q*gamma). Prints the force error (sum |dF| / sum |F|) and the median measured /
       predicted horizontal force per substitution.
 
   python3 scripts/analysis/pinn_force_gap.py episode EPISODE_H5
@@ -35,6 +35,14 @@ Three analyses, all with the truth soil (so only geometry, physics and observati
       truth beside a constant's (the split's median truth): an upper bound of what an estimator
       of phi could do from that force with that geometry.
 
+  python3 scripts/analysis/pinn_force_gap.py phisens
+      How much the FEE's horizontal force moves per degree of phi, for the three soils
+      docs/soil_estimator.md quotes.
+
+  python3 scripts/analysis/pinn_force_gap.py noise EPISODE_H5 QUIET_EPISODE_H5
+      The soil's coloured noise of the horizontal force on an episode's cutting steps, against
+      the same scenario run with `force_noise: {abs_n: 0, rel: 0}` on its machine.
+
 Needs Debian's python3-h5py and terramap's Python module (build/python; PYTHONPATH or run from
 the repository root after `make`).
 """
@@ -49,7 +57,8 @@ import h5py  # noqa: E402
 import numpy as np  # noqa: E402
 import terramap as tm  # noqa: E402
 
-EDGE_M = 0.025  # the simulator's default blade edge thickness (docs/sim.md)
+EDGE_M = 0.025
+SWEEP_UNIT_WEIGHT = 14636.0  # blade_sweep's default unit_weight_n_m3, which the mapped Q is weighed with  # the simulator's default blade edge thickness (docs/sim.md)
 
 
 def force_error(pred, meas):
@@ -72,7 +81,9 @@ def geometry(dataset, split):
     if not rows:
         sys.exit(dataset + ": no samples in split " + split)
     print("%d samples of split %s" % (len(rows), split))
-    for sub in [[], ["alpha"], ["rho"], ["d"], ["w"], ["q"], ["alpha", "rho", "w", "q"], ["alpha", "rho", "d", "w", "q"]]:
+    # "q*gamma": the mapped Q weighed with the truth gamma instead of blade_sweep's fixed one.
+    for sub in [[], ["alpha"], ["rho"], ["d"], ["w"], ["q"], ["alpha", "rho", "w", "q"], ["alpha", "rho", "d", "w", "q"],
+                ["q*gamma"]]:
         pred, meas, ratio = [], [], []
         for (c, phi, ca, delta, gamma), (rho, alpha, w, d, q, _v), (a2, r2, d2, w2, q2), fm in rows:
             if not (np.isfinite([a2, r2, d2, w2, q2]).all() and d > 0 and d2 > 0):
@@ -80,7 +91,10 @@ def geometry(dataset, split):
             g = {"alpha": alpha, "rho": rho, "d": d, "w": w, "q": q}
             t = {"alpha": a2, "rho": r2, "d": d2, "w": w2, "q": q2}
             for k in sub:
-                g[k] = t[k]
+                if k == "q*gamma":
+                    g["q"] = q * gamma / SWEEP_UNIT_WEIGHT
+                else:
+                    g[k] = t[k]
             r = tm.fee(c, phi, gamma, ca, delta, g["alpha"], g["rho"], g["d"], g["w"], g["q"], beta="min")
             f = r["F_total_N"] if r["valid"] else (0.0, 0.0)
             pred.append(f)
@@ -91,8 +105,24 @@ def geometry(dataset, split):
             "+".join(sub) or "(mapped only)", len(pred), force_error(np.array(pred), np.array(meas)), np.median(ratio)))
 
 
+PHI_GRID = np.radians(np.arange(10.0, 50.01, 0.5))
+
+
+def fit_phi(c, gamma, ca, delta, geometries, fx):
+    """The phi of PHI_GRID whose F_total at beta* (soil c, gamma, ca, delta; geometries (alpha, rho,
+    d, w, q), one per measured horizontal force in fx) has the least absolute error summed over
+    them; NaN when no phi gives a valid FEE for them all."""
+    err = []
+    for p in PHI_GRID:
+        e = 0.0
+        for g, f in zip(geometries, fx):
+            r = tm.fee(c, p, gamma, ca, delta, *g, beta="min")
+            e += abs(r["F_total_N"][0] - f) if r["valid"] else np.inf
+        err.append(e)
+    return PHI_GRID[int(np.argmin(err))] if np.isfinite(np.min(err)) else np.nan
+
+
 def phifit(dataset, split, rows):
-    grid = np.radians(np.arange(10.0, 50.01, 0.5))
     truth_phi, fitted = [], {"mapped": [], "truth": []}
     for (tk, force, truth, tg), _ in split_episodes(dataset, split, ["theta_k", "force", "truth", "truth_geometry"]):
         for i in range(len(tk)):
@@ -102,18 +132,9 @@ def phifit(dataset, split, rows):
             mapped = [(a, r, ww, dd, qq) for r, a, ww, dd, qq, _v in tk[i, -rows:].astype(float)]
             if not (np.isfinite([a2, r2, d2, w2, q2]).all() and d2 > 0 and min(g[3] for g in mapped) > 0):
                 continue
-            best = {}
             # Mapped: each row's own geometry; truth: the simulator's, logged once per sample.
-            for name, geos in (("mapped", [(a, r, dd, ww, qq) for a, r, ww, dd, qq in mapped]),
-                               ("truth", [(a2, r2, d2, w2, q2)] * rows)):
-                err = []
-                for p in grid:
-                    e = 0.0
-                    for g, f in zip(geos, fx):
-                        r = tm.fee(c, p, gamma, ca, delta, *g, beta="min")
-                        e += abs(r["F_total_N"][0] - f) if r["valid"] else np.inf
-                    err.append(e)
-                best[name] = grid[int(np.argmin(err))] if np.isfinite(np.min(err)) else np.nan
+            best = {"mapped": fit_phi(c, gamma, ca, delta, [(a, r, dd, ww, qq) for a, r, ww, dd, qq in mapped], fx),
+                    "truth": fit_phi(c, gamma, ca, delta, [(a2, r2, d2, w2, q2)] * rows, fx)}
             if not np.isfinite([best["mapped"], best["truth"]]).all():
                 continue
             truth_phi.append(phi)
@@ -128,6 +149,34 @@ def phifit(dataset, split, rows):
         f = np.degrees(np.array(fitted[name]))
         print("  phi fitted to Fx on the %-6s geometry (truth c, c_a, delta, gamma): MAE %.2f deg, r %.2f" % (
             name, np.mean(np.abs(f - t)), np.corrcoef(f, t)[0, 1]))
+
+
+def phisens():
+    # The soils of docs/soil_estimator.md ("How much the force says about phi"): c (Pa), phi (deg),
+    # gamma (N/m^3), c_a (Pa), delta (deg); the loam is pinn_episode.yaml's truth soil.
+    soils = {"loam": (14500, 31.0, 16500, 7250, 17.05), "sand": (0, 35.0, 16000, 0, 23.0),
+             "clay": (40000, 22.0, 17500, 24000, 10.0)}
+    for name, (c, phi, gamma, ca, delta) in soils.items():
+        f = lambda p: tm.fee(c, math.radians(p), gamma, ca, math.radians(delta), 0.0, math.radians(80), 0.1, 1.85,
+                             2000.0, beta="min")["F_total_N"][0]
+        print("%s (phi %.1f deg): F_total along x changes %.1f %% per degree of phi (d 0.1 m, rho 80 deg, w 1.85 m, "
+              "Q 2 kN, level ground)" % (name, phi, 100 * (f(phi + 1) / f(phi) - 1)))
+
+
+def noise(path, quiet_path):
+    """The soil's coloured force noise along the travel on the cutting steps of an episode,
+    against the same scenario run without it (force_noise {abs_n: 0, rel: 0}): the same motion,
+    so the difference of the truth forces is the noise."""
+    with h5py.File(path, "r") as a, h5py.File(quiet_path, "r") as b:
+        m = "machines/" + sorted(a["machines"].keys())[0] + "/"
+        if not np.array_equal(a[m + "T_map_base"][:], b[m + "T_map_base"][:]):
+            sys.exit("the two episodes did not move alike: not the same scenario with and without the noise")
+        fa, fb, h = a[m + "truth/force_map_N"][:], b[m + "truth/force_map_N"][:], a[m + "T_map_base"][:][:, :2, 0]
+        cut = a[m + "truth/fee"][:][:, 2] > 0
+    along = lambda F: -(F[:, 0] * h[:, 0] + F[:, 1] * h[:, 1])
+    n, fx = along(fa - fb)[cut], along(fb)[cut]
+    print("%d cutting steps: horizontal noise mean %.0f N, sd %.0f N on a mean horizontal force of %.0f N (%.0f %%)" % (
+        cut.sum(), n.mean(), n.std(), fx.mean(), 100 * n.std() / np.abs(fx).mean()))
 
 
 def bearing(phi):
@@ -156,17 +205,18 @@ def episode(path):
     print("force sensor noise on %d contact steps: %.1f %% of the reading" % (
         contact.sum(), force_error(truth_base[contact], measured[contact])))
     vz = np.gradient(T_blade[:, 2, 3], stamp)
-    rows = []
+    rows, steps = [], []  # steps: every cutting, moving step's (geometry, soil, measured Fx)
     for k in range(len(F)):
         alpha, rho, d, w, q, _beta = fee[k]
         if not d > 0 or stalled[k]:
             continue
         c, phi, gamma, ca, delta = soil[k][:5]
+        heading = T_base[k, :2, 0]
+        fx = -(F[k, 0] * heading[0] + F[k, 1] * heading[1])  # blade on soil, along travel
+        steps.append(((alpha, rho, d, w, q), (c, phi, gamma, ca, delta), fx))
         r = tm.fee(c, phi, gamma, ca, delta, alpha, rho, d, w, q, beta="min")
         if not r["valid"]:
             continue
-        heading = T_base[k, :2, 0]
-        fx = -(F[k, 0] * heading[0] + F[k, 1] * heading[1])  # blade on soil, along travel
         fz = -F[k, 2]
         nc, nq = bearing(phi)
         pen = (c * nc + gamma * d * nq) * EDGE_M * w if vz[k] < 0 else 0.0
@@ -183,21 +233,11 @@ def episode(path):
     print("  + penetration on descending steps: force error %.1f %%" % force_error(with_pen, meas))
     # What one step's horizontal force says about phi, all else (geometry, c, c_a, delta, gamma)
     # the truth: the phi in 10..50 deg whose F_total at beta* matches it best.
-    grid = np.radians(np.arange(10.0, 50.01, 0.5))
     fits, truth_phi = [], []
-    for k in range(len(F)):
-        alpha, rho, d, w, q, _beta = fee[k]
-        if not d > 0 or stalled[k]:
-            continue
-        c, phi, gamma, ca, delta = soil[k][:5]
-        heading = T_base[k, :2, 0]
-        fx = -(F[k, 0] * heading[0] + F[k, 1] * heading[1])
-        err = []
-        for p in grid:
-            r = tm.fee(c, p, gamma, ca, delta, alpha, rho, d, w, q, beta="min")
-            err.append(abs(r["F_total_N"][0] - fx) if r["valid"] else np.inf)
-        if np.isfinite(np.min(err)):
-            fits.append(math.degrees(grid[int(np.argmin(err))]))
+    for (alpha, rho, d, w, q), (c, phi, gamma, ca, delta), fx in steps:
+        p = fit_phi(c, gamma, ca, delta, [(alpha, rho, d, w, q)], [fx])
+        if np.isfinite(p):
+            fits.append(math.degrees(p))
             truth_phi.append(math.degrees(phi))
     fits, truth_phi = np.array(fits), np.array(truth_phi)
     print("  phi fitted to each step's horizontal force (truth geometry, c, c_a, delta, gamma): "
@@ -252,12 +292,16 @@ def gate(dataset, split):
 
 
 def main():
-    if len(sys.argv) < 3 or sys.argv[1] not in ("geometry", "episode", "gate", "phifit"):
+    if len(sys.argv) >= 2 and sys.argv[1] == "phisens":
+        return phisens()
+    if len(sys.argv) < 3 or sys.argv[1] not in ("geometry", "episode", "gate", "phifit", "noise"):
         sys.exit(__doc__)
     if sys.argv[1] == "geometry":
         geometry(sys.argv[2], sys.argv[3] if len(sys.argv) > 3 else "test")
     elif sys.argv[1] == "gate":
         gate(sys.argv[2], sys.argv[3] if len(sys.argv) > 3 else "test")
+    elif sys.argv[1] == "noise":
+        noise(sys.argv[2], sys.argv[3])
     elif sys.argv[1] == "phifit":
         phifit(sys.argv[2], sys.argv[3] if len(sys.argv) > 3 else "test", int(os.environ.get("ROWS", "1")))
     else:
