@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <sstream>
 #include <stdexcept>
 
 namespace terramap::pinn {
@@ -254,7 +255,11 @@ std::string PinnNetImpl::metadataJson() const {
 
 void saveArchiveAtomically(torch::serialize::OutputArchive& ar, const std::string& path, const std::string& what) {
   try {
-    io::replaceFileAtomically(path, [&](const std::filesystem::path& tmp) { ar.save_to(tmp.string()); });
+    // Through a stream: torch names the archive's top folder after the file it writes, and the
+    // temporary file's name holds the process id, so the same model saved twice differed.
+    std::ostringstream os(std::ios::binary);
+    ar.save_to(os);
+    io::writeFileAtomically(path, os.str());
   } catch (const OutputError&) {
     throw;
   } catch (const std::exception& e) {

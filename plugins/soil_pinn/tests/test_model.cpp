@@ -16,6 +16,7 @@
 
 #include <cstdio>
 #include <fstream>
+#include <iterator>
 #include <random>
 #include <unistd.h>
 
@@ -326,7 +327,16 @@ TEST_F(PinnModel, SaveLoadRoundTripGivesIdenticalOutputs) {
   EXPECT_TRUE(at::equal(x.log_var, y.log_var));
   EXPECT_TRUE(at::equal(x.F, y.F));
   EXPECT_TRUE(at::equal(x.Sigma_F, y.Sigma_F));
+  // The same model saved again, under another name, is the same bytes (no file name or process
+  // id inside the archive).
+  const std::string again = tempPath("roundtrip_again.pt");
+  savePinn(a.net, again);
+  std::ifstream fa(path, std::ios::binary), fb(again, std::ios::binary);
+  const std::string ba((std::istreambuf_iterator<char>(fa)), {}), bb((std::istreambuf_iterator<char>(fb)), {});
+  EXPECT_FALSE(ba.empty());
+  EXPECT_TRUE(ba == bb);
   std::remove(path.c_str());
+  std::remove(again.c_str());
 }
 
 /// A model file as format version `version` wrote it, with the given config JSON.
