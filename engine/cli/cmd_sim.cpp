@@ -54,7 +54,8 @@ Registrar reg{Command{"sim", [](CLI::App& app, std::function<int()>& run) {
                 << " s building the world and laying out the file (" << sc.duration_s / (tm.setup_s + tm.run_s)
                 << "x real time with it); the writer thread used " << tm.writer_cpu_s
                 << " s of CPU beside the simulation, closing the file (last writes, checksum, flush to disk) "
-                << tm.close_s << " s of the run\n";
+                << tm.close_s << " s of the run (last writes " << tm.close_parts.writes_s << " s, HDF5 close "
+                << tm.close_parts.hdf5_s << " s, checksum and flush " << tm.close_parts.seal_s << " s)\n";
       if (!args->export_commands.empty()) {
         sim::writeCommandLog(args->export_commands, sim::episodeCommands(path, sc.machines.front().id));
         std::cout << "wrote " << args->export_commands << "\n";

@@ -450,6 +450,7 @@ struct EpisodeWriter::Impl {
   }
   bool closed = false;
   double writer_cpu_s = 0.0;  // the writer thread's CPU seconds, once closed
+  EpisodeWriter::CloseTiming close_timing;
 
   /// The terrain now, handed to the writer thread. This runs on the simulating thread between
   /// two periods, so it only converts, and only the chunks that may have changed since the last
@@ -727,6 +728,7 @@ void EpisodeWriter::record(const Simulator& sim, const std::vector<Event>& event
 void EpisodeWriter::record(const Simulator& sim, std::vector<Event>&& events) { impl_->record(sim, events, &events); }
 
 double EpisodeWriter::writerCpuSeconds() const { return impl_->writer_cpu_s; }
+EpisodeWriter::CloseTiming EpisodeWriter::closeTiming() const { return impl_->close_timing; }
 
 void EpisodeWriter::Impl::record(const Simulator& sim, const std::vector<Event>& events, std::vector<Event>* owned) {
   for (std::size_t ei = 0; ei < events.size(); ++ei) {
@@ -842,6 +844,9 @@ void EpisodeWriter::Impl::record(const Simulator& sim, const std::vector<Event>&
 void EpisodeWriter::close(const Simulator& sim) {
   Impl& I = *impl_;
   if (I.closed) return;
+  using Clock = std::chrono::steady_clock;
+  const auto seconds = [](Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double>(b - a).count(); };
+  const Clock::time_point t0 = Clock::now();
   if (std::abs(I.last_snapshot_t - sim.time()) > 1e-9) I.snapshot(sim);
   for (auto& m : I.machines) {
     for (auto& [k, a] : m.a) a.flush();
@@ -859,11 +864,14 @@ void EpisodeWriter::close(const Simulator& sim) {
   attrDouble(I.file, "lost_volume_m3", sim.truth().lostVolume());
   attrDouble(I.file, "compacted_volume_m3", sim.truth().compactedVolume());
   attrDouble(I.file, "bank_volume_final_m3", bank_final);
+  const Clock::time_point t1 = Clock::now();
   I.closeAll();
+  const Clock::time_point t2 = Clock::now();
   io::sealFile(I.tmp_path);
   std::error_code ec;
   fs::rename(I.tmp_path, I.final_path, ec);
   if (ec) throw OutputError(I.final_path + ": cannot rename the finished episode into place: " + ec.message());
+  I.close_timing = {seconds(t0, t1), seconds(t1, t2), seconds(t2, Clock::now())};
   I.closed = true;
 }
 
@@ -983,6 +991,7 @@ std::string runEpisode(const Scenario& scenario, const std::string& dir, Episode
     timing->run_s = std::chrono::duration<double>(t3 - t1).count();
     timing->close_s = std::chrono::duration<double>(t3 - t2).count();
     timing->writer_cpu_s = w.writerCpuSeconds();
+    timing->close_parts = w.closeTiming();
   }
   return path;
 }

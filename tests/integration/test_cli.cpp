@@ -519,7 +519,9 @@ TEST(Cli, TheExcavatorPipelineFiltersItsArmAndMapsItsBucket) {
       EXPECT_GT(s["dropped"]["self"].get<long>(), 1000000) << "the arm in the camera's view";
       EXPECT_EQ(s["events"]["joint_state"].get<long>(), 1800);
     }
-    if (s["name"] == "blade") EXPECT_GT(s["counters"]["bucket_cut_bank_m3"].get<double>(), 0.15);
+    if (s["name"] == "blade") {
+      EXPECT_GT(s["counters"]["bucket_cut_bank_m3"].get<double>(), 0.15);
+    }
   }
 }
 

@@ -45,6 +45,13 @@ class EpisodeWriter {
   /// CPU seconds the writer thread used (deflating snapshot chunks, HDF5 writes, the kernel's
   /// copies); 0 before close(). The simulation's cores pay for it: `terramap sim` prints it.
   double writerCpuSeconds() const;
+  /// close()'s parts (wall s; 0 before close()): the last writes (the final snapshot and
+  /// buffered rows, while the writer thread drains), the HDF5 close, the seal (checksum, flush
+  /// to disk, rename).
+  struct CloseTiming {
+    double writes_s = 0, hdf5_s = 0, seal_s = 0;
+  };
+  CloseTiming closeTiming() const;
 
   struct Impl;
 
@@ -97,6 +104,7 @@ struct EpisodeTiming {
   double setup_s = 0.0;       ///< building the world and laying out the file (wall s)
   double run_s = 0.0;         ///< the simulation and its writes, close included (wall s)
   double close_s = 0.0;       ///< of run_s, EpisodeWriter::close: the last writes, HDF5 close, seal, fsync
+  EpisodeWriter::CloseTiming close_parts;  ///< close_s's parts
   double writer_cpu_s = 0.0;  ///< CPU seconds of the writer thread during the run
 };
 
