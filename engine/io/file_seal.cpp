@@ -73,9 +73,9 @@ bool crcAfterBlock(int fd, std::uint64_t size, std::uint64_t& crc) {
   crc = 0;
   if (size <= kSealBytes) return true;
   const std::uint64_t n = size - kSealBytes;
-  // 8 MB a thread: a 2 s episode (32 MB) is sealed on both cores too, 11 -> 6.5 ms of its close
-  // (`terramap sim configs/scenarios/bench_ctl_os1_64.yaml --duration 2`; 32 MB a thread left
-  // such files to one).
+  // 8 MB a thread: a 2 s episode (32 MB) is sealed on both cores too, 12 -> 8 ms of its close
+  // (`terramap sim configs/scenarios/bench_ctl_os1_64.yaml --duration 2`, its "checksum and
+  // flush", medians of 9 runs; 32 MB a thread left such files to one).
   constexpr std::uint64_t kPerThread = std::uint64_t{8} << 20;
   const unsigned hw = std::max(1u, std::thread::hardware_concurrency());
   const std::size_t parts = static_cast<std::size_t>(std::clamp<std::uint64_t>(n / kPerThread, 1, std::min(hw, 4u)));
