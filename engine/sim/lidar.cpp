@@ -6,6 +6,7 @@
 #include <array>
 
 #include <cmath>
+#include <type_traits>
 #include <limits>
 
 namespace terramap::sim {
@@ -310,9 +311,32 @@ struct LidarModel::Scratch {
   ScanCaster caster;
   std::vector<std::vector<PointXYZI>> parts;
   ScanObstacles obstacles;  // the machines' boxes within reach of this scan
+  /// The last scan's terrain hits (spec().reuse_casts), per ray, kept when the sensor scanned
+  /// from the same pose as the scan before (a sensor that moves keeps nothing, and pays
+  /// nothing for it): `valid` when the last scan, from `pose` over the terrain `terrain_id` at
+  /// `revision` with a table of the same shape, kept them (for the rays with a RayDep below
+  /// kAlways).
+  struct Kept {
+    bool valid = false, scanned = false;  // hits kept; `pose` and `terrain_id` are the last scan's
+    std::uint64_t terrain_id = 0, revision = 0;
+    Eigen::Matrix4d pose;
+    double ds = 0;
+    int na = 0, nr = 0, level = 0;
+    std::vector<double> t;
+    std::vector<int> ci, cj;
+    std::vector<ScanCaster::RayDep> dep;
+    std::vector<int> first_change;  // this scan's ScanCaster::changedRows since `revision`
+    std::vector<std::size_t> used;  // per chunk of the last scan, rays that took their kept hit
+  } kept;
 };
 
 LidarModel::~LidarModel() = default;
+
+std::size_t LidarModel::keptLastScan() const {
+  std::size_t n = 0;
+  for (std::size_t u : scratch_->kept.used) n += u;
+  return n;
+}
 LidarModel::LidarModel(LidarModel&&) noexcept = default;
 LidarModel& LidarModel::operator=(LidarModel&&) noexcept = default;
 
@@ -428,15 +452,41 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
   // One horizon table per scan (the ray-casting view is frozen while the scan is cast); the
   // model keeps its buffers, so a scan allocates nothing after the first.
   ScanCaster& caster = scratch_->caster;
-  caster.setSparse(dirs_.size() < kSparseRays);
-  caster.build(terrain, o, t_max, minSlope(R), exec);
+  Scratch::Kept& kept = scratch_->kept;
+  // The kept hits serve this scan if it comes from the same pose (so the same rays and the
+  // same table bins) over the same terrain object; then the table needs a rebuild only if the
+  // terrain changed at all.
+  // `still`: the sensor has not moved since its last scan, over the same terrain object.
+  const bool still = spec_.reuse_casts && kept.scanned && kept.terrain_id == terrain.instanceId() &&
+                     kept.pose == T_map_sensor.matrix();
+  const bool same_view = still && kept.valid;
+  const bool keep = still;  // a sensor that holds still keeps this scan's hits for the next
+  kept.valid = false;  // until this scan completes
+  if (!(same_view && kept.revision == terrain.revision())) {
+    caster.setSparse(dirs_.size() < kSparseRays);
+    caster.build(terrain, o, t_max, minSlope(R), exec);
+  }
+  const bool reuse = same_view && kept.na == caster.azimuthBins() &&
+                     kept.nr == caster.rangeBins() && kept.level == caster.blockLevel() &&
+                     kept.ds == caster.rangeBinM();
+  if (reuse) caster.changedRows(kept.revision, kept.first_change);
+  kept.used.assign(static_cast<std::size_t>(chunks), 0);
+  if (keep) {
+    kept.t.resize(dirs_.size());
+    kept.ci.resize(dirs_.size());
+    kept.cj.resize(dirs_.size());
+    kept.dep.resize(dirs_.size());
+  }
   std::vector<std::vector<PointXYZI>>& parts = scratch_->parts;
   if (static_cast<int>(parts.size()) < chunks) parts.resize(chunks);
   const ScanCaster& cast = caster;
   ScanObstacles& boxes = scratch_->obstacles;
   boxes.prepare(obstacles, o, R, t_max, camera_ ? &spec_ : nullptr, z_near_, camera_ ? nullptr : &beam_slopes_);
   const std::size_t nbox = boxes.size();
-  auto work = [&](int ch) {
+  // Instantiated with and without keeping hits, so a sensor that moves (most LiDAR scans)
+  // runs the loop without the kept-hit tests and stores.
+  auto work_as = [&](auto keeping, int ch) {
+    constexpr bool kKeep = decltype(keeping)::value;
     std::vector<PointXYZI>& pts = parts[ch];
     pts.clear();
     const int c0 = ch * columns_per_chunk_, c1 = std::min(C, c0 + columns_per_chunk_);
@@ -446,6 +496,8 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
     std::vector<int> ci_col(B), cj_col(B);
     std::vector<double> t_may(B);
     std::vector<int> ci_may(B), cj_may(B);
+    std::vector<ScanCaster::RayDep> dep_may(B);
+    std::size_t used = 0;
     std::vector<Eigen::Vector3d> dm_may(B);
     std::vector<int> may_idx(B);
     std::vector<int> cand(nbox), cand_up(nbox), px(nbox);
@@ -457,21 +509,43 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
       // Rays that cannot hit (upwards from above the terrain: half of a spinning LiDAR's) are
       // settled here; the rest are cast as one batch.
       int n_may = 0;
+      const std::size_t k0 = static_cast<std::size_t>(c) * B;
       for (int b = 0; b < B; ++b) {
-        dm_col[b] = R * dirs_[static_cast<std::size_t>(c) * B + b];
+        dm_col[b] = R * dirs_[k0 + b];
         t_col[b] = std::numeric_limits<double>::quiet_NaN();
         if (cast.mayHit(dm_col[b])) {
+          if (kKeep && reuse) {
+            const ScanCaster::RayDep dep = kept.dep[k0 + b];
+            if (dep.r < kept.first_change[static_cast<std::size_t>(dep.a)]) {
+              t_col[b] = kept.t[k0 + b];
+              ci_col[b] = kept.ci[k0 + b];
+              cj_col[b] = kept.cj[k0 + b];
+              ++used;
+              continue;
+            }
+          }
           dm_may[n_may] = dm_col[b];
           may_idx[n_may++] = b;
+        } else if (kKeep) {
+          // Not cast (above the terrain's top, not descending): nothing kept to reuse should the
+          // top rise. (A kept result does not depend on the top otherwise: such a ray misses.)
+          kept.dep[k0 + b].r = ScanCaster::kAlways;
         }
       }
       // A camera's minimum depth bounds t from below too (t >= z); depth itself is checked below.
-      cast.castBatch(dm_may.data(), n_may, spec_.min_range_m, t_max, t_may.data(), ci_may.data(), cj_may.data());
+      cast.castBatch(dm_may.data(), n_may, spec_.min_range_m, t_max, t_may.data(), ci_may.data(), cj_may.data(),
+                     kKeep ? dep_may.data() : nullptr);
       for (int q = 0; q < n_may; ++q) {
         const int b = may_idx[q];
         t_col[b] = t_may[q];
         ci_col[b] = ci_may[q];
         cj_col[b] = cj_may[q];
+        if (kKeep) {
+          kept.t[k0 + b] = t_may[q];
+          kept.ci[k0 + b] = ci_may[q];
+          kept.cj[k0 + b] = cj_may[q];
+          kept.dep[k0 + b] = dep_may[q];
+        }
       }
       for (int b = 0; b < B; ++b) {
         const std::size_t k = static_cast<std::size_t>(c) * B + b;
@@ -490,9 +564,25 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
         emitPoint(terrain, o, dirs_[k], dm_col[b], hit, noise_key, k, pts);
       }
     }
+    kept.used[static_cast<std::size_t>(ch)] = used;
+  };
+  auto work = [&](int ch) {
+    if (keep) work_as(std::true_type{}, ch);
+    else work_as(std::false_type{}, ch);
   };
   if (exec) exec->forEach(chunks, work);
   else serialForEach(chunks, work);
+  kept.scanned = true;
+  kept.terrain_id = terrain.instanceId();
+  kept.pose = T_map_sensor.matrix();
+  if (keep) {
+    kept.valid = true;
+    kept.revision = terrain.revision();
+    kept.na = caster.azimuthBins();
+    kept.nr = caster.rangeBins();
+    kept.level = caster.blockLevel();
+    kept.ds = caster.rangeBinM();
+  }
   std::size_t total = 0, hits = 0;
   for (int ch = 0; ch < chunks; ++ch) total += parts[ch].size();
   out.clear();

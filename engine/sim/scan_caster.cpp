@@ -189,6 +189,7 @@ void ScanCaster::build(const TruthTerrain& terrain, const Eigen::Vector3d& origi
   for (double x : {terrain.originX(), terrain.maxX()})
     for (double y : {terrain.originY(), terrain.maxY()}) far = std::max(far, std::hypot(x - o_.x(), y - o_.y()));
   const double reach = std::min(far, std::max(0.0, max_range_m));
+  reach_ = reach;
   covers_grid_ = far <= max_range_m;
   top_ = terrain.pyramidMax(terrain.pyramidLevels() - 1)[0];
   // A sparse scan (a few hundred rays) casts too few rays to pay for the fine table: a quarter
@@ -255,6 +256,7 @@ void ScanCaster::finishTable(const Executor* exec) {
 inline void ScanCaster::prepare(const Eigen::Vector3d& d, double t_min, double t_max, Ray& ray) const {
   const TruthTerrain& T = *terrain_;
   ray.mode = Ray::Miss;
+  ray.dep = kAlways;
   ray.inv_d[0] = ray.inv_d[1] = 0.0;
   // Rays that do not descend from above the highest point of the terrain cannot hit it.
   if (d.z() >= 0.0 && o_.z() > top_) return;  // mode Miss
@@ -265,7 +267,9 @@ inline void ScanCaster::prepare(const Eigen::Vector3d& d, double t_min, double t
     if (a >= na_) a -= na_;
     ray.a = a;
     // Above every bound of its azimuth row: clear of the surface wherever the table reaches.
+    ray.dep = nr_;
     if (covers_grid_ && ray.m > row_[a]) return;
+    ray.dep = -1;  // a miss of the grid's extent depends on no bin
   }
   ray.t0 = t_min;
   ray.t1 = t_max;
@@ -294,6 +298,7 @@ inline void ScanCaster::prepare(const Eigen::Vector3d& d, double t_min, double t
   }
   const int r_first = static_cast<int>(ray.t0 * ray.dxy * inv_ds_);
   ray.r_last = static_cast<int>(ray.t1 * ray.dxy * inv_ds_);
+  ray.dep = nr_;
   if (ray.r_last < nr_ && ray.m > row_[ray.a]) return;
   // First bin whose running maximum from the origin reaches m (binary search: the running
   // maximum never decreases). If it lies past r_first, every bin in between is clear.
@@ -322,9 +327,12 @@ inline void ScanCaster::prefetch(const Eigen::Vector3d& d, const Ray& ray) const
   __builtin_prefetch(p + T.nx());
 }
 
-inline double ScanCaster::finish(const Eigen::Vector3d& d, const Ray& ray, int* cell_i, int* cell_j) const {
+inline double ScanCaster::finish(const Eigen::Vector3d& d, const Ray& ray, int* cell_i, int* cell_j,
+                                 int& dep_r) const {
   const TruthTerrain& T = *terrain_;
+  dep_r = ray.dep;
   if (ray.mode == Ray::Miss) return kNaN;
+  dep_r = kAlways;
   if (ray.mode == Ray::Direct) return T.castCells(o_, d, ray.inv_d[0], ray.inv_d[1], ray.t0, ray.t1, cell_i, cell_j);
   const int r_end = std::min(ray.r_last, nr_ - 1);  // last range bin the table covers
   const float* row = &bound_[static_cast<std::size_t>(ray.a) * nr_];
@@ -349,25 +357,38 @@ inline double ScanCaster::finish(const Eigen::Vector3d& d, const Ray& ray, int* 
     const double ta = std::max(ray.t0, r * ds_ * inv_dxy * (1.0 - 1e-12));
     const double tb = std::min(ray.t1, (re + 1) * ds_ * inv_dxy * (1.0 + 1e-12));
     const double t = T.castCells(o_, d, ray.inv_d[0], ray.inv_d[1], ta, tb, cell_i, cell_j);
-    if (!std::isnan(t)) return t;
+    if (!std::isnan(t)) {
+      // The walk read the row up to re + 1 (the run's extent) and the cells under bins <= re.
+      dep_r = re + 1;
+      return t;
+    }
     r = re + 1;
   }
   if (ray.r_last >= nr_) {
     // Beyond the table's reach (t_max larger than the range it was built for): exact walk.
     const double ta = std::max(ray.t0, nr_ * ds_ * inv_dxy * (1.0 - 1e-12));
-    return T.castCells(o_, d, ray.inv_d[0], ray.inv_d[1], ta, ray.t1, cell_i, cell_j);
+    return T.castCells(o_, d, ray.inv_d[0], ray.inv_d[1], ta, ray.t1, cell_i, cell_j);  // dep_r: kAlways
   }
+  dep_r = nr_;
   return kNaN;
 }
 
 double ScanCaster::cast(const Eigen::Vector3d& d, double t_min, double t_max, int* cell_i, int* cell_j) const {
   Ray ray;
   prepare(d, t_min, t_max, ray);
-  return finish(d, ray, cell_i, cell_j);
+  int dep_r;
+  return finish(d, ray, cell_i, cell_j, dep_r);
 }
 
 void ScanCaster::castBatch(const Eigen::Vector3d* d, int n, double t_min, double t_max, double* t, int* cell_i,
-                           int* cell_j) const {
+                           int* cell_j, RayDep* dep) const {
+  if (dep) castBatchAs<true>(d, n, t_min, t_max, t, cell_i, cell_j, dep);
+  else castBatchAs<false>(d, n, t_min, t_max, t, cell_i, cell_j, dep);
+}
+
+template <bool kDeps>
+void ScanCaster::castBatchAs(const Eigen::Vector3d* d, int n, double t_min, double t_max, double* t, int* cell_i,
+                             int* cell_j, RayDep* dep) const {
   // Rays are independent, so locating the first candidate cell of a few rays and prefetching
   // its two rows before walking any of them overlaps their cache misses (a scan touches the
   // terrain at scattered places; the misses, not the arithmetic, set its speed).
@@ -379,8 +400,49 @@ void ScanCaster::castBatch(const Eigen::Vector3d* d, int n, double t_min, double
       prepare(d[k0 + q], t_min, t_max, rays[q]);
       prefetch(d[k0 + q], rays[q]);
     }
-    for (int q = 0; q < m; ++q) t[k0 + q] = finish(d[k0 + q], rays[q], &cell_i[k0 + q], &cell_j[k0 + q]);
+    for (int q = 0; q < m; ++q) {
+      int dep_r;
+      t[k0 + q] = finish(d[k0 + q], rays[q], &cell_i[k0 + q], &cell_j[k0 + q], dep_r);
+      if constexpr (kDeps) dep[k0 + q] = {rays[q].a, dep_r};
+    }
   }
+}
+
+void ScanCaster::changedRows(std::uint64_t since, std::vector<int>& first) const {
+  first.assign(static_cast<std::size_t>(na_), kAlways);
+  const TruthTerrain& T = *terrain_;
+  const int B = TruthTerrain::kCellRevisionBlock;
+  // A changed revision block moves the table's entries over its whole table block (the
+  // table's blocks are at least as large: level >= 4), and the cells under the revision block.
+  const int span = std::max(1 << level_, B);
+  const double res = T.resolution();
+  const int cells_x = T.nx() - 1, cells_y = T.ny() - 1;
+  int last_bx = -1, last_by = -1;  // the table block last marked (neighbouring revision blocks share one)
+  for (int by = 0; by < T.cellRevisionHeight(); ++by)
+    for (int bx = 0; bx < T.cellRevisionWidth(); ++bx) {
+      if (T.cellBlockRevision(bx, by) <= since) continue;
+      const int tx = bx * B / span, ty = by * B / span;
+      if (tx == last_bx && ty == last_by) continue;
+      last_bx = tx, last_by = ty;
+      const double x0 = T.originX() + tx * span * res - o_.x(), y0 = T.originY() + ty * span * res - o_.y();
+      const double x1 = T.originX() + std::min((tx + 1) * span, cells_x) * res - o_.x();
+      const double y1 = T.originY() + std::min((ty + 1) * span, cells_y) * res - o_.y();
+      const double dxn = x0 > 0 ? x0 : (x1 < 0 ? -x1 : 0.0), dyn = y0 > 0 ? y0 : (y1 < 0 ? -y1 : 0.0);
+      const double smin = std::sqrt(dxn * dxn + dyn * dyn);
+      if (smin > reach_ + ds_) continue;  // beyond every ray the table serves
+      const int r0 = std::max(0, static_cast<int>(smin * inv_ds_) - 1);
+      int a0 = 0, a1 = na_ - 1;
+      if (smin > 1e-6) {
+        const BlockGrid g{nullptr, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, na_, nr_, ds_, inv_ds_, na_ / 4.0, nullptr};
+        sim::azimuthBins(g, pseudoAngle(x0, y0), pseudoAngle(x1, y0), pseudoAngle(x0, y1), pseudoAngle(x1, y1), a0, a1);
+        --a0, ++a1;
+        if (a1 - a0 >= na_) a0 = 0, a1 = na_ - 1;
+      }
+      for (int a = a0; a <= a1; ++a) {
+        const int aw = a < 0 ? a + na_ : (a >= na_ ? a - na_ : a);
+        first[static_cast<std::size_t>(aw)] = std::min(first[static_cast<std::size_t>(aw)], r0);
+      }
+    }
 }
 
 }  // namespace terramap::sim

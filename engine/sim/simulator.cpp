@@ -504,6 +504,7 @@ PointCloud Simulator::runScan(const ScanRequest& q, const TruthTerrain& terrain)
   // Cast from where the sensor really is; the cloud carries where the machine thinks it is.
   const std::size_t hits = L.model.scan(terrain, q.T_true_sensor, q.key, &exec_, pc.points, q.obstacles.get());
   stats_.rays += L.model.raysPerScan();
+  stats_.rays_kept += L.model.keptLastScan();
   stats_.points += hits;
   ++stats_.scans;
   return pc;

@@ -4,6 +4,7 @@
 #include <terramap/sim/truth_terrain.hpp>
 
 #include <algorithm>
+#include <atomic>
 #include <array>
 #include <cmath>
 #include <filesystem>
@@ -161,6 +162,9 @@ TruthTerrain::TruthTerrain(double origin_x_m, double origin_y_m, double resoluti
   lc_.assign(n, 0.0);
   h_.assign(n, height_m);
   h0_.assign(n, static_cast<float>(height_m));
+  cell_rev_w_ = (nx - 1 + kCellRevisionBlock - 1) / kCellRevisionBlock;
+  cell_rev_h_ = (ny - 1 + kCellRevisionBlock - 1) / kCellRevisionBlock;
+  cell_rev_.assign(static_cast<std::size_t>(cell_rev_w_) * static_cast<std::size_t>(cell_rev_h_), 0);
   rev_w_ = (nx + kRevisionBlock - 1) / kRevisionBlock;
   block_rev_.assign(static_cast<std::size_t>(rev_w_) * static_cast<std::size_t>((ny + kRevisionBlock - 1) / kRevisionBlock), 0);
   // Pyramid levels over cells.
@@ -314,6 +318,11 @@ void TruthTerrain::applyPatch(const Patch& p) {
   }
 }
 
+std::uint64_t TruthTerrain::InstanceId::next() {
+  static std::atomic<std::uint64_t> counter{0};
+  return ++counter;
+}
+
 bool TruthTerrain::revisionBlocks(int i0, int j0, int i1, int j1, int& bi0, int& bj0, int& bi1, int& bj1) const {
   const int a0 = std::max(0, std::min(i0, i1)), a1 = std::min(nx_ - 1, std::max(i0, i1));
   const int b0 = std::max(0, std::min(j0, j1)), b1 = std::min(ny_ - 1, std::max(j0, j1));
@@ -341,6 +350,9 @@ void TruthTerrain::refreshPyramid(int i0, int j0, int i1, int j1) {
   int c0 = std::max(0, std::min(i0, i1) - 1), c1 = std::min(nx_ - 2, std::max(i0, i1));
   int r0 = std::max(0, std::min(j0, j1) - 1), r1 = std::min(ny_ - 2, std::max(j0, j1));
   if (c0 > c1 || r0 > r1) return;
+  for (int by = r0 / kCellRevisionBlock; by <= r1 / kCellRevisionBlock; ++by)
+    std::fill_n(&cell_rev_[static_cast<std::size_t>(by) * cell_rev_w_ + c0 / kCellRevisionBlock],
+                c1 / kCellRevisionBlock - c0 / kCellRevisionBlock + 1, revision_);
   Level& L0 = levels_[0];
   for (int cj = r0; cj <= r1; ++cj) {
     const double* h0 = &h_[index(0, cj)];

@@ -50,9 +50,19 @@ class LidarModel {
   /// per scan (e.g. hash of seed, sensor, scan index). Runs on `exec` in fixed chunks of columns
   /// (serial if null). Returns the number of hits. One scan at a time per model (it reuses the
   /// model's buffers); different models may scan concurrently.
+  ///
+  /// With spec().reuse_casts, a sensor that scans from the same pose (bit for bit) as in its
+  /// previous scan, over the same terrain object, keeps every ray's terrain hit; in its next
+  /// scan from that pose, a ray whose table row and cells are unchanged since
+  /// (TruthTerrain::cellBlockRevision, ScanCaster::changedRows) takes its kept hit instead of
+  /// a new cast. The result is identical (tested); a parked sensor or one on a standing
+  /// excavator skips most of its casts, one that moves keeps nothing (and pays nothing for it).
+  /// The boxes, dropouts and noise are drawn anew every scan.
   std::size_t scan(const TruthTerrain& terrain, const Eigen::Isometry3d& T_map_sensor, std::uint64_t noise_key,
                    const Executor* exec, std::vector<PointXYZI>& out,
                    const std::vector<PlacedBox>* obstacles = nullptr) const;
+  /// Rays of the last scan that took their kept terrain hit instead of a cast (reuse_casts).
+  std::size_t keptLastScan() const;
 
  private:
   /// Lower bound of d_z / |d_xy| over all rays once rotated into the map (ScanCaster input).

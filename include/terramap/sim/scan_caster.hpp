@@ -51,11 +51,34 @@ class ScanCaster {
   /// point of the terrain. A cheap pre-filter before batching (cast returns NaN for these too).
   bool mayHit(const Eigen::Vector3d& d) const { return d.z() < 0.0 || !(o_.z() > top_); }
 
+  /// What a ray's result depends on: the table row `a` (its azimuth bin) up to range bin `r`
+  /// (the table's entries there and the cells under them). A result stays what `cast` returns
+  /// as long as the terrain changed nowhere those bins cover (changedRows): the walk reads
+  /// nothing else. r = rangeBins() for a miss (the whole row), kAlways for a ray cast without
+  /// the table (near-vertical, or beyond the table's reach), whose result is not kept.
+  struct RayDep {
+    int a = 0, r = 0;
+  };
+  static constexpr int kAlways = std::numeric_limits<int>::max();
+
   /// The same for n rays at once (t[k], cell_i[k], cell_j[k] for d[k]; cells are left unset
   /// on a miss). Faster than n calls of `cast`: the first candidate cells of a few rays are
   /// prefetched before any is walked. Results are identical to `cast`.
+  /// With `dep`, also what each result depends on (see RayDep and changedRows).
   void castBatch(const Eigen::Vector3d* d, int n, double t_min, double t_max, double* t, int* cell_i,
-                 int* cell_j) const;
+                 int* cell_j, RayDep* dep = nullptr) const;
+
+  /// For the table as last built, per azimuth row the first range bin that may cover a cell
+  /// that changed since the terrain's revision `since` (TruthTerrain::cellBlockRevision), or
+  /// kAlways for a row nothing changed under. A result whose RayDep has r < first[a] is then
+  /// the same, bit for bit, as a new cast of the same ray from the same origin: the row's
+  /// entries up to r and the cells under them are unchanged (a table built from the same origin
+  /// over the same terrain size has the same bins). Conservative: whole table blocks count as
+  /// changed, widened by a bin on each side.
+  void changedRows(std::uint64_t since, std::vector<int>& first) const;
+
+  /// Highest point of the terrain at the last build (rays above it that do not descend miss).
+  double top() const { return top_; }
 
   /// The next builds serve a sparse scan (a few hundred rays, e.g. a single-line scanner at
   /// 25 Hz): a coarser table, cheaper to build; the hits are the same (exact either way).
@@ -74,10 +97,15 @@ class ScanCaster {
     double t0 = 0, t1 = 0, ta = 0, dxy = 0, m = 0;
     double inv_d[2] = {0, 0};  ///< 1 / d.x(), 1 / d.y() (0 where the component is 0), from the grid clip
     int a = 0, r = 0, r_last = 0;
+    int dep = kAlways;  ///< RayDep::r of a ray settled by prepare (Miss)
   };
   void prepare(const Eigen::Vector3d& d, double t_min, double t_max, Ray& ray) const;
   void prefetch(const Eigen::Vector3d& d, const Ray& ray) const;
-  double finish(const Eigen::Vector3d& d, const Ray& ray, int* cell_i, int* cell_j) const;
+  /// `dep_r`: the last range bin the result depends on (RayDep::r).
+  double finish(const Eigen::Vector3d& d, const Ray& ray, int* cell_i, int* cell_j, int& dep_r) const;
+  template <bool kDeps>
+  void castBatchAs(const Eigen::Vector3d* d, int n, double t_min, double t_max, double* t, int* cell_i,
+                   int* cell_j, RayDep* dep) const;
   /// build()'s last step: the group, running and row maxima of bound_ (rows on `exec`).
   void finishTable(const Executor* exec);
 
@@ -85,6 +113,7 @@ class ScanCaster {
   Eigen::Vector3d o_ = Eigen::Vector3d::Zero();
   int na_ = 0, nr_ = 0, ng_ = 0, level_ = 0;
   double ds_ = 1, inv_ds_ = 1;
+  double reach_ = 0;           ///< horizontal reach of the table (m)
   double inv_res_ = 1;         ///< 1 / terrain resolution (prefetch addresses only)
   double top_ = 0;             ///< highest point of the terrain (pyramid root)
   bool covers_grid_ = false;   ///< the table reaches every grid point (max range >= farthest corner)

@@ -227,6 +227,10 @@ struct SensorSpec {
   double gyro_bias_sigma = 0.002;       ///< rad/s
   // Force sensor noise: sigma = abs + rel * |F|.
   double force_noise_abs_n = 100, force_noise_rel = 0.02;
+  /// A LiDAR or a depth camera: keep each ray's terrain hit and, while the sensor stays where
+  /// it was (bit for bit), cast again only the rays over terrain that changed since
+  /// (LidarModel::scan). The clouds are the same either way; off only to measure the cost.
+  bool reuse_casts = true;
   /// A LiDAR or a depth camera: a sensor whose cloud is ray-cast (LidarModel).
   bool castsRays() const { return type == Type::Lidar || type == Type::DepthCamera; }
 };

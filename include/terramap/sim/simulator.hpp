@@ -115,6 +115,9 @@ class Simulator {
 
   struct Stats {
     std::uint64_t rays = 0, points = 0, scans = 0, fee_invalid_slices = 0;
+    /// Of `rays`, those that took the terrain hit kept from their sensor's previous scan
+    /// (SensorSpec::reuse_casts: the sensor had not moved and the terrain under them had not changed).
+    std::uint64_t rays_kept = 0;
     double lost_m3 = 0;
     /// Wall-clock seconds spent in the machine and soil physics, and in the LiDAR (pyramid
     /// refresh + ray casting; with the overlap also applying the physics' patches to the

@@ -186,6 +186,22 @@ class TruthTerrain {
   /// when revision() returned r.
   bool changedSince(std::uint64_t r, int i0, int j0, int i1, int j1) const;
 
+  /// The same at the ray casters' granularity: every refreshPyramid also stamps the blocks of
+  /// kCellRevisionBlock x kCellRevisionBlock *cells* (cell (ci, cj) spans nodes ci..ci+1, cj..cj+1;
+  /// the blocks are the pyramid's level-4 blocks) that touch its node box, so a block whose
+  /// stamp is <= r holds the cells (heights and pyramid maxima) it held at revision r. A
+  /// caster that keeps hits from an earlier scan re-casts only the rays that pass over a
+  /// changed block (LidarModel). Row-major, cellRevisionWidth() blocks per row.
+  static constexpr int kCellRevisionBlock = 16;
+  int cellRevisionWidth() const { return cell_rev_w_; }
+  int cellRevisionHeight() const { return cell_rev_h_; }
+  std::uint64_t cellBlockRevision(int bx, int by) const {
+    return cell_rev_[static_cast<std::size_t>(by) * cell_rev_w_ + bx];
+  }
+  /// Unique per object and per state copied into it: a copy, a move or an assignment gets a
+  /// new id, so (instanceId(), revision()) names the contents of the grid for any cache.
+  std::uint64_t instanceId() const { return id_.value; }
+
   /// Sum over nodes of (U + Lc) * res^2, relative to `datum` (m^3 of bank soil).
   double bankVolume(double datum = 0.0) const;
   /// Bank volume that left the grid (deposits that would land outside), m^3.
@@ -259,6 +275,19 @@ class TruthTerrain {
   std::uint64_t revision_ = 0;
   int rev_w_ = 0;                          ///< revision blocks per row
   std::vector<std::uint64_t> block_rev_;  ///< per revision block, the revision of its last refresh
+  int cell_rev_w_ = 0, cell_rev_h_ = 0;  ///< cell revision blocks per row, per column
+  std::vector<std::uint64_t> cell_rev_;  ///< per cell revision block, the revision of its last refresh
+  /// A fresh id on construction, copy, move and assignment (instanceId()).
+  struct InstanceId {
+    std::uint64_t value;
+    InstanceId() : value(next()) {}
+    InstanceId(const InstanceId&) : value(next()) {}
+    InstanceId& operator=(const InstanceId&) {
+      value = next();
+      return *this;
+    }
+    static std::uint64_t next();
+  } id_;
   double lost_m3_ = 0.0;
   double compacted_m3_ = 0.0;
   NodeTiles<double> pressed_;  ///< per node, what compact() took from U (tiles allocated where it did)

@@ -11,8 +11,10 @@
 #include <terramap/sim/lidar.hpp>
 #include <terramap/sim/machine_shape.hpp>
 #include <terramap/sim/simulator.hpp>
+#include <terramap/sim/scenario.hpp>
 #include <terramap/sim/world.hpp>
 
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -219,6 +221,128 @@ TEST(DepthCamera, ScansAreTheSameBitsAtAnyThreadCount) {
   ASSERT_EQ(a.size(), b.size());
   ASSERT_GT(a.size(), 50000u);
   for (std::size_t k = 0; k < a.size(); ++k) ASSERT_EQ(0, std::memcmp(&a[k], &b[k], sizeof(PointXYZI))) << k;
+}
+
+namespace {
+
+/// Raises (dz > 0) or digs (dz < 0) a round patch of radius r around (x, y) and refreshes the
+/// pyramid over it, as the simulator does after its physics.
+void reshape(TruthTerrain& t, double x, double y, double r, double dz) {
+  const int i0 = static_cast<int>((x - r - t.originX()) / t.resolution()), i1 = static_cast<int>((x + r - t.originX()) / t.resolution()) + 1;
+  const int j0 = static_cast<int>((y - r - t.originY()) / t.resolution()), j1 = static_cast<int>((y + r - t.originY()) / t.resolution()) + 1;
+  for (int j = j0; j <= j1; ++j)
+    for (int i = i0; i <= i1; ++i) {
+      const Eigen::Vector2d p = t.nodePosition(i, j);
+      const double q = (p - Eigen::Vector2d(x, y)).norm() / r;
+      if (q < 1) t.setUndisturbed(i, j, t.height(i, j) + dz * (1 - q * q));
+    }
+  t.refreshPyramid(i0, j0, i1, j1);
+}
+
+bool sameBits(const std::vector<PointXYZI>& a, const std::vector<PointXYZI>& b) {
+  return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(PointXYZI)) == 0;
+}
+
+}  // namespace
+
+TEST(DepthCamera, KeptHitsAreTheHitsOfANewCast) {
+  // A camera that keeps its hits (reuse_casts) against one that casts every ray, scan after
+  // scan from the same pose while the terrain in and out of view changes: the same clouds, bit
+  // for bit, and most rays served from the kept hits once the view holds still.
+  SensorSpec ss = cameraOf("dropout: 0.02, offset_m: [0.2, 0, 2.2], rotation_deg: [2, 30, 5]");
+  ASSERT_TRUE(ss.reuse_casts);  // the default
+  const LidarModel keep(ss);
+  ss.reuse_casts = false;
+  const LidarModel fresh(ss);
+  TerrainSpec ts;
+  ts.size_x_m = 24, ts.size_y_m = 20, ts.origin_x_m = -8, ts.origin_y_m = -10, ts.resolution_m = 0.02;
+  ts.bumps = {{4, 1, 0.3, 1.5}, {7, -2, -0.2, 2.0}, {2, -1.5, 0.15, 0.7}};
+  TruthTerrain t = buildTerrain(ts);
+  std::vector<PlacedBox> boxes;
+  Eigen::Isometry3d blade = Eigen::Isometry3d::Identity();
+  blade.translation() = Eigen::Vector3d(1.9, 0, -0.05);
+  placeShape(defaultCtlShape(1.6, 1.9, 1.85, 0.76), Eigen::Isometry3d::Identity(), blade, boxes);
+  Executor ex(2);
+  Eigen::Isometry3d pose = ss.T_base_sensor;
+  std::vector<PointXYZI> a, b, before;
+  auto scanBoth = [&](std::uint64_t key) {
+    keep.scan(t, pose, key, &ex, a, &boxes);
+    fresh.scan(t, pose, key, nullptr, b, &boxes);
+    return sameBits(a, b);
+  };
+  ASSERT_TRUE(scanBoth(7));
+  EXPECT_EQ(keep.keptLastScan(), 0u);
+  ASSERT_GT(a.size(), 50000u);
+  before = b;
+  // The second scan from the same pose keeps its hits (the first keeps none: a sensor that
+  // moves every scan should not pay for keeping them).
+  ASSERT_TRUE(scanBoth(7));
+  EXPECT_EQ(keep.keptLastScan(), 0u);
+  // Still terrain: every ray that may hit takes its kept hit.
+  ASSERT_TRUE(scanBoth(7));
+  EXPECT_TRUE(sameBits(b, before));
+  const std::size_t all = keep.keptLastScan();
+  EXPECT_GT(all, keep.raysPerScan() * 9 / 10);
+  // A mound rises in view (it hides ground behind it), a trench is dug in view, a small bump
+  // near the camera: the rays over them are cast again, the rest kept.
+  for (const auto& [x, y, r, dz] : std::vector<std::array<double, 4>>{
+           {3.5, 0.3, 0.4, 0.35}, {6.0, 1.5, 0.6, -0.3}, {2.6, -0.8, 0.15, 0.05}}) {
+    reshape(t, x, y, r, dz);
+    ASSERT_TRUE(scanBoth(7)) << "after the change at (" << x << ", " << y << ")";
+    EXPECT_FALSE(sameBits(b, before)) << "the change at (" << x << ", " << y << ") is not seen";
+    EXPECT_LT(keep.keptLastScan(), all) << x << ", " << y;
+    EXPECT_GT(keep.keptLastScan(), all / 2) << x << ", " << y;
+    before = b;
+  }
+  // A change behind the camera (out of view): the same cloud, nearly every hit kept.
+  reshape(t, -6, 4, 1.0, 0.5);
+  ASSERT_TRUE(scanBoth(7));
+  EXPECT_TRUE(sameBits(b, before));
+  EXPECT_GT(keep.keptLastScan(), all * 95 / 100);
+  // A new noise key draws new noise over the kept hits, as a cast does.
+  ASSERT_TRUE(scanBoth(8));
+  // The sensor moves by a hair: nothing is kept, then kept again once it holds still.
+  pose.translation().x() += 1e-9;
+  ASSERT_TRUE(scanBoth(8));
+  EXPECT_EQ(keep.keptLastScan(), 0u);
+  ASSERT_TRUE(scanBoth(8));
+  EXPECT_EQ(keep.keptLastScan(), 0u);
+  ASSERT_TRUE(scanBoth(8));
+  EXPECT_GT(keep.keptLastScan(), all * 95 / 100);
+  // Another terrain object with the same contents (a copy): cast anew, the same cloud.
+  const TruthTerrain copy = t;
+  keep.scan(copy, pose, 8, &ex, a, &boxes);
+  EXPECT_EQ(keep.keptLastScan(), 0u);
+  EXPECT_TRUE(sameBits(a, b));
+}
+
+TEST(DepthCamera, AStandingExcavatorsCameraKeepsMostHitsAndGivesTheSameClouds) {
+  // configs/scenarios/excavator_dig_dump.yaml's excavator, its camera keeping hits or casting
+  // every ray, over the first seconds of its cycle (the bucket digs in view): the same clouds.
+  auto run = [](bool reuse, Simulator::Stats& st) {
+    Scenario sc = loadScenario(std::string(TERRAMAP_SOURCE_DIR) + "/configs/scenarios/excavator_dig_dump.yaml");
+    sc.machines.resize(1);
+    sc.duration_s = 6;
+    for (SensorSpec& s : sc.machines.front().sensors) s.reuse_casts = reuse;
+    Simulator sim(sc);
+    std::vector<Event> ev;
+    std::vector<PointCloud> clouds;
+    while (sim.next(ev)) {
+      for (auto& e : ev)
+        if (auto* p = std::get_if<PointCloud>(&e)) clouds.push_back(std::move(*p));
+      ev.clear();
+    }
+    st = sim.stats();
+    return clouds;
+  };
+  Simulator::Stats on, off;
+  const std::vector<PointCloud> a = run(true, on), b = run(false, off);
+  ASSERT_EQ(a.size(), b.size());
+  ASSERT_GE(a.size(), 90u);
+  for (std::size_t k = 0; k < a.size(); ++k) ASSERT_TRUE(sameBits(a[k].points, b[k].points)) << "scan " << k;
+  EXPECT_EQ(off.rays_kept, 0u);
+  EXPECT_GT(on.rays_kept, on.rays / 2);
+  EXPECT_LT(on.rays_kept, on.rays * 99 / 100);  // the dig is re-cast
 }
 
 TEST(DepthCamera, TheSimulatorDeliversAndRecordsItsClouds) {
