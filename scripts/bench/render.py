@@ -108,9 +108,10 @@ def main():
         head("sim", "simulator (median of the repetitions)")
         _, rows = load_runs(os.path.join(d, "sim.json"))
         body = [[f"`{k}`", f"{ms(b):.4g}", f"{b['realtime_factor']:.1f}" if "realtime_factor" in b else "–",
-                 si(b.get("rays_per_second")) if "rays_per_second" in b else si(b.get("items_per_second"))]
+                 si(b.get("rays_per_second")) if "rays_per_second" in b else si(b.get("items_per_second")),
+                 f"{b['kept_share']:.3f}" if "kept_share" in b else "–"]
                 for k, b in rows.items()]
-        print(table(["benchmark", "ms", "real-time factor", "LiDAR rays /s"], body))
+        print(table(["benchmark", "ms", "real-time factor", "LiDAR rays /s", "kept share"], body))
         print()
 
     for name, title in (("core", "core map"), ("blind_mapping", "blind mapping"), ("readers", "readers"),
