@@ -9,6 +9,7 @@
 #include <terramap/sim/excavator.hpp>
 #include <terramap/sim/simulator.hpp>
 
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <random>
@@ -273,6 +274,52 @@ TEST(Excavator, DigAndDumpMovesSoilFromTheTrenchToThePileKeepingItsMass) {
   const double swell = soilProperties(SoilFamily::Loam, 0.4).swell;
   EXPECT_NEAR(piled, tr.bucket_dumped_bank_m3 * swell, 0.1 * tr.bucket_dumped_bank_m3 * swell)
       << "the pile holds the dumped soil, loose";
+}
+
+TEST(Excavator, TwoExcavatorsDigTheirOwnTrenchesKeepingTheMass) {
+  // Several excavators in one scenario (#19): each digs its trench and piles its spoil where
+  // its controller says, and the mass of terrain and both buckets is conserved.
+  const std::string yaml =
+      "version: 1\nseed: 4\nduration_s: 15\nthreads: 2\n"
+      "terrain: {size_m: [12, 16], origin_m: [-6, -10], resolution_m: 0.02}\n"
+      "soil: {default: {family: loam, relative_density: 0.4}}\n"
+      "machines:\n"
+      "  - id: ex1\n    type: excavator\n"
+      "    controller: {type: dig_dump, dig_m: [3.4, 0], dump_m: [0.3, 3.2], depth_m: 0.25, drag_m: 1.0}\n"
+      "  - id: ex2\n    type: excavator\n    pose: {x_m: 0, y_m: -5}\n"
+      "    controller: {type: dig_dump, dig_m: [3.4, -5], dump_m: [0.3, -8.2], depth_m: 0.25, drag_m: 1.0}\n";
+  Simulator sim(parseScenario(yaml, "two.yaml"));
+  const TruthTerrain before = sim.truth();
+  const double bank0 = before.bankVolume();
+  std::vector<Event> ev;
+  double worst = 0;
+  while (sim.next(ev)) {
+    ev.clear();
+    const TruthTerrain& t = sim.truth();
+    const double in_buckets = sim.machineTruth(0).bucket_bank_m3 + sim.machineTruth(1).bucket_bank_m3;
+    worst = std::max(worst, std::abs(t.bankVolume() + t.lostVolume() + t.compactedVolume() + in_buckets - bank0));
+  }
+  EXPECT_LT(worst, 1e-9) << "terrain + lost + compacted + in both buckets is constant";
+  const TruthTerrain& after = sim.truth();
+  const double a = after.resolution() * after.resolution();
+  const std::array<Eigen::Vector2d, 2> base{Eigen::Vector2d(0, 0), Eigen::Vector2d(0, -5)};
+  const std::array<Eigen::Vector2d, 2> dump{Eigen::Vector2d(0.3, 3.2), Eigen::Vector2d(0.3, -8.2)};
+  for (int m = 0; m < 2; ++m) {
+    const MachineTruth& tr = sim.machineTruth(m);
+    EXPECT_GE(tr.arm_cycle, 1) << "machine " << m;
+    EXPECT_GT(tr.bucket_dumped_bank_m3, 0.05) << "machine " << m;
+    double dug = 0, piled = 0;
+    for (int j = 0; j < after.ny(); ++j)
+      for (int i = 0; i < after.nx(); ++i) {
+        const Eigen::Vector2d p = after.nodePosition(i, j);
+        const double dh = after.height(i, j) - before.height(i, j);
+        const Eigen::Vector2d q = p - base[m];
+        if ((p - dump[m]).norm() < 1.5) piled += dh * a;
+        else if (std::abs(q.y()) < 0.6 && q.x() > 1.5 && q.x() < 4.2) dug -= dh * a;
+      }
+    EXPECT_GT(dug, 0.8 * tr.bucket_dug_bank_m3) << "machine " << m << ": its trench lost what its bucket took";
+    EXPECT_GT(piled, 0.8 * tr.bucket_dumped_bank_m3) << "machine " << m << ": its pile holds what it dumped";
+  }
 }
 
 TEST(Excavator, EncodersAndInclinometersReadTheJointsWithTheirNoise) {
