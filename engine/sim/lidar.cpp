@@ -6,8 +6,8 @@
 #include <array>
 
 #include <cmath>
-#include <type_traits>
 #include <limits>
+#include <type_traits>
 
 namespace terramap::sim {
 
@@ -331,14 +331,14 @@ struct LidarModel::Scratch {
 };
 
 LidarModel::~LidarModel() = default;
+LidarModel::LidarModel(LidarModel&&) noexcept = default;
+LidarModel& LidarModel::operator=(LidarModel&&) noexcept = default;
 
 std::size_t LidarModel::keptLastScan() const {
   std::size_t n = 0;
   for (std::size_t u : scratch_->kept.used) n += u;
   return n;
 }
-LidarModel::LidarModel(LidarModel&&) noexcept = default;
-LidarModel& LidarModel::operator=(LidarModel&&) noexcept = default;
 
 LidarModel::LidarModel(const SensorSpec& spec) : spec_(spec), scratch_(std::make_unique<Scratch>()) {
   if (spec.type == SensorSpec::Type::DepthCamera) {
@@ -453,14 +453,13 @@ std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3
   // model keeps its buffers, so a scan allocates nothing after the first.
   ScanCaster& caster = scratch_->caster;
   Scratch::Kept& kept = scratch_->kept;
-  // The kept hits serve this scan if it comes from the same pose (so the same rays and the
-  // same table bins) over the same terrain object; then the table needs a rebuild only if the
-  // terrain changed at all.
-  // `still`: the sensor has not moved since its last scan, over the same terrain object.
+  // `still`: the sensor has not moved since its last scan, over the same terrain object (so the
+  // same rays and the same table bins). Such a sensor keeps this scan's hits for the next, and
+  // takes those the last scan kept; the table needs a rebuild only if the terrain changed.
   const bool still = spec_.reuse_casts && kept.scanned && kept.terrain_id == terrain.instanceId() &&
                      kept.pose == T_map_sensor.matrix();
   const bool same_view = still && kept.valid;
-  const bool keep = still;  // a sensor that holds still keeps this scan's hits for the next
+  const bool keep = still;
   kept.valid = false;  // until this scan completes
   if (!(same_view && kept.revision == terrain.revision())) {
     caster.setSparse(dirs_.size() < kSparseRays);
