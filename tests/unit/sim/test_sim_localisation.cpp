@@ -183,8 +183,11 @@ TEST(SimLocalisation, BladePoseErrorFollowsTheCylinderNoiseThroughTheLinkage) {
       const double ang = rotationAngle(B_est.linear() * B_true.linear().transpose());
       ASSERT_NEAR(ang, std::hypot(dq[1], dq[2]), std::abs(dq[1] * dq[2]) + 1e-9);
       // The BladePose carries the same pose.
-      for (const Event& f : ev)
-        if (const auto* b = std::get_if<BladePose>(&f)) ASSERT_TRUE(b->T_map_blade.matrix() == o->T_map_blade.matrix());
+      for (const Event& f : ev) {
+        if (const auto* b = std::get_if<BladePose>(&f)) {
+          ASSERT_TRUE(b->T_map_blade.matrix() == o->T_map_blade.matrix());
+        }
+      }
       // Displacement of the edge's ends (+-w/2 along the blade's y axis).
       for (double s : {-half_w, half_w}) {
         const Eigen::Vector3d tip(0, s, 0);
