@@ -317,13 +317,14 @@ TEST(DepthCamera, KeptHitsAreTheHitsOfANewCast) {
 }
 
 TEST(DepthCamera, AStandingExcavatorsCameraKeepsMostHitsAndGivesTheSameClouds) {
-  // configs/scenarios/excavator_dig_dump.yaml's excavator, its camera keeping hits or casting
-  // every ray, over the first seconds of its cycle (the bucket digs in view): the same clouds.
+  // configs/scenarios/excavator_dig_dump.yaml (the excavator's camera, the loader's LiDAR, the
+  // physics ahead of the scans on two threads), every sensor keeping hits or casting every ray,
+  // over the first seconds of the excavator's cycle (the bucket digs in view): the same clouds.
   auto run = [](bool reuse, Simulator::Stats& st) {
     Scenario sc = loadScenario(std::string(TERRAMAP_SOURCE_DIR) + "/configs/scenarios/excavator_dig_dump.yaml");
-    sc.machines.resize(1);
     sc.duration_s = 6;
-    for (SensorSpec& s : sc.machines.front().sensors) s.reuse_casts = reuse;
+    for (MachineSpec& m : sc.machines)
+      for (SensorSpec& s : m.sensors) s.reuse_casts = reuse;
     Simulator sim(sc);
     std::vector<Event> ev;
     std::vector<PointCloud> clouds;
@@ -338,10 +339,10 @@ TEST(DepthCamera, AStandingExcavatorsCameraKeepsMostHitsAndGivesTheSameClouds) {
   Simulator::Stats on, off;
   const std::vector<PointCloud> a = run(true, on), b = run(false, off);
   ASSERT_EQ(a.size(), b.size());
-  ASSERT_GE(a.size(), 90u);
+  ASSERT_GE(a.size(), 90u + 60u);
   for (std::size_t k = 0; k < a.size(); ++k) ASSERT_TRUE(sameBits(a[k].points, b[k].points)) << "scan " << k;
   EXPECT_EQ(off.rays_kept, 0u);
-  EXPECT_GT(on.rays_kept, on.rays / 2);
+  EXPECT_GT(on.rays_kept, on.rays / 3);  // the camera's (the moving loader's LiDAR keeps none)
   EXPECT_LT(on.rays_kept, on.rays * 99 / 100);  // the dig is re-cast
 }
 
