@@ -56,6 +56,11 @@ Registrar reg{Command{"sim", [](CLI::App& app, std::function<int()>& run) {
                 << " s of CPU beside the simulation, closing the file (last writes, checksum, flush to disk) "
                 << tm.close_s << " s of the run (last writes " << tm.close_parts.writes_s << " s, HDF5 close "
                 << tm.close_parts.hdf5_s << " s, checksum and flush " << tm.close_parts.seal_s << " s)\n";
+      // A still sensor re-casts only the rays over changed terrain: say how much that was.
+      if (tm.rays > 0)
+        std::cout << tm.rays << " rays cast or kept, " << tm.rays_kept
+                  << " of them kept from their sensor's previous scan (it had not moved and the terrain under them "
+                     "had not changed; docs/sim.md \"Kept hits\")\n";
       if (!args->export_commands.empty()) {
         sim::writeCommandLog(args->export_commands, sim::episodeCommands(path, sc.machines.front().id));
         std::cout << "wrote " << args->export_commands << "\n";

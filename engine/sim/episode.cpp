@@ -992,6 +992,8 @@ std::string runEpisode(const Scenario& scenario, const std::string& dir, Episode
     timing->close_s = std::chrono::duration<double>(t3 - t2).count();
     timing->writer_cpu_s = w.writerCpuSeconds();
     timing->close_parts = w.closeTiming();
+    timing->rays = sim.stats().rays;
+    timing->rays_kept = sim.stats().rays_kept;
   }
   return path;
 }

@@ -503,6 +503,31 @@ TEST(Cli, AnEpisodesCommandsReplayedRetraceItsPath) {
   EXPECT_EQ(sh("path-compare " + (d / "orig.tum").string() + " " + (d / "orig.tum").string() + " --align sim3").code, 3);
 }
 
+TEST(Cli, SimSaysHowManyRaysAStillSensorKept) {
+  // A machine that stands still (a replayed log of zeros, no ruts to sink into) with a LiDAR:
+  // from its third scan on every ray takes its kept hit, and `terramap sim` says how many.
+  const fs::path d = tempDir("kept");
+  write(d / "zeros.csv", "t_s,left,right,lift,tilt,angle\n0,0,0,0,0,0\n2,0,0,0,0,0\n");
+  write(d / "still.yaml",
+        "version: 1\nseed: 4\nduration_s: 1\nterrain: {size_m: [16, 12], origin_m: [-6, -6], resolution_m: 0.02}\n"
+        "machines:\n  - id: ctl1\n    controller: {type: replay, file: zeros.csv}\n"
+        "    vehicle: {track_soil: none}\n"
+        "    sensors:\n      - {id: top, type: lidar, preset: os1_64, columns: 512, offset_m: [0.3, 0, 2.4]}\n");
+  const Result r = sh("sim " + (d / "still.yaml").string() + " --out " + (d / "out").string() + " --no-clouds");
+  ASSERT_EQ(r.code, 0) << r.out;
+  const std::size_t at = r.out.find(" rays cast or kept, ");
+  ASSERT_NE(at, std::string::npos) << r.out;
+  const std::size_t line = r.out.rfind('\n', at);
+  const double rays = std::stod(r.out.substr(line == std::string::npos ? 0 : line + 1));
+  const double kept = std::stod(r.out.substr(at + std::string(" rays cast or kept, ").size()));
+  EXPECT_EQ(rays, 11 * 64 * 512) << r.out;  // scans at 1/240 s, then 0.1, ..., 1.0 s
+  // Every downward ray (32 of the 64 beams; the upward ones are never cast) of the 9 scans
+  // after the first two: the first keeps nothing (the sensor had no previous pose), the second
+  // keeps its hits (same pose), the others take them.
+  EXPECT_EQ(kept, 9 * 32 * 512) << r.out;
+  fs::remove_all(d);
+}
+
 TEST(Cli, TheExcavatorPipelineFiltersItsArmAndMapsItsBucket) {
   // configs/excavator.yaml as shipped (30 s: two dig-and-dump cycles beside a grading loader):
   // the excavator's camera sees its own boom, arm and bucket, which the link boxes of the

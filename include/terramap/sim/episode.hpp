@@ -106,6 +106,9 @@ struct EpisodeTiming {
   double close_s = 0.0;       ///< of run_s, EpisodeWriter::close: the last writes, HDF5 close, seal, fsync
   EpisodeWriter::CloseTiming close_parts;  ///< close_s's parts
   double writer_cpu_s = 0.0;  ///< CPU seconds of the writer thread during the run
+  /// Rays of every scan of the run, and of those the ones that took the hit kept from their
+  /// sensor's previous scan (Simulator::Stats, SensorSpec::reuse_casts).
+  std::uint64_t rays = 0, rays_kept = 0;
 };
 
 /// Runs a whole scenario into `dir`/episode.h5 (creating `dir`). Returns the file path; fills
