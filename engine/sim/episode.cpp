@@ -436,8 +436,8 @@ struct EpisodeWriter::Impl {
   int nx = 0, ny = 0;
   double next_snapshot = 0, snapshot_interval = 1;
   double last_snapshot_t = -1;
-  const TruthTerrain* snap_terrain = nullptr;  // the terrain the last snapshot read
-  std::uint64_t snap_revision = 0;             // its revision() then
+  std::uint64_t snap_terrain = 0;   // instanceId() of the terrain the last snapshot read (0: none yet)
+  std::uint64_t snap_revision = 0;  // its revision() then
   std::vector<MachineSets> machines;
   std::map<std::string, std::size_t, std::less<>> machine_index;
   /// The machine of a frame "<machine>/<name>" (-1 if no such machine); `bare` for a frame
@@ -460,13 +460,13 @@ struct EpisodeWriter::Impl {
     const TruthTerrain& t = sim.truth();
     // Shared: std::function needs a copyable job.
     const auto s = std::make_shared<SnapshotChunks>();
-    const bool all = snap_terrain != &t;
+    const bool all = snap_terrain != t.instanceId();
     for (int k = 0; k < snap_height.chunks(); ++k) {
       int i0, j0, i1, j1;
       snap_height.chunkBox(k, i0, j0, i1, j1);
       if (all || t.changedSince(snap_revision, i0, j0, i1, j1)) s->changed.push_back(k);
     }
-    snap_terrain = &t;
+    snap_terrain = t.instanceId();
     snap_revision = t.revision();
     const std::size_t per = snap_height.chunkValues();
     s->h.resize(s->changed.size() * per);

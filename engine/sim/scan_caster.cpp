@@ -73,7 +73,7 @@ struct BlockGrid {
 /// Bins [a0, a1] (may wrap below 0 or past na) that the block whose corners have pseudo-angles
 /// c00, c10, c01, c11 can be seen in: the azimuth interval of a convex block seen from outside
 /// (< 180 deg) is spanned by its corners. Differences to one corner are wrapped into (-2, 2].
-void azimuthBins(const BlockGrid& g, double c00, double c10, double c01, double c11, int& a0, int& a1) {
+void blockAzimuthBins(int na, double az_scale, double c00, double c10, double c01, double c11, int& a0, int& a1) {
   double lo = 0, hi = 0;
   for (const double pq : {c10, c01, c11}) {
     double q = pq - c00;
@@ -84,10 +84,16 @@ void azimuthBins(const BlockGrid& g, double c00, double c10, double c01, double 
   }
   // floor() of values in (-2 na, 2 na) via a positive shift (std::floor is a libm call
   // without SSE4.1).
-  a0 = static_cast<int>((c00 + lo - kAzMargin) * g.az_scale + 2 * g.na) - 2 * g.na;
-  a1 = static_cast<int>((c00 + hi + kAzMargin) * g.az_scale + 2 * g.na) - 2 * g.na;
-  if (a1 - a0 >= g.na) { a0 = 0; a1 = g.na - 1; }
+  a0 = static_cast<int>((c00 + lo - kAzMargin) * az_scale + 2 * na) - 2 * na;
+  a1 = static_cast<int>((c00 + hi + kAzMargin) * az_scale + 2 * na) - 2 * na;
+  if (a1 - a0 >= na) { a0 = 0; a1 = na - 1; }
 }
+
+/// Azimuth bin a of [-na, 2 na) wrapped into [0, na).
+inline int wrapBin(int a, int na) { return a < 0 ? a + na : (a >= na ? a - na : a); }
+
+/// Distance from 0 to the interval [lo, hi] (0 inside it).
+inline double nearestOffset(double lo, double hi) { return lo > 0 ? lo : (hi < 0 ? -hi : 0.0); }
 
 /// Raises the table's bins [a0, a1] x [r0, r1] (azimuth bins outside [bin0, bin1) left to
 /// another task) to the slope bounds of a block dz above the origin, smin..smax away.
@@ -112,7 +118,7 @@ void raiseBins(const BlockGrid& g, double dz, double smin, double smax, int r0, 
   // with range), dz / smax if below (it rises towards that).
   const float tail = dz > 0 ? fv[nrr - 1] : upperBound(dz / smax);
   for (int a = a0; a <= a1; ++a) {
-    const int aw = a < 0 ? a + g.na : (a >= g.na ? a - g.na : a);
+    const int aw = wrapBin(a, g.na);
     if (aw < bin0 || aw >= bin1) continue;
     float* slot = &g.table[static_cast<std::size_t>(aw) * g.nr + r0];
     for (int q = 0; q < nrr; ++q) slot[q] = std::max(slot[q], fv[q]);
@@ -145,7 +151,7 @@ void insertBlocks(const BlockGrid& g, int p, int parts) {
   std::vector<double> pa0(W + 1), pa1(W + 1);
   for (int by = by0; by < by1; ++by) {
     const double y0 = gy0 + by * bs, y1 = std::min(gy0 + (by + 1) * bs, gy1);
-    const double dyn = y0 > 0 ? y0 : (y1 < 0 ? -y1 : 0.0);
+    const double dyn = nearestOffset(y0, y1);
     const double dyf = std::max(std::abs(y0), std::abs(y1));
     // Pseudo-angles of this row's block corners (shared by neighbouring blocks).
     for (int k = bx0; k <= bx1; ++k) {
@@ -155,7 +161,7 @@ void insertBlocks(const BlockGrid& g, int p, int parts) {
     }
     for (int bx = bx0; bx < bx1; ++bx) {
       const double x0 = gx0 + bx * bs, x1 = std::min(gx0 + (bx + 1) * bs, gx1);
-      const double dxn = x0 > 0 ? x0 : (x1 < 0 ? -x1 : 0.0);
+      const double dxn = nearestOffset(x0, x1);
       const double smin = std::sqrt(dxn * dxn + dyn * dyn);
       if (smin > g.reach) continue;
       const double dxf = std::max(std::abs(x0), std::abs(x1));
@@ -163,7 +169,7 @@ void insertBlocks(const BlockGrid& g, int p, int parts) {
       const int r0 = static_cast<int>(smin * g.inv_ds);
       const int r1 = std::min(g.nr - 1, static_cast<int>(smax * g.inv_ds));
       int a0 = 0, a1 = g.na - 1;
-      if (smin > 1e-6) azimuthBins(g, pa0[bx], pa0[bx + 1], pa1[bx], pa1[bx + 1], a0, a1);
+      if (smin > 1e-6) blockAzimuthBins(g.na, g.az_scale, pa0[bx], pa0[bx + 1], pa1[bx], pa1[bx + 1], a0, a1);
       const double dz = static_cast<double>(g.zmax[static_cast<std::size_t>(by) * W + bx]) - g.oz;
       // No ray of the scan is steep enough to come down onto a block below it whose every
       // bound (the largest is dz / smax) is under the scan's steepest slope: leave it out.
@@ -411,36 +417,35 @@ void ScanCaster::castBatchAs(const Eigen::Vector3d* d, int n, double t_min, doub
 void ScanCaster::changedRows(std::uint64_t since, std::vector<int>& first) const {
   first.assign(static_cast<std::size_t>(na_), kAlways);
   const TruthTerrain& T = *terrain_;
-  const int B = TruthTerrain::kCellRevisionBlock;
+  const int B = TruthTerrain::kRevisionBlock;
   // A changed revision block moves the table's entries over its whole table block (the
   // table's blocks are at least as large: level >= 4), and the cells under the revision block.
   const int span = std::max(1 << level_, B);
   const double res = T.resolution();
   const int cells_x = T.nx() - 1, cells_y = T.ny() - 1;
   int last_bx = -1, last_by = -1;  // the table block last marked (neighbouring revision blocks share one)
-  for (int by = 0; by < T.cellRevisionHeight(); ++by)
-    for (int bx = 0; bx < T.cellRevisionWidth(); ++bx) {
-      if (T.cellBlockRevision(bx, by) <= since) continue;
+  for (int by = 0; by < T.revisionHeight(); ++by)
+    for (int bx = 0; bx < T.revisionWidth(); ++bx) {
+      if (T.blockRevision(bx, by) <= since) continue;
       const int tx = bx * B / span, ty = by * B / span;
       if (tx == last_bx && ty == last_by) continue;
       last_bx = tx, last_by = ty;
       const double x0 = T.originX() + tx * span * res - o_.x(), y0 = T.originY() + ty * span * res - o_.y();
       const double x1 = T.originX() + std::min((tx + 1) * span, cells_x) * res - o_.x();
       const double y1 = T.originY() + std::min((ty + 1) * span, cells_y) * res - o_.y();
-      const double dxn = x0 > 0 ? x0 : (x1 < 0 ? -x1 : 0.0), dyn = y0 > 0 ? y0 : (y1 < 0 ? -y1 : 0.0);
-      const double smin = std::sqrt(dxn * dxn + dyn * dyn);
+      const double smin = std::hypot(nearestOffset(x0, x1), nearestOffset(y0, y1));
       if (smin > reach_ + ds_) continue;  // beyond every ray the table serves
       const int r0 = std::max(0, static_cast<int>(smin * inv_ds_) - 1);
       int a0 = 0, a1 = na_ - 1;
       if (smin > 1e-6) {
-        const BlockGrid g{nullptr, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, na_, nr_, ds_, inv_ds_, na_ / 4.0, nullptr};
-        sim::azimuthBins(g, pseudoAngle(x0, y0), pseudoAngle(x1, y0), pseudoAngle(x0, y1), pseudoAngle(x1, y1), a0, a1);
-        --a0, ++a1;
+        blockAzimuthBins(na_, na_ / 4.0, pseudoAngle(x0, y0), pseudoAngle(x1, y0), pseudoAngle(x0, y1),
+                         pseudoAngle(x1, y1), a0, a1);
+        --a0, ++a1;  // a bin more on each side
         if (a1 - a0 >= na_) a0 = 0, a1 = na_ - 1;
       }
       for (int a = a0; a <= a1; ++a) {
-        const int aw = a < 0 ? a + na_ : (a >= na_ ? a - na_ : a);
-        first[static_cast<std::size_t>(aw)] = std::min(first[static_cast<std::size_t>(aw)], r0);
+        int& f = first[static_cast<std::size_t>(wrapBin(a, na_))];
+        f = std::min(f, r0);
       }
     }
 }

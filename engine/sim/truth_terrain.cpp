@@ -162,11 +162,9 @@ TruthTerrain::TruthTerrain(double origin_x_m, double origin_y_m, double resoluti
   lc_.assign(n, 0.0);
   h_.assign(n, height_m);
   h0_.assign(n, static_cast<float>(height_m));
-  cell_rev_w_ = (nx - 1 + kCellRevisionBlock - 1) / kCellRevisionBlock;
-  cell_rev_h_ = (ny - 1 + kCellRevisionBlock - 1) / kCellRevisionBlock;
-  cell_rev_.assign(static_cast<std::size_t>(cell_rev_w_) * static_cast<std::size_t>(cell_rev_h_), 0);
-  rev_w_ = (nx + kRevisionBlock - 1) / kRevisionBlock;
-  block_rev_.assign(static_cast<std::size_t>(rev_w_) * static_cast<std::size_t>((ny + kRevisionBlock - 1) / kRevisionBlock), 0);
+  rev_w_ = (nx - 1 + kRevisionBlock - 1) / kRevisionBlock;  // over the (nx - 1) x (ny - 1) cells
+  rev_h_ = (ny - 1 + kRevisionBlock - 1) / kRevisionBlock;
+  block_rev_.assign(static_cast<std::size_t>(rev_w_) * static_cast<std::size_t>(rev_h_), 0);
   // Pyramid levels over cells.
   int w = nx - 1, h = ny - 1;
   while (true) {
@@ -323,36 +321,28 @@ std::uint64_t TruthTerrain::InstanceId::next() {
   return ++counter;
 }
 
-bool TruthTerrain::revisionBlocks(int i0, int j0, int i1, int j1, int& bi0, int& bj0, int& bi1, int& bj1) const {
-  const int a0 = std::max(0, std::min(i0, i1)), a1 = std::min(nx_ - 1, std::max(i0, i1));
-  const int b0 = std::max(0, std::min(j0, j1)), b1 = std::min(ny_ - 1, std::max(j0, j1));
-  bi0 = a0 / kRevisionBlock, bi1 = a1 / kRevisionBlock, bj0 = b0 / kRevisionBlock, bj1 = b1 / kRevisionBlock;
-  return a0 <= a1 && b0 <= b1;
+bool TruthTerrain::cellsTouching(int i0, int j0, int i1, int j1, int& c0, int& r0, int& c1, int& r1) const {
+  c0 = std::max(0, std::min(i0, i1) - 1), c1 = std::min(nx_ - 2, std::max(i0, i1));
+  r0 = std::max(0, std::min(j0, j1) - 1), r1 = std::min(ny_ - 2, std::max(j0, j1));
+  return c0 <= c1 && r0 <= r1;
 }
 
 bool TruthTerrain::changedSince(std::uint64_t r, int i0, int j0, int i1, int j1) const {
-  int bi0, bj0, bi1, bj1;
-  if (!revisionBlocks(i0, j0, i1, j1, bi0, bj0, bi1, bj1)) return false;
-  for (int bj = bj0; bj <= bj1; ++bj)
-    for (int bi = bi0; bi <= bi1; ++bi)
-      if (block_rev_[static_cast<std::size_t>(bj) * rev_w_ + bi] > r) return true;
+  int c0, r0, c1, r1;
+  if (!cellsTouching(i0, j0, i1, j1, c0, r0, c1, r1)) return false;
+  for (int by = r0 / kRevisionBlock; by <= r1 / kRevisionBlock; ++by)
+    for (int bx = c0 / kRevisionBlock; bx <= c1 / kRevisionBlock; ++bx)
+      if (blockRevision(bx, by) > r) return true;
   return false;
 }
 
 void TruthTerrain::refreshPyramid(int i0, int j0, int i1, int j1) {
-  int bi0, bj0, bi1, bj1;
-  if (revisionBlocks(i0, j0, i1, j1, bi0, bj0, bi1, bj1)) {
-    ++revision_;
-    for (int bj = bj0; bj <= bj1; ++bj)
-      std::fill_n(&block_rev_[static_cast<std::size_t>(bj) * rev_w_ + bi0], bi1 - bi0 + 1, revision_);
-  }
-  // Cells touching the node box.
-  int c0 = std::max(0, std::min(i0, i1) - 1), c1 = std::min(nx_ - 2, std::max(i0, i1));
-  int r0 = std::max(0, std::min(j0, j1) - 1), r1 = std::min(ny_ - 2, std::max(j0, j1));
-  if (c0 > c1 || r0 > r1) return;
-  for (int by = r0 / kCellRevisionBlock; by <= r1 / kCellRevisionBlock; ++by)
-    std::fill_n(&cell_rev_[static_cast<std::size_t>(by) * cell_rev_w_ + c0 / kCellRevisionBlock],
-                c1 / kCellRevisionBlock - c0 / kCellRevisionBlock + 1, revision_);
+  int c0, r0, c1, r1;
+  if (!cellsTouching(i0, j0, i1, j1, c0, r0, c1, r1)) return;
+  ++revision_;
+  for (int by = r0 / kRevisionBlock; by <= r1 / kRevisionBlock; ++by)
+    std::fill_n(&block_rev_[static_cast<std::size_t>(by) * rev_w_ + c0 / kRevisionBlock],
+                c1 / kRevisionBlock - c0 / kRevisionBlock + 1, revision_);
   Level& L0 = levels_[0];
   for (int cj = r0; cj <= r1; ++cj) {
     const double* h0 = &h_[index(0, cj)];

@@ -54,7 +54,7 @@ class LidarModel {
   /// With spec().reuse_casts, a sensor that scans from the same pose (bit for bit) as in its
   /// previous scan, over the same terrain object, keeps every ray's terrain hit; in its next
   /// scan from that pose, a ray whose table row and cells are unchanged since
-  /// (TruthTerrain::cellBlockRevision, ScanCaster::changedRows) takes its kept hit instead of
+  /// (TruthTerrain::blockRevision, ScanCaster::changedRows) takes its kept hit instead of
   /// a new cast. The result is identical (tested); a parked sensor or one on a standing
   /// excavator skips most of its casts, one that moves keeps nothing (and pays nothing for it).
   /// The boxes, dropouts and noise are drawn anew every scan.

@@ -69,16 +69,13 @@ class ScanCaster {
                  int* cell_j, RayDep* dep = nullptr) const;
 
   /// For the table as last built, per azimuth row the first range bin that may cover a cell
-  /// that changed since the terrain's revision `since` (TruthTerrain::cellBlockRevision), or
+  /// that changed since the terrain's revision `since` (TruthTerrain::blockRevision), or
   /// kAlways for a row nothing changed under. A result whose RayDep has r < first[a] is then
   /// the same, bit for bit, as a new cast of the same ray from the same origin: the row's
   /// entries up to r and the cells under them are unchanged (a table built from the same origin
   /// over the same terrain size has the same bins). Conservative: whole table blocks count as
   /// changed, widened by a bin on each side.
   void changedRows(std::uint64_t since, std::vector<int>& first) const;
-
-  /// Highest point of the terrain at the last build (rays above it that do not descend miss).
-  double top() const { return top_; }
 
   /// The next builds serve a sparse scan (a few hundred rays, e.g. a single-line scanner at
   /// 25 Hz): a coarser table, cheaper to build; the hits are the same (exact either way).

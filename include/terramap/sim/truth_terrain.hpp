@@ -172,32 +172,25 @@ class TruthTerrain {
   void refreshPyramid(int i0, int j0, int i1, int j1);
   void refreshPyramid() { refreshPyramid(0, 0, nx_ - 1, ny_ - 1); }
 
-  /// Which parts changed, for writers that store the terrain piecewise (an episode's snapshots
-  /// rewrite only the chunks that changed). Every refreshPyramid stamps the blocks of
-  /// kRevisionBlock x kRevisionBlock nodes its box overlaps with a new revision; since every
-  /// change must be followed by a refreshPyramid over it (the contract above, which the
-  /// simulator keeps before any scan and in Simulator::truth()), a node box for which
-  /// changedSince(r, ...) is false holds the values it held when revision() was r. Conservative:
-  /// a whole block counts as changed when any node of it may have (revision 0 = the terrain as
-  /// constructed). Not thread-safe against refreshPyramid.
-  static constexpr int kRevisionBlock = 64;
+  /// Which parts changed, for whoever keeps something derived from the terrain: an episode's
+  /// snapshots rewrite only the chunks that changed, a ray caster that keeps hits from an earlier
+  /// scan re-casts only the rays over changed cells (LidarModel). Every refreshPyramid stamps the
+  /// blocks of kRevisionBlock x kRevisionBlock *cells* (cell (ci, cj) spans nodes ci..ci+1,
+  /// cj..cj+1; the blocks are the pyramid's level-4 blocks) that touch its node box with a new
+  /// revision; since every change must be followed by a refreshPyramid over it (the contract
+  /// above, which the simulator keeps before any scan and in Simulator::truth()), a block whose
+  /// stamp is <= r holds the cells (heights and pyramid maxima) it held when revision() was r.
+  /// Conservative: a whole block counts as changed when any of its cells may have (revision 0 =
+  /// the terrain as constructed). Not thread-safe against refreshPyramid.
+  static constexpr int kRevisionBlock = 16;
   std::uint64_t revision() const { return revision_; }
   /// Whether the node box [i0, i1] x [j0, j1] (inclusive, clamped) may differ from what it was
-  /// when revision() returned r.
+  /// when revision() returned r (the blocks of the cells touching it).
   bool changedSince(std::uint64_t r, int i0, int j0, int i1, int j1) const;
-
-  /// The same at the ray casters' granularity: every refreshPyramid also stamps the blocks of
-  /// kCellRevisionBlock x kCellRevisionBlock *cells* (cell (ci, cj) spans nodes ci..ci+1, cj..cj+1;
-  /// the blocks are the pyramid's level-4 blocks) that touch its node box, so a block whose
-  /// stamp is <= r holds the cells (heights and pyramid maxima) it held at revision r. A
-  /// caster that keeps hits from an earlier scan re-casts only the rays that pass over a
-  /// changed block (LidarModel). Row-major, cellRevisionWidth() blocks per row.
-  static constexpr int kCellRevisionBlock = 16;
-  int cellRevisionWidth() const { return cell_rev_w_; }
-  int cellRevisionHeight() const { return cell_rev_h_; }
-  std::uint64_t cellBlockRevision(int bx, int by) const {
-    return cell_rev_[static_cast<std::size_t>(by) * cell_rev_w_ + bx];
-  }
+  /// The stamps themselves, row-major, revisionWidth() blocks per row.
+  int revisionWidth() const { return rev_w_; }
+  int revisionHeight() const { return rev_h_; }
+  std::uint64_t blockRevision(int bx, int by) const { return block_rev_[static_cast<std::size_t>(by) * rev_w_ + bx]; }
   /// Unique per object and per state copied into it: a copy, a move or an assignment gets a
   /// new id, so (instanceId(), revision()) names the contents of the grid for any cache.
   std::uint64_t instanceId() const { return id_.value; }
@@ -257,8 +250,9 @@ class TruthTerrain {
     return bilinearAt(x, y, [this, &a](int i, int j) { return a[index(i, j)]; });
   }
   double nodeMaxCell(int ci, int cj) const;
-  /// The revision blocks [bi0, bi1] x [bj0, bj1] over the node box (clamped); false if it is empty.
-  bool revisionBlocks(int i0, int j0, int i1, int j1, int& bi0, int& bj0, int& bi1, int& bj1) const;
+  /// The cells [c0, c1] x [r0, r1] touching the node box [i0, i1] x [j0, j1] (either corner
+  /// order, clamped); false if there are none.
+  bool cellsTouching(int i0, int j0, int i1, int j1, int& c0, int& r0, int& c1, int& r1) const;
 
   double ox_, oy_, res_;
   int nx_, ny_;
@@ -273,10 +267,8 @@ class TruthTerrain {
   struct Level { int w = 0, h = 0; std::vector<float> zmax; };
   std::vector<Level> levels_;
   std::uint64_t revision_ = 0;
-  int rev_w_ = 0;                          ///< revision blocks per row
+  int rev_w_ = 0, rev_h_ = 0;              ///< revision blocks per row, per column
   std::vector<std::uint64_t> block_rev_;  ///< per revision block, the revision of its last refresh
-  int cell_rev_w_ = 0, cell_rev_h_ = 0;  ///< cell revision blocks per row, per column
-  std::vector<std::uint64_t> cell_rev_;  ///< per cell revision block, the revision of its last refresh
   /// A fresh id on construction, copy, move and assignment (instanceId()).
   struct InstanceId {
     std::uint64_t value;

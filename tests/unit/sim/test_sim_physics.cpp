@@ -879,7 +879,7 @@ TEST(Episode, TheSameScenarioWritesTheSameBytes) {
 }
 
 TEST(TruthTerrain, ChangedSinceNamesTheBlocksARefreshCovered) {
-  // 300 x 200 nodes: revision blocks of 64 nodes, 5 x 4 of them.
+  // 300 x 200 nodes: revision blocks of 16 x 16 cells; a node box counts the cells touching it.
   TruthTerrain t(0, 0, 0.02, 300, 200, 1.0);
   const std::uint64_t r0 = t.revision();
   EXPECT_FALSE(t.changedSince(r0, 0, 0, 299, 199));
