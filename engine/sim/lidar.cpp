@@ -314,14 +314,12 @@ struct LidarModel::Scratch {
   /// The last scan's terrain hits (spec().reuse_casts), per ray, kept when the sensor scanned
   /// from the same pose as the scan before (a sensor that moves keeps nothing, and pays
   /// nothing for it): `valid` when the last scan, from `pose` over the terrain `terrain_id` at
-  /// `revision` with a table of the same shape, kept them (for the rays with a RayDep below
-  /// kAlways).
+  /// `revision`, kept them (for the rays with a RayDep below kAlways). The same pose over the
+  /// same terrain object gives a table of the same shape, so the RayDeps index the same bins.
   struct Kept {
     bool valid = false, scanned = false;  // hits kept; `pose` and `terrain_id` are the last scan's
     std::uint64_t terrain_id = 0, revision = 0;
     Eigen::Matrix4d pose;
-    double ds = 0;
-    int na = 0, nr = 0, level = 0;
     std::vector<double> t;
     std::vector<int> ci, cj;
     std::vector<ScanCaster::RayDep> dep;
@@ -441,158 +439,191 @@ __attribute__((always_inline)) inline void LidarModel::emitPoint(const TruthTerr
   pts.push_back({static_cast<float>(ds.x() * t), static_cast<float>(ds.y() * t), static_cast<float>(ds.z() * t), inten});
 }
 
-std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3d& T_map_sensor, std::uint64_t noise_key,
-                             const Executor* exec, std::vector<PointXYZI>& out,
-                             const std::vector<PlacedBox>* obstacles) const {
-  const int B = B_, C = C_;
-  const int chunks = (C + columns_per_chunk_ - 1) / columns_per_chunk_;
-  const double t_max = t_max_;
-  const Eigen::Vector3d o = T_map_sensor.translation();
-  const Eigen::Matrix3d R = T_map_sensor.linear();
-  // One horizon table per scan (the ray-casting view is frozen while the scan is cast); the
-  // model keeps its buffers, so a scan allocates nothing after the first.
-  ScanCaster& caster = scratch_->caster;
+struct LidarModel::ScanJob {
+  const TruthTerrain& terrain;
+  Eigen::Vector3d o;
+  Eigen::Matrix3d R;
+  std::uint64_t noise_key;
+  bool reuse;  // the kept hits may serve this scan (Kept::first_change filled)
+};
+
+/// Per chunk, reused from row to row: a row's rays in the map frame and terrain hits, the batch
+/// of rays to cast, and the machines' boxes the row can reach.
+struct LidarModel::RowScratch {
+  RowScratch(int B, std::size_t nbox)
+      : dm(B), t(B), ci(B), cj(B), dm_may(B), t_may(B), ci_may(B), cj_may(B), dep_may(B), may_idx(B), cand(nbox),
+        cand_up(nbox), px(nbox), spans(nbox) {}
+  std::vector<Eigen::Vector3d> dm;
+  std::vector<double> t;
+  std::vector<int> ci, cj;
+  std::vector<Eigen::Vector3d> dm_may;
+  std::vector<double> t_may;
+  std::vector<int> ci_may, cj_may;
+  std::vector<ScanCaster::RayDep> dep_may;
+  std::vector<int> may_idx;
+  std::vector<int> cand, cand_up, px;
+  std::vector<std::array<int, 2>> spans;
+  int n_cand = 0, n_up = 0;
+};
+
+bool LidarModel::prepareCasts(const TruthTerrain& terrain, const Eigen::Isometry3d& T_map_sensor, const Executor* exec,
+                              bool& still) const {
   Scratch::Kept& kept = scratch_->kept;
   // `still`: the sensor has not moved since its last scan, over the same terrain object (so the
   // same rays and the same table bins). Such a sensor keeps this scan's hits for the next, and
   // takes those the last scan kept; the table needs a rebuild only if the terrain changed.
-  const bool still = spec_.reuse_casts && kept.scanned && kept.terrain_id == terrain.instanceId() &&
-                     kept.pose == T_map_sensor.matrix();
-  const bool same_view = still && kept.valid;
-  const bool keep = still;
+  still = spec_.reuse_casts && kept.scanned && kept.terrain_id == terrain.instanceId() &&
+          kept.pose == T_map_sensor.matrix();
+  const bool reuse = still && kept.valid;
   kept.valid = false;  // until this scan completes
-  if (!(same_view && kept.revision == terrain.revision())) {
+  // One horizon table per scan (the ray-casting view is frozen while the scan is cast); the
+  // model keeps its buffers, so a scan allocates nothing after the first.
+  ScanCaster& caster = scratch_->caster;
+  if (!(reuse && kept.revision == terrain.revision())) {
     caster.setSparse(dirs_.size() < kSparseRays);
-    caster.build(terrain, o, t_max, minSlope(R), exec);
+    caster.build(terrain, T_map_sensor.translation(), t_max_, minSlope(T_map_sensor.linear()), exec);
   }
-  const bool reuse = same_view && kept.na == caster.azimuthBins() &&
-                     kept.nr == caster.rangeBins() && kept.level == caster.blockLevel() &&
-                     kept.ds == caster.rangeBinM();
   if (reuse) caster.changedRows(kept.revision, kept.first_change);
-  kept.used.assign(static_cast<std::size_t>(chunks), 0);
-  if (keep) {
+  if (still) {
     kept.t.resize(dirs_.size());
     kept.ci.resize(dirs_.size());
     kept.cj.resize(dirs_.size());
     kept.dep.resize(dirs_.size());
   }
-  std::vector<std::vector<PointXYZI>>& parts = scratch_->parts;
-  if (static_cast<int>(parts.size()) < chunks) parts.resize(chunks);
-  const ScanCaster& cast = caster;
-  ScanObstacles& boxes = scratch_->obstacles;
-  boxes.prepare(obstacles, o, R, t_max, camera_ ? &spec_ : nullptr, z_near_, camera_ ? nullptr : &beam_slopes_);
-  const std::size_t nbox = boxes.size();
-  // Instantiated with and without keeping hits, so a sensor that moves (most LiDAR scans)
-  // runs the loop without the kept-hit tests and stores.
-  auto work_as = [&](auto keeping, int ch) {
-    constexpr bool kKeep = decltype(keeping)::value;
-    std::vector<PointXYZI>& pts = parts[ch];
-    pts.clear();
-    const int c0 = ch * columns_per_chunk_, c1 = std::min(C, c0 + columns_per_chunk_);
-    pts.reserve(static_cast<std::size_t>(c1 - c0) * B);
-    std::vector<Eigen::Vector3d> dm_col(B);
-    std::vector<double> t_col(B);
-    std::vector<int> ci_col(B), cj_col(B);
-    std::vector<double> t_may(B);
-    std::vector<int> ci_may(B), cj_may(B);
-    std::vector<ScanCaster::RayDep> dep_may(B);
-    std::size_t used = 0;
-    std::vector<Eigen::Vector3d> dm_may(B);
-    std::vector<int> may_idx(B);
-    std::vector<int> cand(nbox), cand_up(nbox), px(nbox);
-    std::vector<std::array<int, 2>> spans(nbox);
-    for (int c = c0; c < c1; ++c) {
-      // Boxes this row can reach; of those, the ones an upward ray can reach.
-      int n_cand = 0, n_up = 0;
-      if (nbox > 0) boxes.row(c, dirs_[static_cast<std::size_t>(c) * B], cand, n_cand, cand_up, n_up, spans);
-      // Rays that cannot hit (upwards from above the terrain: half of a spinning LiDAR's) are
-      // settled here; the rest are cast as one batch.
-      int n_may = 0;
-      const std::size_t k0 = static_cast<std::size_t>(c) * B;
-      for (int b = 0; b < B; ++b) {
-        dm_col[b] = R * dirs_[k0 + b];
-        t_col[b] = std::numeric_limits<double>::quiet_NaN();
-        if (cast.mayHit(dm_col[b])) {
-          if (kKeep && reuse) {
-            const ScanCaster::RayDep dep = kept.dep[k0 + b];
-            if (dep.r < kept.first_change[static_cast<std::size_t>(dep.a)]) {
-              t_col[b] = kept.t[k0 + b];
-              ci_col[b] = kept.ci[k0 + b];
-              cj_col[b] = kept.cj[k0 + b];
-              ++used;
-              continue;
-            }
-          }
-          dm_may[n_may] = dm_col[b];
-          may_idx[n_may++] = b;
-        } else if (kKeep) {
-          // Not cast (above the terrain's top, not descending): nothing kept to reuse should the
-          // top rise. (A kept result does not depend on the top otherwise: such a ray misses.)
-          kept.dep[k0 + b].r = ScanCaster::kAlways;
+  return reuse;
+}
+
+template <bool kKeep>
+void LidarModel::castRow(const ScanJob& job, int c, RowScratch& rs, std::size_t& used) const {
+  const ScanCaster& cast = scratch_->caster;
+  Scratch::Kept& kept = scratch_->kept;
+  const int B = B_;
+  const std::size_t k0 = static_cast<std::size_t>(c) * B;
+  // Rays that cannot hit (upwards from above the terrain: half of a spinning LiDAR's) are
+  // settled here, and so are the rays whose kept hit holds; the rest are cast as one batch.
+  int n_may = 0;
+  for (int b = 0; b < B; ++b) {
+    rs.dm[b] = job.R * dirs_[k0 + b];
+    rs.t[b] = std::numeric_limits<double>::quiet_NaN();
+    if (cast.mayHit(rs.dm[b])) {
+      if (kKeep && job.reuse) {
+        const ScanCaster::RayDep dep = kept.dep[k0 + b];
+        if (dep.r < kept.first_change[static_cast<std::size_t>(dep.a)]) {
+          rs.t[b] = kept.t[k0 + b];
+          rs.ci[b] = kept.ci[k0 + b];
+          rs.cj[b] = kept.cj[k0 + b];
+          ++used;
+          continue;
         }
       }
-      // A camera's minimum depth bounds t from below too (t >= z); depth itself is checked below.
-      cast.castBatch(dm_may.data(), n_may, spec_.min_range_m, t_max, t_may.data(), ci_may.data(), cj_may.data(),
-                     kKeep ? dep_may.data() : nullptr);
-      for (int q = 0; q < n_may; ++q) {
-        const int b = may_idx[q];
-        t_col[b] = t_may[q];
-        ci_col[b] = ci_may[q];
-        cj_col[b] = cj_may[q];
-        if (kKeep) {
-          kept.t[k0 + b] = t_may[q];
-          kept.ci[k0 + b] = ci_may[q];
-          kept.cj[k0 + b] = cj_may[q];
-          kept.dep[k0 + b] = dep_may[q];
-        }
-      }
-      for (int b = 0; b < B; ++b) {
-        const std::size_t k = static_cast<std::size_t>(c) * B + b;
-        RayHit hit;  // the normal is written only on a machine hit, and read only then
-        hit.t = t_col[b];
-        hit.on_machine = false;
-        hit.ci = ci_col[b];
-        hit.cj = cj_col[b];
-        // A machine in front of the terrain hit (or in a ray that misses the terrain) wins.
-        const double t_box = boxes.hit(o, dm_col[b], spec_.min_range_m, std::isnan(hit.t) ? t_max : hit.t, cand, n_cand,
-                                       cand_up, n_up, b, px, spans, &hit.normal);
-        if (t_box < std::numeric_limits<double>::infinity()) {
-          hit.t = t_box;
-          hit.on_machine = true;
-        }
-        emitPoint(terrain, o, dirs_[k], dm_col[b], hit, noise_key, k, pts);
-      }
+      rs.dm_may[n_may] = rs.dm[b];
+      rs.may_idx[n_may++] = b;
+    } else if (kKeep) {
+      // Not cast (above the terrain's top, not descending): nothing kept to reuse should the
+      // top rise. (A kept result does not depend on the top otherwise: such a ray misses.)
+      kept.dep[k0 + b].r = ScanCaster::kAlways;
     }
-    kept.used[static_cast<std::size_t>(ch)] = used;
-  };
+  }
+  // A camera's minimum depth bounds t from below too (t >= z); depth itself is checked below.
+  cast.castBatch(rs.dm_may.data(), n_may, spec_.min_range_m, t_max_, rs.t_may.data(), rs.ci_may.data(),
+                 rs.cj_may.data(), kKeep ? rs.dep_may.data() : nullptr);
+  for (int q = 0; q < n_may; ++q) {
+    const int b = rs.may_idx[q];
+    rs.t[b] = rs.t_may[q];
+    rs.ci[b] = rs.ci_may[q];
+    rs.cj[b] = rs.cj_may[q];
+    if (kKeep) {
+      kept.t[k0 + b] = rs.t_may[q];
+      kept.ci[k0 + b] = rs.ci_may[q];
+      kept.cj[k0 + b] = rs.cj_may[q];
+      kept.dep[k0 + b] = rs.dep_may[q];
+    }
+  }
+}
+
+void LidarModel::emitRow(const ScanJob& job, int c, RowScratch& rs, std::vector<PointXYZI>& pts) const {
+  const ScanObstacles& boxes = scratch_->obstacles;
+  const std::size_t k0 = static_cast<std::size_t>(c) * B_;
+  for (int b = 0; b < B_; ++b) {
+    RayHit hit;  // the normal is written only on a machine hit, and read only then
+    hit.t = rs.t[b];
+    hit.on_machine = false;
+    hit.ci = rs.ci[b];
+    hit.cj = rs.cj[b];
+    // A machine in front of the terrain hit (or in a ray that misses the terrain) wins.
+    const double t_box = boxes.hit(job.o, rs.dm[b], spec_.min_range_m, std::isnan(hit.t) ? t_max_ : hit.t, rs.cand,
+                                   rs.n_cand, rs.cand_up, rs.n_up, b, rs.px, rs.spans, &hit.normal);
+    if (t_box < std::numeric_limits<double>::infinity()) {
+      hit.t = t_box;
+      hit.on_machine = true;
+    }
+    emitPoint(job.terrain, job.o, dirs_[k0 + b], rs.dm[b], hit, job.noise_key, k0 + b, pts);
+  }
+}
+
+template <bool kKeep>
+void LidarModel::scanChunk(const ScanJob& job, int ch) const {
+  const ScanObstacles& boxes = scratch_->obstacles;
+  std::vector<PointXYZI>& pts = scratch_->parts[static_cast<std::size_t>(ch)];
+  pts.clear();
+  const int c0 = ch * columns_per_chunk_, c1 = std::min(C_, c0 + columns_per_chunk_);
+  pts.reserve(static_cast<std::size_t>(c1 - c0) * B_);
+  RowScratch rs(B_, boxes.size());
+  std::size_t used = 0;
+  for (int c = c0; c < c1; ++c) {
+    // Boxes this row can reach; of those, the ones an upward ray can reach.
+    rs.n_cand = rs.n_up = 0;
+    if (boxes.size() > 0)
+      boxes.row(c, dirs_[static_cast<std::size_t>(c) * B_], rs.cand, rs.n_cand, rs.cand_up, rs.n_up, rs.spans);
+    castRow<kKeep>(job, c, rs, used);
+    emitRow(job, c, rs, pts);
+  }
+  scratch_->kept.used[static_cast<std::size_t>(ch)] = used;
+}
+
+std::size_t LidarModel::gatherParts(int chunks, std::vector<PointXYZI>& out) const {
+  const std::vector<std::vector<PointXYZI>>& parts = scratch_->parts;
+  std::size_t total = 0, hits = 0;
+  for (int ch = 0; ch < chunks; ++ch) total += parts[static_cast<std::size_t>(ch)].size();
+  out.clear();
+  out.reserve(total);
+  for (int ch = 0; ch < chunks; ++ch) {
+    for (const PointXYZI& q : parts[static_cast<std::size_t>(ch)]) {
+      if (!std::isnan(q.x)) ++hits;
+      out.push_back(q);
+    }
+  }
+  return hits;
+}
+
+std::size_t LidarModel::scan(const TruthTerrain& terrain, const Eigen::Isometry3d& T_map_sensor, std::uint64_t noise_key,
+                             const Executor* exec, std::vector<PointXYZI>& out,
+                             const std::vector<PlacedBox>* obstacles) const {
+  const int chunks = (C_ + columns_per_chunk_ - 1) / columns_per_chunk_;
+  bool still = false;
+  const bool reuse = prepareCasts(terrain, T_map_sensor, exec, still);
+  Scratch::Kept& kept = scratch_->kept;
+  kept.used.assign(static_cast<std::size_t>(chunks), 0);
+  if (static_cast<int>(scratch_->parts.size()) < chunks) scratch_->parts.resize(chunks);
+  const ScanJob job{terrain, T_map_sensor.translation(), T_map_sensor.linear(), noise_key, reuse};
+  scratch_->obstacles.prepare(obstacles, job.o, job.R, t_max_, camera_ ? &spec_ : nullptr, z_near_,
+                              camera_ ? nullptr : &beam_slopes_);
+  // Instantiated with and without keeping hits, so a sensor that moves (most LiDAR scans) runs
+  // the loop without the kept-hit tests and stores.
   auto work = [&](int ch) {
-    if (keep) work_as(std::true_type{}, ch);
-    else work_as(std::false_type{}, ch);
+    if (still) scanChunk<true>(job, ch);
+    else scanChunk<false>(job, ch);
   };
   if (exec) exec->forEach(chunks, work);
   else serialForEach(chunks, work);
   kept.scanned = true;
   kept.terrain_id = terrain.instanceId();
   kept.pose = T_map_sensor.matrix();
-  if (keep) {
+  if (still) {
     kept.valid = true;
     kept.revision = terrain.revision();
-    kept.na = caster.azimuthBins();
-    kept.nr = caster.rangeBins();
-    kept.level = caster.blockLevel();
-    kept.ds = caster.rangeBinM();
   }
-  std::size_t total = 0, hits = 0;
-  for (int ch = 0; ch < chunks; ++ch) total += parts[ch].size();
-  out.clear();
-  out.reserve(total);
-  for (int ch = 0; ch < chunks; ++ch) {
-    for (const PointXYZI& q : parts[ch]) {
-      if (!std::isnan(q.x)) ++hits;
-      out.push_back(q);
-    }
-  }
-  return hits;
+  return gatherParts(chunks, out);
 }
 
 }  // namespace terramap::sim

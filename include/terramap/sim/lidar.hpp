@@ -82,6 +82,24 @@ class LidarModel {
                  const Eigen::Vector3d& dm, const RayHit& hit, std::uint64_t noise_key, std::size_t k,
                  std::vector<PointXYZI>& pts) const;
 
+  /// What one scan's chunks share, and the scratch of one chunk's row (scan()'s steps).
+  struct ScanJob;
+  struct RowScratch;
+  /// Builds the horizon table for this scan unless the kept one still holds, and says whether
+  /// the kept hits may serve it (`still`: the sensor has not moved, so it keeps this scan's).
+  bool prepareCasts(const TruthTerrain& terrain, const Eigen::Isometry3d& T_map_sensor, const Executor* exec,
+                    bool& still) const;
+  /// The points of the rows of chunk `ch` into its part (kKeep: the sensor keeps its hits).
+  template <bool kKeep>
+  void scanChunk(const ScanJob& job, int ch) const;
+  /// Row c's terrain hits into rs: kept hits where they hold, the other rays cast as one batch.
+  template <bool kKeep>
+  void castRow(const ScanJob& job, int c, RowScratch& rs, std::size_t& used) const;
+  /// Row c's points from its terrain hits and the machines' boxes.
+  void emitRow(const ScanJob& job, int c, RowScratch& rs, std::vector<PointXYZI>& pts) const;
+  /// The parts in chunk order into `out`; the number of hits (non-NaN points).
+  std::size_t gatherParts(int chunks, std::vector<PointXYZI>& out) const;
+
   SensorSpec spec_;
   std::vector<Eigen::Vector3d> dirs_;
   std::vector<double> elevations_;  ///< beam elevations (rad); empty for a depth camera
