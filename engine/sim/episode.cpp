@@ -400,6 +400,12 @@ void poseError(const Eigen::Isometry3d& est, const Eigen::Isometry3d& truth, dou
   }
 }
 
+/// The scenario's name of a sensor's link (SensorSpec::Link).
+const char* linkName(SensorSpec::Link link) {
+  static const char* kLinks[] = {"base", "blade", "slew", "boom", "arm", "bucket"};
+  return kLinks[static_cast<int>(link)];
+}
+
 void rowMajor4x4(const Eigen::Isometry3d& T, double* out) {
   const Eigen::Matrix4d M = T.matrix();
   for (int r = 0; r < 4; ++r)
@@ -616,8 +622,7 @@ void EpisodeWriter::Impl::openMachine(hid_t mg, const MachineSpec& spec, std::si
       if (s.type != SensorSpec::Type::Imu) continue;
       MachineSets::Imu u;
       u.group = makeGroup(imus, s.id, I.tmp_path);
-      static const char* kLinks[] = {"base", "blade", "slew", "boom", "arm", "bucket"};
-      attrString(u.group, "link", kLinks[static_cast<int>(s.link)]);
+      attrString(u.group, "link", linkName(s.link));
       attrDouble(u.group, "rate_hz", s.rate_hz);
       double T[16];
       rowMajor4x4(s.T_base_sensor, T);
@@ -648,6 +653,7 @@ void EpisodeWriter::Impl::openMachine(hid_t mg, const MachineSpec& spec, std::si
         attrU64(c.group, "beams", static_cast<std::uint64_t>(s.beams));
         attrU64(c.group, "columns", static_cast<std::uint64_t>(s.columns));
       }
+      attrString(c.group, "link", linkName(s.link));
       c.stamp = Appender(c.group, "stamp", H5T_NATIVE_DOUBLE, {}, 0, I.tmp_path, &I.writer, 256);
       c.T = Appender(c.group, "T_map_sensor", H5T_NATIVE_DOUBLE, {4, 4}, 0, I.tmp_path, &I.writer, 256);
       c.offset = Appender(c.group, "offset", H5T_NATIVE_UINT64, {}, 0, I.tmp_path, &I.writer, 256);

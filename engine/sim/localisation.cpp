@@ -129,6 +129,14 @@ std::array<double, 3> PoseEstimator::cylinders(const std::array<double, 3>& L) {
   return out;
 }
 
+std::array<double, 3> PoseEstimator::cylinders(const std::array<double, 3>& L, std::mt19937_64& rng) const {
+  if (spec_.perfect) return L;
+  std::normal_distribution<double> N(0.0, 1.0);
+  std::array<double, 3> out{};
+  for (int k = 0; k < 3; ++k) out[k] = L[k] + cylinder_bias_[k] + N(rng) * spec_.cylinder_white_m;
+  return out;
+}
+
 Eigen::Matrix<double, 6, 1> PoseEstimator::twist(const Eigen::Matrix<double, 6, 1>& truth) {
   if (spec_.perfect) return truth;
   Eigen::Matrix<double, 6, 1> out = truth;

@@ -169,12 +169,16 @@ std::vector<std::string> linkNames(bool excavator) {
   return {"base", "blade"};
 }
 
-void readImu(MapReader& r, SensorSpec& s, double physics_hz, bool excavator) {
+/// The frame a sensor hangs on (`link`, default base), for IMUs, LiDARs and depth cameras.
+void readLink(MapReader& r, SensorSpec& s, bool excavator) {
   const std::string link = r.str("link", "base");
   const std::vector<std::string> links = linkNames(excavator);
   const auto it = std::find(links.begin(), links.end(), link);
   if (it != links.end()) s.link = static_cast<SensorSpec::Link>(it - links.begin());
   else r.error(r.node("link"), "link", "unknown link '" + link + "' (known: " + joinStrings(links) + ")" + didYouMean(link, links));
+}
+
+void readImu(MapReader& r, SensorSpec& s, double physics_hz, bool excavator) {
   s.rate_hz = r.num("rate_hz", 120.0, 0.1, 10000.0);
   const double ratio = physics_hz / s.rate_hz;
   if (std::abs(ratio - std::round(ratio)) > 1e-9 || ratio < 1)
@@ -209,6 +213,7 @@ SensorSpec readSensor(MapReader& r, double physics_hz, bool excavator) {
     return s;
   }
   s.T_base_sensor = readMount(r);
+  if (s.type != SensorSpec::Type::Force) readLink(r, s, excavator);
   if (s.type == SensorSpec::Type::Lidar) {
     readLidar(r, s);
   } else if (s.type == SensorSpec::Type::DepthCamera) {

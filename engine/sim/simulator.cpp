@@ -127,11 +127,31 @@ struct Simulator::Machine {
     for (Imu& u : imus) u.model.addLinkPose(0.0, linkPose(u.model.spec()), none);
   }
 
-  /// The true pose of the link an IMU is mounted on.
+  /// The true pose of the link a sensor is mounted on.
   Eigen::Isometry3d linkPose(const SensorSpec& s) const {
     if (s.link == SensorSpec::Link::Base) return ctl.T_map_base();
     if (s.link == SensorSpec::Link::Blade) return ctl.T_map_blade();
     return mapLinks(ctl.T_map_base(), arm->q())[static_cast<int>(s.link) - static_cast<int>(SensorSpec::Link::Slew)];
+  }
+
+  /// What the machine knows of that link at physics time t, as observeMachine forms it: the
+  /// localisation's base pose, then the blade through the cylinder lengths as their sensors read
+  /// them, or an excavator's links through its encoders. The readings' white noise comes from
+  /// `rng` (the scan's own stream), so a sensor on a link changes no other reading.
+  Eigen::Isometry3d estimatedLinkPose(const SensorSpec& s, double t, std::mt19937_64& rng) {
+    const Eigen::Isometry3d Te = estimator.estimate(t);
+    if (s.link == SensorSpec::Link::Base) return Te;
+    if (s.link == SensorSpec::Link::Blade) {
+      const std::array<double, 3> q = ctl.spec().localisation.perfect
+                                          ? ctl.joints()
+                                          : CompactTrackLoader::jointsFromCylinders(
+                                                estimator.cylinders(ctl.cylinderLengths(), rng));
+      return Te * ctl.T_base_blade(q);
+    }
+    std::normal_distribution<double> N(0.0, ctl.spec().arm->encoder_noise_rad);
+    std::array<double, 4> q = arm->q();
+    for (double& v : q) v += N(rng);
+    return mapLinks(Te, q)[static_cast<int>(s.link) - static_cast<int>(SensorSpec::Link::Slew)];
   }
 
   /// An excavator's four link frames (slew, boom, arm, bucket) in the map for base pose T_map_base
@@ -537,9 +557,14 @@ void Simulator::scheduleScans(Period& rec, double t) {
       q.machine = m.index;
       q.lidar = li;
       q.stamp = t;
-      q.T_true_sensor = m.ctl.T_map_base() * ss.T_base_sensor;
-      q.T_map_sensor = m.estimator.estimate(t) * ss.T_base_sensor;
       q.key = streamSeed(sc_.seed, 1000 + m.index * 64 + L.sensor_index, static_cast<std::uint64_t>(L.next_scan));
+      q.T_true_sensor = m.linkPose(ss) * ss.T_base_sensor;
+      if (ss.link == SensorSpec::Link::Base) {
+        q.T_map_sensor = m.estimator.estimate(t) * ss.T_base_sensor;
+      } else {
+        std::mt19937_64 joint_rng(streamSeed(q.key, 1, 0));
+        q.T_map_sensor = m.estimatedLinkPose(ss, t, joint_rng) * ss.T_base_sensor;
+      }
       if (sc_.lidar_sees_machines && !obstacles) {
         obstacles = std::make_shared<std::vector<PlacedBox>>();
         for (const auto& other : machines_) {

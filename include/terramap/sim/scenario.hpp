@@ -216,8 +216,12 @@ struct SensorSpec {
   // model of Kalibr / the IEEE standard: white noise of the given densities and biases that
   // start at N(0, bias_sigma^2) per axis and random-walk with the given densities. Defaults: an
   // ADIS16448-class MEMS unit (its datasheet densities).
-  /// Slew, Boom, Arm, Bucket: an excavator's link frames (ExcavatorArm::linkFrames, TERA's IMUs
-  /// on chassis, boom, arm and bucket).
+  /// The frame an IMU, a LiDAR or a depth camera hangs on (`link:`; a force sensor is always
+  /// the base's); T_base_sensor is then read as T_link_sensor. Slew, Boom, Arm, Bucket: an
+  /// excavator's link frames (ExcavatorArm::linkFrames; TERA's IMUs on chassis, boom, arm and
+  /// bucket, its camera on the cab = slew). A ray-cast sensor on a moving link is posed by the
+  /// link's true frame at the scan; its cloud carries the machine's estimate of that frame (the
+  /// localisation's base pose and the joints as the encoders or cylinder sensors read them).
   enum class Link { Base, Blade, Slew, Boom, Arm, Bucket } link = Link::Base;
   double accel_noise_density = 2.0e-3;  ///< m/s^2/sqrt(Hz)
   double gyro_noise_density = 1.7e-4;   ///< rad/s/sqrt(Hz)
