@@ -6,6 +6,7 @@
 #include <benchmark/benchmark.h>
 
 #include <terramap/sim/lidar.hpp>
+#include <terramap/sim/excavator.hpp>
 #include <terramap/sim/simulator.hpp>
 
 #include <algorithm>
@@ -105,7 +106,8 @@ BENCHMARK(BM_SimRealtimeDepthCameraImus)->Arg(1)->Arg(2)->Unit(benchmark::kMilli
 // /reuse:1 is the default (SensorSpec::reuse_casts: the camera, on the standing excavator's
 // undercarriage, re-casts only the rays over terrain that changed since its last frame;
 // kept_share counts the rays that did not); /reuse:0 casts every ray of every frame, the cost
-// of a camera that moves every frame.
+// of a camera that moves every frame. /camera:2 mounts the camera on the cab (`link: slew`,
+// docs/sim.md "Sensors on links"), whose pose changes from frame to frame while the arm works.
 void BM_SimExcavator(benchmark::State& state) {
   Scenario sc = loadScenario(std::string(TERRAMAP_CONFIG_DIR) + "/scenarios/excavator_dig_dump.yaml");
   sc.machines.resize(1);
@@ -114,6 +116,15 @@ void BM_SimExcavator(benchmark::State& state) {
   auto& ss = sc.machines.front().sensors;
   if (state.range(1) == 0)
     ss.erase(std::remove_if(ss.begin(), ss.end(), [](const SensorSpec& s) { return s.castsRays(); }), ss.end());
+  if (state.range(1) == 2) {
+    // The camera on the cab (`link: slew`, where TERA's sits), at the same place at the start.
+    const ExcavatorArm arm(*sc.machines.front().arm);
+    for (SensorSpec& s : ss)
+      if (s.castsRays()) {
+        s.T_base_sensor = arm.T_base_slew(arm.q()).inverse() * s.T_base_sensor;
+        s.link = SensorSpec::Link::Slew;
+      }
+  }
   for (SensorSpec& s : ss) s.reuse_casts = state.range(2) != 0;
   runScenario(state, sc);
 }
@@ -124,6 +135,7 @@ BENCHMARK(BM_SimExcavator)
     ->Args({2, 1, 0})
     ->Args({1, 0, 1})
     ->Args({2, 0, 1})
+    ->Args({2, 2, 1})
     ->ArgNames({"threads", "camera", "reuse"})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()

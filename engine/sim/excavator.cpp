@@ -10,6 +10,8 @@ namespace terramap::sim {
 namespace {
 
 constexpr double kG = 9.80665;
+/// rad/s: an Eq. 1 transient below this (and its rate below ~this x its frequency) has settled.
+constexpr double kSettledRate = 1e-9;
 
 Eigen::Vector2d dir(double a) { return {std::cos(a), std::sin(a)}; }
 double cross2(const Eigen::Vector2d& a, const Eigen::Vector2d& b) { return a.x() * b.y() - a.y() * b.x(); }
@@ -286,6 +288,12 @@ void ExcavatorArm::step(double dt, const ArmCommand& cmd, const Eigen::Isometry3
     } else {
       integral = e_[k] * dt;
     }
+    // A joint told to stand whose transient has died away stands exactly (its valve closed):
+    // the transient would otherwise decay forever, moving the joint by ever smaller amounts.
+    if (ss_[k] == 0.0 && std::abs(e_[k]) < kSettledRate && std::abs(ed_[k]) < kSettledRate * (J.eta + J.beta + 1.0)) {
+      e_[k] = ed_[k] = 0.0;
+      integral = 0.0;
+    }
     const double q0 = q_[k];
     q_[k] += ss_[k] * dt + integral;
     if (q_[k] < J.min_rad || q_[k] > J.max_rad) {
@@ -412,6 +420,7 @@ constexpr double kBucketDig = -80 * kDeg, kBucketDragEnd = -125 * kDeg, kBucketC
 /// Lift: the bucket angle the inverse kinematics is given lies at most this far (rad) from the
 /// bucket's own toward curled (its lever saturates at that error anyway).
 constexpr double kLiftCurlStep = 0.3;
+constexpr double kSlewDeadband = 0.02 * kDeg;
 }  // namespace
 
 const char* DigDumpController::phaseName(Phase p) {
@@ -433,7 +442,13 @@ DigDumpController::DigDumpController(const DigDumpSpec& spec) : spec_(spec) {}
 double DigDumpController::lever(const ExcavatorArm& arm, int k, double target) const {
   const ArmJointSpec& J = arm.spec().joints[k];
   double err = std::clamp(target, J.min_rad, J.max_rad) - arm.q()[k];
-  if (k == kSlew) err = wrapPi(err);
+  if (k == kSlew) {
+    err = wrapPi(err);
+    // Within a quarter degree the swing is left alone (its brake holds it), as an operator's
+    // swing lever rests while the arm digs: without this the hold crept by ever smaller
+    // corrections, and a camera on the cab never stood still (docs/sim.md "Sensors on links").
+    if (std::abs(err) < kSlewDeadband) return 0.0;
+  }
   constexpr double kP = 2.5;  // 1/s: a 0.1 rad error asks for 0.25 rad/s
   return std::clamp(kP * err / J.max_rate_rps, -1.0, 1.0);
 }

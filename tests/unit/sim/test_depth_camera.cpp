@@ -467,6 +467,10 @@ TEST(SensorOnLink, ACameraOnTheCabTurnsWithTheCabAndItsCloudsCarryTheEstimatedCa
   EXPECT_LT(worst_t, 0.1);
   EXPECT_LT(worst_r, 0.02);
   EXPECT_LT(worst_dz, 0.035);  // 0.02 here; 0.66 m when cast from the undercarriage's pose
+  // While the cab holds its heading (the swing lever within its deadband, the joint's Eq. 1
+  // transient settled) the camera stands still to the bit and keeps its hits: 44 % of the rays
+  // here; without the deadband none, without the settling 21 %.
+  EXPECT_GT(sim.stats().rays_kept, sim.stats().rays / 3);
 }
 
 TEST(SensorOnLink, ALoadersCameraCannotHangOnAnExcavatorsLink) {
