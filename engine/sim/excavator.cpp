@@ -444,7 +444,7 @@ double DigDumpController::lever(const ExcavatorArm& arm, int k, double target) c
   double err = std::clamp(target, J.min_rad, J.max_rad) - arm.q()[k];
   if (k == kSlew) {
     err = wrapPi(err);
-    // Within a quarter degree the swing is left alone (its brake holds it), as an operator's
+    // Within 0.02 deg the swing is left alone (its brake holds it), as an operator's
     // swing lever rests while the arm digs: without this the hold crept by ever smaller
     // corrections, and a camera on the cab never stood still (docs/sim.md "Sensors on links").
     if (std::abs(err) < kSlewDeadband) return 0.0;

@@ -136,8 +136,9 @@ struct Simulator::Machine {
 
   /// What the machine knows of that link at physics time t, as observeMachine forms it: the
   /// localisation's base pose, then the blade through the cylinder lengths as their sensors read
-  /// them, or an excavator's links through its encoders. The readings' white noise comes from
-  /// `rng` (the scan's own stream), so a sensor on a link changes no other reading.
+  /// them, or an excavator's links through its encoders. The joint readings' white noise comes
+  /// from `rng` (the scan's own stream): they take no draw from the observations' generators (the
+  /// base pose estimate is taken as for a sensor on the base).
   Eigen::Isometry3d estimatedLinkPose(const SensorSpec& s, double t, std::mt19937_64& rng) {
     const Eigen::Isometry3d Te = estimator.estimate(t);
     if (s.link == SensorSpec::Link::Base) return Te;

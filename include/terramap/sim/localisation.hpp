@@ -85,7 +85,7 @@ class PoseEstimator {
   /// Noisy cylinder lengths for true lengths `L` (white noise + the per-cylinder bias).
   std::array<double, 3> cylinders(const std::array<double, 3>& L);
   /// The same reading with its white noise drawn from `rng` (a stream of the caller's: a
-  /// sensor's pose at a scan), so it changes none of the observations' readings.
+  /// sensor's pose at a scan), so it takes no draw from the observations' readings.
   std::array<double, 3> cylinders(const std::array<double, 3>& L, std::mt19937_64& rng) const;
   /// The reported body twist [v (m/s), w (rad/s)] for the true one: white noise of
   /// velocity_white_mps / angular_rate_white_radps per axis, from a generator of its own (so
