@@ -404,8 +404,8 @@ TEST(SensorOnLink, ACameraOnTheCabTurnsWithTheCabAndItsCloudsCarryTheEstimatedCa
   // dump: its camera moved to the cab (`link: slew`), mounted where the undercarriage's camera is
   // at the start. Each cloud must be cast from the cab's true pose (its points, placed with the
   // cab's true pose, lie on the terrain while the cab has turned away from the undercarriage) and
-  // carry the machine's estimate of it (the localisation and the slew encoder: within a few
-  // millimetres and milliradians of the truth).
+  // carry the machine's estimate of it (the localisation's errors and the slew encoder's:
+  // centimetres and ~0.01 rad from the truth).
   Scenario sc = loadScenario(std::string(TERRAMAP_SOURCE_DIR) + "/configs/scenarios/excavator_dig_dump.yaml");
   sc.machines.resize(1);
   sc.duration_s = 12;
