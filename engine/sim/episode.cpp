@@ -400,12 +400,6 @@ void poseError(const Eigen::Isometry3d& est, const Eigen::Isometry3d& truth, dou
   }
 }
 
-/// The scenario's name of a sensor's link (SensorSpec::Link).
-const char* linkName(SensorSpec::Link link) {
-  static const char* kLinks[] = {"base", "blade", "slew", "boom", "arm", "bucket"};
-  return kLinks[static_cast<int>(link)];
-}
-
 void rowMajor4x4(const Eigen::Isometry3d& T, double* out) {
   const Eigen::Matrix4d M = T.matrix();
   for (int r = 0; r < 4; ++r)

@@ -122,19 +122,21 @@ Eigen::Isometry3d PoseEstimator::estimate(double t) {
   return T;
 }
 
-std::array<double, 3> PoseEstimator::cylinders(const std::array<double, 3>& L) {
+template <class Draw>
+std::array<double, 3> PoseEstimator::cylindersWith(const std::array<double, 3>& L, Draw&& unit_normal) const {
   if (spec_.perfect) return L;
   std::array<double, 3> out{};
-  for (int k = 0; k < 3; ++k) out[k] = L[k] + cylinder_bias_[k] + normal_(rng_) * spec_.cylinder_white_m;
+  for (int k = 0; k < 3; ++k) out[k] = L[k] + cylinder_bias_[k] + unit_normal() * spec_.cylinder_white_m;
   return out;
 }
 
+std::array<double, 3> PoseEstimator::cylinders(const std::array<double, 3>& L) {
+  return cylindersWith(L, [&] { return normal_(rng_); });
+}
+
 std::array<double, 3> PoseEstimator::cylinders(const std::array<double, 3>& L, std::mt19937_64& rng) const {
-  if (spec_.perfect) return L;
   std::normal_distribution<double> N(0.0, 1.0);
-  std::array<double, 3> out{};
-  for (int k = 0; k < 3; ++k) out[k] = L[k] + cylinder_bias_[k] + N(rng) * spec_.cylinder_white_m;
-  return out;
+  return cylindersWith(L, [&] { return N(rng); });
 }
 
 Eigen::Matrix<double, 6, 1> PoseEstimator::twist(const Eigen::Matrix<double, 6, 1>& truth) {

@@ -165,8 +165,10 @@ void readDepthCamera(MapReader& r, SensorSpec& s) {
 /// The frames an IMU or a shape box can hang on, in the order of SensorSpec::Link and
 /// ShapeBox::Frame: a loader's base and blade, and an excavator's four links besides.
 std::vector<std::string> linkNames(bool excavator) {
-  if (excavator) return {"base", "blade", "slew", "boom", "arm", "bucket"};
-  return {"base", "blade"};
+  std::vector<std::string> names;
+  const int n = excavator ? static_cast<int>(SensorSpec::Link::Bucket) + 1 : static_cast<int>(SensorSpec::Link::Slew);
+  for (int k = 0; k < n; ++k) names.emplace_back(linkName(static_cast<SensorSpec::Link>(k)));
+  return names;
 }
 
 /// The frame a sensor hangs on (`link`, default base), for IMUs, LiDARs and depth cameras.
@@ -1041,5 +1043,10 @@ bool applyLidarPreset(const std::string& name, SensorSpec& s) {
 }
 
 std::vector<std::string> lidarPresetNames() { return {"vlp32", "os1_64", "os1_128", "single_line"}; }
+
+const char* linkName(SensorSpec::Link link) {
+  static const char* const kNames[] = {"base", "blade", "slew", "boom", "arm", "bucket"};
+  return kNames[static_cast<int>(link)];
+}
 
 }  // namespace terramap::sim

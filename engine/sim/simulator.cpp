@@ -142,17 +142,23 @@ struct Simulator::Machine {
   Eigen::Isometry3d estimatedLinkPose(const SensorSpec& s, double t, std::mt19937_64& rng) {
     const Eigen::Isometry3d Te = estimator.estimate(t);
     if (s.link == SensorSpec::Link::Base) return Te;
-    if (s.link == SensorSpec::Link::Blade) {
-      const std::array<double, 3> q = ctl.spec().localisation.perfect
-                                          ? ctl.joints()
-                                          : CompactTrackLoader::jointsFromCylinders(
-                                                estimator.cylinders(ctl.cylinderLengths(), rng));
-      return Te * ctl.T_base_blade(q);
-    }
+    if (s.link == SensorSpec::Link::Blade) return Te * estimatedBaseBlade(estimator.cylinders(ctl.cylinderLengths(), rng));
+    return mapLinks(Te, readEncoders(rng))[static_cast<int>(s.link) - static_cast<int>(SensorSpec::Link::Slew)];
+  }
+
+  /// The blade in the base frame as the machine knows it from cylinder lengths `cyl` (the
+  /// perfect estimator keeps the joints: the inverse linkage would round them).
+  Eigen::Isometry3d estimatedBaseBlade(const std::array<double, 3>& cyl) const {
+    return ctl.T_base_blade(ctl.spec().localisation.perfect ? ctl.joints() : CompactTrackLoader::jointsFromCylinders(cyl));
+  }
+
+  /// The arm's joints as the encoders read them now: the truth plus white noise of
+  /// ArmSpec::encoder_noise_rad drawn from `rng`.
+  std::array<double, 4> readEncoders(std::mt19937_64& rng) const {
     std::normal_distribution<double> N(0.0, ctl.spec().arm->encoder_noise_rad);
     std::array<double, 4> q = arm->q();
     for (double& v : q) v += N(rng);
-    return mapLinks(Te, q)[static_cast<int>(s.link) - static_cast<int>(SensorSpec::Link::Slew)];
+    return q;
   }
 
   /// An excavator's four link frames (slew, boom, arm, bucket) in the map for base pose T_map_base
@@ -166,8 +172,8 @@ struct Simulator::Machine {
   /// The encoders' and inclinometers' readings of this period into `truth` (base pose Tb).
   void measureArm(const Eigen::Isometry3d& Tb) {
     const ArmSpec& as = *ctl.spec().arm;
-    std::normal_distribution<double> N(0.0, as.encoder_noise_rad), Ni(0.0, as.inclinometer_noise_rad);
-    for (int k = 0; k < 4; ++k) truth.arm_q_measured[k] = truth.arm_q[k] + N(encoder_rng);
+    std::normal_distribution<double> Ni(0.0, as.inclinometer_noise_rad);
+    truth.arm_q_measured = readEncoders(encoder_rng);
     const Eigen::Isometry3d T_map_slew = Tb * arm->T_base_slew(truth.arm_q);
     const auto c = arm->chain(truth.arm_q);
     // Full-circle angles in the vertical plane through the upper structure's forward axis (an
@@ -560,12 +566,8 @@ void Simulator::scheduleScans(Period& rec, double t) {
       q.stamp = t;
       q.key = streamSeed(sc_.seed, 1000 + m.index * 64 + L.sensor_index, static_cast<std::uint64_t>(L.next_scan));
       q.T_true_sensor = m.linkPose(ss) * ss.T_base_sensor;
-      if (ss.link == SensorSpec::Link::Base) {
-        q.T_map_sensor = m.estimator.estimate(t) * ss.T_base_sensor;
-      } else {
-        std::mt19937_64 joint_rng(streamSeed(q.key, 1, 0));
-        q.T_map_sensor = m.estimatedLinkPose(ss, t, joint_rng) * ss.T_base_sensor;
-      }
+      std::mt19937_64 joint_rng(streamSeed(q.key, 1, 0));  // draws only for a sensor off the base
+      q.T_map_sensor = m.estimatedLinkPose(ss, t, joint_rng) * ss.T_base_sensor;
       if (sc_.lidar_sees_machines && !obstacles) {
         obstacles = std::make_shared<std::vector<PlacedBox>>();
         for (const auto& other : machines_) {
@@ -612,9 +614,7 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
   // (the inverse linkage would round them).
   const Eigen::Isometry3d Te = m.estimator.estimate(tp);
   const std::array<double, 3> cyl = m.estimator.cylinders(m.truth.cylinder_length_m);
-  const std::array<double, 3> q =
-      spec.localisation.perfect ? m.ctl.joints() : CompactTrackLoader::jointsFromCylinders(cyl);
-  const Eigen::Isometry3d Tble = Te * m.ctl.T_base_blade(q);
+  const Eigen::Isometry3d Tble = Te * m.estimatedBaseBlade(cyl);
   Pose pose;
   pose.stamp = tp;
   pose.frame = single ? "base" : spec.id + "/base";

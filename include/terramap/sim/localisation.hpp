@@ -98,6 +98,9 @@ class PoseEstimator {
   Eigen::Isometry3d truthAt(double td) const;
 
   LocalisationSpec spec_;
+  /// cylinders' body, its unit normal draws from `unit_normal()`.
+  template <class Draw>
+  std::array<double, 3> cylindersWith(const std::array<double, 3>& L, Draw&& unit_normal) const;
   std::mt19937_64 rng_;
   std::mt19937_64 twist_rng_;  ///< twist() only
   std::normal_distribution<double> twist_normal_{0.0, 1.0};  ///< its own: a distribution caches draws

@@ -239,6 +239,9 @@ struct SensorSpec {
   bool castsRays() const { return type == Type::Lidar || type == Type::DepthCamera; }
 };
 
+/// The scenario's name of a link (`link:` of a sensor, the episode's `link` attributes).
+const char* linkName(SensorSpec::Link link);
+
 /// A compact track loader (CAT 299-class defaults: ALGORITHMS.md §L; docs/sim.md), or with
 /// `arm` an excavator: the same tracked undercarriage and dozer blade (the excavator's plow,
 /// held where the controller leaves it) carrying a slewing upper structure with a manipulator.
