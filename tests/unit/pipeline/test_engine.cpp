@@ -317,9 +317,14 @@ TEST(Engine, SnapshotIsConsistentWhileTheEngineKeepsWriting) {
       ++snapshots;
     }
   });
-  // Write until the reader has taken many snapshots in the middle of the run.
+  // Write 400 events with snapshots taken in the middle of the run: one at least every 8 events.
+  // The writer waits for a lagging reader rather than pushing on until it catches up, because a
+  // mutex need not be fair: under ThreadSanitizer the writer re-took the lock for minutes.
   int pushed = 0;
-  while (pushed < 400 || snapshots.load() < 50) e.push(Tick{0.1 * pushed++});
+  while (pushed < 400) {
+    e.push(Tick{0.1 * pushed++});
+    while (snapshots.load() < pushed / 8) std::this_thread::yield();
+  }
   stop = true;
   reader.join();
   EXPECT_GE(snapshots.load(), 50);
@@ -346,14 +351,15 @@ TEST(Engine, EditMapAndPushOnOneThreadSnapshotsOnAnother) {
       ++snapshots;
     }
   });
-  int rounds = 0;
-  while (rounds < 200 || snapshots.load() < 50) {
+  // 200 rounds with a snapshot at least every 4 (the writer waits for a lagging reader, as above).
+  for (int rounds = 0; rounds < 200;) {
     e.push(Tick{0.1 * rounds});
     const float v = static_cast<float>(1000 + rounds++);
     e.editMap([&](LayeredMap& m) {
       for (int i = 0; i < 64; ++i)
         for (int j = 0; j < 64; ++j) m.set(id, Index(i, j), v);
     });
+    while (snapshots.load() < rounds / 4) std::this_thread::yield();
   }
   stop = true;
   reader.join();
