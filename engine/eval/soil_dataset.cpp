@@ -295,6 +295,9 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
   out.plan = plan;
   std::map<std::string, soil::ObservationHistory> history;
   const std::size_t capacity = static_cast<std::size_t>(cfg.history_T) + 64;
+  // The simulator's force without its noise, per machine and observation stamp (blade on soil,
+  // map frame as the observation places it), kept as long as the histories keep their rows.
+  std::map<std::string, std::map<double, Eigen::Vector3d>> quiet;
   long last_sequence = 0;
   std::vector<std::shared_ptr<const SweepRecord>> pending;
   auto collect = [&] {
@@ -332,6 +335,19 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
                                                             static_cast<float>(ft->depth_m), static_cast<float>(ft->width_m),
                                                             static_cast<float>(ft->q_n)}
                                       : std::array<float, 5>{nan, nan, nan, nan, nan});
+      // The horizon's rows are the history's last P observations up to the anchor (buildSample).
+      std::vector<float> fq(static_cast<std::size_t>(s.P) * 2, std::numeric_limits<float>::quiet_NaN());
+      const auto& rows = it->second.rows();
+      const auto end = std::upper_bound(rows.begin(), rows.end(), s.anchor_stamp,
+                                        [](double t, const soil::ObsRow& r) { return t < r.stamp; });
+      const auto& q = quiet[rec->machine_id];
+      for (int p = 0; p < s.P; ++p) {
+        const auto found = q.find((end - s.P + p)->stamp);
+        if (found == q.end()) continue;
+        fq[static_cast<std::size_t>(p) * 2] = static_cast<float>(found->second.head<2>().dot(rec->t_hat));
+        fq[static_cast<std::size_t>(p) * 2 + 1] = static_cast<float>(found->second.z());
+      }
+      out.force_quiet.push_back(std::move(fq));
       out.samples.push_back(std::move(s));
     }
     pending.clear();
@@ -342,6 +358,18 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
       if (const auto* o = std::get_if<Observation>(&e)) {
         auto it = history.try_emplace(o->machine_id, capacity).first;
         it->second.push(*o);
+        // Between two periods machineTruth() is this period's, the period of this observation.
+        for (std::size_t mi = 0; mi < simulator.machineCount(); ++mi) {
+          const sim::MachineTruth& mt = simulator.machineTruth(mi);
+          if (mt.id != o->machine_id) continue;
+          auto& q = quiet[o->machine_id];
+          // As soil::observationRow turns the sensor's reading into the sample's force: in the
+          // base frame, back to the map with the machine's own estimate of its attitude, and the
+          // FEE's sign (blade on soil). So without noise it is the sample's force to rounding.
+          const Eigen::Vector3d base = mt.T_map_base.linear().transpose() * mt.force_quiet_map_N;
+          q[o->stamp] = -(o->T_map_base.linear() * base);
+          while (q.size() > capacity) q.erase(q.begin());
+        }
       }
       engine->push(e);
       collect();
@@ -367,7 +395,7 @@ std::string episodeFileName(const EpisodePlan& plan) {
 void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, const EpisodeData& ep) {
   const hsize_t n = ep.samples.size();
   const hsize_t T = static_cast<hsize_t>(cfg.history_T), P = static_cast<hsize_t>(cfg.horizon_P);
-  std::vector<float> obs, theta, force, truth, truth_geo;
+  std::vector<float> obs, theta, force, truth, truth_geo, force_quiet;
   std::vector<double> anchor;
   std::vector<long long> sweep;
   obs.reserve(n * T * soil::kObsFeatures);
@@ -379,6 +407,10 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
     truth.insert(truth.end(), ep.truth[i].begin(), ep.truth[i].end());
     if (i < ep.truth_geometry.size()) truth_geo.insert(truth_geo.end(), ep.truth_geometry[i].begin(), ep.truth_geometry[i].end());
     else truth_geo.insert(truth_geo.end(), 5, std::numeric_limits<float>::quiet_NaN());
+    if (i < ep.force_quiet.size() && ep.force_quiet[i].size() == s.force.size())
+      force_quiet.insert(force_quiet.end(), ep.force_quiet[i].begin(), ep.force_quiet[i].end());
+    else
+      force_quiet.insert(force_quiet.end(), s.force.size(), std::numeric_limits<float>::quiet_NaN());
     anchor.push_back(s.anchor_stamp);
     sweep.push_back(s.sweep_index);
   }
@@ -414,6 +446,7 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
       writeArray(f, "truth", H5T_NATIVE_FLOAT, truth.data(), {n, 5}, 4, path);
       writeArray(f, "truth_geometry", H5T_NATIVE_FLOAT, truth_geo.data(), {n, 5}, 4, path);
       attrString(f, "truth_geometry", "alpha_rad,rho_rad,d_m,w_m,q_n");
+      writeArray(f, "force_quiet", H5T_NATIVE_FLOAT, force_quiet.data(), {n, P, 2}, 4, path);
       writeArray(f, "anchor_stamp", H5T_NATIVE_DOUBLE, anchor.data(), {n}, 4, path);
       writeArray(f, "sweep_index", H5T_NATIVE_LLONG, sweep.data(), {n}, 4, path);
     } catch (...) {
@@ -546,6 +579,16 @@ SoilDataset readSoilDataset(const std::string& dir) {
     } catch (const InputError& e) {
       if (std::string(e.what()).find("no dataset") == std::string::npos) throw;
       d.truth_geometry.insert(d.truth_geometry.end(), n * 5, std::numeric_limits<float>::quiet_NaN());
+    }
+    // Nor do files written before the noise-free force was kept (evaluation only).
+    try {
+      const std::vector<double> fq = file.read("force_quiet", dims);
+      if (dims.size() != 3 || dims[0] != n || dims[1] != static_cast<std::uint64_t>(P) || dims[2] != 2)
+        throw InputError(path + ": dataset 'force_quiet' must be [N, P, 2] with the N and P of 'force'");
+      d.force_quiet.insert(d.force_quiet.end(), fq.begin(), fq.end());
+    } catch (const InputError& e) {
+      if (std::string(e.what()).find("no dataset") == std::string::npos) throw;
+      d.force_quiet.insert(d.force_quiet.end(), n * static_cast<std::size_t>(P) * 2, std::numeric_limits<float>::quiet_NaN());
     }
     for (std::size_t i = 0; i < n; ++i) {
       d.episode.push_back(static_cast<int>(plan[0]));

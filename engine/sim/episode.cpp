@@ -582,6 +582,7 @@ void EpisodeWriter::Impl::openMachine(hid_t mg, const MachineSpec& spec, std::si
   M.truth = makeGroup(M.group, "truth", I.tmp_path);
   add(M.truth, "t_force_map_N", "force_map_N", H5T_NATIVE_DOUBLE, {3});
   add(M.truth, "t_force_base_N", "force_base_N", H5T_NATIVE_DOUBLE, {3});
+  add(M.truth, "t_force_quiet_map_N", "force_quiet_map_N", H5T_NATIVE_DOUBLE, {3});
   add(M.truth, "t_fee", "fee", H5T_NATIVE_DOUBLE, {6});
   add(M.truth, "t_soil", "soil", H5T_NATIVE_DOUBLE, {5});
   add(M.truth, "t_stalled", "stalled", H5T_NATIVE_UINT8, {});
@@ -800,6 +801,7 @@ void EpisodeWriter::Impl::record(const Simulator& sim, const std::vector<Event>&
       M.a.at("force_base_N").append(ob->force_base_N.data());
       M.a.at("t_force_map_N").append(tr.force_map_N.data());
       M.a.at("t_force_base_N").append(tr.force_base_N.data());
+      M.a.at("t_force_quiet_map_N").append(tr.force_quiet_map_N.data());
       const double fee[6] = {tr.fee.alpha_rad, tr.fee.rho_rad, tr.fee.depth_m, tr.fee.width_m, tr.fee.q_n, tr.fee.beta_rad};
       M.a.at("t_fee").append(fee);
       const double soil[5] = {tr.fee.c_pa, tr.fee.phi_rad, tr.fee.gamma_n_m3, tr.fee.ca_pa, tr.fee.delta_rad};

@@ -324,6 +324,7 @@ void Simulator::physicsStep(double dt, bool relax) {
     const double tau = spec.force_noise_tau_s;
     for (int a = 0; a < 3; ++a)
       m.ou[a] += -m.ou[a] * dt / tau + std::sqrt(2.0 * dt / tau) * m.normal(m.noise_rng);
+    m.truth.force_quiet_map_N = F;
     if (F.squaredNorm() > 0) F += m.ou * (spec.force_noise_abs_n + spec.force_noise_rel * F.norm());
     m.truth.force_map_N = F;
     m.truth.fee = bf.truth;

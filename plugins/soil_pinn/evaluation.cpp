@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <map>
 #include <sstream>
 
@@ -28,6 +29,9 @@ struct Accum {
   double ferr = 0, fnorm = 0, ferr_truth = 0, ferr_tg = 0, ferr_sim = 0, fnorm_tg = 0;
   double ferr_truth_min = 0, ferr_moving = 0, fnorm_moving = 0;
   double ferr_x = 0, ferr_z = 0;  // Σ|F̂x − Fx|, Σ|F̂z − Fz|
+  // Rows with the noise-free force F_q: Σ‖F_q − F‖ over Σ‖F‖ (the floor), Σ‖F̂ − F_q‖ over Σ‖F_q‖.
+  double qerr_floor = 0, qnorm_meas = 0, qerr_est = 0, qnorm = 0;
+  long qrows = 0;
   long rows = 0, stalled_rows = 0;
   std::vector<std::array<double, 2>> forces;  // for the constant-force baseline
   std::vector<double> q_ratio;                // mapped Q / simulator's q, per sample
@@ -44,6 +48,7 @@ struct SampleView {
   const bool* moving;   // [P_model]
   fee::Soil soil;       // truth
   const float* truth_geometry;  // alpha, rho, d, w, q (NaN when unknown)
+  const float* force_quiet;     // [P_model][2], the force without its noise (NaN when unknown)
   bool has_truth_geometry() const {
     return std::isfinite(truth_geometry[0]) && std::isfinite(truth_geometry[2]) && truth_geometry[2] > 0;
   }
@@ -71,6 +76,14 @@ void addForceErrors(Accum& a, const SampleView& v, const SoilEstimate& e, int P)
     a.fnorm += norm;
     a.forces.push_back({fx, fz});
     ++a.rows;
+    const double qx = v.force_quiet[p * 2], qz = v.force_quiet[p * 2 + 1];
+    if (std::isfinite(qx) && std::isfinite(qz)) {
+      a.qerr_floor += std::hypot(qx - fx, qz - fz);
+      a.qnorm_meas += norm;
+      a.qerr_est += std::hypot(e.F[static_cast<std::size_t>(p)][0] - qx, e.F[static_cast<std::size_t>(p)][1] - qz);
+      a.qnorm += std::hypot(qx, qz);
+      ++a.qrows;
+    }
     if (v.moving[p]) {
       a.ferr_moving += miss;
       a.fnorm_moving += norm;
@@ -148,6 +161,9 @@ SplitMetrics finishSplit(int split, Accum& a, const std::array<double, kSoilCoun
   m.stalled_row_fraction = a.rows > 0 ? static_cast<double>(a.stalled_rows) / static_cast<double>(a.rows) : NAN;
   m.force_error_truth_geometry_pct = pct(a.ferr_tg, a.fnorm_tg);
   m.force_error_simulator_model_pct = pct(a.ferr_sim, a.fnorm_tg);
+  m.force_error_noise_floor_pct = pct(a.qerr_floor, a.qnorm_meas);
+  m.force_error_noise_free_pct = pct(a.qerr_est, a.qnorm);
+  m.noise_free_rows = a.qrows;
   double mx = 0, mz = 0, em = 0;
   for (const auto& fv : a.forces) {
     mx += fv[0];
@@ -208,6 +224,10 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
   const float* f = data.force.data_ptr<float>();
   const float* tr = data.truth.data_ptr<float>();
   const float* tgeo = data.truth_geometry.data_ptr<float>();
+  // Tensors built by hand (tests) may have no noise-free force: NaN rows, never counted.
+  const at::Tensor fq_t = data.force_quiet.defined() ? data.force_quiet
+                                                     : at::full({n, P, 2}, std::numeric_limits<float>::quiet_NaN(), at::kFloat);
+  const float* fq = fq_t.data_ptr<float>();
   const bool* mv = data.moving.data_ptr<bool>();
   for (long b0 = 0; b0 < n; b0 += batch) {
     const long len = std::min(batch, n - b0);
@@ -221,7 +241,7 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
       const SoilEstimate& e = es[static_cast<std::size_t>(i)];
       if (!e.valid) continue;
       ++a.m.valid;
-      SampleView v{th + (r * P + p0) * 6, f + (r * P + p0) * 2, mv + r * P + p0, {}, tgeo + r * 5};
+      SampleView v{th + (r * P + p0) * 6, f + (r * P + p0) * 2, mv + r * P + p0, {}, tgeo + r * 5, fq + (r * P + p0) * 2};
       v.soil.c_pa = tr[r * 5 + 0];
       v.soil.phi_rad = tr[r * 5 + 1];
       v.soil.ca_pa = tr[r * 5 + 2];
@@ -285,6 +305,11 @@ std::string evaluationJson(const SoilEvaluation& e) {
     s["force_error_truth_soil_truth_geometry_pct"] = m.force_error_truth_geometry_pct;
     s["force_error_truth_soil_simulator_model_pct"] = m.force_error_simulator_model_pct;
     s["truth_geometry_samples"] = m.truth_geometry_samples;
+    // null for datasets written before the noise-free force was kept
+    auto num = [](double x) { return std::isfinite(x) ? nlohmann::ordered_json(x) : nlohmann::ordered_json(); };
+    s["force_error_noise_floor_pct"] = num(m.force_error_noise_floor_pct);
+    s["force_error_against_noise_free_pct"] = num(m.force_error_noise_free_pct);
+    s["noise_free_rows"] = m.noise_free_rows;
     s["mapped_over_simulator_surcharge_median"] = m.surcharge_ratio_median;
     if (std::isfinite(m.input_beyond_fraction)) {
       s["input_beyond_training_q99_fraction"] = m.input_beyond_fraction;
@@ -339,15 +364,15 @@ void propertyTable(std::ostringstream& os, const SoilEvaluation& e, const char* 
 std::string evaluationMarkdown(const SoilEvaluation& e) {
   std::ostringstream os;
   char buf[256];
-  os << "| split | samples (valid) | force error % (along x / z) | ... moving rows % (stalled rows) | FEE with truth soil % | ... at β* % | ... and truth geometry % | simulator's F_total at β* % | constant force % | mapped Q / sim. Q (median) |";
+  os << "| split | samples (valid) | force error % (along x / z) | noise floor % (error against the noise-free force %) | ... moving rows % (stalled rows) | FEE with truth soil % | ... at β* % | ... and truth geometry % | simulator's F_total at β* % | constant force % | mapped Q / sim. Q (median) |";
   for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " MAE (" << kDisplayUnit[k] << ") |";
-  os << "\n|---|---|---|---|---|---|---|---|---|---|";
+  os << "\n|---|---|---|---|---|---|---|---|---|---|---|";
   for (int k = 0; k < kSoilCount; ++k) os << "---|";
   os << "\n";
   for (const auto& m : e.splits) {
-    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f (%.1f / %.1f) | %.1f (%.1f %%) | %.1f | %.1f | %.1f | %.1f | %.1f | %.2f |",
+    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %.1f (%.1f / %.1f) | %.1f (%.1f) | %.1f (%.1f %%) | %.1f | %.1f | %.1f | %.1f | %.1f | %.2f |",
                   m.split.c_str(), m.samples, m.valid, m.force_error_pct, m.force_error_x_pct, m.force_error_z_pct,
-                  m.force_error_moving_pct,
+                  m.force_error_noise_floor_pct, m.force_error_noise_free_pct, m.force_error_moving_pct,
                   100.0 * m.stalled_row_fraction, m.force_error_truth_fee_pct, m.force_error_truth_fee_min_pct,
                   m.force_error_truth_geometry_pct,
                   m.force_error_simulator_model_pct, m.force_error_mean_pct, m.surcharge_ratio_median);

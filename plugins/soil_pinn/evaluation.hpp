@@ -41,6 +41,12 @@ struct SplitMetrics {
   /// computes before inertia, penetration, mobilisation and noise).
   double force_error_simulator_model_pct = 0;
   long truth_geometry_samples = 0;
+  /// The floor of force_error_pct: the same error of the simulator's force without its noise
+  /// (coloured soil noise and the sensor's), i.e. of an estimator that predicted the soil's force
+  /// exactly; and the estimator's error against that noise-free force, 100 Σ‖F̂ − F_q‖ / Σ‖F_q‖.
+  /// Over the rows where the dataset has the noise-free force (NaN for files without it).
+  double force_error_noise_floor_pct = NAN, force_error_noise_free_pct = NAN;
+  long noise_free_rows = 0;
   /// Median of the mapped surcharge Q over the simulator's at the same sweep (NaN without any).
   double surcharge_ratio_median = NAN;
   std::array<double, kSoilCount> mae{};        ///< |mean − truth|, SI units

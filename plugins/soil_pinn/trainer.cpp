@@ -53,6 +53,9 @@ TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
   out.truth = at::empty({m, 5}, at::kFloat);
   out.truth_geometry = at::full({m, 5}, std::numeric_limits<float>::quiet_NaN(), at::kFloat);
   float* tg = out.truth_geometry.data_ptr<float>();
+  out.force_quiet = at::full({m, P, 2}, std::numeric_limits<float>::quiet_NaN(), at::kFloat);
+  float* fq = out.force_quiet.data_ptr<float>();
+  const bool has_quiet = d.force_quiet.size() == d.force.size();
   float* o = out.obs_raw.data_ptr<float>();
   float* th = out.theta_k.data_ptr<float>();
   float* f = out.force.data_ptr<float>();
@@ -68,6 +71,7 @@ TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
       mv[r * P + p] = !soil::stalledRow(d.obs.data() + (i * d.T + (d.T - P + p)) * D);
     std::copy_n(d.truth.data() + i * 5, 5, tr + r * 5);
     if (d.truth_geometry.size() == d.truth.size()) std::copy_n(d.truth_geometry.data() + i * 5, 5, tg + r * 5);
+    if (has_quiet) std::copy_n(d.force_quiet.data() + (i * d.P + (d.P - P)) * 2, static_cast<long>(P) * 2, fq + r * P * 2);
     out.split.push_back(d.split[static_cast<std::size_t>(i)]);
     out.family.push_back(d.family[static_cast<std::size_t>(i)]);
     out.relative_density.push_back(d.relative_density[static_cast<std::size_t>(i)]);

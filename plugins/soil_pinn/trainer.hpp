@@ -63,6 +63,7 @@ struct TrainingData {
   at::Tensor moving;     ///< [N, P] bool: the horizon row is not stalled (soil::stalledRow)
   at::Tensor truth;      ///< [N, 5] float32 (evaluation only)
   at::Tensor truth_geometry;  ///< [N, 5] float32 simulator's alpha, rho, d, w, q (diagnosis only; NaN if unknown)
+  at::Tensor force_quiet;     ///< [N, P, 2] float32 the force without its noise (evaluation only; NaN if unknown)
   std::vector<std::uint8_t> split, family;
   std::vector<float> relative_density;
   long dropped_nonfinite = 0;  ///< samples without a finite force (no sensor, NaN features)

@@ -112,6 +112,12 @@ struct EpisodeData {
   /// simulator's own FEE geometry of the cut at the end of the sweep's observation period
   /// (sim::FeeTruth: alpha, rho, depth, width, surcharge q), NaN when it was not cutting.
   std::vector<std::array<float, 5>> truth_geometry;
+  /// Per sample, P × 2 (along t̂, up; blade on soil, N) like PinnSample::force: the simulator's
+  /// force at the same horizon rows without its coloured noise (sim::MachineTruth::
+  /// force_quiet_map_N) and without the sensor's; NaN where the row's period is not known. For
+  /// evaluation only: the error of an estimator that predicted this force exactly is the floor
+  /// that the measured force's noise puts under every estimator's force error.
+  std::vector<std::vector<float>> force_quiet;
   long sweeps = 0;                           ///< SweepRecords seen
   std::map<std::string, long> skipped;       ///< by soil::sampleSkipName
   double simulated_s = 0, wall_s = 0;
@@ -131,9 +137,9 @@ TERRAMAP_API EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const E
 
 /// Episode file name in DIR/episodes: ep_NNNNN.h5 (in-distribution) or held_NNNNN.h5.
 TERRAMAP_API std::string episodeFileName(const EpisodePlan& plan);
-/// Writes one episode file atomically (HDF5: obs [N,T,34] f32, theta_k [N,P,6], force [N,P,2],
-/// truth [N,5], truth_geometry [N,5], anchor [N] f64 stamps; attributes: plan, T, P, feature
-/// names, config hash).
+/// Writes one episode file atomically (HDF5: obs [N,T,35] f32, theta_k [N,P,6], force [N,P,2],
+/// truth [N,5], truth_geometry [N,5], force_quiet [N,P,2], anchor [N] f64 stamps; attributes:
+/// plan, T, P, feature names, config hash).
 /// \throws OutputError.
 TERRAMAP_API void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, const EpisodeData& ep);
 
@@ -143,6 +149,7 @@ struct SoilDataset {
   std::string config_hash;
   std::vector<float> obs, theta_k, force, truth;  ///< N*T*34, N*P*6, N*P*2, N*5
   std::vector<float> truth_geometry;               ///< N*5 (EpisodeData::truth_geometry; NaN in v1 files)
+  std::vector<float> force_quiet;                  ///< N*P*2 (EpisodeData::force_quiet; NaN in files without it)
   std::vector<int> episode;                        ///< N
   std::vector<std::uint8_t> split;                 ///< N (DatasetSplit)
   std::vector<std::uint8_t> family;                ///< N (soil::SoilFamily)

@@ -63,6 +63,11 @@ struct MachineTruth {
   /// coloured noise), map frame and base frame, N.
   Eigen::Vector3d force_map_N = Eigen::Vector3d::Zero();
   Eigen::Vector3d force_base_N = Eigen::Vector3d::Zero();
+  /// force_map_N without its coloured noise (MachineSpec::force_noise_*), map frame, N: what a
+  /// model of the soil's force could at best predict. The noise is unpredictable from anything
+  /// the machine observes, so an estimator's error against the measured force cannot fall below
+  /// that of this force (docs/soil_estimator.md, "The force noise floor").
+  Eigen::Vector3d force_quiet_map_N = Eigen::Vector3d::Zero();
   FeeTruth fee;                         ///< truth FEE geometry and soil of the cut
   bool stalled = false;
   std::array<double, 5> setpoints{};    ///< speed, depth, roll, blade yaw, heading

@@ -12,8 +12,11 @@
 #include <nlohmann/json.hpp>
 #include <unistd.h>
 
+#include <array>
 #include <cmath>
 #include <filesystem>
+#include <limits>
+#include <map>
 #include <random>
 
 using namespace terramap;
@@ -27,7 +30,10 @@ constexpr int kT = 6, kP = 3;
 // Episodes of one soil each; every sample a random cut geometry, force = the paper's F of the
 // truth soil at beta* (the physics layer's default base angle), constant over the horizon. Observation feature k < 5 is the soil
 // property k scaled to about [-1, 1] plus noise; the rest are zero.
-fs::path makeDataset(const std::string& name, int episodes, int samples_per_episode) {
+/// `quiet_scale` (finite): each sample's noise-free force (EpisodeData::force_quiet) is its
+/// force times this; otherwise the episodes keep none (NaN in the file).
+fs::path makeDataset(const std::string& name, int episodes, int samples_per_episode,
+                     double quiet_scale = std::numeric_limits<double>::quiet_NaN()) {
   const fs::path dir = fs::temp_directory_path() / ("terramap_trainer_" + name + "_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir / "episodes");
@@ -66,6 +72,11 @@ fs::path makeDataset(const std::string& name, int episodes, int samples_per_epis
                                                static_cast<float>(g.q_n), 0.8f});
         smp.force.insert(smp.force.end(), {static_cast<float>(r.F_N.x()), static_cast<float>(r.F_N.y())});
       }
+      if (std::isfinite(quiet_scale)) {
+        std::vector<float> q = smp.force;
+        for (float& v : q) v = static_cast<float>(quiet_scale * v);
+        ep.force_quiet.push_back(q);
+      }
       ep.samples.push_back(smp);
       ep.truth.push_back({static_cast<float>(sp.fee.c_pa), static_cast<float>(sp.fee.phi_rad),
                           static_cast<float>(sp.fee.ca_pa), static_cast<float>(sp.fee.delta_rad),
@@ -100,7 +111,7 @@ std::vector<SoilEstimate> estimates(const fs::path& model, const TrainingData& d
 }  // namespace
 
 TEST(Trainer, LearnsTheForceBetterThanAConstantAndReproducesBitForBit) {
-  const fs::path data = makeDataset("learn", 20, 12);
+  const fs::path data = makeDataset("learn", 20, 12, 0.9);
   const fs::path dir = data / "runs";
   fs::create_directories(dir);
   std::vector<double> val;
@@ -126,6 +137,35 @@ TEST(Trainer, LearnsTheForceBetterThanAConstantAndReproducesBitForBit) {
     // The constant baseline is the training split's: measured on every split present.
     for (int k = 0; k < kSoilCount; ++k) {
       EXPECT_TRUE(std::isfinite(m.mae_constant[k])) << m.split << " " << k;
+    }
+    // The noise-free force is 0.9 of the measured one: the floor is 10 % on every row.
+    EXPECT_NEAR(m.force_error_noise_floor_pct, 10.0, 1e-4) << m.split;
+    EXPECT_EQ(m.noise_free_rows, m.valid * kP) << m.split;
+  }
+  // The estimator against the noise-free force, summed here from its estimates.
+  {
+    const std::vector<SoilEstimate> es = estimates(c.out, td);
+    std::map<std::string, std::array<double, 2>> sums;  // split -> Σ‖F̂ − 0.9 F‖, Σ‖0.9 F‖
+    const float* f = td.force.data_ptr<float>();
+    for (std::size_t i = 0; i < es.size(); ++i) {
+      if (!es[i].valid) continue;
+      auto& sum = sums[eval::datasetSplitName(static_cast<eval::DatasetSplit>(td.split[i]))];
+      for (int p = 0; p < kP; ++p) {
+        const double qx = 0.9 * f[(i * kP + p) * 2], qz = 0.9 * f[(i * kP + p) * 2 + 1];
+        sum[0] += std::hypot(es[i].F[static_cast<std::size_t>(p)][0] - qx, es[i].F[static_cast<std::size_t>(p)][1] - qz);
+        sum[1] += std::hypot(qx, qz);
+      }
+    }
+    for (const SplitMetrics& m : ev.splits)
+      EXPECT_NEAR(m.force_error_noise_free_pct, 100.0 * sums[m.split][0] / sums[m.split][1], 1e-3) << m.split;
+  }
+  // Without the noise-free force (tensors built by hand, older datasets): no floor, no rows.
+  {
+    TrainingData none = td;
+    none.force_quiet = at::Tensor();
+    for (const SplitMetrics& m : evaluateEstimator(loadEstimator(c.out), none).splits) {
+      EXPECT_TRUE(std::isnan(m.force_error_noise_floor_pct)) << m.split;
+      EXPECT_EQ(m.noise_free_rows, 0) << m.split;
     }
   }
   // Same config, another output: the same bits.

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <unistd.h>
 
 using namespace terramap;
@@ -188,10 +189,68 @@ TEST(SoilDataset, ShortEpisodeIsDeterministicAndRoundTripsThroughHdf5) {
     const auto& s = one.samples[i];
     EXPECT_TRUE(std::equal(s.obs.begin(), s.obs.end(), d.obs.begin() + static_cast<long>(i * s.obs.size())));
     EXPECT_TRUE(std::equal(s.force.begin(), s.force.end(), d.force.begin() + static_cast<long>(i * s.force.size())));
+    EXPECT_TRUE(std::equal(one.force_quiet[i].begin(), one.force_quiet[i].end(),
+                           d.force_quiet.begin() + static_cast<long>(i * s.force.size())));
     EXPECT_EQ(d.split[i], static_cast<std::uint8_t>(plan.split));
   }
   const std::string manifest = datasetManifestJson(dir.string());
   EXPECT_NE(manifest.find("\"samples\": " + std::to_string(one.samples.size())), std::string::npos) << manifest;
+  fs::remove_all(dir);
+}
+
+// The noise-free force kept beside each sample row (EpisodeData::force_quiet, the floor of every
+// force error): with the soil's coloured noise and the sensor's switched off it is the measured
+// force of the same row, to the rounding of the frames it went through; with them on it differs
+// by about the noise (docs/soil_estimator.md, "The force noise floor"). A row paired with the
+// wrong period (a neighbour's stamp) would differ by the change of the force over 1/60 s.
+TEST(SoilDataset, EachRowKeepsTheForceWithoutItsNoise) {
+  const fs::path dir = fs::temp_directory_path() / ("terramap_soil_dataset_quiet_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string src = std::string(TERRAMAP_SOURCE_DIR) + "/configs/dataset/";
+  std::ifstream in(src + "pinn_episode.yaml");
+  std::string yaml((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto replace = [&](const std::string& from, const std::string& to) {
+    const auto at = yaml.find(from);
+    ASSERT_NE(at, std::string::npos) << from;
+    yaml.replace(at, from.size(), to);
+  };
+  replace("    blade: {width_m", "    force_noise: {abs_n: 0, rel: 0}\n    blade: {width_m");
+  replace("noise_abs_n: 100, noise_rel: 0.02", "noise_abs_n: 0, noise_rel: 0");
+  std::ofstream((dir / "quiet.yaml").string()) << yaml;
+  const auto text = [&](const std::string& scenario) {
+    return "version: 1\nseed: 5\nepisodes: 1\nduration_s: 6\nhistory: {T: 30, P: 10}\n"
+           "held_out: {episodes: 0, family: gravel, relative_density: [0.7, 1.0], rake_deg: 68}\n"
+           "scenario: " + scenario + "\npipeline: " + src + "pinn_pipeline.yaml\n";
+  };
+  const auto run = [&](const std::string& scenario, double& rel_diff, long& rows) {
+    const SoilDatasetConfig cfg = parseSoilDatasetConfig(text(scenario), "q.yaml", ".");
+    const EpisodeData ep = runDatasetEpisode(cfg, planEpisode(cfg, 0), 1);
+    ASSERT_GT(ep.samples.size(), 2u);
+    ASSERT_EQ(ep.force_quiet.size(), ep.samples.size());
+    double diff = 0, norm = 0;
+    rows = 0;
+    for (std::size_t i = 0; i < ep.samples.size(); ++i) {
+      ASSERT_EQ(ep.force_quiet[i].size(), ep.samples[i].force.size());
+      for (std::size_t p = 0; p + 1 < ep.samples[i].force.size(); p += 2) {
+        const float* q = &ep.force_quiet[i][p];
+        const float* f = &ep.samples[i].force[p];
+        ASSERT_TRUE(std::isfinite(q[0]) && std::isfinite(q[1])) << "sample " << i << " row " << p / 2;
+        diff += std::hypot(q[0] - f[0], q[1] - f[1]);
+        norm += std::hypot(f[0], f[1]);
+        ++rows;
+      }
+    }
+    rel_diff = diff / norm;
+  };
+  double quiet_diff = 1, noisy_diff = 0;
+  long quiet_rows = 0, noisy_rows = 0;
+  run((dir / "quiet.yaml").string(), quiet_diff, quiet_rows);
+  run(src + "pinn_episode.yaml", noisy_diff, noisy_rows);
+  EXPECT_GT(quiet_rows, 20);
+  EXPECT_LT(quiet_diff, 1e-5) << "without noise the kept force is the measured one: " << quiet_diff;
+  // The noise: the soil's 5 % + 150 N (coloured) and the sensor's 2 % + 100 N, per axis.
+  EXPECT_GT(noisy_diff, 0.03) << noisy_diff;
+  EXPECT_LT(noisy_diff, 0.3) << noisy_diff;
   fs::remove_all(dir);
 }
 
