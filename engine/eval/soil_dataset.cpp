@@ -295,9 +295,9 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
   out.plan = plan;
   std::map<std::string, soil::ObservationHistory> history;
   const std::size_t capacity = static_cast<std::size_t>(cfg.history_T) + 64;
-  // The simulator's force without its noise, per machine and observation stamp (blade on soil,
-  // map frame as the observation places it), kept as long as the histories keep their rows.
-  std::map<std::string, std::map<double, Eigen::Vector3d>> quiet;
+  // The same observations with the force sensor reading the simulator's force without its noise:
+  // buildSample on them gives that force in the sample's own frame, sign and rows.
+  std::map<std::string, soil::ObservationHistory> quiet_history;
   long last_sequence = 0;
   std::vector<std::shared_ptr<const SweepRecord>> pending;
   auto collect = [&] {
@@ -335,19 +335,12 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
                                                             static_cast<float>(ft->depth_m), static_cast<float>(ft->width_m),
                                                             static_cast<float>(ft->q_n)}
                                       : std::array<float, 5>{nan, nan, nan, nan, nan});
-      // The horizon's rows are the history's last P observations up to the anchor (buildSample).
-      std::vector<float> fq(static_cast<std::size_t>(s.P) * 2, std::numeric_limits<float>::quiet_NaN());
-      const auto& rows = it->second.rows();
-      const auto end = std::upper_bound(rows.begin(), rows.end(), s.anchor_stamp,
-                                        [](double t, const soil::ObsRow& r) { return t < r.stamp; });
-      const auto& q = quiet[rec->machine_id];
-      for (int p = 0; p < s.P; ++p) {
-        const auto found = q.find((end - s.P + p)->stamp);
-        if (found == q.end()) continue;
-        fq[static_cast<std::size_t>(p) * 2] = static_cast<float>(found->second.head<2>().dot(rec->t_hat));
-        fq[static_cast<std::size_t>(p) * 2 + 1] = static_cast<float>(found->second.z());
-      }
-      out.force_quiet.push_back(std::move(fq));
+      // Both histories hold the same stamps and features, so the same rows are taken.
+      const auto qh = quiet_history.find(rec->machine_id);
+      soil::PinnSample qs;
+      const bool quiet_known = qh != quiet_history.end() &&
+          soil::buildSample(qh->second, *rec, cfg.history_T, cfg.horizon_P, qs) == soil::SampleSkip::None;
+      out.force_quiet.push_back(quiet_known ? std::move(qs.force) : std::vector<float>(s.force.size(), nan));
       out.samples.push_back(std::move(s));
     }
     pending.clear();
@@ -362,13 +355,9 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
         for (std::size_t mi = 0; mi < simulator.machineCount(); ++mi) {
           const sim::MachineTruth& mt = simulator.machineTruth(mi);
           if (mt.id != o->machine_id) continue;
-          auto& q = quiet[o->machine_id];
-          // As soil::observationRow turns the sensor's reading into the sample's force: in the
-          // base frame, back to the map with the machine's own estimate of its attitude, and the
-          // FEE's sign (blade on soil). So without noise it is the sample's force to rounding.
-          const Eigen::Vector3d base = mt.T_map_base.linear().transpose() * mt.force_quiet_map_N;
-          q[o->stamp] = -(o->T_map_base.linear() * base);
-          while (q.size() > capacity) q.erase(q.begin());
+          Observation quiet = *o;
+          quiet.force_base_N = mt.T_map_base.linear().transpose() * mt.force_quiet_map_N;
+          quiet_history.try_emplace(o->machine_id, capacity).first->second.push(quiet);
         }
       }
       engine->push(e);
@@ -571,25 +560,24 @@ SoilDataset readSoilDataset(const std::string& dir) {
     d.theta_k.insert(d.theta_k.end(), theta.begin(), theta.end());
     d.force.insert(d.force.end(), force.begin(), force.end());
     d.truth.insert(d.truth.end(), truth.begin(), truth.end());
-    // Files of the first layout have no truth geometry: NaN (diagnosis only, never trained on).
-    try {
-      const std::vector<double> tg = file.read("truth_geometry", dims);
-      if (dims.size() != 2 || dims[0] != n || dims[1] != 5) throw InputError(path + ": dataset 'truth_geometry' must be [N, 5]");
-      d.truth_geometry.insert(d.truth_geometry.end(), tg.begin(), tg.end());
-    } catch (const InputError& e) {
-      if (std::string(e.what()).find("no dataset") == std::string::npos) throw;
-      d.truth_geometry.insert(d.truth_geometry.end(), n * 5, std::numeric_limits<float>::quiet_NaN());
-    }
-    // Nor do files written before the noise-free force was kept (evaluation only).
-    try {
-      const std::vector<double> fq = file.read("force_quiet", dims);
-      if (dims.size() != 3 || dims[0] != n || dims[1] != static_cast<std::uint64_t>(P) || dims[2] != 2)
-        throw InputError(path + ": dataset 'force_quiet' must be [N, P, 2] with the N and P of 'force'");
-      d.force_quiet.insert(d.force_quiet.end(), fq.begin(), fq.end());
-    } catch (const InputError& e) {
-      if (std::string(e.what()).find("no dataset") == std::string::npos) throw;
-      d.force_quiet.insert(d.force_quiet.end(), n * static_cast<std::size_t>(P) * 2, std::numeric_limits<float>::quiet_NaN());
-    }
+    // Diagnosis-only datasets that older files lack: NaN (never trained on). Files of the first
+    // layout have no truth geometry, files written before the noise-free force was kept no
+    // force_quiet.
+    const auto optional = [&](const char* name, std::vector<float>& to, const std::vector<std::uint64_t>& want,
+                              const char* shape) {
+      try {
+        const std::vector<double> v = file.read(name, dims);
+        if (dims != want) throw InputError(path + ": dataset '" + name + "' must be " + shape);
+        to.insert(to.end(), v.begin(), v.end());
+      } catch (const InputError& e) {
+        if (std::string(e.what()).find("no dataset") == std::string::npos) throw;
+        std::uint64_t count = 1;
+        for (const std::uint64_t w : want) count *= w;
+        to.insert(to.end(), count, std::numeric_limits<float>::quiet_NaN());
+      }
+    };
+    optional("truth_geometry", d.truth_geometry, {n, 5}, "[N, 5]");
+    optional("force_quiet", d.force_quiet, {n, static_cast<std::uint64_t>(P), 2}, "[N, P, 2] with the N and P of 'force'");
     for (std::size_t i = 0; i < n; ++i) {
       d.episode.push_back(static_cast<int>(plan[0]));
       d.split.push_back(static_cast<std::uint8_t>(plan[1]));

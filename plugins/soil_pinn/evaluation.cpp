@@ -10,7 +10,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <limits>
 #include <map>
 #include <sstream>
 
@@ -48,7 +47,7 @@ struct SampleView {
   const bool* moving;   // [P_model]
   fee::Soil soil;       // truth
   const float* truth_geometry;  // alpha, rho, d, w, q (NaN when unknown)
-  const float* force_quiet;     // [P_model][2], the force without its noise (NaN when unknown)
+  const float* force_quiet;     // [P_model][2], the force without its noise (NaN rows or null when unknown)
   bool has_truth_geometry() const {
     return std::isfinite(truth_geometry[0]) && std::isfinite(truth_geometry[2]) && truth_geometry[2] > 0;
   }
@@ -76,7 +75,7 @@ void addForceErrors(Accum& a, const SampleView& v, const SoilEstimate& e, int P)
     a.fnorm += norm;
     a.forces.push_back({fx, fz});
     ++a.rows;
-    const double qx = v.force_quiet[p * 2], qz = v.force_quiet[p * 2 + 1];
+    const double qx = v.force_quiet ? v.force_quiet[p * 2] : NAN, qz = v.force_quiet ? v.force_quiet[p * 2 + 1] : NAN;
     if (std::isfinite(qx) && std::isfinite(qz)) {
       a.qerr_floor += std::hypot(qx - fx, qz - fz);
       a.qnorm_meas += norm;
@@ -224,10 +223,8 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
   const float* f = data.force.data_ptr<float>();
   const float* tr = data.truth.data_ptr<float>();
   const float* tgeo = data.truth_geometry.data_ptr<float>();
-  // Tensors built by hand (tests) may have no noise-free force: NaN rows, never counted.
-  const at::Tensor fq_t = data.force_quiet.defined() ? data.force_quiet
-                                                     : at::full({n, P, 2}, std::numeric_limits<float>::quiet_NaN(), at::kFloat);
-  const float* fq = fq_t.data_ptr<float>();
+  // Tensors built by hand (tests) may have no noise-free force: then no row counts.
+  const float* fq = data.force_quiet.defined() ? data.force_quiet.data_ptr<float>() : nullptr;
   const bool* mv = data.moving.data_ptr<bool>();
   for (long b0 = 0; b0 < n; b0 += batch) {
     const long len = std::min(batch, n - b0);
@@ -241,7 +238,7 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
       const SoilEstimate& e = es[static_cast<std::size_t>(i)];
       if (!e.valid) continue;
       ++a.m.valid;
-      SampleView v{th + (r * P + p0) * 6, f + (r * P + p0) * 2, mv + r * P + p0, {}, tgeo + r * 5, fq + (r * P + p0) * 2};
+      SampleView v{th + (r * P + p0) * 6, f + (r * P + p0) * 2, mv + r * P + p0, {}, tgeo + r * 5, fq ? fq + (r * P + p0) * 2 : nullptr};
       v.soil.c_pa = tr[r * 5 + 0];
       v.soil.phi_rad = tr[r * 5 + 1];
       v.soil.ca_pa = tr[r * 5 + 2];

@@ -114,7 +114,8 @@ struct EpisodeData {
   std::vector<std::array<float, 5>> truth_geometry;
   /// Per sample, P × 2 (along t̂, up; blade on soil, N) like PinnSample::force: the simulator's
   /// force at the same horizon rows without its coloured noise (sim::MachineTruth::
-  /// force_quiet_map_N) and without the sensor's; NaN where the row's period is not known. For
+  /// force_quiet_map_N) and without the sensor's: soil::buildSample on the same observations with
+  /// the force sensor reading that force (NaN if that sample could not be built). For
   /// evaluation only: the error of an estimator that predicted this force exactly is the floor
   /// that the measured force's noise puts under every estimator's force error.
   std::vector<std::vector<float>> force_quiet;

@@ -201,8 +201,8 @@ TEST(SoilDataset, ShortEpisodeIsDeterministicAndRoundTripsThroughHdf5) {
 // The noise-free force kept beside each sample row (EpisodeData::force_quiet, the floor of every
 // force error): with the soil's coloured noise and the sensor's switched off it is the measured
 // force of the same row, to the rounding of the frames it went through; with them on it differs
-// by about the noise (docs/soil_estimator.md, "The force noise floor"). A row paired with the
-// wrong period (a neighbour's stamp) would differ by the change of the force over 1/60 s.
+// by about the noise (docs/soil_estimator.md, "The force noise floor"). The noise-free force
+// handed to the sensor in the map frame instead of the base frame puts it 8.5 % off.
 TEST(SoilDataset, EachRowKeepsTheForceWithoutItsNoise) {
   const fs::path dir = fs::temp_directory_path() / ("terramap_soil_dataset_quiet_" + std::to_string(::getpid()));
   fs::create_directories(dir);

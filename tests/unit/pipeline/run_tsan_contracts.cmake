@@ -17,19 +17,18 @@ execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR} -B ${build} -G Ninja
 if(rc)
   message(FATAL_ERROR "configuring the ThreadSanitizer build failed: ${rc}")
 endif()
-# Set before the build too, as for any test program built in this tree.
-set(ENV{TSAN_OPTIONS} "halt_on_error=1:second_deadlock_stack=1:suppressions=${SOURCE_DIR}/scripts/tsan.supp")
 execute_process(COMMAND ${CMAKE_COMMAND} --build ${build} -j ${JOBS} --target test_tsan_contracts
   RESULT_VARIABLE rc OUTPUT_VARIABLE log)
 if(rc)
   message(FATAL_ERROR "building the ThreadSanitizer tests failed: ${rc}\n${log}")
 endif()
 # One program (tests/CMakeLists.txt: test_tsan_contracts) holds the three files of the contracts.
+set(program test_tsan_contracts)
+set(ENV{TSAN_OPTIONS} "halt_on_error=1:second_deadlock_stack=1:suppressions=${SOURCE_DIR}/scripts/tsan.supp")
 foreach(filter
     "Engine.EditMapAndPushOnOneThreadSnapshotsOnAnother:Engine.SnapshotIsConsistentWhileTheEngineKeepsWriting:Run.TheSourceRunsAheadOnItsOwnThreadAndItsProgressAndErrorsArriveInStep"
     "Executor.*:LayeredMap.TileKernelIsBitIdenticalAtOneAndTwoThreads"
     "Simulator.SameSeedIsBitIdenticalForAnyThreadCount:Simulator.StopsCleanlyWhileThePhysicsRunsAhead")
-  set(program test_tsan_contracts)
   execute_process(COMMAND ${build}/bin/${program} --gtest_filter=${filter}
     RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
   message("${out}")
