@@ -8,7 +8,9 @@
 //          a simulated OS1-64 on a CTL driving a random walk over hills, generated at start-up);
 //     map: 400x400_5cm (20 m) or 2000x2000_4cm (80 m), tiles of 64 cells;
 //     cleanup: NoCleanup, Cleanup4th (every 4th ray: the default), CleanupAll (every ray),
-//              CleanupAllCellByCell (every ray, without the walk's block skipping; 400x400 only);
+//              CleanupAllCellByCell (every ray, without the walk's block skipping; 400x400 only),
+//              CleanupAllFan (every ray, cleanup_walk: fan: each azimuth bin's rays walked
+//              together along its centre line, within half a cell of every ray at 10 m);
 //     counters (per second): points_in, points_fused, cells_fused, rays, ray_cells,
 //              ray_cells_read (seqCounters below).
 //   BM_OctoMapSeq_<seq>_400x400_5cm/1: the same scans into one persistent octomap::OcTree at
@@ -310,7 +312,7 @@ size_t pingPong(long k, size_t n) {
   return static_cast<size_t>(r < static_cast<long>(n) ? r : period - r);
 }
 
-enum class Cleanup { None, Every4th, EveryRay, EveryRayCellByCell };
+enum class Cleanup { None, Every4th, EveryRay, EveryRayCellByCell, EveryRayFan };
 
 /// Counters of a sequence benchmark, all rates (per wall second): points_in (every point of
 /// every scan, NaN returns included), points_fused (points that updated a cell), cells_fused
@@ -341,6 +343,7 @@ void runLidarFusionSeq(benchmark::State& state, bool kitti, MapSpec m, Cleanup c
   c.follow_robot = true;
   c.enable_visibility_cleanup = cleanup != Cleanup::None;
   c.cleanup_ray_stride = cleanup == Cleanup::Every4th ? 4 : 1;
+  if (cleanup == Cleanup::EveryRayFan) c.cleanup_walk = CleanupWalk::Fan;
   f.configure(c);
   f.forceCellByCellWalk(cleanup == Cleanup::EveryRayCellByCell);
   f.attach(map);
@@ -478,11 +481,13 @@ void registerSequences() {
   for (bool kitti : {true, false}) {
     const std::string cloud = kitti ? "Kitti" : "Sim64";
     for (const MapSpec& m : kMaps) {
-      for (Cleanup cl : {Cleanup::None, Cleanup::Every4th, Cleanup::EveryRay, Cleanup::EveryRayCellByCell}) {
+      for (Cleanup cl : {Cleanup::None, Cleanup::Every4th, Cleanup::EveryRay, Cleanup::EveryRayCellByCell,
+                         Cleanup::EveryRayFan}) {
         if (cl == Cleanup::EveryRayCellByCell && m.cells != 400) continue;
         const char* suffix = cl == Cleanup::None        ? "_NoCleanup"
                              : cl == Cleanup::Every4th  ? "_Cleanup4th"
                              : cl == Cleanup::EveryRay ? "_CleanupAll"
+                             : cl == Cleanup::EveryRayFan ? "_CleanupAllFan"
                                                         : "_CleanupAllCellByCell";
         reg("BM_LidarFusionSeq_" + cloud + "_" + m.name + suffix,
             [=](benchmark::State& s) { runLidarFusionSeq(s, kitti, m, cl); }, true);

@@ -40,6 +40,16 @@ constexpr int kRayBlock = 8;
 constexpr int kRaySortBuckets = 2048;
 /// Azimuth sectors (octants) of the ray walk: a worker walks a whole sector at a time.
 constexpr int kRaySectors = 8;
+/// Bins per task of the fan walk (fixed: the tasks' contents never depend on threads).
+constexpr int kFanBinsPerTask = 16;
+/// Where the cleanup's walk of a ray (sensor-relative end dx, dy, dz in m) ends, as a fraction
+/// of the ray: the end margin and max_ray_length_m cut it. Not walked unless > 0 (NaN too);
+/// L is set to the ray's length.
+inline double rayWalkEnd(double dx, double dy, double dz, double margin, double max_len, double& L) {
+  L = std::sqrt(dx * dx + dy * dy + dz * dz);
+  if (!(L > 1e-9)) return 0.0;
+  return std::min({1.0, (L - margin) / L, max_len / L});
+}
 /// Calls f(offset in the tile) for each cell of ray-walk block `block` of a T x T tile (blocks
 /// numbered row-major, ceil(T / kRayBlock) per side; the last row and column may be partial).
 template <class F>
@@ -353,6 +363,11 @@ ParamSchema lidarFusionSchema() {
       param::real("cleanup_cos_thresh", 0.1, 0.0, 1.0, "1",
                   "ignore rays whose |cos| to the surface normal is below this (grazing)"),
       param::real("cleanup_end_margin_m", 0.3, 0.0, inf, "m", "stop each walk this far before its point"),
+      param::text("cleanup_walk", "exact", {"exact", "fan"},
+                  "exact: each ray along its own line; fan: rays binned by azimuth, each bin walked once along "
+                  "its centre line (within cleanup_fan_lateral_cells of every ray of the bin)"),
+      param::real("cleanup_fan_lateral_cells", 0.5, 0.0, 8.0, "cells",
+                  "fan walk: largest distance between a ray and its bin's centre line, at max_ray_length_m"),
       param::boolean("enable_drift_compensation", false, "shift the map by the mean inlier residual"),
       param::real("drift_compensation_alpha", 0.1, 0.0, 1.0, "1", "fraction of the mean residual applied"),
       param::real("drift_compensation_variance_inlier_m2", 0.05, 0.0, inf, "m^2",
@@ -420,6 +435,8 @@ LidarFusionConfig lidarFusionConfigFrom(const Params& p) {
   c.cleanup_step = p.getDouble("cleanup_step");
   c.cleanup_cos_thresh = p.getDouble("cleanup_cos_thresh");
   c.cleanup_end_margin_m = p.getDouble("cleanup_end_margin_m");
+  c.cleanup_walk = p.getString("cleanup_walk") == "fan" ? CleanupWalk::Fan : CleanupWalk::Exact;
+  c.cleanup_fan_lateral_cells = p.getDouble("cleanup_fan_lateral_cells");
   c.enable_drift_compensation = p.getBool("enable_drift_compensation");
   c.drift_compensation_alpha = p.getDouble("drift_compensation_alpha");
   c.drift_compensation_variance_inlier_m2 = p.getDouble("drift_compensation_variance_inlier_m2");
@@ -465,6 +482,8 @@ void LidarFusion::configure(const LidarFusionConfig& c) {
     bad("cleanup_step", "must be in [0, 1] (got " + formatNumber(c.cleanup_step) + ")");
   if (!(c.cleanup_cos_thresh >= 0.0 && c.cleanup_cos_thresh <= 1.0))
     bad("cleanup_cos_thresh", "must be in [0, 1] (got " + formatNumber(c.cleanup_cos_thresh) + ")");
+  if (!(c.cleanup_fan_lateral_cells > 0.0 && c.cleanup_fan_lateral_cells <= 8.0))
+    bad("cleanup_fan_lateral_cells", "must be in (0, 8] (got " + formatNumber(c.cleanup_fan_lateral_cells) + ")");
   if (!(c.drift_compensation_alpha >= 0.0 && c.drift_compensation_alpha <= 1.0))
     bad("drift_compensation_alpha", "must be in [0, 1] (got " + formatNumber(c.drift_compensation_alpha) + ")");
   self_filter_.configure(c.self_filter_base_m, c.self_filter_blade_m, c.self_filter_margin_m, "self_filter_base_m",
@@ -1016,31 +1035,46 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
 void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vector3d& S, FusionStats& st) {
   const RayWalkView view = rayWalkView(map, S);
   const int slots = ex.threads();
-  prepareRayTasks(slots, map.tileCount(), view.tile_cells);
-  prepareRayBlocks(map);
+  prepareRaySlots(slots, map.tileCount(), view.tile_cells);
+  const bool fan = config_.cleanup_walk == CleanupWalk::Fan;
+  if (fan) {
+    prepareFan(map, ex);
+  } else {
+    prepareRayTasks();
+    prepareRayBlocks(map);
+  }
   const int nc = static_cast<int>(ray_tasks_.size());
   ray_chunks_.resize(static_cast<size_t>(nc));
   std::vector<std::array<long, 3>> per(static_cast<size_t>(nc));
 
-  // Phase A: walk rays (one task per fixed run of rays); reads the map only. Over unknown cells a
-  // ray lowers its slot's per-cell minimum (min is exact and order-free, so neither the
-  // task-to-thread assignment nor the order of rays changes the result); under stale
-  // surfaces it emits a penetration item (phase B applies them so that their order does not
-  // matter either).
-  // Each worker takes the next azimuth octant and walks its tasks in order, steepest rays
-  // first, so the bounds its slot gathers over a block come from the rays that cross it and
+  // Phase A: walk rays (one task per fixed run of rays, or of fan bins); reads the map only.
+  // Over unknown cells a ray lowers its slot's per-cell minimum (min is exact and order-free, so
+  // neither the task-to-thread assignment nor the order of rays changes the result); under
+  // stale surfaces it emits a penetration item (phase B applies them so that their order does
+  // not matter either).
+  // Exact walk: each worker takes the next azimuth octant and walks its tasks in order, steepest
+  // rays first, so the bounds its slot gathers over a block come from the rays that cross it and
   // let the higher rays skip it (walkRayTask). Which octants a slot gets changes only the work.
+  // Fan walk: each worker takes the next task.
   std::atomic<int> next{0};
-  const int workers = std::min(slots, kRaySectors);
+  const int groups = fan ? nc : kRaySectors;
+  const int workers = std::max(1, std::min(slots, groups));
   ex.forEach(workers, [&](int) {
     // forEach runs inline (on the caller, maybe outside the arena) for one thread or one task.
     int slot = workers > 1 ? Executor::currentSlot() : 0;
     if (slot < 0 || slot >= slots)
       throw std::logic_error("lidar_fusion: worker slot " + std::to_string(slot) + " outside the executor's " +
                              std::to_string(slots));
-    for (int g = next.fetch_add(1); g < kRaySectors; g = next.fetch_add(1))
+    RayMinSlot& mins = ray_min_[static_cast<size_t>(slot)];
+    std::vector<double> suffix;  // fan: per bin, the suffix minima of its rays' slopes
+    for (int g = next.fetch_add(1); g < groups; g = next.fetch_add(1)) {
+      if (fan) {
+        per[static_cast<size_t>(g)] = walkFanTask(view, mins, g, suffix);
+        continue;
+      }
       for (int c = ray_sector_start_[static_cast<size_t>(g)]; c < ray_sector_start_[static_cast<size_t>(g) + 1]; ++c)
-        per[static_cast<size_t>(c)] = walkRayTask(view, ray_min_[static_cast<size_t>(slot)], c);
+        per[static_cast<size_t>(c)] = walkRayTask(view, mins, c);
+    }
   });
   for (const auto& p : per) {
     st.rays += p[0];
@@ -1080,8 +1114,8 @@ LidarFusion::RayWalkView LidarFusion::rayWalkView(const LayeredMap& map, const E
   return w;
 }
 
-void LidarFusion::prepareRayTasks(int slots, int ntiles, int tile_cells) {
-  // One ray-minimum buffer set per worker slot of the executor's arena (see RayMinSlot).
+// One ray-minimum buffer set per worker slot of the executor's arena (see RayMinSlot).
+void LidarFusion::prepareRaySlots(int slots, int ntiles, int tile_cells) {
   if (ray_min_.size() != static_cast<size_t>(slots) || ray_min_[0].tiles.size() != static_cast<size_t>(ntiles) ||
       ray_min_tile_cells_ != tile_cells) {
     ray_min_.clear();
@@ -1092,6 +1126,9 @@ void LidarFusion::prepareRayTasks(int slots, int ntiles, int tile_cells) {
     }
     ray_min_tile_cells_ = tile_cells;
   }
+}
+
+void LidarFusion::prepareRayTasks() {
   // The rays by azimuth octant and, within one, steepest descent first (a stable counting sort;
   // the order changes only how much of the walk is skipped, never the result). Low rays bound
   // the unknown cells near the sensor first; the higher rays that follow find those blocks
@@ -1211,6 +1248,22 @@ float* LidarFusion::minTile(RayMinSlot& mins, std::int32_t tile) const {
   return buf.get();
 }
 
+std::array<double, 2> LidarFusion::surfaceGradient(const RayWalkView& w, int i, int j, float h) const {
+  auto elevAt = [&](int li, int lj) -> float {
+    if (li < 0 || lj < 0 || li >= w.rows || lj >= w.cols) return kNaN;
+    return w.elev[static_cast<size_t>(row_tile_[static_cast<size_t>(li)] + col_tile_[static_cast<size_t>(lj)])]
+                 [row_local_[static_cast<size_t>(li)] + col_local_[static_cast<size_t>(lj)]];
+  };
+  auto slope = [&](float a, float b, float m, double dist) {
+    if (!std::isnan(a) && !std::isnan(b)) return (a - b) / (2.0 * dist);
+    if (!std::isnan(a)) return (a - m) / dist;
+    if (!std::isnan(b)) return (m - b) / dist;
+    return 0.0;
+  };
+  // Row i-1 lies towards +x, column j-1 towards +y.
+  return {slope(elevAt(i - 1, j), elevAt(i + 1, j), h, w.res), slope(elevAt(i, j - 1), elevAt(i, j + 1), h, w.res)};
+}
+
 // A known cell under the ray: a penetration item if the cell is stale (not measured by this
 // cloud), its surface is above the ray by k sigma and the ray is not grazing. Rare next to the
 // unknown-cell case: kept out of line, away from the walk's registers.
@@ -1223,21 +1276,7 @@ __attribute__((noinline)) void LidarFusion::staleCell(const RayWalkView& w, int 
   const double var = vv ? vv[off] : 0.0;
   const double k = config_.mahalanobis_thresh;
   if (!(h - k * std::sqrt(std::max(var, 0.0)) > zhi)) return;
-  auto elevAt = [&](int li, int lj) -> float {
-    if (li < 0 || lj < 0 || li >= w.rows || lj >= w.cols) return kNaN;
-    return w.elev[static_cast<size_t>(row_tile_[static_cast<size_t>(li)] + col_tile_[static_cast<size_t>(lj)])]
-                 [row_local_[static_cast<size_t>(li)] + col_local_[static_cast<size_t>(lj)]];
-  };
-  // Surface normal from central differences (one-sided at unknown neighbours).
-  auto slope = [&](float a, float b, float m, double dist) {
-    if (!std::isnan(a) && !std::isnan(b)) return (a - b) / (2.0 * dist);
-    if (!std::isnan(a)) return (a - m) / dist;
-    if (!std::isnan(b)) return (m - b) / dist;
-    return 0.0;
-  };
-  // Row i-1 lies towards +x, column j-1 towards +y.
-  const double gx = slope(elevAt(i - 1, j), elevAt(i + 1, j), h, w.res);
-  const double gy = slope(elevAt(i, j - 1), elevAt(i, j + 1), h, w.res);
+  const auto [gx, gy] = surfaceGradient(w, i, j, h);
   const double nn = std::sqrt(gx * gx + gy * gy + 1.0);
   const double cosang = std::abs(-gx * dirx - gy * diry + dirz) / nn;
   if (cosang >= config_.cleanup_cos_thresh) items.push_back(Item{tile, off, static_cast<float>(zhi), kRayPenetration});
@@ -1264,9 +1303,8 @@ std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
   const bool may_skip = !force_cell_walk_;
   for (size_t q = 3 * static_cast<size_t>(task.begin); q < 3 * static_cast<size_t>(task.end); q += 3) {
     const double dx = ends[q], dy = ends[q + 1], dz = ends[q + 2];
-    const double L = std::sqrt(dx * dx + dy * dy + dz * dz);
-    if (!(L > 1e-9)) continue;
-    const double t_end = std::min({1.0, (L - cf.cleanup_end_margin_m) / L, cf.max_ray_length_m / L});
+    double L;
+    const double t_end = rayWalkEnd(dx, dy, dz, cf.cleanup_end_margin_m, cf.max_ray_length_m, L);
     if (!(t_end > 0.0)) continue;
     ++nrays;
     ColumnWalk cw;
@@ -1346,6 +1384,208 @@ std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
     ncells += std::abs(cw.i - i_start) + std::abs(cw.j - j_start) + 1;
   }
   return {nrays, ncells, nread};
+}
+
+// ---- the fan walk (CleanupWalk::Fan) -----------------------------------------------------------
+//
+// A LiDAR's rays come in azimuth columns: tens of rays at nearly one azimuth, which the exact
+// walk takes one by one through nearly the same cells. The fan walk bins them by azimuth and
+// walks each bin once, along its centre line. Over one column of that line (horizontal
+// distances [da, db] from the sensor) the ray heights are those of the exact walk:
+//  - a ray that goes on past the column is highest at its entry if it descends, at its exit
+//    if it climbs: z = Sz + s * (s < 0 ? da : db). With the bin's rays sorted by reach R, those
+//    going on are a suffix of them, and their lowest is the one of the suffix's smallest slope;
+//  - a ray that ends in the column (da < R <= db) is highest at its entry if it descends, at
+//    its end if it climbs; each ends once, so these are taken one by one.
+// One read per cell for the whole bin, instead of one per ray.
+
+namespace {
+/// Highest point (map z, m) over its last column of a ray that ends there, the column entered
+/// at horizontal distance da.
+inline double endingRayZ(double Sz, double rho, double t_end, float dz, double da) {
+  return dz >= 0.0f ? Sz + t_end * dz : Sz + (rho > 0.0 ? da / rho : 0.0) * dz;
+}
+}  // namespace
+
+// The rays binned: the face of the square around the sensor their azimuth points at (+x, +y,
+// -x, -y) and, along it, the slot of c = the other component over this one (|c| <= 1, slots
+// 2/K wide, K per face). Binning on c needs no trigonometry, and a slot spans at most 2/K rad
+// (d atan(c) / dc <= 1), so a ray lies within reach/K of its slot's centre line: K is chosen to
+// make that cleanup_fan_lateral_cells. A stable counting sort over the point chunks (each
+// chunk counts its rays per bin in parallel, then places them), so a bin holds its rays in
+// input order whatever the threads.
+void LidarFusion::prepareFan(const LayeredMap& map, const Executor& ex) {
+  const LidarFusionConfig& cf = config_;
+  const Geometry& g = map.geometry();
+  const double reach = std::min(cf.max_ray_length_m, std::hypot(g.length().x(), g.length().y()));
+  const double slots = std::ceil(reach / (cf.cleanup_fan_lateral_cells * g.resolution()));
+  // Odd, so that one slot is centred on each axis: a ray along a grid axis keeps its own line.
+  fan_slots_ = static_cast<int>(std::clamp(slots, 1.0, 16383.0)) | 1;
+  const int K = fan_slots_, nbins = 4 * K;
+  const int nch = static_cast<int>(point_chunks_.size());
+  std::vector<size_t> first(static_cast<size_t>(nch) + 1, 0);
+  for (int c = 0; c < nch; ++c)
+    first[static_cast<size_t>(c) + 1] = first[static_cast<size_t>(c)] + point_chunks_[static_cast<size_t>(c)].ray_ends.size() / 3;
+  fan_keys_.resize(first[static_cast<size_t>(nch)]);
+  fan_hist_.resize(static_cast<size_t>(nch));
+  ex.forEach(nch, [&](int c) {
+    const std::vector<float>& e = point_chunks_[static_cast<size_t>(c)].ray_ends;
+    std::vector<int>& hist = fan_hist_[static_cast<size_t>(c)];
+    hist.assign(static_cast<size_t>(nbins), 0);
+    std::uint32_t* key = fan_keys_.data() + first[static_cast<size_t>(c)];
+    for (size_t k = 0; k < e.size(); k += 3) {
+      const double dx = e[k], dy = e[k + 1], dz = e[k + 2];
+      double L;
+      if (!(rayWalkEnd(dx, dy, dz, cf.cleanup_end_margin_m, cf.max_ray_length_m, L) > 0.0)) {
+        key[k / 3] = ~0u;
+        continue;
+      }
+      const double ax = std::abs(dx), ay = std::abs(dy);
+      int face;
+      double cc;
+      if (ax >= ay) {
+        face = dx >= 0.0 ? 0 : 2;
+        cc = ax > 0.0 ? dy / ax : 0.0;  // a vertical ray: the sensor's own column, any bin
+      } else {
+        face = dy > 0.0 ? 1 : 3;
+        cc = dx / ay;
+      }
+      const int slot = std::clamp(static_cast<int>((cc + 1.0) * 0.5 * K), 0, K - 1);
+      const std::uint32_t b = static_cast<std::uint32_t>(face * K + slot);
+      key[k / 3] = b;
+      ++hist[b];
+    }
+  });
+  // Bin-major, chunk-minor: each chunk's count becomes its first place in the bin.
+  fan_bin_start_.resize(static_cast<size_t>(nbins) + 1);
+  int pos = 0;
+  for (int b = 0; b < nbins; ++b) {
+    fan_bin_start_[static_cast<size_t>(b)] = pos;
+    for (int c = 0; c < nch; ++c) {
+      int& h = fan_hist_[static_cast<size_t>(c)][static_cast<size_t>(b)];
+      const int n = h;
+      h = pos;
+      pos += n;
+    }
+  }
+  fan_bin_start_[static_cast<size_t>(nbins)] = pos;
+  fan_rays_.resize(static_cast<size_t>(pos));
+  ex.forEach(nch, [&](int c) {
+    const std::vector<float>& e = point_chunks_[static_cast<size_t>(c)].ray_ends;
+    int* place = fan_hist_[static_cast<size_t>(c)].data();
+    const std::uint32_t* key = fan_keys_.data() + first[static_cast<size_t>(c)];
+    for (size_t k = 0; k < e.size(); k += 3) {
+      const std::uint32_t b = key[k / 3];
+      if (b == ~0u) continue;
+      FanRay& r = fan_rays_[static_cast<size_t>(place[b]++)];
+      const double dx = e[k], dy = e[k + 1], dz = e[k + 2];
+      double L;
+      r.t_end = rayWalkEnd(dx, dy, dz, cf.cleanup_end_margin_m, cf.max_ray_length_m, L);
+      r.rho = std::sqrt(dx * dx + dy * dy);
+      r.R = r.t_end * r.rho;
+      r.s = r.rho > 0.0 ? dz / r.rho : 0.0;
+      r.dx = e[k], r.dy = e[k + 1], r.dz = e[k + 2];
+      r.seq = static_cast<std::uint32_t>(first[static_cast<size_t>(c)] + k / 3);
+    }
+  });
+  ray_tasks_.clear();
+  for (int b = 0; b < nbins; b += kFanBinsPerTask) ray_tasks_.push_back({b, std::min(nbins, b + kFanBinsPerTask)});
+}
+
+// The bins [begin, end) of one task: each bin's rays sorted by reach (ties by input order: one
+// order whatever the threads), the suffix minima of their slopes, then the centre line walked
+// from the sensor to the farthest reach. Counters: rays, the cells each ray spans (the bin's
+// rays over each column walked), the cells read (one per column walked).
+std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& mins, int c, std::vector<double>& suffix) {
+  std::vector<Item>& out = ray_chunks_[static_cast<size_t>(c)];
+  out.clear();
+  const RayTask task = ray_tasks_[static_cast<size_t>(c)];
+  const int K = fan_slots_;
+  const std::int32_t* row_tile = row_tile_.data();
+  const std::int32_t* row_local = row_local_.data();
+  const std::int32_t* col_tile = col_tile_.data();
+  const std::int32_t* col_local = col_local_.data();
+  const float* const* const Et = w.elev.data();
+  float* const* const active = mins.active.data();
+  const unsigned Ru = static_cast<unsigned>(w.rows), Cu = static_cast<unsigned>(w.cols);
+  const double Sz = w.sensor_z;
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  long nrays = 0, ncells = 0, nread = 0;
+  for (int b = task.begin; b < task.end; ++b) {
+    const int r0 = fan_bin_start_[static_cast<size_t>(b)];
+    const int n = fan_bin_start_[static_cast<size_t>(b) + 1] - r0;
+    if (n == 0) continue;
+    FanRay* rays = fan_rays_.data() + r0;
+    std::sort(rays, rays + n, [](const FanRay& x, const FanRay& y) { return x.R < y.R || (x.R == y.R && x.seq < y.seq); });
+    suffix.resize(static_cast<size_t>(n) + 1);
+    suffix[static_cast<size_t>(n)] = kInf;
+    for (int k = n - 1; k >= 0; --k) suffix[static_cast<size_t>(k)] = std::min(suffix[static_cast<size_t>(k) + 1], rays[k].s);
+    nrays += n;
+    const int face = b / K;
+    const double cc = -1.0 + (b % K + 0.5) * 2.0 / K;
+    const double ux = face == 0 ? 1.0 : face == 2 ? -1.0 : cc, uy = face == 1 ? 1.0 : face == 3 ? -1.0 : cc;
+    const double un = std::sqrt(ux * ux + uy * uy), Rmax = rays[n - 1].R;
+    ColumnWalk cw;
+    double ta;
+    if (!startColumnWalk(ux / un * Rmax, uy / un * Rmax, 1.0, w.u0, w.v0, w.res, w.rows, w.cols, cw, ta)) continue;
+    int p = 0, q = 0;  // rays [p, q) end in the current column, [q, n) go on past it
+    while (static_cast<unsigned>(cw.i) < Ru && static_cast<unsigned>(cw.j) < Cu) {
+      const double tb = std::min(std::min(cw.tmi, cw.tmj), cw.t1);
+      const double da = ta * Rmax, db = tb * Rmax;
+      // The rays over this column: those reaching past its entry (all of them in the sensor's).
+      if (da > 0.0)
+        while (p < n && rays[p].R <= da) ++p;
+      if (p == n) break;
+      q = std::max(q, p);
+      while (q < n && rays[q].R <= db) ++q;
+      double z = kInf;  // the lowest of their highest points over the column
+      for (int k = p; k < q; ++k) z = std::min(z, endingRayZ(Sz, rays[k].rho, rays[k].t_end, rays[k].dz, da));
+      if (q < n) z = std::min(z, Sz + suffix[static_cast<size_t>(q)] * (suffix[static_cast<size_t>(q)] < 0.0 ? da : db));
+      ncells += n - p;
+      ++nread;
+      const std::int32_t tile = row_tile[cw.i] + col_tile[cw.j];
+      const std::uint32_t off = static_cast<std::uint32_t>(row_local[cw.i] + col_local[cw.j]);
+      const float h = Et[tile][off];
+      if (std::isnan(h)) {
+        float* m = active[tile];
+        if (!m) m = minTile(mins, tile);
+        const float zf = static_cast<float>(z);
+        if (zf < m[off]) m[off] = zf;
+      } else if (h > z) {
+        staleFanCell(w, cw.i, cw.j, tile, off, h, rays, p, q, n, z, da, db, out);
+      }
+      if (tb >= cw.t1) break;
+      ta = tb;
+      if (cw.rowFirst()) cw.stepRow();
+      else cw.stepCol();
+    }
+  }
+  return {nrays, ncells, nread};
+}
+
+// A known cell under the bin's lowest ray (z): as staleCell, for each of the bin's rays over
+// the column ([p, q) ending there, [q, n) going on), in their sorted order.
+void LidarFusion::staleFanCell(const RayWalkView& w, int i, int j, std::int32_t tile, std::uint32_t off, float h,
+                               const FanRay* rays, int p, int q, int n, double z, double da, double db,
+                               std::vector<Item>& items) const {
+  const float* ht = w.hits[static_cast<size_t>(tile)];
+  if (ht && ht[off] > 0.0f) return;  // measured by this cloud: never cleaned by it
+  const float* vv = w.var[static_cast<size_t>(tile)];
+  const double var = vv ? vv[off] : 0.0;
+  const double H = h - config_.mahalanobis_thresh * std::sqrt(std::max(var, 0.0));
+  if (!(H > z)) return;
+  const auto [gx, gy] = surfaceGradient(w, i, j, h);
+  const double nn = std::sqrt(gx * gx + gy * gy + 1.0);
+  const double Sz = w.sensor_z;
+  for (int k = p; k < n; ++k) {
+    const FanRay& r = rays[k];
+    const double zk = k < q ? endingRayZ(Sz, r.rho, r.t_end, r.dz, da) : Sz + r.s * (r.s < 0.0 ? da : db);
+    if (!(H > zk)) continue;
+    const double dx = r.dx, dy = r.dy, dz = r.dz;
+    const double L = std::sqrt(dx * dx + dy * dy + dz * dz);
+    const double cosang = std::abs(-gx * dx - gy * dy + dz) / (L * nn);
+    if (cosang >= config_.cleanup_cos_thresh) items.push_back(Item{tile, off, static_cast<float>(zk), kRayPenetration});
+  }
 }
 
 // Phase B, one task per tile that has ray minima or penetration items: apply the minima

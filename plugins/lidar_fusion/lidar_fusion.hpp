@@ -25,7 +25,9 @@
 ///     cells get an upper bound (min over rays of the ray height in the cell; a cell invalidated
 ///     by this cloud: min over the rays that passed under it). The walk jumps over blocks of
 ///     8 x 8 cells where no cell could change (no missed surface reaches the ray, and the
-///     steeper rays walked before already bound every unknown cell below it);
+///     steeper rays walked before already bound every unknown cell below it). With
+///     cleanup_walk = fan the rays are binned by azimuth and each bin is walked once along its
+///     centre line, every ray of the bin acting on those cells (see CleanupWalk);
 ///  7. optional drift compensation (off by default).
 ///
 /// Frames: `elevation` and `upper_bound` are map-frame z (metres). NaN = unknown.
@@ -51,6 +53,19 @@
 #include <vector>
 
 namespace terramap::plugins {
+
+/// How the visibility cleanup walks its rays (step 6 below).
+enum class CleanupWalk {
+  /// Every ray along its own line through the grid (Amanatides-Woo), jumping over the blocks
+  /// where no cell could change: each ray's own cells, at a cost per ray of the cells it reads.
+  Exact,
+  /// The rays binned by azimuth (bins narrow enough that a ray lies within
+  /// cleanup_fan_lateral_cells of its bin's centre line at max_ray_length_m); each bin's rays
+  /// walked together along its centre line, one read per cell for the whole bin: per cell, the
+  /// lowest ray over it comes from the bin's rays sorted by reach (a suffix minimum of their
+  /// slopes). A ray thus acts on the cells of a line within that lateral distance of its own.
+  Fan,
+};
 
 enum class NoiseModel {
   RangeBased,    ///< sigma = a + b * range (LiDAR); variance = sigma^2
@@ -94,6 +109,10 @@ struct LidarFusionConfig {
   double cleanup_step = 0.1;              ///< is_valid lost per penetrating ray
   double cleanup_cos_thresh = 0.1;        ///< skip rays with |ray . normal| below this (grazing)
   double cleanup_end_margin_m = 0.3;      ///< stop the walk this far before the point (m)
+  CleanupWalk cleanup_walk = CleanupWalk::Exact;  ///< each ray on its own line, or fans (see CleanupWalk)
+  /// Fan walk: the largest distance (cells) between a ray and its bin's centre line, reached at
+  /// max_ray_length_m (or the map's diagonal, if shorter); nearer the sensor it is smaller.
+  double cleanup_fan_lateral_cells = 0.5;
   bool enable_drift_compensation = false;
   double drift_compensation_alpha = 0.1;            ///< fraction of the mean residual applied
   double drift_compensation_variance_inlier_m2 = 0.05;  ///< only cells below this variance vote
@@ -301,7 +320,8 @@ class LidarFusion : public Plugin {
   };
   // The steps of cleanup(): views, ray tasks, phase A per task (the walk), phase B.
   RayWalkView rayWalkView(const LayeredMap& map, const Eigen::Vector3d& sensor);
-  void prepareRayTasks(int slots, int ntiles, int tile_cells);
+  void prepareRaySlots(int slots, int ntiles, int tile_cells);
+  void prepareRayTasks();
   void prepareRayBlocks(const LayeredMap& map);
   float blockMax(const RayWalkView& view, const RayMinSlot& mins, std::int32_t tile, int block) const;
   void blockSurface(const RayWalkView& view, RayMinSlot& mins, std::int32_t tile, int block) const;
@@ -311,6 +331,28 @@ class LidarFusion : public Plugin {
   void staleCell(const RayWalkView& view, int i, int j, std::int32_t tile, std::uint32_t off, float h, double zhi,
                  double dirx, double diry, double dirz, std::vector<Item>& items) const;
   void applyRayResults(LayeredMap& map, const Executor& ex, FusionStats& st);
+  /// The surface's gradient (dz/dx, dz/dy) at cell (i, j) of height h: central differences,
+  /// one-sided at unknown neighbours, 0 where both are unknown.
+  std::array<double, 2> surfaceGradient(const RayWalkView& view, int i, int j, float h) const;
+  // The fan walk (CleanupWalk::Fan): the rays binned by azimuth face and centre-line slot, in
+  // input order within a bin (a stable counting sort over the point chunks), each with what the
+  // walk needs: horizontal reach R (m), slope s = dz / rho (m/m), horizontal length rho (m),
+  // the walk's end t_end on the ray (0..1), the direction and the ray's index (sort tie-break).
+  struct FanRay {
+    double R, s, rho, t_end;
+    float dx, dy, dz;
+    std::uint32_t seq;
+  };
+  void prepareFan(const LayeredMap& map, const Executor& ex);
+  std::array<long, 3> walkFanTask(const RayWalkView& view, RayMinSlot& mins, int task, std::vector<double>& suffix);
+  void staleFanCell(const RayWalkView& view, int i, int j, std::int32_t tile, std::uint32_t off, float h,
+                    const FanRay* rays, int p, int q, int n, double z, double da, double db,
+                    std::vector<Item>& items) const;
+  std::vector<FanRay> fan_rays_;
+  std::vector<std::uint32_t> fan_keys_;         // bin per ray of the chunks (scratch; ~0u: not walked)
+  std::vector<std::vector<int>> fan_hist_;      // per point chunk: rays per bin, then its first slot
+  std::vector<int> fan_bin_start_;              // bin -> first ray in fan_rays_; size bins + 1
+  int fan_slots_ = 0;                           // centre-line slots per face (4 faces)
   std::vector<int> bin_start_;     // tile -> first binned item; size tiles + 1
   std::vector<Item> binned_;
   std::vector<int> ray_tiles_;     // tiles with binned ray items, ascending

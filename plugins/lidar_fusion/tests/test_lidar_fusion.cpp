@@ -304,6 +304,18 @@ TEST(LidarFusion, ParamsAreCrossChecked) {
   LidarFusionConfig c;
   c.cleanup_ray_stride = 0;
   EXPECT_THROW(f.configure(c), ConfigError);
+  // The fan walk: the walk's name is checked by the schema, its lateral tolerance must be > 0.
+  EXPECT_THROW(makeParams("lidar", lidarFusionSchema(), {{"cleanup_walk", std::string("fans")}}), ConfigError);
+  const Params fan = makeParams("lidar", lidarFusionSchema(), {{"cleanup_walk", std::string("fan")}});
+  EXPECT_EQ(lidarFusionConfigFrom(fan).cleanup_walk, CleanupWalk::Fan);
+  c = LidarFusionConfig{};
+  c.cleanup_fan_lateral_cells = 0.0;
+  try {
+    f.configure(c);
+    ADD_FAILURE() << "a zero lateral tolerance was accepted";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("cleanup_fan_lateral_cells"), std::string::npos) << e.what();
+  }
 }
 
 // A noise model that claims noise-free points is a configuration error, named by its keys.
@@ -407,12 +419,20 @@ TEST(LidarFusion, ManyIdenticalHeightsStopAtTheVarianceFloor) {
   EXPECT_EQ(layerAt(map, L::kVariance, idx), static_cast<float>(c.min_variance_m2));
 }
 
+// The cleanup's tests below run with both walks: the rays lie along a grid axis, where the fan
+// walk's bin has its centre line on the ray's own line (an odd number of slots per face).
+const CleanupWalk kWalks[] = {CleanupWalk::Exact, CleanupWalk::Fan};
+const char* walkName(CleanupWalk w) { return w == CleanupWalk::Fan ? "fan walk" : "exact walk"; }
+
 TEST(LidarFusion, RayUnderAStaleCellInvalidatesIt) {
+  for (CleanupWalk walk : kWalks) {
+  SCOPED_TRACE(walkName(walk));
   LayeredMap map = makeMap();
   LidarFusion f;
   LidarFusionConfig c = plainConfig();
   c.enable_visibility_cleanup = true;
   c.cleanup_ray_stride = 1;
+  c.cleanup_walk = walk;
   c.cleanup_step = 0.25;  // exact in binary: 1 -> 0.75 -> 0.5 -> 0.25 (< 0.5: invalid)
   c.time_variance_m2_per_s = 0.0005;
   f.configure(c);
@@ -448,14 +468,18 @@ TEST(LidarFusion, RayUnderAStaleCellInvalidatesIt) {
   EXPECT_EQ(layerAt(map, L::kIsValid, A), 0.0f);
   EXPECT_NEAR(layerAt(map, L::kUpperBound, A), 1.0 - 1.5 / 2.55, 1e-5);
   EXPECT_EQ(layerAt(map, L::kIsUpperBound, A), 1.0f);
+  }
 }
 
 TEST(LidarFusion, RaysDoNotCleanCellsMeasuredInTheSameCloudOrGrazing) {
+  for (CleanupWalk walk : kWalks) {
+  SCOPED_TRACE(walkName(walk));
   LayeredMap map = makeMap();
   LidarFusion f;
   LidarFusionConfig c = plainConfig();
   c.enable_visibility_cleanup = true;
   c.cleanup_ray_stride = 1;
+  c.cleanup_walk = walk;
   c.cleanup_step = 0.25;
   f.configure(c);
   f.attach(map);
@@ -471,14 +495,18 @@ TEST(LidarFusion, RaysDoNotCleanCellsMeasuredInTheSameCloudOrGrazing) {
   EXPECT_EQ(s.rays, 1);
   EXPECT_EQ(s.cells_penetrated, 0);
   EXPECT_EQ(layerAt(map, L::kIsValid, A), 1.0f);
+  }
 }
 
 TEST(LidarFusion, UpperBoundOverAnUnknownCell) {
+  for (CleanupWalk walk : kWalks) {
+  SCOPED_TRACE(walkName(walk));
   LayeredMap map = makeMap();
   LidarFusion f;
   LidarFusionConfig c = plainConfig();
   c.enable_visibility_cleanup = true;
   c.cleanup_ray_stride = 1;
+  c.cleanup_walk = walk;
   f.configure(c);
   f.attach(map);
   Executor ex(1);
@@ -502,6 +530,7 @@ TEST(LidarFusion, UpperBoundOverAnUnknownCell) {
   f.fuse(map, ex, cloudAt({0.0, 0.05, 1.0}, {{0.55f, 0.0f, -1.2f, 0}}));
   EXPECT_NEAR(layerAt(map, L::kUpperBound, B), -0.2, 1e-6);
   EXPECT_EQ(layerAt(map, L::kIsUpperBound, B), 0.0f);
+  }
 }
 
 TEST(LidarFusion, FollowRobotMovesByKCells) {
@@ -715,7 +744,10 @@ TEST(LidarFusion, BitIdenticalAtOneAndTwoThreads) {
   c.enable_drift_compensation = true;
   c.follow_robot = true;
   c.cleanup_ray_stride = 2;
+  for (CleanupWalk walk : kWalks)
   for (bool sparse : {false, true}) {
+    SCOPED_TRACE(walkName(walk));
+    c.cleanup_walk = walk;
     const RunResult a = runSequence(1, sparse, c);
     const RunResult b = runSequence(2, sparse, c);
     ASSERT_EQ(a.layers.size(), b.layers.size());
@@ -975,6 +1007,9 @@ TEST(LidarFusion, OneChunkCloudsWithCleanupAtTwoThreads) {
   LidarFusionConfig c = plainConfig();
   c.enable_visibility_cleanup = true;
   c.cleanup_ray_stride = 1;
+  for (CleanupWalk walk : kWalks) {
+  SCOPED_TRACE(walkName(walk));
+  c.cleanup_walk = walk;
   std::vector<Eigen::MatrixXf> layers[2];
   for (int threads : {1, 2}) {
     LayeredMap map = makeMap();
@@ -990,4 +1025,5 @@ TEST(LidarFusion, OneChunkCloudsWithCleanupAtTwoThreads) {
   for (size_t l = 0; l < layers[0].size(); ++l) EXPECT_TRUE(sameBits(layers[0][l], layers[1][l])) << "layer " << l;
   // Rays did bound unknown cells, so the comparison above is not vacuous.
   EXPECT_GT((layers[1][2].array() == 1.0f).count(), 100);
+  }
 }
