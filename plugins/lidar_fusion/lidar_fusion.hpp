@@ -104,12 +104,12 @@ struct LidarFusionConfig {
   double max_variance_m2 = 100.0;         ///< a cell above this after an outlier is forgotten
   double time_variance_m2_per_s = 0.0005; ///< variance growth of valid cells (m^2/s)
   bool enable_visibility_cleanup = true;
-  int cleanup_ray_stride = 4;             ///< walk the ray of every n-th point (by input index)
+  int cleanup_ray_stride = 1;             ///< walk the ray of every n-th point (by input index)
   double max_ray_length_m = 10.0;         ///< walk at most this far from the sensor (m)
   double cleanup_step = 0.1;              ///< is_valid lost per penetrating ray
   double cleanup_cos_thresh = 0.1;        ///< skip rays with |ray . normal| below this (grazing)
   double cleanup_end_margin_m = 0.3;      ///< stop the walk this far before the point (m)
-  CleanupWalk cleanup_walk = CleanupWalk::Exact;  ///< each ray on its own line, or fans (see CleanupWalk)
+  CleanupWalk cleanup_walk = CleanupWalk::Fan;  ///< fans, or each ray on its own line (see CleanupWalk)
   /// Fan walk: the largest distance (cells) between a ray and its bin's centre line, reached at
   /// max_ray_length_m (or the map's diagonal, if shorter); nearer the sensor it is smaller.
   double cleanup_fan_lateral_cells = 0.5;
@@ -207,8 +207,8 @@ class LidarFusion : public Plugin {
   /// (x86-64 CPUs with AVX2 use it by default). Both give bit-identical results (tested);
   /// this exists for that test and for benchmarking the difference.
   void forceScalarGates(bool on) { force_scalar_gates_ = on; }
-  /// Walk every cell of every ray instead of jumping over the blocks where no cell could change
-  /// (the cleanup's block skipping, on by default). Both give bit-identical layers and counters
+  /// Walk every cell of every ray (of every fan bin's line, with the fan walk) instead of jumping
+  /// over the blocks where no cell could change (the cleanup's block skipping, on by default). Both give bit-identical layers and counters
   /// other than ray_cells_read (tested); this exists for that test and for benchmarking.
   void forceCellByCellWalk(bool on) { force_cell_walk_ = on; }
   /// Totals over every cloud so far.
