@@ -207,8 +207,8 @@ class LidarFusion : public Plugin {
   /// (x86-64 CPUs with AVX2 use it by default). Both give bit-identical results (tested);
   /// this exists for that test and for benchmarking the difference.
   void forceScalarGates(bool on) { force_scalar_gates_ = on; }
-  /// Walk every cell of every ray (of every fan bin's line, with the fan walk) instead of jumping
-  /// over the blocks where no cell could change (the cleanup's block skipping, on by default). Both give bit-identical layers and counters
+  /// Walk every cell of every ray instead of jumping over the blocks where no cell could change
+  /// (the exact walk's block skipping, on by default; the fan walk reads every column anyway). Both give bit-identical layers and counters
   /// other than ray_cells_read (tested); this exists for that test and for benchmarking.
   void forceCellByCellWalk(bool on) { force_cell_walk_ = on; }
   /// Totals over every cloud so far.
