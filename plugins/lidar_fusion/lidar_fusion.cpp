@@ -1037,12 +1037,9 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
   const int slots = ex.threads();
   prepareRaySlots(slots, map.tileCount(), view.tile_cells);
   const bool fan = config_.cleanup_walk == CleanupWalk::Fan;
-  if (fan) {
-    prepareFan(map, ex);
-  } else {
-    prepareRayTasks();
-    prepareRayBlocks(map);
-  }
+  if (fan) prepareFan(map, ex);
+  else prepareRayTasks();
+  prepareRayBlocks(map);
   const int nc = static_cast<int>(ray_tasks_.size());
   ray_chunks_.resize(static_cast<size_t>(nc));
   std::vector<std::array<long, 3>> per(static_cast<size_t>(nc));
@@ -1220,15 +1217,16 @@ float LidarFusion::blockMax(const RayWalkView& w, const RayMinSlot& mins, std::i
 // Whether a ray whose lowest point over a block is at zlow (m) would change no cell of it: no
 // surface this cloud missed reaches up to zlow there, and the slot already bounds every unknown
 // cell of the block at or below zlow. The block's surface is computed on the slot's first visit,
-// its bound again only when a ray lowered one of its minima and the old bound does not decide.
+// its bound again (with `refresh`) only when a ray lowered one of its minima and the old bound
+// does not decide; without `refresh` a block with unknown cells is never skipped.
 // (Inlined into the walk: as a call it cost 10 % more instructions.)
 __attribute__((always_inline)) inline bool LidarFusion::blockUnchanged(const RayWalkView& w, RayMinSlot& mins,
-                                                                    std::int32_t tile, int block, double zlow) const {
+                                                                    std::int32_t tile, int block, double zlow, bool refresh) const {
   const size_t b = static_cast<size_t>(tile) * static_cast<size_t>(blocks_per_tile_) + static_cast<size_t>(block);
   if (std::isnan(mins.block_kmax[b])) blockSurface(w, mins, tile, block);
   if (!(zlow >= mins.block_kmax[b])) return false;
   const float zf = static_cast<float>(zlow);
-  if (!(zf >= mins.block_max[b]) && mins.block_dirty[b]) {
+  if (refresh && !(zf >= mins.block_max[b]) && mins.block_dirty[b]) {
     mins.block_max[b] = blockMax(w, mins, tile, block);
     mins.block_dirty[b] = 0;
   }
@@ -1331,7 +1329,7 @@ std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
       const double tex = std::min(std::min(t_r, t_c), cw.t1);
       // The ray's lowest point over the block (its exit for a descending ray) decides: where no
       // cell of the block would change, the walk jumps to the block's exit.
-      if (may_skip && blockUnchanged(w, mins, tile, in_tile, Sz + (up ? ta : tex) * dz)) {
+      if (may_skip && blockUnchanged(w, mins, tile, in_tile, Sz + (up ? ta : tex) * dz, true)) {
         if (tex >= cw.t1) {  // the ray ends in this block
           cw.toEnd(Ru, Cu);
           break;
@@ -1494,24 +1492,28 @@ void LidarFusion::prepareFan(const LayeredMap& map, const Executor& ex) {
 
 // The bins [begin, end) of one task: each bin's rays sorted by reach (ties by input order: one
 // order whatever the threads), the suffix minima of their slopes, then the centre line walked
-// from the sensor to the farthest reach, every column read once. (The exact walk's block
-// skipping, tried here with a lower bound of the bin's rays over a block, did not pay: a bin
-// reads one cell per column, and a block's surface costs 64 reads per slot; KITTI and the
-// OS1-64 sequence were as fast or faster without it.) Counters: rays, the cells each ray spans
-// (the bin's rays over each column walked), the cells read (one per column walked).
+// from the sensor to the farthest reach, jumping over the blocks that hold no unknown cell and
+// no missed surface up to a lower bound of the bin's rays over the block (blockUnchanged
+// without refreshing a block's bound on its unknown cells: a bin reads one cell per column, so
+// recomputing that bound, 64 reads, cost more than it saved; and walking every block cost more
+// in the demo than these jumps). Counters: rays, the cells each ray spans (of the centre line),
+// the cells read.
 std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& mins, int c, std::vector<double>& suffix) {
   std::vector<Item>& out = ray_chunks_[static_cast<size_t>(c)];
   out.clear();
   const RayTask task = ray_tasks_[static_cast<size_t>(c)];
   const int K = fan_slots_;
-  const std::int32_t* row_tile = row_tile_.data();
   const std::int32_t* row_local = row_local_.data();
-  const std::int32_t* col_tile = col_tile_.data();
   const std::int32_t* col_local = col_local_.data();
+  const AxisBlock* row_blocks = row_blocks_.data();
+  const AxisBlock* col_blocks = col_blocks_.data();
+  std::uint8_t* dirty = mins.block_dirty.data();
+  const int nbb = blocks_per_tile_;
   const float* const* const Et = w.elev.data();
   float* const* const active = mins.active.data();
   const unsigned Ru = static_cast<unsigned>(w.rows), Cu = static_cast<unsigned>(w.cols);
   const double Sz = w.sensor_z;
+  const bool may_skip = !force_cell_walk_;
   constexpr double kInf = std::numeric_limits<double>::infinity();
   long nrays = 0, ncells = 0, nread = 0;
   for (int b = task.begin; b < task.end; ++b) {
@@ -1528,39 +1530,95 @@ std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& m
     const double cc = -1.0 + (b % K + 0.5) * 2.0 / K;
     const double ux = face == 0 ? 1.0 : face == 2 ? -1.0 : cc, uy = face == 1 ? 1.0 : face == 3 ? -1.0 : cc;
     const double un = std::sqrt(ux * ux + uy * uy), Rmax = rays[n - 1].R;
+    const double lx = ux / un * Rmax, ly = uy / un * Rmax;
     ColumnWalk cw;
     double ta;
-    if (!startColumnWalk(ux / un * Rmax, uy / un * Rmax, 1.0, w.u0, w.v0, w.res, w.rows, w.cols, cw, ta)) continue;
-    int p = 0, q = 0;  // rays [p, q) end in the current column, [q, n) go on past it
-    while (static_cast<unsigned>(cw.i) < Ru && static_cast<unsigned>(cw.j) < Cu) {
-      const double tb = std::min(std::min(cw.tmi, cw.tmj), cw.t1);
-      const double da = ta * Rmax, db = tb * Rmax;
-      // The rays over this column: those reaching past its entry (all of them in the sensor's).
-      if (da > 0.0)
-        while (p < n && rays[p].R <= da) ++p;
-      if (p == n) break;
-      q = std::max(q, p);
-      while (q < n && rays[q].R <= db) ++q;
-      double z = kInf;  // the lowest of their highest points over the column
-      for (int k = p; k < q; ++k) z = std::min(z, endingRayZ(Sz, rays[k].rho, rays[k].t_end, rays[k].dz, da));
-      if (q < n) z = std::min(z, Sz + suffix[static_cast<size_t>(q)] * (suffix[static_cast<size_t>(q)] < 0.0 ? da : db));
-      ncells += n - p;
-      ++nread;
-      const std::int32_t tile = row_tile[cw.i] + col_tile[cw.j];
-      const std::uint32_t off = static_cast<std::uint32_t>(row_local[cw.i] + col_local[cw.j]);
-      const float h = Et[tile][off];
-      if (std::isnan(h)) {
-        float* m = active[tile];
-        if (!m) m = minTile(mins, tile);
-        const float zf = static_cast<float>(z);
-        if (zf < m[off]) m[off] = zf;
-      } else if (h > z) {
-        staleFanCell(w, cw.i, cw.j, tile, off, h, rays, p, q, n, z, da, db, out);
+    if (!startColumnWalk(lx, ly, 1.0, w.u0, w.v0, w.res, w.rows, w.cols, cw, ta)) continue;
+    // Cells each ray spans: those of the centre line from its first on the map to the one that
+    // holds the ray's reach (or the map's edge), whether the walk reads them or jumps over them.
+    {
+      const double t0 = ta, t1 = cw.t1, du = -lx / w.res, dv = -ly / w.res;
+      const int i0 = cw.i, j0 = cw.j;
+      for (int k = 0; k < n; ++k) {
+        if (t0 > 0.0 && !(rays[k].R > t0 * Rmax)) continue;  // ends before the map
+        const double t = Rmax > 0.0 ? std::min(rays[k].R / Rmax, t1) : 0.0;
+        const int ik = std::clamp(static_cast<int>(std::ceil(w.u0 + t * du)) - 1, 0, w.rows - 1);
+        const int jk = std::clamp(static_cast<int>(std::ceil(w.v0 + t * dv)) - 1, 0, w.cols - 1);
+        ncells += std::abs(ik - i0) + std::abs(jk - j0) + 1;
       }
-      if (tb >= cw.t1) break;
-      ta = tb;
-      if (cw.rowFirst()) cw.stepRow();
-      else cw.stepCol();
+    }
+    int p = 0, q = 0;  // rays [p, q) end in the current column, [q, n) go on past it
+    while (true) {
+      // Entering the block of (i, j), from a step or a jump that may have left the map.
+      if (static_cast<unsigned>(cw.i) >= Ru || static_cast<unsigned>(cw.j) >= Cu) break;
+      const double dentry = ta * Rmax;
+      if (dentry > 0.0)
+        while (p < n && rays[p].R <= dentry) ++p;
+      if (p == n) break;
+      const AxisBlock rb = row_blocks[cw.i], cb = col_blocks[cw.j];
+      const std::int32_t tile = rb.tile + cb.tile;
+      const int in_tile = rb.blk + cb.blk, blk = tile * nbb + in_tile;
+      const int far_r = cw.si > 0 ? rb.hi : rb.lo, far_c = cw.sj > 0 ? cb.hi : cb.lo;
+      const double t_r = cw.rowLine(far_r), t_c = cw.colLine(far_c);
+      const double tex = std::min(std::min(t_r, t_c), cw.t1);
+      // No ray of the bin passes lower over the block than a descending one at the block's exit
+      // (with the smallest slope of those still on: a lower bound), or than the sensor: where
+      // no cell of the block would change under that height, the walk jumps to the exit.
+      if (may_skip && blockUnchanged(w, mins, tile, in_tile, Sz + std::min(suffix[static_cast<size_t>(p)], 0.0) * (tex * Rmax), false)) {
+        if (tex >= cw.t1) break;  // the line ends in this block
+        cw.leaveBlock(far_r, far_c, t_r, t_c, tex);
+        ta = tex;
+        continue;
+      }
+      // Walk the block cell by cell; the block's bounds keep (i, j) on the map.
+      const float* e = Et[tile];
+      float* m = active[tile];
+      std::int32_t rl = row_local[cw.i], cl = col_local[cw.j];
+      bool ended = false;
+      while (true) {
+        const double tb = std::min(std::min(cw.tmi, cw.tmj), cw.t1);
+        const double da = ta * Rmax, db = tb * Rmax;
+        // The rays over this column: those reaching past its entry (all of them in the sensor's).
+        if (da > 0.0)
+          while (p < n && rays[p].R <= da) ++p;
+        if (p == n) {
+          ended = true;
+          break;
+        }
+        q = std::max(q, p);
+        while (q < n && rays[q].R <= db) ++q;
+        double z = kInf;  // the lowest of their highest points over the column
+        for (int k = p; k < q; ++k) z = std::min(z, endingRayZ(Sz, rays[k].rho, rays[k].t_end, rays[k].dz, da));
+        if (q < n) z = std::min(z, Sz + suffix[static_cast<size_t>(q)] * (suffix[static_cast<size_t>(q)] < 0.0 ? da : db));
+        ++nread;
+        const std::uint32_t off = static_cast<std::uint32_t>(rl + cl);
+        const float h = e[off];
+        if (std::isnan(h)) {
+          if (!m) m = minTile(mins, tile);
+          const float zf = static_cast<float>(z);
+          if (zf < m[off]) {
+            m[off] = zf;
+            dirty[blk] = 1;
+          }
+        } else if (h > z) {
+          staleFanCell(w, cw.i, cw.j, tile, off, h, rays, p, q, n, z, da, db, out);
+        }
+        if (tb >= cw.t1) {
+          ended = true;
+          break;
+        }
+        ta = tb;
+        if (cw.rowFirst()) {
+          cw.stepRow();
+          if (cw.i < rb.lo || cw.i >= rb.hi) break;  // next block
+          rl = row_local[cw.i];
+        } else {
+          cw.stepCol();
+          if (cw.j < cb.lo || cw.j >= cb.hi) break;
+          cl = col_local[cw.j];
+        }
+      }
+      if (ended) break;
     }
   }
   return {nrays, ncells, nread};

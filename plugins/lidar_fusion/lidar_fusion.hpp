@@ -207,9 +207,10 @@ class LidarFusion : public Plugin {
   /// (x86-64 CPUs with AVX2 use it by default). Both give bit-identical results (tested);
   /// this exists for that test and for benchmarking the difference.
   void forceScalarGates(bool on) { force_scalar_gates_ = on; }
-  /// Walk every cell of every ray instead of jumping over the blocks where no cell could change
-  /// (the exact walk's block skipping, on by default; the fan walk reads every column anyway). Both give bit-identical layers and counters
-  /// other than ray_cells_read (tested); this exists for that test and for benchmarking.
+  /// Walk every cell of every ray (every column of every fan bin's line) instead of jumping over
+  /// the blocks where no cell could change (the cleanup's block skipping, on by default). Both
+  /// give bit-identical layers and counters other than ray_cells_read (tested); this exists for
+  /// that test and for benchmarking.
   void forceCellByCellWalk(bool on) { force_cell_walk_ = on; }
   /// Totals over every cloud so far.
   const FusionStats& totals() const { return totals_; }
@@ -325,7 +326,7 @@ class LidarFusion : public Plugin {
   void prepareRayBlocks(const LayeredMap& map);
   float blockMax(const RayWalkView& view, const RayMinSlot& mins, std::int32_t tile, int block) const;
   void blockSurface(const RayWalkView& view, RayMinSlot& mins, std::int32_t tile, int block) const;
-  inline bool blockUnchanged(const RayWalkView& view, RayMinSlot& mins, std::int32_t tile, int block, double zlow) const;
+  inline bool blockUnchanged(const RayWalkView& view, RayMinSlot& mins, std::int32_t tile, int block, double zlow, bool refresh) const;
   float* minTile(RayMinSlot& mins, std::int32_t tile) const;
   std::array<long, 3> walkRayTask(const RayWalkView& view, RayMinSlot& mins, int task);
   void staleCell(const RayWalkView& view, int i, int j, std::int32_t tile, std::uint32_t off, float h, double zhi,
