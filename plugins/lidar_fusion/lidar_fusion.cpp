@@ -138,6 +138,71 @@ bool startColumnWalk(double dx, double dy, double t1, double u0, double v0, doub
   return true;
 }
 
+/// What a walk does on entering a block: read its cells, jump to its exit, or stop.
+enum class BlockStep { Walk, Jump, Stop };
+
+/// Walks `cw` from parameter `ta` to its end over the grid, block by block (L: the walk's tables,
+/// LidarFusion::WalkLocals; per logical row and column an AxisBlock {tile, block, lo, hi}). On entering
+/// a block, enter(tile, block in the tile, ta, tex) (tex: where the walk would leave it) decides;
+/// a jump lands in exactly the cell and state the cell walk reaches. Otherwise
+/// visit(i, j, tile, block index, offset in the tile, ta, tb) is called for each cell of the
+/// block in walk order ([ta, tb]: the walk's parameters over the cell) and stops the walk by
+/// returning false. On return cw holds the last cell on the map. Both cleanup walks (one ray,
+/// one fan bin) go through here; inlined, so the callbacks cost no call.
+template <class Locals, class Enter, class Visit>
+__attribute__((always_inline)) inline void walkBlocks(ColumnWalk& cw, double ta, const Locals& L, Enter&& enter, Visit&& visit) {
+  const unsigned Ru = L.rows, Cu = L.cols;
+  const auto* const row_blocks = L.row_blocks;
+  const auto* const col_blocks = L.col_blocks;
+  const std::int32_t* const row_local = L.row_local;
+  const std::int32_t* const col_local = L.col_local;
+  while (true) {
+    // Entering the block of (i, j), from a step or a jump that may have left the map.
+    if (static_cast<unsigned>(cw.i) >= Ru) {
+      cw.i -= cw.si;
+      return;
+    }
+    if (static_cast<unsigned>(cw.j) >= Cu) {
+      cw.j -= cw.sj;
+      return;
+    }
+    const auto rb = row_blocks[cw.i], cb = col_blocks[cw.j];
+    const std::int32_t tile = rb.tile + cb.tile;
+    const int in_tile = rb.blk + cb.blk, blk = tile * L.blocks_per_tile + in_tile;
+    const int far_r = cw.si > 0 ? rb.hi : rb.lo, far_c = cw.sj > 0 ? cb.hi : cb.lo;
+    const double t_r = cw.rowLine(far_r), t_c = cw.colLine(far_c);
+    const double tex = std::min(std::min(t_r, t_c), cw.t1);
+    const BlockStep step = enter(tile, in_tile, ta, tex);
+    if (step == BlockStep::Stop) return;
+    if (step == BlockStep::Jump) {
+      if (tex >= cw.t1) {  // the walk ends in this block
+        cw.toEnd(Ru, Cu);
+        return;
+      }
+      cw.leaveBlock(far_r, far_c, t_r, t_c, tex);
+      ta = tex;
+      continue;
+    }
+    // Walk the block cell by cell; the block's bounds keep (i, j) on the map.
+    std::int32_t rl = row_local[cw.i], cl = col_local[cw.j];
+    while (true) {
+      const double tb = std::min(std::min(cw.tmi, cw.tmj), cw.t1);
+      if (!visit(cw.i, cw.j, tile, blk, static_cast<std::uint32_t>(rl + cl), ta, tb)) return;
+      if (tb >= cw.t1) return;
+      ta = tb;
+      if (cw.rowFirst()) {
+        cw.stepRow();
+        if (cw.i < rb.lo || cw.i >= rb.hi) break;  // next block
+        rl = row_local[cw.i];
+      } else {
+        cw.stepCol();
+        if (cw.j < cb.lo || cw.j >= cb.hi) break;
+        cl = col_local[cw.j];
+      }
+    }
+  }
+}
+
 /// Items ahead of the current one whose cells the fusion loop prefetches.
 constexpr int kPrefetchAhead = 8;
 constexpr float kRayPenetration = 1.0f;  // Item::aux of a ray passing below a stale surface
@@ -1233,6 +1298,26 @@ __attribute__((always_inline)) inline bool LidarFusion::blockUnchanged(const Ray
   return zf >= mins.block_max[b];
 }
 
+// An unknown cell under a ray at z (m): the slot's minimum over it lowered to z, its block
+// marked (the bound the skip test keeps for the block may be stale).
+__attribute__((always_inline)) inline void LidarFusion::lowerMinimum(RayMinSlot& mins, const WalkLocals& tab,
+                                                                   std::int32_t tile, int blk, std::uint32_t off,
+                                                                   double z) const {
+  float* m = tab.active[tile];
+  if (!m) m = minTile(mins, tile);
+  const float zf = static_cast<float>(z);
+  if (zf < m[off]) {
+    m[off] = zf;
+    tab.dirty[blk] = 1;
+  }
+}
+
+LidarFusion::WalkLocals LidarFusion::walkLocals(const RayWalkView& w, RayMinSlot& mins) const {
+  return WalkLocals{row_local_.data(),  col_local_.data(),  row_blocks_.data(), col_blocks_.data(),
+                    blocks_per_tile_,   static_cast<unsigned>(w.rows), static_cast<unsigned>(w.cols),
+                    w.elev.data(),      mins.active.data(), mins.block_dirty.data()};
+}
+
 // The slot's minimum buffer of a tile, allocated (all +inf) on first use and listed as active
 // for phase B.
 float* LidarFusion::minTile(RayMinSlot& mins, std::int32_t tile) const {
@@ -1286,16 +1371,7 @@ std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
   out.clear();
   const RayTask task = ray_tasks_[static_cast<size_t>(c)];
   const float* ends = ray_order_.data();
-  // Locals for the walk loop (through a closure or `this` the compiler reloads them every step).
-  const std::int32_t* row_local = row_local_.data();
-  const std::int32_t* col_local = col_local_.data();
-  const AxisBlock* row_blocks = row_blocks_.data();
-  const AxisBlock* col_blocks = col_blocks_.data();
-  std::uint8_t* dirty = mins.block_dirty.data();
-  const int nbb = blocks_per_tile_;
-  const float* const* const Et = w.elev.data();
-  float* const* const active = mins.active.data();
-  const unsigned Ru = static_cast<unsigned>(w.rows), Cu = static_cast<unsigned>(w.cols);
+  const WalkLocals tab = walkLocals(w, mins);
   const double Sz = w.sensor_z;
   long nrays = 0, ncells = 0, nread = 0;
   const bool may_skip = !force_cell_walk_;
@@ -1311,73 +1387,27 @@ std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& m
     const int i_start = cw.i, j_start = cw.j;
     const double dirx = dx / L, diry = dy / L, dirz = dz / L;
     const bool up = dz >= 0;
-    while (true) {
-      // Entering the block of (i, j), from a step or a jump that may have left the map.
-      if (static_cast<unsigned>(cw.i) >= Ru) {
-        cw.i -= cw.si;
-        break;
-      }
-      if (static_cast<unsigned>(cw.j) >= Cu) {
-        cw.j -= cw.sj;
-        break;
-      }
-      const AxisBlock rb = row_blocks[cw.i], cb = col_blocks[cw.j];
-      const std::int32_t tile = rb.tile + cb.tile;
-      const int in_tile = rb.blk + cb.blk, blk = tile * nbb + in_tile;
-      const int far_r = cw.si > 0 ? rb.hi : rb.lo, far_c = cw.sj > 0 ? cb.hi : cb.lo;
-      const double t_r = cw.rowLine(far_r), t_c = cw.colLine(far_c);
-      const double tex = std::min(std::min(t_r, t_c), cw.t1);
-      // The ray's lowest point over the block (its exit for a descending ray) decides: where no
-      // cell of the block would change, the walk jumps to the block's exit.
-      if (may_skip && blockUnchanged(w, mins, tile, in_tile, Sz + (up ? ta : tex) * dz, true)) {
-        if (tex >= cw.t1) {  // the ray ends in this block
-          cw.toEnd(Ru, Cu);
-          break;
-        }
-        cw.leaveBlock(far_r, far_c, t_r, t_c, tex);
-        ta = tex;
-        continue;
-      }
-      // Walk the block cell by cell; the block's bounds keep (i, j) on the map.
-      const float* e = Et[tile];
-      float* m = active[tile];
-      std::int32_t rl = row_local[cw.i], cl = col_local[cw.j];
-      bool ended = false;
-      while (true) {
-        const double tb = std::min(std::min(cw.tmi, cw.tmj), cw.t1);
-        // Highest point of the ray inside this column: the ground under the crossing is below it.
-        const double zhi = Sz + (up ? tb : ta) * dz;
-        const std::uint32_t off = static_cast<std::uint32_t>(rl + cl);
-        const float h = e[off];
-        ++nread;
-        if (std::isnan(h)) {
-          if (!m) m = minTile(mins, tile);
-          const float z = static_cast<float>(zhi);
-          if (z < m[off]) {
-            m[off] = z;
-            dirty[blk] = 1;
+    walkBlocks(
+        cw, ta, tab,
+        // The ray's lowest point over the block (its exit for a descending ray) decides: where no
+        // cell of the block would change, the walk jumps to the block's exit.
+        [&](std::int32_t tile, int in_tile, double t_in, double tex) {
+          return may_skip && blockUnchanged(w, mins, tile, in_tile, Sz + (up ? t_in : tex) * dz, true) ? BlockStep::Jump
+                                                                                                      : BlockStep::Walk;
+        },
+        [&](int i, int j, std::int32_t tile, int blk, std::uint32_t off, double t_a, double t_b) {
+          // Highest point of the ray inside this column: the ground under the crossing is below it.
+          const double zhi = Sz + (up ? t_b : t_a) * dz;
+          const float h = tab.elev[tile][off];
+          ++nread;
+          if (std::isnan(h)) {
+            lowerMinimum(mins, tab, tile, blk, off, zhi);
+          } else if (h > zhi) {
+            // (Necessary for h - k sigma > zhi, as k sigma >= 0: most known cells stop here.)
+            staleCell(w, i, j, tile, off, h, zhi, dirx, diry, dirz, out);
           }
-        } else if (h > zhi) {
-          // (Necessary for h - k sigma > zhi, as k sigma >= 0: most known cells stop here.)
-          staleCell(w, cw.i, cw.j, tile, off, h, zhi, dirx, diry, dirz, out);
-        }
-        if (tb >= cw.t1) {
-          ended = true;
-          break;
-        }
-        ta = tb;
-        if (cw.rowFirst()) {
-          cw.stepRow();
-          if (cw.i < rb.lo || cw.i >= rb.hi) break;  // next block
-          rl = row_local[cw.i];
-        } else {
-          cw.stepCol();
-          if (cw.j < cb.lo || cw.j >= cb.hi) break;
-          cl = col_local[cw.j];
-        }
-      }
-      if (ended) break;
-    }
+          return true;
+        });
     // Cells the walk spans (visited or jumped over): one per crossing plus the first.
     ncells += std::abs(cw.i - i_start) + std::abs(cw.j - j_start) + 1;
   }
@@ -1503,15 +1533,7 @@ std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& m
   out.clear();
   const RayTask task = ray_tasks_[static_cast<size_t>(c)];
   const int K = fan_slots_;
-  const std::int32_t* row_local = row_local_.data();
-  const std::int32_t* col_local = col_local_.data();
-  const AxisBlock* row_blocks = row_blocks_.data();
-  const AxisBlock* col_blocks = col_blocks_.data();
-  std::uint8_t* dirty = mins.block_dirty.data();
-  const int nbb = blocks_per_tile_;
-  const float* const* const Et = w.elev.data();
-  float* const* const active = mins.active.data();
-  const unsigned Ru = static_cast<unsigned>(w.rows), Cu = static_cast<unsigned>(w.cols);
+  const WalkLocals tab = walkLocals(w, mins);
   const double Sz = w.sensor_z;
   const bool may_skip = !force_cell_walk_;
   constexpr double kInf = std::numeric_limits<double>::infinity();
@@ -1548,78 +1570,38 @@ std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& m
       }
     }
     int p = 0, q = 0;  // rays [p, q) end in the current column, [q, n) go on past it
-    while (true) {
-      // Entering the block of (i, j), from a step or a jump that may have left the map.
-      if (static_cast<unsigned>(cw.i) >= Ru || static_cast<unsigned>(cw.j) >= Cu) break;
-      const double dentry = ta * Rmax;
-      if (dentry > 0.0)
-        while (p < n && rays[p].R <= dentry) ++p;
-      if (p == n) break;
-      const AxisBlock rb = row_blocks[cw.i], cb = col_blocks[cw.j];
-      const std::int32_t tile = rb.tile + cb.tile;
-      const int in_tile = rb.blk + cb.blk, blk = tile * nbb + in_tile;
-      const int far_r = cw.si > 0 ? rb.hi : rb.lo, far_c = cw.sj > 0 ? cb.hi : cb.lo;
-      const double t_r = cw.rowLine(far_r), t_c = cw.colLine(far_c);
-      const double tex = std::min(std::min(t_r, t_c), cw.t1);
-      // No ray of the bin passes lower over the block than a descending one at the block's exit
-      // (with the smallest slope of those still on: a lower bound), or than the sensor: where
-      // no cell of the block would change under that height, the walk jumps to the exit.
-      if (may_skip && blockUnchanged(w, mins, tile, in_tile, Sz + std::min(suffix[static_cast<size_t>(p)], 0.0) * (tex * Rmax), false)) {
-        if (tex >= cw.t1) break;  // the line ends in this block
-        cw.leaveBlock(far_r, far_c, t_r, t_c, tex);
-        ta = tex;
-        continue;
-      }
-      // Walk the block cell by cell; the block's bounds keep (i, j) on the map.
-      const float* e = Et[tile];
-      float* m = active[tile];
-      std::int32_t rl = row_local[cw.i], cl = col_local[cw.j];
-      bool ended = false;
-      while (true) {
-        const double tb = std::min(std::min(cw.tmi, cw.tmj), cw.t1);
-        const double da = ta * Rmax, db = tb * Rmax;
-        // The rays over this column: those reaching past its entry (all of them in the sensor's).
-        if (da > 0.0)
-          while (p < n && rays[p].R <= da) ++p;
-        if (p == n) {
-          ended = true;
-          break;
-        }
-        q = std::max(q, p);
-        while (q < n && rays[q].R <= db) ++q;
-        double z = kInf;  // the lowest of their highest points over the column
-        for (int k = p; k < q; ++k) z = std::min(z, endingRayZ(Sz, rays[k].rho, rays[k].t_end, rays[k].dz, da));
-        if (q < n) z = std::min(z, Sz + suffix[static_cast<size_t>(q)] * (suffix[static_cast<size_t>(q)] < 0.0 ? da : db));
-        ++nread;
-        const std::uint32_t off = static_cast<std::uint32_t>(rl + cl);
-        const float h = e[off];
-        if (std::isnan(h)) {
-          if (!m) m = minTile(mins, tile);
-          const float zf = static_cast<float>(z);
-          if (zf < m[off]) {
-            m[off] = zf;
-            dirty[blk] = 1;
+    walkBlocks(
+        cw, ta, tab,
+        // No ray of the bin passes lower over the block than a descending one at the block's exit
+        // (with the smallest slope of those still on: a lower bound), or than the sensor.
+        [&](std::int32_t tile, int in_tile, double t_in, double tex) {
+          const double dentry = t_in * Rmax;
+          if (dentry > 0.0)
+            while (p < n && rays[p].R <= dentry) ++p;
+          if (p == n) return BlockStep::Stop;
+          const double zlow = Sz + std::min(suffix[static_cast<size_t>(p)], 0.0) * (tex * Rmax);
+          return may_skip && blockUnchanged(w, mins, tile, in_tile, zlow, false) ? BlockStep::Jump : BlockStep::Walk;
+        },
+        [&](int i, int j, std::int32_t tile, int blk, std::uint32_t off, double t_a, double t_b) {
+          const double da = t_a * Rmax, db = t_b * Rmax;
+          // The rays over this column: those reaching past its entry (all of them in the sensor's).
+          if (da > 0.0)
+            while (p < n && rays[p].R <= da) ++p;
+          if (p == n) return false;
+          q = std::max(q, p);
+          while (q < n && rays[q].R <= db) ++q;
+          double z = kInf;  // the lowest of their highest points over the column
+          for (int k = p; k < q; ++k) z = std::min(z, endingRayZ(Sz, rays[k].rho, rays[k].t_end, rays[k].dz, da));
+          if (q < n) z = std::min(z, Sz + suffix[static_cast<size_t>(q)] * (suffix[static_cast<size_t>(q)] < 0.0 ? da : db));
+          ++nread;
+          const float h = tab.elev[tile][off];
+          if (std::isnan(h)) {
+            lowerMinimum(mins, tab, tile, blk, off, z);
+          } else if (h > z) {
+            staleFanCell(w, i, j, tile, off, h, rays, p, q, n, z, da, db, out);
           }
-        } else if (h > z) {
-          staleFanCell(w, cw.i, cw.j, tile, off, h, rays, p, q, n, z, da, db, out);
-        }
-        if (tb >= cw.t1) {
-          ended = true;
-          break;
-        }
-        ta = tb;
-        if (cw.rowFirst()) {
-          cw.stepRow();
-          if (cw.i < rb.lo || cw.i >= rb.hi) break;  // next block
-          rl = row_local[cw.i];
-        } else {
-          cw.stepCol();
-          if (cw.j < cb.lo || cw.j >= cb.hi) break;
-          cl = col_local[cw.j];
-        }
-      }
-      if (ended) break;
-    }
+          return true;
+        });
   }
   return {nrays, ncells, nread};
 }

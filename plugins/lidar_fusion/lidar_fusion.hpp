@@ -309,6 +309,17 @@ class LidarFusion : public Plugin {
     std::int32_t tile, blk, lo, hi;
   };
   std::vector<AxisBlock> row_blocks_, col_blocks_;
+  /// What a walk task reads in its loop, copied to locals (through `this` the compiler would
+  /// reload them every step): the block and index tables, the layer views, the slot's buffers.
+  struct WalkLocals {
+    const std::int32_t *row_local, *col_local;
+    const AxisBlock *row_blocks, *col_blocks;
+    int blocks_per_tile;
+    unsigned rows, cols;
+    const float* const* elev;
+    float* const* active;  ///< the slot's minimum buffers per tile (null: none yet)
+    std::uint8_t* dirty;   ///< the slot's per-block flags
+  };
   int blocks_per_tile_ = 0;
   std::vector<RayTask> ray_tasks_;
   std::vector<std::vector<Item>> ray_chunks_;
@@ -328,6 +339,9 @@ class LidarFusion : public Plugin {
   void blockSurface(const RayWalkView& view, RayMinSlot& mins, std::int32_t tile, int block) const;
   inline bool blockUnchanged(const RayWalkView& view, RayMinSlot& mins, std::int32_t tile, int block, double zlow, bool refresh) const;
   float* minTile(RayMinSlot& mins, std::int32_t tile) const;
+  WalkLocals walkLocals(const RayWalkView& view, RayMinSlot& mins) const;
+  inline void lowerMinimum(RayMinSlot& mins, const WalkLocals& tab, std::int32_t tile, int blk, std::uint32_t off,
+                           double z) const;
   std::array<long, 3> walkRayTask(const RayWalkView& view, RayMinSlot& mins, int task);
   void staleCell(const RayWalkView& view, int i, int j, std::int32_t tile, std::uint32_t off, float h, double zhi,
                  double dirx, double diry, double dirz, std::vector<Item>& items) const;
