@@ -1455,16 +1455,19 @@ void LidarFusion::prepareFan(const LayeredMap& map, const Executor& ex) {
   for (int c = 0; c < nch; ++c)
     first[static_cast<size_t>(c) + 1] = first[static_cast<size_t>(c)] + point_chunks_[static_cast<size_t>(c)].ray_ends.size() / 3;
   fan_keys_.resize(first[static_cast<size_t>(nch)]);
+  fan_ends_.resize(first[static_cast<size_t>(nch)]);
   fan_hist_.resize(static_cast<size_t>(nch));
   ex.forEach(nch, [&](int c) {
     const std::vector<float>& e = point_chunks_[static_cast<size_t>(c)].ray_ends;
     std::vector<int>& hist = fan_hist_[static_cast<size_t>(c)];
     hist.assign(static_cast<size_t>(nbins), 0);
     std::uint32_t* key = fan_keys_.data() + first[static_cast<size_t>(c)];
+    double* t_end = fan_ends_.data() + first[static_cast<size_t>(c)];
     for (size_t k = 0; k < e.size(); k += 3) {
       const double dx = e[k], dy = e[k + 1], dz = e[k + 2];
       double L;
-      if (!(rayWalkEnd(dx, dy, dz, cf.cleanup_end_margin_m, cf.max_ray_length_m, L) > 0.0)) {
+      t_end[k / 3] = rayWalkEnd(dx, dy, dz, cf.cleanup_end_margin_m, cf.max_ray_length_m, L);
+      if (!(t_end[k / 3] > 0.0)) {
         key[k / 3] = ~0u;
         continue;
       }
@@ -1502,13 +1505,13 @@ void LidarFusion::prepareFan(const LayeredMap& map, const Executor& ex) {
     const std::vector<float>& e = point_chunks_[static_cast<size_t>(c)].ray_ends;
     int* place = fan_hist_[static_cast<size_t>(c)].data();
     const std::uint32_t* key = fan_keys_.data() + first[static_cast<size_t>(c)];
+    const double* t_end = fan_ends_.data() + first[static_cast<size_t>(c)];
     for (size_t k = 0; k < e.size(); k += 3) {
       const std::uint32_t b = key[k / 3];
       if (b == ~0u) continue;
       FanRay& r = fan_rays_[static_cast<size_t>(place[b]++)];
       const double dx = e[k], dy = e[k + 1], dz = e[k + 2];
-      double L;
-      r.t_end = rayWalkEnd(dx, dy, dz, cf.cleanup_end_margin_m, cf.max_ray_length_m, L);
+      r.t_end = t_end[k / 3];
       r.rho = std::sqrt(dx * dx + dy * dy);
       r.R = r.t_end * r.rho;
       r.s = r.rho > 0.0 ? dz / r.rho : 0.0;

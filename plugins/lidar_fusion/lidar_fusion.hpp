@@ -365,6 +365,7 @@ class LidarFusion : public Plugin {
                     std::vector<Item>& items) const;
   std::vector<FanRay> fan_rays_;
   std::vector<std::uint32_t> fan_keys_;         // bin per ray of the chunks (scratch; ~0u: not walked)
+  std::vector<double> fan_ends_;                // the walk's end per ray of the chunks (scratch; rayWalkEnd)
   std::vector<std::vector<int>> fan_hist_;      // per point chunk: rays per bin, then its first slot
   std::vector<int> fan_bin_start_;              // bin -> first ray in fan_rays_; size bins + 1
   int fan_slots_ = 0;                           // centre-line slots per face (4 faces)
