@@ -1128,10 +1128,10 @@ void LidarFusion::cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vect
       throw std::logic_error("lidar_fusion: worker slot " + std::to_string(slot) + " outside the executor's " +
                              std::to_string(slots));
     RayMinSlot& mins = ray_min_[static_cast<size_t>(slot)];
-    std::vector<double> suffix;  // fan: per bin, the suffix minima of its rays' slopes
+    std::vector<double> fan_scratch;  // fan: per bin, its rays' suffix slope minima and reaches
     for (int g = next.fetch_add(1); g < groups; g = next.fetch_add(1)) {
       if (fan) {
-        per[static_cast<size_t>(g)] = walkFanTask(view, mins, g, suffix);
+        per[static_cast<size_t>(g)] = walkFanTask(view, mins, g, fan_scratch);
         continue;
       }
       for (int c = ray_sector_start_[static_cast<size_t>(g)]; c < ray_sector_start_[static_cast<size_t>(g) + 1]; ++c)
@@ -1531,7 +1531,7 @@ void LidarFusion::prepareFan(const LayeredMap& map, const Executor& ex) {
 // recomputing that bound, 64 reads, cost more than it saved; and walking every block cost more
 // in the demo than these jumps). Counters: rays, the cells each ray spans (of the centre line),
 // the cells read.
-std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& mins, int c, std::vector<double>& suffix) {
+std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& mins, int c, std::vector<double>& scratch) {
   std::vector<Item>& out = ray_chunks_[static_cast<size_t>(c)];
   out.clear();
   const RayTask task = ray_tasks_[static_cast<size_t>(c)];
@@ -1547,9 +1547,17 @@ std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& m
     if (n == 0) continue;
     FanRay* rays = fan_rays_.data() + r0;
     std::sort(rays, rays + n, [](const FanRay& x, const FanRay& y) { return x.R < y.R || (x.R == y.R && x.seq < y.seq); });
-    suffix.resize(static_cast<size_t>(n) + 1);
-    suffix[static_cast<size_t>(n)] = kInf;
-    for (int k = n - 1; k >= 0; --k) suffix[static_cast<size_t>(k)] = std::min(suffix[static_cast<size_t>(k) + 1], rays[k].s);
+    // The suffix minima of the slopes, and the reaches in a dense array (the walk's loops read
+    // them every column), each with a sentinel at n: +inf ends every advance there.
+    scratch.resize(2 * (static_cast<size_t>(n) + 1));
+    double* const suffix = scratch.data();
+    double* const reach = suffix + n + 1;
+    suffix[n] = kInf;
+    reach[n] = kInf;
+    for (int k = n - 1; k >= 0; --k) {
+      suffix[k] = std::min(suffix[k + 1], rays[k].s);
+      reach[k] = rays[k].R;
+    }
     nrays += n;
     const int face = b / K;
     const double cc = -1.0 + (b % K + 0.5) * 2.0 / K;
@@ -1580,7 +1588,7 @@ std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& m
         [&](std::int32_t tile, int in_tile, double t_in, double tex) {
           const double dentry = t_in * Rmax;
           if (dentry > 0.0)
-            while (p < n && rays[p].R <= dentry) ++p;
+            while (reach[p] <= dentry) ++p;
           if (p == n) return BlockStep::Stop;
           const double zlow = Sz + std::min(suffix[static_cast<size_t>(p)], 0.0) * (tex * Rmax);
           return may_skip && blockUnchanged(w, mins, tile, in_tile, zlow, false) ? BlockStep::Jump : BlockStep::Walk;
@@ -1589,10 +1597,10 @@ std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& m
           const double da = t_a * Rmax, db = t_b * Rmax;
           // The rays over this column: those reaching past its entry (all of them in the sensor's).
           if (da > 0.0)
-            while (p < n && rays[p].R <= da) ++p;
+            while (reach[p] <= da) ++p;
           if (p == n) return false;
           q = std::max(q, p);
-          while (q < n && rays[q].R <= db) ++q;
+          while (reach[q] <= db) ++q;
           double z = kInf;  // the lowest of their highest points over the column
           for (int k = p; k < q; ++k) z = std::min(z, endingRayZ(Sz, rays[k].rho, rays[k].t_end, rays[k].dz, da));
           if (q < n) z = std::min(z, Sz + suffix[static_cast<size_t>(q)] * (suffix[static_cast<size_t>(q)] < 0.0 ? da : db));

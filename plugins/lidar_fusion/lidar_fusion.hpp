@@ -359,7 +359,7 @@ class LidarFusion : public Plugin {
     std::uint32_t seq;
   };
   void prepareFan(const LayeredMap& map, const Executor& ex);
-  std::array<long, 3> walkFanTask(const RayWalkView& view, RayMinSlot& mins, int task, std::vector<double>& suffix);
+  std::array<long, 3> walkFanTask(const RayWalkView& view, RayMinSlot& mins, int task, std::vector<double>& scratch);
   void staleFanCell(const RayWalkView& view, int i, int j, std::int32_t tile, std::uint32_t off, float h,
                     const FanRay* rays, int p, int q, int n, double z, double da, double db,
                     std::vector<Item>& items) const;
