@@ -104,6 +104,12 @@ struct ColumnWalk {
   }
 };
 
+/// The row (column) of n that holds the point at parameter t of a line from grid coordinate p0
+/// moving dp per unit of t (row i covers (i, i+1]), clamped to the grid.
+inline int gridCell(double p0, double dp, double t, int n) {
+  return std::clamp(static_cast<int>(std::ceil(p0 + t * dp)) - 1, 0, n - 1);
+}
+
 /// The walk of the ray from the sensor (grid point u0, v0) along (dx, dy) (m, map frame),
 /// clipped to [0, t1] (end margin, max length) and to the map box rows x cols (Liang-Barsky) of
 /// cells res wide; false if nothing of it lies on the map. t0: where it enters.
@@ -126,8 +132,8 @@ bool startColumnWalk(double dx, double dy, double t1, double u0, double v0, doub
   if (!(t1 > t0)) return false;
   // Start cell: the one containing the point just after t0.
   const double tm = t0 + 1e-9 * (t1 - t0);
-  cw.i = std::clamp(static_cast<int>(std::ceil(u0 + tm * du)) - 1, 0, rows - 1);
-  cw.j = std::clamp(static_cast<int>(std::ceil(v0 + tm * dv)) - 1, 0, cols - 1);
+  cw.i = gridCell(u0, du, tm, rows);
+  cw.j = gridCell(v0, dv, tm, cols);
   cw.si = du > 0 ? 1 : -1, cw.sj = dv > 0 ? 1 : -1;
   cw.dsi = cw.si, cw.dsj = cw.sj;
   cw.u0 = u0, cw.v0 = v0;
@@ -1353,16 +1359,26 @@ std::array<double, 2> LidarFusion::surfaceGradient(const RayWalkView& w, int i, 
 __attribute__((noinline)) void LidarFusion::staleCell(const RayWalkView& w, int i, int j, std::int32_t tile,
                                                       std::uint32_t off, float h, double zhi, double dirx,
                                                       double diry, double dirz, std::vector<Item>& items) const {
+  if (!(staleBelow(w, tile, off, h) > zhi)) return;
+  const auto [gx, gy] = surfaceGradient(w, i, j, h);
+  if (notGrazing(gx, gy, dirx, diry, dirz)) items.push_back(Item{tile, off, static_cast<float>(zhi), kRayPenetration});
+}
+
+// The height a ray must pass below to clean a known cell of height h: its surface less k sigma
+// (-inf for a cell this cloud measured: never cleaned by it).
+double LidarFusion::staleBelow(const RayWalkView& w, std::int32_t tile, std::uint32_t off, float h) const {
   const float* ht = w.hits[static_cast<size_t>(tile)];
-  if (ht && ht[off] > 0.0f) return;  // measured by this cloud: never cleaned by it
+  if (ht && ht[off] > 0.0f) return -std::numeric_limits<double>::infinity();
   const float* vv = w.var[static_cast<size_t>(tile)];
   const double var = vv ? vv[off] : 0.0;
-  const double k = config_.mahalanobis_thresh;
-  if (!(h - k * std::sqrt(std::max(var, 0.0)) > zhi)) return;
-  const auto [gx, gy] = surfaceGradient(w, i, j, h);
+  return h - config_.mahalanobis_thresh * std::sqrt(std::max(var, 0.0));
+}
+
+// Whether a ray of unit direction dir meets a surface of gradient (gx, gy) at |cos| of at least
+// cleanup_cos_thresh (a grazing ray cleans nothing).
+bool LidarFusion::notGrazing(double gx, double gy, double dirx, double diry, double dirz) const {
   const double nn = std::sqrt(gx * gx + gy * gy + 1.0);
-  const double cosang = std::abs(-gx * dirx - gy * diry + dirz) / nn;
-  if (cosang >= config_.cleanup_cos_thresh) items.push_back(Item{tile, off, static_cast<float>(zhi), kRayPenetration});
+  return std::abs(-gx * dirx - gy * diry + dirz) / nn >= config_.cleanup_cos_thresh;
 }
 
 std::array<long, 3> LidarFusion::walkRayTask(const RayWalkView& w, RayMinSlot& mins, int c) {
@@ -1575,9 +1591,7 @@ std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& m
       for (int k = 0; k < n; ++k) {
         if (t0 > 0.0 && !(rays[k].R > t0 * Rmax)) continue;  // ends before the map
         const double t = Rmax > 0.0 ? std::min(rays[k].R / Rmax, t1) : 0.0;
-        const int ik = std::clamp(static_cast<int>(std::ceil(w.u0 + t * du)) - 1, 0, w.rows - 1);
-        const int jk = std::clamp(static_cast<int>(std::ceil(w.v0 + t * dv)) - 1, 0, w.cols - 1);
-        ncells += std::abs(ik - i0) + std::abs(jk - j0) + 1;
+        ncells += std::abs(gridCell(w.u0, du, t, w.rows) - i0) + std::abs(gridCell(w.v0, dv, t, w.cols) - j0) + 1;
       }
     }
     int p = 0, q = 0;  // rays [p, q) end in the current column, [q, n) go on past it
@@ -1622,14 +1636,9 @@ std::array<long, 3> LidarFusion::walkFanTask(const RayWalkView& w, RayMinSlot& m
 void LidarFusion::staleFanCell(const RayWalkView& w, int i, int j, std::int32_t tile, std::uint32_t off, float h,
                                const FanRay* rays, int p, int q, int n, double z, double da, double db,
                                std::vector<Item>& items) const {
-  const float* ht = w.hits[static_cast<size_t>(tile)];
-  if (ht && ht[off] > 0.0f) return;  // measured by this cloud: never cleaned by it
-  const float* vv = w.var[static_cast<size_t>(tile)];
-  const double var = vv ? vv[off] : 0.0;
-  const double H = h - config_.mahalanobis_thresh * std::sqrt(std::max(var, 0.0));
+  const double H = staleBelow(w, tile, off, h);
   if (!(H > z)) return;
   const auto [gx, gy] = surfaceGradient(w, i, j, h);
-  const double nn = std::sqrt(gx * gx + gy * gy + 1.0);
   const double Sz = w.sensor_z;
   for (int k = p; k < n; ++k) {
     const FanRay& r = rays[k];
@@ -1637,8 +1646,7 @@ void LidarFusion::staleFanCell(const RayWalkView& w, int i, int j, std::int32_t 
     if (!(H > zk)) continue;
     const double dx = r.dx, dy = r.dy, dz = r.dz;
     const double L = std::sqrt(dx * dx + dy * dy + dz * dz);
-    const double cosang = std::abs(-gx * dx - gy * dy + dz) / (L * nn);
-    if (cosang >= config_.cleanup_cos_thresh) items.push_back(Item{tile, off, static_cast<float>(zk), kRayPenetration});
+    if (notGrazing(gx, gy, dx / L, dy / L, dz / L)) items.push_back(Item{tile, off, static_cast<float>(zk), kRayPenetration});
   }
 }
 

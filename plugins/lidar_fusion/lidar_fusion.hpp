@@ -349,6 +349,8 @@ class LidarFusion : public Plugin {
   /// The surface's gradient (dz/dx, dz/dy) at cell (i, j) of height h: central differences,
   /// one-sided at unknown neighbours, 0 where both are unknown.
   std::array<double, 2> surfaceGradient(const RayWalkView& view, int i, int j, float h) const;
+  double staleBelow(const RayWalkView& view, std::int32_t tile, std::uint32_t off, float h) const;
+  bool notGrazing(double gx, double gy, double dirx, double diry, double dirz) const;
   // The fan walk (CleanupWalk::Fan): the rays binned by azimuth face and centre-line slot, in
   // input order within a bin (a stable counting sort over the point chunks), each with what the
   // walk needs: horizontal reach R (m), slope s = dz / rho (m/m), horizontal length rho (m),
