@@ -54,7 +54,7 @@
 
 namespace terramap::plugins {
 
-/// How the visibility cleanup walks its rays (step 6 below).
+/// How the visibility cleanup walks its rays (step 6 of the list above).
 enum class CleanupWalk {
   /// Every ray along its own line through the grid (Amanatides-Woo), jumping over the blocks
   /// where no cell could change: each ray's own cells, at a cost per ray of the cells it reads.
