@@ -14,6 +14,7 @@
 #include "stage_params.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/io/atomic_file.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/pipeline/plugin_loader.hpp>
 #include <terramap/pipeline/run.hpp>
@@ -40,9 +41,12 @@ namespace {
 namespace fs = std::filesystem;
 
 struct StrataArgs {
-  std::string scenario, pipeline, model, out = "out/eval_strata", zone;
+  std::string scenario, pipeline, model, out = "out/eval_strata", zone, localisation;
   int threads = 0;
   double min_cut_m = 0.02, duration = -1;
+  /// --oracle-noise: the oracle's noise per property, as a fraction of the two soils' difference
+  /// (so the oracle's d' between them is 1 / this); < 0 = no oracle (soil_pinn estimates).
+  double oracle_noise = -1;
   bool quiet = false, boundary_only = false;
   std::vector<std::string> set;  ///< strata stage parameters, KEY=VALUE (numbers)
 };
@@ -146,7 +150,7 @@ Stages findStages(PipelineSpec& spec, const StrataArgs& a) {
   Stages out;
   StageSpec *strata = nullptr, *surface = nullptr, *next = nullptr;
   for (StageSpec& st : spec.stages) {
-    if (st.type == "soil_pinn" && !a.model.empty())
+    if (st.type == "soil_pinn" && !a.model.empty() && a.oracle_noise < 0)
       st.params["model"] = RawParam{ParamValue{fs::absolute(a.model).string()}, "--model"};
     if (st.type == "octomap_strata") strata = &st;
     if (st.type == "fee_index") {
@@ -182,11 +186,43 @@ Stages findStages(PipelineSpec& spec, const StrataArgs& a) {
   return out;
 }
 
+/// --oracle: every soil_pinn stage becomes a soil_oracle over the truth run's table of the soil
+/// the blade cut (written to --out), with noise of `oracle_noise` times the two soils'
+/// difference per property. The boundary's ceiling with a perfect (or a d' = 1 / noise)
+/// estimator: what the strata could do if the estimator were that good.
+void useOracle(PipelineSpec& spec, const StrataArgs& a, const sim::Scenario& sc, const sim::SoilZone& zone,
+               const CutSoil& truth) {
+  nlohmann::json table = {{"t_s", truth.t}, {"soil", nlohmann::json::array()}};
+  for (const soil::SoilParamVector& v : truth.soil) {
+    if (!std::isfinite(v[soil::kParamC])) {
+      table["soil"].push_back(nullptr);
+      continue;
+    }
+    table["soil"].push_back(v);
+  }
+  const fs::path path = fs::absolute(fs::path(a.out) / "oracle_soil.json");
+  io::writeFileAtomically(path, table.dump() + "\n");
+  const soil::SoilParamVector s0 = soil::fromFee(sc.default_soil.fee), s1 = soil::fromFee(zone.soil.fee);
+  std::vector<double> sd(soil::kSoilParamCount);
+  for (int q = 0; q < soil::kSoilParamCount; ++q)
+    sd[static_cast<std::size_t>(q)] = a.oracle_noise * std::abs(s1[static_cast<std::size_t>(q)] - s0[static_cast<std::size_t>(q)]);
+  int swapped = 0;
+  for (StageSpec& st : spec.stages) {
+    if (st.type != "soil_pinn") continue;
+    st.type = "soil_oracle";
+    st.params.clear();
+    st.params["table"] = RawParam{ParamValue{path.string()}, "eval-strata --oracle"};
+    st.params["noise_sd"] = RawParam{ParamValue{sd}, "eval-strata --oracle-noise"};
+    ++swapped;
+  }
+  if (swapped == 0) throw ConfigError(spec.file + ": --oracle replaces the soil_pinn stage, and the pipeline has none");
+}
+
 /// The map's layers sampled during the run: both indices at each pass start, the change height
 /// at the end. Row-major over the map geometry's logical cells, NaN where unknown.
 struct MapSamples {
   std::vector<std::vector<double>> surface, next;  ///< [pass start k][cell]
-  std::vector<double> change_z;
+  std::vector<double> change_z, change_depth, cut;  ///< at the end
 };
 
 std::vector<double> sampleLayer(const LayeredMap& map, const std::string& layer) {
@@ -214,6 +250,8 @@ MapSamples runAndSample(const PipelineSpec& spec, const StrataArgs& a, const Sta
   };
   o.compare_truth = [&](LayeredMap& map, const Source& src) {
     m.change_z = sampleLayer(map, "strata_change_z_m");
+    m.change_depth = sampleLayer(map, "strata_change_depth_m");
+    m.cut = sampleLayer(map, "strata_cut_m");
     return eval::compareWithSourceTruth(map, src);
   };
   PipelineSpec s = spec;
@@ -261,9 +299,22 @@ nlohmann::json nextPassErrors(const StrataArgs& a, const Stages& st, const Geome
 /// In the columns cut through the zone's top (the bank at the end at least one voxel below it):
 /// is the change height within one voxel of it?
 nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, double voxel, const Geometry& g,
-                              const std::vector<double>& initial, const Snapshot& end, const std::vector<double>& change_z) {
+                              const std::vector<double>& initial, const Snapshot& end, const MapSamples& m) {
+  const std::vector<double>& change_z = m.change_z;
   long cut_through = 0, found = 0, within = 0;
-  double abs_err = 0;
+  double abs_err = 0, signed_err = 0;
+  // Where the change is found, the strata's first and last bank surfaces (first = change height +
+  // change depth, last = first − cut) against the truth's: a bias there shifts every voxel.
+  double first_err = 0, last_err = 0;
+  // The figure is the boundary's *depth*: below the strata's first surface (the map's
+  // own frame) against the zone's depth below the initial surface. A vertical offset of the
+  // map frame (the localisation's slow error) shifts the height but cancels in the depth.
+  long depth_found = 0, depth_within = 0;
+  double depth_abs = 0;
+  // Signed errors (found − truth) in voxels, rounded, clamped to ±kBins: which way a miss goes
+  // tells a late estimate (the change found too low) from an early one.
+  constexpr int kBins = 4;
+  std::array<long, 2 * kBins + 1> hist{};
   for (int i = 0; i < g.size().x(); ++i)
     for (int j = 0; j < g.size().y(); ++j) {
       const std::size_t c = static_cast<std::size_t>(i * g.size().y() + j);
@@ -271,19 +322,48 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
       const double top = initial[c] - zone.depthMinAt(p.x(), p.y());
       if (!(end.bank[c] <= top - voxel)) continue;
       ++cut_through;
+      if (std::isfinite(m.change_depth[c])) {
+        const double ed = m.change_depth[c] - zone.depthMinAt(p.x(), p.y());
+        ++depth_found;
+        depth_abs += std::abs(ed);
+        if (std::abs(ed) <= voxel) ++depth_within;
+      }
       if (!std::isfinite(change_z[c])) continue;
       ++found;
-      abs_err += std::abs(change_z[c] - top);
-      if (std::abs(change_z[c] - top) <= voxel) ++within;
+      const double e = change_z[c] - top;
+      abs_err += std::abs(e);
+      signed_err += e;
+      const double first = change_z[c] + m.change_depth[c];
+      first_err += first - initial[c];
+      last_err += first - m.cut[c] - end.bank[c];
+      if (std::abs(e) <= voxel) ++within;
+      ++hist[static_cast<std::size_t>(std::clamp(static_cast<int>(std::lround(e / voxel)), -kBins, kBins) + kBins)];
     }
-  if (!a.quiet)
+  if (!a.quiet) {
     std::printf("boundary (top of '%s'): %ld columns cut through it, a change found in %ld, within one voxel (%.2f m) in "
-                "%ld = %.1f %% (MAE where found %.3f m)\n",
+                "%ld = %.1f %% (MAE where found %.3f m, mean %+.3f m)\n  found - truth, voxels:",
                 zone.name.c_str(), cut_through, found, voxel, within, cut_through ? 100.0 * within / cut_through : std::nan(""),
-                found ? abs_err / found : std::nan(""));
+                found ? abs_err / found : std::nan(""), found ? signed_err / found : std::nan(""));
+    for (int b = -kBins; b <= kBins; ++b)
+      std::printf(" %s%+d: %ld", b == -kBins ? "<=" : b == kBins ? ">=" : "", b, hist[static_cast<std::size_t>(b + kBins)]);
+    std::printf("\n  there, the strata's bank surfaces - the truth's: first %+.3f m, last %+.3f m (means)\n",
+                found ? first_err / found : std::nan(""), found ? last_err / found : std::nan(""));
+    std::printf("boundary depth (below the first surface): within one voxel in %ld = %.1f %% (MAE where found %.3f m)\n",
+                depth_within, cut_through ? 100.0 * depth_within / cut_through : std::nan(""),
+                depth_found ? depth_abs / depth_found : std::nan(""));
+  }
+  nlohmann::json histogram = nlohmann::json::object();
+  for (int b = -kBins; b <= kBins; ++b) histogram[std::to_string(b)] = hist[static_cast<std::size_t>(b + kBins)];
   return {{"columns_cut_through", cut_through}, {"columns_with_change", found}, {"within_one_voxel", within},
           {"fraction_within", cut_through ? static_cast<double>(within) / cut_through : std::nan("")},
-          {"mae_m_where_found", found ? abs_err / found : std::nan("")}};
+          {"mae_m_where_found", found ? abs_err / found : std::nan("")},
+          {"mean_error_m_where_found", found ? signed_err / found : std::nan("")},
+          {"error_voxels_histogram", histogram},
+          {"first_surface_bias_m", found ? first_err / found : std::nan("")},
+          {"last_surface_bias_m", found ? last_err / found : std::nan("")},
+          {"depth", {{"columns_with_change", depth_found}, {"within_one_voxel", depth_within},
+                     {"fraction_within", cut_through ? static_cast<double>(depth_within) / cut_through : std::nan("")},
+                     {"mae_m_where_found", depth_found ? depth_abs / depth_found : std::nan("")}}}};
 }
 
 /// How far apart the soil estimator's estimates of the two soils are: every valid estimate of
@@ -296,7 +376,7 @@ nlohmann::json estimatorSeparation(const StrataArgs& a, const sim::Scenario& sc,
   const soil::SoilParamVector soils[2] = {soil::fromFee(sc.default_soil.fee), soil::fromFee(zone.soil.fee)};
   std::array<std::vector<soil::SoilParamVector>, 2> est;
   for (const nlohmann::json& stage : run["stages"]) {
-    if (stage["type"] != "soil_pinn" || !stage.contains("records")) continue;
+    if ((stage["type"] != "soil_pinn" && stage["type"] != "soil_oracle") || !stage.contains("records")) continue;
     for (const nlohmann::json& r : stage["records"]) {
       if (!r.value("valid", false)) continue;
       const double t1 = r["t1"].get<double>();
@@ -347,6 +427,12 @@ int runEvalStrata(const StrataArgs& a) {
   spec.source.settings["scenario"] = RawParam{ParamValue{scenario}, "eval-strata SCENARIO"};
   sim::Scenario sc = sim::loadScenario(scenario);
   if (a.duration > 0) sc.duration_s = std::min(sc.duration_s, a.duration);
+  // The same ablation in both runs: the controller steers by the localisation, so the truth run
+  // must drive the machine the pipeline's run drives.
+  if (!a.localisation.empty()) {
+    sim::overrideLocalisation(sc, a.localisation, "--localisation");
+    spec.source.settings["localisation"] = RawParam{ParamValue{a.localisation}, "--localisation"};
+  }
   // The zone whose top is the boundary: --zone, else the first zone that starts below the surface.
   const sim::SoilZone* zone = nullptr;
   for (const sim::SoilZone& z : sc.zones)
@@ -364,16 +450,21 @@ int runEvalStrata(const StrataArgs& a) {
   CutSoil cut_soil;
   const std::vector<Snapshot> snaps = truthSnapshots(sc, g, initial, cut_soil, a.quiet);
   if (!a.quiet) std::printf("pipeline run\n");
+  if (a.oracle_noise >= 0) {
+    useOracle(spec, a, sc, *zone, cut_soil);
+    if (!a.quiet) std::printf("soil_pinn replaced by soil_oracle (noise %.3g x the soils' difference)\n", a.oracle_noise);
+  }
   const MapSamples m = runAndSample(spec, a, st, snaps);
 
   nlohmann::json report;
   report["scenario"] = scenario;
   report["zone"] = zone->name;
+  if (a.oracle_noise >= 0) report["oracle_noise"] = a.oracle_noise;
   report["voxel_m"] = st.voxel_m;
   if (!a.boundary_only) report["next_pass"] = nextPassErrors(a, st, g, sim::SoilField(sc.default_soil, sc.zones), initial, snaps, m);
-  report["boundary"] = boundaryFigure(a, *zone, st.voxel_m, g, initial, snaps.back(), m.change_z);
+  report["boundary"] = boundaryFigure(a, *zone, st.voxel_m, g, initial, snaps.back(), m);
   report["estimator"] = estimatorSeparation(a, sc, *zone, cut_soil);
-  std::ofstream(fs::path(a.out) / "eval_strata.json") << report.dump(2) << "\n";
+  io::writeFileAtomically(fs::path(a.out) / "eval_strata.json", report.dump(2) + "\n");
   if (!a.quiet) std::printf("wrote %s\n", (fs::path(a.out) / "eval_strata.json").string().c_str());
   return kOk;
 }
@@ -396,6 +487,12 @@ Registrar reg{Command{"eval-strata", [](CLI::App& app, std::function<int()>& run
   sub->add_option("--out,-o", a->out, "Output folder");
   sub->add_option("--duration", a->duration, "Simulate at most this many seconds")->check(CLI::PositiveNumber);
   sub->add_option("--threads,-j", a->threads, "Worker threads")->check(CLI::Range(1, 256));
+  sub->add_option("--oracle-noise", a->oracle_noise,
+                  "Replace soil_pinn by soil_oracle: the truth soil the blade cut, with noise of this fraction of the "
+                  "two soils' difference per property (0: perfect; d' between the soils = 1 / this)")
+      ->check(CLI::NonNegativeNumber);
+  sub->add_option("--localisation", a->localisation,
+                  "Every machine's localisation in both runs: perfect or rtk_imu (default: the scenario's)");
   sub->add_flag("--boundary-only", a->boundary_only, "The boundary figure only (no per-pass comparison)");
   sub->add_option("--set", a->set,
                   "octomap_strata parameter for this run, KEY=VALUE, or any stage's, STAGE.KEY=VALUE "

@@ -285,6 +285,38 @@ TEST(Cli, EvalStrataComparesTheNextPassIndicesAndTheBoundaryWithTheTruth) {
   EXPECT_NE(bad.out.find("octomap_strata"), std::string::npos) << bad.out;
 }
 
+TEST(Cli, EvalStrataWithTheOracleFeedsTheTruthSoilToTheStrata) {
+  // --oracle-noise 0: soil_oracle replaces soil_pinn and publishes the soil the truth blade cut,
+  // so the estimates the command prints for the loam are the loam's, but for the few sweeps that
+  // also cut the clay (soil_pinn's are 30 % off).
+  const fs::path d = tempDir("eval_strata_oracle");
+  const std::string scen = std::string(TERRAMAP_SOURCE_DIR) + "/configs/scenarios/strata_loam_over_clay.yaml";
+  const Result r = sh("eval-strata " + scen + " --duration 25 --boundary-only --oracle-noise 0 --localisation perfect --out " +
+                      d.string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("replaced by soil_oracle"), std::string::npos) << r.out;
+  EXPECT_TRUE(fs::exists(d / "oracle_soil.json"));
+  const auto j = nlohmann::json::parse(std::ifstream(d / "eval_strata.json"));
+  EXPECT_EQ(j["oracle_noise"].get<double>(), 0.0);
+  EXPECT_TRUE(j["boundary"]["depth"].contains("fraction_within")) << j["boundary"].dump(1);
+  const auto& c = j["estimator"]["properties"]["c"];
+  ASSERT_GT(j["estimator"]["estimates"]["default"].get<long>(), 10) << j["estimator"].dump(1);
+  EXPECT_NEAR(c["mean"][0].get<double>(), c["truth"][0].get<double>(), 0.05 * c["truth"][0].get<double>()) << c.dump();
+  const auto report = nlohmann::json::parse(std::ifstream(d / "report.json"));
+  bool oracle = false;
+  for (const auto& st : report["stages"]) oracle = oracle || st["type"] == "soil_oracle";
+  EXPECT_TRUE(oracle);
+  // Noise of 0.5 x the soils' difference: the loam's estimates scatter by about that much.
+  const Result noisy = sh("eval-strata " + scen + " --duration 25 --boundary-only -q --oracle-noise 0.5 --out " + d.string());
+  ASSERT_EQ(noisy.code, 0) << noisy.out;
+  const auto jn = nlohmann::json::parse(std::ifstream(d / "eval_strata.json"));
+  const double diff = std::abs(c["truth"][1].get<double>() - c["truth"][0].get<double>());
+  EXPECT_NEAR(jn["estimator"]["properties"]["c"]["sd"][0].get<double>(), 0.5 * diff, 0.25 * diff) << jn["estimator"].dump(1);
+  const Result bad = sh("eval-strata " + scen + " --duration 5 -q --localisation exact --out " + d.string());
+  EXPECT_EQ(bad.code, 3) << bad.out;
+  EXPECT_NE(bad.out.find("--localisation"), std::string::npos) << bad.out;
+}
+
 TEST(Cli, EmbeddedDemoWritesGeoTiffPngAndReport) {
   const fs::path d = tempDir("demo");
   const Result r = sh("run --out " + d.string());
