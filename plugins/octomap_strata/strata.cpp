@@ -23,7 +23,7 @@ namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr int kP = soil::kSoilParamCount;
 constexpr const char* kTreeId = "TerramapStrataTree";
-constexpr const char* kTrailer = "terramap_strata 2";  // 2: columns hold float beliefs
+constexpr const char* kTrailer = "terramap_strata 3";  // 2: columns hold float beliefs; 3: voxels their slab's ends
 
 /// m, v ← prior N(m, v) × N(z, r) (soil/belief.hpp; the prior here is always finite).
 void fuse(double& m, double& v, double z, double r) {
@@ -72,7 +72,8 @@ bool get(std::istream& i, T& v) {
 }  // namespace
 
 bool VoxelBelief::operator==(const VoxelBelief& o) const {
-  return kind == o.kind && mean == o.mean && var == o.var;
+  auto same = [](float a, float b) { return a == b || (std::isnan(a) && std::isnan(b)); };
+  return kind == o.kind && mean == o.mean && var == o.var && same(top, o.top) && same(bottom, o.bottom);
 }
 
 const char* soilSourceName(SoilSource s) {
@@ -237,10 +238,13 @@ long Strata::applyCut(long sweep, const std::vector<CellCut>& cells) {
     const long lo = std::max(levelOf(cut.bottom) + 1, level_min), hi = std::min(levelOf(col.top), level_max);
     if (lo <= hi) {
       for (long k = lo; k <= hi; ++k) {
-        tree_.setLeaf(voxelKey(key, k), toVoxel(predictBelow(&col, levelZ(k)), VoxelBelief::kPredicted));
+        VoxelBelief v = toVoxel(predictBelow(&col, levelZ(k)), VoxelBelief::kPredicted);
+        v.top = col.top;
+        v.bottom = static_cast<float>(cut.bottom);
+        tree_.setLeaf(voxelKey(key, k), v);
         ++removed;
       }
-      pend.push_back({key, lo, hi, static_cast<float>(cut.bottom)});
+      pend.push_back({key, lo, hi, col.top, static_cast<float>(cut.bottom)});
     }
     col.top = static_cast<float>(cut.bottom);
   }
@@ -268,8 +272,10 @@ void Strata::resolve(long sweep, const std::vector<PendingColumn>& cols, const S
   post.mean = cfg_.prior_mean;
   post.var = cfg_.prior_var;
   for (int q = 0; q < kP; ++q) fuse(post.mean[q], post.var[q], (*mean)[q], (*var)[q]);
-  const VoxelBelief v = toVoxel(post, VoxelBelief::kEstimated);
+  VoxelBelief v = toVoxel(post, VoxelBelief::kEstimated);
   for (const PendingColumn& pc : cols) {
+    v.top = pc.top;
+    v.bottom = pc.bottom;
     for (long k = pc.lo; k <= pc.hi; ++k) tree_.setLeaf(voxelKey(pc.column, k), v);
     // After the whole column: a block of the slab collapses once all its voxels hold v.
     for (long k = pc.lo; k <= pc.hi; ++k) tree_.pruneAbove(voxelKey(pc.column, k));
@@ -399,8 +405,15 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
   std::uint32_t key0;
   if (!columnKey(x, y, key0)) return kNaN;
   const double res = cfg_.resolution_m;
-  // Voxel levels (z key) -> sum of the normalised means and count, over the pooled columns.
-  std::map<long, std::pair<std::array<double, kP>, int>, std::greater<long>> levels;
+  // Voxel levels (z key), top first -> sum of the normalised means and count, and the sums and
+  // counts of the slab ends the level's voxels hold, over the pooled columns.
+  struct Level {
+    std::array<double, kP> sum{};
+    int n = 0;
+    double top_sum = 0, bottom_sum = 0;
+    int tops = 0, bottoms = 0;
+  };
+  std::map<long, Level, std::greater<long>> levels;
   const int reach = static_cast<int>(std::floor(std::max(0.0, radius_m) / res));
   const Eigen::Vector2d centre = columnCentre(key0);
   for (int a = -reach; a <= reach; ++a)
@@ -410,27 +423,34 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
       const double nx = centre.x() + a * res, ny = centre.y() + b * res;
       std::uint32_t key;
       if (!columnKey(nx, ny, key)) continue;
-      std::vector<std::pair<long, std::array<float, kP>>> local;
-      const std::vector<std::pair<long, std::array<float, kP>>>* list = &local;
-      auto fill = [&](std::vector<std::pair<long, std::array<float, kP>>>& out) {
+      std::vector<VoxelCache::Voxel> local;
+      const std::vector<VoxelCache::Voxel>* list = &local;
+      auto fill = [&](std::vector<VoxelCache::Voxel>& out) {
         for (const auto& [z, v] : columnVoxels(nx, ny))
-          if (v.kind == VoxelBelief::kEstimated) out.emplace_back(levelOf(z), v.mean);
+          if (v.kind == VoxelBelief::kEstimated) out.push_back({levelOf(z), v.mean, v.top, v.bottom});
       };
       if (cache) {
         auto it = cache->columns.find(key);
         if (it == cache->columns.end()) {
-          it = cache->columns.emplace(key, std::vector<std::pair<long, std::array<float, kP>>>{}).first;
+          it = cache->columns.emplace(key, std::vector<VoxelCache::Voxel>{}).first;
           fill(it->second);
         }
         list = &it->second;
       } else {
         fill(local);
       }
-      for (const auto& [level, mean] : *list) {
-        auto& l = levels[level];
-        if (l.second == 0) l.first.fill(0.0);
-        for (int q = 0; q < kP; ++q) l.first[q] += mean[q] / std::sqrt(cfg_.prior_var[q]);
-        ++l.second;
+      for (const VoxelCache::Voxel& v : *list) {
+        Level& l = levels[v.level];
+        for (int q = 0; q < kP; ++q) l.sum[q] += v.mean[q] / std::sqrt(cfg_.prior_var[q]);
+        ++l.n;
+        if (std::isfinite(v.top)) {
+          l.top_sum += v.top;
+          ++l.tops;
+        }
+        if (std::isfinite(v.bottom)) {
+          l.bottom_sum += v.bottom;
+          ++l.bottoms;
+        }
       }
     }
   const int n = static_cast<int>(levels.size());
@@ -444,7 +464,7 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
   for (const auto& [k, l] : levels) {
     zs.push_back(levelZ(k));
     for (int q = 0; q < kP; ++q) {
-      const double v = l.first[q] / l.second;
+      const double v = l.sum[q] / l.n;
       s1[static_cast<std::size_t>(i) + 1][q] = s1[static_cast<std::size_t>(i)][q] + v;
       s2[static_cast<std::size_t>(i) + 1][q] = s2[static_cast<std::size_t>(i)][q] + v * v;
     }
@@ -472,7 +492,23 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
     }
   }
   if (split < 0 || 1.0 - best / total < min_gain) return kNaN;
-  return 0.5 * (zs[static_cast<std::size_t>(split) - 1] + zs[static_cast<std::size_t>(split)]);
+  const double face = 0.5 * (zs[static_cast<std::size_t>(split) - 1] + zs[static_cast<std::size_t>(split)]);
+  // Where the sweeps above the split ended and those below began. In one column both lie within
+  // half a voxel of the face (a slab holds its voxels' centres and not its neighbours'); pooled
+  // columns can pull the means further, hence the clamp.
+  auto above = levels.begin();
+  std::advance(above, split - 1);
+  const Level &up = above->second, &down = std::next(above)->second;
+  double z;
+  if (up.bottoms > 0 && down.tops > 0)
+    z = 0.5 * (up.bottom_sum / up.bottoms + down.top_sum / down.tops);
+  else if (up.bottoms > 0)
+    z = up.bottom_sum / up.bottoms;
+  else if (down.tops > 0)
+    z = down.top_sum / down.tops;
+  else
+    return face;
+  return std::clamp(z, face - 0.5 * res, face + 0.5 * res);
 }
 
 double Strata::changeDepthAt(double x, double y, int min_voxels, double min_gain, double radius_m) const {

@@ -47,6 +47,7 @@
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <limits>
 #include <map>
 #include <string>
 #include <unordered_map>
@@ -61,6 +62,13 @@ struct VoxelBelief {
   enum Kind : std::uint8_t { kNone = 0, kEstimated = 1, kPredicted = 2 };
   std::array<float, soil::kSoilParamCount> mean{};
   std::array<float, soil::kSoilParamCount> var{};
+  /// The slab of the sweep that removed this voxel, in its column (map z, m): from `top` (the
+  /// column's surface before the sweep) down to `bottom` (the surface it left). A sweep's
+  /// estimate is of that slab, which need not end on voxel faces: changeHeightAt places a change
+  /// inside a voxel by them. Every voxel of the slab holds them, so a flat cut's slab stays
+  /// uniform and prunes. NaN in voxels written before the format held them (never, from a file).
+  float top = std::numeric_limits<float>::quiet_NaN();
+  float bottom = std::numeric_limits<float>::quiet_NaN();
   std::uint8_t kind = kNone;  ///< kEstimated: a sweep's estimate; kPredicted: none arrived
   std::uint8_t pad[3] = {0, 0, 0};  // written to .ot files as bytes: keep them defined
   bool operator==(const VoxelBelief& o) const;
@@ -136,7 +144,12 @@ struct StrataCounters {
 /// Memo of columns' estimated voxels for many changeHeightAt calls over one area (neighbouring
 /// cells pool the same columns). One per thread; stale after any non-const call on the Strata.
 struct VoxelCache {
-  std::unordered_map<std::uint32_t, std::vector<std::pair<long, std::array<float, soil::kSoilParamCount>>>> columns;
+  struct Voxel {
+    long level;
+    std::array<float, soil::kSoilParamCount> mean;
+    float top, bottom;  ///< VoxelBelief::top, ::bottom
+  };
+  std::unordered_map<std::uint32_t, std::vector<Voxel>> columns;
 };
 
 class Strata {
@@ -178,7 +191,13 @@ class Strata {
   /// each) minimising the squared deviation from each run's mean, in units of the prior
   /// standard deviation, summed over the properties. NaN with fewer than 2 × min_voxels
   /// levels, or when the best split explains less than `min_gain` of the spread. The height
-  /// returned is halfway between the last level above and the first below the split.
+  /// returned is where the sweeps changed, not a voxel face: a sweep's estimate is of the slab it
+  /// cut (a few cm, not a voxel). It is halfway between the mean surface the sweeps of the
+  /// lowest level above the split left (VoxelBelief::bottom) and the mean surface the sweeps of
+  /// the highest level below it started from (VoxelBelief::top); they coincide when one sweep
+  /// followed the other, and differ by a slab no voxel centre lay in. Either alone when the
+  /// other is unknown, the face between the levels when both are; clamped to within half a
+  /// voxel of that face (where one column's slabs must end).
   double changeHeightAt(double x, double y, int min_voxels = 1, double min_gain = 0.5, double radius_m = 0.0,
                         struct VoxelCache* cache = nullptr) const;
   /// changeHeightAt as a depth below the column's initial surface (NaN if either is NaN).
@@ -218,6 +237,7 @@ class Strata {
   struct PendingColumn {
     std::uint32_t column;
     long lo, hi;   ///< removed voxel levels, inclusive
+    float top;     ///< the column's surface before the sweep
     float bottom;  ///< the surface the sweep left (the anchor for inheritance)
   };
   // Columns are keyed by their OctoMap x and y keys ((kx << 16) | ky); a *level* is a voxel's

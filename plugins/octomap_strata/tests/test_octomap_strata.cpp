@@ -181,7 +181,7 @@ TEST(Strata, TheChangeDepthIsWhereTheRemovedSoilChanges) {
     s.applyCut(k + 1, {cell(0.025, 0.025, 1.0 - 0.1 * k, 0.9 - 0.1 * k)});
     s.assignEstimate(k + 1, est[k], &kEstVar);
   }
-  EXPECT_NEAR(s.changeDepthAt(0.025, 0.025), 0.2, 1e-9);
+  EXPECT_NEAR(s.changeDepthAt(0.025, 0.025), 0.2, 1e-6);  // heights are kept as float
   const auto vox = s.columnVoxels(0.025, 0.025);
   ASSERT_EQ(vox.size(), 8u);
   EXPECT_NEAR(vox.front().first, 0.975, 1e-9);
@@ -193,6 +193,35 @@ TEST(Strata, TheChangeDepthIsWhereTheRemovedSoilChanges) {
     u.assignEstimate(k + 1, &loam, &kEstVar);
   }
   EXPECT_TRUE(std::isnan(u.changeDepthAt(0.025, 0.025)));
+}
+
+TEST(Strata, AChangeBetweenSweepsIsPlacedWhereTheirSlabsMetNotOnAVoxelFace) {
+  const SoilVector loam{8e3, 0.5, 3e3, 0.35, 15e3}, clay{55e3, 0.42, 20e3, 0.3, 19e3};
+  // 4 cm slabs from 1.0 down; loam down to 0.84, clay below. Voxel centres 0.975 (slab 1),
+  // 0.925 (2), 0.875 (4), 0.825 (5), ...; slab 3, (0.88, 0.92], holds no centre. The levels
+  // split between 0.875 and 0.825 (face 0.85); the sweeps changed at 0.84.
+  Strata s(config());
+  for (int k = 0; k < 8; ++k) {
+    s.applyCut(k + 1, {cell(0.025, 0.025, 1.0 - 0.04 * k, 0.96 - 0.04 * k)});
+    s.assignEstimate(k + 1, k < 4 ? &loam : &clay, &kEstVar);
+  }
+  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025), 0.84, 1e-6);
+  EXPECT_NEAR(s.changeDepthAt(0.025, 0.025), 0.16, 1e-6);
+  // A slab between the two soils that no voxel centre lay in (0.955 to 0.93): its soil is
+  // unknown, so the change is halfway between where the loam's slabs ended (0.955) and the
+  // clay's began (0.93), not on the face (0.95).
+  Strata g(config());
+  const double cuts[4][2] = {{1.0, 0.955}, {0.955, 0.93}, {0.93, 0.86}, {0.86, 0.80}};
+  const SoilVector* est[4] = {&loam, &loam, &clay, &clay};
+  for (int k = 0; k < 4; ++k) {
+    g.applyCut(k + 1, {cell(0.025, 0.025, cuts[k][0], cuts[k][1])});
+    g.assignEstimate(k + 1, est[k], &kEstVar);
+  }
+  ASSERT_EQ(g.columnVoxels(0.025, 0.025).size(), 4u);  // 0.975 | 0.925 0.875 | 0.825
+  EXPECT_NEAR(g.changeHeightAt(0.025, 0.025), 0.5 * (0.955 + 0.93), 1e-6);
+  const auto top = g.columnVoxels(0.025, 0.025).front().second;
+  EXPECT_FLOAT_EQ(top.top, 1.0f);
+  EXPECT_FLOAT_EQ(top.bottom, 0.955f);
 }
 
 TEST(Strata, NeighbouringColumnsPoolTheirEstimatesByLevel) {
@@ -210,10 +239,10 @@ TEST(Strata, NeighbouringColumnsPoolTheirEstimatesByLevel) {
       s.assignEstimate(sweep, clay_here ? &clay : &loam, &kEstVar);
     }
   EXPECT_TRUE(std::isnan(s.changeHeightAt(0.025, 0.025, 1, 0.6, 0.0)));
-  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025, 1, 0.6, 0.05), 0.8, 1e-9);
+  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025, 1, 0.6, 0.05), 0.8, 1e-6);
   EXPECT_NEAR(s.changeDepthAt(0.025, 0.025, 1, 0.6, 0.05), 0.2, 1e-6);
   // The radius reaches the 4-neighbours (0.05 m), not the diagonal (0.07 m): same answer at 0.06.
-  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025, 1, 0.6, 0.06), 0.8, 1e-9);
+  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025, 1, 0.6, 0.06), 0.8, 1e-6);
 }
 
 TEST(Strata, ExpectedCutAveragesTheNextDepthOfTheColumn) {
