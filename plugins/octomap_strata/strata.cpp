@@ -508,7 +508,29 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
     z = down.top_sum / down.tops;
   else
     return face;
-  return std::clamp(z, face - 0.5 * res, face + 0.5 * res);
+  z = std::clamp(z, face - 0.5 * res, face + 0.5 * res);
+  // Mixed slabs: a sweep that cut across the change estimates a mix of the two soils, and the
+  // split gives its level to one side. Each level beside the split is read as a linear mix of
+  // the two runs' soils (each run's mean without that level; the fraction is the projection on
+  // the line between them), the other soil filling the bottom of the upper level's slab and the
+  // top of the lower level's: the change moves into that slab by the fraction. Within a voxel
+  // of the face (the two levels' extent).
+  auto level = [&](int k, int q) { return s1[static_cast<std::size_t>(k) + 1][q] - s1[static_cast<std::size_t>(k)][q]; };
+  auto runMean = [&](int a, int b, int q) { return (s1[static_cast<std::size_t>(b)][q] - s1[static_cast<std::size_t>(a)][q]) / (b - a); };
+  const int ka = split - 1, kb = split;
+  double num_a = 0, num_b = 0, den = 0;
+  for (int q = 0; q < kP; ++q) {
+    const double U = ka > 0 ? runMean(0, ka, q) : level(ka, q);
+    const double D = kb + 1 < n ? runMean(kb + 1, n, q) : level(kb, q);
+    num_a += (level(ka, q) - U) * (D - U);
+    num_b += (level(kb, q) - D) * (U - D);
+    den += (D - U) * (D - U);
+  }
+  if (!(den > 1e-12)) return z;
+  const double fa = std::clamp(num_a / den, 0.0, 1.0), fb = std::clamp(num_b / den, 0.0, 1.0);
+  const double ha = up.tops > 0 && up.bottoms > 0 ? up.top_sum / up.tops - up.bottom_sum / up.bottoms : res;
+  const double hb = down.tops > 0 && down.bottoms > 0 ? down.top_sum / down.tops - down.bottom_sum / down.bottoms : res;
+  return std::clamp(z + fa * ha - fb * hb, face - res, face + res);
 }
 
 double Strata::changeDepthAt(double x, double y, int min_voxels, double min_gain, double radius_m) const {

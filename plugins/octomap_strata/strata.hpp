@@ -197,7 +197,10 @@ class Strata {
   /// the highest level below it started from (VoxelBelief::top); they coincide when one sweep
   /// followed the other, and differ by a slab no voxel centre lay in. Either alone when the
   /// other is unknown, the face between the levels when both are; clamped to within half a
-  /// voxel of that face (where one column's slabs must end).
+  /// voxel of that face (where one column's slabs must end). Then a level beside the split whose
+  /// soil lies between the two runs' (a sweep that cut across the change) moves it into that
+  /// level's slab by the fraction of the other run's soil it holds (linear mix, the projection
+  /// on the line between the runs' means), within a voxel of the face.
   double changeHeightAt(double x, double y, int min_voxels = 1, double min_gain = 0.5, double radius_m = 0.0,
                         struct VoxelCache* cache = nullptr) const;
   /// changeHeightAt as a depth below the column's initial surface (NaN if either is NaN).

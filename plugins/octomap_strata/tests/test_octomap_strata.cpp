@@ -224,6 +224,31 @@ TEST(Strata, AChangeBetweenSweepsIsPlacedWhereTheirSlabsMetNotOnAVoxelFace) {
   EXPECT_FLOAT_EQ(top.bottom, 0.955f);
 }
 
+TEST(Strata, ASweepThatCutAcrossTheChangeMovesItByTheFractionOfTheOtherSoil) {
+  const SoilVector loam{8e3, 0.5, 3e3, 0.35, 15e3}, clay{55e3, 0.42, 20e3, 0.3, 19e3};
+  SoilVector mix;  // a quarter clay
+  for (int q = 0; q < 5; ++q) mix[q] = 0.75 * loam[q] + 0.25 * clay[q];
+  // Five 5 cm slabs from 1.0: loam, loam, the mix (0.90 to 0.85), clay, clay. The mix is nearer
+  // the loam, so the levels split below it (face 0.85); a quarter of its slab is clay, at its
+  // bottom: the change is at 0.85 + 0.25 x 0.05.
+  const SoilVector* est[5] = {&loam, &loam, &mix, &clay, &clay};
+  Strata s(config());
+  for (int k = 0; k < 5; ++k) {
+    s.applyCut(k + 1, {cell(0.025, 0.025, 1.0 - 0.05 * k, 0.95 - 0.05 * k)});
+    s.assignEstimate(k + 1, est[k], &kEstVar);
+  }
+  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025), 0.8625, 1e-5);
+  // Three quarters clay: the split goes above it (face 0.90), and its loam quarter fills the top
+  // of its slab: the change is at 0.90 - 0.25 x 0.05.
+  for (int q = 0; q < 5; ++q) mix[q] = 0.25 * loam[q] + 0.75 * clay[q];
+  Strata t(config());
+  for (int k = 0; k < 5; ++k) {
+    t.applyCut(k + 1, {cell(0.025, 0.025, 1.0 - 0.05 * k, 0.95 - 0.05 * k)});
+    t.assignEstimate(k + 1, est[k], &kEstVar);
+  }
+  EXPECT_NEAR(t.changeHeightAt(0.025, 0.025), 0.8875, 1e-5);
+}
+
 TEST(Strata, NeighbouringColumnsPoolTheirEstimatesByLevel) {
   Strata s(config());
   const SoilVector loam{8e3, 0.5, 3e3, 0.35, 15e3}, clay{55e3, 0.5, 3e3, 0.35, 15e3};
