@@ -311,6 +311,9 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
   // map frame (the localisation's slow error) shifts the height but cancels in the depth.
   long depth_found = 0, depth_within = 0;
   double depth_abs = 0;
+  // Of those, the columns whose first surface is within half a voxel of the truth's: the depth
+  // measured from a right start (a wrong one is the surface fit's error, e.g. under spoil).
+  long good_start = 0, good_start_within = 0;
   // Signed errors (found − truth) in voxels, rounded, clamped to ±kBins: which way a miss goes
   // tells a late estimate (the change found too low) from an early one.
   constexpr int kBins = 4;
@@ -327,6 +330,10 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
         ++depth_found;
         depth_abs += std::abs(ed);
         if (std::abs(ed) <= voxel) ++depth_within;
+        if (std::abs(change_z[c] + m.change_depth[c] - initial[c]) <= 0.5 * voxel) {
+          ++good_start;
+          if (std::abs(ed) <= voxel) ++good_start_within;
+        }
       }
       if (!std::isfinite(change_z[c])) continue;
       ++found;
@@ -348,9 +355,11 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
       std::printf(" %s%+d: %ld", b == -kBins ? "<=" : b == kBins ? ">=" : "", b, hist[static_cast<std::size_t>(b + kBins)]);
     std::printf("\n  there, the strata's bank surfaces - the truth's: first %+.3f m, last %+.3f m (means)\n",
                 found ? first_err / found : std::nan(""), found ? last_err / found : std::nan(""));
-    std::printf("boundary depth (below the first surface): within one voxel in %ld = %.1f %% (MAE where found %.3f m)\n",
+    std::printf("boundary depth (below the first surface): within one voxel in %ld = %.1f %% (MAE where found %.3f m)\n"
+                "  in the %ld columns whose first surface is within half a voxel of the truth's: %ld = %.1f %%\n",
                 depth_within, cut_through ? 100.0 * depth_within / cut_through : std::nan(""),
-                depth_found ? depth_abs / depth_found : std::nan(""));
+                depth_found ? depth_abs / depth_found : std::nan(""), good_start, good_start_within,
+                good_start ? 100.0 * good_start_within / good_start : std::nan(""));
   }
   nlohmann::json histogram = nlohmann::json::object();
   for (int b = -kBins; b <= kBins; ++b) histogram[std::to_string(b)] = hist[static_cast<std::size_t>(b + kBins)];
@@ -363,7 +372,9 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
           {"last_surface_bias_m", found ? last_err / found : std::nan("")},
           {"depth", {{"columns_with_change", depth_found}, {"within_one_voxel", depth_within},
                      {"fraction_within", cut_through ? static_cast<double>(depth_within) / cut_through : std::nan("")},
-                     {"mae_m_where_found", depth_found ? depth_abs / depth_found : std::nan("")}}}};
+                     {"mae_m_where_found", depth_found ? depth_abs / depth_found : std::nan("")},
+                     {"columns_with_first_surface_within_half_a_voxel", good_start},
+                     {"within_one_voxel_there", good_start_within}}}};
 }
 
 /// How far apart the soil estimator's estimates of the two soils are: every valid estimate of
