@@ -80,6 +80,9 @@ ParamSchema OctomapStrata::schema() const {
                   "strata_change_*: columns within this distance pool their removed soil by level"),
       param::real("change_interval_s", d.change_interval_s, 0.0, 1e6, "s",
                   "strata_change_* are recomputed at most this often (event time) and at the end; 0 = every event"),
+      param::real("pristine_margin_m", d.pristine_margin_m, -1.0, 10.0, "m",
+                  "a first cut whose fitted bank surface lies more than this above strata_pristine_m (the surface "
+                  "before any sweep touched the cell) starts from strata_pristine_m; negative = always the fit"),
       param::path("save_path", "", "write the whole model here at the end (.ot + terramap trailer); empty = no"),
       param::path("octovis_path", "", "write an octovis ColorOcTree (.ot) here at the end; empty = no"),
       param::text("octovis_param", "c", paramNames(), "soil property the ColorOcTree's colours show"),
@@ -113,6 +116,7 @@ void OctomapStrata::configure(const Params& p) {
   c.change_min_gain = p.getDouble("change_min_gain");
   c.change_radius_m = p.getDouble("change_radius_m");
   c.change_interval_s = p.getDouble("change_interval_s");
+  c.pristine_margin_m = p.getDouble("pristine_margin_m");
   c.save_path = p.getString("save_path");
   c.octovis_path = p.getString("octovis_path");
   c.octovis_param = paramIndex(p.getString("octovis_param"));
@@ -142,6 +146,9 @@ std::vector<LayerSpec> OctomapStrata::layers() const {
                  "depth below the first-cut surface of the strongest change in the removed soil; NaN = none found"});
   out.push_back({"strata_change_z_m", LayerAccess::Create, "m", kNaNf,
                  "height (map z) of that change: the first-cut surface minus strata_change_depth_m; NaN = none found"});
+  out.push_back({"strata_pristine_m", LayerAccess::Create, "m", kNaNf,
+                 "bank surface (elevation - loose) before any sweep touched the cell; NaN = never known, "
+                 "-inf = touched before the map knew it"});
   out.push_back({"elevation", LayerAccess::Read, "", kNaNf, ""});
   return out;
 }
@@ -162,6 +169,8 @@ void OctomapStrata::start(ProcessContext& ctx) {
   change_z_ = map.layerId("strata_change_z_m");
   elevation_ = map.layerId("elevation");
   loose_ = map.hasLayer("loose") ? map.layerId("loose") : LayerId(-1);
+  pristine_ = map.layerId("strata_pristine_m");
+  ctx.trackChanges(elevation_);
   have_surface_ = cfg_.surface_fallback;
   for (int k = 0; have_surface_ && k < soil::kSoilParamCount; ++k)
     have_surface_ = map.hasLayer(soil::kSoilParams[k].layer) && map.hasLayer(std::string(soil::kSoilParams[k].layer) + "_var");
@@ -185,7 +194,8 @@ void OctomapStrata::collect(ProcessContext& ctx, std::vector<Eigen::Vector2d>& c
   for (const Record& r : sweeps.records) {
     last_sweep_ = r.sequence;
     const auto& sw = *std::static_pointer_cast<const SweepRecord>(r.payload);
-    const std::vector<strata::CellCut> cut = cellCutsOf(sw);
+    std::vector<strata::CellCut> cut = cellCutsOf(sw);
+    applyPristine(ctx, sw, cut);
     if (cut.empty()) continue;
     ctx.addCounter("voxels_removed", static_cast<double>(strata_->applyCut(sw.sweep_index, cut)));
     for (const strata::CellCut& c : cut) {
@@ -223,12 +233,52 @@ void OctomapStrata::collect(ProcessContext& ctx, std::vector<Eigen::Vector2d>& c
     }
 }
 
+void OctomapStrata::applyPristine(ProcessContext& ctx, const SweepRecord& sweep, std::vector<strata::CellCut>& cut) {
+  LayeredMap& map = ctx.map();
+  const Geometry& g = map.geometry();
+  std::size_t k = 0;  // cut cells are the mask's cut cells, in order
+  for (const SweepMaskCell& m : sweep.mask) {
+    const std::optional<Index> idx = g.indexAt(m.position);
+    const float pristine = idx ? map.at(pristine_, *idx) : kNaNf;
+    if (m.cut && k < cut.size()) {
+      strata::CellCut& c = cut[k++];
+      if (cfg_.pristine_margin_m >= 0 && std::isfinite(pristine) &&
+          (std::isnan(c.old_surface_m) || c.old_surface_m - pristine > cfg_.pristine_margin_m)) {
+        c.old_surface_m = pristine;
+        ctx.addCounter("first_surface_from_pristine", 1);
+      }
+    }
+    if (idx && std::isnan(pristine)) map.set(pristine_, *idx, -std::numeric_limits<float>::infinity());
+  }
+}
+
+void OctomapStrata::recordPristine(ProcessContext& ctx) {
+  LayeredMap& map = ctx.map();
+  const int ts = map.tileSize();
+  for (int t : ctx.changedTiles(elevation_)) {
+    const float* el = map.tileData(elevation_, t);
+    if (!el) continue;
+    const float* lo = loose_ >= 0 ? map.tileData(loose_, t) : nullptr;
+    const float* known = map.tileData(pristine_, t);
+    float* out = nullptr;  // taken (allocated, un-shared) only when a cell is written
+    const CellRect r = map.tileRect(t);
+    for (int i = 0; i < r.rows; ++i)
+      for (int j = 0; j < r.cols; ++j) {
+        const int k = i * ts + j;
+        if ((known && !std::isnan(known[k])) || !std::isfinite(el[k])) continue;
+        if (!out) known = out = map.mutableTileData(pristine_, t);
+        out[k] = el[k] - (lo && std::isfinite(lo[k]) ? lo[k] : 0.0f);
+      }
+  }
+}
+
 void OctomapStrata::process(ProcessContext& ctx, const Event&) { update(ctx, false); }
 
 void OctomapStrata::update(ProcessContext& ctx, bool final) {
   std::vector<Eigen::Vector2d> cells;
   std::vector<int> fallback;
-  collect(ctx, cells, fallback);
+  collect(ctx, cells, fallback);  // first: the sweeps of this event mark the cells they touched
+  recordPristine(ctx);
   if (final) strata_->flushPending();
   std::sort(fallback.begin(), fallback.end());
   fallback.erase(std::unique(fallback.begin(), fallback.end()), fallback.end());

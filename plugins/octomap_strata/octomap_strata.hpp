@@ -16,7 +16,12 @@
 ///  - `strata_change_depth_m`: depth below the first-cut surface of the strongest change in the
 ///    removed soil, pooled over the columns within `change_radius_m` (Strata::changeHeightAt;
 ///    NaN = no change found), and `strata_change_z_m`, its
-///    height in the map frame (what to compare with a boundary known in absolute terms).
+///    height in the map frame (what to compare with a boundary known in absolute terms);
+///  - `strata_pristine_m`: the bank surface (elevation − loose) the map held at a cell before any
+///    sweep touched it (m, map z; NaN = never known; −inf = a sweep touched it before the map
+///    knew it). A column's first surface is the first sweep's fitted bank surface, unless that
+///    lies more than `pristine_margin_m` above this one or there is no fit: then this one (the
+///    fit counts spoil pushed over the ground before the first cut as bank).
 /// Read: `elevation` (and `loose`, `soil_*` when present).
 ///
 /// Files, written at the end of the run when their parameter is set (atomically): `save_path`
@@ -56,6 +61,9 @@ struct OctomapStrataConfig {
   double change_min_gain = 0.3;
   double change_radius_m = 0.0;
   double change_interval_s = 5.0;
+  /// A first cut whose fitted bank surface lies more than this above the surface the map held
+  /// before any sweep touched the cell (strata_pristine_m) starts from the latter; < 0 = never.
+  double pristine_margin_m = 0.05;
   std::string save_path, octovis_path, section_png;
   int octovis_param = 0, section_param = 0;
   double octovis_below_m = 0.5;
@@ -82,6 +90,12 @@ class OctomapStrata : public Plugin {
   /// strata_change_* of the given cells grown by change_radius_m (Change).
   enum class Pass { Next, Fallback, Change };
   void collect(ProcessContext& ctx, std::vector<Eigen::Vector2d>& cells, std::vector<int>& fallback_tiles);
+  /// strata_pristine_m: the bank surface (elevation − loose) of cells in tiles where the elevation
+  /// changed, for cells the map did not know before and no sweep has touched (those hold −inf).
+  void recordPristine(ProcessContext& ctx);
+  /// Cells a sweep touched stop taking the map's surface as pristine; a first cut whose fit lies
+  /// above the pristine surface by more than the margin (or has no fit) starts from it.
+  void applyPristine(ProcessContext& ctx, const SweepRecord& sweep, std::vector<strata::CellCut>& cut);
   void update(ProcessContext& ctx, bool final);
   void computeCells(ProcessContext& ctx, const std::vector<Eigen::Vector2d>& positions, const std::vector<int>& whole_tiles,
                     Pass pass);
@@ -90,7 +104,7 @@ class OctomapStrata : public Plugin {
   OctomapStrataConfig cfg_;
   std::optional<strata::Strata> strata_;
   std::array<LayerId, soil::kSoilParamCount> next_{}, next_var_{}, surf_{}, surf_var_{};
-  LayerId cut_ = -1, change_ = -1, change_z_ = -1, elevation_ = -1, loose_ = -1;
+  LayerId cut_ = -1, change_ = -1, change_z_ = -1, elevation_ = -1, loose_ = -1, pristine_ = -1;
   bool have_surface_ = false;
   long last_estimate_ = 0, last_sweep_ = 0;
   std::vector<Eigen::Vector2d> change_dirty_;  ///< cells whose removed soil changed since strata_change_* last ran

@@ -414,10 +414,12 @@ struct Harness {
   Executor ex;
   RecordBus bus;
   PluginStats stats;
+  ChangeTracker tracker;
   ProcessContext ctx;
   OctomapStrata plugin;
   explicit Harness(int threads = 1, std::map<std::string, ParamValue> params = {})
       : map(Geometry(0.1, Size(80, 80))), ex(threads), ctx(map, ex, bus, stats, "strata") {
+    ctx.setTracker(&tracker);
     plugin.configure(makeParams("strata", plugin.schema(), params));
     for (const LayerSpec& l : plugin.layers())
       if (l.access == LayerAccess::Create) map.addLayer(l.name, l.unit, l.fill);
@@ -458,7 +460,10 @@ struct Harness {
     e.valid = valid;
     bus.publish<SoilEstimateRecord>(SoilEstimateRecord::kType, 0.0, std::make_shared<const SoilEstimateRecord>(e));
   }
-  void event() { plugin.process(ctx, Tick{}); }
+  void event() {
+    plugin.process(ctx, Tick{});
+    tracker.mark(map);  // as the host does after each call
+  }
   // Four passes over the same strip, 0.1 m each, each sweep's estimate in the next event; the
   // soil turns from 8 to 55 kPa after two.
   void loamOverClay() {
@@ -487,6 +492,41 @@ TEST(OctomapStrataPlugin, LayersShowTheNextCutTheRemovedDepthAndTheChange) {
   EXPECT_TRUE(std::isnan(h.at("strata_next_c", {2.0, 2.0})));  // never cut, no surface layers
   // 4 sweeps x 33 cells of 0.1 m = 4 columns each x 2 voxels of 0.05 m.
   EXPECT_DOUBLE_EQ(h.stats.counters.at("voxels_estimated"), 4 * 33 * 4 * 2.0);
+}
+
+TEST(OctomapStrataPlugin, AFirstFitAboveTheSurfaceTheMapHeldBeforeStartsFromThatSurface) {
+  // The map knew the ground at 1.0 before any sweep (elevation, no loose layer); the first
+  // sweep's fit says 1.08 (spoil pushed over the ground taken for bank). With the margin the
+  // column starts at 1.0 (0.1 m cut to 0.9), without it at the fit (0.18 m).
+  for (double margin : {0.05, -1.0}) {
+    Harness h(1, {{"pristine_margin_m", ParamValue{margin}}});
+    h.event();
+    EXPECT_FLOAT_EQ(h.at("strata_pristine_m", {0.15, 0.05}), 1.0f);
+    h.sweep(1, 0.0, 1.08, 0.9);
+    h.event();
+    EXPECT_NEAR(h.at("strata_cut_m", {0.15, 0.05}), margin < 0 ? 0.18f : 0.1f, 1e-5) << margin;
+    EXPECT_EQ(h.stats.counters.count("first_surface_from_pristine"), margin < 0 ? 0u : 1u) << margin;
+  }
+  // A fit within the margin stands (1.02: 0.12 m cut).
+  Harness w(1);
+  w.event();
+  w.sweep(1, 0.0, 1.02, 0.9);
+  w.event();
+  EXPECT_NEAR(w.at("strata_cut_m", {0.15, 0.05}), 0.12f, 1e-5);
+  // A cell a sweep touched before the map knew it never takes the map's surface as pristine:
+  // the surface seen later is the cut one.
+  Harness u(1);
+  const LayerId el = u.map.layerId("elevation");
+  const Index cell = *u.map.geometry().indexAt({0.15, 0.05});
+  u.map.set(el, cell, std::numeric_limits<float>::quiet_NaN());
+  u.event();
+  EXPECT_TRUE(std::isnan(u.at("strata_pristine_m", {0.15, 0.05})));
+  u.sweep(1, 0.0, 1.0, 0.9);
+  u.event();
+  u.map.set(el, cell, 0.9f);
+  u.event();
+  EXPECT_EQ(u.at("strata_pristine_m", {0.15, 0.05}), -std::numeric_limits<float>::infinity());
+  EXPECT_FLOAT_EQ(u.at("strata_pristine_m", {1.55, 1.05}), 1.0f);  // a cell no sweep touched
 }
 
 TEST(OctomapStrataPlugin, TheChangeLayerWaitsForItsIntervalOrTheEnd) {
