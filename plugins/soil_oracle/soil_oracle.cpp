@@ -119,18 +119,7 @@ void SoilOracle::start(ProcessContext& ctx) {
 }
 
 SoilEstimateRecord SoilOracle::estimate(const SweepRecord& sweep) const {
-  SoilEstimateRecord r;
-  r.sweep_index = sweep.sweep_index;
-  r.machine_id = sweep.machine_id;
-  r.t0 = sweep.t0;
-  r.t1 = sweep.t1;
-  r.stamp = sweep.t1;
-  r.T_map_blade1 = sweep.T_map_blade1;
-  r.t_hat = sweep.t_hat;
-  r.alpha_rad = sweep.alpha_rad;
-  r.rho_rad = sweep.rho_rad;
-  r.d_m = sweep.d_m;
-  r.w_m = sweep.w_m;
+  SoilEstimateRecord r = soilEstimateRecordFor(sweep);
   r.members = 1;
   const SoilEstimateRecord::SoilVector truth = truthOfSweep(table_, sweep.t0, sweep.t1);
   if (!std::isfinite(truth[0])) {

@@ -25,20 +25,10 @@ nlohmann::json nums(const std::array<double, N>& a) {
 
 SoilEstimateRecord soilEstimateRecord(const SweepRecord& sweep, const soil::PinnSample& sample,
                                       const pinn::SoilEstimate& e, int members) {
-  SoilEstimateRecord r;
-  r.sweep_index = sweep.sweep_index;
-  r.machine_id = sweep.machine_id;
-  r.t0 = sweep.t0;
-  r.t1 = sweep.t1;
+  SoilEstimateRecord r = soilEstimateRecordFor(sweep);
   r.stamp = sample.anchor_stamp;
   r.history_T = sample.T;
   r.horizon_P = sample.P;
-  r.T_map_blade1 = sweep.T_map_blade1;
-  r.t_hat = sweep.t_hat;
-  r.alpha_rad = sweep.alpha_rad;
-  r.rho_rad = sweep.rho_rad;
-  r.d_m = sweep.d_m;
-  r.w_m = sweep.w_m;
   r.d_res_m = e.d_res_m;
   r.beta_res_rad = e.beta_res_rad;
   r.beta_rad = e.beta_rad;

@@ -26,6 +26,8 @@
 /// Threading: a record is immutable once published (shared as
 /// `shared_ptr<const SoilEstimateRecord>`), so any number of readers may hold it on any thread.
 /// No libtorch type crosses this header.
+#include <terramap/plugin/records/sweep_record.hpp>
+
 #include <Eigen/Geometry>
 
 #include <array>
@@ -93,5 +95,24 @@ struct SoilEstimateRecord {
   /// valid FEE at any horizon step) or "non_finite_output" (a mean or variance is NaN or inf).
   std::string invalid_reason;
 };
+
+/// The record of an estimate for `sweep` before any estimate is in it: which sweep (index,
+/// machine, t0, t1; stamp = t1) and the sweep's geometry copied, everything else as declared
+/// (NaN, not valid). Every estimator of the bus starts its record from it.
+inline SoilEstimateRecord soilEstimateRecordFor(const SweepRecord& sweep) {
+  SoilEstimateRecord r;
+  r.sweep_index = sweep.sweep_index;
+  r.machine_id = sweep.machine_id;
+  r.t0 = sweep.t0;
+  r.t1 = sweep.t1;
+  r.stamp = sweep.t1;
+  r.T_map_blade1 = sweep.T_map_blade1;
+  r.t_hat = sweep.t_hat;
+  r.alpha_rad = sweep.alpha_rad;
+  r.rho_rad = sweep.rho_rad;
+  r.d_m = sweep.d_m;
+  r.w_m = sweep.w_m;
+  return r;
+}
 
 }  // namespace terramap
