@@ -66,7 +66,7 @@ struct VoxelBelief {
   /// column's surface before the sweep) down to `bottom` (the surface it left). A sweep's
   /// estimate is of that slab, which need not end on voxel faces: changeHeightAt places a change
   /// inside a voxel by them. Every voxel of the slab holds them, so a flat cut's slab stays
-  /// uniform and prunes. NaN in voxels written before the format held them (never, from a file).
+  /// uniform and prunes. NaN only in a default-constructed belief (Strata writes both).
   float top = std::numeric_limits<float>::quiet_NaN();
   float bottom = std::numeric_limits<float>::quiet_NaN();
   std::uint8_t kind = kNone;  ///< kEstimated: a sweep's estimate; kPredicted: none arrived
