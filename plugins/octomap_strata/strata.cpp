@@ -408,7 +408,7 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
   // Voxel levels (z key), top first -> sum of the normalised means and count, and the sums and
   // counts of the slab ends the level's voxels hold, over the pooled columns.
   struct Level {
-    std::array<double, kP> sum{};
+    std::array<double, kP> sum{}, var_sum{};
     int n = 0;
     double top_sum = 0, bottom_sum = 0;
     int tops = 0, bottoms = 0;
@@ -427,7 +427,7 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
       const std::vector<VoxelCache::Voxel>* list = &local;
       auto fill = [&](std::vector<VoxelCache::Voxel>& out) {
         for (const auto& [z, v] : columnVoxels(nx, ny))
-          if (v.kind == VoxelBelief::kEstimated) out.push_back({levelOf(z), v.mean, v.top, v.bottom});
+          if (v.kind == VoxelBelief::kEstimated) out.push_back({levelOf(z), v.mean, v.var, v.top, v.bottom});
       };
       if (cache) {
         auto it = cache->columns.find(key);
@@ -441,7 +441,10 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
       }
       for (const VoxelCache::Voxel& v : *list) {
         Level& l = levels[v.level];
-        for (int q = 0; q < kP; ++q) l.sum[q] += v.mean[q] / std::sqrt(cfg_.prior_var[q]);
+        for (int q = 0; q < kP; ++q) {
+          l.sum[q] += v.mean[q] / std::sqrt(cfg_.prior_var[q]);
+          l.var_sum[q] += v.var[q] / cfg_.prior_var[q];
+        }
         ++l.n;
         if (std::isfinite(v.top)) {
           l.top_sum += v.top;
@@ -457,26 +460,36 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
   min_voxels = std::max(1, min_voxels);
   if (n < 2 * min_voxels) return kNaN;
   std::vector<double> zs;
-  std::vector<std::array<double, kP>> s1(static_cast<std::size_t>(n) + 1), s2(static_cast<std::size_t>(n) + 1);
+  // Prefix sums over the levels, per property, of the level means (s1) and, weighted by each
+  // level's precision (1 / its voxels' mean normalised variance), of 1, the mean and its square:
+  // a level whose estimates are noisy pulls the split and the runs' means less.
+  std::vector<std::array<double, kP>> s1(static_cast<std::size_t>(n) + 1), w0(static_cast<std::size_t>(n) + 1),
+      w1(static_cast<std::size_t>(n) + 1), w2(static_cast<std::size_t>(n) + 1);
   s1[0].fill(0.0);
-  s2[0].fill(0.0);
+  w0[0].fill(0.0);
+  w1[0].fill(0.0);
+  w2[0].fill(0.0);
   int i = 0;
   for (const auto& [k, l] : levels) {
     zs.push_back(levelZ(k));
     for (int q = 0; q < kP; ++q) {
       const double v = l.sum[q] / l.n;
-      s1[static_cast<std::size_t>(i) + 1][q] = s1[static_cast<std::size_t>(i)][q] + v;
-      s2[static_cast<std::size_t>(i) + 1][q] = s2[static_cast<std::size_t>(i)][q] + v * v;
+      const double w = l.n / std::max(1e-12, l.var_sum[q]);
+      const std::size_t a = static_cast<std::size_t>(i);
+      s1[a + 1][q] = s1[a][q] + v;
+      w0[a + 1][q] = w0[a][q] + w;
+      w1[a + 1][q] = w1[a][q] + w * v;
+      w2[a + 1][q] = w2[a][q] + w * v * v;
     }
     ++i;
   }
   auto sse = [&](int a, int b) {  // levels [a, b)
     double e = 0.0;
-    const double m = b - a;
     for (int q = 0; q < kP; ++q) {
-      const double d1 = s1[static_cast<std::size_t>(b)][q] - s1[static_cast<std::size_t>(a)][q];
-      const double d2 = s2[static_cast<std::size_t>(b)][q] - s2[static_cast<std::size_t>(a)][q];
-      e += std::max(0.0, d2 - d1 * d1 / m);
+      const double d0 = w0[static_cast<std::size_t>(b)][q] - w0[static_cast<std::size_t>(a)][q];
+      const double d1 = w1[static_cast<std::size_t>(b)][q] - w1[static_cast<std::size_t>(a)][q];
+      const double d2 = w2[static_cast<std::size_t>(b)][q] - w2[static_cast<std::size_t>(a)][q];
+      e += std::max(0.0, d2 - d1 * d1 / d0);
     }
     return e;
   };
@@ -516,7 +529,10 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
   // top of the lower level's: the change moves into that slab by the fraction. Within a voxel
   // of the face (the two levels' extent).
   auto level = [&](int k, int q) { return s1[static_cast<std::size_t>(k) + 1][q] - s1[static_cast<std::size_t>(k)][q]; };
-  auto runMean = [&](int a, int b, int q) { return (s1[static_cast<std::size_t>(b)][q] - s1[static_cast<std::size_t>(a)][q]) / (b - a); };
+  auto runMean = [&](int a, int b, int q) {
+    return (w1[static_cast<std::size_t>(b)][q] - w1[static_cast<std::size_t>(a)][q]) /
+           (w0[static_cast<std::size_t>(b)][q] - w0[static_cast<std::size_t>(a)][q]);
+  };
   const int ka = split - 1, kb = split;
   double num_a = 0, num_b = 0, den = 0;
   for (int q = 0; q < kP; ++q) {

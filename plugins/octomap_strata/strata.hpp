@@ -146,7 +146,7 @@ struct StrataCounters {
 struct VoxelCache {
   struct Voxel {
     long level;
-    std::array<float, soil::kSoilParamCount> mean;
+    std::array<float, soil::kSoilParamCount> mean, var;
     float top, bottom;  ///< VoxelBelief::top, ::bottom
   };
   std::unordered_map<std::uint32_t, std::vector<Voxel>> columns;
@@ -189,7 +189,9 @@ class Strata {
   /// blade's width and 0.2 m of travel, so neighbours add other sweeps' estimates of the same
   /// depth); the levels, top to bottom, are split into two runs (at least `min_voxels` levels
   /// each) minimising the squared deviation from each run's mean, in units of the prior
-  /// standard deviation, summed over the properties. NaN with fewer than 2 × min_voxels
+  /// standard deviation, summed over the properties, each level's weighted by its precision
+  /// (1 / its voxels' mean variance in prior units; the runs' means weighted alike), so a noisy
+  /// estimate moves the split less than a sure one. NaN with fewer than 2 × min_voxels
   /// levels, or when the best split explains less than `min_gain` of the spread. The height
   /// returned is where the sweeps changed, not a voxel face: a sweep's estimate is of the slab it
   /// cut (a few cm, not a voxel). It is halfway between the mean surface the sweeps of the

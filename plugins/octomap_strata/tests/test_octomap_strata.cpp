@@ -249,6 +249,22 @@ TEST(Strata, ASweepThatCutAcrossTheChangeMovesItByTheFractionOfTheOtherSoil) {
   EXPECT_NEAR(t.changeHeightAt(0.025, 0.025), 0.8875, 1e-5);
 }
 
+TEST(Strata, ANoisyEstimateMovesTheChangeLessThanSureOnes) {
+  // Eight 5 cm slabs from 1.0: loam, loam, a wild estimate (80 kPa, but as uncertain as the
+  // prior), loam, then clay; the soils differ in c only, the other properties at the prior's
+  // means. Unweighted, the wild level (55 kPa after the prior) splits the loam: the change would
+  // be at 0.90, two voxels high; weighted by precision it barely counts and the change is at 0.80.
+  const SoilVector loam{10.2e3, 0.5, 10e3, 0.4, 17e3}, clay{49.8e3, 0.5, 10e3, 0.4, 17e3}, wild{80e3, 0.5, 10e3, 0.4, 17e3};
+  const SoilVector sure{1e6, 1e-4, 4e5, 2e-4, 4e4}, unsure{1e8, 0.04, 4e7, 0.02, 4e6};
+  const SoilVector* est[8] = {&loam, &loam, &wild, &loam, &clay, &clay, &clay, &clay};
+  Strata s(config());
+  for (int k = 0; k < 8; ++k) {
+    s.applyCut(k + 1, {cell(0.025, 0.025, 1.0 - 0.05 * k, 0.95 - 0.05 * k)});
+    s.assignEstimate(k + 1, est[k], k == 2 ? &unsure : &sure);
+  }
+  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025), 0.80, 1e-5);
+}
+
 TEST(Strata, NeighbouringColumnsPoolTheirEstimatesByLevel) {
   Strata s(config());
   const SoilVector loam{8e3, 0.5, 3e3, 0.35, 15e3}, clay{55e3, 0.5, 3e3, 0.35, 15e3};
