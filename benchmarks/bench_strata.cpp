@@ -31,6 +31,7 @@ struct Site {
   Executor ex;
   RecordBus bus;
   PluginStats stats;
+  ChangeTracker tracker;  // as the engine: the plugin tracks the elevation's tiles
   ProcessContext ctx;
   OctomapStrata plugin;
   Site(double side_m, int threads)
@@ -45,7 +46,12 @@ struct Site {
     for (const LayerSpec& l : plugin.layers())
       if (l.access == LayerAccess::Create) map.addLayer(l.name, l.unit, l.fill);
     map.addLayer("elevation", "m", 0.0f);
+    ctx.setTracker(&tracker);
     plugin.start(ctx);
+  }
+  void process() {
+    plugin.process(ctx, Tick{});
+    tracker.mark(map);
   }
 };
 
@@ -86,7 +92,7 @@ void BM_StrataCoverSite(benchmark::State& state) {
       for (double s = 0; s + 0.2 <= side + 1e-9; s += 0.2) {
         ++index;
         site->bus.publish<SweepRecord>(SweepRecord::kType, 0.0, std::make_shared<const SweepRecord>(sweepAt(index, lane, s, side)));
-        site->plugin.process(site->ctx, Tick{});
+        site->process();
         SoilEstimateRecord e;
         e.sweep_index = index;
         e.T_map_blade1.translation() = Eigen::Vector3d(s + 0.2, 0.8 + 1.6 * lane, 0.0);
@@ -95,7 +101,7 @@ void BM_StrataCoverSite(benchmark::State& state) {
         e.var_total = {4e6, 0.01, 1e6, 0.004, 1e6};
         e.valid = true;
         site->bus.publish<SoilEstimateRecord>(SoilEstimateRecord::kType, 0.0, std::make_shared<const SoilEstimateRecord>(e));
-        site->plugin.process(site->ctx, Tick{});
+        site->process();
       }
     sweeps += index;
     state.PauseTiming();
