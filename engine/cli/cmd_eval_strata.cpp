@@ -2,14 +2,16 @@
 // against the simulator's truth. Two figures:
 //  - boundary: in every column the machine cut through a soil zone's top (the truth's bank surface
 //    at the end at least one voxel below it), is the height where the removed soil changes
-//    (`strata_change_z_m`) within one voxel of the zone's top?
+//    (`strata_change_z_m`) within one voxel of the zone's top, and its depth below the strata's
+//    first surface (`strata_change_depth_m`) within one voxel of the zone's depth?
 //  - next pass: at the start of every pass, how well does the FEE index of the soil the strata
 //    expect in the next cut (fee_index over strata_next_*) predict the index of the soil that
 //    pass actually removes, compared with the surface-only index (fee_index over soil_*)?
 // The truth comes from a run of the simulator alone (pass starts: the machine turning from
 // reverse to forward); the map from one run of the pipeline, its index layers sampled at the
 // first event of each pass start (the simulator is deterministic per seed: both runs see the
-// same machine).
+// same machine). --oracle-noise swaps soil_pinn for soil_oracle fed from the truth run, to tell
+// the estimator's share of the error from the strata's.
 #include "command.hpp"
 #include "stage_params.hpp"
 
@@ -186,9 +188,10 @@ Stages findStages(PipelineSpec& spec, const StrataArgs& a) {
   return out;
 }
 
-/// --oracle: every soil_pinn stage becomes a soil_oracle over the truth run's table of the soil
-/// the blade cut (written to --out), with noise of `oracle_noise` times the two soils'
-/// difference per property. The boundary's ceiling with a perfect (or a d' = 1 / noise)
+/// --oracle-noise: every soil_pinn stage becomes a soil_oracle over the truth run's table of the
+/// soil the blade cut (written to --out), with noise of `oracle_noise` times the two soils'
+/// difference per property (the soil_pinn stage's own parameters, --model and --set ones
+/// included, are dropped). The boundary's ceiling with a perfect (or a d' = 1 / noise)
 /// estimator: what the strata could do if the estimator were that good.
 void useOracle(PipelineSpec& spec, const StrataArgs& a, const sim::Scenario& sc, const sim::SoilZone& zone,
                const CutSoil& truth) {
@@ -215,7 +218,7 @@ void useOracle(PipelineSpec& spec, const StrataArgs& a, const sim::Scenario& sc,
     st.params["noise_sd"] = RawParam{ParamValue{sd}, "eval-strata --oracle-noise"};
     ++swapped;
   }
-  if (swapped == 0) throw ConfigError(spec.file + ": --oracle replaces the soil_pinn stage, and the pipeline has none");
+  if (swapped == 0) throw ConfigError(spec.file + ": --oracle-noise replaces the soil_pinn stage, and the pipeline has none");
 }
 
 /// The map's layers sampled during the run: both indices at each pass start, the change height
@@ -306,6 +309,7 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
   // Where the change is found, the strata's first and last bank surfaces (first = change height +
   // change depth, last = first − cut) against the truth's: a bias there shifts every voxel.
   double first_err = 0, last_err = 0;
+  long surfaces = 0;
   // The figure is the boundary's *depth*: below the strata's first surface (the map's
   // own frame) against the zone's depth below the initial surface. A vertical offset of the
   // map frame (the localisation's slow error) shifts the height but cancels in the depth.
@@ -341,8 +345,11 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
       abs_err += std::abs(e);
       signed_err += e;
       const double first = change_z[c] + m.change_depth[c];
-      first_err += first - initial[c];
-      last_err += first - m.cut[c] - end.bank[c];
+      if (std::isfinite(first) && std::isfinite(m.cut[c])) {
+        first_err += first - initial[c];
+        last_err += first - m.cut[c] - end.bank[c];
+        ++surfaces;
+      }
       if (std::abs(e) <= voxel) ++within;
       ++hist[static_cast<std::size_t>(std::clamp(static_cast<int>(std::lround(e / voxel)), -kBins, kBins) + kBins)];
     }
@@ -354,7 +361,7 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
     for (int b = -kBins; b <= kBins; ++b)
       std::printf(" %s%+d: %ld", b == -kBins ? "<=" : b == kBins ? ">=" : "", b, hist[static_cast<std::size_t>(b + kBins)]);
     std::printf("\n  there, the strata's bank surfaces - the truth's: first %+.3f m, last %+.3f m (means)\n",
-                found ? first_err / found : std::nan(""), found ? last_err / found : std::nan(""));
+                surfaces ? first_err / surfaces : std::nan(""), surfaces ? last_err / surfaces : std::nan(""));
     std::printf("boundary depth (below the first surface): within one voxel in %ld = %.1f %% (MAE where found %.3f m)\n"
                 "  in the %ld columns whose first surface is within half a voxel of the truth's: %ld = %.1f %%\n",
                 depth_within, cut_through ? 100.0 * depth_within / cut_through : std::nan(""),
@@ -368,8 +375,8 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
           {"mae_m_where_found", found ? abs_err / found : std::nan("")},
           {"mean_error_m_where_found", found ? signed_err / found : std::nan("")},
           {"error_voxels_histogram", histogram},
-          {"first_surface_bias_m", found ? first_err / found : std::nan("")},
-          {"last_surface_bias_m", found ? last_err / found : std::nan("")},
+          {"first_surface_bias_m", surfaces ? first_err / surfaces : std::nan("")},
+          {"last_surface_bias_m", surfaces ? last_err / surfaces : std::nan("")},
           {"depth", {{"columns_with_change", depth_found}, {"within_one_voxel", depth_within},
                      {"fraction_within", cut_through ? static_cast<double>(depth_within) / cut_through : std::nan("")},
                      {"mae_m_where_found", depth_found ? depth_abs / depth_found : std::nan("")},
