@@ -248,7 +248,14 @@ void OctomapStrata::applyPristine(ProcessContext& ctx, const SweepRecord& sweep,
         ctx.addCounter("first_surface_from_pristine", 1);
       }
     }
-    if (idx && std::isnan(pristine)) map.set(pristine_, *idx, -std::numeric_limits<float>::infinity());
+    if (idx && std::isnan(pristine)) {
+      // A sparse map past its memory budget: the cell stays unknown (NaN), counted.
+      const Index b = map.bufferIndex(*idx);
+      if (map.tryAllocateTile(map.tileOfBuffer(b.x(), b.y()), {pristine_}))
+        map.set(pristine_, *idx, -std::numeric_limits<float>::infinity());
+      else
+        ctx.countDrop("pristine_tile_budget");
+    }
   }
 }
 
@@ -262,11 +269,19 @@ void OctomapStrata::recordPristine(ProcessContext& ctx) {
     const float* known = map.tileData(pristine_, t);
     float* out = nullptr;  // taken (allocated, un-shared) only when a cell is written
     const CellRect r = map.tileRect(t);
-    for (int i = 0; i < r.rows; ++i)
+    bool refused = false;
+    for (int i = 0; i < r.rows && !refused; ++i)
       for (int j = 0; j < r.cols; ++j) {
         const int k = i * ts + j;
         if ((known && !std::isnan(known[k])) || !std::isfinite(el[k])) continue;
-        if (!out) known = out = map.mutableTileData(pristine_, t);
+        if (!out) {
+          refused = !map.tryAllocateTile(t, {pristine_});  // a sparse map past its memory budget
+          if (refused) {
+            ctx.countDrop("pristine_tile_budget");
+            break;
+          }
+          known = out = map.mutableTileData(pristine_, t);
+        }
         out[k] = el[k] - (lo && std::isfinite(lo[k]) ? lo[k] : 0.0f);
       }
   }

@@ -21,7 +21,9 @@
 ///    sweep touched it (m, map z; NaN = never known; −inf = a sweep touched it before the map
 ///    knew it). A column's first surface is the first sweep's fitted bank surface, unless that
 ///    lies more than `pristine_margin_m` above this one or there is no fit: then this one (the
-///    fit counts spoil pushed over the ground before the first cut as bank).
+///    fit counts spoil pushed over the ground before the first cut as bank). On a sparse map past
+///    its memory budget a pristine tile that cannot be stored is dropped, counted as
+///    `pristine_tile_budget` (those cells stay NaN).
 /// Read: `elevation` (and `loose`, `soil_*` when present).
 ///
 /// Files, written at the end of the run when their parameter is set (atomically): `save_path`

@@ -12,6 +12,7 @@
 #include <fstream>
 #include <limits>
 
+#include "memory_budget_scope.hpp"
 #include "octomap_strata.hpp"
 
 #include <terramap/io/render.hpp>
@@ -543,6 +544,42 @@ TEST(OctomapStrataPlugin, AFirstFitAboveTheSurfaceTheMapHeldBeforeStartsFromThat
   u.event();
   EXPECT_EQ(u.at("strata_pristine_m", {0.15, 0.05}), -std::numeric_limits<float>::infinity());
   EXPECT_FLOAT_EQ(u.at("strata_pristine_m", {1.55, 1.05}), 1.0f);  // a cell no sweep touched
+}
+
+TEST(OctomapStrataPlugin, APristineTileBeyondASparseMapsBudgetIsDroppedCounted) {
+  // A sparse map in tiles of 8 whose budget holds only the elevation tile already written: the
+  // pristine surface there cannot be stored, nor the mark of a sweep that touches it; both are
+  // counted and nothing throws.
+  LayeredMap map(Geometry(0.1, Size(32, 32)), MapOptions{8, true});
+  OctomapStrata plugin;
+  plugin.configure(makeParams("strata", plugin.schema(), {}));
+  for (const LayerSpec& l : plugin.layers())
+    if (l.access == LayerAccess::Create) map.addLayer(l.name, l.unit, l.fill);
+  const LayerId el = map.addLayer("elevation", "m");
+  const Index cell = *map.geometry().indexAt({0.05, 0.05});
+  map.set(el, cell, 1.0f);
+  terramap::test::MemoryBudgetScope budget(static_cast<std::uint64_t>(map.allocatedTiles()) * map.tileBytes());
+  Executor ex(1);
+  RecordBus bus;
+  PluginStats stats;
+  ChangeTracker tracker;
+  ProcessContext ctx(map, ex, bus, stats, "strata");
+  ctx.setTracker(&tracker);
+  plugin.start(ctx);
+  plugin.process(ctx, Tick{});
+  EXPECT_EQ(stats.dropped["pristine_tile_budget"], 1);
+  EXPECT_TRUE(std::isnan(map.at(map.layerId("strata_pristine_m"), cell)));
+  SweepRecord r;
+  r.sweep_index = 1;
+  r.resolution_m = 0.1;
+  SweepMaskCell m;
+  m.position = {0.05, 0.05};
+  m.cut = false;  // touched (e.g. a deposit), not cut: nothing else of the strata's is written
+  r.mask.push_back(m);
+  bus.publish<SweepRecord>(SweepRecord::kType, 0.0, std::make_shared<const SweepRecord>(r));
+  tracker.mark(map);
+  EXPECT_NO_THROW(plugin.process(ctx, Tick{}));
+  EXPECT_EQ(stats.dropped["pristine_tile_budget"], 2);
 }
 
 TEST(OctomapStrataPlugin, TheChangeLayerWaitsForItsIntervalOrTheEnd) {
