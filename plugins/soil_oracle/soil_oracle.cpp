@@ -1,6 +1,7 @@
 #include "soil_oracle.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/soil/estimate_report.hpp>
 #include <terramap/soil/soil_parameters.hpp>
 
 #include <nlohmann/json.hpp>
@@ -15,8 +16,6 @@ namespace terramap::plugins {
 namespace {
 
 constexpr int kN = SoilEstimateRecord::kCount;
-
-nlohmann::json num(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
 
 }  // namespace
 
@@ -160,12 +159,7 @@ void SoilOracle::collect(ProcessContext& ctx) {
       ctx.addCounter("estimates_invalid", 1);
       ctx.countDrop("estimate_" + e->invalid_reason);
     }
-    nlohmann::json j = {{"type", SoilEstimateRecord::kType}, {"sweep_index", e->sweep_index}, {"machine_id", e->machine_id},
-                        {"t1", num(e->t1)}, {"stamp", num(e->stamp)}, {"valid", e->valid}, {"oracle", true}};
-    if (!e->valid) j["invalid_reason"] = e->invalid_reason;
-    for (double m : e->mean) j["mean"].push_back(num(m));
-    for (double v : e->var_total) j["sd_total"].push_back(num(std::sqrt(v)));
-    ctx.reportRecord(j.dump());
+    ctx.reportRecord(soil::estimateReportJson(*e));
     ctx.records().publish<SoilEstimateRecord>(SoilEstimateRecord::kType, e->stamp, e);
   }
 }

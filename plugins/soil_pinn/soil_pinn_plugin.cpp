@@ -1,27 +1,14 @@
 #include "soil_pinn_plugin.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/soil/estimate_report.hpp>
 #include <terramap/soil/fee.hpp>
 
 #include <ATen/Parallel.h>
-#include <nlohmann/json.hpp>
 
 #include <cmath>
 
 namespace terramap::plugins {
-
-namespace {
-
-nlohmann::json num(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
-
-template <std::size_t N>
-nlohmann::json nums(const std::array<double, N>& a) {
-  nlohmann::json j = nlohmann::json::array();
-  for (double v : a) j.push_back(num(v));
-  return j;
-}
-
-}  // namespace
 
 SoilEstimateRecord soilEstimateRecord(const SweepRecord& sweep, const soil::PinnSample& sample,
                                       const pinn::SoilEstimate& e, int members) {
@@ -55,26 +42,6 @@ SoilEstimateRecord soilEstimateRecord(const SweepRecord& sweep, const soil::Pinn
     r.invalid_reason = "non_finite_output";
   r.valid = r.invalid_reason.empty();
   return r;
-}
-
-std::string soilEstimateRecordJson(const SoilEstimateRecord& r) {
-  nlohmann::json j;
-  j["type"] = SoilEstimateRecord::kType;
-  j["sweep_index"] = r.sweep_index;
-  j["machine_id"] = r.machine_id;
-  j["t1"] = num(r.t1);
-  j["stamp"] = num(r.stamp);
-  j["valid"] = r.valid;
-  if (!r.valid) j["invalid_reason"] = r.invalid_reason;
-  j["valid_members"] = r.valid_members;
-  j["mean"] = nums(r.mean);
-  std::array<double, SoilEstimateRecord::kCount> sd{};
-  for (int k = 0; k < SoilEstimateRecord::kCount; ++k) sd[k] = std::sqrt(r.var_total[k]);
-  j["sd_total"] = nums(sd);
-  j["F_r"] = nums(r.F_r);
-  j["F_pred"] = nums(r.F_pred);
-  j["F_measured"] = nums(r.F_measured);
-  return j.dump();
 }
 
 ParamSchema SoilPinn::schema() const {
@@ -167,7 +134,7 @@ void SoilPinn::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
     ctx.addCounter("estimates_invalid", 1);
     ctx.countDrop("estimate_" + rec->invalid_reason);
   }
-  ctx.reportRecord(soilEstimateRecordJson(*rec));
+  ctx.reportRecord(soil::estimateReportJson(*rec));
   ctx.records().publish<SoilEstimateRecord>(SoilEstimateRecord::kType, rec->stamp, rec);
 }
 

@@ -35,8 +35,6 @@ namespace terramap::plugins {
 /// The record of one estimate (pure: the plugin and the tests share it).
 SoilEstimateRecord soilEstimateRecord(const SweepRecord& sweep, const soil::PinnSample& sample,
                                       const pinn::SoilEstimate& estimate, int members);
-/// The compact JSON the plugin puts in the run report for one record (NaN as null).
-std::string soilEstimateRecordJson(const SoilEstimateRecord& r);
 
 class SoilPinn : public Plugin {
  public:
