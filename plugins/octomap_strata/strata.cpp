@@ -401,33 +401,125 @@ std::vector<std::pair<double, VoxelBelief>> Strata::columnVoxels(double x, doubl
   return out;
 }
 
+namespace {
+
+/// One voxel level of the pooled columns, for changeHeightAt: its centre, its voxels' mean
+/// belief in prior units (means / prior sd) with the precision it claims (1 / mean of variance /
+/// prior variance), and the mean top and bottom of the slabs that removed it.
+struct Level {
+  double z = 0;
+  std::array<double, kP> mean{}, weight{};
+  double top = 0, bottom = 0;
+};
+
+/// Precision-weighted prefix sums over the levels, per property: the squared deviation of a run
+/// of levels from its mean, and its mean, in O(1).
+class WeightedRuns {
+ public:
+  explicit WeightedRuns(const std::vector<Level>& levels) : w0_(levels.size() + 1), w1_(levels.size() + 1), w2_(levels.size() + 1) {
+    w0_[0].fill(0.0);
+    w1_[0].fill(0.0);
+    w2_[0].fill(0.0);
+    for (std::size_t i = 0; i < levels.size(); ++i)
+      for (int q = 0; q < kP; ++q) {
+        const double w = levels[i].weight[q], v = levels[i].mean[q];
+        w0_[i + 1][q] = w0_[i][q] + w;
+        w1_[i + 1][q] = w1_[i][q] + w * v;
+        w2_[i + 1][q] = w2_[i][q] + w * v * v;
+      }
+  }
+  /// Levels [a, b): the weighted squared deviation from the run's mean, summed over properties.
+  double sse(int a, int b) const {
+    double e = 0.0;
+    for (int q = 0; q < kP; ++q) {
+      const double d0 = diff(w0_, a, b, q), d1 = diff(w1_, a, b, q), d2 = diff(w2_, a, b, q);
+      e += std::max(0.0, d2 - d1 * d1 / d0);
+    }
+    return e;
+  }
+  /// Levels [a, b): the weighted mean of property q.
+  double mean(int a, int b, int q) const { return diff(w1_, a, b, q) / diff(w0_, a, b, q); }
+
+ private:
+  static double diff(const std::vector<std::array<double, kP>>& v, int a, int b, int q) {
+    return v[static_cast<std::size_t>(b)][q] - v[static_cast<std::size_t>(a)][q];
+  }
+  std::vector<std::array<double, kP>> w0_, w1_, w2_;
+};
+
+/// The split of the levels (top first) into two runs of at least `min_voxels` each with the least
+/// weighted squared deviation; -1 when there is no spread or it explains less than `min_gain`.
+int bestSplit(const WeightedRuns& runs, int n, int min_voxels, double min_gain) {
+  const double total = runs.sse(0, n);
+  if (!(total > 1e-12)) return -1;
+  double best = std::numeric_limits<double>::infinity();
+  int split = -1;
+  for (int s = min_voxels; s <= n - min_voxels; ++s) {
+    const double e = runs.sse(0, s) + runs.sse(s, n);
+    if (e < best) {
+      best = e;
+      split = s;
+    }
+  }
+  return split < 0 || 1.0 - best / total < min_gain ? -1 : split;
+}
+
+/// Where the change lies, given the split (header, changeHeightAt): between the slabs of the
+/// levels beside it, then moved into a mixed one.
+double placeChange(const std::vector<Level>& levels, const WeightedRuns& runs, int split, double res) {
+  const int n = static_cast<int>(levels.size()), ka = split - 1, kb = split;
+  const Level &up = levels[static_cast<std::size_t>(ka)], &down = levels[static_cast<std::size_t>(kb)];
+  const double face = 0.5 * (up.z + down.z);
+  // Where the sweeps above the split ended and those below began. In one column both lie within
+  // half a voxel of the face (a slab holds its voxels' centres and not its neighbours'); pooled
+  // columns can pull the means further, hence the clamp.
+  const double z = std::clamp(0.5 * (up.bottom + down.top), face - 0.5 * res, face + 0.5 * res);
+  // Mixed slabs: a sweep that cut across the change estimates a mix of the two soils, and the
+  // split gives its level to one side. Each level beside the split is read as a linear mix of
+  // the two runs' soils (each run's mean without that level; the fraction is the projection on
+  // the line between them), the other soil filling the bottom of the upper level's slab and the
+  // top of the lower level's: the change moves into that slab by the fraction. Within a voxel
+  // of the face (the two levels' extent).
+  double num_a = 0, num_b = 0, den = 0;
+  for (int q = 0; q < kP; ++q) {
+    const double U = ka > 0 ? runs.mean(0, ka, q) : up.mean[q];
+    const double D = kb + 1 < n ? runs.mean(kb + 1, n, q) : down.mean[q];
+    num_a += (up.mean[q] - U) * (D - U);
+    num_b += (down.mean[q] - D) * (U - D);
+    den += (D - U) * (D - U);
+  }
+  if (!(den > 1e-12)) return z;
+  const double fa = std::clamp(num_a / den, 0.0, 1.0), fb = std::clamp(num_b / den, 0.0, 1.0);
+  return std::clamp(z + fa * (up.top - up.bottom) - fb * (down.top - down.bottom), face - res, face + res);
+}
+
+}  // namespace
+
 double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gain, double radius_m, VoxelCache* cache) const {
   std::uint32_t key0;
   if (!columnKey(x, y, key0)) return kNaN;
   const double res = cfg_.resolution_m;
-  // Voxel levels (z key), top first -> sum of the normalised means and count, and the sums and
-  // counts of the slab ends the level's voxels hold, over the pooled columns.
-  struct Level {
-    std::array<double, kP> sum{}, var_sum{};
+  struct Sums {
+    std::array<double, kP> mean{}, var{};
+    double top = 0, bottom = 0;
     int n = 0;
-    double top_sum = 0, bottom_sum = 0;
-    int tops = 0, bottoms = 0;
   };
-  std::map<long, Level, std::greater<long>> levels;
+  // The levels of the columns within radius_m, pooled: level (z key), top first.
+  std::map<long, Sums, std::greater<long>> sums;
   const int reach = static_cast<int>(std::floor(std::max(0.0, radius_m) / res));
   const Eigen::Vector2d centre = columnCentre(key0);
   for (int a = -reach; a <= reach; ++a)
     for (int b = -reach; b <= reach; ++b) {
       if ((a * a + b * b) * res * res > radius_m * radius_m + 1e-12) continue;
-      // The column's estimated voxels as (level, means), from the cache when there is one.
+      // The column's estimated voxels, from the cache when there is one.
       const double nx = centre.x() + a * res, ny = centre.y() + b * res;
       std::uint32_t key;
       if (!columnKey(nx, ny, key)) continue;
       std::vector<VoxelCache::Voxel> local;
       const std::vector<VoxelCache::Voxel>* list = &local;
-      auto fill = [&](std::vector<VoxelCache::Voxel>& out) {
-        for (const auto& [z, v] : columnVoxels(nx, ny))
-          if (v.kind == VoxelBelief::kEstimated) out.push_back({levelOf(z), v.mean, v.var, v.top, v.bottom});
+      auto fill = [&](std::vector<VoxelCache::Voxel>& v) {
+        for (const auto& [z, b] : columnVoxels(nx, ny))
+          if (b.kind == VoxelBelief::kEstimated) v.push_back({levelOf(z), b.mean, b.var, b.top, b.bottom});
       };
       if (cache) {
         auto it = cache->columns.find(key);
@@ -440,113 +532,35 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
         fill(local);
       }
       for (const VoxelCache::Voxel& v : *list) {
-        Level& l = levels[v.level];
+        Sums& l = sums[v.level];
         for (int q = 0; q < kP; ++q) {
-          l.sum[q] += v.mean[q] / std::sqrt(cfg_.prior_var[q]);
-          l.var_sum[q] += v.var[q] / cfg_.prior_var[q];
+          l.mean[q] += v.mean[q] / std::sqrt(cfg_.prior_var[q]);
+          l.var[q] += v.var[q] / cfg_.prior_var[q];
         }
+        l.top += v.top;
+        l.bottom += v.bottom;
         ++l.n;
-        if (std::isfinite(v.top)) {
-          l.top_sum += v.top;
-          ++l.tops;
-        }
-        if (std::isfinite(v.bottom)) {
-          l.bottom_sum += v.bottom;
-          ++l.bottoms;
-        }
       }
     }
+  std::vector<Level> levels;
+  levels.reserve(sums.size());
+  for (const auto& [k, l] : sums) {
+    Level e;
+    e.z = levelZ(k);
+    for (int q = 0; q < kP; ++q) {
+      e.mean[q] = l.mean[q] / l.n;
+      e.weight[q] = l.n / std::max(1e-12, l.var[q]);
+    }
+    e.top = l.top / l.n;
+    e.bottom = l.bottom / l.n;
+    levels.push_back(e);
+  }
   const int n = static_cast<int>(levels.size());
   min_voxels = std::max(1, min_voxels);
   if (n < 2 * min_voxels) return kNaN;
-  std::vector<double> zs;
-  // Prefix sums over the levels, per property, of the level means (s1) and, weighted by each
-  // level's precision (1 / its voxels' mean normalised variance), of 1, the mean and its square:
-  // a level whose estimates are noisy pulls the split and the runs' means less.
-  std::vector<std::array<double, kP>> s1(static_cast<std::size_t>(n) + 1), w0(static_cast<std::size_t>(n) + 1),
-      w1(static_cast<std::size_t>(n) + 1), w2(static_cast<std::size_t>(n) + 1);
-  s1[0].fill(0.0);
-  w0[0].fill(0.0);
-  w1[0].fill(0.0);
-  w2[0].fill(0.0);
-  int i = 0;
-  for (const auto& [k, l] : levels) {
-    zs.push_back(levelZ(k));
-    for (int q = 0; q < kP; ++q) {
-      const double v = l.sum[q] / l.n;
-      const double w = l.n / std::max(1e-12, l.var_sum[q]);
-      const std::size_t a = static_cast<std::size_t>(i);
-      s1[a + 1][q] = s1[a][q] + v;
-      w0[a + 1][q] = w0[a][q] + w;
-      w1[a + 1][q] = w1[a][q] + w * v;
-      w2[a + 1][q] = w2[a][q] + w * v * v;
-    }
-    ++i;
-  }
-  auto sse = [&](int a, int b) {  // levels [a, b)
-    double e = 0.0;
-    for (int q = 0; q < kP; ++q) {
-      const double d0 = w0[static_cast<std::size_t>(b)][q] - w0[static_cast<std::size_t>(a)][q];
-      const double d1 = w1[static_cast<std::size_t>(b)][q] - w1[static_cast<std::size_t>(a)][q];
-      const double d2 = w2[static_cast<std::size_t>(b)][q] - w2[static_cast<std::size_t>(a)][q];
-      e += std::max(0.0, d2 - d1 * d1 / d0);
-    }
-    return e;
-  };
-  const double total = sse(0, n);
-  if (!(total > 1e-12)) return kNaN;
-  double best = std::numeric_limits<double>::infinity();
-  int split = -1;
-  for (int s = min_voxels; s <= n - min_voxels; ++s) {
-    const double e = sse(0, s) + sse(s, n);
-    if (e < best) {
-      best = e;
-      split = s;
-    }
-  }
-  if (split < 0 || 1.0 - best / total < min_gain) return kNaN;
-  const double face = 0.5 * (zs[static_cast<std::size_t>(split) - 1] + zs[static_cast<std::size_t>(split)]);
-  // Where the sweeps above the split ended and those below began. In one column both lie within
-  // half a voxel of the face (a slab holds its voxels' centres and not its neighbours'); pooled
-  // columns can pull the means further, hence the clamp.
-  auto above = levels.begin();
-  std::advance(above, split - 1);
-  const Level &up = above->second, &down = std::next(above)->second;
-  double z;
-  if (up.bottoms > 0 && down.tops > 0)
-    z = 0.5 * (up.bottom_sum / up.bottoms + down.top_sum / down.tops);
-  else if (up.bottoms > 0)
-    z = up.bottom_sum / up.bottoms;
-  else if (down.tops > 0)
-    z = down.top_sum / down.tops;
-  else
-    return face;
-  z = std::clamp(z, face - 0.5 * res, face + 0.5 * res);
-  // Mixed slabs: a sweep that cut across the change estimates a mix of the two soils, and the
-  // split gives its level to one side. Each level beside the split is read as a linear mix of
-  // the two runs' soils (each run's mean without that level; the fraction is the projection on
-  // the line between them), the other soil filling the bottom of the upper level's slab and the
-  // top of the lower level's: the change moves into that slab by the fraction. Within a voxel
-  // of the face (the two levels' extent).
-  auto level = [&](int k, int q) { return s1[static_cast<std::size_t>(k) + 1][q] - s1[static_cast<std::size_t>(k)][q]; };
-  auto runMean = [&](int a, int b, int q) {
-    return (w1[static_cast<std::size_t>(b)][q] - w1[static_cast<std::size_t>(a)][q]) /
-           (w0[static_cast<std::size_t>(b)][q] - w0[static_cast<std::size_t>(a)][q]);
-  };
-  const int ka = split - 1, kb = split;
-  double num_a = 0, num_b = 0, den = 0;
-  for (int q = 0; q < kP; ++q) {
-    const double U = ka > 0 ? runMean(0, ka, q) : level(ka, q);
-    const double D = kb + 1 < n ? runMean(kb + 1, n, q) : level(kb, q);
-    num_a += (level(ka, q) - U) * (D - U);
-    num_b += (level(kb, q) - D) * (U - D);
-    den += (D - U) * (D - U);
-  }
-  if (!(den > 1e-12)) return z;
-  const double fa = std::clamp(num_a / den, 0.0, 1.0), fb = std::clamp(num_b / den, 0.0, 1.0);
-  const double ha = up.tops > 0 && up.bottoms > 0 ? up.top_sum / up.tops - up.bottom_sum / up.bottoms : res;
-  const double hb = down.tops > 0 && down.bottoms > 0 ? down.top_sum / down.tops - down.bottom_sum / down.bottoms : res;
-  return std::clamp(z + fa * ha - fb * hb, face - res, face + res);
+  const WeightedRuns runs(levels);
+  const int split = bestSplit(runs, n, min_voxels, min_gain);
+  return split < 0 ? kNaN : placeChange(levels, runs, split, cfg_.resolution_m);
 }
 
 double Strata::changeDepthAt(double x, double y, int min_voxels, double min_gain, double radius_m) const {
