@@ -4,9 +4,13 @@
 //    at the end at least one voxel below it), is the height where the removed soil changes
 //    (`strata_change_z_m`) within one voxel of the zone's top, and its depth below the strata's
 //    first surface (`strata_change_depth_m`) within one voxel of the zone's depth?
-//  - next pass: at the start of every pass, how well does the FEE index of the soil the strata
-//    expect in the next cut (fee_index over strata_next_*) predict the index of the soil that
-//    pass actually removes, compared with the surface-only index (fee_index over soil_*)?
+//  - next pass, force (the figure): at the start of every pass, the map's two soil
+//    beliefs under the blade's edge (strata_next_*, the soil the strata expect in the next cut,
+//    and the surface-only soil_*) put through the FEE on the geometry of every step the pass cut,
+//    against the simulator's truth force along the push (the draft) in that step; the FEE of the
+//    truth soil on the same steps is the floor.
+//  - next pass, index: how well the FEE index of the reference cut over each belief (fee_next,
+//    fee_index) predicts the index of the truth soil each cell lost in that pass.
 // The truth comes from a run of the simulator alone (pass starts: the machine turning from
 // reverse to forward); the map from one run of the pipeline, its index layers sampled at the
 // first event of each pass start (the simulator is deterministic per seed: both runs see the
@@ -65,10 +69,27 @@ struct CutSoil {
   std::vector<soil::SoilParamVector> soil;
 };
 
+/// One observation period of the truth run in which the blade cut soil moving forward: where its
+/// edge was, the geometry the simulator's FEE saw there and the force the truth physics produced,
+/// for the next-pass force figure; `surface` and `strata` are the map's soil under the edge at the
+/// start of the step's pass (filled during the pipeline run; NaN where the map had none).
+struct ForceStep {
+  double t = 0;
+  Eigen::Vector3d edge = Eigen::Vector3d::Zero();     ///< cutting-edge centre, map frame, m
+  Eigen::Vector3d lateral = Eigen::Vector3d::UnitY();  ///< along the edge, unit
+  double width_m = 0;                                  ///< the blade's width
+  fee::Geometry geometry;  ///< the simulator's summary of the cut (depth-weighted over its slices)
+  fee::Soil truth_soil;    ///< the soil the truth cut (depth-weighted over its slices)
+  /// The truth force without its sensor noise (MachineTruth::force_quiet_map_N), in the blade's
+  /// push direction and up, N: what the FEE prediction is judged against.
+  Eigen::Vector2d force_n = Eigen::Vector2d::Zero();
+  fee::Soil surface{NAN, NAN, NAN, NAN, NAN}, strata{NAN, NAN, NAN, NAN, NAN};
+};
+
 /// Runs the simulator alone: the bank surface at the start of every forward pass after the first
-/// and at the end, the initial surface, and the soil the blade cut when.
+/// and at the end, the initial surface, the soil the blade cut when, and the steps it cut in.
 std::vector<Snapshot> truthSnapshots(const sim::Scenario& sc, const Geometry& g, std::vector<double>& initial,
-                                     CutSoil& cut_soil, bool quiet) {
+                                     CutSoil& cut_soil, std::vector<ForceStep>& steps, bool quiet) {
   sim::Simulator s(sc);
   const int n = g.size().x() * g.size().y();
   auto grab = [&](double t) {
@@ -97,7 +118,25 @@ std::vector<Snapshot> truthSnapshots(const sim::Scenario& sc, const Geometry& g,
     const sim::FeeTruth& f = s.machineTruth(0).fee;
     cut_soil.t.push_back(s.time());
     cut_soil.soil.push_back({f.c_pa, f.phi_rad, f.ca_pa, f.delta_rad, f.gamma_n_m3});
-    const double v = s.machineTruth(0).twist_base(0);
+    const sim::MachineTruth& mt = s.machineTruth(0);
+    const double v = mt.twist_base(0);
+    if (v > 0.05 && !mt.stalled && f.cutting_slices > 0 && f.invalid_slices == 0 && std::isfinite(f.depth_m)) {
+      ForceStep st;
+      st.t = s.time();
+      st.edge = mt.T_map_blade.translation();
+      st.lateral = mt.T_map_blade.linear().col(1);
+      st.width_m = sc.machines[0].blade.width_m;
+      st.geometry = {f.alpha_rad, f.rho_rad, f.depth_m, f.width_m, f.q_n};
+      st.truth_soil = {f.c_pa, f.phi_rad, f.gamma_n_m3, f.ca_pa, f.delta_rad};
+      // The push direction as the simulator takes it: the blade's x axis on the ground plane.
+      Eigen::Vector3d push = mt.T_map_blade.linear().col(0);
+      push.z() = 0;
+      if (push.norm() > 1e-6) {
+        push.normalize();
+        st.force_n = {-mt.force_quiet_map_N.dot(push), -mt.force_quiet_map_N.z()};
+        steps.push_back(st);
+      }
+    }
     if (v < -0.05) reversing = true;
     if (reversing && v > 0.05) {
       reversing = false;
@@ -128,15 +167,36 @@ fee::Soil truthSoilBetween(const sim::SoilField& f, double x, double y, double d
 struct ErrorSum {
   long n = 0;
   double abs = 0, truth = 0, sq = 0;
+  std::vector<double> errors;  ///< |pred - truth| each, for the median
   void add(double pred, double truth_v) {
     ++n;
+    errors.push_back(std::abs(pred - truth_v));
     abs += std::abs(pred - truth_v);
     sq += (pred - truth_v) * (pred - truth_v);
     truth += truth_v;
   }
-  nlohmann::json json() const {
-    return {{"cells", n}, {"mae_n", n ? abs / n : std::nan("")}, {"rmse_n", n ? std::sqrt(sq / n) : std::nan("")},
-            {"relative", truth > 0 ? abs / truth : std::nan("")}};
+  void merge(const ErrorSum& o) {
+    errors.insert(errors.end(), o.errors.begin(), o.errors.end());
+    n += o.n;
+    abs += o.abs;
+    truth += o.truth;
+    sq += o.sq;
+  }
+  double mae() const { return n ? abs / n : std::nan(""); }
+  double relative() const { return truth > 0 ? abs / truth : std::nan(""); }
+  /// The median absolute error: a few predictions near the FEE's singularity (η → π) can carry
+  /// the mean alone.
+  double median() const {
+    if (errors.empty()) return std::nan("");
+    std::vector<double> e = errors;
+    const auto mid = e.begin() + static_cast<std::ptrdiff_t>(e.size() / 2);
+    std::nth_element(e.begin(), mid, e.end());
+    if (e.size() % 2 == 1) return *mid;
+    return 0.5 * (*mid + *std::max_element(e.begin(), mid));
+  }
+  /// `count` names what was counted (cells, steps).
+  nlohmann::json json(const char* count = "cells") const {
+    return {{count, n}, {"mae_n", mae()}, {"rmse_n", n ? std::sqrt(sq / n) : std::nan("")}, {"relative", relative()}, {"median_abs_n", median()}};
   }
 };
 
@@ -237,10 +297,47 @@ std::vector<double> sampleLayer(const LayeredMap& map, const std::string& layer)
   return out;
 }
 
-/// One pipeline run over the whole scenario, with its usual outputs in --out.
-MapSamples runAndSample(const PipelineSpec& spec, const StrataArgs& a, const Stages& st, const std::vector<Snapshot>& snaps) {
+using SoilLayerIds = std::array<LayerId, soil::kSoilParamCount>;
+
+SoilLayerIds soilLayers(const LayeredMap& map, const std::string& prefix) {
+  SoilLayerIds ids{};
+  for (int q = 0; q < soil::kSoilParamCount; ++q) ids[static_cast<std::size_t>(q)] = map.layerId(prefix + soil::kSoilParams[q].name);
+  return ids;
+}
+
+/// The map's soil under a blade edge: each property's mean over the cells under points spread
+/// across the blade's width where all five layers hold a value; NaN fields where none does.
+fee::Soil soilUnderEdge(const LayeredMap& map, const SoilLayerIds& ids, const ForceStep& s) {
+  constexpr int kPoints = 9;  // a point every ~0.2 m of a 1.85 m blade: four cells apart at 5 cm
+  soil::SoilParamVector sum{};
+  int n = 0;
+  for (int k = 0; k < kPoints; ++k) {
+    const Eigen::Vector3d p = s.edge + s.lateral * (s.width_m * ((k + 0.5) / kPoints - 0.5));
+    const std::optional<Index> idx = map.geometry().indexAt(Position(p.x(), p.y()));
+    if (!idx) continue;
+    soil::SoilParamVector v{};
+    bool all = true;
+    for (std::size_t q = 0; q < v.size(); ++q) {
+      v[q] = map.at(ids[q], *idx);
+      all = all && std::isfinite(v[q]);
+    }
+    if (!all) continue;
+    for (std::size_t q = 0; q < v.size(); ++q) sum[q] += v[q];
+    ++n;
+  }
+  if (n == 0) return {NAN, NAN, NAN, NAN, NAN};
+  for (double& v : sum) v /= n;
+  return soil::toFee(sum);
+}
+
+/// One pipeline run over the whole scenario, with its usual outputs in --out. At each pass start
+/// it samples both index layers and, for every step of the truth run in that pass, the two soil
+/// beliefs under the edge's position then (`steps`, sorted by time).
+MapSamples runAndSample(const PipelineSpec& spec, const StrataArgs& a, const Stages& st, const std::vector<Snapshot>& snaps,
+                        std::vector<ForceStep>& steps) {
   MapSamples m;
   std::size_t next_start = 0;  // snaps[0 .. K-2] are pass starts, the last one the end
+  std::size_t step = 0;
   RunOptions o;
   o.out_dir = a.out;
   o.threads = a.threads;
@@ -248,6 +345,12 @@ MapSamples runAndSample(const PipelineSpec& spec, const StrataArgs& a, const Sta
     while (!a.boundary_only && next_start + 1 < snaps.size() && stamp >= snaps[next_start].t) {
       m.surface.push_back(sampleLayer(map, st.surface_index));
       m.next.push_back(sampleLayer(map, st.next_index));
+      const SoilLayerIds surface = soilLayers(map, "soil_"), next = soilLayers(map, "strata_next_");
+      while (step < steps.size() && steps[step].t < snaps[next_start].t) ++step;  // the first pass: no map yet
+      for (; step < steps.size() && steps[step].t < snaps[next_start + 1].t; ++step) {
+        steps[step].surface = soilUnderEdge(map, surface, steps[step]);
+        steps[step].strata = soilUnderEdge(map, next, steps[step]);
+      }
       ++next_start;
     }
   };
@@ -297,6 +400,77 @@ nlohmann::json nextPassErrors(const StrataArgs& a, const Stages& st, const Geome
                 total_surface.abs / total_surface.n * 1e-3, total_next.abs / total_next.n * 1e-3,
                 100 * total_surface.json()["relative"].get<double>(), 100 * total_next.json()["relative"].get<double>());
   return {{"passes", passes}, {"surface", total_surface.json()}, {"strata", total_next.json()}};
+}
+
+/// The FEE's draft (F_total along the push: with the adhesion along the face, as the simulator's
+/// truth) of `soil` on one step's cut; NaN where the FEE has no valid solution. β* where it
+/// exists, else Rankine's angle, as the simulator takes it.
+double feeDraftOn(const fee::Soil& soil, const ForceStep& s) {
+  double beta = fee::betaMin(soil, s.geometry);
+  if (!std::isfinite(beta)) beta = fee::betaNominal(soil);
+  const fee::Result r = fee::evaluate(soil, s.geometry, beta);
+  return r.valid() ? r.F_total_N.x() : std::nan("");
+}
+
+/// The comparison: per pass k + 2, the FEE draft of the map's two soil beliefs at the
+/// pass's start (surface-only `soil_*`, strata `strata_next_*`, under the edge) on every step the
+/// truth blade cut, against the simulator's truth force along the push in that step (without
+/// sensor noise). The geometry of each step (depth, slope, rake, width, surcharge) is the truth's
+/// for all three, so only the soil differs; the FEE of the truth's own soil on it is the floor
+/// (what the FEE on one soil cannot model: the slices' own depths and soils, inertia). The draft,
+/// not |F|: the truth's vertical force is mostly the edge's bearing while it descends (~10 kN in
+/// the loam), which no FEE of any soil holds, so |F| would judge that term instead of the soil.
+nlohmann::json nextPassForces(const StrataArgs& a, const std::vector<Snapshot>& snaps,
+                              const std::vector<ForceStep>& steps) {
+  ErrorSum total_surface, total_next, total_truth;
+  long no_belief = 0, fee_invalid = 0, strata_closer = 0;
+  nlohmann::json passes = nlohmann::json::array();
+  if (!a.quiet)
+    std::printf("next pass, force: the FEE draft of each belief at the pass's start on every step the pass cut, against the "
+                "simulator's truth draft\n  %-5s %7s %7s %8s %14s %14s %14s\n", "pass", "start", "end", "steps", "surface MAE",
+                "strata MAE", "truth soil MAE");
+  std::size_t i = 0;
+  for (std::size_t k = 0; k + 1 < snaps.size(); ++k) {
+    ErrorSum es, en, et;
+    while (i < steps.size() && steps[i].t < snaps[k].t) ++i;
+    for (; i < steps.size() && steps[i].t < snaps[k + 1].t; ++i) {
+      const ForceStep& s = steps[i];
+      if (!std::isfinite(s.surface.c_pa) || !std::isfinite(s.strata.c_pa)) {
+        ++no_belief;
+        continue;
+      }
+      const double fs_ = feeDraftOn(s.surface, s), fn = feeDraftOn(s.strata, s), ft = feeDraftOn(s.truth_soil, s);
+      if (!std::isfinite(fs_) || !std::isfinite(fn) || !std::isfinite(ft)) {
+        ++fee_invalid;
+        continue;
+      }
+      const double truth = s.force_n.x();
+      es.add(fs_, truth);
+      en.add(fn, truth);
+      et.add(ft, truth);
+      if (std::abs(fn - truth) < std::abs(fs_ - truth)) ++strata_closer;
+    }
+    total_surface.merge(es);
+    total_next.merge(en);
+    total_truth.merge(et);
+    passes.push_back({{"pass", k + 2}, {"start_s", snaps[k].t}, {"end_s", snaps[k + 1].t}, {"surface", es.json("steps")},
+                      {"strata", en.json("steps")}, {"truth_soil", et.json("steps")}});
+    if (!a.quiet)
+      std::printf("  %-5zu %7.1f %7.1f %8ld %11.2f kN %11.2f kN %11.2f kN\n", k + 2, snaps[k].t, snaps[k + 1].t, es.n,
+                  es.mae() * 1e-3, en.mae() * 1e-3, et.mae() * 1e-3);
+  }
+  const double closer = total_surface.n ? static_cast<double>(strata_closer) / total_surface.n : std::nan("");
+  if (!a.quiet && total_surface.n > 0)
+    std::printf("  all   %23ld %11.2f kN %11.2f kN %11.2f kN  (relative %.1f %% / %.1f %% / %.1f %%)\n"
+                "  median  %29.2f kN %11.2f kN %11.2f kN; the strata's force the closer in %.1f %% of the steps\n"
+                "  steps left out: %ld without a belief under the edge, %ld where a belief's FEE had no valid solution\n",
+                total_surface.n, total_surface.mae() * 1e-3, total_next.mae() * 1e-3, total_truth.mae() * 1e-3,
+                100 * total_surface.relative(), 100 * total_next.relative(), 100 * total_truth.relative(),
+                total_surface.median() * 1e-3, total_next.median() * 1e-3, total_truth.median() * 1e-3, 100 * closer,
+                no_belief, fee_invalid);
+  return {{"passes", passes}, {"surface", total_surface.json("steps")}, {"strata", total_next.json("steps")},
+          {"truth_soil", total_truth.json("steps")}, {"strata_closer_fraction", closer},
+          {"steps_without_belief", no_belief}, {"steps_fee_invalid", fee_invalid}};
 }
 
 /// In the columns cut through the zone's top (the bank at the end at least one voxel below it):
@@ -466,20 +640,24 @@ int runEvalStrata(const StrataArgs& a) {
   if (!a.quiet) std::printf("eval-strata %s: truth run of the simulator\n", a.scenario.c_str());
   std::vector<double> initial;
   CutSoil cut_soil;
-  const std::vector<Snapshot> snaps = truthSnapshots(sc, g, initial, cut_soil, a.quiet);
+  std::vector<ForceStep> steps;
+  const std::vector<Snapshot> snaps = truthSnapshots(sc, g, initial, cut_soil, steps, a.quiet);
   if (!a.quiet) std::printf("pipeline run\n");
   if (a.oracle_noise >= 0) {
     useOracle(spec, a, sc, *zone, cut_soil);
     if (!a.quiet) std::printf("soil_pinn replaced by soil_oracle (noise %.3g x the soils' difference)\n", a.oracle_noise);
   }
-  const MapSamples m = runAndSample(spec, a, st, snaps);
+  const MapSamples m = runAndSample(spec, a, st, snaps, steps);
 
   nlohmann::json report;
   report["scenario"] = scenario;
   report["zone"] = zone->name;
   if (a.oracle_noise >= 0) report["oracle_noise"] = a.oracle_noise;
   report["voxel_m"] = st.voxel_m;
-  if (!a.boundary_only) report["next_pass"] = nextPassErrors(a, st, g, sim::SoilField(sc.default_soil, sc.zones), initial, snaps, m);
+  if (!a.boundary_only) {
+    report["next_pass"] = nextPassErrors(a, st, g, sim::SoilField(sc.default_soil, sc.zones), initial, snaps, m);
+    report["next_pass_force"] = nextPassForces(a, snaps, steps);
+  }
   report["boundary"] = boundaryFigure(a, *zone, st.voxel_m, g, initial, snaps.back(), m);
   report["estimator"] = estimatorSeparation(a, sc, *zone, cut_soil);
   io::writeFileAtomically(fs::path(a.out) / "eval_strata.json", report.dump(2) + "\n");
@@ -493,8 +671,9 @@ Registrar reg{Command{"eval-strata", [](CLI::App& app, std::function<int()>& run
       "The subsurface soil memory (octomap_strata) against the simulator's truth: run SCENARIO\n"
       "through configs/strata.yaml and report (1) in the columns cut through a soil zone's top, how\n"
       "often the height where the removed soil changes lies within one voxel of it, and (2) per pass,\n"
-      "how well the FEE index of the soil expected in the next cut predicts the index of the soil the\n"
-      "pass removed, against the surface-only index. Writes eval_strata.json and the run's outputs\n"
+      "how well the soil expected in the next cut predicts, through the FEE, the simulator's force on\n"
+      "the blade in that pass (and its FEE index the index of the soil the pass removed), against the\n"
+      "surface-only soil. Writes eval_strata.json and the run's outputs\n"
       "(with strata.ot, strata_octovis.ot, section_c.png) to --out.");
   sub->add_option("scenario", a->scenario, "Scenario YAML")->required()->check(CLI::ExistingFile);
   sub->add_option("--pipeline", a->pipeline, "Pipeline YAML (default: configs/strata.yaml of the source tree)");

@@ -23,7 +23,9 @@ namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr int kP = soil::kSoilParamCount;
 constexpr const char* kTreeId = "TerramapStrataTree";
-constexpr const char* kTrailer = "terramap_strata 3";  // 2: columns hold float beliefs; 3: voxels their slab's ends
+// 2: columns hold float beliefs; 3: voxels their slab's ends; 4: whether estimates meet the prior
+constexpr const char* kTrailer = "terramap_strata 4";
+constexpr const char* kTrailerV3 = "terramap_strata 3";
 
 /// m, v ← prior N(m, v) × N(z, r) (soil/belief.hpp; the prior here is always finite).
 void fuse(double& m, double& v, double z, double r) {
@@ -177,7 +179,14 @@ SoilBelief Strata::predictBelow(const Column* c, double z) const {
   b.source = SoilSource::Prior;
   if (!c || c->inherit_sweep < 0) return b;
   const double f = std::exp(std::max(0.0, static_cast<double>(c->anchor) - z) / cfg_.inflation_depth_m);
-  for (int q = 0; q < kP; ++q) fuse(b.mean[q], b.var[q], c->inherit_mean[q], c->inherit_var[q] * f);
+  for (int q = 0; q < kP; ++q) {
+    if (cfg_.use_prior) {
+      fuse(b.mean[q], b.var[q], c->inherit_mean[q], c->inherit_var[q] * f);
+    } else {
+      b.mean[q] = c->inherit_mean[q];
+      b.var[q] = static_cast<double>(c->inherit_var[q]) * f;
+    }
+  }
   b.source = SoilSource::Inherited;
   return b;
 }
@@ -269,9 +278,13 @@ void Strata::resolve(long sweep, const std::vector<PendingColumn>& cols, const S
   }
   ++counters_.estimates_assigned;
   SoilBelief post;
-  post.mean = cfg_.prior_mean;
-  post.var = cfg_.prior_var;
-  for (int q = 0; q < kP; ++q) fuse(post.mean[q], post.var[q], (*mean)[q], (*var)[q]);
+  post.mean = *mean;
+  post.var = *var;
+  if (cfg_.use_prior) {
+    post.mean = cfg_.prior_mean;
+    post.var = cfg_.prior_var;
+    for (int q = 0; q < kP; ++q) fuse(post.mean[q], post.var[q], (*mean)[q], (*var)[q]);
+  }
   VoxelBelief v = toVoxel(post, VoxelBelief::kEstimated);
   for (const PendingColumn& pc : cols) {
     v.top = pc.top;
@@ -584,6 +597,7 @@ void Strata::save(const std::filesystem::path& path) const {
   put(o, cfg_.inflation_depth_m);
   for (int q = 0; q < kP; ++q) put(o, cfg_.prior_mean[q]);
   for (int q = 0; q < kP; ++q) put(o, cfg_.prior_var[q]);
+  put(o, static_cast<std::uint8_t>(cfg_.use_prior));
   std::vector<std::uint32_t> keys;
   keys.reserve(columns_.size());
   for (const auto& [k, c] : columns_) keys.push_back(k);
@@ -640,13 +654,18 @@ Strata Strata::load(const std::filesystem::path& path) {
   }
   while (std::getline(f, line) && line.empty()) {
   }
-  if (line != kTrailer) throw bad("no '" + std::string(kTrailer) + "' trailer after the tree (not written by octomap_strata?)");
+  if (line != kTrailer && line != kTrailerV3)
+    throw bad("no '" + std::string(kTrailer) + "' trailer after the tree (not written by octomap_strata?)");
   bool ok = get(f, cfg.resolution_m);
   for (int a = 0; a < 3; ++a) ok = ok && get(f, cfg.min_m[a]);
   for (int a = 0; a < 3; ++a) ok = ok && get(f, cfg.max_m[a]);
   ok = ok && get(f, cfg.inflation_depth_m);
   for (int q = 0; q < kP; ++q) ok = ok && get(f, cfg.prior_mean[q]);
   for (int q = 0; q < kP; ++q) ok = ok && get(f, cfg.prior_var[q]);
+  std::uint8_t use_prior = 1;  // format 3 always fused the prior
+  if (line == kTrailer) ok = ok && get(f, use_prior);
+  if (use_prior > 1) throw bad("the trailer's prior flag is " + std::to_string(use_prior) + ", not 0 or 1");
+  cfg.use_prior = use_prior == 1;
   std::uint64_t n = 0;
   ok = ok && get(f, n);
   if (!ok) throw bad("truncated configuration trailer");

@@ -10,6 +10,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <limits>
 
 #include "memory_budget_scope.hpp"
@@ -107,6 +108,61 @@ TEST(Strata, TheSoilBelowInheritsTheEstimateWithVarianceInflatedByDepth) {
   // Deep down the prior dominates again; right under the cut the estimate does.
   EXPECT_NEAR(s.soilAt(0.025, 0.025, 0.79).mean[0], 12e3, 2e3);
   EXPECT_NEAR(s.soilAt(0.025, 0.025, -2.0).mean[0], 30e3, 1e3);
+}
+
+TEST(Strata, WithoutThePriorAnEstimateIsTakenAsIsAndInheritedWithItsInflatedVariance) {
+  StrataConfig c = config();
+  c.use_prior = false;
+  Strata s(c);
+  s.applyCut(1, {cell(0.025, 0.025, 1.0, 0.8)});
+  s.assignEstimate(1, &kEst, &kEstVar);
+  for (double z : {0.825, 0.975}) {
+    const SoilBelief b = s.soilAt(0.025, 0.025, z);
+    ASSERT_EQ(b.source, SoilSource::Removed);
+    for (int q = 0; q < 5; ++q) {
+      EXPECT_FLOAT_EQ(static_cast<float>(b.mean[q]), static_cast<float>(kEst[q])) << q;
+      EXPECT_FLOAT_EQ(static_cast<float>(b.var[q]), static_cast<float>(kEstVar[q])) << q;
+    }
+  }
+  // Below: the estimate's mean at every depth, its variance e-fold per L; the prior never comes back.
+  for (double z : {0.8, 0.5, -2.0}) {
+    const SoilBelief b = s.soilAt(0.025, 0.025, z);
+    ASSERT_EQ(b.source, SoilSource::Inherited);
+    const double f = std::exp((static_cast<double>(0.8f) - z) / 0.2);
+    for (int q = 0; q < 5; ++q) {
+      EXPECT_EQ(b.mean[q], static_cast<double>(static_cast<float>(kEst[q]))) << z;
+      EXPECT_NEAR(b.var[q], static_cast<float>(kEstVar[q]) * f, 1e-12 * kEstVar[q] * f) << z;
+    }
+  }
+  EXPECT_EQ(s.soilAt(0.075, 0.025, 0.9).source, SoilSource::Prior);  // never cut: the prior still
+  EXPECT_EQ(s.soilAt(0.075, 0.025, 0.9).mean[0], c.prior_mean[0]);
+  // The choice is part of the file: loaded, the soil below is the same.
+  const std::string path = tmp("no_prior.ot");
+  s.save(path);
+  EXPECT_EQ(Strata::load(path).soilAt(0.025, 0.025, 0.5).mean[0], s.soilAt(0.025, 0.025, 0.5).mean[0]);
+  // A file of format 3 (before the choice) always fused the prior: its trailer without the flag loads so.
+  Strata fused(config());
+  fused.applyCut(1, {cell(0.025, 0.025, 1.0, 0.8)});
+  fused.assignEstimate(1, &kEst, &kEstVar);
+  fused.save(path);
+  std::string bytes;
+  {
+    std::ifstream i(path, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(i), std::istreambuf_iterator<char>());
+  }
+  const std::string v4 = "terramap_strata 4\n";
+  const auto at = bytes.find(v4);
+  ASSERT_NE(at, std::string::npos);
+  const std::size_t flag = at + v4.size() + 8 * (1 + 3 + 3 + 1 + 5 + 5);  // resolution, extent, L, prior
+  ASSERT_EQ(bytes[flag], 1);
+  bytes.erase(flag, 1);
+  bytes.replace(at, v4.size(), "terramap_strata 3\n");
+  {
+    std::ofstream o(path, std::ios::binary | std::ios::trunc);
+    o << bytes;
+  }
+  EXPECT_EQ(Strata::load(path).soilAt(0.025, 0.025, 0.5).mean[0], fused.soilAt(0.025, 0.025, 0.5).mean[0]);
+  EXPECT_NE(fused.soilAt(0.025, 0.025, 0.5).mean[0], s.soilAt(0.025, 0.025, 0.5).mean[0]);
 }
 
 TEST(Strata, TheInheritedBeliefFiltersEveryEstimateDownTheColumn) {
