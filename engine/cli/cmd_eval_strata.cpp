@@ -561,9 +561,12 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
 /// How far apart the soil estimator's estimates of the two soils are: every valid estimate of
 /// the run (report.json's soil_pinn records) paired with the soil the truth blade was cutting at
 /// its sweep's end, classed by the nearer of the default soil and the zone's in cohesion. Per
-/// property: truth, estimates' mean and spread, and d' = (mean difference) / pooled spread.
-/// The boundary can only be as sharp as these classes are apart.
-nlohmann::json estimatorSeparation(const StrataArgs& a, const sim::Scenario& sc, const sim::SoilZone& zone, const CutSoil& truth) {
+/// property, and for the FEE index of the reference cut (`cut`) of each estimate's mean (the
+/// strength the force can tell, whatever mix of properties gives it): truth, estimates' mean and
+/// spread, and d' = (mean difference) / pooled spread. The boundary can only be as sharp as these
+/// classes are apart.
+nlohmann::json estimatorSeparation(const StrataArgs& a, const sim::Scenario& sc, const sim::SoilZone& zone, const CutSoil& truth,
+                                   const soil::FeeIndexConfig& cut) {
   const nlohmann::json run = nlohmann::json::parse(std::ifstream(fs::path(a.out) / "report.json"));
   const soil::SoilParamVector soils[2] = {soil::fromFee(sc.default_soil.fee), soil::fromFee(zone.soil.fee)};
   std::array<std::vector<soil::SoilParamVector>, 2> est;
@@ -574,9 +577,10 @@ nlohmann::json estimatorSeparation(const StrataArgs& a, const sim::Scenario& sc,
       const double t1 = r["t1"].get<double>();
       const auto it = std::lower_bound(truth.t.begin(), truth.t.end(), t1 - 1e-9);
       if (it == truth.t.end()) continue;
-      const soil::SoilParamVector& cut = truth.soil[static_cast<std::size_t>(it - truth.t.begin())];
-      if (!std::isfinite(cut[soil::kParamC])) continue;  // the blade was not cutting
-      const int cls = std::abs(cut[soil::kParamC] - soils[1][soil::kParamC]) < std::abs(cut[soil::kParamC] - soils[0][soil::kParamC]);
+      const soil::SoilParamVector& cut_soil = truth.soil[static_cast<std::size_t>(it - truth.t.begin())];
+      if (!std::isfinite(cut_soil[soil::kParamC])) continue;  // the blade was not cutting
+      const int cls = std::abs(cut_soil[soil::kParamC] - soils[1][soil::kParamC]) <
+                      std::abs(cut_soil[soil::kParamC] - soils[0][soil::kParamC]);
       soil::SoilParamVector m{};
       for (int q = 0; q < soil::kSoilParamCount; ++q) m[static_cast<std::size_t>(q)] = r["mean"][static_cast<std::size_t>(q)].get<double>();
       est[static_cast<std::size_t>(cls)].push_back(m);
@@ -586,26 +590,37 @@ nlohmann::json estimatorSeparation(const StrataArgs& a, const sim::Scenario& sc,
   if (!a.quiet)
     std::printf("soil estimates by the soil being cut (%zu in the default soil, %zu in '%s'):\n  %-6s %-32s %-32s %6s\n",
                 est[0].size(), est[1].size(), zone.name.c_str(), "", "default: truth / estimates", "zone: truth / estimates", "d'");
-  for (int q = 0; q < soil::kSoilParamCount; ++q) {
+  // Column q < kSoilParamCount: that property; q == kSoilParamCount: the index (NaN where the
+  // FEE has no valid solution for the soil: left out of the statistics).
+  const auto value = [&](const soil::SoilParamVector& v, int q) {
+    return q < soil::kSoilParamCount ? v[static_cast<std::size_t>(q)] : soil::feeIndexOf(soil::toFee(v), fee::Soil{}, cut).index_n;
+  };
+  for (int q = 0; q <= soil::kSoilParamCount; ++q) {
     double mean[2] = {std::nan(""), std::nan("")}, sd[2] = {std::nan(""), std::nan("")};
     for (int c = 0; c < 2; ++c) {
-      const auto& v = est[static_cast<std::size_t>(c)];
-      if (v.empty()) continue;
       double s1 = 0, s2 = 0;
-      for (const auto& e : v) {
-        s1 += e[static_cast<std::size_t>(q)];
-        s2 += e[static_cast<std::size_t>(q)] * e[static_cast<std::size_t>(q)];
+      long n = 0;
+      for (const auto& e : est[static_cast<std::size_t>(c)]) {
+        const double x = value(e, q);
+        if (!std::isfinite(x)) continue;
+        s1 += x;
+        s2 += x * x;
+        ++n;
       }
-      mean[c] = s1 / v.size();
-      sd[c] = std::sqrt(std::max(0.0, s2 / v.size() - mean[c] * mean[c]));
+      if (n == 0) continue;
+      mean[c] = s1 / n;
+      sd[c] = std::sqrt(std::max(0.0, s2 / n - mean[c] * mean[c]));
     }
     const double d = (mean[1] - mean[0]) / std::sqrt(0.5 * (sd[0] * sd[0] + sd[1] * sd[1]));
-    const soil::SoilParamInfo& info = soil::kSoilParams[q];
-    out["properties"][info.name] = {{"unit", info.unit}, {"truth", {soils[0][static_cast<std::size_t>(q)], soils[1][static_cast<std::size_t>(q)]}},
-                                    {"mean", {mean[0], mean[1]}}, {"sd", {sd[0], sd[1]}}, {"d_prime", d}};
+    const bool index = q == soil::kSoilParamCount;
+    const char* name = index ? "fee_index" : soil::kSoilParams[q].name;
+    const char* unit = index ? "N" : soil::kSoilParams[q].unit;
+    const double t0 = value(soils[0], q), t1 = value(soils[1], q);
+    out["properties"][name] = {{"unit", unit}, {"truth", {t0, t1}}, {"mean", {mean[0], mean[1]}}, {"sd", {sd[0], sd[1]}},
+                               {"d_prime", d}};
     if (!a.quiet)
-      std::printf("  %-6s %9.4g / %9.4g +- %-9.3g %9.4g / %9.4g +- %-9.3g %6.2f  [%s]\n", info.name, soils[0][static_cast<std::size_t>(q)],
-                  mean[0], sd[0], soils[1][static_cast<std::size_t>(q)], mean[1], sd[1], d, info.unit);
+      std::printf("  %-6s %9.4g / %9.4g +- %-9.3g %9.4g / %9.4g +- %-9.3g %6.2f  [%s]\n", index ? "index" : name, t0, mean[0], sd[0],
+                  t1, mean[1], sd[1], d, unit);
   }
   return out;
 }
@@ -659,7 +674,7 @@ int runEvalStrata(const StrataArgs& a) {
     report["next_pass_force"] = nextPassForces(a, snaps, steps);
   }
   report["boundary"] = boundaryFigure(a, *zone, st.voxel_m, g, initial, snaps.back(), m);
-  report["estimator"] = estimatorSeparation(a, sc, *zone, cut_soil);
+  report["estimator"] = estimatorSeparation(a, sc, *zone, cut_soil, st.cut);
   io::writeFileAtomically(fs::path(a.out) / "eval_strata.json", report.dump(2) + "\n");
   if (!a.quiet) std::printf("wrote %s\n", (fs::path(a.out) / "eval_strata.json").string().c_str());
   return kOk;

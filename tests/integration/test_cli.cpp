@@ -315,6 +315,10 @@ TEST(Cli, EvalStrataWithTheOracleFeedsTheTruthSoilToTheStrata) {
   const auto& c = j["estimator"]["properties"]["c"];
   ASSERT_GT(j["estimator"]["estimates"]["default"].get<long>(), 10) << j["estimator"].dump(1);
   EXPECT_NEAR(c["mean"][0].get<double>(), c["truth"][0].get<double>(), 0.05 * c["truth"][0].get<double>()) << c.dump();
+  // The FEE index of the estimates (the strength the force tells) is the loam's index alike.
+  const auto& index = j["estimator"]["properties"]["fee_index"];
+  EXPECT_NEAR(index["mean"][0].get<double>(), index["truth"][0].get<double>(), 0.05 * index["truth"][0].get<double>()) << index.dump();
+  EXPECT_GT(index["truth"][1].get<double>(), 2 * index["truth"][0].get<double>()) << index.dump();  // clay: 55.9 kN, loam 16.1
   const auto report = nlohmann::json::parse(std::ifstream(d / "report.json"));
   bool oracle = false;
   for (const auto& st : report["stages"]) oracle = oracle || st["type"] == "soil_oracle";
