@@ -248,11 +248,24 @@ Stages findStages(PipelineSpec& spec, const StrataArgs& a) {
   return out;
 }
 
+/// --oracle-noise drops the soil_pinn stages' parameters, so --model, or a --set on such a stage,
+/// would be lost silently: a ConfigError naming it, before the truth run.
+void checkOracleOptions(const PipelineSpec& spec, const StrataArgs& a) {
+  if (a.oracle_noise < 0) return;
+  if (!a.model.empty())
+    throw ConfigError("--model " + a.model + ": --oracle-noise replaces every soil_pinn stage, so no model is loaded");
+  for (const StageSpec& st : spec.stages)
+    if (st.type == "soil_pinn")
+      for (const auto& [key, raw] : st.params)
+        if (raw.where.rfind("--set ", 0) == 0)
+          throw ConfigError(raw.where + ": --oracle-noise replaces the soil_pinn stage '" + st.name + "', which this sets");
+}
+
 /// --oracle-noise: every soil_pinn stage becomes a soil_oracle over the truth run's table of the
 /// soil the blade cut (written to --out), with noise of `oracle_noise` times the two soils'
-/// difference per property (the soil_pinn stage's own parameters, --model and --set ones
-/// included, are dropped). The boundary's ceiling with a perfect (or a d' = 1 / noise)
-/// estimator: what the strata could do if the estimator were that good.
+/// difference per property (the soil_pinn stage's own parameters are dropped). The boundary's
+/// ceiling with a perfect (or a d' = 1 / noise) estimator: what the strata could do if the
+/// estimator were that good.
 void useOracle(PipelineSpec& spec, const StrataArgs& a, const sim::Scenario& sc, const sim::SoilZone& zone,
                const CutSoil& truth) {
   nlohmann::json table = {{"t_s", truth.t}, {"soil", nlohmann::json::array()}};
@@ -649,6 +662,7 @@ int runEvalStrata(const StrataArgs& a) {
     }
   if (!zone) throw ConfigError(scenario + ": no soil zone " + (a.zone.empty() ? "below the surface (depth_m: [>0, ...])" : "named '" + a.zone + "'"));
   const Stages st = findStages(spec, a);
+  checkOracleOptions(spec, a);
   const Geometry g = spec.geometry();
   fs::create_directories(a.out);
 

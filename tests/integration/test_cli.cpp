@@ -332,6 +332,10 @@ TEST(Cli, EvalStrataWithTheOracleFeedsTheTruthSoilToTheStrata) {
   const Result bad = sh("eval-strata " + scen + " --duration 5 -q --localisation exact --out " + d.string());
   EXPECT_EQ(bad.code, 3) << bad.out;
   EXPECT_NE(bad.out.find("--localisation"), std::string::npos) << bad.out;
+  // The oracle replaces soil_pinn with its parameters: a --set on it would be lost, so it is refused.
+  const Result lost = sh("eval-strata " + scen + " --duration 5 -q --oracle-noise 0 --set soil.history_capacity=200 --out " + d.string());
+  EXPECT_EQ(lost.code, 3) << lost.out;
+  EXPECT_NE(lost.out.find("--set soil.history_capacity=200"), std::string::npos) << lost.out;
 }
 
 TEST(Cli, EmbeddedDemoWritesGeoTiffPngAndReport) {
