@@ -12,6 +12,7 @@
 #include <terramap/sim/scenario.hpp>
 #include <terramap/sim/simulator.hpp>
 #include <terramap/sim/truth_sampling.hpp>
+#include <terramap/sim/world.hpp>
 
 #include "../sim/h5_detail.hpp"
 #include "yaml/reader.hpp"
@@ -219,20 +220,6 @@ EpisodePlan planEpisode(const SoilDatasetConfig& cfg, int index) {
   return p;
 }
 
-namespace {
-
-/// The terrain's analytic surface (base, slope and hills; the dataset's scenario has no DEM) at p.
-double analyticHeight(const sim::TerrainSpec& t, const Eigen::Vector2d& p) {
-  double h = t.base_height_m + t.slope_x * (p.x() - t.origin_x_m) + t.slope_y * (p.y() - t.origin_y_m);
-  for (const sim::GaussianBump& b : t.bumps) {
-    const double dx = p.x() - b.x_m, dy = p.y() - b.y_m;
-    h += b.amplitude_m * std::exp(-0.5 * (dx * dx + dy * dy) / (b.sigma_m * b.sigma_m));
-  }
-  return h;
-}
-
-}  // namespace
-
 sim::Scenario episodeScenario(const SoilDatasetConfig& cfg, const EpisodePlan& plan) {
   sim::Scenario sc = sim::loadScenario(cfg.scenario);
   sc.seed = plan.seed;
@@ -269,7 +256,7 @@ sim::Scenario episodeScenario(const SoilDatasetConfig& cfg, const EpisodePlan& p
       c.route_length_m = c.route_speed_mps * cfg.duration_s + 2.0;
       c.route_passes = 1;
       c.route_grade = true;
-      c.grade_first_m = analyticHeight(t, edge) - std::max(0.03, c.depth_m.initial);
+      c.grade_first_m = sim::analyticSurfaceAt(t, edge.x(), edge.y()) - std::max(0.03, c.depth_m.initial);
       c.grade_step_m = 0.0;
     }
   }

@@ -9,6 +9,16 @@
 
 namespace terramap::sim {
 
+double analyticSurfaceAt(const TerrainSpec& spec, double x, double y) {
+  double h = spec.base_height_m + spec.slope_x * (x - spec.origin_x_m) + spec.slope_y * (y - spec.origin_y_m);
+  for (const GaussianBump& b : spec.bumps) {
+    const double dx = x - b.x_m, dy = y - b.y_m;
+    const double r2 = (dx * dx + dy * dy) / (b.sigma_m * b.sigma_m);
+    if (r2 < 60.0) h += b.amplitude_m * std::exp(-0.5 * r2);  // exp(-30) ~ 1e-13: negligible beyond
+  }
+  return h;
+}
+
 TruthTerrain buildTerrain(const TerrainSpec& spec) {
   const int nx = static_cast<int>(std::llround(spec.size_x_m / spec.resolution_m)) + 1;
   const int ny = static_cast<int>(std::llround(spec.size_y_m / spec.resolution_m)) + 1;
@@ -19,12 +29,7 @@ TruthTerrain buildTerrain(const TerrainSpec& spec) {
   for (int j = 0; j < ny; ++j) {
     for (int i = 0; i < nx; ++i) {
       const Eigen::Vector2d p = t.nodePosition(i, j);
-      double h = spec.base_height_m + spec.slope_x * (p.x() - spec.origin_x_m) + spec.slope_y * (p.y() - spec.origin_y_m);
-      for (const GaussianBump& b : spec.bumps) {
-        const double dx = p.x() - b.x_m, dy = p.y() - b.y_m;
-        const double r2 = (dx * dx + dy * dy) / (b.sigma_m * b.sigma_m);
-        if (r2 < 60.0) h += b.amplitude_m * std::exp(-0.5 * r2);  // exp(-30) ~ 1e-13: negligible beyond
-      }
+      double h = analyticSurfaceAt(spec, p.x(), p.y());
       if (have_dem) {
         const double z = dem->heightAt(p.x(), p.y());
         if (std::isnan(z))

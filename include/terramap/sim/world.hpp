@@ -6,6 +6,10 @@
 
 namespace terramap::sim {
 
+/// The terrain's analytic surface at map (x, y), m: base + plane + Gaussian bumps, without the
+/// DEM (the part of buildTerrain's nodes a scenario defines in closed form). Thread-safe.
+double analyticSurfaceAt(const TerrainSpec& spec, double x, double y);
+
 /// Builds the truth terrain of a scenario: base + plane + Gaussian bumps (+ DEM if given),
 /// sampled at every node; calls captureInitial() and refreshPyramid().
 /// \throws InputError if the DEM does not cover a node of the grid (names the file and node).
