@@ -154,10 +154,8 @@ PinnInference::PinnInference(std::vector<PinnMemberWeights> members, std::vector
     head(m.res_W, m.res_b, 2, "res");
     head(m.fr_W, m.fr_b, 2, "force_res");
     if (m.edge_thickness_m > 0) head(m.gate_W, m.gate_b, m.P, "pen_gate");
-    if (m.gate_feature >= m.D_o || m.gate_feature < -1 || (m.gate_feature >= 0 && !(m.edge_thickness_m > 0)))
-      throw std::invalid_argument("PinnInference: gate_feature is not an observation column of a gated model");
-    if (!(m.q_gamma_ref_n_m3 >= 0 && std::isfinite(m.q_gamma_ref_n_m3)))
-      throw std::invalid_argument("PinnInference: q_gamma_ref_n_m3 must be >= 0");
+    const std::string options = pinnOptionsError(m.gate_feature, m.D_o, m.edge_thickness_m, m.q_gamma_ref_n_m3);
+    if (!options.empty()) throw std::invalid_argument("PinnInference: " + options);
     if (m.theta_k_mean.size() != kThetaKCols || m.theta_k_std.size() != kThetaKCols)
       throw std::invalid_argument("PinnInference: theta_k normalisation needs 6 values");
   }

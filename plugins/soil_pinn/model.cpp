@@ -69,11 +69,9 @@ PinnNetImpl::PinnNetImpl(PinnConfig cfg) : cfg_(std::move(cfg)) {
     throw std::invalid_argument("PinnConfig: edge_thickness_m must be in [0, 1) m");
   for (int h : cfg_.hidden)
     if (h < 1) throw std::invalid_argument("PinnConfig: hidden widths must be >= 1");
-  if (cfg_.gate_feature >= cfg_.D_o || cfg_.gate_feature < -1 || (cfg_.gate_feature >= 0 && !(cfg_.edge_thickness_m > 0)))
-    throw std::invalid_argument("PinnConfig: gate_feature must be -1 or an observation column (< D_o), and needs "
-                                "edge_thickness_m > 0");
-  if (!(cfg_.q_gamma_ref_n_m3 >= 0 && std::isfinite(cfg_.q_gamma_ref_n_m3)))
-    throw std::invalid_argument("PinnConfig: q_gamma_ref_n_m3 must be >= 0 (0 = Q as extracted)");
+  const std::string options =
+      soil::pinnOptionsError(cfg_.gate_feature, cfg_.D_o, cfg_.edge_thickness_m, cfg_.q_gamma_ref_n_m3);
+  if (!options.empty()) throw std::invalid_argument("PinnConfig: " + options);
   // Initialise from cfg.seed, then give the global generator its state back so building a
   // network (or loading one) does not disturb anyone else's random stream.
   at::Generator gen = at::detail::getDefaultCPUGenerator();

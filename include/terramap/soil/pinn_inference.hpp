@@ -21,7 +21,9 @@
 #include <Eigen/Core>
 
 #include <array>
+#include <cmath>
 #include <limits>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -53,6 +55,17 @@ struct PinnMemberWeights {
   /// (pinn::PinnConfig); 0 = Q as extracted.
   double q_gamma_ref_n_m3 = 0;
 };
+
+/// The one rule for the physics-layer options a model carries, for pinn::PinnConfig (a model
+/// built or trained) and PinnInference (a model's weights loaded): "" when they are valid, else
+/// what is wrong. gate_feature: -1 or an observation column (< D_o) of a model with the
+/// penetration term (edge_thickness_m > 0); q_gamma_ref_n_m3: finite and >= 0 (0 = Q as extracted).
+inline std::string pinnOptionsError(int gate_feature, int D_o, double edge_thickness_m, double q_gamma_ref_n_m3) {
+  if (gate_feature >= D_o || gate_feature < -1 || (gate_feature >= 0 && !(edge_thickness_m > 0)))
+    return "gate_feature must be -1 or an observation column (< D_o), and needs edge_thickness_m > 0";
+  if (!(q_gamma_ref_n_m3 >= 0 && std::isfinite(q_gamma_ref_n_m3))) return "q_gamma_ref_n_m3 must be >= 0 (0 = Q as extracted)";
+  return {};
+}
 
 /// How far a sample's inputs lie from the training samples', and what that adds to the
 /// epistemic variance. The ensemble's members agree off the training distribution as much as on
