@@ -436,7 +436,7 @@ double feeDraftOn(const fee::Soil& soil, const ForceStep& s) {
 nlohmann::json nextPassForces(const StrataArgs& a, const std::vector<Snapshot>& snaps,
                               const std::vector<ForceStep>& steps) {
   ErrorSum total_surface, total_next, total_truth;
-  long no_belief = 0, fee_invalid = 0, strata_closer = 0;
+  long no_belief = 0, fee_invalid = 0, strata_closer = 0, surface_closer = 0;  // the rest: equally close
   nlohmann::json passes = nlohmann::json::array();
   if (!a.quiet)
     std::printf("next pass, force: the FEE draft of each belief at the pass's start on every step the pass cut, against the "
@@ -462,6 +462,7 @@ nlohmann::json nextPassForces(const StrataArgs& a, const std::vector<Snapshot>& 
       en.add(fn, truth);
       et.add(ft, truth);
       if (std::abs(fn - truth) < std::abs(fs_ - truth)) ++strata_closer;
+      if (std::abs(fs_ - truth) < std::abs(fn - truth)) ++surface_closer;
     }
     total_surface.merge(es);
     total_next.merge(en);
@@ -472,17 +473,19 @@ nlohmann::json nextPassForces(const StrataArgs& a, const std::vector<Snapshot>& 
       std::printf("  %-5zu %7.1f %7.1f %8ld %11.2f kN %11.2f kN %11.2f kN\n", k + 2, snaps[k].t, snaps[k + 1].t, es.n,
                   es.mae() * 1e-3, en.mae() * 1e-3, et.mae() * 1e-3);
   }
-  const double closer = total_surface.n ? static_cast<double>(strata_closer) / total_surface.n : std::nan("");
+  const double closer = total_surface.n ? static_cast<double>(strata_closer) / total_surface.n : std::nan(""),
+               surface_closer_share = total_surface.n ? static_cast<double>(surface_closer) / total_surface.n : std::nan("");
   if (!a.quiet && total_surface.n > 0)
     std::printf("  all   %23ld %11.2f kN %11.2f kN %11.2f kN  (relative %.1f %% / %.1f %% / %.1f %%)\n"
-                "  median  %29.2f kN %11.2f kN %11.2f kN; the strata's force the closer in %.1f %% of the steps\n"
+                "  median  %29.2f kN %11.2f kN %11.2f kN; the closer: the strata's in %.1f %% of the steps, the surface's in "
+                "%.1f %%\n"
                 "  steps left out: %ld without a belief under the edge, %ld where a belief's FEE had no valid solution\n",
                 total_surface.n, total_surface.mae() * 1e-3, total_next.mae() * 1e-3, total_truth.mae() * 1e-3,
                 100 * total_surface.relative(), 100 * total_next.relative(), 100 * total_truth.relative(),
-                total_surface.median() * 1e-3, total_next.median() * 1e-3, total_truth.median() * 1e-3, 100 * closer,
+                total_surface.median() * 1e-3, total_next.median() * 1e-3, total_truth.median() * 1e-3, 100 * closer, 100 * surface_closer_share,
                 no_belief, fee_invalid);
   return {{"passes", passes}, {"surface", total_surface.json("steps")}, {"strata", total_next.json("steps")},
-          {"truth_soil", total_truth.json("steps")}, {"strata_closer_fraction", closer},
+          {"truth_soil", total_truth.json("steps")}, {"strata_closer_fraction", closer}, {"surface_closer_fraction", surface_closer_share},
           {"steps_without_belief", no_belief}, {"steps_fee_invalid", fee_invalid}};
 }
 

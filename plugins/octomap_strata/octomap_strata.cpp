@@ -68,9 +68,12 @@ ParamSchema OctomapStrata::schema() const {
       param::text("inherit", "filter", {"filter", "last"},
                   "the soil below a column: every estimate that cut it, filtered down the column (filter), or the last one"),
       param::text("prior", d.strata.use_prior ? "config" : "none", {"config", "none"},
-                  "an estimate is fused with the prior_* beliefs, in the voxels it removed and below (config), or taken "
-                  "as is (none: the estimator's variance already holds the prior's where the force cannot tell the "
-                  "property); the prior stays the belief of columns no sweep cut"),
+                  "the voxels a sweep removed hold its estimate fused with the prior_* beliefs (config) or as is (none: "
+                  "the estimator's variance already holds the prior's where the force cannot tell the property); the "
+                  "prior stays the belief of columns no sweep cut"),
+      param::boolean("prior_below", d.strata.prior_below,
+                     "the soil below a cut column is the inherited estimate with its variance inflated by depth (false), "
+                     "or that times the prior_* beliefs (true: far down the prior's mean takes over)"),
       param::integer("max_pending_sweeps", d.strata.max_pending_sweeps, 1, 100000,
                      "sweeps waiting for their estimate; the oldest beyond keep their prediction"),
       param::real("next_cut_m", d.next_cut_m, 1e-3, 10.0, "m", "depth of the cut the strata_next_* layers describe"),
@@ -114,6 +117,7 @@ void OctomapStrata::configure(const Params& p) {
   c.strata.max_pending_sweeps = static_cast<int>(p.getInt("max_pending_sweeps"));
   c.strata.filter_inheritance = p.getString("inherit") == "filter";
   c.strata.use_prior = p.getString("prior") == "config";
+  c.strata.prior_below = p.getBool("prior_below");
   soil::readPriorParams(p, c.strata.prior_mean, c.strata.prior_var);
   c.next_cut_m = p.getDouble("next_cut_m");
   c.surface_fallback = p.getBool("surface_fallback");

@@ -23,8 +23,10 @@ namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr int kP = soil::kSoilParamCount;
 constexpr const char* kTreeId = "TerramapStrataTree";
-// 2: columns hold float beliefs; 3: voxels their slab's ends; 4: whether estimates meet the prior
-constexpr const char* kTrailer = "terramap_strata 4";
+// 2: columns hold float beliefs; 3: voxels their slab's ends; 4: whether estimates meet the prior;
+// 5: that, for the removed voxels and the soil below apart
+constexpr const char* kTrailer = "terramap_strata 5";
+constexpr const char* kTrailerV4 = "terramap_strata 4";
 constexpr const char* kTrailerV3 = "terramap_strata 3";
 
 /// m, v ← prior N(m, v) × N(z, r) (soil/belief.hpp; the prior here is always finite).
@@ -180,7 +182,7 @@ SoilBelief Strata::predictBelow(const Column* c, double z) const {
   if (!c || c->inherit_sweep < 0) return b;
   const double f = std::exp(std::max(0.0, static_cast<double>(c->anchor) - z) / cfg_.inflation_depth_m);
   for (int q = 0; q < kP; ++q) {
-    if (cfg_.use_prior) {
+    if (cfg_.prior_below) {
       fuse(b.mean[q], b.var[q], c->inherit_mean[q], c->inherit_var[q] * f);
     } else {
       b.mean[q] = c->inherit_mean[q];
@@ -598,6 +600,7 @@ void Strata::save(const std::filesystem::path& path) const {
   for (int q = 0; q < kP; ++q) put(o, cfg_.prior_mean[q]);
   for (int q = 0; q < kP; ++q) put(o, cfg_.prior_var[q]);
   put(o, static_cast<std::uint8_t>(cfg_.use_prior));
+  put(o, static_cast<std::uint8_t>(cfg_.prior_below));
   std::vector<std::uint32_t> keys;
   keys.reserve(columns_.size());
   for (const auto& [k, c] : columns_) keys.push_back(k);
@@ -654,7 +657,7 @@ Strata Strata::load(const std::filesystem::path& path) {
   }
   while (std::getline(f, line) && line.empty()) {
   }
-  if (line != kTrailer && line != kTrailerV3)
+  if (line != kTrailer && line != kTrailerV4 && line != kTrailerV3)
     throw bad("no '" + std::string(kTrailer) + "' trailer after the tree (not written by octomap_strata?)");
   bool ok = get(f, cfg.resolution_m);
   for (int a = 0; a < 3; ++a) ok = ok && get(f, cfg.min_m[a]);
@@ -662,10 +665,14 @@ Strata Strata::load(const std::filesystem::path& path) {
   ok = ok && get(f, cfg.inflation_depth_m);
   for (int q = 0; q < kP; ++q) ok = ok && get(f, cfg.prior_mean[q]);
   for (int q = 0; q < kP; ++q) ok = ok && get(f, cfg.prior_var[q]);
-  std::uint8_t use_prior = 1;  // format 3 always fused the prior
-  if (line == kTrailer) ok = ok && get(f, use_prior);
-  if (use_prior > 1) throw bad("the trailer's prior flag is " + std::to_string(use_prior) + ", not 0 or 1");
+  // Format 3 always fused the prior, format 4 in both places or neither.
+  std::uint8_t use_prior = 1, prior_below = 1;
+  if (line != kTrailerV3) ok = ok && get(f, use_prior);
+  prior_below = use_prior;
+  if (line == kTrailer) ok = ok && get(f, prior_below);
+  if (use_prior > 1 || prior_below > 1) throw bad("the trailer's prior flags are not 0 or 1");
   cfg.use_prior = use_prior == 1;
+  cfg.prior_below = prior_below == 1;
   std::uint64_t n = 0;
   ok = ok && get(f, n);
   if (!ok) throw bad("truncated configuration trailer");

@@ -120,10 +120,13 @@ struct StrataConfig {
   Eigen::Vector3d min_m{-50, -50, -20}, max_m{50, 50, 20};
   double inflation_depth_m = 0.1;  ///< L: the inherited variance grows by e per L of depth
   SoilVector prior_mean{}, prior_var{};  ///< must be finite, variances > 0
-  /// true: an estimate is fused with the prior (removed voxels: prior × N(μ̂, σ̂²); below: prior ×
-  /// the inflated inherited estimate); false: taken as is (N(μ̂, σ̂²); below N(μ̂, σ̂² e^{Δz/L})),
-  /// the prior only where no sweep cut. The prior still scales the change split's units.
+  /// true: the removed voxels hold prior × N(μ̂, σ̂²) of their sweep's estimate; false: N(μ̂, σ̂²)
+  /// as is. The prior still scales the change split's units and is the belief where no sweep cut.
   bool use_prior = true;
+  /// Below a cut column: false: the inherited estimate with its variance inflated by depth,
+  /// N(μ̂, σ̂² e^{Δz/L}) (the mean stays the soil above, the confidence fades); true: that times
+  /// the prior (far down the prior's mean takes over).
+  bool prior_below = false;
   int max_pending_sweeps = 256;    ///< sweeps waiting for their estimate; older ones resolve as Predicted
   /// true: a column's inherited belief filters every estimate that removed soil from it (the
   /// previous belief carried down to the new anchor with its variance × exp(Δz / L), times the

@@ -89,28 +89,38 @@ TEST(Strata, ACutRemovesTheVoxelsBetweenTheSurfacesAndTheyTakePriorTimesEstimate
 }
 
 TEST(Strata, TheSoilBelowInheritsTheEstimateWithVarianceInflatedByDepth) {
-  Strata s(config());
-  s.applyCut(1, {cell(0.025, 0.025, 1.0, 0.8)});
-  s.assignEstimate(1, &kEst, &kEstVar);
-  const StrataConfig c = config();
-  for (double z : {0.8, 0.7, 0.5, 0.0}) {
-    const SoilBelief b = s.soilAt(0.025, 0.025, z);
-    ASSERT_EQ(b.source, SoilSource::Inherited);
-    // By hand: e per 0.2 m below the anchor (the surface sweep 1 left, kept as a float).
-    const double f = std::exp((static_cast<double>(0.8f) - z) / 0.2);
-    for (int q = 0; q < 5; ++q) {
-      // The column keeps the estimate as float.
-      const double m = static_cast<float>(kEst[q]), v = static_cast<float>(kEstVar[q]);
-      EXPECT_NEAR(b.mean[q], fusedMean(c.prior_mean[q], c.prior_var[q], m, v * f), 1e-12 * std::abs(c.prior_mean[q])) << z;
-      EXPECT_NEAR(b.var[q], fusedVar(c.prior_var[q], v * f), 1e-12 * c.prior_var[q]) << z;
+  for (const bool prior_below : {false, true}) {
+    StrataConfig c = config();
+    c.prior_below = prior_below;
+    Strata s(c);
+    s.applyCut(1, {cell(0.025, 0.025, 1.0, 0.8)});
+    s.assignEstimate(1, &kEst, &kEstVar);
+    for (double z : {0.8, 0.7, 0.5, 0.0}) {
+      const SoilBelief b = s.soilAt(0.025, 0.025, z);
+      ASSERT_EQ(b.source, SoilSource::Inherited);
+      // By hand: e per 0.2 m below the anchor (the surface sweep 1 left, kept as a float).
+      const double f = std::exp((static_cast<double>(0.8f) - z) / 0.2);
+      for (int q = 0; q < 5; ++q) {
+        // The column keeps the estimate as float.
+        const double m = static_cast<float>(kEst[q]), v = static_cast<float>(kEstVar[q]);
+        if (prior_below) {
+          EXPECT_NEAR(b.mean[q], fusedMean(c.prior_mean[q], c.prior_var[q], m, v * f), 1e-12 * std::abs(c.prior_mean[q])) << z;
+          EXPECT_NEAR(b.var[q], fusedVar(c.prior_var[q], v * f), 1e-12 * c.prior_var[q]) << z;
+        } else {
+          EXPECT_EQ(b.mean[q], m) << z;
+          EXPECT_NEAR(b.var[q], v * f, 1e-12 * v * f) << z;
+        }
+      }
     }
+    // Right under the cut the estimate; deep down the prior's mean again with prior_below, else
+    // the estimate's mean with a variance far beyond the prior's.
+    EXPECT_NEAR(s.soilAt(0.025, 0.025, 0.79).mean[0], 12e3, 2e3);
+    EXPECT_NEAR(s.soilAt(0.025, 0.025, -2.0).mean[0], prior_below ? 30e3 : 12e3, 1e3) << prior_below;
+    if (!prior_below) EXPECT_GT(s.soilAt(0.025, 0.025, -2.0).var[0], 100 * c.prior_var[0]);
   }
-  // Deep down the prior dominates again; right under the cut the estimate does.
-  EXPECT_NEAR(s.soilAt(0.025, 0.025, 0.79).mean[0], 12e3, 2e3);
-  EXPECT_NEAR(s.soilAt(0.025, 0.025, -2.0).mean[0], 30e3, 1e3);
 }
 
-TEST(Strata, WithoutThePriorAnEstimateIsTakenAsIsAndInheritedWithItsInflatedVariance) {
+TEST(Strata, WithoutThePriorTheRemovedVoxelsHoldTheEstimateAsIsAndOlderFilesLoadAsTheyFused) {
   StrataConfig c = config();
   c.use_prior = false;
   Strata s(c);
@@ -124,24 +134,17 @@ TEST(Strata, WithoutThePriorAnEstimateIsTakenAsIsAndInheritedWithItsInflatedVari
       EXPECT_FLOAT_EQ(static_cast<float>(b.var[q]), static_cast<float>(kEstVar[q])) << q;
     }
   }
-  // Below: the estimate's mean at every depth, its variance e-fold per L; the prior never comes back.
-  for (double z : {0.8, 0.5, -2.0}) {
-    const SoilBelief b = s.soilAt(0.025, 0.025, z);
-    ASSERT_EQ(b.source, SoilSource::Inherited);
-    const double f = std::exp((static_cast<double>(0.8f) - z) / 0.2);
-    for (int q = 0; q < 5; ++q) {
-      EXPECT_EQ(b.mean[q], static_cast<double>(static_cast<float>(kEst[q]))) << z;
-      EXPECT_NEAR(b.var[q], static_cast<float>(kEstVar[q]) * f, 1e-12 * kEstVar[q] * f) << z;
-    }
-  }
   EXPECT_EQ(s.soilAt(0.075, 0.025, 0.9).source, SoilSource::Prior);  // never cut: the prior still
   EXPECT_EQ(s.soilAt(0.075, 0.025, 0.9).mean[0], c.prior_mean[0]);
-  // The choice is part of the file: loaded, the soil below is the same.
+  // The choice is part of the file: loaded, the soil is the same.
   const std::string path = tmp("no_prior.ot");
   s.save(path);
-  EXPECT_EQ(Strata::load(path).soilAt(0.025, 0.025, 0.5).mean[0], s.soilAt(0.025, 0.025, 0.5).mean[0]);
-  // A file of format 3 (before the choice) always fused the prior: its trailer without the flag loads so.
-  Strata fused(config());
+  EXPECT_EQ(Strata::load(path).soilAt(0.025, 0.025, 0.9).mean[0], s.soilAt(0.025, 0.025, 0.9).mean[0]);
+  // Files of format 3 always fused the prior, in the removed voxels and below; format 4 in both
+  // or neither: their trailers, without the flags they lacked, load so.
+  StrataConfig both = config();
+  both.prior_below = true;
+  Strata fused(both);
   fused.applyCut(1, {cell(0.025, 0.025, 1.0, 0.8)});
   fused.assignEstimate(1, &kEst, &kEstVar);
   fused.save(path);
@@ -150,18 +153,24 @@ TEST(Strata, WithoutThePriorAnEstimateIsTakenAsIsAndInheritedWithItsInflatedVari
     std::ifstream i(path, std::ios::binary);
     bytes.assign(std::istreambuf_iterator<char>(i), std::istreambuf_iterator<char>());
   }
-  const std::string v4 = "terramap_strata 4\n";
-  const auto at = bytes.find(v4);
+  const std::string v5 = "terramap_strata 5\n";
+  const auto at = bytes.find(v5);
   ASSERT_NE(at, std::string::npos);
-  const std::size_t flag = at + v4.size() + 8 * (1 + 3 + 3 + 1 + 5 + 5);  // resolution, extent, L, prior
-  ASSERT_EQ(bytes[flag], 1);
-  bytes.erase(flag, 1);
-  bytes.replace(at, v4.size(), "terramap_strata 3\n");
-  {
-    std::ofstream o(path, std::ios::binary | std::ios::trunc);
-    o << bytes;
+  const std::size_t flags = at + v5.size() + 8 * (1 + 3 + 3 + 1 + 5 + 5);  // resolution, extent, L, prior
+  ASSERT_EQ(bytes[flags], 1);
+  ASSERT_EQ(bytes[flags + 1], 1);
+  for (const int format : {4, 3}) {
+    std::string old = bytes;
+    old.erase(flags + (format == 4 ? 1 : 0), format == 4 ? 1 : 2);
+    old.replace(at, v5.size(), "terramap_strata " + std::to_string(format) + "\n");
+    {
+      std::ofstream o(path, std::ios::binary | std::ios::trunc);
+      o << old;
+    }
+    const Strata r = Strata::load(path);
+    for (double z : {0.9, 0.5})
+      EXPECT_EQ(r.soilAt(0.025, 0.025, z).mean[0], fused.soilAt(0.025, 0.025, z).mean[0]) << format << " " << z;
   }
-  EXPECT_EQ(Strata::load(path).soilAt(0.025, 0.025, 0.5).mean[0], fused.soilAt(0.025, 0.025, 0.5).mean[0]);
   EXPECT_NE(fused.soilAt(0.025, 0.025, 0.5).mean[0], s.soilAt(0.025, 0.025, 0.5).mean[0]);
 }
 
@@ -176,7 +185,7 @@ TEST(Strata, TheInheritedBeliefFiltersEveryEstimateDownTheColumn) {
     s.applyCut(2, {cell(0.025, 0.025, 0.9, 0.8)});
     s.assignEstimate(2, &second, &kEstVar);
     // By hand: estimate 1 carried from 0.9 to 0.8 (variance × e^(0.1/0.2)), times estimate 2;
-    // then, at z = 0.7, that carried another 0.1 m and times the prior.
+    // then, at z = 0.7, that carried another 0.1 m.
     const double a0 = 0.9f, a1 = 0.8f;
     for (int q = 0; q < 5; ++q) {
       // The column keeps its belief as float.
@@ -191,8 +200,8 @@ TEST(Strata, TheInheritedBeliefFiltersEveryEstimateDownTheColumn) {
       }
       const double f = std::exp((a1 - 0.7) / 0.2);
       const SoilBelief b = s.soilAt(0.025, 0.025, 0.7);
-      EXPECT_NEAR(b.mean[q], fusedMean(c.prior_mean[q], c.prior_var[q], m, v * f), 1e-9 * std::abs(c.prior_mean[q])) << q << filter;
-      EXPECT_NEAR(b.var[q], fusedVar(c.prior_var[q], v * f), 1e-9 * c.prior_var[q]) << q << filter;
+      EXPECT_NEAR(b.mean[q], m, 1e-9 * std::abs(m)) << q << filter;
+      EXPECT_NEAR(b.var[q], v * f, 1e-9 * v * f) << q << filter;
     }
   }
 }
@@ -212,7 +221,7 @@ TEST(Strata, AnInvalidEstimateLeavesThePredictionAndNoInheritance) {
   // The soil below still inherits sweep 1's estimate, anchored where sweep 1 left the surface.
   const SoilBelief below = s.soilAt(0.025, 0.025, 0.6);
   const double f = std::exp((static_cast<double>(0.8f) - 0.6) / 0.2);
-  EXPECT_NEAR(below.var[0], fusedVar(1e8, 4e6 * f), 1e-3);
+  EXPECT_NEAR(below.var[0], 4e6 * f, 1e-6);
   // An estimate for a sweep that cut nothing here is counted, not applied.
   EXPECT_EQ(s.assignEstimate(99, &kEst, &kEstVar), 0);
   EXPECT_EQ(s.counters().estimates_unmatched, 1);
