@@ -1,13 +1,15 @@
 // octomap_strata: the plugin's work per blade sweep (tree update when the sweep's record
 // arrives, voxels re-assigned when its estimate arrives, the strata_next_* layers recomputed on
-// the tiles touched) while a machine covers a square site in lanes, and the memory the model
+// the tiles touched, the change layers every change_interval_s of event time and at the end)
+// while a machine covers a square site in lanes, and the memory the model
 // holds once the site is covered, against the site's area (100 m², 1000 m², 1 ha at 5 cm
 // voxels and 5 cm map cells) at 1 and 2 threads.
 //
 // Workload: lanes 1.6 m apart, blade 1.85 m wide, one sweep per 0.2 m of travel cutting 5 cm of
 // bank (the default min_translation_m of blade_sweep), the estimate of each sweep published
-// right after it (as soil_pinn does within a few events). One benchmark iteration covers the
-// whole site once; counters:
+// right after it (as soil_pinn does within a few events), events stamped as a machine at
+// 0.8 m/s makes them (0.25 s a sweep), then finish(). One benchmark iteration covers the whole
+// site once; counters:
 //   sweeps_per_s  sweeps processed per second (record + estimate + layers)
 //   voxels_per_s  voxels removed (and re-assigned) per second
 //   memory_bytes  the model's tree + columns after covering the site (Strata::memoryBytes)
@@ -49,7 +51,8 @@ struct Site {
     ctx.setTracker(&tracker);
     plugin.start(ctx);
   }
-  void process() {
+  void process(double stamp) {
+    ctx.setStamp(stamp);
     plugin.process(ctx, Tick{});
     tracker.mark(map);
   }
@@ -91,8 +94,9 @@ void BM_StrataCoverSite(benchmark::State& state) {
     for (int lane = 0; lane < lanes; ++lane)
       for (double s = 0; s + 0.2 <= side + 1e-9; s += 0.2) {
         ++index;
-        site->bus.publish<SweepRecord>(SweepRecord::kType, 0.0, std::make_shared<const SweepRecord>(sweepAt(index, lane, s, side)));
-        site->process();
+        const double t = 0.25 * static_cast<double>(index);  // 0.2 m of travel at 0.8 m/s
+        site->bus.publish<SweepRecord>(SweepRecord::kType, t, std::make_shared<const SweepRecord>(sweepAt(index, lane, s, side)));
+        site->process(t);
         SoilEstimateRecord e;
         e.sweep_index = index;
         e.T_map_blade1.translation() = Eigen::Vector3d(s + 0.2, 0.8 + 1.6 * lane, 0.0);
@@ -100,9 +104,10 @@ void BM_StrataCoverSite(benchmark::State& state) {
         e.mean = {10e3 + 100.0 * (index % 50), 0.5, 4e3, 0.35, 16e3};
         e.var_total = {4e6, 0.01, 1e6, 0.004, 1e6};
         e.valid = true;
-        site->bus.publish<SoilEstimateRecord>(SoilEstimateRecord::kType, 0.0, std::make_shared<const SoilEstimateRecord>(e));
-        site->process();
+        site->bus.publish<SoilEstimateRecord>(SoilEstimateRecord::kType, t, std::make_shared<const SoilEstimateRecord>(e));
+        site->process(t);
       }
+    site->plugin.finish(site->ctx);
     sweeps += index;
     state.PauseTiming();
     voxels += site->stats.counters["voxels_removed"];

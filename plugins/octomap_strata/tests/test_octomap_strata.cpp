@@ -116,7 +116,9 @@ TEST(Strata, TheSoilBelowInheritsTheEstimateWithVarianceInflatedByDepth) {
     // the estimate's mean with a variance far beyond the prior's.
     EXPECT_NEAR(s.soilAt(0.025, 0.025, 0.79).mean[0], 12e3, 2e3);
     EXPECT_NEAR(s.soilAt(0.025, 0.025, -2.0).mean[0], prior_below ? 30e3 : 12e3, 1e3) << prior_below;
-    if (!prior_below) EXPECT_GT(s.soilAt(0.025, 0.025, -2.0).var[0], 100 * c.prior_var[0]);
+    if (!prior_below) {
+      EXPECT_GT(s.soilAt(0.025, 0.025, -2.0).var[0], 100 * c.prior_var[0]);
+    }
   }
 }
 
@@ -574,6 +576,30 @@ TEST(OctomapStrataPlugin, LayersShowTheNextCutTheRemovedDepthAndTheChange) {
   EXPECT_TRUE(std::isnan(h.at("strata_next_c", {2.0, 2.0})));  // never cut, no surface layers
   // 4 sweeps x 33 cells of 0.1 m = 4 columns each x 2 voxels of 0.05 m.
   EXPECT_DOUBLE_EQ(h.stats.counters.at("voxels_estimated"), 4 * 33 * 4 * 2.0);
+}
+
+TEST(OctomapStrataPlugin, AChangeCellIsRecomputedWhenAColumnWithinItsPoolingRadiusIsCut) {
+  // change_radius_m pools each cell's neighbours, so cutting a column changes the change layer of
+  // the cells around it too, which no sweep touched.
+  Harness h(1, {{"change_min_voxels", ParamValue{2L}}, {"change_radius_m", ParamValue{0.15}},
+                {"change_interval_s", ParamValue{0.0}}});
+  h.loamOverClay();  // the strip x 0..0.3: clay from 0.2 m down
+  const Eigen::Vector2d edge(0.25, 0.05), inside(0.05, 0.05);
+  const float before = h.at("strata_change_z_m", edge), inside_before = h.at("strata_change_z_m", inside);
+  ASSERT_TRUE(std::isfinite(before));
+  // The strip beside it (x 0.3..0.6), whose clay starts a pass higher.
+  const double c[4] = {8e3, 55e3, 55e3, 55e3};
+  for (int k = 0; k < 4; ++k) {
+    h.sweep(10 + k, 0.3, 1.0 - 0.1 * k, 0.9 - 0.1 * k);
+    h.event();
+    h.estimate(10 + k, 0.6, c[k]);
+    h.event();
+  }
+  const float after = h.at("strata_change_z_m", edge);
+  EXPECT_NE(after, before);  // the neighbours' levels moved it
+  EXPECT_FLOAT_EQ(after, static_cast<float>(h.plugin.model().changeHeightAt(edge.x(), edge.y(), 2, 0.3, 0.15)));
+  // Beyond the radius from every new cut: as it was.
+  EXPECT_EQ(h.at("strata_change_z_m", inside), inside_before);
 }
 
 TEST(OctomapStrataPlugin, AFirstFitAboveTheSurfaceTheMapHeldBeforeStartsFromThatSurface) {
