@@ -196,7 +196,11 @@ struct ErrorSum {
   }
   /// `count` names what was counted (cells, steps).
   nlohmann::json json(const char* count = "cells") const {
-    return {{count, n}, {"mae_n", mae()}, {"rmse_n", n ? std::sqrt(sq / n) : std::nan("")}, {"relative", relative()}, {"median_abs_n", median()}};
+    return {{count, n},
+            {"mae_n", mae()},
+            {"rmse_n", n ? std::sqrt(sq / n) : std::nan("")},
+            {"relative", relative()},
+            {"median_abs_n", median()}};
   }
 };
 
@@ -314,7 +318,8 @@ using SoilLayerIds = std::array<LayerId, soil::kSoilParamCount>;
 
 SoilLayerIds soilLayers(const LayeredMap& map, const std::string& prefix) {
   SoilLayerIds ids{};
-  for (int q = 0; q < soil::kSoilParamCount; ++q) ids[static_cast<std::size_t>(q)] = map.layerId(prefix + soil::kSoilParams[q].name);
+  for (int q = 0; q < soil::kSoilParamCount; ++q)
+    ids[static_cast<std::size_t>(q)] = map.layerId(prefix + soil::kSoilParams[q].name);
   return ids;
 }
 

@@ -20,13 +20,15 @@
 /// Removed soil: a sweep removes, in every column it cut, the voxels whose centres lie between
 /// the new surface (the swept volume's bottom, SweepMaskCell::sv_bottom_m) and `top`. When the
 /// sweep's estimate arrives (it is published later, SoilEstimateRecord), those voxels take the
-/// product of the prior and the estimate: N(μ, σ²) = prior × N(μ̂, σ̂²). Until then, and for
+/// product of the prior and the estimate, N(μ, σ²) = prior × N(μ̂, σ̂²) (the estimate as is
+/// with StrataConfig::use_prior off). Until then, and for
 /// good when the estimate is invalid or never comes, they hold the belief predicted for them
 /// before the cut (kind Predicted).
-/// Below the surface: soilAt(x, y, z) under `top` is the prior times the inherited estimate
-/// with its variance inflated by depth below the anchor, σ̂² · exp((anchor − z) / L) with L =
-/// `inflation_depth_m`; a column no sweep cut keeps the prior. The soil above (removed) is the
-/// best guess for the soil below, with a confidence that fades with depth.
+/// Below the surface: soilAt(x, y, z) under `top` is the inherited estimate with its variance
+/// inflated by depth below the anchor, N(μ̂, σ̂² · exp((anchor − z) / L)) with L =
+/// `inflation_depth_m` (times the prior with StrataConfig::prior_below); a column no sweep cut
+/// keeps the prior. The soil above (removed) is the best guess for the soil below, with a
+/// confidence that fades with depth.
 ///
 /// Storage: only removed voxels are stored in the tree (the prediction below is a closed form
 /// of the column), so memory grows with the volume cut, not with the site; uniform regions
@@ -102,7 +104,7 @@ enum class SoilSource {
   Outside,    ///< outside the extent: mean and variance NaN
   Air,        ///< above the initial surface of a cut column: nothing was ever there (NaN)
   Prior,      ///< a column no sweep cut (or below its extent): the configured prior
-  Inherited,  ///< below the surface of a cut column: prior × depth-inflated inherited estimate
+  Inherited,  ///< below the surface of a cut column: the depth-inflated inherited estimate (× prior with prior_below)
   Removed,    ///< a removed voxel whose sweep's estimate arrived
   Predicted,  ///< a removed voxel whose sweep's estimate has not arrived or was invalid: the
               ///< prediction made for it before the cut
@@ -170,8 +172,8 @@ class Strata {
   /// A sweep cut these cells: the voxels between the new surface and the column's surface are
   /// removed and wait for sweep `sweep`'s estimate. Returns the number of voxels removed.
   long applyCut(long sweep, const std::vector<CellCut>& cells);
-  /// Sweep `sweep`'s estimate: its removed voxels take prior × N(mean, var), the columns it cut
-  /// inherit it. `mean`/`var` null or not finite = no valid estimate: the voxels keep their
+  /// Sweep `sweep`'s estimate: its removed voxels take prior × N(mean, var) (N(mean, var) without
+  /// use_prior), the columns it cut inherit it. `mean`/`var` null or not finite = no valid estimate: the voxels keep their
   /// prediction. Returns the voxels written (0 when no pending sweep has that index); appends
   /// the centres of the columns the sweep cut to `columns` when given.
   long assignEstimate(long sweep, const SoilVector* mean, const SoilVector* var,
