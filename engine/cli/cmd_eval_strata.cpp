@@ -77,11 +77,11 @@ struct ForceStep {
   double t = 0;
   Eigen::Vector3d edge = Eigen::Vector3d::Zero();     ///< cutting-edge centre, map frame, m
   Eigen::Vector3d lateral = Eigen::Vector3d::UnitY();  ///< along the edge, unit
-  double width_m = 0;                                  ///< the blade's width
   fee::Geometry geometry;  ///< the simulator's summary of the cut (depth-weighted over its slices)
   fee::Soil truth_soil;    ///< the soil the truth cut (depth-weighted over its slices)
-  /// The truth force without its sensor noise (MachineTruth::force_quiet_map_N), in the blade's
-  /// push direction and up, N: what the FEE prediction is judged against.
+  /// The truth force without its sensor noise (MachineTruth::force_quiet_map_N), the blade's on
+  /// the soil (as fee::Result::F_total_N) along its push and up, N: the draft (x) is what the
+  /// FEE predictions are judged against, the vertical shows why (nextPassForces).
   Eigen::Vector2d force_n = Eigen::Vector2d::Zero();
   fee::Soil surface{NAN, NAN, NAN, NAN, NAN}, strata{NAN, NAN, NAN, NAN, NAN};
 };
@@ -115,19 +115,18 @@ std::vector<Snapshot> truthSnapshots(const sim::Scenario& sc, const Geometry& g,
   bool reversing = false;
   while (s.next(ev)) {
     ev.clear();
-    const sim::FeeTruth& f = s.machineTruth(0).fee;
+    const sim::MachineTruth& mt = s.machineTruth(0);
+    const sim::FeeTruth& f = mt.fee;
     cut_soil.t.push_back(s.time());
     cut_soil.soil.push_back({f.c_pa, f.phi_rad, f.ca_pa, f.delta_rad, f.gamma_n_m3});
-    const sim::MachineTruth& mt = s.machineTruth(0);
     const double v = mt.twist_base(0);
     if (v > 0.05 && !mt.stalled && f.cutting_slices > 0 && f.invalid_slices == 0 && std::isfinite(f.depth_m)) {
       ForceStep st;
       st.t = s.time();
       st.edge = mt.T_map_blade.translation();
       st.lateral = mt.T_map_blade.linear().col(1);
-      st.width_m = sc.machines[0].blade.width_m;
       st.geometry = {f.alpha_rad, f.rho_rad, f.depth_m, f.width_m, f.q_n};
-      st.truth_soil = {f.c_pa, f.phi_rad, f.gamma_n_m3, f.ca_pa, f.delta_rad};
+      st.truth_soil = soil::toFee(cut_soil.soil.back());
       // The push direction as the simulator takes it: the blade's x axis on the ground plane.
       Eigen::Vector3d push = mt.T_map_blade.linear().col(0);
       push.z() = 0;
@@ -323,14 +322,14 @@ SoilLayerIds soilLayers(const LayeredMap& map, const std::string& prefix) {
   return ids;
 }
 
-/// The map's soil under a blade edge: each property's mean over the cells under points spread
-/// across the blade's width where all five layers hold a value; NaN fields where none does.
-fee::Soil soilUnderEdge(const LayeredMap& map, const SoilLayerIds& ids, const ForceStep& s) {
+/// The map's soil under a blade edge `width_m` wide: each property's mean over the cells under
+/// points spread across it where all five layers hold a value; NaN fields where none does.
+fee::Soil soilUnderEdge(const LayeredMap& map, const SoilLayerIds& ids, const ForceStep& s, double width_m) {
   constexpr int kPoints = 9;  // a point every ~0.2 m of a 1.85 m blade: four cells apart at 5 cm
   soil::SoilParamVector sum{};
   int n = 0;
   for (int k = 0; k < kPoints; ++k) {
-    const Eigen::Vector3d p = s.edge + s.lateral * (s.width_m * ((k + 0.5) / kPoints - 0.5));
+    const Eigen::Vector3d p = s.edge + s.lateral * (width_m * ((k + 0.5) / kPoints - 0.5));
     const std::optional<Index> idx = map.geometry().indexAt(Position(p.x(), p.y()));
     if (!idx) continue;
     soil::SoilParamVector v{};
@@ -350,9 +349,9 @@ fee::Soil soilUnderEdge(const LayeredMap& map, const SoilLayerIds& ids, const Fo
 
 /// One pipeline run over the whole scenario, with its usual outputs in --out. At each pass start
 /// it samples both index layers and, for every step of the truth run in that pass, the two soil
-/// beliefs under the edge's position then (`steps`, sorted by time).
+/// beliefs under the edge's position then (`steps`, sorted by time; a blade `blade_width_m` wide).
 MapSamples runAndSample(const PipelineSpec& spec, const StrataArgs& a, const Stages& st, const std::vector<Snapshot>& snaps,
-                        std::vector<ForceStep>& steps) {
+                        std::vector<ForceStep>& steps, double blade_width_m) {
   MapSamples m;
   std::size_t next_start = 0;  // snaps[0 .. K-2] are pass starts, the last one the end
   std::size_t step = 0;
@@ -366,8 +365,8 @@ MapSamples runAndSample(const PipelineSpec& spec, const StrataArgs& a, const Sta
       const SoilLayerIds surface = soilLayers(map, "soil_"), next = soilLayers(map, "strata_next_");
       while (step < steps.size() && steps[step].t < snaps[next_start].t) ++step;  // the first pass: no map yet
       for (; step < steps.size() && steps[step].t < snaps[next_start + 1].t; ++step) {
-        steps[step].surface = soilUnderEdge(map, surface, steps[step]);
-        steps[step].strata = soilUnderEdge(map, next, steps[step]);
+        steps[step].surface = soilUnderEdge(map, surface, steps[step], blade_width_m);
+        steps[step].strata = soilUnderEdge(map, next, steps[step], blade_width_m);
       }
       ++next_start;
     }
@@ -420,14 +419,14 @@ nlohmann::json nextPassErrors(const StrataArgs& a, const Stages& st, const Geome
   return {{"passes", passes}, {"surface", total_surface.json()}, {"strata", total_next.json()}};
 }
 
-/// The FEE's draft (F_total along the push: with the adhesion along the face, as the simulator's
-/// truth) of `soil` on one step's cut; NaN where the FEE has no valid solution. β* where it
-/// exists, else Rankine's angle, as the simulator takes it.
-double feeDraftOn(const fee::Soil& soil, const ForceStep& s) {
+/// The FEE's force (F_total: with the adhesion along the face, as the simulator's truth; along
+/// the push and up) of `soil` on one step's cut; NaN where the FEE has no valid solution. β*
+/// where it exists, else Rankine's angle, as the simulator takes it.
+Eigen::Vector2d feeForceOn(const fee::Soil& soil, const ForceStep& s) {
   double beta = fee::betaMin(soil, s.geometry);
   if (!std::isfinite(beta)) beta = fee::betaNominal(soil);
   const fee::Result r = fee::evaluate(soil, s.geometry, beta);
-  return r.valid() ? r.F_total_N.x() : std::nan("");
+  return r.valid() ? r.F_total_N : Eigen::Vector2d::Constant(std::nan(""));
 }
 
 /// The comparison: per pass k + 2, the FEE draft of the map's two soil beliefs at the
@@ -436,11 +435,13 @@ double feeDraftOn(const fee::Soil& soil, const ForceStep& s) {
 /// sensor noise). The geometry of each step (depth, slope, rake, width, surcharge) is the truth's
 /// for all three, so only the soil differs; the FEE of the truth's own soil on it is the floor
 /// (what the FEE on one soil cannot model: the slices' own depths and soils, inertia). The draft,
-/// not |F|: the truth's vertical force is mostly the edge's bearing while it descends (~10 kN in
-/// the loam), which no FEE of any soil holds, so |F| would judge that term instead of the soil.
+/// not |F|: the truth's vertical force is mostly the edge's bearing while it descends, which no
+/// FEE of any soil holds, so |F| would judge that term instead of the soil; the command prints
+/// the truth soil's error on |F| and both vertical means to show it.
 nlohmann::json nextPassForces(const StrataArgs& a, const std::vector<Snapshot>& snaps,
                               const std::vector<ForceStep>& steps) {
-  ErrorSum total_surface, total_next, total_truth;
+  ErrorSum total_surface, total_next, total_truth, truth_abs;  // truth_abs: the truth soil on |F|
+  double vertical_truth = 0, vertical_fee = 0;                  // sums over the judged steps, N
   long no_belief = 0, fee_invalid = 0, strata_closer = 0, surface_closer = 0;  // the rest: equally close
   nlohmann::json passes = nlohmann::json::array();
   if (!a.quiet)
@@ -457,12 +458,16 @@ nlohmann::json nextPassForces(const StrataArgs& a, const std::vector<Snapshot>& 
         ++no_belief;
         continue;
       }
-      const double fs_ = feeDraftOn(s.surface, s), fn = feeDraftOn(s.strata, s), ft = feeDraftOn(s.truth_soil, s);
+      const Eigen::Vector2d f_truth_soil = feeForceOn(s.truth_soil, s);
+      const double fs_ = feeForceOn(s.surface, s).x(), fn = feeForceOn(s.strata, s).x(), ft = f_truth_soil.x();
       if (!std::isfinite(fs_) || !std::isfinite(fn) || !std::isfinite(ft)) {
         ++fee_invalid;
         continue;
       }
       const double truth = s.force_n.x();
+      truth_abs.add(f_truth_soil.norm(), s.force_n.norm());
+      vertical_truth += s.force_n.y();
+      vertical_fee += f_truth_soil.y();
       es.add(fs_, truth);
       en.add(fn, truth);
       et.add(ft, truth);
@@ -484,14 +489,20 @@ nlohmann::json nextPassForces(const StrataArgs& a, const std::vector<Snapshot>& 
     std::printf("  all   %23ld %11.2f kN %11.2f kN %11.2f kN  (relative %.1f %% / %.1f %% / %.1f %%)\n"
                 "  median  %29.2f kN %11.2f kN %11.2f kN; the closer: the strata's in %.1f %% of the steps, the surface's in "
                 "%.1f %%\n"
-                "  steps left out: %ld without a belief under the edge, %ld where a belief's FEE had no valid solution\n",
+                "  steps left out: %ld without a belief under the edge, %ld where a belief's FEE had no valid solution\n"
+                "  why the draft: the truth soil's FEE on |F| is %.1f %% off; the vertical force averages %.2f kN in the "
+                "truth, %.2f kN in that FEE (the edge's bearing while it descends)\n",
                 total_surface.n, total_surface.mae() * 1e-3, total_next.mae() * 1e-3, total_truth.mae() * 1e-3,
                 100 * total_surface.relative(), 100 * total_next.relative(), 100 * total_truth.relative(),
                 total_surface.median() * 1e-3, total_next.median() * 1e-3, total_truth.median() * 1e-3, 100 * closer, 100 * surface_closer_share,
-                no_belief, fee_invalid);
+                no_belief, fee_invalid, 100 * truth_abs.relative(), vertical_truth / total_truth.n * 1e-3,
+                vertical_fee / total_truth.n * 1e-3);
   return {{"passes", passes}, {"surface", total_surface.json("steps")}, {"strata", total_next.json("steps")},
           {"truth_soil", total_truth.json("steps")}, {"strata_closer_fraction", closer}, {"surface_closer_fraction", surface_closer_share},
-          {"steps_without_belief", no_belief}, {"steps_fee_invalid", fee_invalid}};
+          {"steps_without_belief", no_belief}, {"steps_fee_invalid", fee_invalid},
+          {"truth_soil_abs_force", truth_abs.json("steps")},
+          {"vertical_mean_n", {{"truth", total_truth.n ? vertical_truth / total_truth.n : std::nan("")},
+                               {"truth_soil_fee", total_truth.n ? vertical_fee / total_truth.n : std::nan("")}}}};
 }
 
 /// In the columns cut through the zone's top (the bank at the end at least one voxel below it):
@@ -684,7 +695,7 @@ int runEvalStrata(const StrataArgs& a) {
     useOracle(spec, a, sc, *zone, cut_soil);
     if (!a.quiet) std::printf("soil_pinn replaced by soil_oracle (noise %.3g x the soils' difference)\n", a.oracle_noise);
   }
-  const MapSamples m = runAndSample(spec, a, st, snaps, steps);
+  const MapSamples m = runAndSample(spec, a, st, snaps, steps, sc.machines.front().blade.width_m);
 
   nlohmann::json report;
   report["scenario"] = scenario;

@@ -277,8 +277,8 @@ TEST(Cli, EvalStrataComparesTheNextPassForceIndicesAndTheBoundaryWithTheTruth) {
   // The comparison, against the simulator's force: every step the truth blade cut in
   // passes 2-4, judged for both beliefs and for the truth soil on the same steps. The truth soil's
   // FEE on each step's truth geometry is the truth's own draft to ~1 %, which only holds when the
-  // step's geometry, force, push direction and time are paired right (|F| instead of the draft
-  // was 36 % off: the edge's bearing while it descends is in the vertical).
+  // step's geometry, force, push direction and time are paired right. On |F| it is 36 % off: the
+  // edge's bearing while it descends is in the truth's vertical and in no FEE.
   const auto& force = j["next_pass_force"];
   ASSERT_GE(force["passes"].size(), 2u) << force.dump(1);
   EXPECT_GT(force["surface"]["steps"].get<long>(), 200) << force.dump(1);
@@ -287,6 +287,7 @@ TEST(Cli, EvalStrataComparesTheNextPassForceIndicesAndTheBoundaryWithTheTruth) {
   EXPECT_LT(force["truth_soil"]["relative"].get<double>(), 0.05) << force.dump(1);
   EXPECT_GT(force["surface"]["relative"].get<double>(), force["truth_soil"]["relative"].get<double>()) << force.dump(1);
   EXPECT_TRUE(force.contains("strata_closer_fraction"));
+  EXPECT_GT(force["truth_soil_abs_force"]["relative"].get<double>(), 0.2) << force.dump(1);
   EXPECT_TRUE(j["boundary"].contains("columns_cut_through"));
   EXPECT_GT(j["estimator"]["estimates"]["default"].get<long>(), 0);  // the loam is cut from the first pass
   EXPECT_TRUE(j["estimator"]["properties"]["c"].contains("d_prime"));
