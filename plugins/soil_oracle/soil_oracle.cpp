@@ -1,7 +1,7 @@
 #include "soil_oracle.hpp"
 
 #include <terramap/core/error.hpp>
-#include <terramap/soil/estimate_report.hpp>
+#include <terramap/soil/publish_estimate.hpp>
 #include <terramap/soil/soil_parameters.hpp>
 
 #include <nlohmann/json.hpp>
@@ -154,13 +154,7 @@ void SoilOracle::collect(ProcessContext& ctx) {
     const auto& sweep = *std::static_pointer_cast<const SweepRecord>(rec.payload);
     auto e = std::make_shared<const SoilEstimateRecord>(estimate(sweep));
     ctx.addCounter("sweeps", 1);
-    ctx.addCounter("estimates", 1);
-    if (!e->valid) {
-      ctx.addCounter("estimates_invalid", 1);
-      ctx.countDrop("estimate_" + e->invalid_reason);
-    }
-    ctx.reportRecord(soil::estimateReportJson(*e));
-    ctx.records().publish<SoilEstimateRecord>(SoilEstimateRecord::kType, e->stamp, e);
+    soil::publishEstimate(ctx, e);
   }
 }
 

@@ -1,7 +1,7 @@
 #include "soil_pinn_plugin.hpp"
 
 #include <terramap/core/error.hpp>
-#include <terramap/soil/estimate_report.hpp>
+#include <terramap/soil/publish_estimate.hpp>
 #include <terramap/soil/fee.hpp>
 
 #include <ATen/Parallel.h>
@@ -129,13 +129,7 @@ void SoilPinn::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
   const pinn::SoilEstimate e = estimator_->estimateFast(sample, tol_);
   auto rec = std::make_shared<const SoilEstimateRecord>(
       soilEstimateRecord(sweep, sample, e, static_cast<int>(estimator_->size())));
-  ctx.addCounter("estimates", 1);
-  if (!rec->valid) {
-    ctx.addCounter("estimates_invalid", 1);
-    ctx.countDrop("estimate_" + rec->invalid_reason);
-  }
-  ctx.reportRecord(soil::estimateReportJson(*rec));
-  ctx.records().publish<SoilEstimateRecord>(SoilEstimateRecord::kType, rec->stamp, rec);
+  soil::publishEstimate(ctx, rec);
 }
 
 void SoilPinn::process(ProcessContext& ctx, const Event& event) {
