@@ -280,13 +280,10 @@ void Strata::resolve(long sweep, const std::vector<PendingColumn>& cols, const S
   }
   ++counters_.estimates_assigned;
   SoilBelief post;
-  post.mean = *mean;
-  post.var = *var;
-  if (cfg_.use_prior) {
-    post.mean = cfg_.prior_mean;
-    post.var = cfg_.prior_var;
+  post.mean = cfg_.use_prior ? cfg_.prior_mean : *mean;
+  post.var = cfg_.use_prior ? cfg_.prior_var : *var;
+  if (cfg_.use_prior)
     for (int q = 0; q < kP; ++q) fuse(post.mean[q], post.var[q], (*mean)[q], (*var)[q]);
-  }
   VoxelBelief v = toVoxel(post, VoxelBelief::kEstimated);
   for (const PendingColumn& pc : cols) {
     v.top = pc.top;
@@ -666,9 +663,9 @@ Strata Strata::load(const std::filesystem::path& path) {
   for (int q = 0; q < kP; ++q) ok = ok && get(f, cfg.prior_mean[q]);
   for (int q = 0; q < kP; ++q) ok = ok && get(f, cfg.prior_var[q]);
   // Format 3 always fused the prior, format 4 in both places or neither.
-  std::uint8_t use_prior = 1, prior_below = 1;
+  std::uint8_t use_prior = 1;
   if (line != kTrailerV3) ok = ok && get(f, use_prior);
-  prior_below = use_prior;
+  std::uint8_t prior_below = use_prior;
   if (line == kTrailer) ok = ok && get(f, prior_below);
   if (use_prior > 1 || prior_below > 1) throw bad("the trailer's prior flags are not 0 or 1");
   cfg.use_prior = use_prior == 1;

@@ -104,7 +104,8 @@ enum class SoilSource {
   Outside,    ///< outside the extent: mean and variance NaN
   Air,        ///< above the initial surface of a cut column: nothing was ever there (NaN)
   Prior,      ///< a column no sweep cut (or below its extent): the configured prior
-  Inherited,  ///< below the surface of a cut column: the depth-inflated inherited estimate (× prior with prior_below)
+  Inherited,  ///< below the surface of a cut column: the depth-inflated inherited estimate
+              ///< (× prior with prior_below)
   Removed,    ///< a removed voxel whose sweep's estimate arrived
   Predicted,  ///< a removed voxel whose sweep's estimate has not arrived or was invalid: the
               ///< prediction made for it before the cut
@@ -173,8 +174,8 @@ class Strata {
   /// removed and wait for sweep `sweep`'s estimate. Returns the number of voxels removed.
   long applyCut(long sweep, const std::vector<CellCut>& cells);
   /// Sweep `sweep`'s estimate: its removed voxels take prior × N(mean, var) (N(mean, var) without
-  /// use_prior), the columns it cut inherit it. `mean`/`var` null or not finite = no valid estimate: the voxels keep their
-  /// prediction. Returns the voxels written (0 when no pending sweep has that index); appends
+  /// use_prior), the columns it cut inherit it. `mean`/`var` null or not finite = no valid
+  /// estimate: the voxels keep their prediction. Returns the voxels written (0 when no pending sweep has that index); appends
   /// the centres of the columns the sweep cut to `columns` when given.
   long assignEstimate(long sweep, const SoilVector* mean, const SoilVector* var,
                       std::vector<Eigen::Vector2d>* columns = nullptr);
@@ -206,9 +207,8 @@ class Strata {
   /// cut (a few cm, not a voxel). It is halfway between the mean surface the sweeps of the
   /// lowest level above the split left (VoxelBelief::bottom) and the mean surface the sweeps of
   /// the highest level below it started from (VoxelBelief::top); they coincide when one sweep
-  /// followed the other, and differ by a slab no voxel centre lay in. Either alone when the
-  /// other is unknown, the face between the levels when both are; clamped to within half a
-  /// voxel of that face (where one column's slabs must end). Then a level beside the split whose
+  /// followed the other, and differ by a slab no voxel centre lay in; clamped to within half a
+  /// voxel of the face between the two levels (where one column's slabs must end). Then a level beside the split whose
   /// soil lies between the two runs' (a sweep that cut across the change) moves it into that
   /// level's slab by the fraction of the other run's soil it holds (linear mix, the projection
   /// on the line between the runs' means), within a voxel of the face.
