@@ -404,18 +404,18 @@ nlohmann::json nextPassErrors(const StrataArgs& a, const Stages& st, const Geome
         if (!std::isfinite(ti)) continue;
         es.add(fs_, ti);
         en.add(fn, ti);
-        total_surface.add(fs_, ti);
-        total_next.add(fn, ti);
       }
+    total_surface.merge(es);
+    total_next.merge(en);
     passes.push_back({{"pass", k + 2}, {"start_s", snaps[k].t}, {"end_s", snaps[k + 1].t}, {"surface", es.json()}, {"strata", en.json()}});
     if (!a.quiet)
       std::printf("  %-5zu %7.1f %7.1f %8ld %11.2f kN %11.2f kN\n", k + 2, snaps[k].t, snaps[k + 1].t, es.n,
-                  es.n ? es.abs / es.n * 1e-3 : std::nan(""), en.n ? en.abs / en.n * 1e-3 : std::nan(""));
+                  es.mae() * 1e-3, en.mae() * 1e-3);
   }
   if (!a.quiet && total_surface.n > 0)
     std::printf("  all   %23ld %11.2f kN %11.2f kN  (relative %.1f %% / %.1f %%)\n", total_surface.n,
-                total_surface.abs / total_surface.n * 1e-3, total_next.abs / total_next.n * 1e-3,
-                100 * total_surface.json()["relative"].get<double>(), 100 * total_next.json()["relative"].get<double>());
+                total_surface.mae() * 1e-3, total_next.mae() * 1e-3, 100 * total_surface.relative(),
+                100 * total_next.relative());
   return {{"passes", passes}, {"surface", total_surface.json()}, {"strata", total_next.json()}};
 }
 
