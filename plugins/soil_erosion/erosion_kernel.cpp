@@ -146,8 +146,8 @@ bool ErosionSolver::exchange(ErosionGrid& g, size_t o, size_t n, double& v) cons
   return true;
 }
 
-bool ErosionSolver::colour(ErosionGrid& g, std::vector<double>& vi, std::vector<double>& vj, int pr, int pc,
-                           int di, int dj, int row_begin, int row_end, int col_begin, int col_end) const {
+bool ErosionSolver::colour(ErosionGrid& g, int pr, int pc, int di, int dj, int row_begin, int row_end,
+                           int col_begin, int col_end) const {
   bool any = false;
   for (int i = row_begin; i < row_end; ++i) {
     if ((i & 1) != pr) continue;
@@ -155,9 +155,9 @@ bool ErosionSolver::colour(ErosionGrid& g, std::vector<double>& vi, std::vector<
     const bool row_ok = ni >= 0 && ni < g.rows;
     for (int j = col_begin + ((col_begin & 1) != pc ? 1 : 0); j < col_end; j += 2) {
       const size_t o = g.at(i, j);
-      if (row_ok) any |= exchange(g, o, g.at(ni, j), vi[o]);
+      if (row_ok) any |= exchange(g, o, g.at(ni, j), g.vi[o]);
       const int nj = j + dj;
-      if (nj >= 0 && nj < g.cols) any |= exchange(g, o, g.at(i, nj), vj[o]);
+      if (nj >= 0 && nj < g.cols) any |= exchange(g, o, g.at(i, nj), g.vj[o]);
     }
   }
   return any;
@@ -173,12 +173,12 @@ constexpr int kReach = 9;
 struct Block {
   int r0, r1, c0, c1;
 };
-Block liveBlock(const ErosionGrid& g, const std::vector<double>& vi, const std::vector<double>& vj, const Block& in) {
+Block liveBlock(const ErosionGrid& g, const Block& in) {
   int r0 = g.rows, r1 = -1, c0 = g.cols, c1 = -1;
   for (int i = in.r0; i < in.r1; ++i)
     for (int j = in.c0; j < in.c1; ++j) {
       const size_t k = g.at(i, j);
-      if (g.L[k] > 0 || vi[k] != 0 || vj[k] != 0) {
+      if (g.L[k] > 0 || g.vi[k] != 0 || g.vj[k] != 0) {
         r0 = std::min(r0, i);
         r1 = std::max(r1, i);
         c0 = std::min(c0, j);
@@ -193,11 +193,12 @@ Block liveBlock(const ErosionGrid& g, const std::vector<double>& vi, const std::
 
 void ErosionSolver::pass(ErosionGrid& g, int di, int dj, const Executor& ex) const {
   if (g.rows == 0 || g.cols == 0) return;
-  std::vector<double> vi(g.H.size(), 0.0), vj(g.H.size(), 0.0);
+  g.vi.assign(g.H.size(), 0.0);
+  g.vj.assign(g.H.size(), 0.0);
   static const int order[4][2] = {{0, 0}, {0, 1}, {1, 0}, {1, 1}};
   Block b{0, g.rows, 0, g.cols};
   for (int s = 0; s < cfg_.substeps; ++s) {
-    b = liveBlock(g, vi, vj, b);
+    b = liveBlock(g, b);
     const int rows = b.r1 - b.r0;
     if (rows <= 0) break;  // nothing loose and nothing moving: the pass is over
     // Below ~4k owners per colour a task costs more than it saves; the result is the same
@@ -207,12 +208,12 @@ void ErosionSolver::pass(ErosionGrid& g, int di, int dj, const Executor& ex) con
     bool any = false;
     for (const auto& c : order) {
       if (chunks <= 1) {
-        any |= colour(g, vi, vj, c[0], c[1], di, dj, b.r0, b.r1, b.c0, b.c1);
+        any |= colour(g, c[0], c[1], di, dj, b.r0, b.r1, b.c0, b.c1);
       } else {
         std::vector<char> moved(static_cast<size_t>(chunks), 0);
         ex.forEach(chunks, [&](int k) {
           const int rb = b.r0 + rows * k / chunks, re = b.r0 + rows * (k + 1) / chunks;
-          moved[static_cast<size_t>(k)] = colour(g, vi, vj, c[0], c[1], di, dj, rb, re, b.c0, b.c1) ? 1 : 0;
+          moved[static_cast<size_t>(k)] = colour(g, c[0], c[1], di, dj, rb, re, b.c0, b.c1) ? 1 : 0;
         });
         for (char m : moved) any |= m != 0;
       }
@@ -225,10 +226,11 @@ void ErosionSolver::pass(ErosionGrid& g, int di, int dj, const Executor& ex) con
 
 void ErosionSolver::passSerial(ErosionGrid& g, int di, int dj) const {
   // Every owner, every sub-step, no live-block skipping: the plain reference.
-  std::vector<double> vi(g.H.size(), 0.0), vj(g.H.size(), 0.0);
+  g.vi.assign(g.H.size(), 0.0);
+  g.vj.assign(g.H.size(), 0.0);
   for (int s = 0; s < cfg_.substeps; ++s)
     for (int pr = 0; pr < 2; ++pr)
-      for (int pc = 0; pc < 2; ++pc) colour(g, vi, vj, pr, pc, di, dj, 0, g.rows, 0, g.cols);
+      for (int pc = 0; pc < 2; ++pc) colour(g, pr, pc, di, dj, 0, g.rows, 0, g.cols);
 }
 
 }  // namespace terramap::plugins

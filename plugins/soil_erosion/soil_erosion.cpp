@@ -107,11 +107,14 @@ void SoilErosion::erodeAround(ProcessContext& ctx, const SweepRecord& rec) {
     ctx.countDrop("tile_budget");
     return;
   }
-  std::vector<double> H0, L0, S0;
+  Scratch& sc = scratch_;
+  std::vector<double>& H0 = sc.H0;
+  std::vector<double>& L0 = sc.L0;
+  std::vector<double>& S0 = sc.S0;
   win.gather(map, elevation_, H0);
   win.gather(map, loose_, L0);
   win.gather(map, sigma_, S0);
-  ErosionGrid g;
+  ErosionGrid& g = sc.grid;
   g.resize(win.rows(), win.cols());
   for (int r = 0; r < win.rows(); ++r)
     for (int cc = 0; cc < win.cols(); ++cc) {
@@ -136,7 +139,10 @@ void SoilErosion::erodeAround(ProcessContext& ctx, const SweepRecord& rec) {
   passes_run_ += passes_;
 
   // Loose layer: write back where it was NaN only if soil arrived (NaN stays NaN otherwise).
-  std::vector<double> L1(g.L.size()), S1 = S0;
+  std::vector<double>& L1 = sc.L1;
+  std::vector<double>& S1 = sc.S1;
+  L1.resize(g.L.size());
+  S1 = S0;
   double moved = 0;
   for (size_t k = 0; k < g.L.size(); ++k) {
     L1[k] = (!std::isfinite(L0[k]) && g.L[k] == 0.0) ? L0[k] : g.L[k];
@@ -156,7 +162,8 @@ void SoilErosion::erodeAround(ProcessContext& ctx, const SweepRecord& rec) {
   // the valid-cell convention upper_bound = elevation follows the move. is_valid is kept: the
   // surface is the old one, shifted by at most the slip, so what rays said of it still holds.
   if (variance_ >= 0) {
-    std::vector<double> V0, V;
+    std::vector<double>& V0 = sc.V0;
+    std::vector<double>& V = sc.V;
     win.gather(map, variance_, V0);
     V = V0;
     for (size_t k = 0; k < V.size(); ++k) {
@@ -168,10 +175,14 @@ void SoilErosion::erodeAround(ProcessContext& ctx, const SweepRecord& rec) {
     win.scatterChanged(map, variance_, V0, V);
   }
   if (upper_bound_ >= 0 && is_upper_bound_ >= 0) {
-    std::vector<double> U0, I0;
+    std::vector<double>& U0 = sc.U0;
+    std::vector<double>& I0 = sc.I0;
+    std::vector<double>& U = sc.U;
+    std::vector<double>& I = sc.I;
     win.gather(map, upper_bound_, U0);
     win.gather(map, is_upper_bound_, I0);
-    std::vector<double> U = U0, I = I0;
+    U = U0;
+    I = I0;
     for (size_t k = 0; k < U.size(); ++k) {
       if (!(std::isfinite(H0[k]) && g.H[k] != H0[k])) continue;
       U[k] = g.H[k];
