@@ -3,9 +3,12 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
+#include <new>
 #include <utility>
 
 #include "blade_sweep.hpp"
@@ -13,6 +16,27 @@
 
 using namespace terramap;
 using namespace terramap::plugins;
+
+namespace {
+// Allocations of at least kLargeBytes made while g_count_large is set (ErosionKeepsItsBuffers...
+// below). The plugin's kernel library is linked into this program, so the replaced global
+// operator new sees its vectors.
+std::atomic<bool> g_count_large{false};
+std::atomic<long> g_large_allocs{0};
+constexpr std::size_t kLargeBytes = 32 * 1024;
+}  // namespace
+
+void* operator new(std::size_t n) {
+  if (n >= kLargeBytes && g_count_large.load(std::memory_order_relaxed)) g_large_allocs.fetch_add(1);
+  if (void* p = std::malloc(n > 0 ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+// GCC takes the replacement's own free() for a mismatched pair.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+#pragma GCC diagnostic pop
 
 namespace {
 
@@ -285,4 +309,26 @@ TEST(Chain, HeightContractLayersFollowEveryChange) {
   EXPECT_GT(untouched, 10000);
   EXPECT_GT(cleared, 0);
   EXPECT_GT(kept_bounds, 0);
+}
+
+// erodeAround keeps its grid, velocities and gathered layers from call to call: fresh ones made
+// each pass fault its pages in anew wherever malloc returns freed memory to the system
+// (BENCHMARKS.md, "Erosion: a figure that depended on what ran before it"). A second pass over
+// the same window allocates no large block.
+TEST(Chain, ErosionKeepsItsLargeBuffersFromPassToPass) {
+  Chain ch(2, 25.0, true);  // with lidar_fusion's layers: every buffer of the pass is in use
+  for (int k = 0; k <= 30; ++k) ch.push(poseAt(k));
+  const Record* r = ch.bus.latest(SweepRecord::kType);
+  ASSERT_NE(r, nullptr);
+  const auto rec = std::static_pointer_cast<const SweepRecord>(r->payload);
+  ch.erosion.erodeAround(ch.erosion_ctx, *rec);  // the window the next call works on
+  const double roi_before = ch.erosion_stats.counters["roi_cells"];
+  g_large_allocs = 0;
+  g_count_large = true;
+  ch.erosion.erodeAround(ch.erosion_ctx, *rec);
+  g_count_large = false;
+  // The window's doubles fill blocks well above the threshold, so fresh buffers would count.
+  const double window_cells = ch.erosion_stats.counters["roi_cells"] - roi_before;
+  ASSERT_GT(window_cells * sizeof(double), 2.0 * kLargeBytes);
+  EXPECT_EQ(g_large_allocs.load(), 0);
 }
