@@ -109,6 +109,7 @@ class SoilErosion : public Plugin {
   void process(ProcessContext& ctx, const Event& event) override;
 
   /// One or more passes around `rec`'s T1 pose on the context's map (what process() runs).
+  /// One call at a time per plugin object: it works in the object's buffers (scratch_).
   void erodeAround(ProcessContext& ctx, const SweepRecord& rec);
   long passesRun() const { return passes_run_; }
 
