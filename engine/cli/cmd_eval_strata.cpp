@@ -168,10 +168,11 @@ struct ErrorSum {
   double abs = 0, truth = 0, sq = 0;
   std::vector<double> errors;  ///< |pred - truth| each, for the median
   void add(double pred, double truth_v) {
+    const double e = pred - truth_v;
     ++n;
-    errors.push_back(std::abs(pred - truth_v));
-    abs += std::abs(pred - truth_v);
-    sq += (pred - truth_v) * (pred - truth_v);
+    errors.push_back(std::abs(e));
+    abs += std::abs(e);
+    sq += e * e;
     truth += truth_v;
   }
   void merge(const ErrorSum& o) {

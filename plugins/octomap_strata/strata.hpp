@@ -21,9 +21,8 @@
 /// the new surface (the swept volume's bottom, SweepMaskCell::sv_bottom_m) and `top`. When the
 /// sweep's estimate arrives (it is published later, SoilEstimateRecord), those voxels take the
 /// product of the prior and the estimate, N(μ, σ²) = prior × N(μ̂, σ̂²) (the estimate as is
-/// with StrataConfig::use_prior off). Until then, and for
-/// good when the estimate is invalid or never comes, they hold the belief predicted for them
-/// before the cut (kind Predicted).
+/// with StrataConfig::use_prior off). Until then, and for good when the estimate is invalid or
+/// never comes, they hold the belief predicted for them before the cut (kind Predicted).
 /// Below the surface: soilAt(x, y, z) under `top` is the inherited estimate with its variance
 /// inflated by depth below the anchor, N(μ̂, σ̂² · exp((anchor − z) / L)) with L =
 /// `inflation_depth_m` (times the prior with StrataConfig::prior_below); a column no sweep cut
@@ -175,8 +174,9 @@ class Strata {
   long applyCut(long sweep, const std::vector<CellCut>& cells);
   /// Sweep `sweep`'s estimate: its removed voxels take prior × N(mean, var) (N(mean, var) without
   /// use_prior), the columns it cut inherit it. `mean`/`var` null or not finite = no valid
-  /// estimate: the voxels keep their prediction. Returns the voxels written (0 when no pending sweep has that index); appends
-  /// the centres of the columns the sweep cut to `columns` when given.
+  /// estimate: the voxels keep their prediction. Returns the voxels written (0 when no pending
+  /// sweep has that index); appends the centres of the columns the sweep cut to `columns` when
+  /// given.
   long assignEstimate(long sweep, const SoilVector* mean, const SoilVector* var,
                       std::vector<Eigen::Vector2d>* columns = nullptr);
   /// Resolves every pending sweep as without estimate (end of a run).
@@ -208,10 +208,10 @@ class Strata {
   /// lowest level above the split left (VoxelBelief::bottom) and the mean surface the sweeps of
   /// the highest level below it started from (VoxelBelief::top); they coincide when one sweep
   /// followed the other, and differ by a slab no voxel centre lay in; clamped to within half a
-  /// voxel of the face between the two levels (where one column's slabs must end). Then a level beside the split whose
-  /// soil lies between the two runs' (a sweep that cut across the change) moves it into that
-  /// level's slab by the fraction of the other run's soil it holds (linear mix, the projection
-  /// on the line between the runs' means), within a voxel of the face.
+  /// voxel of the face between the two levels (where one column's slabs must end). Then a level
+  /// beside the split whose soil lies between the two runs' (a sweep that cut across the change)
+  /// moves it into that level's slab by the fraction of the other run's soil it holds (linear
+  /// mix, the projection on the line between the runs' means), within a voxel of the face.
   double changeHeightAt(double x, double y, int min_voxels = 1, double min_gain = 0.5, double radius_m = 0.0,
                         struct VoxelCache* cache = nullptr) const;
   /// changeHeightAt as a depth below the column's initial surface (NaN if either is NaN).
