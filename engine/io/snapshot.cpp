@@ -104,7 +104,7 @@ std::uint64_t crc64(const void* data, std::size_t n, std::uint64_t crc) {
   // bound by the latency of its table look-ups (each step needs the previous register), four
   // keep the load ports busy (`build/bin/bench_readers --benchmark_filter=BM_Crc64`, 64 MB in
   // one call against the same bytes in 32 kB calls, one stream each: 4.65 against 1.41 GB/s on
-  // the Xeon VM of 2026-11-27, docs/benchmark_history.md).
+  // the Xeon VM of 2026-11-27).
   // The quarters' CRCs are then combined (crc64Combine), so the value is the serial one.
   constexpr std::size_t kStreams = 4, kMinParallel = 1 << 16;
   if (n < kMinParallel) return crc64Serial(p, n, crc);

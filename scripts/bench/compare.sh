@@ -2,7 +2,7 @@
 # Interleaved before/after benchmark rounds of two builds on the same machine (the only fair
 # comparison on a VM whose speed drifts): ROUNDS times base then new, CSV rows "tag,<benchmark csv>".
 # Usage: scripts/bench/compare.sh BASE_BIN_DIR NEW_BIN_DIR [ROUNDS] > compare.csv
-# (docs/benchmark_history.md "Architecture pass" was measured this way: two rounds, base = a build of 08849f9.)
+# (the architecture pass of 2026-11-23 was measured this way: two rounds, base = a build of 08849f9.)
 set -u
 base=$1; new=$2; rounds=${3:-2}
 # Google Benchmark's CSV reporter stops (and fails) at a family whose user counters differ from
