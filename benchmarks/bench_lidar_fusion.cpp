@@ -3,8 +3,8 @@
 // Moving sequences (the workload a vehicle has; one iteration = one scan: time advanced, map
 // moved with follow_robot, cloud fused; one full pass of the sequence before timing):
 //   BM_LidarFusionSeq_<seq>_<map>_<cleanup>/<threads>
-//     seq: Kitti (the six KITTI HDL-64E frames of /work/shared/data/kitti_hdl64 with their ICP
-//          poses, played 0..5, 4..1, 0..5, ...; KITTI data CC BY-NC-SA 3.0) or Sim64 (120 scans of
+//     seq: Kitti (the six KITTI HDL-64E frames at $TERRAMAP_KITTI_DIR, data/README.md; skipped
+//          without them) with their ICP poses, played 0..5, 4..1, 0..5, ...; KITTI data CC BY-NC-SA 3.0) or Sim64 (120 scans of
 //          a simulated OS1-64 on a CTL driving a random walk over hills, generated at start-up);
 //     map: 400x400_5cm (20 m) or 2000x2000_4cm (80 m), tiles of 64 cells;
 //     cleanup: NoCleanup, Cleanup4th (every 4th ray, exact walk: the default until 2026-11-28),
@@ -42,6 +42,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
+#include <filesystem>
 #include <random>
 #include <variant>
 
@@ -50,9 +52,22 @@ using namespace terramap::plugins;
 
 namespace {
 
+/// The KITTI frames' folder: $TERRAMAP_KITTI_DIR, else beside the checkout (data/README.md).
+std::string kittiDir() {
+  const char* env = std::getenv("TERRAMAP_KITTI_DIR");
+  return env && *env ? std::string(env) : std::string(TERRAMAP_KITTI_DIR_DEFAULT);
+}
+
+/// True (and the benchmark marked skipped, naming the path) when the KITTI frames are absent.
+bool kittiMissing(benchmark::State& state) {
+  const std::string probe = kittiDir() + "/000005.bin";
+  if (std::filesystem::is_regular_file(probe)) return false;
+  state.SkipWithError(("KITTI frames not found: " + probe + " is missing (set TERRAMAP_KITTI_DIR)").c_str());
+  return true;
+}
+
 const std::vector<PointXYZI>& kittiCloud() {
-  static const std::vector<PointXYZI> pts =
-      io::readKittiBin(std::string(TERRAMAP_DATA_DIR) + "/kitti_hdl64/000000.bin");
+  static const std::vector<PointXYZI> pts = io::readKittiBin(kittiDir() + "/000000.bin");
   return pts;
 }
 
@@ -114,7 +129,7 @@ void runLidarFusion(benchmark::State& state, bool kitti, MapSpec m, bool cleanup
   LidarFusionConfig c;
   c.enable_visibility_cleanup = cleanup;
   // The cleanup these figures were first taken with (the default until 2026-11-28), so that
-  // they stay comparable with docs/benchmark_history.md.
+  // they stay comparable with the older reference runs (`git log -p BENCHMARKS.md`).
   c.cleanup_walk = CleanupWalk::Exact;
   c.cleanup_ray_stride = 4;
   f.configure(c);
@@ -255,7 +270,7 @@ struct Sequence {
 /// frame, over a scene that stays consistent when the sequence turns round.
 const Sequence& kittiSequence() {
   static const Sequence seq = [] {
-    const std::string dir = std::string(TERRAMAP_DATA_DIR) + "/kitti_hdl64/";
+    const std::string dir = kittiDir() + "/";
     const std::vector<Eigen::Isometry3d> T0 =
         io::chainRelativePoses(io::readRelativePoses(dir + "DERIVED_icp_relative_poses.txt"));
     Sequence s;
@@ -475,10 +490,15 @@ void runNaiveSeq(benchmark::State& state, bool kitti, MapSpec m) {
   state.SetItemsProcessed(sum.points_in);
 }
 
-/// Registers a benchmark in ms of wall time at 1 thread, and at 2 when `two_threads`.
+/// Registers a benchmark in ms of wall time at 1 thread, and at 2 when `two_threads`; one that
+/// reads the KITTI frames is skipped without them.
 template <class F>
-benchmark::internal::Benchmark* reg(const std::string& name, F f, bool two_threads) {
-  benchmark::internal::Benchmark* b = benchmark::RegisterBenchmark(name.c_str(), f)->Arg(1);
+benchmark::internal::Benchmark* reg(const std::string& name, F f, bool two_threads, bool kitti) {
+  auto run = [f, kitti](benchmark::State& s) {
+    if (kitti && kittiMissing(s)) return;
+    f(s);
+  };
+  benchmark::internal::Benchmark* b = benchmark::RegisterBenchmark(name.c_str(), run)->Arg(1);
   if (two_threads) b->Arg(2);
   return b->Unit(benchmark::kMillisecond)->UseRealTime();
 }
@@ -496,12 +516,12 @@ void registerSequences() {
                              : cl == Cleanup::EveryRayFan ? "_CleanupAllFan"
                                                         : "_CleanupAllCellByCell";
         reg("BM_LidarFusionSeq_" + cloud + "_" + m.name + suffix,
-            [=](benchmark::State& s) { runLidarFusionSeq(s, kitti, m, cl); }, true);
+            [=](benchmark::State& s) { runLidarFusionSeq(s, kitti, m, cl); }, true, kitti);
       }
-      reg("BM_NaiveSeq_" + cloud + "_" + m.name, [=](benchmark::State& s) { runNaiveSeq(s, kitti, m); }, false);
+      reg("BM_NaiveSeq_" + cloud + "_" + m.name, [=](benchmark::State& s) { runNaiveSeq(s, kitti, m); }, false, kitti);
       // OctoMap only where its range limit equals the map's half width (10 m): like for like.
       if (m.cells == 400)
-        reg("BM_OctoMapSeq_" + cloud + "_" + m.name, [=](benchmark::State& s) { runOctoMapSeq(s, kitti, m); }, false)
+        reg("BM_OctoMapSeq_" + cloud + "_" + m.name, [=](benchmark::State& s) { runOctoMapSeq(s, kitti, m); }, false, kitti)
             ->Iterations(10);
     }
   }
@@ -513,17 +533,17 @@ void registerAll() {
     for (const MapSpec& m : kMaps) {
       for (bool cleanup : {false, true})
         reg("BM_LidarFusionSteady_" + cloud + "_" + m.name + (cleanup ? "_Cleanup" : "_NoCleanup"),
-            [=](benchmark::State& s) { runLidarFusion(s, kitti, m, cleanup); }, true);
+            [=](benchmark::State& s) { runLidarFusion(s, kitti, m, cleanup); }, true, kitti);
       if (m.cells == 400)
         reg("BM_LidarFusionSteady_" + cloud + "_" + m.name + "_NoCleanup_ScalarGates",
-            [=](benchmark::State& s) { runLidarFusion(s, kitti, m, false, true); }, true);
-      reg("BM_OctoMapFreshTree_" + cloud + "_" + m.name, [=](benchmark::State& s) { runOctoMap(s, kitti, m); }, false)
+            [=](benchmark::State& s) { runLidarFusion(s, kitti, m, false, true); }, true, kitti);
+      reg("BM_OctoMapFreshTree_" + cloud + "_" + m.name, [=](benchmark::State& s) { runOctoMap(s, kitti, m); }, false, kitti)
           ->Iterations(m.cells > 1000 ? 1 : 3);
-      reg("BM_NaiveSteady_" + cloud + "_" + m.name, [=](benchmark::State& s) { runNaive(s, kitti, m); }, false);
+      reg("BM_NaiveSteady_" + cloud + "_" + m.name, [=](benchmark::State& s) { runNaive(s, kitti, m); }, false, kitti);
     }
   }
   for (const MapSpec& m : kMaps)
-    reg(std::string("BM_LidarFusion_TimeUpdate_") + m.name, [=](benchmark::State& s) { runTimeUpdate(s, m); }, true);
+    reg(std::string("BM_LidarFusion_TimeUpdate_") + m.name, [=](benchmark::State& s) { runTimeUpdate(s, m); }, true, true);
 }
 
 }  // namespace

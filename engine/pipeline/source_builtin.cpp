@@ -4,7 +4,10 @@
 #include <terramap/io/sequence.hpp>
 #include <terramap/pipeline/source.hpp>
 
+#include <cctype>
 #include <cmath>
+#include <cstdlib>
+#include <filesystem>
 
 namespace terramap {
 
@@ -56,6 +59,44 @@ Eigen::Isometry3d poseFromList(const std::vector<double>& v) {
   return T;
 }
 
+/// A path of the source, resolved against the pipeline file's folder. It may begin with one of
+/// terramap's own environment variables, `${TERRAMAP_NAME}` or `${TERRAMAP_NAME:-default}`, so
+/// data that cannot ship with a pipeline (the KITTI frames' licence keeps them out of the
+/// repository) is found through one setting: the variable's value when set and not empty (a
+/// relative value from the current folder, as a shell user means it), else the default
+/// (relative to the pipeline file, like any path). Only TERRAMAP_* names: a configuration file
+/// does not get to read the rest of the environment into paths and messages.
+std::string sourcePath(const PipelineSpec& spec, const std::string& key, bool required) {
+  const std::string v = sourceString(spec.source, key, required);
+  const std::size_t open = v.find("${");
+  if (open == std::string::npos) return spec.resolvePath(v);
+  const std::string& where = setting(spec.source, key)->where;
+  const std::string form = "${TERRAMAP_NAME} or ${TERRAMAP_NAME:-default}";
+  const std::size_t close = v.find('}', open);
+  if (open != 0 || close == std::string::npos || v.find("${", close) != std::string::npos)
+    throw ConfigError(where + ": a variable may only begin the path, as " + form + " (got '" + v + "')");
+  const std::string inner = v.substr(2, close - 2), rest = v.substr(close + 1);
+  const std::size_t dash = inner.find(":-");
+  const std::string name = inner.substr(0, dash);
+  bool valid = name.size() > 9 && name.compare(0, 9, "TERRAMAP_") == 0;
+  for (char c : name) valid = valid && (std::isupper(static_cast<unsigned char>(c)) || std::isdigit(static_cast<unsigned char>(c)) || c == '_');
+  if (!valid)
+    throw ConfigError(where + ": only terramap's own variables may begin a path, as " + form + " (got '" + name + "')");
+  namespace fs = std::filesystem;
+  const char* env = std::getenv(name.c_str());
+  const bool set = env && *env;
+  if (!set && dash == std::string::npos)
+    throw ConfigError(where + ": " + name + " is not set and '" + v + "' gives no default");
+  const std::string path = set ? fs::absolute(fs::path(std::string(env) + rest)).lexically_normal().string()
+                               : spec.resolvePath(inner.substr(dash + 2) + rest);
+  // Said here, where the setting that chose the path is known, rather than by the reader.
+  std::error_code ec;
+  if (!fs::exists(path, ec))
+    throw ConfigError(where + ": '" + path + "' does not exist (" +
+                      (set ? name + " is '" + env + "'" : name + " is not set, so the default was used") + ")");
+  return path;
+}
+
 /// Folder of clouds + poses. Optionally emits a Pose event (sensor pose) before each cloud,
 /// so stages that follow the robot can move the map first.
 class SequenceEventSource : public Source {
@@ -97,14 +138,13 @@ std::unique_ptr<Source> makeSequence(const PipelineSpec& spec) {
                       "first", "stride", "max_frames", "frame_index", "T_body_sensor", "T_map_world",
                       "emit_poses"});
   io::SequenceSpec q;
-  q.folder = spec.resolvePath(sourceString(s, "clouds", true));
+  q.folder = sourcePath(spec, "clouds", true);
   if (const RawParam* r = setting(s, "extensions")) {
     if (auto p = std::get_if<std::vector<std::string>>(&r->value)) q.extensions = *p;
     else if (auto p1 = std::get_if<std::string>(&r->value)) q.extensions = {*p1};
     else throw ConfigError(r->where + ": must be a list of extensions like ['.bin']");
   }
-  const std::string times = sourceString(s, "times", false);
-  if (!times.empty()) q.times_file = spec.resolvePath(times);
+  q.times_file = sourcePath(spec, "times", false);
   q.period_s = sourceDouble(s, "period_s", false, 0.1);
   if (!(q.period_s > 0)) throw ConfigError(setting(s, "period_s")->where + ": must be > 0");
   q.start_stamp_s = sourceDouble(s, "start_stamp_s", false, 0.0);
@@ -117,10 +157,10 @@ std::unique_ptr<Source> makeSequence(const PipelineSpec& spec) {
   else throw ConfigError(setting(s, "frame_index")->where + ": must be 'position' or 'file_name' (got '" + fi + "')");
   q.T_body_sensor = poseFromList(sourceDoubles(s, "T_body_sensor", 6));
   q.T_map_world = poseFromList(sourceDoubles(s, "T_map_world", 6));
-  const std::string poses = sourceString(s, "poses", false);
+  const std::string poses = sourcePath(spec, "poses", false);
   io::SequencePoses sp = io::SequencePoses::identity();
   if (!poses.empty())
-    sp = io::loadSequencePoses(spec.resolvePath(poses),
+    sp = io::loadSequencePoses(poses,
                                io::parsePoseFileFormat(sourceString(s, "pose_format", false, "auto")));
   return std::make_unique<SequenceEventSource>(std::move(q), std::move(sp), sourceBool(s, "emit_poses", true));
 }

@@ -1,8 +1,10 @@
-// lidar_fusion on real recordings (read in place from TERRAMAP_DATA_DIR, never copied):
+// lidar_fusion on real recordings (the KITTI frames at TERRAMAP_KITTI_DIR, skipped without them;
+// the LAS tile from the repository's data/):
 //  - KITTI HDL-64E frames 0-4 (CC BY-NC-SA 3.0, via url-kaist/patchwork-plusplus) fused with
 //    the helper-derived ICP poses, checked against frame 5's ground points (held out);
 //  - PDAL's hexbin-crop.las airborne ground points (class 2) gridded by lidar_fusion and by
 //    a direct per-cell median of the same points.
+#include "kitti_data.hpp"
 #include "lidar_fusion.hpp"
 
 #include <terramap/eval/statistics.hpp>
@@ -23,7 +25,7 @@ using L = LidarFusionLayers;
 
 namespace {
 
-const std::string kKitti = std::string(TERRAMAP_DATA_DIR) + "/kitti_hdl64/";
+const std::string kKitti = terramap::test::kittiDir() + "/";
 
 double quantile(std::vector<double> v, double q) {
   if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
@@ -68,6 +70,7 @@ std::vector<Eigen::Vector3d> groundPoints(const std::vector<PointXYZI>& pts) {
 }  // namespace
 
 TEST(LidarFusionRealData, KittiFramesZeroToFourPredictFrameFiveGround) {
+  TERRAMAP_SKIP_WITHOUT_KITTI();
   // Poses: row k of DERIVED_icp_relative_poses.txt maps frame k into frame k-1; chained,
   // element k is T_0_k, so the map frame is frame 0's sensor frame (z up, ground ~ -1.73 m).
   const auto rel = io::readRelativePoses(kKitti + "DERIVED_icp_relative_poses.txt");
@@ -323,6 +326,7 @@ bool sameBits(const Eigen::MatrixXf& a, const Eigen::MatrixXf& b) {
 }  // namespace
 
 TEST(LidarFusionRealData, BlockSkippingRayWalkMatchesTheCellByCellWalkBitForBit) {
+  TERRAMAP_SKIP_WITHOUT_KITTI();
   // The cleanup jumps over 8 x 8 blocks where no cell could change; walking every cell instead
   // must give the same layers and counters, at 1 and 2 threads (the workers then split the
   // octants, and each slot skips on its own bounds).
@@ -350,6 +354,7 @@ TEST(LidarFusionRealData, BlockSkippingRayWalkMatchesTheCellByCellWalkBitForBit)
 }
 
 TEST(LidarFusionRealData, FanWalkActsOnNearlyTheCellsOfTheExactWalkWithAFractionOfTheReads) {
+  TERRAMAP_SKIP_WITHOUT_KITTI();
   // The same drive, every ray, with the fan walk: each azimuth bin's rays walked together along
   // its centre line, within half a cell of each ray at 10 m. It must land where the exact walk
   // lands (the same rays, the same cells spanned, nearly the same cells cleaned and bounded, to

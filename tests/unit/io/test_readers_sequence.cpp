@@ -3,6 +3,7 @@
 #include <terramap/io/readers.hpp>
 #include <terramap/io/sequence.hpp>
 
+#include "kitti_data.hpp"
 #include "test_readers_util.hpp"
 
 #include <cmath>
@@ -17,8 +18,8 @@ using test::spit;
 using test::spitText;
 using test::TempDir;
 
-const std::string kKittiDir = dataPath("kitti_hdl64");
-const std::string kIcp = dataPath("kitti_hdl64/DERIVED_icp_relative_poses.txt");
+const std::string kKittiDir = test::kittiDir();
+const std::string kIcp = test::kittiPath("DERIVED_icp_relative_poses.txt");
 
 std::string pcdWith(float x) {
   return "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n" +
@@ -26,6 +27,7 @@ std::string pcdWith(float x) {
 }
 
 TEST(Sequence, KittiFramesWithChainedIcpPosesAreEmittedLazilyInOrder) {
+  TERRAMAP_SKIP_WITHOUT_KITTI();
   EXPECT_EQ(detectPoseFileFormat(kIcp), PoseFileFormat::Relative);
   const auto chain = chainRelativePoses(readRelativePoses(kIcp));
   SequenceSpec spec;
@@ -59,9 +61,10 @@ TEST(Sequence, KittiFramesWithChainedIcpPosesAreEmittedLazilyInOrder) {
 }
 
 TEST(Sequence, FrameIndexFromFileNamesPicksTheMatchingPose) {
+  TERRAMAP_SKIP_WITHOUT_KITTI();
   TempDir dir("seq_idx");
   for (const char* n : {"000003.bin", "000005.bin"}) {
-    std::filesystem::create_symlink(dataPath(std::string("kitti_hdl64/") + n), dir.path() / n);
+    std::filesystem::create_symlink(test::kittiPath(n), dir.path() / n);
   }
   const auto chain = chainRelativePoses(readRelativePoses(kIcp));
   SequenceSpec spec;
@@ -73,7 +76,7 @@ TEST(Sequence, FrameIndexFromFileNamesPicksTheMatchingPose) {
   EXPECT_TRUE(seq.pose(1).isApprox(chain[5], 1e-15));
   EXPECT_DOUBLE_EQ(seq.stamp(1), 0.5);
   // Frame 7 has no pose: refused at construction, naming the file.
-  std::filesystem::create_symlink(dataPath("kitti_hdl64/000000.bin"), dir.path() / "000007.bin");
+  std::filesystem::create_symlink(test::kittiPath("000000.bin"), dir.path() / "000007.bin");
   expectErrorWith<ConfigError>([&] { SequenceSource(spec, SequencePoses::perFrame(chain, kIcp)); },
                                {"6 frames", "frame 7", "000007.bin", kIcp});
 }

@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <stdexcept>
 #include <initializer_list>
 #include <string>
 #include <unistd.h>
@@ -15,6 +16,7 @@
 
 namespace terramap::test {
 
+/// A file of the repository's real data sets (data/<set>/...).
 inline std::string dataPath(const std::string& rel) { return std::string(TERRAMAP_DATA_DIR) + "/" + rel; }
 
 /// A fresh temporary directory removed at the end of the test.
@@ -41,8 +43,11 @@ class TempDir {
   std::filesystem::path path_;
 };
 
+/// The whole file; a file that cannot be opened throws (gtest reports the test failed, naming it)
+/// rather than giving an empty vector that a test would index past.
 inline std::vector<unsigned char> slurp(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error("test data '" + path + "' cannot be opened");
   return std::vector<unsigned char>((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
 }
 inline void spit(const std::string& path, const std::vector<unsigned char>& bytes) {
