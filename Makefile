@@ -32,8 +32,10 @@ demo: build
 	$(BUILD)/bin/terramap run --out $(OUT)
 	@echo "demo outputs in $(OUT): map.tif (GeoTIFF), *.png, map.tmap, report.json"
 
+# Then the tests that were skipped and why (e.g. the KITTI frames absent: data/README.md).
 test: build
-	cd $(BUILD) && ctest --output-on-failure -j $(JOBS) --timeout 900
+	cd $(BUILD) && { ctest --output-on-failure -j $(JOBS) --timeout 900 --output-junit ctest.xml; rc=$$?; \
+	  python3 $(CURDIR)/scripts/ctest_skips.py ctest.xml; exit $$rc; }
 
 # Every test under AddressSanitizer + UndefinedBehaviorSanitizer in its own tree (build-asan).
 # Python and the web view are off there (an uninstrumented interpreter or browser cannot load an

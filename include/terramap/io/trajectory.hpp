@@ -109,7 +109,7 @@ struct RelativePose {
   double residual_m = std::numeric_limits<double>::quiet_NaN();
 };
 
-/// Relative-pose rows, e.g. /work/shared/data/kitti_hdl64/DERIVED_icp_relative_poses.txt:
+/// Relative-pose rows, e.g. the KITTI frames' DERIVED_icp_relative_poses.txt (data/README.md):
 /// `[prev->cur] n1 .. n12|n16 [key=value ...]`, where the numbers are the 3x4 or 4x4
 /// row-major T_prev_cur (row i maps frame i into frame i-1). The optional `a->b` label must
 /// satisfy b == a + 1; without labels row k (0-based) is frame k -> k+1. Rows must be
