@@ -21,7 +21,7 @@ plugin_paths: [build/plugins]
 pipeline:
   - {name: r, type: roughness, params: {window_m: 0.05, run_on: [tock]}}
 ")
-execute_process(COMMAND ${prefix}/bin/terramap validate ${WORK_DIR}/bad.yaml
+execute_process(COMMAND ${prefix}/bin/terramap validate ${WORK_DIR}/bad.yaml --allow-config-plugin-paths
   RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE out)
 if(NOT rc EQUAL 8 OR NOT out MATCHES "bad.yaml:5:[0-9]+: pipeline\\[0\\].params.window_m: must be at least the map's resolution"
    OR NOT out MATCHES "pipeline\\[0\\].params.run_on: unknown event kind 'tock'")

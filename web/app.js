@@ -127,6 +127,8 @@ ws.onopen = () => { document.getElementById('status').textContent = 'connected';
 ws.onclose = () => { document.getElementById('status').textContent = 'disconnected'; };
 ws.onerror = () => { state.error = 'websocket error'; };
 ws.onmessage = (msg) => {
+  // Text is the server refusing a command ({"error": ...}); frames are binary.
+  if (typeof msg.data === 'string') { state.error = msg.data; console.warn('terramap serve:', msg.data); return; }
   const dv = new DataView(msg.data);
   const n = dv.getUint32(0, true);
   const h = JSON.parse(new TextDecoder().decode(new Uint8Array(msg.data, 4, n)));

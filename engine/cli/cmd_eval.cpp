@@ -127,7 +127,7 @@ Registrar reg{Command{"eval", [](CLI::App& app, std::function<int()>& run) {
       if (!a->quiet && spec.source.type != "none")
         std::fprintf(stderr, "note: %s: the pipeline's source (%s) is not used; eval plays %s\n", spec.file.c_str(),
                      spec.source.type.c_str(), a->scenario.c_str());
-      PluginRegistry registry(spec.plugin_paths);
+      const PluginRegistry registry = PluginRegistry::forPipeline(spec.plugin_paths, spec.plugin_paths_where);
       auto engine = Engine::fromSpec(spec, registry);
       eval::EvalOptions opt;
       opt.change_threshold_m = a->change_threshold;

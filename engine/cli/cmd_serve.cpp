@@ -7,6 +7,7 @@
 #include "live_server.hpp"
 
 #include <terramap/core/error.hpp>
+#include <terramap/core/text.hpp>
 #include <terramap/io/geotiff.hpp>
 #include <terramap/io/render.hpp>
 #include <terramap/pipeline/engine.hpp>
@@ -15,6 +16,7 @@
 #include <terramap/pipeline/source.hpp>
 
 #define BOOST_DLL_USE_STD_FS
+#include <boost/asio/ip/address.hpp>
 #include <boost/dll/runtime_symbol_info.hpp>
 #include <nlohmann/json.hpp>
 
@@ -44,6 +46,10 @@ struct ServeArgs {
   double exit_after_s = -1;
   bool wait_for_viewer = false;
   std::string web_root;
+  std::string host = "127.0.0.1";
+  bool allow_remote = false;
+  int max_connections = 32;
+  int max_message_bytes = 4096;
 };
 
 std::atomic<bool> g_interrupted{false};
@@ -55,6 +61,9 @@ fs::path webRoot(const std::string& given) {
   return (fs::path(boost::dll::program_location().parent_path().string()) / ".." / "share" / "terramap" / "web")
       .lexically_normal();
 }
+
+/// What a client sent, as an error message may quote it: short, whatever its length.
+std::string clip(const std::string& s) { return s.size() <= 64 ? s : s.substr(0, 64) + "..."; }
 
 std::vector<double> columnMajor(const Eigen::Isometry3d& T) {
   const Eigen::Matrix4d m = T.matrix();
@@ -68,10 +77,11 @@ class Player {
     PipelineSpec spec = parsePipelineFile(a.file);
     applyParamOverrides(spec, a.set);
     if (a.threads > 0) spec.threads = a.threads;
-    engine_ = Engine::fromSpec(spec, PluginRegistry(spec.plugin_paths));
+    engine_ = Engine::fromSpec(spec, PluginRegistry::forPipeline(spec.plugin_paths, spec.plugin_paths_where));
     source_ = makeSource(spec);
     if (!engine_->map().hasLayer("elevation"))
       throw ConfigError(a.file + ": the live view shows the layer 'elevation', which no stage creates");
+    layer_names_ = engine_->map().layerNames();  // fixed from here on: commands are checked against it
     colour_layer_ = "elevation";
     playing_ = !a.wait_for_viewer;
   }
@@ -85,16 +95,38 @@ class Player {
     cv_.notify_all();
   }
 
-  void command(const std::string& text) {
+  /// One message of a page: {"cmd": "play"}, {"cmd": "pause"} or {"cmd": "layer", "name": L}.
+  /// Anything else changes nothing and is answered with its error (returned; "" = accepted).
+  std::string command(const std::string& text) {
     const nlohmann::json j = nlohmann::json::parse(text, nullptr, false);
-    if (!j.is_object()) return;
+    if (j.is_discarded()) return LiveServer::errorMessage("not JSON: a command is {\"cmd\": \"play\" | \"pause\" | \"layer\"}");
+    if (!j.is_object()) return LiveServer::errorMessage("a command is a JSON object, {\"cmd\": ...}");
+    const auto it = j.find("cmd");
+    if (it == j.end() || !it->is_string())
+      return LiveServer::errorMessage("'cmd' must be the string play, pause or layer");
+    const std::string cmd = it->get<std::string>();
+    if (cmd != "play" && cmd != "pause" && cmd != "layer")
+      return LiveServer::errorMessage("unknown cmd '" + clip(cmd) + "'" + didYouMean(cmd, {"play", "pause", "layer"}) +
+                                      " (play, pause, layer)");
+    for (const auto& [key, value] : j.items())
+      if (key != "cmd" && !(cmd == "layer" && key == "name"))
+        return LiveServer::errorMessage("cmd '" + cmd + "' takes no key '" + clip(key) + "'");
+    std::string layer;
+    if (cmd == "layer") {
+      const auto name = j.find("name");
+      if (name == j.end() || !name->is_string()) return LiveServer::errorMessage("cmd 'layer' needs \"name\": a layer name");
+      layer = name->get<std::string>();
+      if (std::find(layer_names_.begin(), layer_names_.end(), layer) == layer_names_.end())
+        return LiveServer::errorMessage("no layer '" + clip(layer) + "'" + didYouMean(layer, layer_names_) + "; layers: [" +
+                                        joinStrings(layer_names_) + "]");
+    }
     std::lock_guard<std::mutex> lock(mu_);
-    const std::string cmd = j.value("cmd", "");
     if (cmd == "pause") playing_ = false;
     if (cmd == "play") playing_ = true;
-    if (cmd == "layer") requested_layer_ = j.value("name", "");
+    if (cmd == "layer") requested_layer_ = layer;
     republish_ = true;
     cv_.notify_all();
+    return "";
   }
 
   void stop() {
@@ -238,6 +270,7 @@ class Player {
   std::condition_variable cv_;
   bool playing_ = true, done_ = false, stop_ = false, republish_ = false, started_ = false;
   std::string colour_layer_, requested_layer_;
+  std::vector<std::string> layer_names_;
   long events_ = 0, seq_ = 0;
   double stamp_ = NAN;
   std::optional<Eigen::Isometry3d> T_base_, T_blade_;
@@ -250,7 +283,9 @@ Registrar reg{Command{"serve", [](CLI::App& app, std::function<int()>& run) {
       "Run a pipeline and watch it live in a browser: serves http://127.0.0.1:PORT/ (a three.js\n"
       "view of the elevation coloured by any layer, the machine and blade, play/pause, layer\n"
       "picker), fed over a WebSocket. Everything the page needs is served from the build;\n"
-      "nothing is fetched from the internet. Ctrl-C stops it.");
+      "nothing is fetched from the internet. Ctrl-C stops it. Only this machine can connect\n"
+      "unless --host names another address and --allow-remote is given; requests whose Host or\n"
+      "Origin is not this server are refused (docs/reliability.md, \"The live view\").");
   sub->add_option("pipeline", a->file, "Pipeline YAML file")->required()->check(CLI::ExistingFile);
   sub->add_option("--port,-p", a->port, "Port on 127.0.0.1 (0 = any free port)")->capture_default_str()->check(CLI::Range(0, 65535));
   sub->add_option("--speed", a->speed, "Playback speed x real time of the source's stamps (0 = as fast as possible)")
@@ -264,20 +299,48 @@ Registrar reg{Command{"serve", [](CLI::App& app, std::function<int()>& run) {
   sub->add_option("--exit-after", a->exit_after_s, "Stop this many seconds after the source ends (default: never)");
   sub->add_flag("--wait-for-viewer", a->wait_for_viewer, "Start playing when the first page connects");
   sub->add_option("--web-root", a->web_root, "Folder of the page (default: the installed one)");
+  sub->add_option("--host", a->host, "IP address to listen on (0.0.0.0: every interface; needs --allow-remote)")
+      ->capture_default_str();
+  sub->add_flag("--allow-remote", a->allow_remote,
+                "Allow --host to be an address other machines can reach (they can then watch and drive the run)");
+  sub->add_option("--max-connections", a->max_connections, "Open connections served at once (more are answered 503)")
+      ->capture_default_str()->check(CLI::Range(1, 10000));
+  sub->add_option("--max-message-bytes", a->max_message_bytes, "Largest WebSocket message a page may send (bytes)")
+      ->capture_default_str()->check(CLI::Range(64, 1 << 20));
   sub->callback([&run, a] {
     run = [a]() -> int {
+      {
+        boost::system::error_code ec;
+        const auto addr = boost::asio::ip::make_address(a->host, ec);
+        if (ec) {
+          std::cerr << "terramap serve: --host '" << a->host << "' is not an IP address\n";
+          return kUsage;
+        }
+        if (!addr.is_loopback() && !a->allow_remote) {
+          std::cerr << "terramap serve: --host " << a->host
+                    << " listens beyond this machine: whoever reaches it can watch and drive the run. Pass "
+                       "--allow-remote if that is meant.\n";
+          return kUsage;
+        }
+      }
       const fs::path root = webRoot(a->web_root);
       if (!fs::is_regular_file(root / "index.html") || !fs::is_regular_file(root / "three.module.js"))
         throw OutputError("the live view's page is not at " + root.string() +
                           " (built with TERRAMAP_WITH_WEB, or give --web-root)");
-      LiveServer server(static_cast<std::uint16_t>(a->port), root);
+      LiveServerOptions so;
+      so.address = a->host;
+      so.port = static_cast<std::uint16_t>(a->port);
+      so.web_root = root;
+      so.max_connections = a->max_connections;
+      so.max_message_bytes = static_cast<std::size_t>(a->max_message_bytes);
+      LiveServer server(so);
       Player player(*a, server);
-      server.onCommand([&player](const std::string& c) { player.command(c); });
+      server.onCommand([&player](const std::string& c) { return player.command(c); });
       server.onConnect([&player] { player.viewerConnected(); });
       std::signal(SIGINT, onSignal);
       std::signal(SIGTERM, onSignal);
       std::thread io([&server] { server.run(); });
-      std::printf("serving http://127.0.0.1:%u/ (Ctrl-C to stop)\n", static_cast<unsigned>(server.port()));
+      std::printf("serving http://%s:%u/ (Ctrl-C to stop)\n", a->host.c_str(), static_cast<unsigned>(server.port()));
       std::fflush(stdout);
       std::exception_ptr failure;
       std::thread pipeline([&] {

@@ -34,8 +34,18 @@ Registrar reg{Command{"validate", [](CLI::App& app, std::function<int()>& run) {
         std::cerr << *file << ": invalid (structure errors above; fix them to check plugins and layers)\n";
         return kInvalid;
       }
-      PluginRegistry registry(spec.plugin_paths);
-      errors = Engine::validate(spec, registry);
+      // Refused plugin_paths are one problem among the others: the stages are still checked
+      // against the folders the user trusts.
+      std::vector<std::string> config_paths = spec.plugin_paths;
+      try {
+        (void)PluginRegistry::forPipeline(config_paths, spec.plugin_paths_where);
+      } catch (const ConfigError& e) {
+        errors.push_back(e.what());
+        config_paths.clear();
+      }
+      const PluginRegistry registry(config_paths);
+      const auto stage_errors = Engine::validate(spec, registry);
+      errors.insert(errors.end(), stage_errors.begin(), stage_errors.end());
       try {
         (void)makeSource(spec);
       } catch (const Error& e) {

@@ -6,10 +6,14 @@
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
 #include <boost/beast/websocket.hpp>
+#include <nlohmann/json.hpp>
+
+#include <unistd.h>
 
 #include <deque>
 #include <fstream>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <vector>
 
@@ -34,27 +38,68 @@ const char* contentType(const fs::path& p) {
   return "application/octet-stream";
 }
 
+/// Whether canonical `p` is `root` or below it, compared component by component (a string
+/// prefix would let /srv/web-old pass for /srv/web).
+bool insideRoot(const fs::path& root, const fs::path& p) {
+  auto q = p.begin();
+  for (auto r = root.begin(); r != root.end(); ++r, ++q)
+    if (q == p.end() || *r != *q) return false;
+  return true;
+}
+
+/// A request's Host header split into name and port ("[::1]:8765" -> "[::1]", "8765").
+std::pair<std::string, std::string> splitHost(const std::string& h) {
+  const std::size_t colon = h.rfind(':');
+  if (colon == std::string::npos || (h.find(']') != std::string::npos && colon < h.find(']'))) return {h, ""};
+  return {h.substr(0, colon), h.substr(colon + 1)};
+}
+
+bool isIpLiteral(std::string name) {
+  if (name.size() > 2 && name.front() == '[' && name.back() == ']') name = name.substr(1, name.size() - 2);
+  beast::error_code ec;
+  (void)asio::ip::make_address(name, ec);
+  return !ec;
+}
+
 }  // namespace
 
 class WsSession;
 
+/// One open connection counted against max_connections; released when the session holding
+/// it ends, however it ends.
+struct ConnectionSlot {
+  explicit ConnectionSlot(std::shared_ptr<LiveServer::Impl> s);
+  ~ConnectionSlot();
+  std::shared_ptr<LiveServer::Impl> srv;
+};
+
 struct LiveServer::Impl : std::enable_shared_from_this<LiveServer::Impl> {
   asio::io_context ioc{1};
   tcp::acceptor acceptor{ioc};
-  fs::path root;
-  std::function<void(const std::string&)> on_command;
+  LiveServerOptions opt;
+  fs::path root;  // canonical
+  asio::ip::address bound;
+  std::function<std::string(const std::string&)> on_command;
   std::function<void()> on_connect;
   std::vector<std::weak_ptr<WsSession>> sessions;  // touched on the io thread only
   std::shared_ptr<const std::string> latest;       // likewise
+  int connections = 0;                             // likewise
 
   void accept();
-  /// The file for a GET of `target`, or nullopt (404). Never leaves `root`.
+  /// The file for a GET of `target`, or false (404): the target, with its leading slashes
+  /// taken off, is resolved below the root (symbolic links and `..` included) and must land
+  /// on a regular file inside it.
   bool readFile(const std::string& target, std::string& body, fs::path& path) const {
-    std::string t = target.substr(0, target.find('?'));
-    if (t.empty() || t == "/") t = "/index.html";
-    if (t.find("..") != std::string::npos) return false;
-    path = root / t.substr(1);
+    std::string t = target.substr(0, target.find_first_of("?#"));
+    if (t.empty() || t.front() != '/' || t.find('\0') != std::string::npos) return false;
+    if (t == "/") t = "/index.html";
+    t.erase(0, t.find_first_not_of('/'));
+    const fs::path rel(t);
+    if (rel.empty() || rel.has_root_path()) return false;
     std::error_code ec;
+    path = fs::canonical(root / rel, ec);
+    if (ec) return false;
+    if (!insideRoot(root, path)) return false;
     if (!fs::is_regular_file(path, ec)) return false;
     std::ifstream f(path, std::ios::binary);
     std::ostringstream os;
@@ -62,16 +107,47 @@ struct LiveServer::Impl : std::enable_shared_from_this<LiveServer::Impl> {
     body = os.str();
     return static_cast<bool>(f) || f.eof();
   }
+  /// Host must name this server: its port, and a name that cannot be rebound to another
+  /// machine by DNS (an address literal, localhost on a loopback bind, this host's name on a
+  /// public bind). Origin, which browsers always send for a WebSocket, must be the page's own.
+  bool allowed(const http::request<http::string_body>& req) const {
+    const auto host_it = req.find(http::field::host);
+    if (host_it == req.end()) return false;
+    const std::string host(host_it->value());
+    const auto [name, port] = splitHost(host);
+    if (port != std::to_string(acceptor.local_endpoint().port())) return false;
+    bool name_ok = false;
+    if (bound.is_unspecified()) {
+      char self[256] = {};
+      name_ok = isIpLiteral(name) || name == "localhost" || (::gethostname(self, sizeof self - 1) == 0 && name == self);
+    } else {
+      name_ok = name == bound.to_string() || (bound.is_v6() && name == "[" + bound.to_string() + "]") ||
+                (bound.is_loopback() && name == "localhost");
+    }
+    if (!name_ok) return false;
+    const auto origin = req.find(http::field::origin);
+    return origin == req.end() || std::string(origin->value()) == "http://" + host;
+  }
   void join(const std::shared_ptr<WsSession>& s);
   void broadcast(std::shared_ptr<const std::string> frame);
 };
 
+ConnectionSlot::ConnectionSlot(std::shared_ptr<LiveServer::Impl> s) : srv(std::move(s)) { ++srv->connections; }
+ConnectionSlot::~ConnectionSlot() { --srv->connections; }
+
+std::string LiveServer::errorMessage(const std::string& message) {
+  return nlohmann::json{{"error", message}}.dump();
+}
+
 class WsSession : public std::enable_shared_from_this<WsSession> {
  public:
-  WsSession(tcp::socket&& socket, std::shared_ptr<LiveServer::Impl> srv) : ws_(std::move(socket)), srv_(std::move(srv)) {}
+  WsSession(tcp::socket&& socket, std::shared_ptr<ConnectionSlot> slot)
+      : ws_(std::move(socket)), slot_(std::move(slot)), srv_(slot_->srv) {}
 
   void start(http::request<http::string_body> req) {
     ws_.set_option(websocket::stream_base::timeout::suggested(beast::role_type::server));
+    // Beyond this a read fails and the socket is closed with 1009 (message too big).
+    ws_.read_message_max(srv_->opt.max_message_bytes);
     ws_.binary(true);
     ws_.async_accept(req, [self = shared_from_this()](beast::error_code ec) {
       if (ec) return;
@@ -80,37 +156,68 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
     });
   }
 
-  /// On the io thread: queue the newest frame, dropping one that has not started to go out.
+  /// On the io thread: the newest frame replaces one that has not started to go out.
   void send(std::shared_ptr<const std::string> frame) {
-    if (writing_ && queue_.size() > 1) queue_.pop_back();
-    if (!writing_) queue_.clear();
-    queue_.push_back(std::move(frame));
+    frame_ = std::move(frame);
     if (!writing_) write();
   }
 
  private:
+  static constexpr std::size_t kMaxQueuedReplies = 16;
+
   void read() {
     ws_.async_read(buf_, [self = shared_from_this()](beast::error_code ec, std::size_t) {
-      if (ec) return;  // closed: the weak pointer in the server expires
+      if (ec) return;  // closed (or too big: Beast has sent the close): the weak pointer expires
       const std::string text = beast::buffers_to_string(self->buf_.data());
       self->buf_.consume(self->buf_.size());
-      if (self->srv_->on_command) self->srv_->on_command(text);
+      std::string reply;
+      if (!self->ws_.got_text()) {
+        reply = LiveServer::errorMessage("a command is a JSON text message, not binary");
+      } else if (self->srv_->on_command) {
+        // Nothing a client sends may end the server: a command that throws is its error.
+        try {
+          reply = self->srv_->on_command(text);
+        } catch (const std::exception& e) {
+          reply = LiveServer::errorMessage(std::string("command failed: ") + e.what());
+        } catch (...) {
+          reply = LiveServer::errorMessage("command failed");
+        }
+      }
+      if (!reply.empty() && self->replies_.size() < kMaxQueuedReplies) {
+        self->replies_.push_back(std::make_shared<const std::string>(std::move(reply)));
+        if (!self->writing_) self->write();
+      }
       self->read();
     });
   }
+  /// Replies first (they are never dropped), then the newest frame.
   void write() {
+    std::shared_ptr<const std::string> out;
+    bool text = false;
+    if (!replies_.empty()) {
+      out = std::move(replies_.front());
+      replies_.pop_front();
+      text = true;
+    } else if (frame_) {
+      out = std::move(frame_);
+      frame_.reset();
+    } else {
+      return;
+    }
     writing_ = true;
-    ws_.async_write(asio::buffer(*queue_.front()), [self = shared_from_this()](beast::error_code ec, std::size_t) {
-      self->queue_.pop_front();
+    ws_.text(text);
+    ws_.async_write(asio::buffer(*out), [self = shared_from_this(), out](beast::error_code ec, std::size_t) {
       self->writing_ = false;
-      if (!ec && !self->queue_.empty()) self->write();
+      if (!ec) self->write();
     });
   }
 
   websocket::stream<beast::tcp_stream> ws_;
   beast::flat_buffer buf_;
-  std::deque<std::shared_ptr<const std::string>> queue_;
+  std::deque<std::shared_ptr<const std::string>> replies_;
+  std::shared_ptr<const std::string> frame_;
   bool writing_ = false;
+  std::shared_ptr<ConnectionSlot> slot_;
   std::shared_ptr<LiveServer::Impl> srv_;
 };
 
@@ -118,40 +225,51 @@ namespace {
 
 class HttpSession : public std::enable_shared_from_this<HttpSession> {
  public:
-  HttpSession(tcp::socket&& socket, std::shared_ptr<LiveServer::Impl> srv) : stream_(std::move(socket)), srv_(std::move(srv)) {}
+  HttpSession(tcp::socket&& socket, std::shared_ptr<ConnectionSlot> slot)
+      : stream_(std::move(socket)), slot_(std::move(slot)), srv_(slot_->srv) {}
   void start() {
     stream_.expires_after(std::chrono::seconds(30));
-    http::async_read(stream_, buf_, req_, [self = shared_from_this()](beast::error_code ec, std::size_t) {
+    // A page asks with a short GET: no request of this server has a body.
+    parser_.header_limit(8192);
+    parser_.body_limit(1024);
+    http::async_read(stream_, buf_, parser_, [self = shared_from_this()](beast::error_code ec, std::size_t) {
       if (!ec) self->handle();
     });
   }
 
  private:
   void handle() {
-    if (websocket::is_upgrade(req_)) {
-      if (req_.target() == "/live") {
-        stream_.expires_never();
-        std::make_shared<WsSession>(stream_.release_socket(), srv_)->start(std::move(req_));
-      }
-      return;
-    }
+    http::request<http::string_body> req = parser_.release();
     auto res = std::make_shared<http::response<http::string_body>>();
-    res->version(req_.version());
+    res->version(req.version());
     res->keep_alive(false);
     res->set(http::field::server, "terramap");
     // Nothing is fetched from elsewhere: the page and its libraries are all served from here.
     res->set(http::field::cache_control, "no-store");
+    res->set(http::field::content_type, "text/plain");
+    // Error pages are fixed texts: nothing of the request or of the machine is echoed.
     std::string body;
     fs::path path;
-    if (req_.method() != http::verb::get) {
+    if (!srv_->allowed(req)) {
+      res->result(http::status::forbidden);
+      res->body() = "forbidden: Host or Origin is not this server\n";
+    } else if (websocket::is_upgrade(req)) {
+      if (req.target() == "/live") {
+        stream_.expires_never();
+        std::make_shared<WsSession>(stream_.release_socket(), slot_)->start(std::move(req));
+        return;
+      }
+      res->result(http::status::not_found);
+      res->body() = "not found\n";
+    } else if (req.method() != http::verb::get) {
       res->result(http::status::method_not_allowed);
-    } else if (srv_->readFile(std::string(req_.target()), body, path)) {
+      res->body() = "method not allowed\n";
+    } else if (srv_->readFile(std::string(req.target()), body, path)) {
       res->result(http::status::ok);
       res->set(http::field::content_type, contentType(path));
       res->body() = std::move(body);
     } else {
       res->result(http::status::not_found);
-      res->set(http::field::content_type, "text/plain");
       res->body() = "not found\n";
     }
     res->prepare_payload();
@@ -163,7 +281,8 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
 
   beast::tcp_stream stream_;
   beast::flat_buffer buf_;
-  http::request<http::string_body> req_;
+  http::request_parser<http::string_body> parser_;
+  std::shared_ptr<ConnectionSlot> slot_;
   std::shared_ptr<LiveServer::Impl> srv_;
 };
 
@@ -172,7 +291,18 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
 void LiveServer::Impl::accept() {
   acceptor.async_accept(asio::make_strand(ioc), [self = shared_from_this()](beast::error_code ec, tcp::socket s) {
     if (!self->acceptor.is_open()) return;
-    if (!ec) std::make_shared<HttpSession>(std::move(s), self)->start();
+    if (!ec && self->connections >= self->opt.max_connections) {
+      // Refused at once: a short fixed answer fits the socket's buffer, so this cannot block.
+      static const std::string busy =
+          "HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain\r\nContent-Length: 29\r\n"
+          "Connection: close\r\n\r\ntoo many connections, retry\r\n";
+      beast::error_code wec;
+      asio::write(s, asio::buffer(busy), wec);
+      s.shutdown(tcp::socket::shutdown_both, wec);
+      s.close(wec);
+    } else if (!ec) {
+      std::make_shared<HttpSession>(std::move(s), std::make_shared<ConnectionSlot>(self))->start();
+    }
     self->accept();
   });
 }
@@ -194,22 +324,28 @@ void LiveServer::Impl::broadcast(std::shared_ptr<const std::string> frame) {
   sessions = std::move(alive);
 }
 
-LiveServer::LiveServer(std::uint16_t port, fs::path web_root) : impl_(std::make_shared<Impl>()) {
-  impl_->root = std::move(web_root);
+LiveServer::LiveServer(LiveServerOptions o) : impl_(std::make_shared<Impl>()) {
+  std::error_code fec;
+  impl_->root = fs::canonical(o.web_root, fec);
+  if (fec) throw ConfigError("the live view's page folder " + o.web_root.string() + ": " + fec.message());
+  impl_->opt = std::move(o);
+  const LiveServerOptions& opt = impl_->opt;
   beast::error_code ec;
-  const tcp::endpoint ep(asio::ip::make_address("127.0.0.1"), port);
+  impl_->bound = asio::ip::make_address(opt.address, ec);
+  if (ec) throw ConfigError("cannot listen on '" + opt.address + "': not an IP address (" + ec.message() + ")");
+  const tcp::endpoint ep(impl_->bound, opt.port);
   impl_->acceptor.open(ep.protocol(), ec);
   if (!ec) impl_->acceptor.set_option(asio::socket_base::reuse_address(true), ec);
   if (!ec) impl_->acceptor.bind(ep, ec);
   if (!ec) impl_->acceptor.listen(asio::socket_base::max_listen_connections, ec);
-  if (ec) throw OutputError("cannot listen on 127.0.0.1:" + std::to_string(port) + ": " + ec.message());
+  if (ec) throw OutputError("cannot listen on " + opt.address + ":" + std::to_string(opt.port) + ": " + ec.message());
 }
 
 LiveServer::~LiveServer() { stop(); }
 
 std::uint16_t LiveServer::port() const { return impl_->acceptor.local_endpoint().port(); }
 
-void LiveServer::onCommand(std::function<void(const std::string&)> f) { impl_->on_command = std::move(f); }
+void LiveServer::onCommand(std::function<std::string(const std::string&)> f) { impl_->on_command = std::move(f); }
 void LiveServer::onConnect(std::function<void()> f) { impl_->on_connect = std::move(f); }
 
 void LiveServer::publish(std::string frame) {

@@ -13,7 +13,7 @@ namespace terramap::cli {
 
 /// \throws PluginError (plugin not found), ConfigError (a value its schema refuses).
 inline Params stageParams(const PipelineSpec& spec, const StageSpec& stage) {
-  const PluginHandle h = PluginRegistry(spec.plugin_paths).create(stage.type);
+  const PluginHandle h = PluginRegistry::forPipeline(spec.plugin_paths, spec.plugin_paths_where).create(stage.type);
   std::map<std::string, ParamValue> given;
   for (const auto& [k, v] : stage.params) given[k] = v.value;
   return makeParams(stage.name, h->schema(), given);

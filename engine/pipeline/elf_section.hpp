@@ -4,6 +4,7 @@
 // a sanitizer runtime that aborts the process when it is not loaded first).
 #include <optional>
 #include <string>
+#include <vector>
 
 namespace terramap::detail {
 
@@ -13,5 +14,10 @@ namespace terramap::detail {
 /// Never throws for bad file content: every offset is checked against the file size.
 std::optional<std::string> readElfSection(const std::string& path, const std::string& name,
                                           std::size_t max_bytes = 4096);
+
+/// The names of the symbols the ELF file at `path` exports (defined, global or weak, in its
+/// dynamic symbol table), sorted: what dlopen()/dlsym() would find, read without loading.
+/// nullopt under the same conditions as readElfSection() or without a dynamic symbol table.
+std::optional<std::vector<std::string>> readElfExportedSymbols(const std::string& path);
 
 }  // namespace terramap::detail

@@ -290,7 +290,7 @@ std::unique_ptr<Engine> Engine::fromSpec(const PipelineSpec& spec, const PluginR
 }
 
 std::unique_ptr<Engine> Engine::fromSpec(const PipelineSpec& spec) {
-  return fromSpec(spec, PluginRegistry(spec.plugin_paths));
+  return fromSpec(spec, PluginRegistry::forPipeline(spec.plugin_paths, spec.plugin_paths_where));
 }
 
 std::unique_ptr<Engine> Engine::fromValidatedSpec(const PipelineSpec& spec, const PluginRegistry& registry) {

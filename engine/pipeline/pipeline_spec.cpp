@@ -133,8 +133,10 @@ PipelineSpec parseRoot(yaml::Diagnostics& d, const YAML::Node& root, PipelineSpe
                                             " (this terramap reads version 1)");
   parseMap(d, root["map"], spec);
   yaml::getInt(d, root, "threads", "", spec.threads, 1, 256);
-  if (yaml::getStrings(d, root, "plugin_paths", "", spec.plugin_paths))
+  if (yaml::getStrings(d, root, "plugin_paths", "", spec.plugin_paths)) {
+    spec.plugin_paths_where = d.at(root["plugin_paths"], "plugin_paths");
     for (auto& p : spec.plugin_paths) p = spec.resolvePath(p);
+  }
 
   if (const YAML::Node s = root["source"]) {
     spec.source.where = d.at(s, "source");

@@ -119,6 +119,38 @@ std::string fpStateText(const FpState& s) {
   return os.str();
 }
 
+/// Everything that can be refused from the file alone, before dlopen() runs any of its code
+/// (constructors run at load, before any symbol could be asked for). Throws PluginError.
+void checkBeforeLoading(const std::string& path) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) throw PluginError(path + ": cannot load plugin library: no such file");
+  const auto symbols = detail::readElfExportedSymbols(path);
+  if (!symbols)
+    throw PluginError(path + ": cannot load plugin library: not an ELF shared library of this machine, or its "
+                      "section or dynamic symbol table cannot be read (a plugin's symbols are read before it is loaded)");
+  auto exports = [&](const char* s) { return std::binary_search(symbols->begin(), symbols->end(), std::string(s)); };
+  if (!exports(kPluginInfoSymbol))
+    throw PluginError(path + ": missing symbol '" + std::string(kPluginInfoSymbol) +
+                      "': not a terramap plugin (export it with TERRAMAP_PLUGIN)");
+  if (const auto note = detail::readElfSection(path, TERRAMAP_PLUGIN_ABI_SECTION)) {
+    const std::string found(note->c_str());  // up to the NUL
+    if (found != TERRAMAP_BUILD_FINGERPRINT) throw fingerprintMismatch(path, found, " (read before loading)");
+  }
+  for (const char* sym : {kPluginCreateSymbol, kPluginDestroySymbol})
+    if (!exports(sym))
+      throw PluginError(path + ": missing symbol '" + std::string(sym) + "' (export it with TERRAMAP_PLUGIN)");
+}
+
+struct TrustSettings {
+  std::mutex mu;
+  bool allow_config_paths = false;
+  std::vector<std::string> cli_paths;
+};
+TrustSettings& trust() {
+  static auto* t = new TrustSettings();  // never destroyed: registries may be made at exit
+  return *t;
+}
+
 /// Loads and checks one library. Throws PluginError with the file and the mismatch.
 std::shared_ptr<PluginLibrary> openLibrary(const std::string& path) {
   // Accepted libraries stay loaded for the life of the process: objects they made (records
@@ -130,11 +162,7 @@ std::shared_ptr<PluginLibrary> openLibrary(const std::string& path) {
   std::lock_guard<std::mutex> lock(mu);
   if (auto it = cache->find(key); it != cache->end()) return it->second;
 
-  // The ABI note is read from the file before dlopen() runs any of the library's code.
-  if (const auto note = detail::readElfSection(path, TERRAMAP_PLUGIN_ABI_SECTION)) {
-    const std::string found(note->c_str());  // up to the NUL
-    if (found != TERRAMAP_BUILD_FINGERPRINT) throw fingerprintMismatch(path, found, " (read before loading)");
-  }
+  checkBeforeLoading(path);
   auto lib = std::make_shared<PluginLibrary>();
   lib->path = path;
   const FpState fp_before;
@@ -216,6 +244,10 @@ const std::string& PluginHandle::path() const { return lib_->path; }
 const std::string& PluginHandle::version() const { return lib_->version; }
 
 PluginRegistry::PluginRegistry(std::vector<std::string> extra_paths) : paths_(std::move(extra_paths)) {
+  {
+    std::lock_guard<std::mutex> lock(trust().mu);
+    paths_.insert(paths_.end(), trust().cli_paths.begin(), trust().cli_paths.end());
+  }
   if (const char* env = std::getenv("TERRAMAP_PLUGIN_PATH")) {
     std::stringstream ss(env);
     std::string item;
@@ -223,6 +255,29 @@ PluginRegistry::PluginRegistry(std::vector<std::string> extra_paths) : paths_(st
       if (!item.empty()) paths_.push_back(item);
   }
   paths_.push_back(defaultPluginDir());
+}
+
+PluginRegistry PluginRegistry::forPipeline(const std::vector<std::string>& config_paths, const std::string& where) {
+  if (!config_paths.empty() && !configPluginPathsAllowed())
+    throw ConfigError(where + ": a pipeline file may not choose where plugins are loaded from (loading a library "
+                      "runs its code): give the folders with --plugin-path or TERRAMAP_PLUGIN_PATH, or pass "
+                      "--allow-config-plugin-paths if you trust this file");
+  return PluginRegistry(config_paths);
+}
+
+void PluginRegistry::allowConfigPluginPaths(bool allow) {
+  std::lock_guard<std::mutex> lock(trust().mu);
+  trust().allow_config_paths = allow;
+}
+
+bool PluginRegistry::configPluginPathsAllowed() {
+  std::lock_guard<std::mutex> lock(trust().mu);
+  return trust().allow_config_paths;
+}
+
+void PluginRegistry::addTrustedPaths(const std::vector<std::string>& dirs) {
+  std::lock_guard<std::mutex> lock(trust().mu);
+  trust().cli_paths.insert(trust().cli_paths.end(), dirs.begin(), dirs.end());
 }
 
 std::string PluginRegistry::defaultPluginDir() {
@@ -276,9 +331,25 @@ std::vector<PluginCandidate> PluginRegistry::scan() const {
 }
 
 std::vector<std::string> PluginRegistry::availableTypes() const {
+  // A did-you-mean for a mistyped `type:` must not run every library in the folders.
   std::vector<std::string> out;
-  for (const auto& c : scan())
-    if (c.ok) out.push_back(c.type);
+  for (const auto& dir : paths_) {
+    std::error_code ec;
+    if (!fs::is_directory(dir, ec)) continue;
+    std::vector<fs::path> files;
+    for (const auto& e : fs::directory_iterator(dir, ec))
+      if (e.path().extension() == ".so") files.push_back(e.path());
+    std::sort(files.begin(), files.end());
+    for (const auto& f : files) {
+      const std::string type = f.stem().string();
+      if (std::find(out.begin(), out.end(), type) != out.end()) continue;
+      try {
+        checkBeforeLoading(f.string());
+        out.push_back(type);
+      } catch (const PluginError&) {  // NOLINT: a refused file is no suggestion; `terramap plugins` says why
+      }
+    }
+  }
   return out;
 }
 

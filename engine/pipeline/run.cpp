@@ -242,7 +242,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   PipelineSpec spec = spec_in;
   if (options.threads > 0) spec.threads = options.threads;
   if (!options.out_dir.empty()) spec.outputs.dir = options.out_dir;
-  PluginRegistry registry(spec.plugin_paths);
+  PluginRegistry registry = PluginRegistry::forPipeline(spec.plugin_paths, spec.plugin_paths_where);
   // Everything that can be checked is checked before the first event: the pipeline (every
   // problem at once) and the source's settings.
   std::vector<std::string> errors = Engine::validate(spec, registry);

@@ -145,7 +145,7 @@ pipeline:
 source: {type: sequence, clouds: )" + std::string(TERRAMAP_DATA_DIR) + R"(/gicp_pair, extensions: [.ply]}
 outputs: {dir: out, png: [], snapshot: false, series_interval_s: 0.05}
 )");
-  const Result r = sh("run " + (d / "p.yaml").string());
+  const Result r = sh("run " + (d / "p.yaml").string() + " --allow-config-plugin-paths");
   ASSERT_EQ(r.code, 0) << r.out;
   const auto report = nlohmann::json::parse(std::ifstream(d / "out" / "report.json"));
   const auto& series = report["series"];
@@ -170,7 +170,7 @@ pipeline:
 source: {type: sequence, clouds: )" + std::string(TERRAMAP_DATA_DIR) + R"(/gicp_pair, extensions: [.ply], max_frames: 1}
 outputs: {dir: out, png: [], snapshot: false, report: false}
 )");
-  const Result r = sh("run " + (d / "plug.yaml").string());
+  const Result r = sh("run " + (d / "plug.yaml").string() + " --allow-config-plugin-paths");
   EXPECT_EQ(r.code, 5) << r.out;  // plugin
   EXPECT_NE(r.out.find("stage 'p' (test_probe) threw on point_cloud"), std::string::npos) << r.out;
 }

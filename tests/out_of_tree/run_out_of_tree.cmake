@@ -45,7 +45,7 @@ outputs: {dir: out, geotiff: [slope], png: [], snapshot: false}
   if(rc OR NOT out MATCHES "slope_layer" OR NOT out MATCHES "pose_probe" OR NOT out MATCHES "smooth_filter")
     message(FATAL_ERROR "[${tag}] installed terramap does not list the out-of-tree and installed plugins:\n${out}")
   endif()
-  execute_process(COMMAND ${PREFIX}/bin/terramap run ${dir}/pipeline.yaml --quiet
+  execute_process(COMMAND ${PREFIX}/bin/terramap run ${dir}/pipeline.yaml --quiet --allow-config-plugin-paths
     RESULT_VARIABLE rc ERROR_VARIABLE err)
   if(rc)
     message(FATAL_ERROR "[${tag}] installed terramap could not run the out-of-tree plugins (${rc}): ${err}")

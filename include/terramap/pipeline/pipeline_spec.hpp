@@ -79,6 +79,7 @@ struct PipelineSpec {
   std::vector<LayerDecl> layers;
   int threads = 2;
   std::vector<std::string> plugin_paths;
+  std::string plugin_paths_where;  ///< "file:line:col: plugin_paths" when given
   SourceSpec source;
   std::vector<StageSpec> stages;
   OutputSpec outputs;

@@ -392,13 +392,15 @@ PipelineSpec countingSpec(int threads, long fail_at) {
       return std::make_unique<CountingSource>(static_cast<long>(sourceDouble(s.source, "count", true)),
                                               static_cast<long>(sourceDouble(s.source, "fail_at", false, -1.0)));
     });
+    // As `--plugin-path` would: a pipeline file may not name plugin folders by itself.
+    PluginRegistry::addTrustedPaths({kTestDir});
     return true;
   }();
   (void)registered;
   return parsePipelineString("version: 1\nmap: {resolution: 0.1, size: [20, 20], tile: 16}\nthreads: " +
                                  std::to_string(threads) + "\nsource: {type: test_counting, count: 400, fail_at: " +
                                  std::to_string(fail_at) + "}\npipeline:\n  - {name: a, type: test_probe, params: {output_layer: a}}\n"
-                                 "outputs: {report: false, snapshot: false}\nplugin_paths: [" + kTestDir + "]\n",
+                                 "outputs: {report: false, snapshot: false}\n",
                              "p.yaml", ".");
 }
 }  // namespace
