@@ -10,9 +10,9 @@ set(prefix ${WORK_DIR}/prefix)
 terramap_scratch_install(${BUILD_DIR} ${prefix})
 terramap_build_against(${prefix} ${SOURCE_DIR}/tests/embed ${WORK_DIR}/build "" "the embedding program")
 
-# The README's embedding snippet and every public header were compiled with it (-Werror).
+# The embedding snippet of docs/embedding.md and every public header were compiled with it (-Werror).
 if(NOT EXISTS ${WORK_DIR}/build/readme_snippet)
-  message(FATAL_ERROR "the README's embedding snippet was not compiled (no '## Embedding' cpp block?)")
+  message(FATAL_ERROR "docs/embedding.md's snippet was not compiled (no '## C++' cpp block?)")
 endif()
 
 # The link line, as Ninja runs it.
