@@ -23,6 +23,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <deque>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -285,6 +286,15 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
   // The same observations with the force sensor reading the simulator's force without its noise:
   // buildSample on them gives that force in the sample's own frame, sign and rows.
   std::map<std::string, soil::ObservationHistory> quiet_history;
+  // The simulator's truth at each observation of each machine (same stamps as `history`), so a
+  // sample's horizon rows find theirs.
+  struct TruthRow {
+    double stamp;
+    float geometry[5];
+    Eigen::Vector3d parts[3];  // map frame, soil on blade
+    float edge_vz;
+  };
+  std::map<std::string, std::deque<TruthRow>> truth_rows;
   long last_sequence = 0;
   std::vector<std::shared_ptr<const SweepRecord>> pending;
   auto collect = [&] {
@@ -293,6 +303,32 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
       last_sequence = r->sequence;
       pending.push_back(std::static_pointer_cast<const SweepRecord>(r->payload));
     }
+  };
+  // The last P truth rows up to the sweep's end: the rows buildSample took (same stamps, same
+  // rule), their forces in the sample's frame (along t̂, up; blade on soil).
+  auto addTruthRows = [&](const std::string& id, const SweepRecord& rec, int P) {
+    const auto& rows = truth_rows[id];
+    auto end = std::upper_bound(rows.begin(), rows.end(), rec.t1 + 1e-9,
+                                [](double t, const TruthRow& r) { return t < r.stamp; });
+    if (end - rows.begin() < P) {
+      const float nan = std::numeric_limits<float>::quiet_NaN();
+      out.truth_geometry_rows.emplace_back(static_cast<std::size_t>(P) * 5, nan);
+      out.force_parts.emplace_back(static_cast<std::size_t>(P) * 6, nan);
+      out.edge_vz_rows.emplace_back(static_cast<std::size_t>(P), nan);
+      return;
+    }
+    std::vector<float> geo, parts, vz;
+    for (auto it = end - P; it != end; ++it) {
+      geo.insert(geo.end(), it->geometry, it->geometry + 5);
+      for (const Eigen::Vector3d& f : it->parts) {
+        parts.push_back(static_cast<float>(-f.head<2>().dot(rec.t_hat)));
+        parts.push_back(static_cast<float>(-f.z()));
+      }
+      vz.push_back(it->edge_vz);
+    }
+    out.truth_geometry_rows.push_back(std::move(geo));
+    out.force_parts.push_back(std::move(parts));
+    out.edge_vz_rows.push_back(std::move(vz));
   };
   // Samples are built once the whole observation period has been pushed, so the observation
   // at the sweep's last pose (same stamp, whatever the event order) is in the history.
@@ -328,6 +364,7 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
       const bool quiet_known = qh != quiet_history.end() &&
           soil::buildSample(qh->second, *rec, cfg.history_T, cfg.horizon_P, qs) == soil::SampleSkip::None;
       out.force_quiet.push_back(quiet_known ? std::move(qs.force) : std::vector<float>(s.force.size(), nan));
+      addTruthRows(rec->machine_id, *rec, s.P);
       out.samples.push_back(std::move(s));
     }
     pending.clear();
@@ -345,6 +382,20 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
           Observation quiet = *o;
           quiet.force_base_N = mt.T_map_base.linear().transpose() * mt.force_quiet_map_N;
           quiet_history.try_emplace(o->machine_id, capacity).first->second.push(quiet);
+          auto& tr = truth_rows[o->machine_id];
+          if (tr.empty() || o->stamp >= tr.back().stamp) {
+            const float nan = std::numeric_limits<float>::quiet_NaN();
+            const sim::FeeTruth& ft = mt.fee;
+            const bool cutting = ft.cutting_slices > 0;
+            TruthRow row{o->stamp,
+                         {cutting ? static_cast<float>(ft.alpha_rad) : nan, cutting ? static_cast<float>(ft.rho_rad) : nan,
+                          cutting ? static_cast<float>(ft.depth_m) : nan, cutting ? static_cast<float>(ft.width_m) : nan,
+                          cutting ? static_cast<float>(ft.q_n) : nan},
+                         {mt.force_fee_map_N, mt.force_inertia_map_N, mt.force_penetration_map_N},
+                         static_cast<float>(mt.edge_vz_mps)};
+            tr.push_back(row);
+            while (tr.size() > capacity) tr.pop_front();
+          }
         }
       }
       engine->push(e);
@@ -371,7 +422,7 @@ std::string episodeFileName(const EpisodePlan& plan) {
 void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, const EpisodeData& ep) {
   const hsize_t n = ep.samples.size();
   const hsize_t T = static_cast<hsize_t>(cfg.history_T), P = static_cast<hsize_t>(cfg.horizon_P);
-  std::vector<float> obs, theta, force, truth, truth_geo, force_quiet;
+  std::vector<float> obs, theta, force, truth, truth_geo, force_quiet, geo_rows, parts, vz_rows;
   std::vector<double> anchor;
   std::vector<long long> sweep;
   obs.reserve(n * T * soil::kObsFeatures);
@@ -387,6 +438,14 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
       force_quiet.insert(force_quiet.end(), ep.force_quiet[i].begin(), ep.force_quiet[i].end());
     else
       force_quiet.insert(force_quiet.end(), s.force.size(), std::numeric_limits<float>::quiet_NaN());
+    const auto perRow = [&](const std::vector<std::vector<float>>& from, std::vector<float>& to, std::size_t width) {
+      const std::size_t count = static_cast<std::size_t>(s.P) * width;
+      if (i < from.size() && from[i].size() == count) to.insert(to.end(), from[i].begin(), from[i].end());
+      else to.insert(to.end(), count, std::numeric_limits<float>::quiet_NaN());
+    };
+    perRow(ep.truth_geometry_rows, geo_rows, 5);
+    perRow(ep.force_parts, parts, 6);
+    perRow(ep.edge_vz_rows, vz_rows, 1);
     anchor.push_back(s.anchor_stamp);
     sweep.push_back(s.sweep_index);
   }
@@ -423,6 +482,10 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
       writeArray(f, "truth_geometry", H5T_NATIVE_FLOAT, truth_geo.data(), {n, 5}, 4, path);
       attrString(f, "truth_geometry", "alpha_rad,rho_rad,d_m,w_m,q_n");
       writeArray(f, "force_quiet", H5T_NATIVE_FLOAT, force_quiet.data(), {n, P, 2}, 4, path);
+      writeArray(f, "truth_geometry_rows", H5T_NATIVE_FLOAT, geo_rows.data(), {n, P, 5}, 4, path);
+      writeArray(f, "force_parts", H5T_NATIVE_FLOAT, parts.data(), {n, P, 3, 2}, 4, path);
+      attrString(f, "force_parts", "fee_mobilised,inertia_mobilised,penetration");
+      writeArray(f, "edge_vz", H5T_NATIVE_FLOAT, vz_rows.data(), {n, P}, 4, path);
       writeArray(f, "anchor_stamp", H5T_NATIVE_DOUBLE, anchor.data(), {n}, 4, path);
       writeArray(f, "sweep_index", H5T_NATIVE_LLONG, sweep.data(), {n}, 4, path);
     } catch (...) {
@@ -565,6 +628,10 @@ SoilDataset readSoilDataset(const std::string& dir) {
     };
     optional("truth_geometry", d.truth_geometry, {n, 5}, "[N, 5]");
     optional("force_quiet", d.force_quiet, {n, static_cast<std::uint64_t>(P), 2}, "[N, P, 2] with the N and P of 'force'");
+    const std::uint64_t Pu = static_cast<std::uint64_t>(P);
+    optional("truth_geometry_rows", d.truth_geometry_rows, {n, Pu, 5}, "[N, P, 5] with the N and P of 'force'");
+    optional("force_parts", d.force_parts, {n, Pu, 3, 2}, "[N, P, 3, 2] with the N and P of 'force'");
+    optional("edge_vz", d.edge_vz_rows, {n, Pu}, "[N, P] with the N and P of 'force'");
     for (std::size_t i = 0; i < n; ++i) {
       d.episode.push_back(static_cast<int>(plan[0]));
       d.split.push_back(static_cast<std::uint8_t>(plan[1]));

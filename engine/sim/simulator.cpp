@@ -325,6 +325,11 @@ void Simulator::physicsStep(double dt, bool relax) {
     for (int a = 0; a < 3; ++a)
       m.ou[a] += -m.ou[a] * dt / tau + std::sqrt(2.0 * dt / tau) * m.normal(m.noise_rng);
     m.truth.force_quiet_map_N = F;
+    m.truth.force_fee_map_N = mob * bf.fee_map;
+    m.truth.force_inertia_map_N = mob * bf.inertia_map;
+    m.truth.force_penetration_map_N = bf.penetration_map;
+    m.truth.mobilised = mob;
+    m.truth.edge_vz_mps = m.edge_vz;
     if (F.squaredNorm() > 0) F += m.ou * (spec.force_noise_abs_n + spec.force_noise_rel * F.norm());
     m.truth.force_map_N = F;
     m.truth.fee = bf.truth;

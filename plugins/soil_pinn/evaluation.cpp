@@ -2,6 +2,7 @@
 
 #include <terramap/eval/statistics.hpp>
 #include <terramap/soil/fee.hpp>
+#include <terramap/soil/pinn_sample.hpp>
 #include <terramap/soil/soil_table.hpp>
 
 #include <ATen/ATen.h>
@@ -21,6 +22,60 @@ constexpr double kDisplayScale[kSoilCount] = {1e-3, 180 / 3.14159265358979323846
 constexpr const char* kDisplayUnit[kSoilCount] = {"kPa", "deg", "kPa", "deg", "kN/m^3"};
 constexpr const char* kName[kSoilCount] = {"c", "phi", "ca", "delta", "gamma"};
 
+// Σ‖F̂ − F_q‖ and its parts along x and z, for one force model (ForceGap).
+struct GapSum {
+  double e = 0, ex = 0, ez = 0;
+  void add(const Eigen::Vector2d& pred, const Eigen::Vector2d& q) {
+    e += (pred - q).norm();
+    ex += std::abs(pred.x() - q.x());
+    ez += std::abs(pred.y() - q.y());
+  }
+  ForceGap finish(double norm) const {
+    if (!(norm > 0)) return {};
+    return {100.0 * e / norm, 100.0 * ex / norm, 100.0 * ez / norm};
+  }
+};
+
+// Index of blade_vz_map_mps in soil::obsFeatureNames(): the observed edge vertical speed.
+constexpr int kObsBladeVzMap = soil::kObsFeatures - 1;
+
+// The physics layer's force with a known soil on one geometry, term by term (ForceDecomposition's
+// ladder): [0] paper F at β*, [1] + penetration when `descending`, [2] + adhesion on the face,
+// [3] + inertia at edge speed v. All zero where the FEE is invalid (as the layer: only F^r there).
+struct Ladder {
+  std::array<Eigen::Vector2d, 4> F;
+  Eigen::Vector2d fee_total = Eigen::Vector2d::Zero(), penetration = Eigen::Vector2d::Zero(),
+                  inertia = Eigen::Vector2d::Zero();
+};
+Ladder physicsLadder(const fee::Soil& s, const fee::Geometry& g, bool descending, double v, double edge_m) {
+  Ladder l;
+  l.F.fill(Eigen::Vector2d::Zero());
+  if (!(g.d_m > 0) || !std::isfinite(g.d_m)) return l;
+  const fee::Result r = fee::evaluateAtBetaMin(s, g);
+  if (!r.valid()) return l;
+  l.fee_total = r.F_total_N;
+  if (descending) l.penetration = {0.0, -fee::penetrationForce(s, g.d_m, g.w_m, edge_m)};
+  // The soil entering the wedge is brought to the blade's speed: mass flux γ/g d w v times v
+  // (the blade pushes it forward).
+  if (v > 0) l.inertia = {s.gamma_n_m3 / 9.80665 * g.d_m * g.w_m * v * v, 0.0};
+  l.F[0] = r.F_N;
+  l.F[1] = r.F_N + l.penetration;
+  l.F[2] = r.F_total_N + l.penetration;
+  l.F[3] = l.F[2] + l.inertia;
+  return l;
+}
+
+struct DecompAccum {
+  double norm = 0, norm_moving = 0;
+  long rows = 0, moving = 0;
+  GapSum a, b, c, a_moving, b_moving, c_moving;
+  std::array<GapSum, 4> ladder_truth, ladder_mapped;
+  GapSum wedge, penetration, inertia;
+  double n_fee = 0, n_inertia = 0, n_penetration = 0;
+  long observed_down = 0, observed_down_true = 0, true_down = 0;
+  std::vector<double> ratio_d, ratio_w, ratio_q;
+};
+
 // Truth columns of the dataset are [c, phi, ca, delta, gamma] (eval::SoilDataset), SoilCol order.
 struct Accum {
   SplitMetrics m;
@@ -34,6 +89,7 @@ struct Accum {
   long rows = 0, stalled_rows = 0;
   std::vector<std::array<double, 2>> forces;  // for the constant-force baseline
   std::vector<double> q_ratio;                // mapped Q / simulator's q, per sample
+  DecompAccum dec;
   long input_measured = 0, input_beyond = 0;  // samples with an input distance, and beyond q
   double input_share = 0;                     // Σ share of the prior variance added
   // Per property, truth and estimate of every valid sample (the skill statistics).
@@ -48,6 +104,10 @@ struct SampleView {
   fee::Soil soil;       // truth
   const float* truth_geometry;  // alpha, rho, d, w, q (NaN when unknown)
   const float* force_quiet;     // [P_model][2], the force without its noise (NaN rows or null when unknown)
+  const float* obs;             // [P_model][kObsFeatures], the observation rows of the horizon
+  const float* geometry_rows;   // [P_model][5] simulator's alpha, rho, d, w, q per row (null when unknown)
+  const float* force_parts;     // [P_model][3][2] (null when unknown)
+  const float* edge_vz;         // [P_model] (null when unknown)
   bool has_truth_geometry() const {
     return std::isfinite(truth_geometry[0]) && std::isfinite(truth_geometry[2]) && truth_geometry[2] > 0;
   }
@@ -57,8 +117,58 @@ double missBy(const Eigen::Vector2d& pred, double fx, double fz, bool valid) {
   return valid ? std::hypot(pred.x() - fx, pred.y() - fz) : std::hypot(fx, fz);
 }
 
+// One horizon row's contribution to the decomposition (rows with the noise-free force and the
+// simulator's parts only).
+void addDecompositionRow(DecompAccum& d, const SampleView& v, const SoilEstimate& e, int p, double edge_m) {
+  if (!v.force_quiet || !v.force_parts || !v.geometry_rows) return;
+  const Eigen::Vector2d q(v.force_quiet[p * 2], v.force_quiet[p * 2 + 1]);
+  const float* parts = v.force_parts + p * 6;
+  if (!q.allFinite() || !std::all_of(parts, parts + 6, [](float x) { return std::isfinite(x); })) return;
+  const Eigen::Vector2d fee_part(parts[0], parts[1]), inertia_part(parts[2], parts[3]), pen_part(parts[4], parts[5]);
+  const float* g = v.theta + p * 6;
+  const fee::Geometry mapped{g[1], g[0], g[3], g[2], g[4]};
+  const double speed = g[5];
+  const float* tg = v.geometry_rows + p * 5;
+  const fee::Geometry truth_geo{tg[0], tg[1], tg[2], tg[3], tg[4]};  // NaN depth: not cutting
+  const bool down = v.obs[p * soil::kObsFeatures + kObsBladeVzMap] < 0.0f;
+  const bool true_down = v.edge_vz && v.edge_vz[p] < 0.0f;
+  const Ladder lt = physicsLadder(v.soil, truth_geo, down, speed, edge_m);
+  const Ladder lm = physicsLadder(v.soil, mapped, down, speed, edge_m);
+  const Eigen::Vector2d est(e.F[static_cast<std::size_t>(p)][0], e.F[static_cast<std::size_t>(p)][1]);
+  const double norm = q.norm();
+  d.norm += norm;
+  ++d.rows;
+  d.a.add(lt.F[1], q);
+  d.b.add(lm.F[1], q);
+  d.c.add(est, q);
+  if (v.moving[p]) {
+    d.norm_moving += norm;
+    ++d.moving;
+    d.a_moving.add(lt.F[1], q);
+    d.b_moving.add(lm.F[1], q);
+    d.c_moving.add(est, q);
+  }
+  for (int k = 0; k < 4; ++k) {
+    d.ladder_truth[static_cast<std::size_t>(k)].add(lt.F[static_cast<std::size_t>(k)], q);
+    d.ladder_mapped[static_cast<std::size_t>(k)].add(lm.F[static_cast<std::size_t>(k)], q);
+  }
+  d.wedge.add(lt.fee_total, fee_part);
+  d.penetration.add(lt.penetration, pen_part);
+  d.inertia.add(lt.inertia, inertia_part);
+  d.n_fee += fee_part.norm();
+  d.n_inertia += inertia_part.norm();
+  d.n_penetration += pen_part.norm();
+  d.observed_down += down;
+  d.observed_down_true += down && true_down;
+  d.true_down += true_down;
+  if (truth_geo.d_m > 0 && mapped.d_m > 0) d.ratio_d.push_back(mapped.d_m / truth_geo.d_m);
+  if (truth_geo.w_m > 0 && mapped.w_m > 0) d.ratio_w.push_back(mapped.w_m / truth_geo.w_m);
+  if (truth_geo.q_n > 0 && std::isfinite(mapped.q_n)) d.ratio_q.push_back(mapped.q_n / truth_geo.q_n);
+}
+
 // The estimator's force error and the physics baselines over the horizon.
-void addForceErrors(Accum& a, const SampleView& v, const SoilEstimate& e, int P) {
+void addForceErrors(Accum& a, const SampleView& v, const SoilEstimate& e, int P, double edge_m) {
+  for (int p = 0; p < P; ++p) addDecompositionRow(a.dec, v, e, p, edge_m);
   const bool tg_known = v.has_truth_geometry();
   const float* tg = v.truth_geometry;
   const fee::Geometry truth_geo{tg[0], tg[1], tg[2], tg[3], tg[4]};
@@ -173,6 +283,34 @@ SplitMetrics finishSplit(int split, Accum& a, const std::array<double, kSoilCoun
   for (const auto& fv : a.forces) em += std::hypot(fv[0] - mx, fv[1] - mz);
   m.force_error_mean_pct = pct(em, a.fnorm);
   m.surcharge_ratio_median = median(a.q_ratio);
+  const DecompAccum& d = a.dec;
+  ForceDecomposition& fd = m.decomposition;
+  fd.rows = d.rows;
+  fd.moving_rows = d.moving;
+  fd.truth_geometry = d.a.finish(d.norm);
+  fd.mapped_geometry = d.b.finish(d.norm);
+  fd.estimator = d.c.finish(d.norm);
+  fd.truth_geometry_moving = d.a_moving.finish(d.norm_moving);
+  fd.mapped_geometry_moving = d.b_moving.finish(d.norm_moving);
+  fd.estimator_moving = d.c_moving.finish(d.norm_moving);
+  for (std::size_t k = 0; k < 4; ++k) {
+    fd.ladder_truth[k] = d.ladder_truth[k].finish(d.norm);
+    fd.ladder_mapped[k] = d.ladder_mapped[k].finish(d.norm);
+  }
+  fd.wedge_vs_slices = d.wedge.finish(d.norm);
+  fd.penetration_term = d.penetration.finish(d.norm);
+  fd.inertia_term = d.inertia.finish(d.norm);
+  if (d.norm > 0) {
+    fd.share_fee = d.n_fee / d.norm;
+    fd.share_inertia = d.n_inertia / d.norm;
+    fd.share_penetration = d.n_penetration / d.norm;
+  }
+  fd.observed_descending = d.observed_down;
+  fd.observed_descending_true = d.observed_down_true;
+  fd.true_descending = d.true_down;
+  m.depth_ratio_row_median = median(d.ratio_d);
+  m.width_ratio_row_median = median(d.ratio_w);
+  m.surcharge_ratio_row_median = median(d.ratio_q);
   if (a.input_measured > 0) {
     m.input_beyond_fraction = static_cast<double>(a.input_beyond) / static_cast<double>(a.input_measured);
     m.input_share_mean = a.input_share / static_cast<double>(a.input_measured);
@@ -226,6 +364,14 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
   // Tensors built by hand (tests) may have no noise-free force: then no row counts.
   const float* fq = data.force_quiet.defined() ? data.force_quiet.data_ptr<float>() : nullptr;
   const bool* mv = data.moving.data_ptr<bool>();
+  // Per-row truth (datasets since the decomposition; tensors built by hand may lack it).
+  const float* tgr = data.truth_geometry_rows.defined() ? data.truth_geometry_rows.data_ptr<float>() : nullptr;
+  const float* fparts = data.force_parts.defined() ? data.force_parts.data_ptr<float>() : nullptr;
+  const float* evz = data.edge_vz.defined() ? data.edge_vz.data_ptr<float>() : nullptr;
+  // The decomposition's penetration term uses the model's edge, or the simulator's default one.
+  const double edge_m = est.members().front()->config().edge_thickness_m > 0
+                            ? est.members().front()->config().edge_thickness_m
+                            : 0.025;
   for (long b0 = 0; b0 < n; b0 += batch) {
     const long len = std::min(batch, n - b0);
     const std::vector<SoilEstimate> es = est.estimate(obs + b0 * T * soil::kObsFeatures, th + b0 * P * 6, len, T, P);
@@ -238,13 +384,22 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
       const SoilEstimate& e = es[static_cast<std::size_t>(i)];
       if (!e.valid) continue;
       ++a.m.valid;
-      SampleView v{th + (r * P + p0) * 6, f + (r * P + p0) * 2, mv + r * P + p0, {}, tgeo + r * 5, fq ? fq + (r * P + p0) * 2 : nullptr};
+      SampleView v{th + (r * P + p0) * 6,
+                   f + (r * P + p0) * 2,
+                   mv + r * P + p0,
+                   {},
+                   tgeo + r * 5,
+                   fq ? fq + (r * P + p0) * 2 : nullptr,
+                   obs + (r * T + (T - est.P())) * soil::kObsFeatures,
+                   tgr ? tgr + (r * P + p0) * 5 : nullptr,
+                   fparts ? fparts + (r * P + p0) * 6 : nullptr,
+                   evz ? evz + r * P + p0 : nullptr};
       v.soil.c_pa = tr[r * 5 + 0];
       v.soil.phi_rad = tr[r * 5 + 1];
       v.soil.ca_pa = tr[r * 5 + 2];
       v.soil.delta_rad = tr[r * 5 + 3];
       v.soil.gamma_n_m3 = tr[r * 5 + 4];
-      addForceErrors(a, v, e, est.P());
+      addForceErrors(a, v, e, est.P(), edge_m);
       Fig11Bin* bin = nullptr;
       if (split == static_cast<int>(eval::DatasetSplit::Test) || split == static_cast<int>(eval::DatasetSplit::HeldOut)) {
         const int fam = data.family[ru];
@@ -285,6 +440,43 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
   return out;
 }
 
+namespace {
+nlohmann::ordered_json gapJson(const ForceGap& g) {
+  auto num = [](double x) { return std::isfinite(x) ? nlohmann::ordered_json(x) : nlohmann::ordered_json(); };
+  return {{"pct", num(g.total)}, {"along_x_pct", num(g.x)}, {"along_z_pct", num(g.z)}};
+}
+
+constexpr const char* kLadderNames[4] = {"paper_F_beta_min", "plus_penetration_observed_descent",
+                                         "plus_face_adhesion_F_total", "plus_inertia"};
+
+nlohmann::ordered_json decompositionJson(const ForceDecomposition& d) {
+  auto num = [](double x) { return std::isfinite(x) ? nlohmann::ordered_json(x) : nlohmann::ordered_json(); };
+  nlohmann::ordered_json j;
+  j["rows"] = d.rows;
+  j["moving_rows"] = d.moving_rows;
+  j["a_truth_soil_truth_geometry"] = gapJson(d.truth_geometry);
+  j["b_truth_soil_mapped_geometry"] = gapJson(d.mapped_geometry);
+  j["c_estimator"] = gapJson(d.estimator);
+  j["moving"] = {{"a_truth_soil_truth_geometry", gapJson(d.truth_geometry_moving)},
+                 {"b_truth_soil_mapped_geometry", gapJson(d.mapped_geometry_moving)},
+                 {"c_estimator", gapJson(d.estimator_moving)}};
+  for (std::size_t k = 0; k < 4; ++k) {
+    j["ladder_truth_geometry"][kLadderNames[k]] = gapJson(d.ladder_truth[k]);
+    j["ladder_mapped_geometry"][kLadderNames[k]] = gapJson(d.ladder_mapped[k]);
+  }
+  j["part_by_part"] = {{"one_wedge_F_total_vs_fee_over_slices", gapJson(d.wedge_vs_slices)},
+                       {"penetration_term_vs_simulator", gapJson(d.penetration_term)},
+                       {"inertia_term_vs_simulator", gapJson(d.inertia_term)}};
+  j["simulator_part_share"] = {{"fee_over_slices", num(d.share_fee)},
+                               {"inertia", num(d.share_inertia)},
+                               {"penetration", num(d.share_penetration)}};
+  j["rows_observed_descending"] = d.observed_descending;
+  j["rows_observed_descending_truly"] = d.observed_descending_true;
+  j["rows_truly_descending"] = d.true_descending;
+  return j;
+}
+}  // namespace
+
 std::string evaluationJson(const SoilEvaluation& e) {
   nlohmann::ordered_json j;
   for (const auto& m : e.splits) {
@@ -308,6 +500,10 @@ std::string evaluationJson(const SoilEvaluation& e) {
     s["force_error_against_noise_free_pct"] = num(m.force_error_noise_free_pct);
     s["noise_free_rows"] = m.noise_free_rows;
     s["mapped_over_simulator_surcharge_median"] = m.surcharge_ratio_median;
+    s["mapped_over_simulator_row_median"] = {{"depth", num(m.depth_ratio_row_median)},
+                                             {"width", num(m.width_ratio_row_median)},
+                                             {"surcharge", num(m.surcharge_ratio_row_median)}};
+    s["force_decomposition"] = decompositionJson(m.decomposition);
     if (std::isfinite(m.input_beyond_fraction)) {
       s["input_beyond_training_q99_fraction"] = m.input_beyond_fraction;
       s["input_prior_share_mean"] = m.input_share_mean;
@@ -358,6 +554,54 @@ void propertyTable(std::ostringstream& os, const SoilEvaluation& e, const char* 
 }
 }  // namespace
 
+std::string decompositionMarkdown(const SoilEvaluation& e) {
+  std::ostringstream os;
+  char buf[512];
+  auto cell = [](const ForceGap& g) {
+    char c[64];
+    std::snprintf(c, sizeof c, "%.1f (%.1f / %.1f)", g.total, g.x, g.z);
+    return std::string(c);
+  };
+  os << "\nWhere the force error lives, against the noise-free force (% of Σ‖F_q‖, along x / z in brackets): "
+        "(a) the physics layer (paper F at β* + penetration where the edge is observed descending) with the truth "
+        "soil on the simulator's geometry of each row, (b) the same on the mapped geometry, (c) the estimator:\n\n"
+        "| split | rows (moving) | (a) truth geometry | (b) mapped geometry | (c) estimator | (b) − (a) | (c) − (b) | "
+        "(a) / (b) / (c) on moving rows |\n|---|---|---|---|---|---|---|---|\n";
+  for (const auto& m : e.splits) {
+    const ForceDecomposition& d = m.decomposition;
+    if (d.rows == 0) continue;
+    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %s | %s | %s | %+.1f | %+.1f | %.1f / %.1f / %.1f |\n",
+                  m.split.c_str(), d.rows, d.moving_rows, cell(d.truth_geometry).c_str(), cell(d.mapped_geometry).c_str(),
+                  cell(d.estimator).c_str(), d.mapped_geometry.total - d.truth_geometry.total,
+                  d.estimator.total - d.mapped_geometry.total, d.truth_geometry_moving.total,
+                  d.mapped_geometry_moving.total, d.estimator_moving.total);
+    os << buf;
+  }
+  os << "\nThe physics term by term with the truth soil (truth geometry | mapped geometry), and each modelled term "
+        "against the simulator's own part on the truth geometry:\n\n"
+        "| split | paper F at β* | + penetration (observed descent) | + face adhesion (F_total) | + inertia | "
+        "one wedge vs FEE over slices | penetration term | inertia term | simulator's parts FEE / inertia / "
+        "penetration (share of Σ‖F_q‖) | rows observed descending (truly) / truly descending | mapped / simulator's d, "
+        "w, Q (row medians) |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const auto& m : e.splits) {
+    const ForceDecomposition& d = m.decomposition;
+    if (d.rows == 0) continue;
+    os << "| " << m.split << " |";
+    for (std::size_t k = 0; k < 4; ++k) {
+      std::snprintf(buf, sizeof buf, " %.1f (%.1f / %.1f) \\| %.1f (%.1f / %.1f) |", d.ladder_truth[k].total,
+                    d.ladder_truth[k].x, d.ladder_truth[k].z, d.ladder_mapped[k].total, d.ladder_mapped[k].x,
+                    d.ladder_mapped[k].z);
+      os << buf;
+    }
+    std::snprintf(buf, sizeof buf, " %s | %s | %s | %.2f / %.2f / %.2f | %ld (%ld) / %ld | %.2f, %.2f, %.2f |\n",
+                  cell(d.wedge_vs_slices).c_str(), cell(d.penetration_term).c_str(), cell(d.inertia_term).c_str(),
+                  d.share_fee, d.share_inertia, d.share_penetration, d.observed_descending, d.observed_descending_true,
+                  d.true_descending, m.depth_ratio_row_median, m.width_ratio_row_median, m.surcharge_ratio_row_median);
+    os << buf;
+  }
+  return os.str();
+}
+
 std::string evaluationMarkdown(const SoilEvaluation& e) {
   std::ostringstream os;
   char buf[256];
@@ -380,6 +624,7 @@ std::string evaluationMarkdown(const SoilEvaluation& e) {
     }
     os << "\n";
   }
+  os << decompositionMarkdown(e);
   propertyTable(os, e,
                 "Skill: MAE of the estimates / of a constant (the training split's median truth), and the correlation "
                 "of estimate with truth:",

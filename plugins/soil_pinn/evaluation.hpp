@@ -15,6 +15,44 @@
 
 namespace terramap::pinn {
 
+/// One force model's error against the simulator's noise-free force F_q over a set of horizon
+/// rows: 100 Σ‖F̂ − F_q‖ / Σ‖F_q‖, and its parts along x (the sweep direction) and z (up),
+/// 100 Σ|F̂x − F_qx| / Σ‖F_q‖ and 100 Σ|F̂z − F_qz| / Σ‖F_q‖. NaN without rows.
+struct ForceGap {
+  double total = NAN, x = NAN, z = NAN;
+};
+
+/// Where the estimator's force error lives (issue #48; docs/soil_estimator.md, "Where the error
+/// lives"), on the horizon rows whose noise-free force and per-row truth the dataset holds:
+///  (a) the physics layer with the truth soil on the simulator's own geometry of each row
+///      (sim::FeeTruth: one wedge at the depth-weighted depth over the cutting width),
+///  (b) the same physics layer with the truth soil on the mapped geometry (theta_k),
+///  (c) the estimator.
+/// (a) is the model class (the simulator's force against the layer's physics), (b) − (a) the
+/// geometry extraction, (c) − (b) the estimator. "The physics layer" is the FEE's paper F at β*
+/// plus the edge's penetration resistance on rows the observations show descending (the
+/// committed model's layer without its residuals). The ladders add the terms the simulator has
+/// one at a time; the part-by-part rows compare each modelled term with the simulator's own.
+struct ForceDecomposition {
+  long rows = 0, moving_rows = 0;
+  ForceGap truth_geometry, mapped_geometry, estimator;                      ///< (a), (b), (c)
+  ForceGap truth_geometry_moving, mapped_geometry_moving, estimator_moving;  ///< over moving rows
+  /// On the truth / mapped geometry: [0] paper F at β*, [1] + penetration where the observed
+  /// edge descends (= (a) / (b)), [2] + adhesion on the blade face (F_total), [3] + the inertia
+  /// of the soil entering the wedge (γ/g d w v², v the observed edge speed).
+  std::array<ForceGap, 4> ladder_truth{}, ladder_mapped{};
+  /// Part by part on the truth geometry, each against the simulator's own part (same norm
+  /// Σ‖F_q‖): F_total of one wedge at the summary geometry against the FEE summed over the
+  /// slices as mobilised; the penetration term against the simulator's; the inertia term
+  /// against the simulator's.
+  ForceGap wedge_vs_slices, penetration_term, inertia_term;
+  /// Σ‖part‖ / Σ‖F_q‖ of the simulator's parts: FEE over the slices, inertia, penetration.
+  double share_fee = NAN, share_inertia = NAN, share_penetration = NAN;
+  /// Rows the observations show descending, and among them those whose edge truly descended;
+  /// rows whose edge truly descended.
+  long observed_descending = 0, observed_descending_true = 0, true_descending = 0;
+};
+
 struct SplitMetrics {
   std::string split;
   long samples = 0, valid = 0;  ///< samples, and those the estimator called valid
@@ -49,6 +87,10 @@ struct SplitMetrics {
   long noise_free_rows = 0;
   /// Median of the mapped surcharge Q over the simulator's at the same sweep (NaN without any).
   double surcharge_ratio_median = NAN;
+  /// Median over rows of mapped / simulator's depth, width and surcharge (per row, rows where
+  /// both are positive; NaN without per-row truth).
+  double depth_ratio_row_median = NAN, width_ratio_row_median = NAN, surcharge_ratio_row_median = NAN;
+  ForceDecomposition decomposition;
   std::array<double, kSoilCount> mae{};        ///< |mean − truth|, SI units
   std::array<double, kSoilCount> bias{};       ///< mean − truth
   /// Skill against ignorance: the MAE of a constant estimate, the training split's median truth
@@ -91,7 +133,9 @@ PropertySkill propertySkill(const std::vector<double>& truth, const std::vector<
 /// Runs the estimator over every sample of `data` in batches. Single-threaded ATen.
 SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& data);
 std::string evaluationJson(const SoilEvaluation& e);
-/// Markdown tables (force error, errors in display units, calibration, epistemic ratio).
+/// The decomposition's two markdown tables (ForceDecomposition), one row per split with rows.
+std::string decompositionMarkdown(const SoilEvaluation& e);
+/// Markdown tables (force error, the decomposition, errors in display units, calibration, epistemic ratio).
 std::string evaluationMarkdown(const SoilEvaluation& e);
 /// CSV of the Fig. 11 bins: family,id_bin,samples, then truth/mean/sigma per property.
 std::string fig11Csv(const SoilEvaluation& e);

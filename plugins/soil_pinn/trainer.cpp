@@ -56,6 +56,16 @@ TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
   out.force_quiet = at::full({m, P, 2}, std::numeric_limits<float>::quiet_NaN(), at::kFloat);
   float* fq = out.force_quiet.data_ptr<float>();
   const bool has_quiet = d.force_quiet.size() == d.force.size();
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  out.truth_geometry_rows = at::full({m, P, 5}, kNaN, at::kFloat);
+  out.force_parts = at::full({m, P, 3, 2}, kNaN, at::kFloat);
+  out.edge_vz = at::full({m, P}, kNaN, at::kFloat);
+  const std::size_t rows_n = d.force.size() / 2;  // N * stored P
+  // The last P of the stored rows, `width` values a row.
+  const auto copyRows = [&](const std::vector<float>& from, at::Tensor& to, long i, long r, long width) {
+    if (from.size() != rows_n * static_cast<std::size_t>(width)) return;
+    std::copy_n(from.data() + (i * d.P + (d.P - P)) * width, P * width, to.data_ptr<float>() + r * P * width);
+  };
   float* o = out.obs_raw.data_ptr<float>();
   float* th = out.theta_k.data_ptr<float>();
   float* f = out.force.data_ptr<float>();
@@ -72,6 +82,9 @@ TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
     std::copy_n(d.truth.data() + i * 5, 5, tr + r * 5);
     if (d.truth_geometry.size() == d.truth.size()) std::copy_n(d.truth_geometry.data() + i * 5, 5, tg + r * 5);
     if (has_quiet) std::copy_n(d.force_quiet.data() + (i * d.P + (d.P - P)) * 2, static_cast<long>(P) * 2, fq + r * P * 2);
+    copyRows(d.truth_geometry_rows, out.truth_geometry_rows, i, r, 5);
+    copyRows(d.force_parts, out.force_parts, i, r, 6);
+    copyRows(d.edge_vz_rows, out.edge_vz, i, r, 1);
     out.split.push_back(d.split[static_cast<std::size_t>(i)]);
     out.family.push_back(d.family[static_cast<std::size_t>(i)]);
     out.relative_density.push_back(d.relative_density[static_cast<std::size_t>(i)]);

@@ -64,6 +64,10 @@ struct TrainingData {
   at::Tensor truth;      ///< [N, 5] float32 (evaluation only)
   at::Tensor truth_geometry;  ///< [N, 5] float32 simulator's alpha, rho, d, w, q (diagnosis only; NaN if unknown)
   at::Tensor force_quiet;     ///< [N, P, 2] float32 the force without its noise (evaluation only; NaN if unknown)
+  /// Per horizon row, diagnosis only (eval::SoilDataset; NaN if unknown): the simulator's FEE
+  /// geometry [N, P, 5], force_quiet's parts [N, P, 3, 2] (FEE, inertia, penetration), the
+  /// edge's true vertical speed [N, P].
+  at::Tensor truth_geometry_rows, force_parts, edge_vz;
   std::vector<std::uint8_t> split, family;
   std::vector<float> relative_density;
   long dropped_nonfinite = 0;  ///< samples without a finite force (no sensor, NaN features)

@@ -119,6 +119,13 @@ struct EpisodeData {
   /// evaluation only: the error of an estimator that predicted this force exactly is the floor
   /// that the measured force's noise puts under every estimator's force error.
   std::vector<std::vector<float>> force_quiet;
+  /// Per sample and horizon row, for diagnosis only (where the estimator's force error lives,
+  /// `eval-soil`'s decomposition): the simulator's FEE geometry of that row's period
+  /// (sim::FeeTruth alpha, rho, depth, width, q; P × 5, NaN when not cutting), and the parts of
+  /// force_quiet at that row (P × 3 × 2: FEE over the slices and inertia as mobilised, and the
+  /// edge's penetration resistance; along t̂ and up, blade on soil, N), and the edge's true
+  /// vertical speed (P, m/s). Empty vectors when the rows could not be matched.
+  std::vector<std::vector<float>> truth_geometry_rows, force_parts, edge_vz_rows;
   long sweeps = 0;                           ///< SweepRecords seen
   std::map<std::string, long> skipped;       ///< by soil::sampleSkipName
   double simulated_s = 0, wall_s = 0;
@@ -139,7 +146,8 @@ TERRAMAP_API EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const E
 /// Episode file name in DIR/episodes: ep_NNNNN.h5 (in-distribution) or held_NNNNN.h5.
 TERRAMAP_API std::string episodeFileName(const EpisodePlan& plan);
 /// Writes one episode file atomically (HDF5: obs [N,T,35] f32, theta_k [N,P,6], force [N,P,2],
-/// truth [N,5], truth_geometry [N,5], force_quiet [N,P,2], anchor [N] f64 stamps; attributes:
+/// truth [N,5], truth_geometry [N,5], force_quiet [N,P,2], truth_geometry_rows [N,P,5],
+/// force_parts [N,P,3,2], edge_vz [N,P], anchor [N] f64 stamps; attributes:
 /// plan, T, P, feature names, config hash).
 /// \throws OutputError.
 TERRAMAP_API void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, const EpisodeData& ep);
@@ -151,6 +159,8 @@ struct SoilDataset {
   std::vector<float> obs, theta_k, force, truth;  ///< N*T*34, N*P*6, N*P*2, N*5
   std::vector<float> truth_geometry;               ///< N*5 (EpisodeData::truth_geometry; NaN in v1 files)
   std::vector<float> force_quiet;                  ///< N*P*2 (EpisodeData::force_quiet; NaN in files without it)
+  /// N*P*5, N*P*3*2, N*P (EpisodeData's per-row truth; NaN in files without them).
+  std::vector<float> truth_geometry_rows, force_parts, edge_vz_rows;
   std::vector<int> episode;                        ///< N
   std::vector<std::uint8_t> split;                 ///< N (DatasetSplit)
   std::vector<std::uint8_t> family;                ///< N (soil::SoilFamily)

@@ -68,6 +68,15 @@ struct MachineTruth {
   /// the machine observes, so an estimator's error against the measured force cannot fall below
   /// that of this force (docs/soil_estimator.md, "The force noise floor").
   Eigen::Vector3d force_quiet_map_N = Eigen::Vector3d::Zero();
+  /// force_quiet_map_N in its parts (map frame, N, soil on blade; they sum to it): the FEE
+  /// summed over the blade's slices (pushed piles included) and the soil's inertia, both as far
+  /// as the vehicle mobilised them, and the edge's penetration resistance. For diagnosis only
+  /// (where an estimator's physics misses the force: docs/soil_estimator.md).
+  Eigen::Vector3d force_fee_map_N = Eigen::Vector3d::Zero();
+  Eigen::Vector3d force_inertia_map_N = Eigen::Vector3d::Zero();
+  Eigen::Vector3d force_penetration_map_N = Eigen::Vector3d::Zero();
+  double mobilised = 0;                 ///< share of fee + inertia the vehicle mobilised, [0, 1]
+  double edge_vz_mps = 0;               ///< cutting edge's vertical speed the force saw (< 0 descends)
   FeeTruth fee;                         ///< truth FEE geometry and soil of the cut
   bool stalled = false;
   std::array<double, 5> setpoints{};    ///< speed, depth, roll, blade yaw, heading

@@ -458,3 +458,112 @@ TEST(Trainer, SupervisionByTheTruthSoilReachesTheLoss) {
   EXPECT_LT(supervised, 0.5 * plain) << "force only " << plain << ", supervised " << supervised;
   fs::remove_all(data);
 }
+
+// The decomposition of eval-soil (ForceDecomposition; issue #48): on rows whose noise-free force
+// is exactly the simulator-like F_total of the truth soil on the truth geometry plus the edge's
+// penetration on the rows observed descending, and whose parts say so, the ladder's F_total step
+// on the truth geometry misses by nothing; (a), the paper's F + penetration, misses by exactly the
+// face adhesion; a mapped depth 20 % short makes (b) worse; (c) is the estimator's error
+// against that force, recomputed here from its estimates; each x / z part bounds its total.
+TEST(Evaluation, DecompositionSeparatesModelClassGeometryAndEstimator) {
+  const fs::path dir = fs::temp_directory_path() / ("terramap_trainer_decomp_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "episodes");
+  eval::SoilDatasetConfig cfg;
+  cfg.history_T = kT;
+  cfg.horizon_P = kP;
+  cfg.config_hash = "synthetic";
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  constexpr double kEdge = 0.025;
+  double adhesion_miss = 0, norm = 0;
+  for (int e = 0; e < 4; ++e) {
+    eval::EpisodeData ep;
+    ep.plan.index = ep.plan.file_index = e;
+    ep.plan.split = eval::DatasetSplit::Test;
+    ep.plan.family = static_cast<soil::SoilFamily>(e % 4);
+    ep.plan.relative_density = 0.2 + 0.2 * e;
+    const soil::SoilProperties sp = soil::soilProperties(ep.plan.family, ep.plan.relative_density);
+    for (int s = 0; s < 6; ++s) {
+      soil::PinnSample smp;
+      smp.T = kT;
+      smp.P = kP;
+      smp.obs.assign(static_cast<std::size_t>(kT) * soil::kObsFeatures, 0.0f);
+      std::vector<float> quiet, geo, parts, vz;
+      for (int p = 0; p < kP; ++p) {
+        fee::Geometry g;
+        fee::Result r;
+        do {
+          g = {0.04 * (u(rng) - 0.5), 1.30 + 0.15 * u(rng), 0.05 + 0.15 * u(rng), 1.0 + 0.8 * u(rng), 3000 * u(rng)};
+          r = fee::evaluateAtBetaMin(sp.fee, g);
+        } while (!r.valid());
+        const bool down = (s + p) % 3 == 0;
+        smp.obs[static_cast<std::size_t>((kT - kP + p) * soil::kObsFeatures + soil::kObsFeatures - 1)] = down ? -0.05f : 0.05f;
+        const double pen = down ? fee::penetrationForce(sp.fee, g.d_m, g.w_m, kEdge) : 0.0;
+        const Eigen::Vector2d fq = r.F_total_N + Eigen::Vector2d(0.0, -pen);
+        smp.theta_k.insert(smp.theta_k.end(), {static_cast<float>(g.rho_rad), static_cast<float>(g.alpha_rad),
+                                               static_cast<float>(g.w_m), static_cast<float>(0.8 * g.d_m),
+                                               static_cast<float>(g.q_n), 0.0f});
+        smp.force.insert(smp.force.end(), {static_cast<float>(fq.x()), static_cast<float>(fq.y())});
+        quiet.insert(quiet.end(), {static_cast<float>(fq.x()), static_cast<float>(fq.y())});
+        geo.insert(geo.end(), {static_cast<float>(g.alpha_rad), static_cast<float>(g.rho_rad), static_cast<float>(g.d_m),
+                               static_cast<float>(g.w_m), static_cast<float>(g.q_n)});
+        parts.insert(parts.end(), {static_cast<float>(r.F_total_N.x()), static_cast<float>(r.F_total_N.y()), 0.0f, 0.0f,
+                                   0.0f, static_cast<float>(-pen)});
+        vz.push_back(down ? -0.05f : 0.05f);
+        adhesion_miss += (r.F_total_N - r.F_N).norm();
+        norm += fq.norm();
+      }
+      ep.samples.push_back(smp);
+      ep.force_quiet.push_back(quiet);
+      ep.truth_geometry_rows.push_back(geo);
+      ep.force_parts.push_back(parts);
+      ep.edge_vz_rows.push_back(vz);
+      ep.truth.push_back({static_cast<float>(sp.fee.c_pa), static_cast<float>(sp.fee.phi_rad),
+                          static_cast<float>(sp.fee.ca_pa), static_cast<float>(sp.fee.delta_rad),
+                          static_cast<float>(sp.fee.gamma_n_m3)});
+    }
+    eval::writeEpisodeFile((dir / "episodes" / eval::episodeFileName(ep.plan)).string(), cfg, ep);
+  }
+  const TrainingData td = makeTrainingData(eval::readSoilDataset(dir.string()), kT, kP);
+  ASSERT_EQ(td.size(), 24);
+  std::vector<PinnNet> members;
+  members.emplace_back(PinnConfig{kT, kP, soil::kObsFeatures, {8}, 5, BetaBase::Min, kEdge});
+  const SoilEstimator est(std::move(members), std::vector<float>(soil::kObsFeatures, 0.0f),
+                          std::vector<float>(soil::kObsFeatures, 1.0f));
+  const SoilEvaluation ev = evaluateEstimator(est, td);
+  ASSERT_EQ(ev.splits.size(), 1u);
+  const ForceDecomposition& d = ev.splits[0].decomposition;
+  const std::vector<SoilEstimate> es = est.estimate(td.obs_raw.data_ptr<float>(), td.theta_k.data_ptr<float>(), td.size(), kT, kP);
+  double est_miss = 0, est_norm = 0;
+  long rows = 0;
+  for (long i = 0; i < td.size(); ++i) {
+    if (!es[static_cast<std::size_t>(i)].valid) continue;
+    for (int p = 0; p < kP; ++p) {
+      const Eigen::Vector2d q(td.force_quiet[i][p][0].item<float>(), td.force_quiet[i][p][1].item<float>());
+      const Eigen::Vector2d f(es[static_cast<std::size_t>(i)].F[static_cast<std::size_t>(p)][0],
+                              es[static_cast<std::size_t>(i)].F[static_cast<std::size_t>(p)][1]);
+      est_miss += (f - q).norm();
+      est_norm += q.norm();
+      ++rows;
+    }
+  }
+  ASSERT_GT(rows, 30);
+  EXPECT_EQ(d.rows, rows);
+  EXPECT_LT(d.ladder_truth[2].total, 1e-3);  // F_total + penetration is the force, to float rounding
+  EXPECT_LT(d.wedge_vs_slices.total, 1e-3);
+  EXPECT_LT(d.penetration_term.total, 1e-3);
+  EXPECT_NEAR(d.truth_geometry.total, 100.0 * adhesion_miss / norm, 0.05 * 100.0 * adhesion_miss / norm);
+  EXPECT_GT(d.truth_geometry.total, 1.0);
+  EXPECT_GT(d.mapped_geometry.total, d.truth_geometry.total + 5.0);
+  EXPECT_NEAR(d.estimator.total, 100.0 * est_miss / est_norm, 1e-3 * 100.0 * est_miss / est_norm + 1e-6);
+  for (const ForceGap* g : {&d.truth_geometry, &d.mapped_geometry, &d.estimator}) {
+    EXPECT_LE(std::max(g->x, g->z), g->total + 1e-9);
+    EXPECT_GE(g->x + g->z, g->total - 1e-9);
+  }
+  EXPECT_NEAR(d.share_inertia, 0.0, 1e-12);
+  EXPECT_EQ(d.observed_descending, d.observed_descending_true);
+  EXPECT_EQ(d.observed_descending, d.true_descending);
+  EXPECT_GT(d.true_descending, 0);
+  fs::remove_all(dir);
+}
