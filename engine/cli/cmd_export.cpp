@@ -3,6 +3,7 @@
 
 #include <terramap/core/error.hpp>
 #include <terramap/io/geotiff.hpp>
+#include <terramap/io/output_budget.hpp>
 #include <terramap/io/render.hpp>
 #include <terramap/io/snapshot.hpp>
 
@@ -85,6 +86,8 @@ int runExport(const ExportOptions& o, const std::set<std::string>& given) {
 
   const LayeredMap map = io::loadSnapshot(o.snapshot);  // InputError -> exit 4
   for (const auto& l : o.layers) map.layerId(l);         // LayerError -> exit 6, before writing anything
+  // A sparse snapshot of a few bytes can declare any size; its raster is whole (exit 4).
+  io::requireRasterOutputBudget(map.geometry(), format, o.scale, o.snapshot, true);
   const fs::path snap(o.snapshot);
   const fs::path stem = snap.parent_path() / snap.stem();
 

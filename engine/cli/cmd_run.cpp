@@ -1,6 +1,7 @@
 // `terramap run [PIPELINE.yaml]`: run a pipeline (the embedded demo without a file).
 #include "command.hpp"
 
+#include <terramap/core/text.hpp>
 #include <terramap/eval/truth_report.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>
 #include <terramap/pipeline/run.hpp>
@@ -100,6 +101,10 @@ Registrar reg{Command{"run", [](CLI::App& app, std::function<int()>& run) {
           std::printf("\n");
         }
         for (const auto& f : r.files) std::printf("wrote %s\n", f.c_str());
+        if (!r.removed_temporaries.empty())
+          std::printf("removed %zu stale temporary file%s of dead processes from %s: %s\n", r.removed_temporaries.size(),
+                      r.removed_temporaries.size() == 1 ? "" : "s", r.out_dir.c_str(),
+                      joinStrings(r.removed_temporaries).c_str());
       }
       return kOk;
     };

@@ -1,6 +1,7 @@
 // `terramap sim SCENARIO.yaml --out DIR`: run a simulated episode into DIR/episode.h5.
 #include "command.hpp"
 
+#include <terramap/io/atomic_file.hpp>
 #include <terramap/sim/command_log.hpp>
 #include <terramap/sim/episode.hpp>
 #include <terramap/sim/scenario.hpp>
@@ -46,7 +47,23 @@ Registrar reg{Command{"sim", [](CLI::App& app, std::function<int()>& run) {
       opt.clouds = !args->no_clouds;
       opt.cloud_compression = args->cloud_compression;
       sim::EpisodeTiming tm;
-      const std::string path = sim::runEpisode(sc, args->out, opt, &tm);
+      // Refused before simulating, not after; a killed run's temporaries are swept first.
+      io::requireWritableFolder(args->out);
+      const auto stale = io::removeStaleTemporaries(args->out);
+      if (!stale.empty()) {
+        std::string names;
+        for (const auto& p : stale) names += (names.empty() ? "" : ", ") + p.string();
+        std::cout << "removed " << stale.size() << " stale temporary file" << (stale.size() == 1 ? "" : "s")
+                  << " of dead processes from " << args->out << ": " << names << "\n";
+      }
+      std::string path;
+      try {
+        path = sim::runEpisode(sc, args->out, opt, &tm);
+      } catch (...) {
+        // A full disk fails the episode mid-write: its temporary must not keep the disk full.
+        io::removeOwnTemporaries(args->out);
+        throw;
+      }
       // The run's rate is the figure to compare with BM_SimRealtime (which builds its world
       // outside the timed loop); the set-up is a fixed cost per episode, said on its own.
       std::cout << "wrote " << path << ": " << sc.duration_s << " s simulated in " << tm.run_s << " s wall ("

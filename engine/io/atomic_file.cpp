@@ -1,6 +1,8 @@
 #include <terramap/core/error.hpp>
 #include <terramap/io/atomic_file.hpp>
 
+#include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -8,6 +10,7 @@
 #include <sstream>
 
 #include <fcntl.h>
+#include <signal.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -106,6 +109,60 @@ fs::path temporaryPathFor(const fs::path& target) {
   fs::path p = target;
   p += suffix;
   return p;
+}
+
+namespace {
+
+/// The process id in a writer's temporary name, or -1 when `name` is not one.
+long temporaryOwner(const std::string& name) {
+  auto digitsBetween = [&](std::size_t b, std::size_t e) {
+    if (b >= e || e - b > 10) return -1L;
+    for (std::size_t i = b; i < e; ++i)
+      if (name[i] < '0' || name[i] > '9') return -1L;
+    return std::stol(name.substr(b, e - b));
+  };
+  // <name>.tmp-<pid>
+  if (const std::size_t t = name.rfind(".tmp-"); t != std::string::npos && t > 0) {
+    const long pid = digitsBetween(t + 5, name.size());
+    if (pid > 0) return pid;
+  }
+  // <name>.tmp.<pid>.<16 hex digits>
+  if (name.size() < 17 || name[name.size() - 17] != '.') return -1;
+  for (std::size_t i = name.size() - 16; i < name.size(); ++i)
+    if (!std::isxdigit(static_cast<unsigned char>(name[i]))) return -1;
+  const std::size_t dot = name.size() - 17;
+  const std::size_t t = name.rfind(".tmp.", dot);
+  if (t == std::string::npos || t == 0) return -1;
+  return digitsBetween(t + 5, dot);
+}
+
+bool processIsGone(long pid) { return pid != ::getpid() && ::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH; }
+
+std::vector<fs::path> removeTemporaries(const fs::path& folder, bool own) {
+  std::vector<fs::path> removed;
+  std::error_code ec;
+  for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
+    std::error_code sec;
+    if (!it->is_regular_file(sec)) continue;
+    const long pid = temporaryOwner(it->path().filename().string());
+    const bool match = own ? pid == ::getpid() : pid > 0 && processIsGone(pid);
+    if (match && fs::remove(it->path(), sec)) removed.push_back(it->path());
+  }
+  std::sort(removed.begin(), removed.end());
+  return removed;
+}
+
+}  // namespace
+
+std::vector<fs::path> removeStaleTemporaries(const fs::path& folder) { return removeTemporaries(folder, false); }
+std::vector<fs::path> removeOwnTemporaries(const fs::path& folder) { return removeTemporaries(folder, true); }
+
+void requireWritableFolder(const fs::path& folder) {
+  std::error_code ec;
+  fs::create_directories(folder, ec);
+  if (ec) throw OutputError("cannot write to output folder '" + folder.string() + "': " + ec.message());
+  AtomicFile probe(folder / ".terramap-write-check");  // what a writer does first; removed again
+  probe.abort();
 }
 
 AtomicFile::AtomicFile(fs::path target) : target_(std::move(target)) {

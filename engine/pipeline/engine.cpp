@@ -1,4 +1,5 @@
 #include <terramap/pipeline/engine.hpp>
+#include <terramap/io/output_budget.hpp>
 #include <terramap/core/text.hpp>
 
 #include <algorithm>
@@ -279,6 +280,19 @@ std::vector<std::string> Engine::validate(const PipelineSpec& spec, const Plugin
       if (std::find(layers.begin(), layers.end(), l) == layers.end())
         errors.push_back(spec.outputs.where + ": outputs.png: no stage creates layer '" + l + "'" +
                          didYouMean(l, layers));
+  }
+  // The rasters are whole even when the map is sparse: a run must not play every event only
+  // to find at the end that it cannot write them.
+  if (geometry) {
+    const auto check = [&](const char* key, const char* format, int scale) {
+      try {
+        io::requireRasterOutputBudget(*geometry, format, scale, spec.outputs.where + "." + key, false);
+      } catch (const ConfigError& e) {
+        errors.push_back(e.what());
+      }
+    };
+    if (!spec.outputs.geotiff.empty()) check("geotiff", "geotiff", 1);
+    if (spec.outputs.png_all || !spec.outputs.png.empty()) check("png", "png", io::runPngScale(*geometry));
   }
   return errors;
 }

@@ -1,5 +1,7 @@
 #include <terramap/pipeline/run.hpp>
+#include <terramap/io/output_budget.hpp>
 
+#include <terramap/io/atomic_file.hpp>
 #include <terramap/io/geotiff.hpp>
 #include <terramap/io/render.hpp>
 #include <terramap/io/snapshot.hpp>
@@ -208,7 +210,7 @@ void writeMapOutputs(const PipelineSpec& spec, const Engine& engine, const Truth
   if (spec.outputs.png_all) pngs = map.layerNames();
   for (const auto& layer : pngs) {
     io::RenderOptions ro;
-    ro.scale = std::max(1, 800 / std::max(map.geometry().size().x(), map.geometry().size().y()));
+    ro.scale = io::runPngScale(map.geometry());
     ro.nan_color = io::Rgba{128, 128, 128, 255};
     const std::string& unit = map.layerInfo(map.layerId(layer)).unit;
     // Heights read best hillshaded; everything else as a plain colour map.
@@ -258,6 +260,16 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
     throw ConfigError(all);
   }
   auto engine = Engine::fromValidatedSpec(spec, registry);  // validated just above
+  // The outputs are written last; whether their folder can take them is learnt now, not after
+  // the whole run. A killed run's temporaries are swept from it (only terramap's, of dead
+  // processes, only that folder).
+  try {
+    io::requireWritableFolder(spec.outputs.dir);
+  } catch (const OutputError& e) {
+    throw OutputError(std::string(e.what()) + " (refused before the first event)");
+  }
+  std::vector<std::string> removed_temporaries;
+  for (const auto& p : io::removeStaleTemporaries(spec.outputs.dir)) removed_temporaries.push_back(p.string());
 
   // Records go to disk as they come (an hour reports ~15,000 sweeps of ~5 kB): held, they
   // would grow the process for as long as it runs.
@@ -299,6 +311,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
 
   RunResult res;
   res.out_dir = spec.outputs.dir;
+  res.removed_temporaries = std::move(removed_temporaries);
   res.report = engine->report();
   res.truth_json = truth.json;
   res.run_wall_s = run_s;

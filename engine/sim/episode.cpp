@@ -32,6 +32,13 @@
 namespace terramap::sim {
 namespace {
 
+// libhdf5 closes every file still open when the process exits, and crashes doing so on a file
+// whose close failed (a full disk: H5Fclose cannot flush, the file stays registered, and
+// H5F__close_cb faults at exit). Files are closed explicitly here (or abandoned on failure), so
+// that exit handler has nothing to do; it must be declined before the first HDF5 call, hence
+// at load time.
+[[maybe_unused]] const herr_t kNoHdf5AtExit = H5dont_atexit();
+
 namespace fs = std::filesystem;
 using h5detail::attrDouble;
 using h5detail::attrDoubles;
@@ -673,6 +680,21 @@ EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, Epis
   I.file = H5Fcreate(I.tmp_path.c_str(), H5F_ACC_TRUNC, fcpl, H5P_DEFAULT);
   H5Pclose(fcpl);
   if (I.file < 0) throw OutputError(I.tmp_path + ": cannot create HDF5 file");
+  // A constructor that throws runs no destructor: if laying out the file fails (a full disk),
+  // the file is closed and the temporary removed here, not left open until exit.
+  struct Abandon {
+    Impl& I;
+    bool armed = true;
+    ~Abandon() {
+      if (!armed) return;
+      try {
+        I.closeAll();
+      } catch (...) {  // NOLINT: the error that brought us here is the one reported
+      }
+      std::error_code ec;
+      fs::remove(I.tmp_path, ec);
+    }
+  } abandon{I};
   const Scenario& sc = sim.scenario();
   attrString(I.file, "format", "terramap-sim-episode");
   // Version 2: top-level poses are the truth, estimate/ holds what the mapper received.
@@ -711,6 +733,7 @@ EpisodeWriter::EpisodeWriter(const std::string& path, const Simulator& sim, Epis
   I.snapshot(sim);
   I.next_snapshot = I.snapshot_interval;
   I.writer.start();
+  abandon.armed = false;
 }
 
 EpisodeWriter::~EpisodeWriter() {

@@ -1,7 +1,9 @@
 #include "yaml/reader.hpp"
 
+#include <terramap/core/memory_budget.hpp>
 #include <terramap/core/text.hpp>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdlib>
 #include <sstream>
@@ -23,14 +25,60 @@ void Diagnostics::throwIfAny() const {
   throw ConfigError(all);
 }
 
+namespace {
+
+std::string markText(const std::string& file, const YAML::Mark& m) {
+  return file + ":" + std::to_string(m.line + 1) + ":" + std::to_string(m.column + 1);
+}
+
+/// Every mapping key given twice, at any depth. yaml-cpp keeps both entries and a lookup finds
+/// the first, so the second would be ignored without a word. Aliases can make a small text a
+/// huge tree: the walk stops after `budget` nodes (what is left is then not checked).
+void findDuplicateKeys(const YAML::Node& n, const std::string& path, const std::string& file, int depth,
+                       long& budget, std::vector<std::string>& errors) {
+  if (--budget < 0 || depth > 200) return;
+  if (n.IsMap()) {
+    std::vector<std::pair<std::string, YAML::Mark>> seen;
+    for (const auto& kv : n) {
+      if (!kv.first.IsScalar()) continue;  // reported by the readers as a key that is not a name
+      const std::string key = kv.first.Scalar();
+      const std::string sub = subPath(path, key);
+      const auto it = std::find_if(seen.begin(), seen.end(), [&](const auto& s) { return s.first == key; });
+      if (it != seen.end())
+        errors.push_back(markText(file, kv.first.Mark()) + ": " + sub + ": key given twice (first at " +
+                         markText(file, it->second) + ")");
+      else
+        seen.emplace_back(key, kv.first.Mark());
+      findDuplicateKeys(kv.second, sub, file, depth + 1, budget, errors);
+    }
+  } else if (n.IsSequence()) {
+    for (std::size_t i = 0; i < n.size(); ++i)
+      findDuplicateKeys(n[i], path + "[" + std::to_string(i) + "]", file, depth + 1, budget, errors);
+  }
+}
+
+}  // namespace
+
 YAML::Node load(const std::string& text, const std::string& file) {
+  // yaml-cpp's tree takes far more memory than the text (a 6 MB file took about 1 GB): the
+  // text's size is checked against the budget before it is parsed.
+  constexpr std::uint64_t kTreeBytesPerTextByte = 256;
+  requireConfigBudget(saturatingProduct({text.size(), kTreeBytesPerTextByte}),
+                      file + ": a YAML file of " + formatBytes(text.size()),
+                      std::to_string(kTreeBytesPerTextByte) + " bytes of parse tree per byte of text");
+  YAML::Node root;
   try {
-    return YAML::Load(text);
+    root = YAML::Load(text);
   } catch (const YAML::ParserException& e) {
     std::ostringstream os;
     os << file << ":" << e.mark.line + 1 << ":" << e.mark.column + 1 << ": YAML syntax error: " << e.msg;
     throw ConfigError(os.str());
   }
+  std::vector<std::string> errors;
+  long budget = 16 * static_cast<long>(text.size()) + 1024;
+  findDuplicateKeys(root, "", file, 0, budget, errors);
+  if (!errors.empty()) throw ConfigError(joinStrings(errors, "\n"));
+  return root;
 }
 
 std::string subPath(const std::string& path, const std::string& key) { return path.empty() ? key : path + "." + key; }

@@ -48,6 +48,9 @@ struct RunResult {
   RunReport report;
   std::vector<std::string> files;  ///< every file written
   std::string out_dir;
+  /// Temporaries of killed terramap processes removed from out_dir before the run
+  /// (io::removeStaleTemporaries()).
+  std::vector<std::string> removed_temporaries;
   /// RunOptions::compare_truth's JSON (report.json's "truth"), empty without one.
   std::string truth_json;
   /// Wall seconds of the event loop (source and stages, not the outputs; report.json's
