@@ -63,7 +63,11 @@ MemberOut runMember(const PinnMemberWeights& m, const Eigen::VectorXf& obs_flat,
   o.beta_res = static_cast<double>(m.beta_res_max_rad * std::tanh(zr[1]));
   o.F_r = Eigen::Vector2d(m.force_res_scale_n * zf[0], m.force_res_scale_n * zf[1]);
   Eigen::VectorXf gate;
-  if (m.edge_thickness_m > 0) {
+  if (m.edge_thickness_m > 0 && m.gate_observed) {
+    gate.resize(P);
+    for (int p = 0; p < P; ++p)
+      gate[p] = obs_flat[static_cast<Eigen::Index>(m.T - P + p) * m.D_o + m.gate_feature] < m.gate_zero ? 1.0f : 0.0f;
+  } else if (m.edge_thickness_m > 0) {
     gate = m.gate_W * x + m.gate_b;
     if (m.gate_feature >= 0)
       for (int p = 0; p < P; ++p)
@@ -153,7 +157,9 @@ PinnInference::PinnInference(std::vector<PinnMemberWeights> members, std::vector
     head(m.logvar_W, m.logvar_b, 7, "log_var");
     head(m.res_W, m.res_b, 2, "res");
     head(m.fr_W, m.fr_b, 2, "force_res");
-    if (m.edge_thickness_m > 0) head(m.gate_W, m.gate_b, m.P, "pen_gate");
+    if (m.edge_thickness_m > 0 && !m.gate_observed) head(m.gate_W, m.gate_b, m.P, "pen_gate");
+    if (m.gate_observed && m.gate_feature < 0)
+      throw std::invalid_argument("PinnInference: an observed gate needs gate_feature");
     const std::string options = pinnOptionsError(m.gate_feature, m.D_o, m.edge_thickness_m, m.q_gamma_ref_n_m3);
     if (!options.empty()) throw std::invalid_argument("PinnInference: " + options);
     if (m.theta_k_mean.size() != kThetaKCols || m.theta_k_std.size() != kThetaKCols)

@@ -23,7 +23,8 @@ namespace {
 // 3: the config holds edge_thickness_m (older files load with 0: no penetration term).
 // 4: the config holds gate_feature (older files load with -1: the gate from the encoder only).
 // 5: the config holds q_gamma_ref_n_m3 (older files load with 0: Q as extracted).
-constexpr int kFormatVersion = 5;
+// 6: the config holds gate_observed and gate_zero (older files load with a learned gate).
+constexpr int kFormatVersion = 6;
 constexpr const char* kFormat = "terramap.soil_pinn";
 constexpr const char* kMetadataKey = "terramap_metadata";
 
@@ -33,6 +34,10 @@ nlohmann::json configJson(const PinnConfig& c, int format_version = kFormatVersi
   if (format_version >= 3) j["edge_thickness_m"] = c.edge_thickness_m;
   if (format_version >= 4) j["gate_feature"] = c.gate_feature;
   if (format_version >= 5) j["q_gamma_ref_n_m3"] = c.q_gamma_ref_n_m3;
+  if (format_version >= 6) {
+    j["gate_observed"] = c.gate_observed;
+    j["gate_zero"] = c.gate_zero;
+  }
   return j;
 }
 
@@ -72,6 +77,8 @@ PinnNetImpl::PinnNetImpl(PinnConfig cfg) : cfg_(std::move(cfg)) {
   const std::string options =
       soil::pinnOptionsError(cfg_.gate_feature, cfg_.D_o, cfg_.edge_thickness_m, cfg_.q_gamma_ref_n_m3);
   if (!options.empty()) throw std::invalid_argument("PinnConfig: " + options);
+  if (cfg_.gate_observed && !(cfg_.gate_feature >= 0 && std::isfinite(cfg_.gate_zero)))
+    throw std::invalid_argument("PinnConfig: gate_observed needs gate_feature and a finite gate_zero");
   // Initialise from cfg.seed, then give the global generator its state back so building a
   // network (or loading one) does not disturb anyone else's random stream.
   at::Generator gen = at::detail::getDefaultCPUGenerator();
@@ -88,9 +95,10 @@ PinnNetImpl::PinnNetImpl(PinnConfig cfg) : cfg_(std::move(cfg)) {
   head_logvar_ = register_module("head_log_var", torch::nn::Linear(width, kLogVarCount));
   head_res_ = register_module("head_res", torch::nn::Linear(width, 2));
   head_fr_ = register_module("head_force_res", torch::nn::Linear(width, 2));
-  if (cfg_.edge_thickness_m > 0) head_gate_ = register_module("head_pen_gate", torch::nn::Linear(width, cfg_.P));
+  const bool learned_gate = cfg_.edge_thickness_m > 0 && !cfg_.gate_observed;
+  if (learned_gate) head_gate_ = register_module("head_pen_gate", torch::nn::Linear(width, cfg_.P));
   gen.set_state(saved_state);
-  if (cfg_.gate_feature >= 0) gate_feature_w_ = register_parameter("pen_gate_feature_weight", at::full({1}, -1.0f));
+  if (learned_gate && cfg_.gate_feature >= 0) gate_feature_w_ = register_parameter("pen_gate_feature_weight", at::full({1}, -1.0f));
   theta_mean_ = register_buffer("theta_k_mean", at::zeros({kThetaKCount}, at::kFloat));
   theta_std_ = register_buffer("theta_k_std", at::ones({kThetaKCount}, at::kFloat));
   std::vector<float> off(kLogVarCount);
@@ -163,10 +171,16 @@ PinnOutput PinnNetImpl::forward(const at::Tensor& obs, const at::Tensor& theta_k
     J.select(3, kSoilGamma).add_(dFdQ * (q_k / cfg_.q_gamma_ref_n_m3).unsqueeze(-1));
   }
   if (cfg_.edge_thickness_m > 0) {
-    at::Tensor logit = head_gate_(h);
-    if (cfg_.gate_feature >= 0)
-      logit = logit + gate_feature_w_ * obs.to(at::kFloat).slice(1, cfg_.T - P, cfg_.T).select(2, cfg_.gate_feature);
-    out.pen_gate = at::sigmoid(logit);
+    const at::Tensor feature = cfg_.gate_feature >= 0
+                                   ? obs.to(at::kFloat).slice(1, cfg_.T - P, cfg_.T).select(2, cfg_.gate_feature)
+                                   : at::Tensor();
+    if (cfg_.gate_observed) {
+      out.pen_gate = (feature < cfg_.gate_zero).to(at::kFloat);
+    } else {
+      at::Tensor logit = head_gate_(h);
+      if (cfg_.gate_feature >= 0) logit = logit + gate_feature_w_ * feature;
+      out.pen_gate = at::sigmoid(logit);
+    }
     const PenetrationOut pen = penetrationForward(soil, w, d, out.pen_gate.to(at::kDouble), cfg_.edge_thickness_m);
     const at::Tensor zero = at::zeros_like(pen.Fz);
     out.F = out.F + at::stack({zero, at::where(fee.valid, pen.Fz, zero)}, -1);
@@ -229,13 +243,15 @@ soil::PinnMemberWeights PinnNetImpl::exportWeights() const {
   w.beta_res_max_rad = static_cast<float>(kBetaResMaxRad);
   w.force_res_scale_n = static_cast<float>(kForceResScaleN);
   w.edge_thickness_m = cfg_.edge_thickness_m;
-  if (cfg_.edge_thickness_m > 0) {
+  w.gate_observed = cfg_.gate_observed;
+  w.gate_zero = static_cast<float>(cfg_.gate_zero);
+  if (cfg_.edge_thickness_m > 0 && !cfg_.gate_observed) {
     w.gate_W = mat(head_gate_->weight);
     w.gate_b = vec(head_gate_->bias);
   }
   w.gate_feature = cfg_.gate_feature;
   w.q_gamma_ref_n_m3 = cfg_.q_gamma_ref_n_m3;
-  if (cfg_.gate_feature >= 0) w.gate_feature_w = gate_feature_w_.detach().to(at::kFloat).item<float>();
+  if (cfg_.gate_feature >= 0 && !cfg_.gate_observed) w.gate_feature_w = gate_feature_w_.detach().to(at::kFloat).item<float>();
   return w;
 }
 
@@ -309,6 +325,8 @@ PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path
     cfg.edge_thickness_m = version >= 3 ? c.at("edge_thickness_m").get<double>() : 0.0;
     cfg.gate_feature = version >= 4 ? c.at("gate_feature").get<int>() : -1;
     cfg.q_gamma_ref_n_m3 = version >= 5 ? c.at("q_gamma_ref_n_m3").get<double>() : 0.0;
+    cfg.gate_observed = version >= 6 ? c.at("gate_observed").get<bool>() : false;
+    cfg.gate_zero = version >= 6 ? c.at("gate_zero").get<double>() : 0.0;
     if (configHash(cfg, version) != j.at("config_hash").get<std::string>())
       throw InputError(path + ": config_hash does not match the stored config");
   } catch (const nlohmann::json::exception& e) {

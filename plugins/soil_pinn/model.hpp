@@ -96,6 +96,15 @@ struct PinnConfig {
   /// gamma too (the Jacobian's gamma column gains dF/dQ Q / ref). 0 = Q as extracted (the
   /// paper's). Files of format version <= 4 load with 0.
   double q_gamma_ref_n_m3 = 0.0;
+  /// true: the penetration gate is the observation itself, not learned: 1 at the horizon steps
+  /// whose gate_feature (the edge's vertical speed in the map frame) is below 0, 0 elsewhere, as
+  /// the simulator switches its penetration resistance with the sign of that speed
+  /// (docs/soil_estimator.md, "Where the error lives"). Needs gate_feature; no gate head.
+  /// Files of format version <= 5 load with false.
+  bool gate_observed = false;
+  /// With gate_observed: the normalised value of a raw 0 of gate_feature, -mean / std of the
+  /// training split's observations (the network sees normalised observations).
+  double gate_zero = 0.0;
 };
 
 /// What forward() returns. B batch, P horizon.
@@ -180,7 +189,7 @@ PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path
 
 /// FNV-1a 64 of the config's canonical JSON, as 16 hex digits. `format_version` 1 hashes the
 /// JSON without beta_base (the files written before it existed), 2 without edge_thickness_m,
-/// 3 without gate_feature, 4 without q_gamma_ref_n_m3.
-std::string configHash(const PinnConfig& cfg, int format_version = 5);
+/// 3 without gate_feature, 4 without q_gamma_ref_n_m3, 5 without gate_observed and gate_zero.
+std::string configHash(const PinnConfig& cfg, int format_version = 6);
 
 }  // namespace terramap::pinn

@@ -109,6 +109,7 @@ std::string trainConfigHash(const TrainConfig& c) {
   if (c.edge_thickness_m != 0) j["edge_thickness_m"] = c.edge_thickness_m;
   if (c.gate_feature >= 0) j["gate_feature"] = c.gate_feature;
   if (c.q_gamma_ref_n_m3 > 0) j["q_gamma_ref_n_m3"] = c.q_gamma_ref_n_m3;
+  if (c.gate_observed) j["gate_observed"] = true;
   if (c.weights.lambda_prior != 0) j["lambda_prior"] = c.weights.lambda_prior;
   if (c.weights.lambda_soil != 0) j["lambda_soil"] = c.weights.lambda_soil;
   const LossWeights& w = c.weights;
@@ -296,11 +297,12 @@ double trainEpoch(PinnNet& net, torch::optim::Adam& opt, const SplitTensors& tr,
 /// stopping; its best copy goes to `best_members`.
 MemberReport trainMember(int m, const TrainConfig& cfg, const std::string& hash, const SplitTensors& tr,
                          const SplitTensors& va, const std::vector<float>& th_mean, const std::vector<float>& th_std,
+                         double gate_zero,
                          const std::function<void(int, int, double, double, double)>& on_progress,
                          std::vector<PinnNet>& best_members) {
   const std::int64_t seed = cfg.seed * 1000 + m;
   const PinnConfig pc{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m,
-                      cfg.gate_feature, cfg.q_gamma_ref_n_m3};
+                      cfg.gate_feature, cfg.q_gamma_ref_n_m3, cfg.gate_observed, gate_zero};
   PinnNet net(pc);
   net->setThetaNormalisation(at::tensor(th_mean), at::tensor(th_std));
   PinnNet best(pc);
@@ -351,6 +353,10 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   std::vector<float> obs_mean, obs_std, th_mean, th_std;
   featureStats(data.obs_raw, train_idx, obs_mean, obs_std);
   featureStats(data.theta_k, train_idx, th_mean, th_std);
+  // A raw 0 of the gate's feature as the network sees it (an observed gate's threshold).
+  const double gate_zero = cfg.gate_feature >= 0
+      ? -static_cast<double>(obs_mean[static_cast<std::size_t>(cfg.gate_feature)]) / obs_std[static_cast<std::size_t>(cfg.gate_feature)]
+      : 0.0;
   // Normalise once; the estimator applies the same mean/std at inference.
   const at::Tensor obs = at::nan_to_num((data.obs_raw - at::tensor(obs_mean)) / at::tensor(obs_std), 0.0, 0.0, 0.0);
   const at::Tensor mask = cfg.mask_stalled ? data.moving : at::ones_like(data.moving);
@@ -367,7 +373,7 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   report.validation_samples = static_cast<long>(val_idx.size());
   std::vector<PinnNet> best_members;
   for (int m = 0; m < cfg.members; ++m)
-    report.members.push_back(trainMember(m, cfg, hash, tr, va, th_mean, th_std, on_progress, best_members));
+    report.members.push_back(trainMember(m, cfg, hash, tr, va, th_mean, th_std, gate_zero, on_progress, best_members));
   nlohmann::json tj;
   tj["train_config_hash"] = trainConfigHash(cfg);
   tj["dataset_config_hash"] = ds.config_hash;

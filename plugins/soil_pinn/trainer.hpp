@@ -49,6 +49,9 @@ struct TrainConfig {
   /// estimated gamma (PinnConfig::q_gamma_ref_n_m3; YAML `surcharge_gamma_ref_n_m3`; 0 = Q as
   /// extracted).
   double q_gamma_ref_n_m3 = 0.0;
+  /// The penetration gate read from gate_feature's sign instead of learned (PinnConfig::
+  /// gate_observed; YAML `gate: observed | learned`).
+  bool gate_observed = false;
   LossWeights weights;
 };
 

@@ -85,6 +85,14 @@ pinn::TrainConfig loadTrainConfig(const std::string& path) {
       c.gate_feature = static_cast<int>(it - names.begin());
   }
   c.q_gamma_ref_n_m3 = r.num("surcharge_gamma_ref_n_m3", c.q_gamma_ref_n_m3, 0.0, 1e5);
+  if (r.has("gate")) {
+    const std::string g = r.str("gate", "learned");
+    if (g != "learned" && g != "observed")
+      r.error(r.node("gate"), "gate", "must be 'learned' (a sigmoid head) or 'observed' (the sign of gate_feature), got '" + g + "'");
+    else if (g == "observed" && c.gate_feature < 0)
+      r.error(r.node("gate"), "gate", "'observed' needs gate_feature (the observation whose sign says the edge descends)");
+    c.gate_observed = g == "observed";
+  }
   if (r.has("loss")) {
     yaml::MapReader l = r.child("loss");
     pinn::LossWeights& w = c.weights;
@@ -96,6 +104,8 @@ pinn::TrainConfig loadTrainConfig(const std::string& path) {
     w.lambda_Fr = l.num("lambda_Fr", w.lambda_Fr, 0, 1e6);
     w.lambda_prior = l.num("lambda_prior", w.lambda_prior, 0, 1e6);
     w.lambda_soil = l.num("lambda_soil", w.lambda_soil, 0, 1e6);
+    const std::vector<double> wxz = l.vec("w_xz", {w.w_xz[0], w.w_xz[1]}, 2);  // [x, z] weights of the force terms
+    if (wxz.size() == 2) w.w_xz = {wxz[0], wxz[1]};
     l.finish();
   }
   r.finish();

@@ -54,6 +54,10 @@ struct PinnMemberWeights {
   /// > 0: the surcharge is weighed with the estimated gamma, Q gamma / q_gamma_ref_n_m3
   /// (pinn::PinnConfig); 0 = Q as extracted.
   double q_gamma_ref_n_m3 = 0;
+  /// true: the gate is 1 where the normalised gate_feature is below gate_zero, else 0 (no gate
+  /// head; pinn::PinnConfig::gate_observed).
+  bool gate_observed = false;
+  float gate_zero = 0;
 };
 
 /// The one rule for the physics-layer options a model carries, for pinn::PinnConfig (a model

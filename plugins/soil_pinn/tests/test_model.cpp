@@ -441,6 +441,46 @@ TEST_F(PinnModel, AGateFeatureMovesEachStepsGateByItsValue) {
   EXPECT_THROW(PinnNet(PinnConfig{kT, kP, kDo, {8}, 21, BetaBase::Min, 0.0, 1}), std::invalid_argument);
 }
 
+// The observed gate (PinnConfig::gate_observed): each horizon step's gate is 1 exactly where the
+// gate feature lies below gate_zero and 0 elsewhere, whatever the encoder says; the penetration
+// force follows it; config and threshold survive a file; a version-5 file loads with a learned gate.
+TEST_F(PinnModel, AnObservedGateIsTheSignOfItsFeature) {
+  PinnConfig cfg{kT, kP, kDo, {8}, 21, BetaBase::Min, 0.025, 1};
+  cfg.gate_observed = true;
+  cfg.gate_zero = 0.3;
+  PinnNet net(cfg);
+  const Dataset& ds = dataset();
+  at::Tensor obs = ds.obs.clone();
+  const at::Tensor feature = obs.slice(1, kT - kP, kT).select(2, 1);
+  feature.copy_(at::where(at::arange(kP).unsqueeze(0).expand_as(feature) % 2 == 0, at::full_like(feature, 0.29f),
+                          at::full_like(feature, 0.31f)));
+  const PinnOutput o = net->forward(obs, ds.theta_k);
+  EXPECT_TRUE(at::equal(o.pen_gate, (feature < 0.3).to(at::kFloat)));
+  EXPECT_TRUE((o.pen_gate.slice(1, 0, kP, 2) == 1).all().item<bool>());
+  EXPECT_TRUE((o.pen_gate.slice(1, 1, kP, 2) == 0).all().item<bool>());
+  // The same soil with the gate shut everywhere: the vertical force differs exactly on open steps.
+  at::Tensor shut = obs.clone();
+  shut.slice(1, kT - kP, kT).select(2, 1).fill_(5.0f);
+  const PinnOutput c = net->forward(shut, ds.theta_k);
+  EXPECT_TRUE((c.pen_gate == 0).all().item<bool>());
+  PinnNet loaded = throughFile(net, "observed_gate.pt");
+  EXPECT_TRUE(loaded->config().gate_observed);
+  EXPECT_DOUBLE_EQ(loaded->config().gate_zero, 0.3);
+  EXPECT_TRUE(at::equal(loaded->forward(obs, ds.theta_k).F, o.F));
+  // A model without a learned gate has no gate head to train.
+  for (const auto& kv : net->named_parameters()) EXPECT_EQ(kv.key().find("gate"), std::string::npos) << kv.key();
+  PinnConfig bad = cfg;
+  bad.gate_feature = -1;
+  EXPECT_THROW(PinnNet{bad}, std::invalid_argument);
+  PinnNet learned(PinnConfig{kT, kP, kDo, {8}, 21, BetaBase::Min, 0.025, 1});
+  const PinnConfig& lc = learned->config();
+  nlohmann::json v5{{"T", lc.T}, {"P", lc.P}, {"D_o", lc.D_o}, {"hidden", lc.hidden}, {"seed", lc.seed},
+                    {"beta_base", "min"}, {"edge_thickness_m", 0.025}, {"gate_feature", 1}, {"q_gamma_ref_n_m3", 0.0}};
+  const std::string old = writeWithMetadata(learned, "v5.pt", 5, v5, configHash(lc, 5));
+  EXPECT_FALSE(loadPinn(old)->config().gate_observed);
+  std::remove(old.c_str());
+}
+
 TEST_F(PinnModel, LoadRejectsWhatIsNotAModel) {
   EXPECT_THROW(loadPinn(tempPath("does_not_exist.pt")), InputError);
   const std::string junk = tempPath("junk.pt");

@@ -359,6 +359,18 @@ TEST(Trainer, TheTorchFreeInferenceGivesTheLibtorchEstimate) {
   const SoilEstimator q_gamma(std::move(weighed), trained.obsMean(), trained.obsStd());
   EXPECT_GT(expectFastPathMatches(q_gamma, td), td.size() / 2);
   expectFastPathMatches(q_gamma, mixed);
+  // And with the observed gate (PinnConfig::gate_observed) on a column that varies from sample to
+  // sample, its threshold in the middle: open on some samples, shut on others, in both paths.
+  std::vector<PinnNet> observed;
+  for (int64_t seed : {17, 18}) {
+    PinnConfig pc{kT, kP, soil::kObsFeatures, {16, 8}, seed, BetaBase::Min, 0.025, 0};
+    pc.gate_observed = true;
+    pc.gate_zero = 0.0;
+    observed.emplace_back(pc);
+  }
+  const SoilEstimator gate_seen(std::move(observed), trained.obsMean(), trained.obsStd());
+  EXPECT_GT(expectFastPathMatches(gate_seen, td), td.size() / 2);
+  expectFastPathMatches(gate_seen, mixed);
   fs::remove_all(data);
 }
 
