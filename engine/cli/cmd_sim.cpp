@@ -56,14 +56,8 @@ Registrar reg{Command{"sim", [](CLI::App& app, std::function<int()>& run) {
         std::cout << "removed " << stale.size() << " stale temporary file" << (stale.size() == 1 ? "" : "s")
                   << " of dead processes from " << args->out << ": " << names << "\n";
       }
-      std::string path;
-      try {
-        path = sim::runEpisode(sc, args->out, opt, &tm);
-      } catch (...) {
-        // A full disk fails the episode mid-write: its temporary must not keep the disk full.
-        io::removeOwnTemporaries(args->out);
-        throw;
-      }
+      // A failed episode (a full disk) removes its temporary itself (sim::EpisodeWriter).
+      const std::string path = sim::runEpisode(sc, args->out, opt, &tm);
       // The run's rate is the figure to compare with BM_SimRealtime (which builds its world
       // outside the timed loop); the set-up is a fixed cost per episode, said on its own.
       std::cout << "wrote " << path << ": " << sc.duration_s << " s simulated in " << tm.run_s << " s wall ("

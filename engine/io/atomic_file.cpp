@@ -138,24 +138,20 @@ long temporaryOwner(const std::string& name) {
 
 bool processIsGone(long pid) { return pid != ::getpid() && ::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH; }
 
-std::vector<fs::path> removeTemporaries(const fs::path& folder, bool own) {
+}  // namespace
+
+std::vector<fs::path> removeStaleTemporaries(const fs::path& folder) {
   std::vector<fs::path> removed;
   std::error_code ec;
   for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
     std::error_code sec;
     if (!it->is_regular_file(sec)) continue;
     const long pid = temporaryOwner(it->path().filename().string());
-    const bool match = own ? pid == ::getpid() : pid > 0 && processIsGone(pid);
-    if (match && fs::remove(it->path(), sec)) removed.push_back(it->path());
+    if (pid > 0 && processIsGone(pid) && fs::remove(it->path(), sec)) removed.push_back(it->path());
   }
   std::sort(removed.begin(), removed.end());
   return removed;
 }
-
-}  // namespace
-
-std::vector<fs::path> removeStaleTemporaries(const fs::path& folder) { return removeTemporaries(folder, false); }
-std::vector<fs::path> removeOwnTemporaries(const fs::path& folder) { return removeTemporaries(folder, true); }
 
 void requireWritableFolder(const fs::path& folder) {
   std::error_code ec;

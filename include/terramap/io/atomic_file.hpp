@@ -80,9 +80,6 @@ std::filesystem::path temporaryPathFor(const std::filesystem::path& target);
 /// digits>` (AtomicFile) and `<name>.tmp-<pid>` (episodes). A file of a running process, or of
 /// any other pattern, is left alone. Returns the removed paths; never throws.
 std::vector<std::filesystem::path> removeStaleTemporaries(const std::filesystem::path& folder);
-/// The same for this process's own temporaries in `folder`: for a command that failed with a
-/// writer's file still open (its destructor may never have run). Never throws.
-std::vector<std::filesystem::path> removeOwnTemporaries(const std::filesystem::path& folder);
 
 /// Creates `folder` if needed and a file in it (removed again), as every writer will: throws
 /// OutputError naming the folder when that fails, so a run can refuse before it starts.
