@@ -270,6 +270,15 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   }
   std::vector<std::string> removed_temporaries;
   for (const auto& p : io::removeStaleTemporaries(spec.outputs.dir)) removed_temporaries.push_back(p.string());
+  // A source that knows the truth adds pictures the file does not list (truth_elevation.png,
+  // elevation_error.png) and compares whole rasters: checked now, as validate checks the
+  // listed outputs, so a big sparse map is not refused only after the whole run.
+  if (options.compare_truth) {
+    Eigen::MatrixXf one(1, 1);
+    if (source->truth("elevation", Geometry(spec.resolution, Size(1, 1), spec.center), one))
+      io::requireRasterOutputBudget(spec.geometry(), "png", io::runPngScale(spec.geometry()),
+                                    spec.file + ": the source's truth pictures and error layers", false);
+  }
 
   // Records go to disk as they come (an hour reports ~15,000 sweeps of ~5 kB): held, they
   // would grow the process for as long as it runs.

@@ -147,6 +147,22 @@ TEST(HostileConfig, OutputsOfASparseMapBeyondTheBudgetAreRefusedAtValidate) {
   }
 }
 
+TEST(HostileConfig, TheSimulatorsTruthPicturesAreInTheBudgetBeforeTheFirstEvent) {
+  // `run` adds truth_elevation.png and elevation_error.png for a source that knows the truth,
+  // with `png: []`: whole rasters of the sparse map, found out of budget only after the run.
+  const fs::path d = tempDir("cfg_truth_budget");
+  write(d / "p.yaml", "version: 1\nmap: {resolution: 0.05, size: [8000, 8000], sparse: true, tile: 64}\n"
+                      "source: {type: sim, scenario: " + kScenario + ", max_time_s: 0.3}\n"
+                      "pipeline:\n  - {name: lidar, type: lidar_fusion, params: {max_range_m: 30}}\n"
+                      "outputs: {dir: out, geotiff: [], png: [], snapshot: false, report: false}\n");
+  const auto t0 = std::chrono::steady_clock::now();
+  const Result r = sh("--memory-budget 512M run " + (d / "p.yaml").string() + " -q");
+  EXPECT_EQ(r.code, 3) << r.out;
+  EXPECT_NE(r.out.find("truth pictures"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("memory budget"), std::string::npos) << r.out;
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 15.0);
+}
+
 TEST(HostileConfig, ExportOfAForgedSparseSnapshotIsAnInputErrorNotOutOfMemory) {
   const fs::path d = tempDir("cfg_forged_tmap");
   {
