@@ -176,13 +176,18 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
       const std::string scenario = fs::absolute(a->scenario).string();
       spec.source.settings["scenario"] = RawParam{ParamValue{scenario}, "eval-soil-map SCENARIO"};
       if (a->duration > 0) spec.source.settings["max_time_s"] = RawParam{ParamValue{a->duration}, "--duration"};
-      bool has_pinn = false;
+      // A soil estimator stage: the network (soil_pinn, the only one --model applies to) or the
+      // pooled fit (soil_fit).
+      bool has_estimator = false, has_pinn = false;
       for (StageSpec& st : spec.stages) {
+        has_estimator = has_estimator || st.type == "soil_pinn" || st.type == "soil_fit";
         if (st.type != "soil_pinn") continue;
         has_pinn = true;
         if (!a->model.empty()) st.params["model"] = RawParam{ParamValue{fs::absolute(a->model).string()}, "--model"};
       }
-      if (!has_pinn) throw ConfigError(spec.file + ": eval-soil-map needs a soil_pinn stage");
+      if (!has_estimator) throw ConfigError(spec.file + ": eval-soil-map needs a soil_pinn or soil_fit stage");
+      if (!has_pinn && !a->model.empty())
+        throw ConfigError(spec.file + ": --model names a soil_pinn model, and the pipeline has no soil_pinn stage");
       applyParamOverrides(spec, a->set);
       RunOptions o;
       o.out_dir = a->out;

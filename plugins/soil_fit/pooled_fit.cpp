@@ -1,0 +1,128 @@
+#include "pooled_fit.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+
+#include <algorithm>
+#include <cmath>
+
+namespace terramap::soil {
+namespace {
+
+constexpr int kN = kSoilParamCount;
+using Vec = Eigen::Matrix<double, kN, 1>;
+using Mat = Eigen::Matrix<double, kN, kN>;
+
+// Parameters are solved for in span units u in [0, 1] (θ = lo + span u), so one damping and one
+// step tolerance serve Pa and radians alike.
+fee::Soil soilOf(const Vec& u) {
+  SoilParamVector v{};
+  for (int k = 0; k < kN; ++k) v[static_cast<std::size_t>(k)] = kSoilParams[k].lo + (kSoilParams[k].hi - kSoilParams[k].lo) * u[k];
+  return toFee(v);
+}
+
+// Residuals of every row (x then z, in units of force_sigma_n) at u.
+void residuals(const std::vector<FitRow>& rows, const Vec& u, const PooledFitOptions& opt, Eigen::VectorXd& r,
+               int* valid_rows = nullptr) {
+  const fee::Soil s = soilOf(u);
+  r.resize(static_cast<Eigen::Index>(2 * rows.size()));
+  int valid = 0;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    Eigen::Vector2d f;
+    valid += modelForce(s, rows[i], opt.edge_thickness_m, f, opt.q_gamma_ref_n_m3);
+    r[static_cast<Eigen::Index>(2 * i)] = (f.x() - rows[i].fx_n) / opt.force_sigma_n;
+    r[static_cast<Eigen::Index>(2 * i + 1)] = (f.y() - rows[i].fz_n) / opt.force_sigma_n;
+  }
+  if (valid_rows) *valid_rows = valid;
+}
+
+// Soft-L1 cost 2 Σ (sqrt(1 + e²) − 1) of the rows plus the prior's ½ Σ ((u − ½)/sd)².
+double cost(const Eigen::VectorXd& r, const Vec& u, double prior_sd) {
+  double c = 0;
+  for (Eigen::Index i = 0; i < r.size(); ++i) c += 2.0 * (std::sqrt(1.0 + r[i] * r[i]) - 1.0);
+  return c + 0.5 * ((u.array() - 0.5) / prior_sd).square().sum();
+}
+
+}  // namespace
+
+bool modelForce(const fee::Soil& s, const FitRow& row, double edge_thickness_m, Eigen::Vector2d& f,
+                double q_gamma_ref_n_m3) {
+  f.setZero();
+  fee::Geometry g = row.geometry;
+  if (q_gamma_ref_n_m3 > 0) g.q_n *= s.gamma_n_m3 / q_gamma_ref_n_m3;
+  const fee::Result res = fee::evaluateAtBetaMin(s, g);
+  if (!res.valid()) return false;
+  f = res.F_total_N;
+  if (row.descending) f.y() -= fee::penetrationForce(s, row.geometry.d_m, row.geometry.w_m, edge_thickness_m);
+  return true;
+}
+
+PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& start, const PooledFitOptions& opt) {
+  PooledFit out;
+  Vec u;
+  for (int k = 0; k < kN; ++k) {
+    const double span = kSoilParams[k].hi - kSoilParams[k].lo;
+    const double x = start[static_cast<std::size_t>(k)];
+    u[k] = std::isfinite(x) ? std::clamp((x - kSoilParams[k].lo) / span, 0.0, 1.0) : 0.5;
+  }
+  const double prior_sd = opt.prior_sd_fraction;
+  const Mat prior_info = Mat::Identity() / (prior_sd * prior_sd);
+  Eigen::VectorXd r, rt;
+  Eigen::MatrixXd J(static_cast<Eigen::Index>(2 * rows.size()), kN);
+  Mat JtWJ = Mat::Zero();
+  residuals(rows, u, opt, r);
+  double c = cost(r, u, prior_sd);
+  double lambda = 1e-2;
+  constexpr double kStep = 1e-4;
+  for (out.iterations = 0; out.iterations < opt.max_iterations && !rows.empty(); ++out.iterations) {
+    // Forward differences, stepping inward at an upper bound.
+    for (int k = 0; k < kN; ++k) {
+      Vec up = u;
+      const double h = u[k] + kStep > 1.0 ? -kStep : kStep;
+      up[k] += h;
+      residuals(rows, up, opt, rt);
+      J.col(k) = (rt - r) / h;
+    }
+    // Iteratively reweighted least squares for the soft-L1 loss: weight 1 / sqrt(1 + e²).
+    const Eigen::VectorXd w = (1.0 + r.array().square()).rsqrt();
+    JtWJ = J.transpose() * w.asDiagonal() * J;
+    const Vec g = J.transpose() * (w.array() * r.array()).matrix() + prior_info * (u.array() - 0.5).matrix();
+    bool improved = false;
+    for (int tries = 0; tries < 8 && !improved; ++tries) {
+      Mat A = JtWJ + prior_info;
+      A.diagonal() += lambda * A.diagonal();
+      const Vec step = -A.ldlt().solve(g);
+      const Vec un = (u + step).cwiseMax(0.0).cwiseMin(1.0);
+      residuals(rows, un, opt, rt);
+      const double cn = cost(rt, un, prior_sd);
+      if (cn < c) {
+        const double moved = (un - u).cwiseAbs().maxCoeff();
+        u = un;
+        r = rt;
+        c = cn;
+        lambda = std::max(1e-6, lambda / 3.0);
+        improved = true;
+        if (moved < 1e-6) out.converged = true;
+      } else {
+        lambda *= 4.0;
+      }
+    }
+    if (!improved || out.converged) {
+      out.converged = true;
+      break;
+    }
+  }
+  residuals(rows, u, opt, r, &out.rows);
+  const fee::Soil s = soilOf(u);
+  out.mean = fromFee(s);
+  out.rms_n = rows.empty() ? 0.0 : opt.force_sigma_n * std::sqrt(r.squaredNorm() / static_cast<double>(r.size()));
+  // Gauss-Newton covariance in span units, then in SI: D (JᵀWJ + prior)⁻¹ D.
+  const Mat info = JtWJ + prior_info;
+  const Mat cov_u = info.inverse();
+  Vec span;
+  for (int k = 0; k < kN; ++k) span[k] = kSoilParams[k].hi - kSoilParams[k].lo;
+  out.covariance = span.asDiagonal() * cov_u * span.asDiagonal();
+  return out;
+}
+
+}  // namespace terramap::soil

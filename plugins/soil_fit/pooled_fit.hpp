@@ -1,0 +1,61 @@
+#pragma once
+/// \file
+/// The soil fitted jointly to the force of many horizon rows (docs/soil_estimator.md, "Where the
+/// error lives"): one sweep's force cannot tell φ from c (they trade along the FEE's null
+/// space), but rows of different depth, surcharge and edge motion in one soil can. Pure
+/// functions, no state: safe from any thread at once. Nothing here throws.
+///
+/// The physics is the estimator's layer made as complete as the decomposition of `eval-soil`
+/// found worth: F_total of the FEE at β* (fee::evaluateAtBetaMin) plus, on rows whose edge the
+/// observations show descending, the edge's penetration resistance (fee::penetrationForce).
+/// Forces are the blade's on the soil in the sample frame [along t̂, up], newtons; soil vectors
+/// in soil::SoilParam order [c (Pa), φ (rad), c_a (Pa), δ (rad), γ (N/m³)].
+#include <terramap/soil/fee.hpp>
+#include <terramap/soil/soil_parameters.hpp>
+
+#include <Eigen/Core>
+
+#include <vector>
+
+namespace terramap::soil {
+
+/// One horizon row: the mapped geometry, whether the edge was seen descending, the measured force.
+struct FitRow {
+  fee::Geometry geometry;
+  bool descending = false;
+  double fx_n = 0, fz_n = 0;
+};
+
+struct PooledFitOptions {
+  double edge_thickness_m = 0.025;  ///< penetration term's edge (the simulator's default)
+  /// Standard deviation of a row's force residual along x and z (N): the noise the rows are
+  /// weighed with, and the scale of the robust (Cauchy-like, soft-L1) loss.
+  double force_sigma_n = 1500.0;
+  /// Prior N(middle, (span * prior_sd_fraction)²) per property, counted once per fit: it decides
+  /// only what the rows leave free (γ against c, c_a against c).
+  double prior_sd_fraction = 0.5;
+  int max_iterations = 40;
+  /// > 0: the unit weight the rows' surcharge was computed with (blade_sweep's
+  /// unit_weight_n_m3); the pile is then weighed with the fitted γ, Q γ / q_gamma_ref_n_m3.
+  double q_gamma_ref_n_m3 = 0.0;
+};
+
+struct PooledFit {
+  SoilParamVector mean{};                 ///< the fitted soil, inside kSoilParams' ranges
+  Eigen::Matrix<double, 5, 5> covariance = Eigen::Matrix<double, 5, 5>::Zero();  ///< Gauss-Newton, prior included
+  int rows = 0;                           ///< rows with a valid FEE at the solution
+  int iterations = 0;
+  bool converged = false;
+  double rms_n = 0;                       ///< root mean square of the force residuals at the solution, N
+};
+
+/// The row's modelled force with soil `s` ({0, 0} and false where the FEE is invalid).
+bool modelForce(const fee::Soil& s, const FitRow& row, double edge_thickness_m, Eigen::Vector2d& f,
+                double q_gamma_ref_n_m3 = 0.0);
+
+/// Fits the soil to `rows` from `start` (clamped into the ranges): bounded Levenberg-Marquardt
+/// on the robust residuals in span-normalised parameters, forward-difference Jacobian.
+/// An empty row set returns the prior (converged false).
+PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& start, const PooledFitOptions& opt = {});
+
+}  // namespace terramap::soil

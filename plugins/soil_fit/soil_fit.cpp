@@ -1,0 +1,168 @@
+#include "soil_fit.hpp"
+
+#include <terramap/soil/publish_estimate.hpp>
+
+#include <cmath>
+
+namespace terramap::plugins {
+
+std::vector<soil::FitRow> fitRows(const soil::PinnSample& s) {
+  std::vector<soil::FitRow> rows;
+  // The horizon is the last P observation rows of the sample's history.
+  for (int p = 0; p < s.P; ++p) {
+    const float* obs = s.obs.data() + static_cast<std::size_t>(s.T - s.P + p) * soil::kObsFeatures;
+    const float* th = s.theta_k.data() + static_cast<std::size_t>(p) * soil::kThetaK;
+    const float* f = s.force.data() + static_cast<std::size_t>(p) * 2;
+    if (soil::stalledRow(obs) || !(th[soil::kDepth] > 0) || !std::isfinite(f[0]) || !std::isfinite(f[1])) continue;
+    soil::FitRow r;
+    r.geometry = {th[soil::kAlpha], th[soil::kRho], th[soil::kDepth], th[soil::kWidth], th[soil::kSurcharge]};
+    r.descending = obs[soil::kObsFeatures - 1] < 0.0f;  // blade_vz_map_mps
+    r.fx_n = f[0];
+    r.fz_n = f[1];
+    rows.push_back(r);
+  }
+  return rows;
+}
+
+ParamSchema SoilFit::schema() const {
+  const soil::PooledFitOptions d;
+  return {param::integer("horizon", 10, 1, 1000, "observation rows per sweep (the sample's P)"),
+          param::integer("window_sweeps", 10, 1, 1000, "the machine's last sweeps fitted together"),
+          param::real("window_m", 2.0, 0.0, 1e4, "m", "only sweeps whose blade ended this close to this one's"),
+          param::integer("min_rows", 10, 1, 100000, "fewer rows in the window: the estimate is invalid"),
+          param::real("edge_thickness_m", d.edge_thickness_m, 0.0, 0.5, "m", "the penetration term's cutting edge"),
+          param::real("force_sigma_n", d.force_sigma_n, 1.0, 1e7, "N", "a row's force residual scale (x and z)"),
+          param::real("surcharge_gamma_ref_n_m3", 14636.0, 0.0, 1e5, "N/m^3",
+                      "the unit weight blade_sweep weighed Q with; the pile is weighed with the fitted gamma (0: Q as mapped)"),
+          param::real("prior_sd_fraction", d.prior_sd_fraction, 1e-3, 1e3, "1",
+                      "prior standard deviation per property as a share of its range (centred in it)")};
+}
+
+void SoilFit::configure(const Params& p) {
+  horizon_ = static_cast<int>(p.getInt("horizon"));
+  window_sweeps_ = static_cast<int>(p.getInt("window_sweeps"));
+  window_m_ = p.getDouble("window_m");
+  min_rows_ = static_cast<int>(p.getInt("min_rows"));
+  opt_.edge_thickness_m = p.getDouble("edge_thickness_m");
+  opt_.force_sigma_n = p.getDouble("force_sigma_n");
+  opt_.prior_sd_fraction = p.getDouble("prior_sd_fraction");
+  opt_.q_gamma_ref_n_m3 = p.getDouble("surcharge_gamma_ref_n_m3");
+}
+
+void SoilFit::start(ProcessContext& ctx) {
+  const Record* r = ctx.records().latest(SweepRecord::kType);
+  last_sequence_ = r ? r->sequence : 0;
+}
+
+void SoilFit::collectSweep(ProcessContext& ctx) {
+  const RecordBus::Since got = ctx.records().since(SweepRecord::kType, last_sequence_);
+  if (got.missed > 0) ctx.countDrop("sweep_missed", got.missed);
+  for (const Record& r : got.records) {
+    last_sequence_ = r.sequence;
+    pending_.push_back(std::static_pointer_cast<const SweepRecord>(r.payload));
+    ctx.addCounter("sweeps", 1);
+  }
+}
+
+void SoilFit::buildPending(ProcessContext& ctx, bool all) {
+  std::vector<std::shared_ptr<const SweepRecord>> keep;
+  for (auto& rec : pending_) {
+    bool ready = all;
+    if (!ready) {
+      auto it = histories_.find(rec->machine_id);
+      ready = it != histories_.end() && !it->second.rows().empty() && it->second.rows().back().stamp >= rec->t1;
+    }
+    if (ready)
+      estimateSweep(ctx, *rec);
+    else
+      keep.push_back(std::move(rec));
+  }
+  pending_ = std::move(keep);
+}
+
+void SoilFit::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
+  soil::PinnSample sample;
+  auto it = histories_.find(sweep.machine_id);
+  const soil::SampleSkip why = it == histories_.end() ? soil::SampleSkip::ShortHistory
+                                                      : soil::buildSample(it->second, sweep, horizon_, horizon_, sample);
+  if (why != soil::SampleSkip::None) {
+    ctx.countDrop(std::string("sweep_") + soil::sampleSkipName(why));
+    return;
+  }
+  MachineState& m = machines_[sweep.machine_id];
+  const Eigen::Vector3d edge = sweep.T_map_blade1.translation();
+  m.window.push_back({edge, fitRows(sample)});
+  while (static_cast<int>(m.window.size()) > window_sweeps_) m.window.pop_front();
+  // Only the sweeps near this one: the soil changes across a site, and a pass that turned away
+  // belongs to other ground.
+  std::vector<soil::FitRow> rows;
+  int sweeps = 0;
+  for (const WindowSweep& w : m.window) {
+    if ((w.edge.head<2>() - edge.head<2>()).norm() > window_m_) continue;
+    rows.insert(rows.end(), w.rows.begin(), w.rows.end());
+    ++sweeps;
+  }
+  SoilEstimateRecord r = soilEstimateRecordFor(sweep);
+  r.stamp = sample.anchor_stamp;
+  r.history_T = sample.T;
+  r.horizon_P = sample.P;
+  r.members = 1;
+  r.d_res_m = 0.0;
+  r.beta_res_rad = 0.0;
+  if (static_cast<int>(rows.size()) < min_rows_) {
+    r.invalid_reason = "too_few_rows";
+  } else {
+    soil::SoilParamVector start{};
+    for (int k = 0; k < soil::kSoilParamCount; ++k)
+      start[static_cast<std::size_t>(k)] = 0.5 * (soil::kSoilParams[k].lo + soil::kSoilParams[k].hi);
+    const soil::PooledFit fit = soil::fitPooled(rows, m.has_last ? m.last : start, opt_);
+    ctx.addCounter("fit_iterations", fit.iterations);
+    ctx.addCounter("fit_rows", fit.rows);
+    m.last = fit.mean;
+    m.has_last = true;
+    bool finite = true;
+    for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
+      r.mean[k] = fit.mean[static_cast<std::size_t>(k)];
+      const double var = fit.covariance(k, k) * sweeps;
+      r.var_total[k] = r.var_aleatoric[k] = r.var_nullspace[k] = var;
+      r.var_epistemic[k] = 0.0;
+      finite = finite && std::isfinite(r.mean[k]) && std::isfinite(var);
+    }
+    const fee::Soil s = soil::toFee(fit.mean);
+    if (!rows.empty() && !sample.theta_k.empty()) {
+      const float* th = sample.theta_k.data() + static_cast<std::size_t>(sample.P - 1) * soil::kThetaK;
+      const fee::Geometry g{th[soil::kAlpha], th[soil::kRho], th[soil::kDepth], th[soil::kWidth], th[soil::kSurcharge]};
+      r.beta_rad = fee::betaMin(s, g);
+      soil::FitRow last{g, sample.obs[static_cast<std::size_t>(sample.T) * soil::kObsFeatures - 1] < 0.0f, 0, 0};
+      Eigen::Vector2d f;
+      if (soil::modelForce(s, last, opt_.edge_thickness_m, f, opt_.q_gamma_ref_n_m3)) r.F_pred = {f.x(), f.y()};
+      const std::size_t lf = static_cast<std::size_t>(sample.P - 1) * 2;
+      r.F_measured = {sample.force[lf], sample.force[lf + 1]};
+    }
+    r.F_r = {0.0, 0.0};
+    r.valid_members = finite && fit.rows > 0 ? 1 : 0;
+    if (!finite) r.invalid_reason = "non_finite_output";
+    else if (fit.rows == 0) r.invalid_reason = "fee_invalid_majority";
+  }
+  r.valid = r.invalid_reason.empty();
+  soil::publishEstimate(ctx, std::make_shared<const SoilEstimateRecord>(r));
+}
+
+void SoilFit::process(ProcessContext& ctx, const Event& event) {
+  if (const auto* o = std::get_if<Observation>(&event)) {
+    auto it = histories_.try_emplace(o->machine_id, static_cast<std::size_t>(horizon_) + 64).first;
+    if (it->second.push(*o))
+      ctx.addCounter("observations", 1);
+    else
+      ctx.countDrop("observation_out_of_order");
+  }
+  collectSweep(ctx);
+  if (!pending_.empty()) buildPending(ctx, false);
+}
+
+void SoilFit::finish(ProcessContext& ctx) {
+  collectSweep(ctx);
+  buildPending(ctx, true);
+}
+
+}  // namespace terramap::plugins
