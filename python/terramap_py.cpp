@@ -166,7 +166,7 @@ class PyEngine {
  public:
   PyEngine(PipelineSpec spec, int threads) : spec_(std::move(spec)), has_spec_(true) {
     if (threads > 0) spec_.threads = threads;
-    engine_ = Engine::fromSpec(spec_, PluginRegistry(spec_.plugin_paths));
+    engine_ = Engine::fromSpec(spec_, PluginRegistry::forPipeline(spec_.plugin_paths, spec_.plugin_paths_where));
   }
   PyEngine(const EngineOptions& o, std::vector<std::string> plugin_paths) : plugin_paths_(std::move(plugin_paths)) {
     engine_ = std::make_unique<Engine>(o);
@@ -431,6 +431,14 @@ void bindEngine(py::module_& m) {
 
 /// run_pipeline (the whole runner) and fee (the FEE calculator).
 void bindFunctions(py::module_& m) {
+  m.def(
+      "allow_config_plugin_paths", [](bool allow) { PluginRegistry::allowConfigPluginPaths(allow); },
+      py::arg("allow") = true,
+      "Let pipeline files' plugin_paths name folders whose libraries are loaded (their code runs): only for files "
+      "you trust (docs/reliability.md, \"What a config file can make terramap do\"). Off by default.");
+  m.def(
+      "add_plugin_path", [](const std::string& dir) { PluginRegistry::addTrustedPaths({dir}); }, py::arg("dir"),
+      "Search this folder for plugins from now on (as the CLI's --plugin-path).");
   m.def(
       "run_pipeline",
       [](const std::string& path, const std::string& out, int threads) {

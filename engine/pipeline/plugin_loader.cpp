@@ -261,7 +261,8 @@ PluginRegistry PluginRegistry::forPipeline(const std::vector<std::string>& confi
   if (!config_paths.empty() && !configPluginPathsAllowed())
     throw ConfigError(where + ": a pipeline file may not choose where plugins are loaded from (loading a library "
                       "runs its code): give the folders with --plugin-path or TERRAMAP_PLUGIN_PATH, or pass "
-                      "--allow-config-plugin-paths if you trust this file");
+                      "--allow-config-plugin-paths if you trust this file (in code: "
+                      "PluginRegistry::allowConfigPluginPaths; Python: terramap.allow_config_plugin_paths())");
   return PluginRegistry(config_paths);
 }
 

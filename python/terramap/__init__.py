@@ -39,6 +39,8 @@ from ._terramap import (  # noqa: F401
     Map,
     OutputError,
     PluginError,
+    add_plugin_path,
+    allow_config_plugin_paths,
     fee,
     load_snapshot,
     run_pipeline,

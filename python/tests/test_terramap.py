@@ -11,6 +11,8 @@ import terramap
 
 SOURCE_DIR = os.environ.get("TERRAMAP_SOURCE_DIR", os.path.join(os.path.dirname(__file__), "..", ".."))
 BINARY_DIR = os.environ.get("TERRAMAP_BINARY_DIR", os.path.join(SOURCE_DIR, "build"))
+# PROBE_YAML names the test plugins' folder: these tests trust their own files.
+terramap.allow_config_plugin_paths(True)
 
 PROBE_YAML = """version: 1
 map: {resolution: 0.1, size: [40, 30], tile: 16, layers: [{name: elevation, unit: m}]}
@@ -101,6 +103,16 @@ def test_bad_input_raises_with_its_context():
         eng.snapshot().layer("elevaton")
     with pytest.raises(terramap.InputError):
         terramap.load_snapshot(os.path.join(SOURCE_DIR, "README.md"))
+
+
+def test_a_pipeline_names_plugin_folders_only_when_allowed():
+    terramap.allow_config_plugin_paths(False)
+    try:
+        with pytest.raises(terramap.ConfigError, match=r"<python>:\d+:\d+: plugin_paths: .*allow_config_plugin_paths"):
+            terramap.Engine.from_yaml(PROBE_YAML)
+    finally:
+        terramap.allow_config_plugin_paths(True)
+    assert terramap.Engine.from_yaml(PROBE_YAML).stage_names == ["probe"]
 
 
 def test_snapshot_files_round_trip(tmp_path):
