@@ -49,36 +49,7 @@ void SoilFit::configure(const Params& p) {
   opt_.q_gamma_ref_n_m3 = p.getDouble("surcharge_gamma_ref_n_m3");
 }
 
-void SoilFit::start(ProcessContext& ctx) {
-  const Record* r = ctx.records().latest(SweepRecord::kType);
-  last_sequence_ = r ? r->sequence : 0;
-}
-
-void SoilFit::collectSweep(ProcessContext& ctx) {
-  const RecordBus::Since got = ctx.records().since(SweepRecord::kType, last_sequence_);
-  if (got.missed > 0) ctx.countDrop("sweep_missed", got.missed);
-  for (const Record& r : got.records) {
-    last_sequence_ = r.sequence;
-    pending_.push_back(std::static_pointer_cast<const SweepRecord>(r.payload));
-    ctx.addCounter("sweeps", 1);
-  }
-}
-
-void SoilFit::buildPending(ProcessContext& ctx, bool all) {
-  std::vector<std::shared_ptr<const SweepRecord>> keep;
-  for (auto& rec : pending_) {
-    bool ready = all;
-    if (!ready) {
-      auto it = histories_.find(rec->machine_id);
-      ready = it != histories_.end() && !it->second.rows().empty() && it->second.rows().back().stamp >= rec->t1;
-    }
-    if (ready)
-      estimateSweep(ctx, *rec);
-    else
-      keep.push_back(std::move(rec));
-  }
-  pending_ = std::move(keep);
-}
+void SoilFit::start(ProcessContext& ctx) { pending_.start(ctx); }
 
 void SoilFit::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
   soil::PinnSample sample;
@@ -156,13 +127,13 @@ void SoilFit::process(ProcessContext& ctx, const Event& event) {
     else
       ctx.countDrop("observation_out_of_order");
   }
-  collectSweep(ctx);
-  if (!pending_.empty()) buildPending(ctx, false);
+  pending_.collect(ctx);
+  if (!pending_.empty()) pending_.drain(histories_, false, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
 }
 
 void SoilFit::finish(ProcessContext& ctx) {
-  collectSweep(ctx);
-  buildPending(ctx, true);
+  pending_.collect(ctx);
+  pending_.drain(histories_, true, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
 }
 
 }  // namespace terramap::plugins

@@ -26,6 +26,7 @@
 #include <terramap/plugin/plugin.hpp>
 #include <terramap/plugin/records/soil_estimate_record.hpp>
 #include <terramap/plugin/records/sweep_record.hpp>
+#include <terramap/soil/pending_sweeps.hpp>
 #include <terramap/soil/pinn_sample.hpp>
 
 #include "pooled_fit.hpp"
@@ -61,8 +62,6 @@ class SoilFit : public Plugin {
     soil::SoilParamVector last{};
     bool has_last = false;
   };
-  void collectSweep(ProcessContext& ctx);
-  void buildPending(ProcessContext& ctx, bool all);
   void estimateSweep(ProcessContext& ctx, const SweepRecord& sweep);
 
   int horizon_ = 10, window_sweeps_ = 10, min_rows_ = 10;
@@ -70,8 +69,7 @@ class SoilFit : public Plugin {
   soil::PooledFitOptions opt_;
   std::map<std::string, soil::ObservationHistory> histories_;
   std::map<std::string, MachineState> machines_;
-  std::vector<std::shared_ptr<const SweepRecord>> pending_;
-  long last_sequence_ = 0;
+  soil::PendingSweeps pending_;
 };
 
 }  // namespace terramap::plugins

@@ -81,38 +81,8 @@ void SoilPinn::configure(const Params& p) {
 }
 
 void SoilPinn::start(ProcessContext& ctx) {
-  // A sweep published before this stage existed is not ours to estimate.
-  const Record* r = ctx.records().latest(SweepRecord::kType);
-  last_sequence_ = r ? r->sequence : 0;
+  pending_.start(ctx);
   ctx.addCounter("model_members", static_cast<double>(estimator_->size()));
-}
-
-void SoilPinn::collectSweep(ProcessContext& ctx) {
-  // Every sweep since our last look, also when blade_sweep published several in one event or
-  // another stage ran between us; only more than RecordBus::kHistory of them can be missed.
-  const RecordBus::Since got = ctx.records().since(SweepRecord::kType, last_sequence_);
-  if (got.missed > 0) ctx.countDrop("sweep_missed", got.missed);
-  for (const Record& r : got.records) {
-    last_sequence_ = r.sequence;
-    pending_.push_back(std::static_pointer_cast<const SweepRecord>(r.payload));
-    ctx.addCounter("sweeps", 1);
-  }
-}
-
-void SoilPinn::buildPending(ProcessContext& ctx, bool all) {
-  std::vector<std::shared_ptr<const SweepRecord>> keep;
-  for (auto& rec : pending_) {
-    bool ready = all;
-    if (!ready) {
-      auto it = histories_.find(rec->machine_id);
-      ready = it != histories_.end() && !it->second.rows().empty() && it->second.rows().back().stamp >= rec->t1;
-    }
-    if (ready)
-      estimateSweep(ctx, *rec);
-    else
-      keep.push_back(std::move(rec));
-  }
-  pending_ = std::move(keep);
 }
 
 void SoilPinn::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
@@ -140,14 +110,14 @@ void SoilPinn::process(ProcessContext& ctx, const Event& event) {
     else
       ctx.countDrop("observation_out_of_order");
   }
-  collectSweep(ctx);
-  if (!pending_.empty()) buildPending(ctx, false);
+  pending_.collect(ctx);
+  if (!pending_.empty()) pending_.drain(histories_, false, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
 }
 
 void SoilPinn::finish(ProcessContext& ctx) {
-  collectSweep(ctx);  // blade_sweep's finish() may have cut the last partial sweep
+  pending_.collect(ctx);  // blade_sweep's finish() may have cut the last partial sweep
   if (!pending_.empty()) ctx.addCounter("sweeps_pending_at_finish", static_cast<double>(pending_.size()));
-  buildPending(ctx, true);
+  pending_.drain(histories_, true, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
 }
 
 }  // namespace terramap::plugins

@@ -21,6 +21,7 @@
 #include <terramap/plugin/plugin.hpp>
 #include <terramap/plugin/records/soil_estimate_record.hpp>
 #include <terramap/plugin/records/sweep_record.hpp>
+#include <terramap/soil/pending_sweeps.hpp>
 #include <terramap/soil/pinn_sample.hpp>
 
 #include "estimator.hpp"
@@ -53,9 +54,6 @@ class SoilPinn : public Plugin {
   std::size_t pendingSweeps() const { return pending_.size(); }
 
  private:
-  void collectSweep(ProcessContext& ctx);
-  /// Builds and estimates the pending sweeps that are ready (all of them when `all`).
-  void buildPending(ProcessContext& ctx, bool all);
   void estimateSweep(ProcessContext& ctx, const SweepRecord& sweep);
 
   std::string model_path_;
@@ -63,8 +61,7 @@ class SoilPinn : public Plugin {
   std::size_t history_capacity_ = 0;
   std::shared_ptr<const pinn::SoilEstimator> estimator_;
   std::map<std::string, soil::ObservationHistory> histories_;
-  std::vector<std::shared_ptr<const SweepRecord>> pending_;
-  long last_sequence_ = 0;
+  soil::PendingSweeps pending_;
 };
 
 }  // namespace terramap::plugins
