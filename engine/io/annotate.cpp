@@ -70,6 +70,8 @@ std::pair<std::string, double> displayUnit(const std::string& unit, bool divergi
   // Forces and stresses of soil cutting run to tens of thousands of newtons and pascals.
   if (unit == "N") return {"kN", 1e-3};
   if (unit == "Pa") return {"kPa", 1e-3};
+  // A person reads angles in degrees (friction and slope angles); the layers keep radians.
+  if (unit == "rad") return {"deg", 180.0 / 3.14159265358979323846};
   return {unit.empty() ? "1" : unit, 1.0};
 }
 

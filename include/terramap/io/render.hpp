@@ -152,8 +152,8 @@ struct Annotation {
 };
 
 /// The unit a colour bar (and the default title) shows a layer in: errors and differences in
-/// metres (diverging colour maps) read in centimetres, newtons in kN, pascals in kPa; everything
-/// else in its own unit. Returns {unit, scale}.
+/// metres (diverging colour maps) read in centimetres, newtons in kN, pascals in kPa, radians in
+/// degrees; everything else in its own unit. Returns {unit, scale}.
 std::pair<std::string, double> displayUnit(const std::string& unit, bool diverging);
 
 /// Where annotate() put things, for tests and for callers that overlay more.
