@@ -8,10 +8,12 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <iostream>
+#include <map>
 #include <memory>
 #include <vector>
 
@@ -55,6 +57,24 @@ class ProgressBar {
   std::chrono::steady_clock::time_point last_{};
 };
 
+/// "  dropped N (reason n = p %, ...)", largest first: the total alone hides whether the drops
+/// are expected (the machine's own points) or a fault (points outside the map).
+void printDrops(const std::map<std::string, long>& dropped) {
+  long total = 0;
+  for (const auto& [k, v] : dropped) total += v;
+  if (total == 0) return;
+  std::vector<std::pair<std::string, long>> by(dropped.begin(), dropped.end());
+  std::stable_sort(by.begin(), by.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
+  std::printf("  dropped %ld (", total);
+  bool first = true;
+  for (const auto& [reason, n] : by) {
+    if (n == 0) continue;
+    std::printf("%s%s %ld = %.1f %%", first ? "" : ", ", reason.c_str(), n, 100.0 * static_cast<double>(n) / total);
+    first = false;
+  }
+  std::printf(")");
+}
+
 Registrar reg{Command{"run", [](CLI::App& app, std::function<int()>& run) {
   auto a = std::make_shared<RunArgs>();
   auto* sub = app.add_subcommand("run",
@@ -67,7 +87,7 @@ Registrar reg{Command{"run", [](CLI::App& app, std::function<int()>& run) {
   sub->add_option("--set", a->set,
                   "Stage parameter for this run, STAGE.KEY=VALUE, the value as YAML (repeatable; e.g. "
                   "--set bayes.prior=config --set lidar.max_range_m=20)");
-  sub->add_flag("--quiet,-q", a->quiet, "Print nothing but errors");
+  sub->add_flag("--quiet,-q", a->quiet, "Print nothing but warnings and errors");
   sub->add_flag("--no-progress", a->no_progress, "No progress bar (it is shown only on a terminal anyway)");
   sub->callback([&run, a] {
     run = [a]() -> int {
@@ -94,10 +114,13 @@ Registrar reg{Command{"run", [](CLI::App& app, std::function<int()>& run) {
           std::printf(" (%.2f s with the source: %.1fx real time)", r.run_wall_s, r.real_time_factor);
         std::printf("\n");
         for (const auto& s : r.report.stages) {
-          long dropped = 0;
-          for (const auto& [k, v] : s.stats.dropped) dropped += v;
           std::printf("  %-16s %-14s %8.3f s", s.name.c_str(), s.type.c_str(), s.stats.wall_s);
-          if (dropped) std::printf("  dropped %ld", dropped);
+          printDrops(s.stats.dropped);
+          std::printf("\n");
+        }
+        if (!r.report.source_dropped.empty()) {
+          std::printf("  %-16s %-14s %10s", "(source)", "", "");
+          printDrops(r.report.source_dropped);
           std::printf("\n");
         }
         for (const auto& f : r.files) std::printf("wrote %s\n", f.c_str());
@@ -106,6 +129,13 @@ Registrar reg{Command{"run", [](CLI::App& app, std::function<int()>& run) {
                       r.removed_temporaries.size() == 1 ? "" : "s", r.out_dir.c_str(),
                       joinStrings(r.removed_temporaries).c_str());
       }
+      // After the summary so it is the last thing read; not silenced by --quiet, as an error
+      // is not: a run that wrote pictures of nothing has most likely not done what was meant.
+      for (const auto& layer : r.unknown_layers)
+        std::fprintf(stderr,
+                     "warning: output layer '%s' is entirely unknown (every cell NaN) at the end of the run: "
+                     "no stage wrote a known value to it\n",
+                     layer.c_str());
       return kOk;
     };
   });

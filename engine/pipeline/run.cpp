@@ -238,6 +238,37 @@ void writeMapOutputs(const PipelineSpec& spec, const Engine& engine, const Truth
   }
 }
 
+/// True when some cell of `layer` is known (not NaN). Unallocated tiles read as the fill.
+bool anyKnownCell(const LayeredMap& map, const std::string& layer) {
+  const LayerId id = map.layerId(layer);
+  const bool fill_known = !std::isnan(map.layerInfo(id).fill);
+  const int stride = map.tileSize();
+  for (int t = 0; t < map.tileCount(); ++t) {
+    const float* d = map.tileData(id, t);
+    if (!d) {
+      if (fill_known) return true;
+      continue;
+    }
+    const CellRect rect = map.tileRect(t);
+    for (int r = 0; r < rect.rows; ++r)
+      for (int c = 0; c < rect.cols; ++c)
+        if (!std::isnan(d[r * stride + c])) return true;
+  }
+  return false;
+}
+
+/// The layers the outputs write (GeoTIFF bands and PNGs, each once) that hold no known cell.
+std::vector<std::string> unknownOutputLayers(const PipelineSpec& spec, const LayeredMap& map) {
+  std::vector<std::string> layers = spec.outputs.geotiff;
+  const std::vector<std::string> pngs = spec.outputs.png_all ? map.layerNames() : spec.outputs.png;
+  for (const auto& l : pngs)
+    if (std::find(layers.begin(), layers.end(), l) == layers.end()) layers.push_back(l);
+  std::vector<std::string> unknown;
+  for (const auto& l : layers)
+    if (map.hasLayer(l) && !anyKnownCell(map, l)) unknown.push_back(l);
+  return unknown;
+}
+
 }  // namespace
 
 RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
@@ -334,6 +365,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   const LayeredMap& map = engine->map();
   const fs::path dir(spec.outputs.dir);
   writeMapOutputs(spec, *engine, truth, res.files);
+  res.unknown_layers = unknownOutputLayers(spec, map);
   if (spec.outputs.report) {
     const fs::path p = dir / "report.json";
     nlohmann::json extra;
@@ -349,6 +381,12 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
     std::vector<std::string> files = res.files;
     files.push_back(p.string());
     extra["files"] = files;
+    if (!res.unknown_layers.empty()) {
+      nlohmann::json w = nlohmann::json::array();
+      for (const auto& l : res.unknown_layers)
+        w.push_back({{"kind", "layer_all_unknown"}, {"layer", l}});
+      extra["warnings"] = w;
+    }
     if (series.enabled()) {
       extra["series_interval_s"] = spec.outputs.series_interval_s;
       extra["series"] = series.take();

@@ -59,6 +59,10 @@ struct RunResult {
   /// source, how many times faster than real time the whole pipeline ran.
   double run_wall_s = 0.0;
   double real_time_factor = std::numeric_limits<double>::quiet_NaN();
+  /// Output layers (GeoTIFF bands, PNGs) without one known cell (all NaN) after the run: a
+  /// picture or band of nothing usually means a stage never saw data (a source that missed the
+  /// map, a wrong layer name), so the CLI warns and report.json lists them under "warnings".
+  std::vector<std::string> unknown_layers;
 };
 
 /// Memory stays bounded over long runs: the stages' report records are spooled to an anonymous
