@@ -10,6 +10,7 @@
 #include <terramap/soil/soil_parameters.hpp>
 
 #include <algorithm>
+#include <cstdio>
 #include <cmath>
 #include <deque>
 #include <limits>
@@ -101,6 +102,23 @@ std::unique_ptr<Source> makeSim(const PipelineSpec& spec) {
 
 
 }  // namespace
+
+std::vector<std::pair<int, std::string>> simSoilZoneNames(const Source& source) {
+  const auto* sim = dynamic_cast<const SimEventSource*>(&source);
+  if (!sim) return {};
+  auto describe = [](const std::string& name, const auto& p) {
+    char b[160];
+    std::snprintf(b, sizeof b, "%s (%s, I_d %.2f)", name.c_str(), soil::soilFamilyName(p.family), p.relative_density);
+    return std::string(b);
+  };
+  const SoilField& field = sim->simulator().soil();
+  std::vector<std::pair<int, std::string>> names{{-1, describe("default soil", field.defaultSoil())}};
+  for (std::size_t k = 0; k < field.zones().size(); ++k) {
+    const SoilZone& z = field.zones()[k];
+    names.emplace_back(static_cast<int>(k), describe(z.name.empty() ? "zone " + std::to_string(k) : z.name, z.soil));
+  }
+  return names;
+}
 
 void registerSimSource() {
   static std::once_flag once;

@@ -1,5 +1,6 @@
 #include <terramap/eval/truth_report.hpp>
 
+#include <terramap/eval/sim_source.hpp>
 #include <terramap/eval/statistics.hpp>
 #include <terramap/soil/soil_parameters.hpp>
 
@@ -141,6 +142,7 @@ TruthComparison compareWithSourceTruth(LayeredMap& map, const Source& source) {
   map.fromMatrix(map.addLayer("elevation_error", "m"), c.err);
   nlohmann::json j = statsJson(std::move(c.errors), c.truth_cells);
   std::vector<std::string> layers{"truth_elevation", "elevation_error"};
+  std::map<std::string, std::vector<std::pair<float, std::string>>> categories;
   Eigen::MatrixXf zone;
   const nlohmann::json soil = compareSoil(map, source, &zone);
   if (!soil.is_null()) {
@@ -148,6 +150,11 @@ TruthComparison compareWithSourceTruth(LayeredMap& map, const Source& source) {
     if (!map.hasLayer("truth_soil_zone")) {
       map.fromMatrix(map.addLayer("truth_soil_zone", "1"), zone);
       layers.push_back("truth_soil_zone");
+      // Its picture's legend: the zones the map shows, by name.
+      std::vector<std::pair<float, std::string>> legend;
+      for (const auto& [id, name] : sim::simSoilZoneNames(source))
+        if ((zone.array() == static_cast<float>(id)).any()) legend.emplace_back(static_cast<float>(id), name);
+      categories["truth_soil_zone"] = legend;
     }
   }
   char caption[256];
@@ -155,7 +162,7 @@ TruthComparison compareWithSourceTruth(LayeredMap& map, const Source& source) {
                 "|map - truth|: RMSE %.2f cm, median %.2f cm, p95 %.2f cm; coverage %.1f %% of %ld cells",
                 100.0 * j["rmse_m"].get<double>(), 100.0 * j["median_abs_m"].get<double>(),
                 100.0 * j["p95_abs_m"].get<double>(), 100.0 * j["coverage"].get<double>(), c.truth_cells);
-  return TruthComparison{j.dump(), layers, caption};
+  return TruthComparison{j.dump(), layers, caption, categories};
 }
 
 std::string soilTruthJson(const LayeredMap& map, const Source& source) {

@@ -208,6 +208,7 @@ void writeMapOutputs(const PipelineSpec& spec, const Engine& engine, const Truth
   }
   std::vector<std::string> pngs = spec.outputs.png;
   if (spec.outputs.png_all) pngs = map.layerNames();
+  auto rendered = [&](const std::string& l) { return std::find(pngs.begin(), pngs.end(), l) != pngs.end(); };
   for (const auto& layer : pngs) {
     io::RenderOptions ro;
     ro.scale = io::runPngScale(map.geometry());
@@ -217,14 +218,33 @@ void writeMapOutputs(const PipelineSpec& spec, const Engine& engine, const Truth
     ro.hillshade = unit == "m" && layer.find("elevation") != std::string::npos && layer != "elevation_error";
     if (ro.hillshade) ro.ambient = 0.35;
     if (layer == "elevation_error") ro.colormap = "rdbu";  // symmetric around 0: white = no error
+    // A truth picture and its estimate side by side are compared by eye: one colour range for
+    // both (the union of their automatic ranges), so a colour means one value in either.
+    const std::string partner = layer.rfind("truth_", 0) == 0 ? layer.substr(6) : "truth_" + layer;
+    if (map.hasLayer(partner) && rendered(partner)) {
+      const io::ValueRange a = io::renderRange(map, map.layerId(layer), ro);
+      const io::ValueRange b = io::renderRange(map, map.layerId(partner), ro);
+      const io::ValueRange u{std::min(a.min, b.min), std::max(a.max, b.max)};
+      if (u.min < u.max) ro.range = u;
+    }
     io::Annotation an;
-    if (std::find(truth.layers.begin(), truth.layers.end(), layer) != truth.layers.end()) an.caption = truth.caption;
+    const auto cats = truth.categories.find(layer);
+    if (cats != truth.categories.end() && !cats->second.empty()) {
+      // Ids, not quantities: a legend of names, each swatch the colour of its id.
+      an.categories = cats->second;
+      float lo = cats->second.front().first, hi = lo;
+      for (const auto& [v, name] : cats->second) lo = std::min(lo, v), hi = std::max(hi, v);
+      ro.range = lo < hi ? io::ValueRange{lo, hi} : io::ValueRange{lo - 0.5f, lo + 0.5f};
+    } else if (std::find(truth.layers.begin(), truth.layers.end(), layer) != truth.layers.end()) {
+      an.caption = truth.caption;  // the elevation comparison's statistics, not a zone map's
+    }
     if (layer == "elevation_error") an.title = "elevation_error: map - truth [cm]";
     // Soil pictures show where the truth's soil zones are (the run compared them, truth_report).
     const bool soil_layer = layer.rfind("soil_", 0) == 0 || layer.rfind("fee_index", 0) == 0;
     if (soil_layer && layer != "truth_soil_zone" && map.hasLayer("truth_soil_zone")) {
       an.outline_regions = "truth_soil_zone";
-      an.caption = "white lines: the simulator's soil zones";
+      an.caption = rendered("truth_soil_zone") ? "white lines: the simulator's soil zones (named in truth_soil_zone.png)"
+                                               : "white lines: the simulator's soil zones";
     }
 
     const fs::path p = dir / (layer + ".png");

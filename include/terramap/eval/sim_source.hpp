@@ -8,10 +8,23 @@
 /// and calls registerSimSource() once before building a Source.
 #include <terramap/core/export.hpp>
 
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace terramap {
+class Source;
+}
+
 namespace terramap::sim {
 
 /// Registers source type "sim" with the pipeline's source registry. Idempotent and
 /// thread-safe (the first call registers).
 TERRAMAP_API void registerSimSource();
+
+/// Names of the soil zones a `sim` source's truth layer `soil_zone` holds, by value (-1 = the
+/// scenario's default soil), with family and relative density, for picture legends; empty for
+/// any other source.
+TERRAMAP_API std::vector<std::pair<int, std::string>> simSoilZoneNames(const Source& source);
 
 }  // namespace terramap::sim

@@ -162,13 +162,20 @@ struct AnnotatedLayout {
   int bar_x = 0, bar_y = 0, bar_height = 0;  ///< colour bar (top = range max); 0 height if none
   int scale_bar_x = 0, scale_bar_y = 0, scale_bar_px = 0;  ///< left end, row, length
   double scale_bar_m = 0;            ///< the length it stands for
+  /// The colour bar's arrow ends: values above its top / below its bottom exist (drawn in the
+  /// end colour); the subtitle then gives the layer's whole range.
+  bool arrow_above = false, arrow_below = false;
+  std::vector<std::string> texts;    ///< every text drawn (title, subtitles, labels), in order
 };
 
 /// Puts `map_image` (renderLayer's output for `layer` with `options`) on a white canvas with a
-/// title (layer and unit) and optional caption, a colour bar whose labels are in the display
-/// unit (symmetric around 0 for diverging maps, as the range is) or category swatches, a swatch
-/// for unknown cells when they are drawn opaque, a scale bar in metres and x/y axis arrows (map
-/// frame: x to the right, y up, as the picture is north-up). Text is drawn with FreeType from
+/// title (layer and unit; no unit for a categorical layer) and optional caption, a colour bar
+/// whose labels are in the display unit (symmetric around 0 for diverging maps, as the range is)
+/// or, for a categorical layer (Annotation::categories), a swatch per category with its name; a
+/// swatch for unknown cells when they are drawn opaque; map coordinates in metres along the
+/// bottom (x) and left (y) edges; a scale bar in metres labelled at each tick. When finite
+/// values lie outside the rendered range, the colour bar gets an arrow end (a triangle in the
+/// end colour) on that side and a subtitle gives the layer's whole range. Text is drawn with FreeType from
 /// DejaVu Sans (fonts-dejavu-core; TERRAMAP_FONT overrides the file).
 /// \throws OutputError naming the font file when it cannot be loaded; ConfigError as renderLayer.
 Image annotate(const Image& map_image, const LayeredMap& map, const std::string& layer, const RenderOptions& options,

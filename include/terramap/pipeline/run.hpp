@@ -7,6 +7,7 @@
 
 #include <functional>
 #include <limits>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -19,6 +20,9 @@ struct TruthComparison {
   std::string json;                 ///< a JSON object for report.json's "truth"; empty = none
   std::vector<std::string> layers;  ///< layers it added to the map (exported with the others)
   std::string caption;              ///< one line of its statistics, under those layers' pictures
+  /// Categorical layers among `layers` (e.g. truth_soil_zone): each value with its name, drawn
+  /// as a legend instead of a colour bar and without `caption`.
+  std::map<std::string, std::vector<std::pair<float, std::string>>> categories;
 };
 
 struct RunOptions {

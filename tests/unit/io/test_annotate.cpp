@@ -6,7 +6,10 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <string>
+#include <vector>
 #include <cstdlib>
 
 namespace tio = terramap::io;
@@ -61,14 +64,95 @@ TEST(Annotate, ColourBarRunsTheRampFromTheRangeMaximumDown) {
 TEST(Annotate, ScaleBarIsAsLongAsItsLabelSays) {
   const LayeredMap m = ramp();  // 40 cells x 0.5 m = 20 m wide
   tio::RenderOptions o;
-  o.scale = 5;
+  o.scale = 10;
   tio::AnnotatedLayout l;
   const tio::Image img = tio::annotate(tio::renderLayer(m, "elevation", o), m, "elevation", o, {}, &l);
   EXPECT_EQ(l.scale_bar_m, 5.0);  // the largest of 1, 2, 5 x 10^k m up to a third of 20 m
-  EXPECT_EQ(l.scale_bar_px, static_cast<int>(std::lround(5.0 / 0.5 * 5)));
-  EXPECT_LT(img.pixel(l.scale_bar_y + 3, l.scale_bar_x + 2).r, 60);                   // black half
-  EXPECT_GT(img.pixel(l.scale_bar_y + 3, l.scale_bar_x + l.scale_bar_px - 3).r, 200);  // white half
-  EXPECT_LT(img.pixel(l.scale_bar_y, l.scale_bar_x + l.scale_bar_px - 1).r, 60);      // its frame
+  EXPECT_EQ(l.scale_bar_px, static_cast<int>(std::lround(5.0 / 0.5 * 10)));
+  // Five 1 m segments, black and white in turn, inside a frame.
+  for (int k = 0; k < 5; ++k) {
+    const int x = l.scale_bar_x + l.scale_bar_px * (2 * k + 1) / 10;  // the segment's middle
+    if (k % 2 == 0) EXPECT_LT(img.pixel(l.scale_bar_y + 3, x).r, 60) << k;
+    else EXPECT_GT(img.pixel(l.scale_bar_y + 3, x).r, 200) << k;
+  }
+  EXPECT_LT(img.pixel(l.scale_bar_y, l.scale_bar_x + l.scale_bar_px - 1).r, 60);  // its frame
+  // Every tick labelled, the last with the unit: the scale bar's texts are the last drawn.
+  ASSERT_GE(l.texts.size(), 6u);
+  const std::vector<std::string> labels(l.texts.end() - 6, l.texts.end());
+  EXPECT_EQ(labels, (std::vector<std::string>{"0", "1", "2", "3", "4", "5 m"}));
+}
+
+TEST(Annotate, AClippedValueGetsAnArrowEndAndTheWholeRangeInTheSubtitle) {
+  const LayeredMap m = ramp();  // values 0.1 i - 0.05 j: -1.15 .. 3.9 m
+  const auto cmap = tio::Colormap::byName("viridis");
+  tio::RenderOptions o;
+  o.scale = 4;
+  o.range = tio::ValueRange{-1.f, 1.f};  // both ends clip
+  tio::AnnotatedLayout l;
+  const tio::Image img = tio::annotate(tio::renderLayer(m, "elevation", o), m, "elevation", o, {}, &l);
+  EXPECT_TRUE(l.arrow_above);
+  EXPECT_TRUE(l.arrow_below);
+  // The arrows are filled with the end colours, just outside the bar, on the bar's axis.
+  const int mid = l.bar_x + 8;
+  EXPECT_EQ(img.pixel(l.bar_y - 3, mid), cmap.at(1.0));
+  EXPECT_EQ(img.pixel(l.bar_y + l.bar_height + 2, mid), cmap.at(0.0));
+  // The subtitle gives the layer's whole range and where the colours stop.
+  ASSERT_GE(l.texts.size(), 2u);
+  EXPECT_EQ(l.texts[1], "values -1.15 to 3.90 m; the colours stop at -1.00 and 1.00 (arrows: beyond)");
+
+  // Only the side that clips gets an arrow; a range that holds every value gets none and no note.
+  o.range = tio::ValueRange{-2.f, 3.f};
+  const tio::Image up = tio::annotate(tio::renderLayer(m, "elevation", o), m, "elevation", o, {}, &l);
+  EXPECT_TRUE(l.arrow_above);
+  EXPECT_FALSE(l.arrow_below);
+  EXPECT_EQ(up.pixel(l.bar_y - 3, mid), cmap.at(1.0));
+  EXPECT_EQ(up.pixel(l.bar_y + l.bar_height + 2, mid), (tio::Rgba{255, 255, 255, 255}));
+  o.range = tio::ValueRange{-2.f, 4.f};
+  const tio::Image none = tio::annotate(tio::renderLayer(m, "elevation", o), m, "elevation", o, {}, &l);
+  EXPECT_FALSE(l.arrow_above || l.arrow_below);
+  EXPECT_EQ(none.pixel(l.bar_y - 3, mid), (tio::Rgba{255, 255, 255, 255}));
+  for (const auto& t : l.texts) EXPECT_EQ(t.find("values"), std::string::npos) << t;
+}
+
+TEST(Annotate, ACategoricalLayerGetsALegendNamingEachCategory) {
+  LayeredMap m(Geometry(0.5, Size(30, 20), Position(0, 0)), MapOptions{16, false});
+  const LayerId id = m.addLayer("truth_soil_zone", "1");
+  for (int i = 0; i < 30; ++i)
+    for (int j = 0; j < 20; ++j) m.set(id, Index(i, j), static_cast<float>(i / 10 - 1));  // -1, 0, 1
+  tio::RenderOptions o;
+  o.scale = 4;
+  o.range = tio::ValueRange{-1.f, 1.f};
+  tio::Annotation a;
+  a.categories = {{-1.f, "default soil"}, {0.f, "dense_strip"}, {1.f, "sand_patch"}};
+  tio::AnnotatedLayout l;
+  const tio::Image img = tio::annotate(tio::renderLayer(m, "truth_soil_zone", o), m, "truth_soil_zone", o, a, &l);
+  EXPECT_EQ(l.bar_height, 0);  // no continuous bar
+  EXPECT_EQ(l.texts.front(), "truth_soil_zone");  // an id has no unit: no "[1]"
+  const auto cmap = tio::Colormap::byName("viridis");
+  for (std::size_t k = 0; k < a.categories.size(); ++k) {
+    EXPECT_NE(std::find(l.texts.begin(), l.texts.end(), a.categories[k].second), l.texts.end()) << a.categories[k].second;
+    // Each swatch has its category's colour in the map.
+    EXPECT_EQ(img.pixel(l.bar_y + static_cast<int>(k) * 22 + 8, l.bar_x + 8), cmap.at(0.5 * static_cast<double>(k)));
+  }
+  for (const auto& t : l.texts) EXPECT_EQ(t.find("values"), std::string::npos) << t;  // ids are not clipped
+}
+
+TEST(Annotate, AxesShowMapCoordinatesInMetres) {
+  const LayeredMap m = ramp();  // 20 m x 12 m centred on (3, 1): x -7 .. 13, y -5 .. 7
+  tio::RenderOptions o;
+  o.scale = 10;  // 20 px per metre
+  tio::AnnotatedLayout l;
+  const tio::Image img = tio::annotate(tio::renderLayer(m, "elevation", o), m, "elevation", o, {}, &l);
+  auto has = [&](const std::string& s) { return std::find(l.texts.begin(), l.texts.end(), s) != l.texts.end(); };
+  EXPECT_TRUE(has("x [m]"));
+  EXPECT_TRUE(has("y [m]"));
+  for (const char* s : {"-5", "0", "5", "10"}) EXPECT_TRUE(has(s)) << s;
+  // The tick of x = 0 is 7 m right of the map's left edge, under its frame; y = 0 is 7 m below its top.
+  const int bottom = l.map_y + 12 * 20;
+  EXPECT_LT(img.pixel(bottom + 2, l.map_x + 140).r, 60);
+  EXPECT_GT(img.pixel(bottom + 2, l.map_x + 145).r, 200);
+  EXPECT_LT(img.pixel(l.map_y + 140, l.map_x - 2).r, 60);
+  EXPECT_GT(img.pixel(l.map_y + 145, l.map_x - 2).r, 200);
 }
 
 TEST(Annotate, ErrorsInMetresReadInCentimetres) {
