@@ -7,6 +7,8 @@
 #   make bench  build and run the Google Benchmark programs
 #   make mutation  break the code on purpose and check the tests notice (docs/testing.md)
 #   make install PREFIX=/usr/local
+# bash for pipefail: `make test` tees CTest's output and keeps its exit status.
+SHELL := /bin/bash
 BUILD ?= build
 JOBS ?= 2
 PREFIX ?= /usr/local
@@ -32,10 +34,12 @@ demo: build
 	$(BUILD)/bin/terramap run --out $(OUT)
 	@echo "demo outputs in $(OUT): map.tif (GeoTIFF), *.png, map.tmap, report.json"
 
-# Then the tests that were skipped and why (e.g. the KITTI frames absent: data/README.md).
+# Then the tests that were skipped and why (e.g. the KITTI frames absent: data/README.md), and
+# CTest's summary line once more, so the output still ends with it (CI reads the closing line).
 test: build
-	cd $(BUILD) && { ctest --output-on-failure -j $(JOBS) --timeout 900 --output-junit ctest.xml; rc=$$?; \
-	  python3 $(CURDIR)/scripts/ctest_skips.py ctest.xml; exit $$rc; }
+	cd $(BUILD) && { set -o pipefail; ctest --output-on-failure -j $(JOBS) --timeout 900 --output-junit ctest.xml \
+	  2>&1 | tee ctest.log; rc=$$?; python3 $(CURDIR)/scripts/ctest_skips.py ctest.xml; \
+	  grep -E '^[0-9]+% tests passed, [0-9]+ tests? failed out of [0-9]+' ctest.log | tail -n 1; exit $$rc; }
 
 # Every test under AddressSanitizer + UndefinedBehaviorSanitizer in its own tree (build-asan).
 # Python and the web view are off there (an uninstrumented interpreter or browser cannot load an
