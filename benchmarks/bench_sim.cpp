@@ -82,7 +82,7 @@ void BM_SimRealtimeSustainedSerialOrder(benchmark::State& state) {
 }
 BENCHMARK(BM_SimRealtimeSustainedSerialOrder)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
 
-// The same workload plus the sensors #19 added: a RealSense D435-class depth camera (424 x 240
+// The same workload plus the depth camera and IMUs: a RealSense D435-class depth camera (424 x 240
 // at 15 Hz, the docs/sim.md defaults) on the cab roof looking 35 deg down, and IMUs on the base
 // and the blade at 120 Hz. Read against BM_SimRealtime of the same run: the cost of the camera's
 // 1.5 M rays/s beside the LiDAR's 6.6 M and of the IMUs.
@@ -100,7 +100,7 @@ void BM_SimRealtimeDepthCameraImus(benchmark::State& state) {
 }
 BENCHMARK(BM_SimRealtimeDepthCameraImus)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
 
-// #19's excavator figure (goal 20x): configs/scenarios/excavator_dig_dump.yaml's excavator alone
+// The excavator's real-time factor (goal 20x): configs/scenarios/excavator_dig_dump.yaml's excavator alone
 // (its 15 Hz depth camera at the D435-class defaults and IMUs on chassis, boom, arm and bucket) over 16 s, one whole
 // dig-and-dump cycle; /camera:0 drops the camera (the arm, bucket and soil physics alone).
 // /reuse:1 is the default (SensorSpec::reuse_casts: the camera, on the standing excavator's

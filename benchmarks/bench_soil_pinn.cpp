@@ -1,5 +1,5 @@
 // Latency of one soil estimate, what the soil_pinn plugin spends per blade sweep
-// (ALGORITHMS.md §F; issue 12 goal: <= 1 ms on 1 thread, ensemble included).
+// (ALGORITHMS.md §F; goal: <= 1 ms on 1 thread, ensemble included, so it keeps up with the sweeps).
 //
 //   BM_SoilPinn: SoilEstimator::estimateFast(sample), the torch-free path the plugin runs
 //     (terramap/soil/pinn_inference.hpp), for ONE sample with a deep ensemble of 5 members,

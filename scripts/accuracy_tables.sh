@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The accuracy tables of issue #11, measured the honest way (realistic localisation and
+# The accuracy tables docs/sim.md quotes, measured the honest way (realistic localisation and
 # occlusion, the defaults, track–soil on) with the ablations beside them (perfect localisation,
 # no occlusion, no track–soil).
 #   scripts/accuracy_tables.sh [BUILD_DIR]      (default: build)

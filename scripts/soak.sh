@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The one-hour soak (issue #14; docs/reliability.md, "Soak").
+# The one-hour soak (docs/reliability.md, "Soak").
 #
 # Runs `terramap run configs/soak/pipeline.yaml`: the simulator's compact track loader drives a
 # looping route (configs/soak/scenario.yaml: 10 lanes of 22 m, cut forward, reversed, back and

@@ -1,4 +1,4 @@
-// `terramap eval-strata SCENARIO.yaml`: the subsurface soil memory (octomap_strata, issue #17)
+// `terramap eval-strata SCENARIO.yaml`: the subsurface soil memory (octomap_strata; ALGORITHMS.md §K)
 // against the simulator's truth. Two figures:
 //  - boundary: in every column the machine cut through a soil zone's top (the truth's bank surface
 //    at the end at least one voxel below it), is the height where the removed soil changes

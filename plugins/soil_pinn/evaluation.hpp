@@ -22,7 +22,7 @@ struct ForceGap {
   double total = NAN, x = NAN, z = NAN;
 };
 
-/// Where the estimator's force error lives (issue #48; docs/soil_estimator.md, "Where the error
+/// Where the estimator's force error lives (docs/soil_estimator.md, "Where the error
 /// lives"), on the horizon rows whose noise-free force and per-row truth the dataset holds:
 ///  (a) the physics layer with the truth soil on the simulator's own geometry of each row
 ///      (sim::FeeTruth: one wedge at the depth-weighted depth over the cutting width),

@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Can the force tell the soil when many sweeps of one soil are fitted together? (issue #48)
+"""Can the force tell the soil when many sweeps of one soil are fitted together?
+(docs/soil_estimator.md, "Where the error lives")
 
     python3 scripts/analysis/soil_joint_fit.py DATASET_DIR [SPLIT] [--geometry GEOMETRY] [--chunk K]
         [--episodes all|graded|random]

@@ -4,8 +4,9 @@
 # (the run's time as it prints it, the set-up apart), then the medians.
 #
 #   scripts/bench/sim_writer_ratio.sh [ROUNDS] [BIN_DIR]            (defaults: 7, build/bin)
-#     #15's "within 20 % of the benchmark": the reference is the same workload without the writer,
-#     BM_SimRealtimeSustained/2 against `--duration 16`; DURATION=2 compares the file's own 2 s
+#     the writer's goal, "within 20 % of the benchmark": the reference is the same workload
+#     without the writer, BM_SimRealtimeSustained/2 against `--duration 16`; DURATION=2 compares
+#     the file's own 2 s
 #     with BM_SimRealtime/2 (a short episode carries the close's fixed cost).
 #   BASE_BIN=OTHER/bin scripts/bench/sim_writer_ratio.sh [ROUNDS] [BIN_DIR]
 #     before/after: the reference is `terramap sim` of another build (e.g. a `git worktree` of the

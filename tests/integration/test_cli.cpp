@@ -228,7 +228,7 @@ TEST(Cli, EvalSoilMapComparesTheSoilLayersWithTheTruthZones) {
     return t->values(static_cast<long>((y - gt[3]) / gt[5]), static_cast<long>((x - gt[0]) / gt[1]));
   };
   EXPECT_GT(at(7.5, 0.0), 2.0f * at(3.0, 0.0));  // 88 vs 21 kN
-  // Issue #13's goal: the mapped index separates the dense strip from the loose clay with
+  // The goal: the mapped index separates the dense strip from the loose clay with
   // AUC >= 0.95 (0.959 measured). With soil_bayes fusing its mid-range prior into each first
   // estimate (--set bayes.prior=config) it was 0.934.
   double auc = -1;

@@ -1,4 +1,4 @@
-// End-to-end: what `terramap run` tells its user on the terminal when it ends (issue 53).
+// End-to-end: what `terramap run` tells its user on the terminal when it ends.
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 

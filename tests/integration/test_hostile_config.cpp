@@ -1,4 +1,4 @@
-// Hostile and careless configurations and files, through the `terramap` binary (issue 49):
+// Hostile and careless configurations and files, through the `terramap` binary:
 // plugin folders named by a config file, plugin code run by `validate`, outputs beyond the
 // memory budget, huge YAML files, duplicate keys, output folders that cannot be written, and
 // temporary files left by killed or failed writers.

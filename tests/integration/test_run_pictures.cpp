@@ -1,4 +1,4 @@
-// End-to-end: the pictures `terramap run` writes compare and name what they show (issue 53).
+// End-to-end: the pictures `terramap run` writes compare and name what they show.
 #include <terramap/eval/sim_source.hpp>
 #include <terramap/io/geotiff.hpp>
 #include <terramap/pipeline/pipeline_spec.hpp>

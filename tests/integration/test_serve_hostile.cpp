@@ -1,5 +1,5 @@
 // `terramap serve` driven by a raw socket client, as a hostile page or a careless script would
-// (issue 49): paths outside the web root, malformed WebSocket commands, foreign Origin and Host
+// (docs/reliability.md): paths outside the web root, malformed WebSocket commands, foreign Origin and Host
 // headers, too many connections, oversized messages, a public bind without the flag.
 // Loopback only; every socket read has a timeout and the server is killed at the end.
 #include "cli_util.hpp"

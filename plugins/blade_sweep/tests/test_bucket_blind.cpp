@@ -242,11 +242,11 @@ TEST(BucketBlind, ADigAndDumpCycleAgainstTheSimulatorsTruth) {
   std::printf("[ bucket-blind ] dig cells more than 10 cm off: %ld; worst at (%.2f, %.2f): map %+.3f m, truth %+.3f m "
               "from the initial surface\n",
               f.cells_off_10cm, f.worst_at.x(), f.worst_at.y(), f.worst_map_dz, f.worst_truth_dz);
-  // #19's goal: 3 cm (measured 0.98 cm; 3.49 cm while the simulator's bucket took whole nodes
-  // at its side walls, README "Buckets"). Bound at the goal.
-  EXPECT_LT(f.rmse, 0.03) << "#19: RMSE inside the dig (goal 3 cm)";
+  // The goal is 3 cm (0.98 cm measured); the bound sits at the goal, not the measurement, so the
+  // simulator's bucket geometry (README "Buckets") can change without this test pinning it.
+  EXPECT_LT(f.rmse, 0.03) << "RMSE inside the dig (goal 3 cm)";
   EXPECT_LT(f.rmse_pile, 0.5 * f.rmse_pile_static) << "the pile is where the truth's is";
-  // #19: mass balance within 1 % (the map moved what the truth's bucket moved).
+  // Mass balance within 1 % (the map moved what the truth's bucket moved).
   EXPECT_NEAR(f.cut, tr.bucket_dug_bank_m3, 0.01 * tr.bucket_dug_bank_m3);
   EXPECT_NEAR(f.poured, tr.bucket_dumped_bank_m3, 0.01 * tr.bucket_dumped_bank_m3);
 

@@ -1,6 +1,6 @@
 // soil_bayes then fee_index on a stream of estimates from a machine driving along +x: a strip of
 // dense soil only one wedge long, seen by a single estimate among noisy ones of loose soil, must
-// stand out in the index (issue #13: "a strip the size of one wedge still detected"). What it
+// stand out in the index (a strip the size of one wedge is still detected). What it
 // checks end to end without the estimator: the wedge lands ahead of the blade where the soil
 // was estimated, and a denser estimate gives a larger index there.
 #include <gtest/gtest.h>

@@ -471,7 +471,7 @@ TEST(Trainer, SupervisionByTheTruthSoilReachesTheLoss) {
   fs::remove_all(data);
 }
 
-// The decomposition of eval-soil (ForceDecomposition; issue #48): on rows whose noise-free force
+// The decomposition of eval-soil (ForceDecomposition): on rows whose noise-free force
 // is exactly the simulator-like F_total of the truth soil on the truth geometry plus the edge's
 // penetration on the rows observed descending, and whose parts say so, the ladder's F_total step
 // on the truth geometry misses by nothing; (a), the paper's F + penetration, misses by exactly the

@@ -162,7 +162,7 @@ TEST(Annotate, ErrorsInMetresReadInCentimetres) {
   EXPECT_EQ(tio::displayUnit("count", true), std::make_pair(std::string("count"), 1.0));
   EXPECT_EQ(tio::displayUnit("N", false), std::make_pair(std::string("kN"), 1e-3));
   EXPECT_EQ(tio::displayUnit("Pa", true), std::make_pair(std::string("kPa"), 1e-3));
-  // Angles (soil_phi, soil_delta) in degrees on every picture (issue #48).
+  // Angles (soil_phi, soil_delta) in degrees on every picture: readers think of friction angles in degrees.
   EXPECT_EQ(tio::displayUnit("rad", false).first, "deg");
   EXPECT_NEAR(tio::displayUnit("rad", false).second * 0.5235987755982988, 30.0, 1e-12);
 }

@@ -1,4 +1,4 @@
-// Crash safety of the writers (issue #14 item 4): a child process rewrites a snapshot, a GeoTIFF
+// Crash safety of the writers: a child process rewrites a snapshot, a GeoTIFF
 // or an episode over and over and is killed with SIGKILL at a random moment; the file under the
 // target name must then always be a complete one (loads, checksum right, every value one
 // version's), never a torn mix. 1,000 kills in all. The temporary files the killed writers

@@ -1,4 +1,4 @@
-// The exported-symbol table read from a plugin file before it is loaded (issue 49): what the
+// The exported-symbol table read from a plugin file before it is loaded: what the
 // loader refuses a library for without running any of its code.
 #include <terramap/core/error.hpp>
 #include <terramap/pipeline/plugin_loader.hpp>

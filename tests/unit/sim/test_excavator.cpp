@@ -277,7 +277,7 @@ TEST(Excavator, DigAndDumpMovesSoilFromTheTrenchToThePileKeepingItsMass) {
 }
 
 TEST(Excavator, TwoExcavatorsDigTheirOwnTrenchesKeepingTheMass) {
-  // Several excavators in one scenario (#19): each digs its trench and piles its spoil where
+  // Several excavators in one scenario: each digs its trench and piles its spoil where
   // its controller says, and the mass of terrain and both buckets is conserved.
   const std::string yaml =
       "version: 1\nseed: 4\nduration_s: 15\nthreads: 2\n"
