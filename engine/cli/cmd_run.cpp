@@ -80,7 +80,7 @@ Registrar reg{Command{"run", [](CLI::App& app, std::function<int()>& run) {
   auto* sub = app.add_subcommand("run",
       "Run a pipeline: validate it, play its source through the plugins, write outputs\n"
       "(GeoTIFF, PNG, .tmap snapshot, report.json) to outputs.dir or --out.\n"
-      "Without a file, runs the embedded demo pipeline (configs/demo.yaml).");
+      "Without a file, runs the embedded demo pipeline (configs/demo.yaml) into ./out/demo.");
   sub->add_option("pipeline", a->file, "Pipeline YAML file (default: the embedded demo)");
   sub->add_option("--out,-o", a->out, "Output folder (overrides outputs.dir)");
   sub->add_option("--threads,-j", a->threads, "Worker threads (overrides `threads`)")->check(CLI::Range(1, 256));
@@ -97,6 +97,9 @@ Registrar reg{Command{"run", [](CLI::App& app, std::function<int()>& run) {
       applyParamOverrides(spec, a->set);
       RunOptions o;
       o.out_dir = a->out;
+      // The demo's own outputs.dir is relative to its configs/ (in an installed package, a
+      // folder the user may not write, shared by every user): it writes where it is run instead.
+      if (a->file.empty() && o.out_dir.empty()) o.out_dir = "out/demo";
       o.threads = a->threads;
       o.compare_truth = eval::compareWithSourceTruth;
       o.truth_stats = eval::truthStatsJson;

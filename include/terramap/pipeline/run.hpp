@@ -84,7 +84,9 @@ TERRAMAP_API RunResult runPipeline(const PipelineSpec& spec, const RunOptions& o
 /// The demo pipeline compiled into the binary (configs/demo.yaml at build time), with its
 /// relative paths resolved against `base_dir`.
 TERRAMAP_API std::string embeddedDemoPipeline();
-/// Folder the demo's relative paths resolve against (the source tree's configs/ at build time).
+/// Folder the demo's relative paths (scenario, model) resolve against: the source tree's
+/// configs/ for the build tree's library, else the installed PREFIX/share/terramap/configs
+/// (found relative to the library, so any install prefix works without the checkout).
 TERRAMAP_API std::string embeddedDemoBaseDir();
 
 }  // namespace terramap
