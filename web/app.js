@@ -5,7 +5,11 @@
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
-const state = { frames: 0, header: null, meshExtent: null, playing: true, done: false, error: null };
+const state = { frames: 0, header: null, meshExtent: null, playing: true, done: false, error: null,
+                // Colour range per layer: the layer's first frame, then fixed (the server scales each
+                // frame to itself, so a colour would mean another value every frame) until the user
+                // types another one or fits it to the frame shown.
+                ranges: {}, firstRanges: {}, appliedRange: null, gridSpacing: null };
 window.__terramap = state;  // read by the headless test
 
 const view = document.getElementById('view');
@@ -55,6 +59,40 @@ function ramp(stops, t) {
   return stops[stops.length - 1].slice(1).map(v => v / 255);
 }
 
+/// A "nice" step (1, 2 or 5 times a power of ten) giving about `n` intervals over `span`.
+function niceStep(span, n) {
+  const raw = span / n, p = Math.pow(10, Math.floor(Math.log10(raw))), f = raw / p;
+  return (f <= 1 ? 1 : f <= 2 ? 2 : f <= 5 ? 5 : 10) * p;
+}
+
+// A ground grid under the surface with round spacing, its lines on multiples of the spacing in
+// map coordinates, so distances and positions can be read off the view.
+let ground = null;
+function buildGround(h) {
+  if (ground) { scene.remove(ground); ground.geometry.dispose(); }
+  const [xmin, xmax, ymin, ymax] = h.map_extent || h.extent;
+  const span = Math.max(xmax - xmin, ymax - ymin), step = niceStep(span, 12);
+  const cx = Math.round((xmin + xmax) / 2 / step) * step, cy = Math.round((ymin + ymax) / 2 / step) * step;
+  const n = 2 * Math.ceil((span / 2 + step) / step);  // even: a line through the (round) centre
+  ground = new THREE.GridHelper(n * step, n, 0x8a939c, 0x50575f);
+  ground.rotation.x = Math.PI / 2;  // the helper lies in x-z; the map's ground is x-y, z up
+  ground.position.set(cx, cy, 0);
+  scene.add(ground);
+  state.gridSpacing = step;
+  document.getElementById('grid-label').textContent = `grid: ${step} m squares`;
+}
+
+// Fixed at the first frame that holds a known value of the layer: before it the server's range
+// is a placeholder ([0, 1] of an empty map).
+function rangeOf(h) {
+  if (!state.ranges[h.color_layer]) {
+    if (!(state.valueMin <= state.valueMax)) return h.color_range;
+    state.ranges[h.color_layer] = h.color_range.slice();
+    state.firstRanges[h.color_layer] = h.color_range.slice();
+  }
+  return state.ranges[h.color_layer];
+}
+
 function drawLegend(h) {
   const stops = h.diverging ? RDBU : VIRIDIS;
   const c = document.getElementById('ramp').getContext('2d');
@@ -64,8 +102,13 @@ function drawLegend(h) {
     c.fillRect(x, 0, 1, 12);
   }
   document.getElementById('legend-title').textContent = `${h.color_layer} [${h.color_unit}]`;
-  document.getElementById('lo').textContent = h.color_range[0].toPrecision(3);
-  document.getElementById('hi').textContent = h.color_range[1].toPrecision(3);
+  const [lo, hi] = rangeOf(h), loIn = document.getElementById('lo'), hiIn = document.getElementById('hi');
+  // Not while the user is typing into it.
+  if (document.activeElement !== loIn) loIn.value = Number(lo.toPrecision(3));
+  if (document.activeElement !== hiIn) hiIn.value = Number(hi.toPrecision(3));
+  // Values beyond the fixed range are drawn in its end colours: say so, as the PNGs' arrows do.
+  document.getElementById('lo-more').style.visibility = state.valueMin < lo ? 'visible' : 'hidden';
+  document.getElementById('hi-more').style.visibility = state.valueMax > hi ? 'visible' : 'hidden';
 }
 
 function buildMesh(h) {
@@ -89,7 +132,20 @@ function applyFrame(h, height, colour) {
   let lo = Infinity;
   for (const v of height) if (Number.isFinite(v) && v < lo) lo = v;
   if (!Number.isFinite(lo)) lo = 0;
-  const stops = h.diverging ? RDBU : VIRIDIS, [c0, c1] = h.color_range, span = c1 > c0 ? c1 - c0 : 1;
+  if (!ground) buildGround(h);
+  ground.position.z = lo - 0.01;  // just under the lowest ground, so it never cuts the surface
+  state.valueMin = Infinity;
+  state.valueMax = -Infinity;
+  for (let k = 0; k < h.rows * h.cols; ++k) {
+    const v = colour[k];
+    if (Number.isFinite(height[k]) && Number.isFinite(v)) {
+      state.valueMin = Math.min(state.valueMin, v);
+      state.valueMax = Math.max(state.valueMax, v);
+    }
+  }
+  const [c0, c1] = rangeOf(h);
+  const stops = h.diverging ? RDBU : VIRIDIS, span = c1 > c0 ? c1 - c0 : 1;
+  state.appliedRange = [c0, c1];
   for (let k = 0; k < h.rows * h.cols; ++k) {
     const z = height[k], v = colour[k];
     pos.setZ(k, Number.isFinite(z) ? z : lo);
@@ -134,6 +190,7 @@ ws.onmessage = (msg) => {
   const h = JSON.parse(new TextDecoder().decode(new Uint8Array(msg.data, 4, n)));
   const off = 4 + n + ((4 - ((4 + n) % 4)) % 4), cells = h.rows * h.cols;
   const height = new Float32Array(msg.data, off, cells), colour = new Float32Array(msg.data, off + 4 * cells, cells);
+  state.last = { h, height, colour };
   applyFrame(h, height, colour);
   setLayers(h);
   drawLegend(h);
@@ -148,5 +205,19 @@ ws.onmessage = (msg) => {
 };
 document.getElementById('play').onclick = () => ws.send(JSON.stringify({ cmd: state.playing ? 'pause' : 'play' }));
 document.getElementById('layer').onchange = (e) => ws.send(JSON.stringify({ cmd: 'layer', name: e.target.value }));
+// A range the user sets holds for that layer until changed; the frame shown is recoloured now
+// (a paused or finished run sends no more frames).
+function setRange(range) {
+  if (!state.last) return;
+  const { h, height, colour } = state.last;
+  if (!(range[0] < range[1])) return;
+  state.ranges[h.color_layer] = range;
+  applyFrame(h, height, colour);
+  drawLegend(h);
+}
+for (const id of ['lo', 'hi'])
+  document.getElementById(id).onchange = () =>
+    setRange([Number(document.getElementById('lo').value), Number(document.getElementById('hi').value)]);
+document.getElementById('fit').onclick = () => state.last && setRange(state.last.h.color_range.slice());
 
 renderer.setAnimationLoop(() => { controls.update(); renderer.render(scene, camera); });

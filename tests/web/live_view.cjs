@@ -1,7 +1,8 @@
 // Drives `terramap serve` in headless Chromium (playwright-core, Debian's chromium): loads the
 // page, waits for frames until the source has finished, checks that the surface spans the
 // map's extent, switches the colour layer and pauses through the page's own controls, checks
-// the canvas shows a surface, and keeps a screenshot.
+// the canvas shows a surface, checks that colour ranges stay fixed per layer (first frame, or as
+// typed) and that a ground grid with its spacing is shown, and keeps a screenshot.
 // Usage: node live_view.cjs TERRAMAP PIPELINE SCREENSHOT XMIN XMAX YMIN YMAX
 // Env: PLAYWRIGHT_CORE (module path), CHROMIUM (executable).
 const { spawn } = require('child_process');
@@ -58,12 +59,39 @@ const near = (a, b, tol) => Math.abs(a - b) <= tol;
       if (!near(v, want[k], 1e-4)) fail(`mesh extent [${s.meshExtent}] != the sampled cell centres [${want}]`);
       if (!near(v, h.extent[k], 1e-4)) fail(`mesh extent [${s.meshExtent}] != frame extent [${h.extent}]`);
     });
+    // Colours hold still over the run: the layer's range stays the one of its first frame with
+    // data, whatever later frames span (the server sends each frame's own range).
+    const layer0 = h.color_layer, first = s.firstRanges && s.firstRanges[layer0];
+    if (!first) fail('no colour range kept for ' + layer0);
+    else {
+      if (JSON.stringify(s.appliedRange) !== JSON.stringify(first))
+        fail(`the last frame was coloured over [${s.appliedRange}], not the first frame's [${first}]`);
+      console.log(`colour range of ${layer0}: first frame [${first}], last frame's own [${h.color_range}], used [${s.appliedRange}]`);
+      if (JSON.stringify(h.color_range) === JSON.stringify(first)) fail('the run never changed the range: the check above proves nothing');
+      if (JSON.stringify(first) === '[0,1]') fail('the range was fixed before the map held data (the empty map\'s [0, 1])');
+    }
+    // A ground grid with round spacing, its spacing written in the legend.
+    const spacing = s.gridSpacing;
+    if (!(spacing > 0) || ![1, 2, 5].some((m) => near(spacing / Math.pow(10, Math.floor(Math.log10(spacing) + 1e-9)), m, 1e-9)))
+      fail('no ground grid with a round spacing: ' + spacing);
+    const gridText = await page.textContent('#grid-label');
+    if (!gridText.includes(`${spacing} m`)) fail(`the legend does not give the grid spacing (${spacing} m): "${gridText}"`);
+    console.log(gridText);
     if (!h.layers.includes('variance')) fail('no variance layer offered: ' + h.layers);
     // The page's own controls: colour by variance, then pause.
     await page.selectOption('#layer', 'variance');
     await page.waitForFunction(() => window.__terramap.header.color_layer === 'variance', null, { timeout: 20000 });
     await page.click('#play');
     await page.waitForFunction(() => window.__terramap.header.playing === false, null, { timeout: 20000 });
+    // The user sets the range: it is used at once (paused, no new frame comes) and values above
+    // it are flagged in the legend.
+    await page.$eval('#lo', (e) => { e.value = '0'; e.dispatchEvent(new Event('change')); });
+    await page.$eval('#hi', (e) => { e.value = '1e-6'; e.dispatchEvent(new Event('change')); });
+    s = await page.evaluate(() => window.__terramap);
+    if (JSON.stringify(s.appliedRange) !== JSON.stringify([0, 1e-6]) || JSON.stringify(s.ranges.variance) !== JSON.stringify([0, 1e-6]))
+      fail(`the typed range [0, 1e-6] is not used: applied [${s.appliedRange}], kept [${s.ranges.variance}]`);
+    const more = await page.$eval('#hi-more', (e) => getComputedStyle(e).visibility);
+    if (more !== 'visible') fail('values above the typed range are not flagged in the legend');
     // A surface, not an empty scene: many distinct colours on the canvas.
     const colours = await page.evaluate(() => {
       const src = document.querySelector('#view canvas');
