@@ -159,6 +159,30 @@ bool LidarFusion::layoutHitLists(int ntiles) {
   return have_prev;
 }
 
+// A sparse map at its memory budget cannot take every new tile: which ones it gets is decided
+// here, serially in tile order, so the result does not depend on the thread count; the points
+// of a refused tile are dropped, counted, rather than the run failing half-way through a cloud.
+// Per tile, whether it was refused (empty for a dense map: nothing to allocate).
+std::vector<char> LidarFusion::tilesRefusedByBudget(LayeredMap& map) const {
+  std::vector<char> refused;
+  if (map.options().sparse) {
+    refused.assign(static_cast<size_t>(map.tileCount()), 0);
+    for (const int t : active_tiles_)
+      refused[static_cast<size_t>(t)] = !map.tryAllocateTile(t, {elev_, var_, valid_, time_, ub_, isub_, hits_});
+  }
+  return refused;
+}
+
+// Clear the cells the previous cloud hit in tile t (a whole-tile fill would cost 16 KB per tile
+// per cloud). An unallocated (sparse) tile already reads as 0. Runs inside the tile's own task.
+void LidarFusion::clearPreviousHits(LayeredMap& map, int t) const {
+  if (prev_hit_count_[static_cast<size_t>(t)] > 0 && map.tileData(hits_, t)) {
+    float* H = map.mutableTileData(hits_, t);
+    const std::uint32_t* o = prev_hit_offs_.data() + prev_hit_start_[static_cast<size_t>(t)];
+    for (int q = 0; q < prev_hit_count_[static_cast<size_t>(t)]; ++q) H[o[q]] = 0.0f;
+  }
+}
+
 void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st) {
   const bool have_prev = layoutHitLists(map.tileCount());
   const int nt = static_cast<int>(task_tiles_.size());
@@ -167,24 +191,10 @@ void LidarFusion::fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st
   const float ov = static_cast<float>(config_.outlier_variance_m2);
   const float vmax = static_cast<float>(config_.max_variance_m2);
   const float vmin = static_cast<float>(config_.min_variance_m2);
-  // A sparse map at its memory budget cannot take every new tile: which ones it gets is decided
-  // here, serially in tile order, so the result does not depend on the thread count; the points
-  // of a refused tile are dropped, counted, rather than the run failing half-way through a cloud.
-  std::vector<char> refused;
-  if (map.options().sparse) {
-    refused.assign(static_cast<size_t>(map.tileCount()), 0);
-    for (const int t : active_tiles_)
-      refused[static_cast<size_t>(t)] = !map.tryAllocateTile(t, {elev_, var_, valid_, time_, ub_, isub_, hits_});
-  }
+  const std::vector<char> refused = tilesRefusedByBudget(map);
   ex.forEach(nt, [&](int k) {
     const int t = task_tiles_[static_cast<size_t>(k)];
-    // Clear the cells the previous cloud hit in this tile (a whole-tile fill would cost 16 KB
-    // per tile per cloud). An unallocated (sparse) tile already reads as 0.
-    if (have_prev && prev_hit_count_[static_cast<size_t>(t)] > 0 && map.tileData(hits_, t)) {
-      float* H = map.mutableTileData(hits_, t);
-      const std::uint32_t* o = prev_hit_offs_.data() + prev_hit_start_[static_cast<size_t>(t)];
-      for (int q = 0; q < prev_hit_count_[static_cast<size_t>(t)]; ++q) H[o[q]] = 0.0f;
-    }
+    if (have_prev) clearPreviousHits(map, t);
     if (tile_points_[static_cast<size_t>(t)] == 0) {
       per[static_cast<size_t>(k)] = {0, 0, 0, 0, 0};
       return;

@@ -37,6 +37,30 @@ struct GateConsts {
   bool ramp, range_based;
 };
 
+/// The gates' constants for one cloud: the sensor pose, the map's box and the config's gates
+/// and noise model (range_based: false where the cloud's frame takes depth_squared).
+GateConsts gateConsts(const Geometry& g, const Eigen::Isometry3d& T_map_sensor, const LidarFusionConfig& cf,
+                      bool range_based) {
+  GateConsts k;
+  const Eigen::Matrix3d Rm = T_map_sensor.linear();
+  const Eigen::Vector3d tv = T_map_sensor.translation();
+  const Eigen::Array2d half = g.length() * 0.5;
+  k.r00 = Rm(0, 0), k.r01 = Rm(0, 1), k.r02 = Rm(0, 2);
+  k.r10 = Rm(1, 0), k.r11 = Rm(1, 1), k.r12 = Rm(1, 2);
+  k.r20 = Rm(2, 0), k.r21 = Rm(2, 1), k.r22 = Rm(2, 2);
+  k.tx = tv.x(), k.ty = tv.y(), k.tz = tv.z();
+  k.xmax = g.center().x() + half.x(), k.ymax = g.center().y() + half.y();
+  k.res = g.resolution();
+  k.rows = g.size().x(), k.cols = g.size().y();
+  k.min_r = cf.min_range_m, k.max_r = cf.max_range_m, k.max_h = cf.max_height_above_sensor_m;
+  k.ramp_a = cf.ramped_height_range_a, k.ramp_b = cf.ramped_height_range_b_m, k.ramp_c = cf.ramped_height_range_c_m;
+  k.noise_a = cf.range_noise_a_m, k.noise_b = cf.range_noise_b, k.noise_k = cf.sensor_noise_factor;
+  k.min_var = cf.min_variance_m2;
+  k.ramp = cf.enable_ramped_height_range;
+  k.range_based = range_based;
+  return k;
+}
+
 /// Points gated per block: the block's results stay in L1 between the two passes.
 constexpr int kGateBlock = 256;
 
@@ -243,25 +267,9 @@ bool LidarFusion::depthSquaredFrame(const std::string& frame) const {
 }
 
 void LidarFusion::preparePoints(const LayeredMap& map, const Executor& ex, const PointCloud& cloud) {
-  GateConsts k;
-  const Geometry& g = map.geometry();
-  const Eigen::Matrix3d Rm = cloud.T_map_sensor.linear();
-  const Eigen::Vector3d tv = cloud.T_map_sensor.translation();
-  const Eigen::Array2d half = g.length() * 0.5;
   const LidarFusionConfig& cf = config_;
-  k.r00 = Rm(0, 0), k.r01 = Rm(0, 1), k.r02 = Rm(0, 2);
-  k.r10 = Rm(1, 0), k.r11 = Rm(1, 1), k.r12 = Rm(1, 2);
-  k.r20 = Rm(2, 0), k.r21 = Rm(2, 1), k.r22 = Rm(2, 2);
-  k.tx = tv.x(), k.ty = tv.y(), k.tz = tv.z();
-  k.xmax = g.center().x() + half.x(), k.ymax = g.center().y() + half.y();
-  k.res = g.resolution();
-  k.rows = g.size().x(), k.cols = g.size().y();
-  k.min_r = cf.min_range_m, k.max_r = cf.max_range_m, k.max_h = cf.max_height_above_sensor_m;
-  k.ramp_a = cf.ramped_height_range_a, k.ramp_b = cf.ramped_height_range_b_m, k.ramp_c = cf.ramped_height_range_c_m;
-  k.noise_a = cf.range_noise_a_m, k.noise_b = cf.range_noise_b, k.noise_k = cf.sensor_noise_factor;
-  k.min_var = cf.min_variance_m2;
-  k.ramp = cf.enable_ramped_height_range;
-  k.range_based = cf.noise_model == NoiseModel::RangeBased && !depthSquaredFrame(cloud.frame);
+  const GateConsts k = gateConsts(map.geometry(), cloud.T_map_sensor, cf,
+                                  cf.noise_model == NoiseModel::RangeBased && !depthSquaredFrame(cloud.frame));
   const bool rays = cf.enable_visibility_cleanup;
   const int stride = cf.cleanup_ray_stride;
 #ifdef TERRAMAP_LIDAR_AVX2
@@ -344,16 +352,23 @@ void LidarFusion::preparePoints(const LayeredMap& map, const Executor& ex, const
       }
     }
     for (int r = 0; r < kInside; ++r) ch.drops[static_cast<size_t>(r)] = drops[r];
-    // Stable counting sort by tile: start[t] becomes the first slot of tile t; the scatter
-    // advances it to the first slot of t + 1, so shifting by one restores the starts.
-    int* start = ch.start.data();
-    for (int t = 0; t < ntiles; ++t) start[t + 1] += start[t];
-    ch.items.resize(static_cast<size_t>(m));
-    PointItem* items = ch.items.data();
-    for (int q = 0; q < m; ++q) items[start[out_tile[q]]++] = out[q];
-    for (int t = ntiles; t > 0; --t) start[t] = start[t - 1];
-    start[0] = 0;
+    sortChunkByTile(ch, m, ntiles);
   });
+}
+
+// Stable counting sort of a chunk's m kept points (scratch, tiles) by tile into items, from
+// the per-tile counts in start[t + 1]: start[t] becomes the first slot of tile t; the scatter
+// advances it to the first slot of t + 1, so shifting by one restores the starts.
+void LidarFusion::sortChunkByTile(PointChunk& ch, int m, int ntiles) {
+  const PointItem* out = ch.scratch.data();
+  const std::int32_t* out_tile = ch.tiles.data();
+  int* start = ch.start.data();
+  for (int t = 0; t < ntiles; ++t) start[t + 1] += start[t];
+  ch.items.resize(static_cast<size_t>(m));
+  PointItem* items = ch.items.data();
+  for (int q = 0; q < m; ++q) items[start[out_tile[q]]++] = out[q];
+  for (int t = ntiles; t > 0; --t) start[t] = start[t - 1];
+  start[0] = 0;
 }
 
 }  // namespace terramap::plugins

@@ -242,12 +242,15 @@ class LidarFusion : public Plugin {
   void bindLayers(const LayeredMap& map);
   void buildIndexTables(const LayeredMap& map);
   void preparePoints(const LayeredMap& map, const Executor& ex, const PointCloud& cloud);
+  static void sortChunkByTile(PointChunk& ch, int m, int ntiles);
   /// Whether `frame` matches one of config_.depth_squared_frames.
   bool depthSquaredFrame(const std::string& frame) const;
   void binItems(const Executor& ex, std::vector<std::vector<Item>>& chunks, int ntiles);
   void driftCompensation(LayeredMap& map, const Executor& ex, const Eigen::Isometry3d& T,
                          FusionStats& st);
   void fuseTiles(LayeredMap& map, const Executor& ex, FusionStats& st);
+  std::vector<char> tilesRefusedByBudget(LayeredMap& map) const;
+  void clearPreviousHits(LayeredMap& map, int t) const;
   bool layoutHitLists(int ntiles);
   void cleanup(LayeredMap& map, const Executor& ex, const Eigen::Vector3d& sensor,
                FusionStats& st);
