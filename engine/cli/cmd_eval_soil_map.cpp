@@ -137,10 +137,13 @@ void addTruthIndex(LayeredMap& map, const Source& src, const soil::FeeIndexConfi
   both.width = left.width + right.width;
   both.height = std::max(left.height, right.height);
   both.rgba.assign(static_cast<std::size_t>(both.width) * static_cast<std::size_t>(both.height) * 4, 255);
+  // Bottom-aligned: a picture whose colour bar clips has one subtitle line more, and the two
+  // maps must still sit side by side row for row (below the map both are laid out alike).
   auto blit = [&](const io::Image& im, int x0) {
+    const int y0 = both.height - im.height;
     for (int r = 0; r < im.height; ++r)
       std::copy_n(im.rgba.begin() + static_cast<std::ptrdiff_t>(r) * im.width * 4, im.width * 4,
-                  both.rgba.begin() + (static_cast<std::ptrdiff_t>(r) * both.width + x0) * 4);
+                  both.rgba.begin() + (static_cast<std::ptrdiff_t>(r + y0) * both.width + x0) * 4);
   };
   blit(left, 0);
   blit(right, left.width);
