@@ -32,6 +32,52 @@ int paramIndex(const std::string& name) {
   return 0;
 }
 
+/// The cells at `positions`, each grown by `reach` cells on every side, and every cell of
+/// `whole_tiles`, as (tile, offset in the tile), each once, in tile then offset order. Marked in
+/// a bitmap per tile: sorting and de-duplicating the pairs took a quarter of the plugin's time
+/// once the change pass grew every dirty cell (each sweep's cells again, then 25 neighbours each).
+std::vector<std::pair<int, int>> cellsToCompute(const LayeredMap& map, const std::vector<Eigen::Vector2d>& positions,
+                                                const std::vector<int>& whole_tiles, int reach) {
+  const Geometry& geo = map.geometry();
+  const int T = map.tileSize();
+  std::map<int, std::vector<std::uint64_t>> marks;
+  const std::size_t words = (static_cast<std::size_t>(T) * static_cast<std::size_t>(T) + 63) / 64;
+  int last_tile = -1;
+  std::vector<std::uint64_t>* last_bits = nullptr;
+  const auto mark = [&](int t, int o) {
+    if (t != last_tile) {
+      last_bits = &marks[t];
+      if (last_bits->empty()) last_bits->assign(words, 0);
+      last_tile = t;
+    }
+    (*last_bits)[static_cast<std::size_t>(o) >> 6] |= std::uint64_t{1} << (o & 63);
+  };
+  for (const Eigen::Vector2d& p : positions) {
+    const auto idx = geo.indexAt(p);
+    if (!idx) continue;
+    for (int a = -reach; a <= reach; ++a)
+      for (int b = -reach; b <= reach; ++b) {
+        const Index l(idx->x() + a, idx->y() + b);
+        if (l.x() < 0 || l.y() < 0 || l.x() >= geo.size().x() || l.y() >= geo.size().y()) continue;
+        const Index buf = map.bufferIndex(l);
+        const int t = map.tileOfBuffer(buf.x(), buf.y());
+        const CellRect r = map.tileRect(t);
+        mark(t, (buf.x() - r.r0) * T + (buf.y() - r.c0));
+      }
+  }
+  for (int t : whole_tiles) {
+    const CellRect r = map.tileRect(t);
+    for (int a = 0; a < r.rows; ++a)
+      for (int b = 0; b < r.cols; ++b) mark(t, a * T + b);
+  }
+  std::vector<std::pair<int, int>> todo;
+  for (const auto& [t, bits] : marks)
+    for (std::size_t w = 0; w < bits.size(); ++w)
+      for (std::uint64_t m = bits[w]; m != 0; m &= m - 1)
+        todo.emplace_back(t, static_cast<int>(w * 64 + static_cast<std::size_t>(__builtin_ctzll(m))));
+  return todo;
+}
+
 }  // namespace
 
 std::vector<strata::CellCut> cellCutsOf(const SweepRecord& sweep) {
@@ -335,46 +381,9 @@ void OctomapStrata::computeCells(ProcessContext& ctx, const std::vector<Eigen::V
   LayeredMap& map = ctx.map();
   const Geometry& geo = map.geometry();
   const int T = map.tileSize();
-  // The cells as (tile, offset in the tile), each once, in tile then offset order; Change grows
-  // them by the pooling radius. Marked in a bitmap per tile: sorting and de-duplicating the pairs
-  // took a quarter of the plugin's time once the change pass grew every dirty cell (each sweep's
-  // cells again, then 25 neighbours each).
-  std::map<int, std::vector<std::uint64_t>> marks;
-  const std::size_t words = (static_cast<std::size_t>(T) * static_cast<std::size_t>(T) + 63) / 64;
-  int last_tile = -1;
-  std::vector<std::uint64_t>* last_bits = nullptr;
-  const auto mark = [&](int t, int o) {
-    if (t != last_tile) {
-      last_bits = &marks[t];
-      if (last_bits->empty()) last_bits->assign(words, 0);
-      last_tile = t;
-    }
-    (*last_bits)[static_cast<std::size_t>(o) >> 6] |= std::uint64_t{1} << (o & 63);
-  };
+  // Change grows the cells by the pooling radius.
   const int reach = pass == Pass::Change ? static_cast<int>(std::ceil(cfg_.change_radius_m / geo.resolution())) : 0;
-  for (const Eigen::Vector2d& p : positions) {
-    const auto idx = geo.indexAt(p);
-    if (!idx) continue;
-    for (int a = -reach; a <= reach; ++a)
-      for (int b = -reach; b <= reach; ++b) {
-        const Index l(idx->x() + a, idx->y() + b);
-        if (l.x() < 0 || l.y() < 0 || l.x() >= geo.size().x() || l.y() >= geo.size().y()) continue;
-        const Index buf = map.bufferIndex(l);
-        const int t = map.tileOfBuffer(buf.x(), buf.y());
-        const CellRect r = map.tileRect(t);
-        mark(t, (buf.x() - r.r0) * T + (buf.y() - r.c0));
-      }
-  }
-  for (int t : whole_tiles) {
-    const CellRect r = map.tileRect(t);
-    for (int a = 0; a < r.rows; ++a)
-      for (int b = 0; b < r.cols; ++b) mark(t, a * T + b);
-  }
-  std::vector<std::pair<int, int>> todo;
-  for (const auto& [t, bits] : marks)
-    for (std::size_t w = 0; w < bits.size(); ++w)
-      for (std::uint64_t m = bits[w]; m != 0; m &= m - 1)
-        todo.emplace_back(t, static_cast<int>(w * 64 + static_cast<std::size_t>(__builtin_ctzll(m))));
+  const std::vector<std::pair<int, int>> todo = cellsToCompute(map, positions, whole_tiles, reach);
   // One task per tile.
   std::vector<std::size_t> starts;
   for (std::size_t k = 0; k < todo.size(); ++k)
