@@ -130,6 +130,8 @@ void addTruthIndex(LayeredMap& map, const Source& src, const soil::FeeIndexConfi
   an.outline_regions = map.hasLayer("truth_soil_zone") ? "truth_soil_zone" : "";
   an.title = "fee_index: mapped [kN]";
   an.caption = "white lines: the simulator's soil zones";
+  if (const auto z = tc.categories.find("truth_soil_zone"); z != tc.categories.end())
+    for (const auto& [v, name] : z->second) an.region_names.emplace_back(v, name.substr(0, name.find(" (")));
   const io::Image left = io::renderPicture(map, "fee_index", ro, an);
   an.title = "truth_fee_index: the truth soil [kN]";
   const io::Image right = io::renderPicture(map, "truth_fee_index", ro, an);

@@ -197,6 +197,37 @@ Image annotate(const Image& map_image, const LayeredMap& map, const std::string&
   w(mx + map_image.width - font.width("x [m]", kLabelPx), mb + 4 + 2 * kLabelPx + 2, "x [m]", kLabelPx);
   w(mx - 6 - font.width("y [m]", kLabelPx), my - 4, "y [m]", kLabelPx);
 
+  // Region names on the map, in the outline colour over a dark halo so they read on any colour.
+  if (!a.outline_regions.empty() && !a.region_names.empty()) {
+    const RasterF z = northUpRaster(map, map.layerId(a.outline_regions));
+    const double S = static_cast<double>(map_image.width) / static_cast<double>(z.cols());
+    for (const auto& [value, name] : a.region_names) {
+      // The middle of the longest run of the region's cells in its northmost row: inside the
+      // region even when it is split (the default soil on both sides of a strip).
+      int row = -1, best_start = 0, best_len = 0;
+      for (int r = 0; r < z.rows() && row < 0; ++r)
+        for (int col = 0, start = -1; col <= z.cols(); ++col) {
+          const bool in = col < z.cols() && z(r, col) == value;
+          if (in && start < 0) start = col;
+          if (!in && start >= 0) {
+            row = r;
+            if (col - start > best_len) best_start = start, best_len = col - start;
+            start = -1;
+          }
+        }
+      if (row < 0) continue;
+      const int cx = mx + static_cast<int>((best_start + 0.5 * best_len) * S);
+      const int tw = font.width(name, kLabelPx);
+      const int x = std::clamp(cx - tw / 2, mx + 2, std::max(mx + 2, mx + map_image.width - tw - 2));
+      const int y = my + static_cast<int>(row * S) + kLabelPx + 3;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx)
+          if (dx || dy) font.draw(c, x + dx, y + dy, name, kLabelPx, kInk);
+      font.draw(c, x, y, name, kLabelPx, a.outline_colour);
+      if (layout) texts.push_back(name);
+    }
+  }
+
   const int bx = mx + map_image.width + 24;
   if (!categorical)
     drawColourBar(c, w, cmap, range, scale, unit, bx, my, map_image.height, above, below);

@@ -243,8 +243,10 @@ void writeMapOutputs(const PipelineSpec& spec, const Engine& engine, const Truth
     const bool soil_layer = layer.rfind("soil_", 0) == 0 || layer.rfind("fee_index", 0) == 0;
     if (soil_layer && layer != "truth_soil_zone" && map.hasLayer("truth_soil_zone")) {
       an.outline_regions = "truth_soil_zone";
-      an.caption = rendered("truth_soil_zone") ? "white lines: the simulator's soil zones (named in truth_soil_zone.png)"
-                                               : "white lines: the simulator's soil zones";
+      an.caption = "white lines and names: the simulator's soil zones";
+      // Each zone named on the map by its own name (the family and density are in the zone legend).
+      if (const auto z = truth.categories.find("truth_soil_zone"); z != truth.categories.end())
+        for (const auto& [v, name] : z->second) an.region_names.emplace_back(v, name.substr(0, name.find(" (")));
     }
 
     const fs::path p = dir / (layer + ".png");

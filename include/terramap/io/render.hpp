@@ -149,6 +149,9 @@ struct Annotation {
   /// (outlineRegions), e.g. `truth_soil_zone` over a soil layer; the caption says so.
   std::string outline_regions;
   Rgba outline_colour{255, 255, 255, 255};
+  /// Names of `outline_regions`' values, written on the map in each region (at its northmost
+  /// row, in the middle of that row's cells of the region); values without a name are not labelled.
+  std::vector<std::pair<float, std::string>> region_names;
 };
 
 /// The unit a colour bar (and the default title) shows a layer in: errors and differences in

@@ -137,6 +137,34 @@ TEST(Annotate, ACategoricalLayerGetsALegendNamingEachCategory) {
   for (const auto& t : l.texts) EXPECT_EQ(t.find("values"), std::string::npos) << t;  // ids are not clipped
 }
 
+TEST(Annotate, OutlinedRegionsAreNamedOnTheMap) {
+  LayeredMap m = ramp();
+  const LayerId zone = m.addLayer("zone", "1");
+  for (int i = 0; i < 40; ++i)
+    for (int j = 0; j < 24; ++j) m.set(zone, Index(i, j), i >= 15 && i < 25 ? 0.f : -1.f);  // a strip across x
+  tio::RenderOptions o;
+  o.scale = 8;
+  o.range = tio::ValueRange{-2.f, 4.f};
+  tio::Annotation a;
+  a.outline_regions = "zone";
+  tio::AnnotatedLayout plain, named;
+  const tio::Image raw = tio::renderLayer(m, "elevation", o);
+  const tio::Image without = tio::annotate(raw, m, "elevation", o, a, &plain);
+  a.region_names = {{-1.f, "default soil"}, {0.f, "dense_strip"}};
+  const tio::Image with = tio::annotate(raw, m, "elevation", o, a, &named);
+  for (const char* name : {"default soil", "dense_strip"})
+    EXPECT_NE(std::find(named.texts.begin(), named.texts.end(), name), named.texts.end()) << name;
+  // Written on the map: the strip's name in white over the strip's northmost cells.
+  long white_in_strip = 0, changed = 0;
+  for (int y = named.map_y; y < named.map_y + 24; ++y)
+    for (int x = named.map_x + 15 * 8; x < named.map_x + 25 * 8; ++x)
+      white_in_strip += with.pixel(y, x).r > 200 && with.pixel(y, x).g > 200 && with.pixel(y, x).b > 200 ? 1 : 0;
+  for (int y = named.map_y; y < named.map_y + raw.height; ++y)
+    for (int x = named.map_x; x < named.map_x + raw.width; ++x) changed += with.pixel(y, x) != without.pixel(y, x) ? 1 : 0;
+  EXPECT_GT(white_in_strip, 20);
+  EXPECT_GT(changed, 100);
+}
+
 TEST(Annotate, AxesShowMapCoordinatesInMetres) {
   const LayeredMap m = ramp();  // 20 m x 12 m centred on (3, 1): x -7 .. 13, y -5 .. 7
   tio::RenderOptions o;
