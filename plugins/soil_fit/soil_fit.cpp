@@ -53,8 +53,8 @@ void SoilFit::start(ProcessContext& ctx) { pending_.start(ctx); }
 
 void SoilFit::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
   soil::PinnSample sample;
-  auto it = histories_.find(sweep.machine_id);
-  const soil::SampleSkip why = it == histories_.end() ? soil::SampleSkip::ShortHistory
+  auto it = pending_.histories().find(sweep.machine_id);
+  const soil::SampleSkip why = it == pending_.histories().end() ? soil::SampleSkip::ShortHistory
                                                       : soil::buildSample(it->second, sweep, horizon_, horizon_, sample);
   if (why != soil::SampleSkip::None) {
     ctx.countDrop(std::string("sweep_") + soil::sampleSkipName(why));
@@ -120,20 +120,12 @@ void SoilFit::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
 }
 
 void SoilFit::process(ProcessContext& ctx, const Event& event) {
-  if (const auto* o = std::get_if<Observation>(&event)) {
-    auto it = histories_.try_emplace(o->machine_id, static_cast<std::size_t>(horizon_) + 64).first;
-    if (it->second.push(*o))
-      ctx.addCounter("observations", 1);
-    else
-      ctx.countDrop("observation_out_of_order");
-  }
-  pending_.collect(ctx);
-  if (!pending_.empty()) pending_.drain(histories_, false, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
+  pending_.process(ctx, event, static_cast<std::size_t>(horizon_) + 64,
+                   [&](const SweepRecord& s) { estimateSweep(ctx, s); });
 }
 
 void SoilFit::finish(ProcessContext& ctx) {
-  pending_.collect(ctx);
-  pending_.drain(histories_, true, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
+  pending_.finish(ctx, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
 }
 
 }  // namespace terramap::plugins

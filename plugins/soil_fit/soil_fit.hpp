@@ -67,7 +67,6 @@ class SoilFit : public Plugin {
   int horizon_ = 10, window_sweeps_ = 10, min_rows_ = 10;
   double window_m_ = 2.0;
   soil::PooledFitOptions opt_;
-  std::map<std::string, soil::ObservationHistory> histories_;
   std::map<std::string, MachineState> machines_;
   soil::PendingSweeps pending_;
 };

@@ -87,8 +87,8 @@ void SoilPinn::start(ProcessContext& ctx) {
 
 void SoilPinn::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
   soil::PinnSample sample;
-  auto it = histories_.find(sweep.machine_id);
-  const soil::SampleSkip why = it == histories_.end()
+  auto it = pending_.histories().find(sweep.machine_id);
+  const soil::SampleSkip why = it == pending_.histories().end()
       ? soil::SampleSkip::ShortHistory
       : soil::buildSample(it->second, sweep, estimator_->T(), estimator_->P(), sample);
   if (why != soil::SampleSkip::None) {
@@ -103,21 +103,11 @@ void SoilPinn::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
 }
 
 void SoilPinn::process(ProcessContext& ctx, const Event& event) {
-  if (const auto* o = std::get_if<Observation>(&event)) {
-    auto it = histories_.try_emplace(o->machine_id, history_capacity_).first;
-    if (it->second.push(*o))
-      ctx.addCounter("observations", 1);
-    else
-      ctx.countDrop("observation_out_of_order");
-  }
-  pending_.collect(ctx);
-  if (!pending_.empty()) pending_.drain(histories_, false, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
+  pending_.process(ctx, event, history_capacity_, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
 }
 
 void SoilPinn::finish(ProcessContext& ctx) {
-  pending_.collect(ctx);  // blade_sweep's finish() may have cut the last partial sweep
-  if (!pending_.empty()) ctx.addCounter("sweeps_pending_at_finish", static_cast<double>(pending_.size()));
-  pending_.drain(histories_, true, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
+  pending_.finish(ctx, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
 }
 
 }  // namespace terramap::plugins

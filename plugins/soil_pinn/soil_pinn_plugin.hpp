@@ -60,7 +60,6 @@ class SoilPinn : public Plugin {
   pinn::NullspaceTolerances tol_;
   std::size_t history_capacity_ = 0;
   std::shared_ptr<const pinn::SoilEstimator> estimator_;
-  std::map<std::string, soil::ObservationHistory> histories_;
   soil::PendingSweeps pending_;
 };
 

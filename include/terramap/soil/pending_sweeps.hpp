@@ -1,7 +1,7 @@
 #pragma once
 /// \file
-/// The sweeps a soil estimator stage (soil_pinn, soil_fit) has taken from the bus and not yet
-/// estimated. A sweep's sample needs the observation at its last pose, which the simulator and
+/// What a soil estimator stage (soil_pinn, soil_fit) keeps between events: each machine's
+/// observation history, and the sweeps it has taken from the bus and not yet estimated. A sweep's sample needs the observation at its last pose, which the simulator and
 /// real drivers may deliver after that instant's BladePose, so a sweep waits until an
 /// observation of its machine with stamp >= t1 has arrived (or the run ends). Header-only; used
 /// on the stage's calling thread, as every ProcessContext use.
@@ -57,10 +57,37 @@ class PendingSweeps {
     pending_ = std::move(keep);
   }
 
+  /// One event: an Observation joins its machine's history (kept to `capacity` rows; counted as
+  /// `observations`, or dropped as `observation_out_of_order`), then new sweeps are taken and the
+  /// ready ones estimated.
+  template <class Estimate>
+  void process(ProcessContext& ctx, const Event& event, std::size_t capacity, Estimate&& estimate) {
+    if (const auto* o = std::get_if<Observation>(&event)) {
+      auto it = histories_.try_emplace(o->machine_id, capacity).first;
+      if (it->second.push(*o))
+        ctx.addCounter("observations", 1);
+      else
+        ctx.countDrop("observation_out_of_order");
+    }
+    collect(ctx);
+    if (!empty()) drain(histories_, false, estimate);
+  }
+
+  /// The end of the run: blade_sweep's finish() may have cut a last partial sweep; every sweep
+  /// left is estimated with what the histories hold (counted as `sweeps_pending_at_finish`).
+  template <class Estimate>
+  void finish(ProcessContext& ctx, Estimate&& estimate) {
+    collect(ctx);
+    if (!empty()) ctx.addCounter("sweeps_pending_at_finish", static_cast<double>(size()));
+    drain(histories_, true, estimate);
+  }
+
+  const std::map<std::string, ObservationHistory>& histories() const { return histories_; }
   std::size_t size() const { return pending_.size(); }
   bool empty() const { return pending_.empty(); }
 
  private:
+  std::map<std::string, ObservationHistory> histories_;
   std::vector<std::shared_ptr<const SweepRecord>> pending_;
   long last_sequence_ = 0;
 };
