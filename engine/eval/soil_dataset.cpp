@@ -276,7 +276,8 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
   const Geometry g = sim::fitGeometry(simulator.truth(), spec.resolution);
   spec.size = g.size();
   spec.center = g.center();
-  PluginRegistry registry(spec.plugin_paths);
+  // A dataset's pipeline file may not choose where code is loaded from (PluginRegistry's trust rule).
+  const PluginRegistry registry = PluginRegistry::forPipeline(spec.plugin_paths, spec.plugin_paths_where);
   auto engine = Engine::fromSpec(spec, registry);
 
   EpisodeData out;

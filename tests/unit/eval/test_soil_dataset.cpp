@@ -271,6 +271,31 @@ TEST(SoilDataset, EachRowKeepsTheForceWithoutItsNoise) {
   fs::remove_all(dir);
 }
 
+// The dataset's pipeline file is as untrusted as any other: naming plugin folders is refused
+// (loading a library runs its code) unless the embedder allowed it.
+TEST(SoilDataset, APipelineFileMayNotChooseThePluginFolders) {
+  const fs::path dir = fs::temp_directory_path() / ("terramap_soil_dataset_plugins_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string src = std::string(TERRAMAP_SOURCE_DIR) + "/configs/dataset/";
+  std::ifstream in(src + "pinn_pipeline.yaml");
+  std::string yaml((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto at = yaml.find("threads: 1");
+  ASSERT_NE(at, std::string::npos);
+  yaml.insert(at, "plugin_paths: [" + dir.string() + "]\n");
+  std::ofstream((dir / "pipeline.yaml").string()) << yaml;
+  const std::string text = "version: 1\nseed: 5\nepisodes: 1\nduration_s: 1\nhistory: {T: 30, P: 10}\n"
+                           "held_out: {episodes: 0, family: gravel, relative_density: [0.7, 1.0], rake_deg: 68}\n"
+                           "scenario: " + src + "pinn_episode.yaml\npipeline: " + (dir / "pipeline.yaml").string() + "\n";
+  const SoilDatasetConfig cfg = parseSoilDatasetConfig(text, "p.yaml", ".");
+  try {
+    runDatasetEpisode(cfg, planEpisode(cfg, 0), 1);
+    ADD_FAILURE() << "the pipeline's plugin_paths were used";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("plugin_paths"), std::string::npos) << e.what();
+  }
+  fs::remove_all(dir);
+}
+
 TEST(SoilDataset, ReadingRefusesEpisodesOfAnotherConfiguration) {
   const fs::path dir = fs::temp_directory_path() / ("terramap_soil_dataset_mix_" + std::to_string(::getpid()));
   fs::create_directories(dir / "episodes");
