@@ -121,7 +121,10 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
   const Mat cov_u = info.inverse();
   Vec span;
   for (int k = 0; k < kN; ++k) span[k] = kSoilParams[k].hi - kSoilParams[k].lo;
-  out.covariance = span.asDiagonal() * cov_u * span.asDiagonal();
+  // The rows scatter more than force_sigma_n says when the physics misses part of the force:
+  // the covariance then takes the residuals' own scale (never below the assumed one).
+  const double scale = std::max(1.0, (out.rms_n / opt.force_sigma_n) * (out.rms_n / opt.force_sigma_n));
+  out.covariance = scale * span.asDiagonal() * cov_u * span.asDiagonal();
   return out;
 }
 

@@ -42,7 +42,9 @@ struct PooledFitOptions {
 
 struct PooledFit {
   SoilParamVector mean{};                 ///< the fitted soil, inside kSoilParams' ranges
-  Eigen::Matrix<double, 5, 5> covariance = Eigen::Matrix<double, 5, 5>::Zero();  ///< Gauss-Newton, prior included
+  /// Gauss-Newton covariance (SI units², prior included), scaled by (rms_n / force_sigma_n)² when
+  /// the residuals scatter more than the assumed force_sigma_n (never scaled down).
+  Eigen::Matrix<double, 5, 5> covariance = Eigen::Matrix<double, 5, 5>::Zero();
   int rows = 0;                           ///< rows with a valid FEE at the solution
   int iterations = 0;
   bool converged = false;

@@ -17,7 +17,7 @@
 /// `window_sweeps` sweeps whose blade ended within `window_m` of this one's are fitted jointly
 /// (soil::fitPooled, warm-started from the machine's previous fit) and published as this
 /// sweep's SoilEstimateRecord, so soil_bayes, fee_index and octomap_strata read it as they read
-/// soil_pinn's. Variances: the Gauss-Newton covariance's diagonal times the number of sweeps in
+/// soil_pinn's. Variances: the (residual-scaled) Gauss-Newton covariance's diagonal times the number of sweeps in
 /// the window (each sweep's rows enter that many consecutive fits, and soil_bayes fuses every
 /// one of them), as var_total, var_aleatoric and var_nullspace; no epistemic part.
 ///

@@ -81,6 +81,19 @@ TEST(PooledFit, OneGeometryLeavesFrictionToThePrior) {
   EXPECT_GT(std::abs(one.mean[kParamPhi] - sp.fee.phi_rad), std::abs(many.mean[kParamPhi] - sp.fee.phi_rad));
 }
 
+// Rows four times noisier than the fit assumes: the covariance takes the residuals' scale, so
+// the reported 1 sigma of phi still covers the error about as often as a 1 sigma should.
+TEST(PooledFit, TheCovarianceFollowsTheResidualsScatter) {
+  const SoilProperties sp = soilProperties(SoilFamily::Loam, 0.4);
+  int covered = 0, fits = 0;
+  for (unsigned seed = 10; seed < 40; ++seed, ++fits) {
+    const PooledFit f = fitPooled(rowsOf(sp.fee, 60, true, seed, 6000.0), middle());
+    EXPECT_GT(f.rms_n, 3.0 * PooledFitOptions{}.force_sigma_n);
+    covered += std::abs(f.mean[kParamPhi] - sp.fee.phi_rad) <= std::sqrt(f.covariance(kParamPhi, kParamPhi));
+  }
+  EXPECT_GE(covered, fits / 2) << covered << " of " << fits;
+}
+
 TEST(PooledFit, NoRowsGiveThePrior) {
   const PooledFit f = fitPooled({}, middle());
   EXPECT_FALSE(f.converged);
