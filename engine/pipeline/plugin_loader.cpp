@@ -295,17 +295,24 @@ std::string PluginRegistry::find(const std::string& type) const {
   return {};
 }
 
+namespace {
+/// The .so files of a search folder in name order (none when it is not a folder).
+std::vector<fs::path> soFilesIn(const std::string& dir) {
+  std::vector<fs::path> files;
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) return files;
+  for (const auto& e : fs::directory_iterator(dir, ec))
+    if (e.path().extension() == ".so") files.push_back(e.path());
+  std::sort(files.begin(), files.end());
+  return files;
+}
+}  // namespace
+
 std::vector<PluginCandidate> PluginRegistry::scan() const {
   std::vector<PluginCandidate> out;
   std::vector<std::string> seen_types;
   for (const auto& dir : paths_) {
-    std::error_code ec;
-    if (!fs::is_directory(dir, ec)) continue;
-    std::vector<fs::path> files;
-    for (const auto& e : fs::directory_iterator(dir, ec))
-      if (e.path().extension() == ".so") files.push_back(e.path());
-    std::sort(files.begin(), files.end());
-    for (const auto& f : files) {
+    for (const auto& f : soFilesIn(dir)) {
       PluginCandidate c;
       c.path = f.string();
       try {
@@ -335,13 +342,7 @@ std::vector<std::string> PluginRegistry::availableTypes() const {
   // A did-you-mean for a mistyped `type:` must not run every library in the folders.
   std::vector<std::string> out;
   for (const auto& dir : paths_) {
-    std::error_code ec;
-    if (!fs::is_directory(dir, ec)) continue;
-    std::vector<fs::path> files;
-    for (const auto& e : fs::directory_iterator(dir, ec))
-      if (e.path().extension() == ".so") files.push_back(e.path());
-    std::sort(files.begin(), files.end());
-    for (const auto& f : files) {
+    for (const auto& f : soFilesIn(dir)) {
       const std::string type = f.stem().string();
       if (std::find(out.begin(), out.end(), type) != out.end()) continue;
       try {
