@@ -265,6 +265,80 @@ sim::Scenario episodeScenario(const SoilDatasetConfig& cfg, const EpisodePlan& p
 }
 
 
+namespace {
+
+const sim::MachineTruth* machineTruthOf(const sim::Simulator& simulator, const std::string& id) {
+  for (std::size_t mi = 0; mi < simulator.machineCount(); ++mi)
+    if (simulator.machineTruth(mi).id == id) return &simulator.machineTruth(mi);
+  return nullptr;
+}
+
+/// The simulator's FEE geometry of a cut (alpha, rho, depth, width, q); NaN when not cutting.
+std::array<float, 5> feeGeometryOf(const sim::FeeTruth* ft) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  if (ft == nullptr || ft->cutting_slices <= 0) return {nan, nan, nan, nan, nan};
+  return {static_cast<float>(ft->alpha_rad), static_cast<float>(ft->rho_rad), static_cast<float>(ft->depth_m),
+          static_cast<float>(ft->width_m), static_cast<float>(ft->q_n)};
+}
+
+/// The simulator's truth at each observation of each machine (the stamps of the observation
+/// histories), so a sample's horizon rows find theirs (EpisodeData's per-row truth).
+class TruthRows {
+ public:
+  explicit TruthRows(std::size_t capacity) : capacity_(capacity) {}
+
+  /// An observation's truth; an older stamp is ignored, as ObservationHistory::push does.
+  void record(double stamp, const sim::MachineTruth& mt) {
+    auto& rows = rows_[mt.id];
+    if (!rows.empty() && stamp < rows.back().stamp) return;
+    rows.push_back({stamp, feeGeometryOf(&mt.fee), {mt.force_fee_map_N, mt.force_inertia_map_N, mt.force_penetration_map_N},
+                    static_cast<float>(mt.edge_vz_mps)});
+    while (rows.size() > capacity_) rows.pop_front();
+  }
+
+  /// The last P rows up to the sweep's end (the rows buildSample took: same stamps, same rule),
+  /// forces in the sample's frame (along t̂, up; blade on soil); NaN rows when fewer are kept.
+  void appendTo(const SweepRecord& rec, int P, EpisodeData& out) const {
+    const std::size_t n = static_cast<std::size_t>(P);
+    std::vector<float> geo, parts, vz;
+    const auto found = rows_.find(rec.machine_id);
+    if (found != rows_.end()) {
+      const auto& rows = found->second;
+      const auto end = std::upper_bound(rows.begin(), rows.end(), rec.t1 + 1e-9,
+                                        [](double t, const Row& r) { return t < r.stamp; });
+      for (auto it = end - std::min<long>(P, end - rows.begin()); it != end; ++it) {
+        geo.insert(geo.end(), it->geometry.begin(), it->geometry.end());
+        for (const Eigen::Vector3d& f : it->parts) {
+          parts.push_back(static_cast<float>(-f.head<2>().dot(rec.t_hat)));
+          parts.push_back(static_cast<float>(-f.z()));
+        }
+        vz.push_back(it->edge_vz);
+      }
+    }
+    if (vz.size() < n) {
+      const float nan = std::numeric_limits<float>::quiet_NaN();
+      geo.assign(n * 5, nan);
+      parts.assign(n * 6, nan);
+      vz.assign(n, nan);
+    }
+    out.truth_geometry_rows.push_back(std::move(geo));
+    out.force_parts.push_back(std::move(parts));
+    out.edge_vz_rows.push_back(std::move(vz));
+  }
+
+ private:
+  struct Row {
+    double stamp;
+    std::array<float, 5> geometry;
+    Eigen::Vector3d parts[3];  // map frame, soil on blade
+    float edge_vz;
+  };
+  std::size_t capacity_;
+  std::map<std::string, std::deque<Row>> rows_;
+};
+
+}  // namespace
+
 EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& plan, int threads,
                               const std::function<void(double, double)>& on_progress) {
   const auto wall0 = std::chrono::steady_clock::now();
@@ -287,15 +361,7 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
   // The same observations with the force sensor reading the simulator's force without its noise:
   // buildSample on them gives that force in the sample's own frame, sign and rows.
   std::map<std::string, soil::ObservationHistory> quiet_history;
-  // The simulator's truth at each observation of each machine (same stamps as `history`), so a
-  // sample's horizon rows find theirs.
-  struct TruthRow {
-    double stamp;
-    float geometry[5];
-    Eigen::Vector3d parts[3];  // map frame, soil on blade
-    float edge_vz;
-  };
-  std::map<std::string, std::deque<TruthRow>> truth_rows;
+  TruthRows truth_rows(capacity);
   long last_sequence = 0;
   std::vector<std::shared_ptr<const SweepRecord>> pending;
   auto collect = [&] {
@@ -304,32 +370,6 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
       last_sequence = r->sequence;
       pending.push_back(std::static_pointer_cast<const SweepRecord>(r->payload));
     }
-  };
-  // The last P truth rows up to the sweep's end: the rows buildSample took (same stamps, same
-  // rule), their forces in the sample's frame (along t̂, up; blade on soil).
-  auto addTruthRows = [&](const std::string& id, const SweepRecord& rec, int P) {
-    const auto& rows = truth_rows[id];
-    auto end = std::upper_bound(rows.begin(), rows.end(), rec.t1 + 1e-9,
-                                [](double t, const TruthRow& r) { return t < r.stamp; });
-    if (end - rows.begin() < P) {
-      const float nan = std::numeric_limits<float>::quiet_NaN();
-      out.truth_geometry_rows.emplace_back(static_cast<std::size_t>(P) * 5, nan);
-      out.force_parts.emplace_back(static_cast<std::size_t>(P) * 6, nan);
-      out.edge_vz_rows.emplace_back(static_cast<std::size_t>(P), nan);
-      return;
-    }
-    std::vector<float> geo, parts, vz;
-    for (auto it = end - P; it != end; ++it) {
-      geo.insert(geo.end(), it->geometry, it->geometry + 5);
-      for (const Eigen::Vector3d& f : it->parts) {
-        parts.push_back(static_cast<float>(-f.head<2>().dot(rec.t_hat)));
-        parts.push_back(static_cast<float>(-f.z()));
-      }
-      vz.push_back(it->edge_vz);
-    }
-    out.truth_geometry_rows.push_back(std::move(geo));
-    out.force_parts.push_back(std::move(parts));
-    out.edge_vz_rows.push_back(std::move(vz));
   };
   // Samples are built once the whole observation period has been pushed, so the observation
   // at the sweep's last pose (same stamp, whatever the event order) is in the history.
@@ -351,21 +391,16 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
       out.truth.push_back({static_cast<float>(truth.fee.c_pa), static_cast<float>(truth.fee.phi_rad),
                            static_cast<float>(truth.fee.ca_pa), static_cast<float>(truth.fee.delta_rad),
                            static_cast<float>(truth.fee.gamma_n_m3)});
-      const sim::FeeTruth* ft = nullptr;
-      for (std::size_t mi = 0; mi < simulator.machineCount(); ++mi)
-        if (simulator.machineTruth(mi).id == rec->machine_id) ft = &simulator.machineTruth(mi).fee;
+      const sim::MachineTruth* mt = machineTruthOf(simulator, rec->machine_id);
+      out.truth_geometry.push_back(feeGeometryOf(mt ? &mt->fee : nullptr));
       const float nan = std::numeric_limits<float>::quiet_NaN();
-      out.truth_geometry.push_back(ft ? std::array<float, 5>{static_cast<float>(ft->alpha_rad), static_cast<float>(ft->rho_rad),
-                                                            static_cast<float>(ft->depth_m), static_cast<float>(ft->width_m),
-                                                            static_cast<float>(ft->q_n)}
-                                      : std::array<float, 5>{nan, nan, nan, nan, nan});
       // Both histories hold the same stamps and features, so the same rows are taken.
       const auto qh = quiet_history.find(rec->machine_id);
       soil::PinnSample qs;
       const bool quiet_known = qh != quiet_history.end() &&
           soil::buildSample(qh->second, *rec, cfg.history_T, cfg.horizon_P, qs) == soil::SampleSkip::None;
       out.force_quiet.push_back(quiet_known ? std::move(qs.force) : std::vector<float>(s.force.size(), nan));
-      addTruthRows(rec->machine_id, *rec, s.P);
+      truth_rows.appendTo(*rec, s.P, out);
       out.samples.push_back(std::move(s));
     }
     pending.clear();
@@ -377,26 +412,11 @@ EpisodeData runDatasetEpisode(const SoilDatasetConfig& cfg, const EpisodePlan& p
         auto it = history.try_emplace(o->machine_id, capacity).first;
         it->second.push(*o);
         // Between two periods machineTruth() is this period's, the period of this observation.
-        for (std::size_t mi = 0; mi < simulator.machineCount(); ++mi) {
-          const sim::MachineTruth& mt = simulator.machineTruth(mi);
-          if (mt.id != o->machine_id) continue;
+        if (const sim::MachineTruth* mt = machineTruthOf(simulator, o->machine_id)) {
           Observation quiet = *o;
-          quiet.force_base_N = mt.T_map_base.linear().transpose() * mt.force_quiet_map_N;
+          quiet.force_base_N = mt->T_map_base.linear().transpose() * mt->force_quiet_map_N;
           quiet_history.try_emplace(o->machine_id, capacity).first->second.push(quiet);
-          auto& tr = truth_rows[o->machine_id];
-          if (tr.empty() || o->stamp >= tr.back().stamp) {
-            const float nan = std::numeric_limits<float>::quiet_NaN();
-            const sim::FeeTruth& ft = mt.fee;
-            const bool cutting = ft.cutting_slices > 0;
-            TruthRow row{o->stamp,
-                         {cutting ? static_cast<float>(ft.alpha_rad) : nan, cutting ? static_cast<float>(ft.rho_rad) : nan,
-                          cutting ? static_cast<float>(ft.depth_m) : nan, cutting ? static_cast<float>(ft.width_m) : nan,
-                          cutting ? static_cast<float>(ft.q_n) : nan},
-                         {mt.force_fee_map_N, mt.force_inertia_map_N, mt.force_penetration_map_N},
-                         static_cast<float>(mt.edge_vz_mps)};
-            tr.push_back(row);
-            while (tr.size() > capacity) tr.pop_front();
-          }
+          truth_rows.record(o->stamp, *mt);
         }
       }
       engine->push(e);

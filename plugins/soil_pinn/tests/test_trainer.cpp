@@ -27,6 +27,28 @@ namespace {
 
 constexpr int kT = 6, kP = 3;
 
+// An empty dataset folder of this process and the config its synthetic episodes are written with.
+fs::path freshDatasetDir(const std::string& name, eval::SoilDatasetConfig& cfg) {
+  const fs::path dir = fs::temp_directory_path() / ("terramap_trainer_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "episodes");
+  cfg.history_T = kT;
+  cfg.horizon_P = kP;
+  cfg.config_hash = "synthetic";
+  return dir;
+}
+
+// A random level-ish cut whose FEE (β*) is valid for soil `s`, and that evaluation.
+fee::Result randomValidCut(const fee::Soil& s, std::mt19937_64& rng, fee::Geometry& g) {
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  fee::Result r;
+  do {
+    g = {0.04 * (u(rng) - 0.5), 1.30 + 0.15 * u(rng), 0.05 + 0.15 * u(rng), 1.0 + 0.8 * u(rng), 3000 * u(rng)};
+    r = fee::evaluateAtBetaMin(s, g);
+  } while (!r.valid());
+  return r;
+}
+
 // Episodes of one soil each; every sample a random cut geometry, force = the paper's F of the
 // truth soil at beta* (the physics layer's default base angle), constant over the horizon. Observation feature k < 5 is the soil
 // property k scaled to about [-1, 1] plus noise; the rest are zero.
@@ -34,13 +56,8 @@ constexpr int kT = 6, kP = 3;
 /// force times this; otherwise the episodes keep none (NaN in the file).
 fs::path makeDataset(const std::string& name, int episodes, int samples_per_episode,
                      double quiet_scale = std::numeric_limits<double>::quiet_NaN()) {
-  const fs::path dir = fs::temp_directory_path() / ("terramap_trainer_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir / "episodes");
   eval::SoilDatasetConfig cfg;
-  cfg.history_T = kT;
-  cfg.horizon_P = kP;
-  cfg.config_hash = "synthetic";
+  const fs::path dir = freshDatasetDir(name, cfg);
   std::mt19937_64 rng(42);
   std::uniform_real_distribution<double> u(0.0, 1.0);
   for (int e = 0; e < episodes; ++e) {
@@ -61,11 +78,7 @@ fs::path makeDataset(const std::string& name, int episodes, int samples_per_epis
       for (int t = 0; t < kT; ++t)
         for (int k = 0; k < 5; ++k) smp.obs[static_cast<std::size_t>(t * soil::kObsFeatures + k)] = static_cast<float>(props[k] + 0.05 * (u(rng) - 0.5));
       fee::Geometry g;
-      fee::Result r;
-      do {
-        g = {0.04 * (u(rng) - 0.5), 1.30 + 0.15 * u(rng), 0.05 + 0.15 * u(rng), 1.0 + 0.8 * u(rng), 3000 * u(rng)};
-        r = fee::evaluateAtBetaMin(sp.fee, g);
-      } while (!r.valid());
+      const fee::Result r = randomValidCut(sp.fee, rng, g);
       for (int p = 0; p < kP; ++p) {
         smp.theta_k.insert(smp.theta_k.end(), {static_cast<float>(g.rho_rad), static_cast<float>(g.alpha_rad),
                                                static_cast<float>(g.w_m), static_cast<float>(g.d_m),
@@ -478,15 +491,9 @@ TEST(Trainer, SupervisionByTheTruthSoilReachesTheLoss) {
 // face adhesion; a mapped depth 20 % short makes (b) worse; (c) is the estimator's error
 // against that force, recomputed here from its estimates; each x / z part bounds its total.
 TEST(Evaluation, DecompositionSeparatesModelClassGeometryAndEstimator) {
-  const fs::path dir = fs::temp_directory_path() / ("terramap_trainer_decomp_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir / "episodes");
   eval::SoilDatasetConfig cfg;
-  cfg.history_T = kT;
-  cfg.horizon_P = kP;
-  cfg.config_hash = "synthetic";
+  const fs::path dir = freshDatasetDir("decomp", cfg);
   std::mt19937_64 rng(7);
-  std::uniform_real_distribution<double> u(0.0, 1.0);
   constexpr double kEdge = 0.025;
   double adhesion_miss = 0, norm = 0;
   for (int e = 0; e < 4; ++e) {
@@ -504,11 +511,7 @@ TEST(Evaluation, DecompositionSeparatesModelClassGeometryAndEstimator) {
       std::vector<float> quiet, geo, parts, vz;
       for (int p = 0; p < kP; ++p) {
         fee::Geometry g;
-        fee::Result r;
-        do {
-          g = {0.04 * (u(rng) - 0.5), 1.30 + 0.15 * u(rng), 0.05 + 0.15 * u(rng), 1.0 + 0.8 * u(rng), 3000 * u(rng)};
-          r = fee::evaluateAtBetaMin(sp.fee, g);
-        } while (!r.valid());
+        const fee::Result r = randomValidCut(sp.fee, rng, g);
         const bool down = (s + p) % 3 == 0;
         smp.obs[static_cast<std::size_t>((kT - kP + p) * soil::kObsFeatures + soil::kObsFeatures - 1)] = down ? -0.05f : 0.05f;
         const double pen = down ? fee::penetrationForce(sp.fee, g.d_m, g.w_m, kEdge) : 0.0;
