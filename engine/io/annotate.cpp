@@ -105,6 +105,69 @@ std::string number(double v) {
   return b;
 }
 
+/// Each region's name on the map, in the outline colour over a dark halo so it reads on any
+/// colour, at the middle of the longest run of the region's cells in its northmost row: inside
+/// the region even when it is split (the default soil on both sides of a strip).
+void drawRegionNames(Canvas& c, Font& font, const LayeredMap& map, const Annotation& a, int mx, int my, int map_w,
+                     std::vector<std::string>* texts) {
+  const RasterF z = northUpRaster(map, map.layerId(a.outline_regions));
+  const double S = static_cast<double>(map_w) / static_cast<double>(z.cols());
+  for (const auto& [value, name] : a.region_names) {
+    int row = -1, best_start = 0, best_len = 0;
+    for (int r = 0; r < z.rows() && row < 0; ++r)
+      for (int col = 0, start = -1; col <= z.cols(); ++col) {
+        const bool in = col < z.cols() && z(r, col) == value;
+        if (in && start < 0) start = col;
+        if (!in && start >= 0) {
+          row = r;
+          if (col - start > best_len) best_start = start, best_len = col - start;
+          start = -1;
+        }
+      }
+    if (row < 0) continue;
+    const int cx = mx + static_cast<int>((best_start + 0.5 * best_len) * S);
+    const int tw = font.width(name, kLabelPx);
+    const int x = std::clamp(cx - tw / 2, mx + 2, std::max(mx + 2, mx + map_w - tw - 2));
+    const int y = my + static_cast<int>(row * S) + kLabelPx + 3;
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx)
+        if (dx || dy) font.draw(c, x + dx, y + dy, name, kLabelPx, kInk);
+    font.draw(c, x, y, name, kLabelPx, a.outline_colour);
+    if (texts) texts->push_back(name);
+  }
+}
+
+/// Scale bar of `len_m` metres at (sx, sy): alternating black and white segments of round
+/// lengths (5 m: 1 m or 2.5 m; 2 m: 0.5 m or 1 m; 1 m: 0.2 m or 0.5 m), as many as leave room for
+/// each tick's label, every tick labelled (the last with the unit). Returns its length in pixels.
+int drawScaleBar(Canvas& c, Font& font, Writer& w, int sx, int sy, double len_m, double px_per_m) {
+  const int len_px = std::max(1, static_cast<int>(std::lround(len_m * px_per_m)));
+  const double mant = len_m / std::pow(10.0, std::floor(std::log10(len_m) + 1e-9));
+  int segments = 1;
+  for (int n : mant > 1.5 && mant < 4.5 ? std::vector<int>{4, 2} : std::vector<int>{5, 2}) {
+    int widest = 0;
+    for (int k = 0; k <= n; ++k) widest = std::max(widest, font.width(label(k * len_m / n, len_m / n), kLabelPx));
+    if (len_px / n >= widest + 8) {
+      segments = n;
+      break;
+    }
+  }
+  c.fill(sx, sy, len_px, 6, kInk);
+  for (int k = 1; k < segments; k += 2) {
+    const int a0 = sx + len_px * k / segments, a1 = sx + len_px * (k + 1) / segments;
+    c.fill(a0, sy + 1, a1 - a0 - (k + 1 == segments ? 1 : 0), 4, kWhite);
+  }
+  const double seg_m = len_m / segments;
+  for (int k = 0; k <= segments; ++k) {
+    const int px = sx + len_px * k / segments - (k == segments ? 1 : 0);
+    c.fill(px, sy, 1, 9, kInk);
+    std::string s = label(k * seg_m, seg_m) + (k == segments ? " m" : "");
+    const int lw = font.width(k == segments ? label(k * seg_m, seg_m) : s, kLabelPx);
+    w(px - (k == 0 ? 0 : lw / 2), sy + 9 + 2 + kLabelPx, s, kLabelPx);
+  }
+  return len_px;
+}
+
 }  // namespace
 
 std::pair<std::string, double> displayUnit(const std::string& unit, bool diverging) {
@@ -197,36 +260,8 @@ Image annotate(const Image& map_image, const LayeredMap& map, const std::string&
   w(mx + map_image.width - font.width("x [m]", kLabelPx), mb + 4 + 2 * kLabelPx + 2, "x [m]", kLabelPx);
   w(mx - 6 - font.width("y [m]", kLabelPx), my - 4, "y [m]", kLabelPx);
 
-  // Region names on the map, in the outline colour over a dark halo so they read on any colour.
-  if (!a.outline_regions.empty() && !a.region_names.empty()) {
-    const RasterF z = northUpRaster(map, map.layerId(a.outline_regions));
-    const double S = static_cast<double>(map_image.width) / static_cast<double>(z.cols());
-    for (const auto& [value, name] : a.region_names) {
-      // The middle of the longest run of the region's cells in its northmost row: inside the
-      // region even when it is split (the default soil on both sides of a strip).
-      int row = -1, best_start = 0, best_len = 0;
-      for (int r = 0; r < z.rows() && row < 0; ++r)
-        for (int col = 0, start = -1; col <= z.cols(); ++col) {
-          const bool in = col < z.cols() && z(r, col) == value;
-          if (in && start < 0) start = col;
-          if (!in && start >= 0) {
-            row = r;
-            if (col - start > best_len) best_start = start, best_len = col - start;
-            start = -1;
-          }
-        }
-      if (row < 0) continue;
-      const int cx = mx + static_cast<int>((best_start + 0.5 * best_len) * S);
-      const int tw = font.width(name, kLabelPx);
-      const int x = std::clamp(cx - tw / 2, mx + 2, std::max(mx + 2, mx + map_image.width - tw - 2));
-      const int y = my + static_cast<int>(row * S) + kLabelPx + 3;
-      for (int dy = -1; dy <= 1; ++dy)
-        for (int dx = -1; dx <= 1; ++dx)
-          if (dx || dy) font.draw(c, x + dx, y + dy, name, kLabelPx, kInk);
-      font.draw(c, x, y, name, kLabelPx, a.outline_colour);
-      if (layout) texts.push_back(name);
-    }
-  }
+  if (!a.outline_regions.empty() && !a.region_names.empty())
+    drawRegionNames(c, font, map, a, mx, my, map_image.width, layout ? &texts : nullptr);
 
   const int bx = mx + map_image.width + 24;
   if (!categorical)
@@ -242,36 +277,9 @@ Image annotate(const Image& map_image, const LayeredMap& map, const std::string&
     w(sx + kBarWidth + 6, sy + kBarWidth - 3, "unknown", kLabelPx);
   }
 
-  // Scale bar: a nice length up to a third of the map's width, in alternating black and white
-  // segments, each tick labelled (the last with the unit), under the x coordinates.
-  const double len_m = niceLength(map_image.width / px_per_m / 3.0);
-  const int len_px = std::max(1, static_cast<int>(std::lround(len_m * px_per_m)));
-  // Segments of round lengths (5 m: 1 m or 2.5 m; 2 m: 0.5 m or 1 m; 1 m: 0.2 m or 0.5 m), as
-  // many as leave room for each tick's label.
-  const double mant = len_m / std::pow(10.0, std::floor(std::log10(len_m) + 1e-9));
-  int segments = 1;
-  for (int n : mant > 1.5 && mant < 4.5 ? std::vector<int>{4, 2} : std::vector<int>{5, 2}) {
-    int widest = 0;
-    for (int k = 0; k <= n; ++k) widest = std::max(widest, font.width(label(k * len_m / n, len_m / n), kLabelPx));
-    if (len_px / n >= widest + 8) {
-      segments = n;
-      break;
-    }
-  }
   const int sx = mx, sy = mb + 4 + kLabelPx + 10;
-  c.fill(sx, sy, len_px, 6, kInk);
-  for (int k = 1; k < segments; k += 2) {
-    const int a0 = sx + len_px * k / segments, a1 = sx + len_px * (k + 1) / segments;
-    c.fill(a0, sy + 1, a1 - a0 - (k + 1 == segments ? 1 : 0), 4, kWhite);
-  }
-  const double seg_m = len_m / segments;
-  for (int k = 0; k <= segments; ++k) {
-    const int px = sx + len_px * k / segments - (k == segments ? 1 : 0);
-    c.fill(px, sy, 1, 9, kInk);
-    std::string s = label(k * seg_m, seg_m) + (k == segments ? " m" : "");
-    const int lw = font.width(k == segments ? label(k * seg_m, seg_m) : s, kLabelPx);
-    w(px - (k == 0 ? 0 : lw / 2), sy + 9 + 2 + kLabelPx, s, kLabelPx);
-  }
+  const double len_m = niceLength(map_image.width / px_per_m / 3.0);
+  const int len_px = drawScaleBar(c, font, w, sx, sy, len_m, px_per_m);
 
   if (layout) {
     *layout = AnnotatedLayout{};
