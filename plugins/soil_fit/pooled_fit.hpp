@@ -55,7 +55,8 @@ struct PooledFit {
 bool modelForce(const fee::Soil& s, const FitRow& row, double edge_thickness_m, Eigen::Vector2d& f,
                 double q_gamma_ref_n_m3 = 0.0);
 
-/// Fits the soil to `rows` from `start` (clamped into the ranges): bounded Levenberg-Marquardt
+/// Fits the soil to `rows` from `start` (clamped into the ranges; a NaN property starts in the
+/// middle of its range): bounded Levenberg-Marquardt
 /// on the robust residuals in span-normalised parameters, forward-difference Jacobian.
 /// An empty row set returns the prior (converged false).
 PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& start, const PooledFitOptions& opt = {});

@@ -3,6 +3,7 @@
 #include <terramap/soil/publish_estimate.hpp>
 
 #include <cmath>
+#include <limits>
 
 namespace terramap::plugins {
 
@@ -83,9 +84,9 @@ void SoilFit::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
   if (static_cast<int>(rows.size()) < min_rows_) {
     r.invalid_reason = "too_few_rows";
   } else {
-    soil::SoilParamVector start{};
-    for (int k = 0; k < soil::kSoilParamCount; ++k)
-      start[static_cast<std::size_t>(k)] = 0.5 * (soil::kSoilParams[k].lo + soil::kSoilParams[k].hi);
+    // The machine's previous fit, or the middle of the ranges (fitPooled's start for NaN).
+    soil::SoilParamVector start;
+    start.fill(std::numeric_limits<double>::quiet_NaN());
     const soil::PooledFit fit = soil::fitPooled(rows, m.has_last ? m.last : start, opt_);
     ctx.addCounter("fit_iterations", fit.iterations);
     ctx.addCounter("fit_rows", fit.rows);
