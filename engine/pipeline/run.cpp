@@ -291,6 +291,40 @@ std::vector<std::string> unknownOutputLayers(const PipelineSpec& spec, const Lay
   return unknown;
 }
 
+/// report.json: the engine's report with the run's own facts (pipeline, truth, events, wall
+/// time, map, files, warnings, series), the spooled records streamed in; its path joins res.files.
+void writeRunReport(const PipelineSpec& spec, const LayeredMap& map, const TruthComparison& truth, long n,
+                    SeriesRecorder& series, RecordSpool& spool, RunResult& res) {
+  const fs::path dir(spec.outputs.dir);
+  const double run_s = res.run_wall_s;
+  const fs::path p = dir / "report.json";
+  nlohmann::json extra;
+  extra["pipeline"] = spec.file;
+  if (!truth.json.empty()) extra["truth"] = nlohmann::json::parse(truth.json);
+  extra["events_total"] = n;
+  extra["run_wall_s"] = run_s;
+  if (std::isfinite(res.real_time_factor)) extra["real_time_factor"] = res.real_time_factor;
+  extra["map"] = {{"resolution_m", map.geometry().resolution()},
+                  {"size", {map.geometry().size().x(), map.geometry().size().y()}},
+                  {"center_m", {map.geometry().center().x(), map.geometry().center().y()}},
+                  {"layers", map.layerNames()}};
+  std::vector<std::string> files = res.files;
+  files.push_back(p.string());
+  extra["files"] = files;
+  if (!res.unknown_layers.empty()) {
+    nlohmann::json w = nlohmann::json::array();
+    for (const auto& l : res.unknown_layers)
+      w.push_back({{"kind", "layer_all_unknown"}, {"layer", l}});
+    extra["warnings"] = w;
+  }
+  if (series.enabled()) {
+    extra["series_interval_s"] = spec.outputs.series_interval_s;
+    extra["series"] = series.take();
+  }
+  writeReport(res.report, p.string(), extra.dump(), spool);
+  res.files.push_back(p.string());
+}
+
 }  // namespace
 
 RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
@@ -385,37 +419,9 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   fs::create_directories(spec.outputs.dir, ec);
   if (ec) throw OutputError(spec.outputs.dir + ": cannot create output folder: " + ec.message());
   const LayeredMap& map = engine->map();
-  const fs::path dir(spec.outputs.dir);
   writeMapOutputs(spec, *engine, truth, res.files);
   res.unknown_layers = unknownOutputLayers(spec, map);
-  if (spec.outputs.report) {
-    const fs::path p = dir / "report.json";
-    nlohmann::json extra;
-    extra["pipeline"] = spec.file;
-    if (!truth.json.empty()) extra["truth"] = nlohmann::json::parse(truth.json);
-    extra["events_total"] = n;
-    extra["run_wall_s"] = run_s;
-    if (std::isfinite(res.real_time_factor)) extra["real_time_factor"] = res.real_time_factor;
-    extra["map"] = {{"resolution_m", map.geometry().resolution()},
-                    {"size", {map.geometry().size().x(), map.geometry().size().y()}},
-                    {"center_m", {map.geometry().center().x(), map.geometry().center().y()}},
-                    {"layers", map.layerNames()}};
-    std::vector<std::string> files = res.files;
-    files.push_back(p.string());
-    extra["files"] = files;
-    if (!res.unknown_layers.empty()) {
-      nlohmann::json w = nlohmann::json::array();
-      for (const auto& l : res.unknown_layers)
-        w.push_back({{"kind", "layer_all_unknown"}, {"layer", l}});
-      extra["warnings"] = w;
-    }
-    if (series.enabled()) {
-      extra["series_interval_s"] = spec.outputs.series_interval_s;
-      extra["series"] = series.take();
-    }
-    writeReport(res.report, p.string(), extra.dump(), spool);
-    res.files.push_back(p.string());
-  }
+  if (spec.outputs.report) writeRunReport(spec, map, truth, n, series, spool, res);
   return res;
 }
 
