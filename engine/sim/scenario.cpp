@@ -246,6 +246,12 @@ ControllerSpec readController(MapReader& r, const std::string& base_dir) {
     r.finish();  // the log itself is read once the YAML has no mistakes (parseImpl)
     return c;
   }
+  if (type == "external") {
+    // Driven through the environment API (sim/env.hpp): it has no keys of its own.
+    c.type = ControllerSpec::Type::External;
+    r.finish();
+    return c;
+  }
   if (type == "dig_dump") {
     c.type = ControllerSpec::Type::DigDump;
     DigDumpSpec& d = c.dig_dump;
@@ -290,7 +296,7 @@ ControllerSpec readController(MapReader& r, const std::string& base_dir) {
     }
   } else {
     // As for sensors: the keys depend on the type, so they are not checked against a guess.
-    r.error(r.node("type"), "type", "unknown controller type '" + type + "'" + didYouMean(type, {"random_walk", "route", "replay", "dig_dump"}));
+    r.error(r.node("type"), "type", "unknown controller type '" + type + "'" + didYouMean(type, {"random_walk", "route", "replay", "dig_dump", "external"}));
     return c;
   }
   if (r.has("stall")) {
@@ -596,10 +602,12 @@ MachineSpec readMachine(MapReader& r, const LocalisationSpec& default_localisati
       MapReader a = r.child("arm");
       if (a.valid()) readArm(a, *m.arm);
     }
-    if (m.controller.type != ControllerSpec::Type::DigDump && m.controller.type != ControllerSpec::Type::Replay)
+    if (m.controller.type != ControllerSpec::Type::DigDump && m.controller.type != ControllerSpec::Type::Replay &&
+        m.controller.type != ControllerSpec::Type::External)
       r.error(r.has("controller") ? r.node("controller") : r.self(), "controller",
-              "an excavator needs the dig_dump controller (controller: {type: dig_dump, dig_m: [x, y], dump_m: [x, y]}) "
-              "or a replay of its levers (controller: {type: replay, file: ...})");
+              "an excavator needs the dig_dump controller (controller: {type: dig_dump, dig_m: [x, y], dump_m: [x, y]}), "
+              "a replay of its levers (controller: {type: replay, file: ...}) or an external one (controller: {type: "
+              "external}, driven through the environment API)");
     if (m.controller.type == ControllerSpec::Type::DigDump) {
       // The dig and dump points must lie within the arm's reach around the slew axis (the lip
       // held straight out: boom pivot + boom + arm + bucket).

@@ -21,6 +21,8 @@
 namespace terramap::sim {
 namespace {
 
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
 std::uint64_t streamSeed(std::uint64_t seed, std::uint64_t a, std::uint64_t b) {
   return mixBits(seed ^ mixBits(a * 0x100000001b3ULL + b));
 }
@@ -79,6 +81,10 @@ struct Simulator::Machine {
   double bucket_capacity_m3 = 0;
   double lip_vn = 0, lip_vz = 0, lip_acc = 0;
   std::mt19937_64 encoder_rng;
+  // External controller: the levers the caller set last (Simulator::setLevers).
+  bool external = false;
+  CtlCommand external_drive;
+  ArmCommand external_arm;
   long arm_steps = 0;  ///< replay: physics steps taken (time = steps * dt, no accumulated rounding)
   int arm_row = -1;    ///< replay: the log row last in force
 
@@ -100,6 +106,7 @@ struct Simulator::Machine {
         noise_rng(streamSeed(seed, idx, 2)), estimator(spec.localisation, streamSeed(seed, idx, 3)),
         force_rng(streamSeed(seed, idx, 4)), encoder_rng(streamSeed(seed, idx, 5)) {
     truth.id = spec.id;
+    external = spec.controller.type == ControllerSpec::Type::External;
     if (spec.arm) {
       arm = std::make_unique<ExcavatorArm>(*spec.arm);
       if (spec.controller.type == ControllerSpec::Type::DigDump)
@@ -256,7 +263,10 @@ struct Simulator::Pipe {
 };
 
 Simulator::Simulator(const Scenario& scenario, Executor::Backend backend)
-    : sc_(scenario), terrain_(buildTerrain(scenario.terrain)), soil_(scenario.default_soil, scenario.zones),
+    : Simulator(scenario, buildTerrain(scenario.terrain), backend) {}
+
+Simulator::Simulator(const Scenario& scenario, TruthTerrain terrain, Executor::Backend backend)
+    : sc_(scenario), terrain_(std::move(terrain)), soil_(scenario.default_soil, scenario.zones),
       exec_(scenario.threads, backend) {
   substeps_ = static_cast<int>(std::llround(sc_.physics_hz / sc_.observation_hz));
   if (substeps_ < 1) throw ConfigError(sc_.source_path + ": physics_hz must be >= observation_hz");
@@ -267,7 +277,9 @@ Simulator::Simulator(const Scenario& scenario, Executor::Backend backend)
     for (const auto& L : machines_.back()->lidars)
       min_rate = std::min(min_rate, sc_.machines[i].sensors[L.sensor_index].rate_hz);
   }
-  overlap_ = sc_.overlap_scans && exec_.threads() > 1 && std::isfinite(min_rate);
+  // Levers set by a caller between periods cannot reach physics that already ran ahead.
+  const bool any_external = std::any_of(machines_.begin(), machines_.end(), [](const auto& m) { return m->external; });
+  overlap_ = sc_.overlap_scans && exec_.threads() > 1 && std::isfinite(min_rate) && !any_external;
   if (overlap_) {
     view_ = std::make_unique<TruthTerrain>(terrain_);
     for (const auto& m : machines_) view_ctl_.push_back(m->ctl);
@@ -301,11 +313,19 @@ const CompactTrackLoader& Simulator::machine(std::size_t i) const {
 }
 const MachineTruth& Simulator::machineTruth(std::size_t i) const { return view_truth_.at(i); }
 
+void Simulator::setLevers(std::size_t i, const CtlCommand& drive, const ArmCommand& arm) {
+  Machine& m = *machines_.at(i);
+  if (!m.external)
+    throw ConfigError("machine " + m.ctl.spec().id + " is not driven from outside (its controller is not external)");
+  m.external_drive = drive;
+  m.external_arm = arm;
+}
+
 void Simulator::physicsStep(double dt, bool relax) {
   for (auto& mp : machines_) {
     Machine& m = *mp;
     const MachineSpec& spec = m.ctl.spec();
-    m.last_cmd = m.controller.update(dt, m.ctl);
+    m.last_cmd = m.external ? m.external_drive : m.controller.update(dt, m.ctl);
     const Eigen::Isometry3d T_old = m.ctl.T_map_blade();
     const BladeForce bf = bladeSoilForce(terrain_, soil_, T_old, spec.blade, spec.edge_thickness_m, spec.blade_slices,
                                          m.edge_vn, m.edge_vz, m.edge_acc, overlap_ ? nullptr : &exec_);
@@ -353,7 +373,9 @@ void Simulator::armStep(Machine& m, double dt) {
   const ArmSpec& as = *m.ctl.spec().arm;
   const Eigen::Isometry3d T_base = m.ctl.T_map_base();
   const ArmCommand cmd =
-      m.digger ? m.digger->update(dt, *m.arm, T_base, terrain_, m.bucket, m.bucket_capacity_m3) : m.replayArm(dt);
+      m.digger     ? m.digger->update(dt, *m.arm, T_base, terrain_, m.bucket, m.bucket_capacity_m3)
+      : m.external ? m.external_arm
+                   : m.replayArm(dt);
   const Eigen::Isometry3d T_lip_old = m.arm->T_map_lipBlade(T_base);
   const BladeForce bf = bladeSoilForce(terrain_, soil_, T_lip_old, m.arm->floorBlade(), as.edge_thickness_m,
                                        as.bucket_slices, m.lip_vn, m.lip_vz, m.lip_acc);
@@ -612,7 +634,8 @@ void Simulator::observeMachine(Machine& m, Period& rec, double tp, bool single) 
   m.truth.twist_blade = bodyTwist(m.prev_blade, Tbl, period);
   m.truth.cylinder_length_m = m.ctl.cylinderLengths();
   m.truth.force_base_N = Tb.linear().transpose() * m.truth.force_map_N;
-  m.truth.setpoints = m.controller.setpoints();
+  // An external machine's set-points are its caller's, unknown here.
+  m.truth.setpoints = m.external ? std::array<double, 5>{kNaN, kNaN, kNaN, kNaN, kNaN} : m.controller.setpoints();
   m.truth.raise_offset_m = m.controller.raiseOffset();
   if (m.arm) m.measureArm(Tb);
   // What the machine itself knows: the localisation's base pose and the blade through the

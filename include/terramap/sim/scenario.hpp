@@ -142,7 +142,9 @@ struct DigDumpSpec {
 
 /// Controller of a machine.
 struct ControllerSpec {
-  enum class Type { RandomWalk, Route, Replay, DigDump } type = Type::RandomWalk;
+  /// External: the levers come from the caller (Simulator::setLevers, sim/env.hpp), held
+  /// between calls; without a caller (`terramap sim`) the machine stands still.
+  enum class Type { RandomWalk, Route, Replay, DigDump, External } type = Type::RandomWalk;
   DigDumpSpec dig_dump;  ///< type DigDump (excavators)
   // Replay (type Replay): recorded commands (command_log.hpp), read by loadScenario from
   // `replay_path` (the YAML's `file`, resolved against the scenario's folder) in `replay_units`.

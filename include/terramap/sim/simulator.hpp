@@ -37,6 +37,7 @@
 #include <terramap/core/parallel.hpp>
 #include <terramap/sim/blade_physics.hpp>
 #include <terramap/sim/ctl.hpp>
+#include <terramap/sim/excavator.hpp>
 #include <terramap/sim/lidar.hpp>
 #include <terramap/sim/localisation.hpp>
 #include <terramap/sim/node_tiles.hpp>
@@ -108,6 +109,10 @@ class Simulator {
   /// ahead of the caller (Executor::Backend; the events are the same bits either way).
   /// \throws InputError (DEM) or ConfigError (inconsistent scenario).
   explicit Simulator(const Scenario& scenario, Executor::Backend backend = Executor::kDefaultBackend);
+  /// The same on `terrain`, a copy of buildTerrain(scenario.terrain) the caller kept (an
+  /// environment's reset, sim/env.hpp: the terrain is not sampled again). The caller vouches that
+  /// it is that scenario's terrain in its initial state; everything else is built afresh.
+  Simulator(const Scenario& scenario, TruthTerrain terrain, Executor::Backend backend = Executor::kDefaultBackend);
   ~Simulator();
   Simulator(const Simulator&) = delete;
   Simulator& operator=(const Simulator&) = delete;
@@ -116,6 +121,15 @@ class Simulator {
   /// appended) once the duration is over. \throws whatever the physics threw (with the overlap,
   /// at the period it was computing; every later call returns false).
   bool next(std::vector<Event>& out);
+
+  /// The levers of machine i, whose controller is External, held from the next physics step
+  /// until set again: track speeds (m/s) and blade joint rates (lift m/s, tilt and angle rad/s),
+  /// each clamped by the machine to its maxima, and an excavator's four arm levers in [-1, 1]
+  /// (ignored for a loader). A scenario with an external machine never runs the physics ahead
+  /// (overlap_scans is ignored), so the levers set between two next() calls act from the first
+  /// physics step of the next period. \throws std::out_of_range for a bad i, ConfigError for a
+  /// machine with another controller.
+  void setLevers(std::size_t i, const CtlCommand& drive, const ArmCommand& arm = {});
 
   double time() const { return t_; }
   long step() const { return obs_step_; }
