@@ -2,8 +2,11 @@
 // surface coloured by any layer, the machine and its blade, play/pause, layer picker).
 // The pipeline runs on its own thread; every frame period it takes a snapshot (copy-on-write,
 // cheap), samples the elevation and the chosen layer onto at most --max-grid cells a side and
-// publishes one binary frame (format in web/app.js) to every connected page.
+// publishes one binary frame (format in web/app.js) to every connected page. Foxglove clients
+// get the map as foxglove.Grid (the chosen layers, full resolution up to --foxglove-max-grid)
+// and the latest cloud as foxglove.PointCloud, at the same pace, built only while subscribed.
 #include "command.hpp"
+#include "foxglove_ws.hpp"
 #include "live_server.hpp"
 
 #include <terramap/core/error.hpp>
@@ -50,7 +53,14 @@ struct ServeArgs {
   bool allow_remote = false;
   int max_connections = 32;
   int max_message_bytes = 4096;
+  std::vector<std::string> foxglove_layers{"elevation"};
+  int foxglove_max_grid = 1024;
+  std::string foxglove_frame = "map";
+  std::vector<std::string> foxglove_origins;
 };
+
+/// The Foxglove endpoint's channels, in the order of their ids.
+enum FoxgloveChannelId : std::uint32_t { kGridChannel = 0, kCloudChannel = 1 };
 
 std::atomic<bool> g_interrupted{false};
 void onSignal(int) { g_interrupted = true; }
@@ -82,6 +92,10 @@ class Player {
     if (!engine_->map().hasLayer("elevation"))
       throw ConfigError(a.file + ": the live view shows the layer 'elevation', which no stage creates");
     layer_names_ = engine_->map().layerNames();  // fixed from here on: commands are checked against it
+    for (const std::string& l : a.foxglove_layers)
+      if (std::find(layer_names_.begin(), layer_names_.end(), l) == layer_names_.end())
+        throw ConfigError("--foxglove-layers: no layer '" + l + "' in " + a.file + didYouMean(l, layer_names_) +
+                          "; layers: [" + joinStrings(layer_names_) + "]");
     colour_layer_ = "elevation";
     playing_ = !a.wait_for_viewer;
   }
@@ -129,6 +143,14 @@ class Player {
     return "";
   }
 
+  /// A Foxglove client subscribed: it gets the current map (and cloud) at once.
+  void republish() {
+    std::lock_guard<std::mutex> lock(mu_);
+    republish_ = true;
+    resend_cloud_ = true;
+    cv_.notify_all();
+  }
+
   void stop() {
     std::lock_guard<std::mutex> lock(mu_);
     stop_ = true;
@@ -164,6 +186,7 @@ class Player {
           done_ = true;
         }
         publish();
+        server_.foxgloveStatus(0, "source finished after " + std::to_string(events_) + " events", "terramap.source");
         std::printf("source finished after %ld events\n", events_);
         std::fflush(stdout);
         continue;
@@ -173,6 +196,11 @@ class Player {
       remember(e);
       engine_->push(e);
       ++events_;
+      if (auto* cloud = std::get_if<PointCloud>(&e)) {
+        // The engine is done with it: kept (moved, not copied) for the Foxglove cloud channel.
+        latest_cloud_ = std::make_shared<const PointCloud>(std::move(*cloud));
+        ++cloud_seq_;
+      }
       stamp_ = stamp;
       if (a_.speed > 0) {  // keep the source's pace, scaled
         const auto due = wall0 + std::chrono::duration<double>((stamp - stamp0) / a_.speed);
@@ -260,6 +288,29 @@ class Player {
         out[cells + static_cast<std::size_t>(r) * cols + k] = snap->at(cid, cell);
       }
     server_.publish(std::move(frame));
+    publishFoxglove(*snap);
+  }
+
+  /// The map and the newest cloud to Foxglove clients, each built only if someone subscribed.
+  void publishFoxglove(const LayeredMap& snap) {
+    const double stamp = std::isfinite(stamp_) ? stamp_ : 0.0;
+    if (server_.foxgloveSubscribed(kGridChannel)) {
+      const Geometry& g = snap.geometry();
+      const int side = std::max(g.size().x(), g.size().y());
+      const int stride = std::max(1, (side + a_.foxglove_max_grid - 1) / a_.foxglove_max_grid);
+      server_.publishFoxglove(kGridChannel, foxglove::stampNs(stamp),
+                              foxglove::gridMessage(snap, a_.foxglove_layers, stride, stamp, a_.foxglove_frame));
+    }
+    bool resend = false;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      std::swap(resend, resend_cloud_);
+    }
+    if (latest_cloud_ && (resend || cloud_seq_ != sent_cloud_seq_) && server_.foxgloveSubscribed(kCloudChannel)) {
+      sent_cloud_seq_ = cloud_seq_;
+      server_.publishFoxglove(kCloudChannel, foxglove::stampNs(latest_cloud_->stamp),
+                              foxglove::pointCloudMessage(*latest_cloud_, a_.foxglove_frame));
+    }
   }
 
   const ServeArgs& a_;
@@ -268,7 +319,9 @@ class Player {
   std::unique_ptr<Source> source_;
   std::mutex mu_;
   std::condition_variable cv_;
-  bool playing_ = true, done_ = false, stop_ = false, republish_ = false, started_ = false;
+  bool playing_ = true, done_ = false, stop_ = false, republish_ = false, started_ = false, resend_cloud_ = false;
+  std::shared_ptr<const PointCloud> latest_cloud_;  // pipeline thread only
+  long cloud_seq_ = 0, sent_cloud_seq_ = 0;
   std::string colour_layer_, requested_layer_;
   std::vector<std::string> layer_names_;
   long events_ = 0, seq_ = 0;
@@ -307,6 +360,18 @@ Registrar reg{Command{"serve", [](CLI::App& app, std::function<int()>& run) {
       ->capture_default_str()->check(CLI::Range(1, 10000));
   sub->add_option("--max-message-bytes", a->max_message_bytes, "Largest WebSocket message a page may send (bytes)")
       ->capture_default_str()->check(CLI::Range(64, 1 << 20));
+  sub->add_option("--foxglove-layers", a->foxglove_layers,
+                  "Layers published to Foxglove clients as the fields of the foxglove.Grid on /terramap/map "
+                  "(comma-separated or repeated)")
+      ->delimiter(',')->capture_default_str();
+  sub->add_option("--foxglove-max-grid", a->foxglove_max_grid,
+                  "Largest grid side sent to Foxglove clients (cells; larger maps are sampled every k-th cell)")
+      ->capture_default_str()->check(CLI::Range(16, 16384));
+  sub->add_option("--foxglove-frame", a->foxglove_frame, "frame_id of the Foxglove messages (the map frame)")
+      ->capture_default_str();
+  sub->add_option("--foxglove-origin", a->foxglove_origins,
+                  "An Origin besides this server's that may open the Foxglove endpoint, e.g. https://app.foxglove.dev "
+                  "(repeatable; clients that send no Origin, like Foxglove's desktop app, need none)");
   sub->callback([&run, a] {
     run = [a]() -> int {
       {
@@ -333,14 +398,19 @@ Registrar reg{Command{"serve", [](CLI::App& app, std::function<int()>& run) {
       so.web_root = root;
       so.max_connections = a->max_connections;
       so.max_message_bytes = static_cast<std::size_t>(a->max_message_bytes);
+      so.foxglove_origins = a->foxglove_origins;
       LiveServer server(so);
       Player player(*a, server);
+      server.foxgloveChannels({{"/terramap/map", "foxglove.Grid", foxglove::gridSchema()},
+                               {"/terramap/cloud", "foxglove.PointCloud", foxglove::pointCloudSchema()}});
       server.onCommand([&player](const std::string& c) { return player.command(c); });
       server.onConnect([&player] { player.viewerConnected(); });
+      server.onFoxgloveSubscribe([&player](std::uint32_t) { player.republish(); });
       std::signal(SIGINT, onSignal);
       std::signal(SIGTERM, onSignal);
       std::thread io([&server] { server.run(); });
-      std::printf("serving http://%s:%u/ (Ctrl-C to stop)\n", a->host.c_str(), static_cast<unsigned>(server.port()));
+      std::printf("serving http://%s:%u/ (Ctrl-C to stop; Foxglove: ws://%s:%u)\n", a->host.c_str(),
+                  static_cast<unsigned>(server.port()), a->host.c_str(), static_cast<unsigned>(server.port()));
       std::fflush(stdout);
       std::exception_ptr failure;
       std::thread pipeline([&] {

@@ -1,5 +1,7 @@
 #include "live_server.hpp"
 
+#include "foxglove_ws.hpp"
+
 #include <terramap/core/error.hpp>
 
 #include <boost/asio.hpp>
@@ -10,8 +12,13 @@
 
 #include <unistd.h>
 
+#include <algorithm>
+#include <array>
+#include <chrono>
 #include <deque>
 #include <fstream>
+#include <limits>
+#include <map>
 #include <mutex>
 #include <optional>
 #include <sstream>
@@ -64,6 +71,7 @@ bool isIpLiteral(std::string name) {
 }  // namespace
 
 class WsSession;
+class FoxgloveSession;
 
 /// One open connection counted against max_connections; released when the session holding
 /// it ends, however it ends.
@@ -84,6 +92,13 @@ struct LiveServer::Impl : std::enable_shared_from_this<LiveServer::Impl> {
   std::vector<std::weak_ptr<WsSession>> sessions;  // touched on the io thread only
   std::shared_ptr<const std::string> latest;       // likewise
   int connections = 0;                             // likewise
+  std::vector<foxglove::Channel> fox_channels;     // fixed before run()
+  std::string fox_advertise;                       // the advertise message of fox_channels
+  std::string fox_session_id;                      // tells a client the server restarted
+  std::function<void(std::uint32_t)> on_fox_subscribe;
+  std::vector<std::weak_ptr<FoxgloveSession>> fox_sessions;  // io thread only
+  mutable std::mutex fox_mu;                       // guards fox_subscribers (read by the publisher)
+  std::vector<int> fox_subscribers;                // subscriptions per channel, all clients
 
   void accept();
   /// The file for a GET of `target`, or false (404): the target, with its leading slashes
@@ -110,7 +125,8 @@ struct LiveServer::Impl : std::enable_shared_from_this<LiveServer::Impl> {
   /// Host must name this server: its port, and a name that cannot be rebound to another
   /// machine by DNS (an address literal, localhost on a loopback bind, this host's name on a
   /// public bind). Origin, which browsers always send for a WebSocket, must be the page's own.
-  bool allowed(const http::request<http::string_body>& req) const {
+  /// The Foxglove endpoint also admits the Origins the user listed (Foxglove's web app).
+  bool allowed(const http::request<http::string_body>& req, bool foxglove = false) const {
     const auto host_it = req.find(http::field::host);
     if (host_it == req.end()) return false;
     const std::string host(host_it->value());
@@ -126,9 +142,16 @@ struct LiveServer::Impl : std::enable_shared_from_this<LiveServer::Impl> {
     }
     if (!name_ok) return false;
     const auto origin = req.find(http::field::origin);
-    return origin == req.end() || std::string(origin->value()) == "http://" + host;
+    if (origin == req.end() || std::string(origin->value()) == "http://" + host) return true;
+    const auto& listed = opt.foxglove_origins;
+    return foxglove && std::find(listed.begin(), listed.end(), std::string(origin->value())) != listed.end();
   }
   void join(const std::shared_ptr<WsSession>& s);
+  void joinFoxglove(const std::shared_ptr<FoxgloveSession>& s);
+  void countSubscriber(std::uint32_t channel, int delta) {
+    std::lock_guard<std::mutex> lock(fox_mu);
+    fox_subscribers.at(channel) += delta;
+  }
   void broadcast(std::shared_ptr<const std::string> frame);
 };
 
@@ -221,6 +244,150 @@ class WsSession : public std::enable_shared_from_this<WsSession> {
   std::shared_ptr<LiveServer::Impl> srv_;
 };
 
+/// A Foxglove client: serverInfo and advertise on connect, then subscribe/unsubscribe requests
+/// in, Message Data frames out. Replies (status, info) are never dropped; of the data, only the
+/// newest message per channel waits, so a slow client skips messages instead of queueing them.
+class FoxgloveSession : public std::enable_shared_from_this<FoxgloveSession> {
+ public:
+  FoxgloveSession(tcp::socket&& socket, std::shared_ptr<ConnectionSlot> slot)
+      : ws_(std::move(socket)), slot_(std::move(slot)), srv_(slot_->srv) {}
+  ~FoxgloveSession() {
+    for (const auto& [sub, channel] : subs_) srv_->countSubscriber(channel, -1);
+  }
+
+  void start(http::request<http::string_body> req) {
+    ws_.set_option(websocket::stream_base::timeout::suggested(beast::role_type::server));
+    ws_.set_option(websocket::stream_base::decorator([](websocket::response_type& res) {
+      res.set(http::field::sec_websocket_protocol, foxglove::kSubprotocol);
+      res.set(http::field::server, "terramap");
+    }));
+    ws_.read_message_max(srv_->opt.max_message_bytes);
+    ws_.async_accept(req, [self = shared_from_this()](beast::error_code ec) {
+      if (ec) return;
+      self->reply(foxglove::serverInfo(self->srv_->fox_session_id));
+      self->reply(self->srv_->fox_advertise);
+      self->srv_->joinFoxglove(self);
+      self->read();
+    });
+  }
+
+  /// On the io thread: the newest message of `channel` for this client, if it subscribed.
+  void send(std::uint32_t channel, std::uint64_t stamp_ns, std::shared_ptr<const std::string> payload) {
+    for (const auto& [sub, ch] : subs_)
+      if (ch == channel) {
+        pending_[channel] = Pending{foxglove::messageDataHead(sub, stamp_ns), std::move(payload)};
+        if (!writing_) write();
+        return;
+      }
+  }
+  void reply(std::string text) {
+    if (replies_.size() >= kMaxQueuedReplies) return;  // a client flooding requests loses answers, not memory
+    replies_.push_back(std::make_shared<const std::string>(std::move(text)));
+    if (!writing_) write();
+  }
+
+ private:
+  static constexpr std::size_t kMaxQueuedReplies = 16;
+  struct Pending {
+    std::array<char, 13> head;
+    std::shared_ptr<const std::string> payload;
+  };
+
+  void read() {
+    ws_.async_read(buf_, [self = shared_from_this()](beast::error_code ec, std::size_t) {
+      if (ec) return;  // closed, or too big (Beast has sent the close 1009)
+      const std::string text = beast::buffers_to_string(self->buf_.data());
+      self->buf_.consume(self->buf_.size());
+      if (!self->ws_.got_text())
+        self->reply(foxglove::status(foxglove::Level::Error,
+                                     "binary client messages need the capability 'clientPublish' or 'services', "
+                                     "which terramap does not offer"));
+      else
+        self->handle(text);
+      self->read();
+    });
+  }
+
+  void handle(const std::string& text) {
+    const auto request = foxglove::parseClientMessage(text);
+    if (const auto* e = std::get_if<foxglove::ClientError>(&request)) {
+      reply(foxglove::status(foxglove::Level::Error, e->message));
+      return;
+    }
+    std::string problems;
+    auto problem = [&](const std::string& p) { problems += (problems.empty() ? "" : "; ") + p; };
+    if (const auto* s = std::get_if<foxglove::Subscribe>(&request)) {
+      for (const auto& [sub, channel] : s->subscriptions) {
+        if (channel >= srv_->fox_channels.size()) {
+          problem("subscribe: no channel " + std::to_string(channel));
+        } else if (subs_.count(sub)) {
+          problem("subscribe: subscription id " + std::to_string(sub) + " is in use");
+        } else if (std::any_of(subs_.begin(), subs_.end(), [&](const auto& kv) { return kv.second == channel; })) {
+          problem("subscribe: channel " + std::to_string(channel) + " is already subscribed");
+        } else if (subs_.size() >= srv_->fox_channels.size()) {
+          problem("subscribe: too many subscriptions");
+        } else {
+          subs_[sub] = channel;
+          srv_->countSubscriber(channel, +1);
+          if (srv_->on_fox_subscribe) srv_->on_fox_subscribe(channel);
+        }
+      }
+    } else if (const auto* u = std::get_if<foxglove::Unsubscribe>(&request)) {
+      for (const std::uint32_t sub : u->subscription_ids) {
+        const auto it = subs_.find(sub);
+        if (it == subs_.end()) {
+          problem("unsubscribe: no subscription " + std::to_string(sub));
+          continue;
+        }
+        pending_.erase(it->second);
+        srv_->countSubscriber(it->second, -1);
+        subs_.erase(it);
+      }
+    }
+    if (!problems.empty()) reply(foxglove::status(foxglove::Level::Error, problems.size() <= 512 ? problems : problems.substr(0, 512) + "..."));
+  }
+
+  void write() {
+    writing_ = true;
+    if (!replies_.empty()) {
+      auto out = std::move(replies_.front());
+      replies_.pop_front();
+      ws_.text(true);
+      ws_.async_write(asio::buffer(*out), [self = shared_from_this(), out](beast::error_code ec, std::size_t) {
+        self->writing_ = false;
+        if (!ec) self->write();
+      });
+      return;
+    }
+    if (pending_.empty()) {
+      writing_ = false;
+      return;
+    }
+    // Channels take turns (the lowest id after the one sent last), so a big map cannot starve the cloud.
+    auto it = pending_.upper_bound(last_channel_);
+    if (it == pending_.end()) it = pending_.begin();
+    last_channel_ = it->first;
+    auto msg = std::make_shared<Pending>(std::move(it->second));
+    pending_.erase(it);
+    ws_.binary(true);
+    const std::array<asio::const_buffer, 2> bufs{asio::buffer(msg->head), asio::buffer(*msg->payload)};
+    ws_.async_write(bufs, [self = shared_from_this(), msg](beast::error_code ec, std::size_t) {
+      self->writing_ = false;
+      if (!ec) self->write();
+    });
+  }
+
+  websocket::stream<beast::tcp_stream> ws_;
+  beast::flat_buffer buf_;
+  std::deque<std::shared_ptr<const std::string>> replies_;
+  std::map<std::uint32_t, Pending> pending_;           // by channel
+  std::map<std::uint32_t, std::uint32_t> subs_;        // subscription id -> channel
+  std::uint32_t last_channel_ = std::numeric_limits<std::uint32_t>::max();
+  bool writing_ = false;
+  std::shared_ptr<ConnectionSlot> slot_;
+  std::shared_ptr<LiveServer::Impl> srv_;
+};
+
 namespace {
 
 class HttpSession : public std::enable_shared_from_this<HttpSession> {
@@ -250,10 +417,18 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
     // Error pages are fixed texts: nothing of the request or of the machine is echoed.
     std::string body;
     fs::path path;
-    if (!srv_->allowed(req)) {
+    const bool upgrade = websocket::is_upgrade(req);
+    const auto protocols = req.find(http::field::sec_websocket_protocol);
+    const bool foxglove = upgrade && req.target() == "/" && protocols != req.end() &&
+                          foxglove::offersSubprotocol(std::string(protocols->value()));
+    if (!srv_->allowed(req, foxglove)) {
       res->result(http::status::forbidden);
       res->body() = "forbidden: Host or Origin is not this server\n";
-    } else if (websocket::is_upgrade(req)) {
+    } else if (foxglove) {
+      stream_.expires_never();
+      std::make_shared<FoxgloveSession>(stream_.release_socket(), slot_)->start(std::move(req));
+      return;
+    } else if (upgrade) {
       if (req.target() == "/live") {
         stream_.expires_never();
         std::make_shared<WsSession>(stream_.release_socket(), slot_)->start(std::move(req));
@@ -313,6 +488,13 @@ void LiveServer::Impl::join(const std::shared_ptr<WsSession>& s) {
   if (on_connect) on_connect();
 }
 
+void LiveServer::Impl::joinFoxglove(const std::shared_ptr<FoxgloveSession>& s) {
+  fox_sessions.erase(std::remove_if(fox_sessions.begin(), fox_sessions.end(), [](const auto& w) { return w.expired(); }),
+                     fox_sessions.end());
+  fox_sessions.push_back(s);
+  if (on_connect) on_connect();
+}
+
 void LiveServer::Impl::broadcast(std::shared_ptr<const std::string> frame) {
   latest = frame;
   std::vector<std::weak_ptr<WsSession>> alive;
@@ -325,6 +507,8 @@ void LiveServer::Impl::broadcast(std::shared_ptr<const std::string> frame) {
 }
 
 LiveServer::LiveServer(LiveServerOptions o) : impl_(std::make_shared<Impl>()) {
+  impl_->fox_session_id = std::to_string(std::chrono::system_clock::now().time_since_epoch().count());
+  impl_->fox_advertise = foxglove::advertise({});
   std::error_code fec;
   impl_->root = fs::canonical(o.web_root, fec);
   if (fec) throw ConfigError("the live view's page folder " + o.web_root.string() + ": " + fec.message());
@@ -347,6 +531,39 @@ std::uint16_t LiveServer::port() const { return impl_->acceptor.local_endpoint()
 
 void LiveServer::onCommand(std::function<std::string(const std::string&)> f) { impl_->on_command = std::move(f); }
 void LiveServer::onConnect(std::function<void()> f) { impl_->on_connect = std::move(f); }
+
+void LiveServer::foxgloveChannels(std::vector<FoxgloveChannel> channels) {
+  impl_->fox_channels.clear();
+  for (auto& c : channels)
+    impl_->fox_channels.push_back(foxglove::Channel{static_cast<std::uint32_t>(impl_->fox_channels.size()), std::move(c.topic),
+                                                    std::move(c.schema_name), std::move(c.schema)});
+  impl_->fox_advertise = foxglove::advertise(impl_->fox_channels);
+  std::lock_guard<std::mutex> lock(impl_->fox_mu);
+  impl_->fox_subscribers.assign(impl_->fox_channels.size(), 0);
+}
+
+bool LiveServer::foxgloveSubscribed(std::uint32_t id) const {
+  std::lock_guard<std::mutex> lock(impl_->fox_mu);
+  return id < impl_->fox_subscribers.size() && impl_->fox_subscribers[id] > 0;
+}
+
+void LiveServer::onFoxgloveSubscribe(std::function<void(std::uint32_t)> f) { impl_->on_fox_subscribe = std::move(f); }
+
+void LiveServer::publishFoxglove(std::uint32_t id, std::uint64_t stamp_ns, std::string payload) {
+  auto p = std::make_shared<const std::string>(std::move(payload));
+  asio::post(impl_->ioc, [impl = impl_, id, stamp_ns, p] {
+    for (const auto& w : impl->fox_sessions)
+      if (auto s = w.lock()) s->send(id, stamp_ns, p);
+  });
+}
+
+void LiveServer::foxgloveStatus(int level, std::string message, std::string id) {
+  const std::string text = foxglove::status(static_cast<foxglove::Level>(std::clamp(level, 0, 2)), message, id);
+  asio::post(impl_->ioc, [impl = impl_, text] {
+    for (const auto& w : impl->fox_sessions)
+      if (auto s = w.lock()) s->reply(text);
+  });
+}
 
 void LiveServer::publish(std::string frame) {
   auto f = std::make_shared<const std::string>(std::move(frame));

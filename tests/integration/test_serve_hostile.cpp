@@ -356,3 +356,118 @@ TEST(ServeHostile, ListensOnLoopbackUnlessAPublicAddressIsAllowedExplicitly) {
   EXPECT_EQ(r.code, 2) << r.out;
   EXPECT_NE(r.out.find("--allow-remote"), std::string::npos) << r.out;
 }
+
+// ---- The Foxglove endpoint (ws://HOST:PORT/, subprotocol foxglove.websocket.v1) gets the same guards.
+namespace {
+
+std::string foxgloveUpgrade(const std::string& host, const std::string& origin, const std::string& target = "/") {
+  std::string r = "GET " + target + " HTTP/1.1\r\nHost: " + host +
+                  "\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+                  "Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: foxglove.websocket.v1\r\n";
+  if (!origin.empty()) r += "Origin: " + origin + "\r\n";
+  return r + "\r\n";
+}
+
+/// Opens the Foxglove endpoint and reads its serverInfo and advertise.
+bool openFoxglove(Conn& c, const Server& s) {
+  if (!c.ok()) return false;
+  c.send(foxgloveUpgrade(s.hostHeader(), ""));
+  const std::string head = c.recvHead();
+  if (head.find(" 101") == std::string::npos || head.find("foxglove.websocket.v1") == std::string::npos) return false;
+  return nextTextOrClose(c).payload.find("\"serverInfo\"") != std::string::npos &&
+         nextTextOrClose(c).payload.find("\"advertise\"") != std::string::npos;
+}
+
+}  // namespace
+
+TEST(ServeHostile, FoxgloveEndpointRefusesForeignOriginOrHost) {
+  Server s("fox_origin", {"--foxglove-origin", "https://app.foxglove.dev"});
+  ASSERT_GT(s.port(), 0) << s.output();
+  const std::string host = s.hostHeader(), port = std::to_string(s.port());
+  for (const std::string& origin : std::vector<std::string>{"http://evil.example", "null", "http://127.0.0.1:1", "https://" + host,
+                                                           "https://app.foxglove.dev.evil.example"}) {
+    Conn c(s.port());
+    c.send(foxgloveUpgrade(host, origin));
+    EXPECT_NE(status(c.recvHead()).find(" 403"), std::string::npos) << origin;
+  }
+  for (const std::string& bad_host : std::vector<std::string>{"evil.example:" + port, "127.0.0.1:1", ""}) {
+    Conn c(s.port());
+    c.send(foxgloveUpgrade(bad_host, ""));
+    EXPECT_NE(status(c.recvHead()).find(" 403"), std::string::npos) << bad_host;
+  }
+  // The listed Origin (Foxglove's web app) opens the Foxglove endpoint, not the page's socket.
+  for (const std::string& ok : std::vector<std::string>{"https://app.foxglove.dev", "http://" + host, ""}) {
+    Conn c(s.port());
+    c.send(foxgloveUpgrade(host, ok));
+    EXPECT_NE(status(c.recvHead()).find(" 101"), std::string::npos) << ok;
+  }
+  Conn live(s.port());
+  live.send(upgradeRequest(host, "https://app.foxglove.dev"));
+  EXPECT_NE(status(live.recvHead()).find(" 403"), std::string::npos);
+  EXPECT_TRUE(s.alive());
+}
+
+TEST(ServeHostile, FoxgloveBadRequestsAreAnsweredWithAnErrorStatusAndTheServerStaysUp) {
+  Server s("fox_requests");
+  ASSERT_GT(s.port(), 0) << s.output();
+  Conn c(s.port());
+  ASSERT_TRUE(openFoxglove(c, s));
+  for (const std::string& req : std::vector<std::string>{
+           "not json", R"([1, 2])", R"({"op": 5})", R"({})", R"({"op": "fly"})", R"({"op": "subscribe"})",
+           R"({"op": "subscribe", "subscriptions": 3})", R"({"op": "subscribe", "subscriptions": [7]})",
+           R"({"op": "subscribe", "subscriptions": [{"id": -1, "channelId": 0}]})",
+           R"({"op": "subscribe", "subscriptions": [{"id": 1.5, "channelId": 0}]})",
+           R"({"op": "subscribe", "subscriptions": [{"id": 4294967296, "channelId": 0}]})",
+           R"({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": 99}]})",
+           R"({"op": "unsubscribe", "subscriptionIds": [12]})", R"({"op": "unsubscribe", "subscriptionIds": ["a"]})",
+           R"({"op": "advertise", "channels": []})", R"({"op": "getParameters", "parameterNames": []})",
+           R"({"op": "fetchAsset", "uri": "file:///etc/passwd", "requestId": 1})"}) {
+    ASSERT_TRUE(c.send(frame(req))) << req;
+    const Frame f = nextTextOrClose(c);
+    EXPECT_EQ(f.opcode, 1) << req;
+    EXPECT_NE(f.payload.find("\"op\":\"status\""), std::string::npos) << req << " -> " << f.payload;
+    EXPECT_NE(f.payload.find("\"level\":2"), std::string::npos) << req << " -> " << f.payload;
+  }
+  // A binary message (client publishing, service calls) is refused the same way.
+  ASSERT_TRUE(c.send(frame(std::string("\x01\x00\x00\x00\x00", 5), 2)));
+  EXPECT_NE(nextTextOrClose(c).payload.find("\"level\":2"), std::string::npos);
+  // Twice the same id, or the same channel twice: the second is refused.
+  ASSERT_TRUE(c.send(frame(R"({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": 0}, {"id": 7, "channelId": 1}]})")));
+  EXPECT_NE(nextTextOrClose(c).payload.find("in use"), std::string::npos);
+  // The good subscription of that request stands: its Grid arrives (opcode 1, subscription 7).
+  Frame data;
+  for (int i = 0; i < 1000 && data.opcode != 2; ++i) data = readFrame(c);
+  ASSERT_EQ(data.opcode, 2);
+  ASSERT_GE(data.payload.size(), 13u);
+  EXPECT_EQ(data.payload[0], 0x01);
+  EXPECT_EQ(data.payload.substr(1, 4), std::string("\x07\x00\x00\x00", 4));
+  EXPECT_NE(data.payload.find("\"column_count\""), std::string::npos);
+  EXPECT_TRUE(s.alive()) << s.output();
+  EXPECT_NE(status(get(s.port(), "/index.html", s.hostHeader())).find(" 200"), std::string::npos);
+}
+
+TEST(ServeHostile, FoxgloveConnectionsAndMessageSizeAreCapped) {
+  Server s("fox_caps", {"--max-connections", "3", "--max-message-bytes", "1024"});
+  ASSERT_GT(s.port(), 0) << s.output();
+  std::vector<std::unique_ptr<Conn>> held;
+  for (int i = 0; i < 2; ++i) {
+    held.push_back(std::make_unique<Conn>(s.port()));
+    ASSERT_TRUE(openFoxglove(*held.back(), s)) << i;
+  }
+  held.push_back(std::make_unique<Conn>(s.port()));
+  ASSERT_TRUE(openSocket(*held.back(), s));
+  // Both endpoints count against one cap: a fourth Foxglove client is turned away.
+  Conn fourth(s.port());
+  fourth.send(foxgloveUpgrade(s.hostHeader(), ""));
+  EXPECT_EQ(status(fourth.recvHead()).find(" 101"), std::string::npos);
+  // A request over the limit closes that socket (1009); the other Foxglove client is still served.
+  ASSERT_TRUE(held[0]->send(frame(R"({"op": "subscribe", "subscriptions": [)" + std::string(2000, ' ') + "]}")));
+  const Frame f = nextTextOrClose(*held[0]);
+  EXPECT_TRUE(f.opcode == 8 || f.opcode == -1) << f.opcode;
+  if (f.opcode == 8 && f.payload.size() >= 2) {
+    EXPECT_EQ((static_cast<unsigned char>(f.payload[0]) << 8) | static_cast<unsigned char>(f.payload[1]), 1009);
+  }
+  ASSERT_TRUE(held[1]->send(frame(R"({"op": 5})")));
+  EXPECT_NE(nextTextOrClose(*held[1]).payload.find("\"level\":2"), std::string::npos);
+  EXPECT_TRUE(s.alive());
+}
