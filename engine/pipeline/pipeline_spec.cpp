@@ -93,15 +93,47 @@ void parseMap(yaml::Diagnostics& d, const YAML::Node& m, PipelineSpec& spec) {
   }
 }
 
+void parseMcapOutput(yaml::Diagnostics& d, const YAML::Node& m, McapOutputSpec& out) {
+  if (!m) return;
+  out.where = d.at(m, "outputs.mcap");
+  const std::string keys = "{layers, file, topic, frame_id, copy_clouds, cloud_topic, compression, every}";
+  if (!m.IsMap()) {
+    d.error(m, "outputs.mcap", "must be a mapping " + keys);
+    return;
+  }
+  out.enabled = true;
+  yaml::checkKeys(d, m, "outputs.mcap",
+                  {"layers", "file", "topic", "frame_id", "copy_clouds", "cloud_topic", "compression", "every"});
+  if (!m["layers"])
+    d.error(m, "outputs.mcap.layers", "is required: the layers each GridMap message carries, e.g. [elevation, variance]");
+  else if (yaml::getStrings(d, m, "layers", "outputs.mcap", out.layers) && out.layers.empty())
+    d.error(m["layers"], "outputs.mcap.layers", "must name at least one layer");
+  if (yaml::getString(d, m, "file", "outputs.mcap", out.file) &&
+      (out.file.empty() || out.file.find('/') != std::string::npos || out.file == "." || out.file == ".."))
+    d.error(m["file"], "outputs.mcap.file", "must be a file name in outputs.dir (got '" + out.file + "')");
+  for (const char* key : {"topic", "cloud_topic"}) {
+    std::string& t = std::string(key) == "topic" ? out.topic : out.cloud_topic;
+    if (yaml::getString(d, m, key, "outputs.mcap", t) && (t.empty() || t[0] != '/'))
+      d.error(m[key], std::string("outputs.mcap.") + key, "must be an absolute ROS topic name like /terramap/grid_map (got '" + t + "')");
+  }
+  if (yaml::getString(d, m, "frame_id", "outputs.mcap", out.frame_id) && out.frame_id.empty())
+    d.error(m["frame_id"], "outputs.mcap.frame_id", "must not be empty");
+  yaml::getBool(d, m, "copy_clouds", "outputs.mcap", out.copy_clouds);
+  if (yaml::getString(d, m, "compression", "outputs.mcap", out.compression) && out.compression != "zstd" &&
+      out.compression != "lz4" && out.compression != "none")
+    d.error(m["compression"], "outputs.mcap.compression", "must be zstd, lz4 or none (got '" + out.compression + "')");
+  yaml::getInt(d, m, "every", "outputs.mcap", out.every, 1, 1000000);
+}
+
 void parseOutputs(yaml::Diagnostics& d, const YAML::Node& o, PipelineSpec& spec) {
   if (!o) return;
   OutputSpec& out = spec.outputs;
   out.where = d.at(o, "outputs");
   if (!o.IsMap()) {
-    d.error(o, "outputs", "must be a mapping {dir, geotiff, png, snapshot, report, epsg, origin, series_interval_s}");
+    d.error(o, "outputs", "must be a mapping {dir, geotiff, png, snapshot, report, epsg, origin, series_interval_s, mcap}");
     return;
   }
-  yaml::checkKeys(d, o, "outputs", {"dir", "geotiff", "png", "snapshot", "report", "epsg", "origin", "series_interval_s"});
+  yaml::checkKeys(d, o, "outputs", {"dir", "geotiff", "png", "snapshot", "report", "epsg", "origin", "series_interval_s", "mcap"});
   if (yaml::getString(d, o, "dir", "outputs", out.dir)) out.dir = spec.resolvePath(out.dir);
   yaml::getStrings(d, o, "geotiff", "outputs", out.geotiff);
   if (yaml::getStrings(d, o, "png", "outputs", out.png)) {
@@ -115,6 +147,7 @@ void parseOutputs(yaml::Diagnostics& d, const YAML::Node& o, PipelineSpec& spec)
   yaml::getInt(d, o, "epsg", "outputs", out.epsg, 1024, 999999);
   yaml::getDoubles(d, o, "origin", "outputs", out.origin, 2);
   yaml::getDouble(d, o, "series_interval_s", "outputs", out.series_interval_s, 0.0, 1e9);
+  parseMcapOutput(d, o["mcap"], out.mcap);
   if (!out.origin.empty() && out.epsg == 0)
     d.error(o["origin"], "outputs.origin", "is only meaningful with outputs.epsg");
 }

@@ -1,8 +1,11 @@
 #include <terramap/pipeline/run.hpp>
 #include <terramap/io/output_budget.hpp>
 
+#include <terramap/core/memory_budget.hpp>
+#include <terramap/core/text.hpp>
 #include <terramap/io/atomic_file.hpp>
 #include <terramap/io/geotiff.hpp>
+#include <terramap/io/gridmap_mcap.hpp>
 #include <terramap/io/render.hpp>
 #include <terramap/io/snapshot.hpp>
 #include <terramap/pipeline/report.hpp>
@@ -260,6 +263,33 @@ void writeMapOutputs(const PipelineSpec& spec, const Engine& engine, const Truth
   }
 }
 
+/// outputs.mcap's writer, its layers checked against the map the stages made and its messages
+/// against the memory budget before the first event; null when the output is off.
+std::unique_ptr<io::GridMapMcapWriter> openGridMapOutput(const PipelineSpec& spec, const Engine& engine) {
+  const McapOutputSpec& m = spec.outputs.mcap;
+  if (!m.enabled) return nullptr;
+  const LayeredMap& map = engine.map();
+  const std::vector<std::string> names = map.layerNames();
+  std::string errors;
+  for (const auto& l : m.layers)
+    if (!map.hasLayer(l))
+      errors += (errors.empty() ? "" : "\n") + m.where + ".layers: no stage creates layer '" + l + "'" + didYouMean(l, names) +
+                "; layers: " + joinStrings(names);
+  if (!errors.empty()) throw ConfigError(errors);
+  const Geometry& g = map.geometry();
+  requireConfigBudget(io::gridMapMcapWorkingBytes(g, m.layers.size()), m.where + ": one GridMap message",
+                      std::to_string(g.size().x()) + " x " + std::to_string(g.size().y()) + " cells x " +
+                          std::to_string(m.layers.size()) + " layers");
+  io::GridMapMcapOptions o;
+  o.layers = m.layers;
+  o.topic = m.topic;
+  o.frame_id = m.frame_id;
+  o.copy_clouds = m.copy_clouds;
+  o.cloud_topic = m.cloud_topic;
+  o.compression = io::mcap::parseCompression(m.compression, m.where + ".compression");
+  return std::make_unique<io::GridMapMcapWriter>((fs::path(spec.outputs.dir) / m.file).string(), std::move(o));
+}
+
 /// True when some cell of `layer` is known (not NaN). Unallocated tiles read as the fill.
 bool anyKnownCell(const LayeredMap& map, const std::string& layer) {
   const LayerId id = map.layerId(layer);
@@ -367,6 +397,8 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
                                     spec.file + ": the source's truth pictures and error layers", false);
   }
 
+  std::unique_ptr<io::GridMapMcapWriter> gridmaps = openGridMapOutput(spec, *engine);
+
   // Records go to disk as they come (an hour reports ~15,000 sweeps of ~5 kB): held, they
   // would grow the process for as long as it runs.
   RecordSpool spool;
@@ -374,6 +406,7 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
 
   const auto t0 = std::chrono::steady_clock::now();
   long n = 0;
+  double last_stamp = 0.0;
   Event e;
   SeriesRecorder series(spec.outputs.series_interval_s, *engine, *source, options, t0);
   {
@@ -383,9 +416,15 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
     std::unique_ptr<PrefetchSource> ahead;
     if (spec.threads > 1 && !(series.enabled() && options.truth_stats)) ahead = std::make_unique<PrefetchSource>(*source, 64);
     auto pull = [&](Event& ev) { return ahead ? ahead->next(ev) : source->next(ev); };
+    long clouds = 0;
     while (pull(e)) {
       engine->push(e);
       ++n;
+      last_stamp = stampOf(e);
+      if (gridmaps && std::holds_alternative<PointCloud>(e)) {
+        gridmaps->writeCloud(std::get<PointCloud>(e));
+        if (++clouds % spec.outputs.mcap.every == 0) gridmaps->writeMap(engine->map(), last_stamp);
+      }
       series.afterEvent(stampOf(e), n);
       if (options.on_progress) options.on_progress(ahead ? ahead->progress() : source->progress(), n);
       if (options.on_event) options.on_event(engine->map(), stampOf(e));
@@ -420,6 +459,12 @@ RunResult runPipeline(const PipelineSpec& spec_in, const RunOptions& options) {
   if (ec) throw OutputError(spec.outputs.dir + ": cannot create output folder: " + ec.message());
   const LayeredMap& map = engine->map();
   writeMapOutputs(spec, *engine, truth, res.files);
+  if (gridmaps) {
+    // The finished map too: stages that work only at the end (on_finish) show in this one.
+    gridmaps->writeMap(map, last_stamp);
+    gridmaps->close();
+    res.files.push_back((fs::path(spec.outputs.dir) / spec.outputs.mcap.file).string());
+  }
   res.unknown_layers = unknownOutputLayers(spec, map);
   if (spec.outputs.report) writeRunReport(spec, map, truth, n, series, spool, res);
   return res;

@@ -1,6 +1,7 @@
 // The built-in source that needs another module: `sequence` (terramap::io). The simulator's
 // `sim` source lives above both libraries (terramap::eval, sim_source.hpp), so an embedder that
 // links only terramap::pipeline pulls in neither the simulator nor HDF5.
+#include <terramap/io/rosbag.hpp>
 #include <terramap/io/sequence.hpp>
 #include <terramap/pipeline/source.hpp>
 
@@ -165,10 +166,77 @@ std::unique_ptr<Source> makeSequence(const PipelineSpec& spec) {
   return std::make_unique<SequenceEventSource>(std::move(q), std::move(sp), sourceBool(s, "emit_poses", true));
 }
 
+/// A rosbag2 MCAP file's clouds with their poses (io/rosbag.hpp); a Pose event before each cloud
+/// unless emit_poses is false, as the sequence source does.
+class RosbagEventSource : public Source {
+ public:
+  RosbagEventSource(io::RosbagSpec spec, bool emit_poses) : bag_(std::move(spec)), emit_poses_(emit_poses) {}
+  bool next(Event& e) override {
+    if (pending_) {
+      e = std::move(*pending_);
+      pending_.reset();
+      return true;
+    }
+    auto c = bag_.next();
+    if (!c) return false;
+    if (emit_poses_) {
+      Pose p;
+      p.stamp = c->cloud.stamp;
+      p.T_map_base = c->T_map_base;
+      e = p;
+      pending_ = Event(std::move(c->cloud));
+      return true;
+    }
+    e = std::move(c->cloud);
+    return true;
+  }
+  double progress() const override {
+    return bag_.cloudCount() ? static_cast<double>(bag_.position()) / static_cast<double>(bag_.cloudCount()) : 1.0;
+  }
+  std::map<std::string, long> dropped() const override { return bag_.dropped(); }
+
+ private:
+  io::RosbagSource bag_;
+  bool emit_poses_;
+  std::optional<Event> pending_;
+};
+
+std::unique_ptr<Source> makeRosbag(const PipelineSpec& spec) {
+  const SourceSpec& s = spec.source;
+  checkSourceKeys(s, {"bag", "cloud_topic", "pose_source", "map_frame", "tf_topics", "odometry_topic", "base_frame",
+                      "max_clouds", "emit_poses"});
+  io::RosbagSpec q;
+  q.path = sourcePath(spec, "bag", true);
+  q.cloud_topic = sourceString(s, "cloud_topic", true);
+  const std::string ps = sourceString(s, "pose_source", false, "tf");
+  if (ps == "tf") q.pose_source = io::RosbagSpec::PoseSource::Tf;
+  else if (ps == "odometry") q.pose_source = io::RosbagSpec::PoseSource::Odometry;
+  else throw ConfigError(setting(s, "pose_source")->where + ": must be 'tf' or 'odometry' (got '" + ps + "')");
+  const bool odom = q.pose_source == io::RosbagSpec::PoseSource::Odometry;
+  // With odometry the map frame is the odometry's own; a map_frame given is checked against it.
+  q.map_frame = sourceString(s, "map_frame", false, odom ? "" : "map");
+  if (const RawParam* r = setting(s, "tf_topics")) {
+    if (auto p = std::get_if<std::vector<std::string>>(&r->value)) q.tf_topics = *p;
+    else if (auto p1 = std::get_if<std::string>(&r->value)) q.tf_topics = {*p1};
+    else throw ConfigError(r->where + ": must be a list of topics like [/tf, /tf_static]");
+  }
+  q.odometry_topic = sourceString(s, "odometry_topic", odom);
+  if (!odom && setting(s, "odometry_topic"))
+    throw ConfigError(setting(s, "odometry_topic")->where + ": only used with pose_source: odometry");
+  q.base_frame = sourceString(s, "base_frame", false);
+  q.max_clouds = static_cast<size_t>(sourceCount(s, "max_clouds", static_cast<long>(1) << 40, 1));
+  try {
+    return std::make_unique<RosbagEventSource>(std::move(q), sourceBool(s, "emit_poses", true));
+  } catch (const ConfigError& e) {
+    throw ConfigError(s.where + ": " + e.what());
+  }
+}
+
 }  // namespace
 
 void registerModuleSources() {
   registerSource("sequence", makeSequence);
+  registerSource("rosbag", makeRosbag);
 }
 
 }  // namespace terramap

@@ -11,7 +11,8 @@
 /// source: {type: sequence, ...}                   # what produces events (see source.hpp)
 /// pipeline:
 ///   - {name: lidar, type: lidar_fusion, params: {...}}
-/// outputs: {dir: out/demo, geotiff: [elevation], png: [elevation], snapshot: true}
+/// outputs: {dir: out/demo, geotiff: [elevation], png: [elevation], snapshot: true,
+///           mcap: {layers: [elevation], topic: /terramap/grid_map, copy_clouds: false}}
 /// ```
 /// Relative paths in the file are resolved against the file's folder.
 #include <terramap/core/geometry.hpp>
@@ -52,6 +53,21 @@ struct SourceSpec {
   std::map<std::string, RawParam> settings;
 };
 
+/// `outputs.mcap`: the map as grid_map_msgs/msg/GridMap in a ROS 2 MCAP file
+/// (io/gridmap_mcap.hpp, docs/ros2.md), one message per `every` clouds and one after the run.
+struct McapOutputSpec {
+  bool enabled = false;
+  std::vector<std::string> layers;  ///< written layers, in this order (required)
+  std::string file = "map.mcap";    ///< in outputs.dir
+  std::string topic = "/terramap/grid_map";
+  std::string frame_id = "map";
+  bool copy_clouds = false;         ///< also the clouds (and their poses on /tf)
+  std::string cloud_topic = "/terramap/points";
+  std::string compression = "zstd";  ///< zstd, lz4 or none
+  int every = 1;                     ///< a map message after every this many clouds
+  std::string where;
+};
+
 struct OutputSpec {
   std::string dir = "out";
   std::vector<std::string> geotiff;  ///< layers, one band each
@@ -65,6 +81,7 @@ struct OutputSpec {
   /// drops, records, allocated tiles, the map's centre, resident memory and, when the source knows the truth, the
   /// map's error against it at that moment (docs/reliability.md, "Soak").
   double series_interval_s = 0.0;
+  McapOutputSpec mcap;
   std::string where;
 };
 
