@@ -18,6 +18,7 @@
 #include <terramap/pipeline/run.hpp>
 #include <terramap/pipeline/source.hpp>
 #include <terramap/soil/fee.hpp>
+#include "sim_py.hpp"
 #ifdef TERRAMAP_PY_STRATA
 #include "strata.hpp"  // plugins/octomap_strata (built with OctoMap)
 #endif
@@ -554,6 +555,7 @@ PYBIND11_MODULE(_terramap, m) {
   bindMap(m);
   bindEngine(m);
   bindFunctions(m);
+  bindSim(m);
 #ifdef TERRAMAP_PY_STRATA
   bindStrata(m);
 #endif
