@@ -14,7 +14,9 @@ if(rc OR NOT out MATCHES "embed_app: ok")
   message(FATAL_ERROR "the embedding example failed (${rc}):\n${out}${err}")
 endif()
 
-# The plugin's map-dependent checks reach `terramap validate`, with the key's position.
+# The plugin's own map-dependent checks (its configure()) reach `terramap validate
+# --load-plugins`, with the key's position. Without the switch validate runs no plugin code: it
+# checks the stage against the schema the example's build embedded, and says what it left out.
 file(WRITE ${WORK_DIR}/bad.yaml "version: 1
 map: {resolution: 0.1, size: [20, 20], layers: [elevation]}
 plugin_paths: [build/plugins]
@@ -23,6 +25,13 @@ pipeline:
 ")
 execute_process(COMMAND ${prefix}/bin/terramap validate ${WORK_DIR}/bad.yaml --allow-config-plugin-paths
   RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE out)
+if(NOT rc EQUAL 0 OR NOT out MATCHES "cross-parameter and map checks \\(their configure\\(\\)\\) were not run"
+   OR out MATCHES "not checked:")
+  message(FATAL_ERROR "terramap validate should check the example from its embedded schema and name what it "
+    "did not run (${rc}):\n${out}")
+endif()
+execute_process(COMMAND ${prefix}/bin/terramap validate ${WORK_DIR}/bad.yaml --allow-config-plugin-paths
+  --load-plugins RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE out)
 if(NOT rc EQUAL 8 OR NOT out MATCHES "bad.yaml:5:[0-9]+: pipeline\\[0\\].params.window_m: must be at least the map's resolution"
    OR NOT out MATCHES "pipeline\\[0\\].params.run_on: unknown event kind 'tock'")
   message(FATAL_ERROR "terramap validate should report both problems of the roughness stage (${rc}):\n${out}")

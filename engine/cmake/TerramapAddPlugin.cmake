@@ -14,8 +14,18 @@
 # installed. TEST_LIBRARIES: what the plugin's own tests (plugins/<name>/tests) link besides
 # <name>_kernels, e.g. another plugin's kernels for a chain test; kept as the target property
 # TERRAMAP_TEST_LIBRARIES for tests/CMakeLists.txt, as LIBRARIES is in TERRAMAP_PLUGIN_LIBRARIES.
+#
+# The embedded schema: right after linking, terramap-plugin-schema loads the module (building
+# already trusts its code), derives its parameters and its layers as a function of them, and
+# objcopy writes that JSON into the module's .terramap_schema section, bound to the module's GNU
+# build-id. `terramap validate` checks pipelines against it without loading the plugin
+# (include/terramap/pipeline/plugin_schema.hpp). SCHEMA_PARAMS KEY=VALUE...: values the probe
+# configures the plugin with where a parameter has no default or its default does not configure
+# (a required model file). NO_SCHEMA: none embedded (validate then says it cannot check the
+# stage without --load-plugins); for modules that must not or cannot be loaded at build time.
 function(terramap_add_plugin name)
-  cmake_parse_arguments(ARG "NO_INSTALL" "" "SOURCES;KERNEL_SOURCES;LIBRARIES;TEST_LIBRARIES" ${ARGN})
+  cmake_parse_arguments(ARG "NO_INSTALL;NO_SCHEMA" "" "SOURCES;KERNEL_SOURCES;LIBRARIES;TEST_LIBRARIES;SCHEMA_PARAMS"
+    ${ARGN})
   if(NOT ARG_SOURCES)
     message(FATAL_ERROR "terramap_add_plugin(${name}): SOURCES is required")
   endif()
@@ -66,5 +76,40 @@ function(terramap_add_plugin name)
     if(NOT ARG_NO_INSTALL)
       install(TARGETS ${name} LIBRARY DESTINATION ${TERRAMAP_PLUGIN_INSTALL_DIR})
     endif()
+  endif()
+  # The build-id is a hash of the linked module: the embedded schema names it, so a schema
+  # copied into another build is not believed.
+  target_link_options(${name} PRIVATE "LINKER:--build-id=sha1")
+  if(NOT ARG_NO_SCHEMA)
+    if(CMAKE_CROSSCOMPILING)
+      message(WARNING "terramap_add_plugin(${name}): cross-compiling, so no schema is embedded (the build "
+        "cannot load the module); `terramap validate` will need --load-plugins for it")
+      return()
+    endif()
+    if(TARGET terramap_plugin_api)
+      set(_tool terramap_plugin_schema)
+      set(_describer terramap_pipeline)
+      add_dependencies(${name} terramap_plugin_schema)
+    else()
+      set(_tool terramap::plugin_schema)
+      set(_describer terramap::pipeline)
+    endif()
+    # Relinked (and described again) when the tool or the library that describes changes, so
+    # a module never keeps a schema an older tool wrote.
+    set_property(TARGET ${name} APPEND PROPERTY LINK_DEPENDS
+      $<TARGET_FILE:${_tool}> $<TARGET_FILE:${_describer}>)
+    set(_objcopy "${CMAKE_OBJCOPY}")
+    if(NOT _objcopy)
+      find_program(TERRAMAP_OBJCOPY objcopy REQUIRED)
+      set(_objcopy "${TERRAMAP_OBJCOPY}")
+    endif()
+    set(_probe "")
+    foreach(_kv IN LISTS ARG_SCHEMA_PARAMS)
+      list(APPEND _probe --set "${_kv}")
+    endforeach()
+    add_custom_command(TARGET ${name} POST_BUILD
+      COMMAND $<TARGET_FILE:${_tool}> --objcopy "${_objcopy}" ${_probe} $<TARGET_FILE:${name}>
+      COMMENT "Embedding the schema of plugin ${name}"
+      VERBATIM)
   endif()
 endfunction()

@@ -77,7 +77,7 @@ struct CheckedParams {
   std::vector<std::string> errors;
 };
 
-CheckedParams checkParams(const std::string& owner, const PluginHandle& plugin, const ParamSchema& schema,
+CheckedParams checkParams(const std::string& owner, const std::string& type, const ParamSchema& schema,
                           const std::map<std::string, RawParam>& raw, const std::string& base_dir) {
   std::vector<std::string> names;
   for (const auto& s : schema) names.push_back(s.name);
@@ -89,7 +89,7 @@ CheckedParams checkParams(const std::string& owner, const PluginHandle& plugin, 
     const auto it = std::find_if(schema.begin(), schema.end(), [&](const ParamSpec& s) { return s.name == name; });
     const std::string at = r.where.empty() ? owner + ".params." + key : r.where;
     if (it == schema.end()) {
-      errors.push_back(at + ": unknown parameter '" + key + "' for plugin '" + plugin.type() + "'" +
+      errors.push_back(at + ": unknown parameter '" + key + "' for plugin '" + type + "'" +
                        didYouMean(key, names) + "; known: [" + joinStrings(names) + "]");
       continue;
     }
@@ -158,7 +158,7 @@ PreparedStage Engine::prepare(const std::string& name, PluginHandle plugin,
                               const Geometry* map, const std::string& base_dir) {
   const std::string owner = where.empty() ? name : where;
   const ParamSchema schema = schemaOf(owner, plugin);
-  CheckedParams checked = checkParams(owner, plugin, schema, raw, base_dir);
+  CheckedParams checked = checkParams(owner, plugin.type(), schema, raw, base_dir);
   if (map) checked.params.setMapGeometry(*map);
   if (!checked.errors.empty()) throw ConfigError(joinLines(checked.errors));
   configurePlugin(owner, plugin, checked.params);
@@ -201,6 +201,16 @@ void Engine::checkLayers(const std::vector<std::string>& existing, const std::st
 }
 
 std::vector<std::string> Engine::validate(const PipelineSpec& spec, const PluginRegistry& registry) {
+  return validateStages(spec, registry, nullptr);
+}
+
+std::vector<std::string> Engine::validateWithoutLoading(const PipelineSpec& spec, const PluginRegistry& registry,
+                                                        std::vector<std::string>& unchecked) {
+  return validateStages(spec, registry, &unchecked);
+}
+
+std::vector<std::string> Engine::validateStages(const PipelineSpec& spec, const PluginRegistry& registry,
+                                                std::vector<std::string>* unchecked) {
   std::vector<std::string> errors;
   std::vector<std::string> layers;
   for (const auto& l : spec.layers) {
@@ -221,8 +231,46 @@ std::vector<std::string> Engine::validate(const PipelineSpec& spec, const Plugin
   // stay unknown (unknown type, refused library, configure() refusing), "reads layer X before
   // any stage creates it" would be a guess: from there on only checks that stay true are made.
   bool layers_known = true;
+  bool cross_checks_skipped = false;
   for (size_t i = 0; i < spec.stages.size(); ++i) {
     const StageSpec& s = spec.stages[i];
+    if (unchecked) {
+      // From the file alone: nothing of the plugin runs (a pipeline file may not be trusted).
+      const std::string owner = s.where.empty() ? s.name : s.where;
+      PluginFileDescription f;
+      try {
+        f = registry.describe(s.type);
+      } catch (const PluginError& e) {
+        errors.push_back(s.type_where + ": " + e.what());
+        layers_known = false;
+        continue;
+      }
+      if (!f.description) {
+        unchecked->push_back(s.type_where + ": stage '" + s.name + "': parameters and layers not checked: " +
+                             f.path + ": " + f.missing + "; checking them means loading the plugin, which runs its "
+                             "code: pass --load-plugins if you trust it");
+        layers_known = false;
+        continue;
+      }
+      CheckedParams checked = checkParams(owner, s.type, f.description->params, s.params, spec.base_dir);
+      errors.insert(errors.end(), checked.errors.begin(), checked.errors.end());
+      std::string why;
+      const auto specs = layersFromDescription(*f.description, checked.params.values(), why);
+      if (!specs) {
+        unchecked->push_back(owner + ": stage '" + s.name + "': layers not checked: plugin '" + s.type + "': " + why +
+                             (layers_known ? "; the later stages' layers are not checked either" : "") +
+                             " (--load-plugins checks them by loading the plugins)");
+        layers_known = false;
+        continue;
+      }
+      cross_checks_skipped = true;
+      std::vector<std::string> created, layer_errors;
+      checkLayers(layers, s.name, *specs, layer_errors, &created, layers_known);
+      if (checked.errors.empty())  // stand-in defaults only tell which layers it creates (below)
+        for (auto& e : layer_errors) errors.push_back(s.where + ": " + e);
+      layers.insert(layers.end(), created.begin(), created.end());
+      continue;
+    }
     PluginHandle h;
     try {
       h = registry.create(s.type);
@@ -234,7 +282,7 @@ std::vector<std::string> Engine::validate(const PipelineSpec& spec, const Plugin
     const std::string owner = s.where.empty() ? s.name : s.where;
     try {
       const ParamSchema schema = schemaOf(owner, h);
-      CheckedParams checked = checkParams(owner, h, schema, s.params, spec.base_dir);
+      CheckedParams checked = checkParams(owner, h.type(), schema, s.params, spec.base_dir);
       if (geometry) checked.params.setMapGeometry(*geometry);
       if (checked.errors.empty()) {
         configurePlugin(owner, h, checked.params);
@@ -271,6 +319,9 @@ std::vector<std::string> Engine::validate(const PipelineSpec& spec, const Plugin
       layers_known = false;
     }
   }
+  if (cross_checks_skipped)
+    unchecked->push_back(spec.file + ": the plugins' own cross-parameter and map checks (their configure()) were not "
+                         "run: they need the plugins' code (--load-plugins runs them)");
   if (layers_known) {
     for (const auto& l : spec.outputs.geotiff)
       if (std::find(layers.begin(), layers.end(), l) == layers.end())

@@ -355,14 +355,55 @@ std::vector<std::string> PluginRegistry::availableTypes() const {
   return out;
 }
 
-PluginHandle PluginRegistry::create(const std::string& type) const {
+std::string PluginRegistry::findOrThrow(const std::string& type) const {
   const std::string path = find(type);
   if (path.empty()) {
     const auto types = availableTypes();
     throw PluginError("unknown plugin type '" + type + "'" + didYouMean(type, types) + "; available: [" +
                       joinStrings(types) + "]; searched: " + joinStrings(paths_, ":"));
   }
-  return createFromFile(path, type);
+  return path;
+}
+
+PluginFileDescription PluginRegistry::describe(const std::string& type) const {
+  // A plugin's description is a few kB; the bound keeps a crafted section from costing memory.
+  constexpr std::size_t kMaxSchemaBytes = 4u << 20;
+  PluginFileDescription out;
+  out.path = findOrThrow(type);
+  checkBeforeLoading(out.path);
+  const auto text = detail::readElfSection(out.path, TERRAMAP_PLUGIN_SCHEMA_SECTION, kMaxSchemaBytes);
+  if (!text) {
+    out.missing = "it has no embedded schema (section " TERRAMAP_PLUGIN_SCHEMA_SECTION
+                  ", written by terramap_add_plugin when the plugin is built)";
+    return out;
+  }
+  if (text->size() == kMaxSchemaBytes) {
+    out.missing = "its embedded schema is larger than " + std::to_string(kMaxSchemaBytes) + " bytes";
+    return out;
+  }
+  PluginDescription d;
+  try {
+    d = descriptionFromJson(*text, out.path);
+  } catch (const InputError& e) {
+    out.missing = e.what();
+    return out;
+  }
+  // The description must be this file's own: the build-id is a hash of the linked code.
+  const std::string id = elfBuildId(out.path);
+  if (id.empty() || id != d.build_id) {
+    out.missing = "its embedded schema was made for another build (build-id " + d.build_id + ", the file's " +
+                  (id.empty() ? "none" : id) + ")";
+    return out;
+  }
+  if (d.type != type)
+    throw PluginError(out.path + ": plugin type mismatch: expected '" + type + "', found '" + d.type +
+                      "' (in its embedded schema)");
+  out.description = std::move(d);
+  return out;
+}
+
+PluginHandle PluginRegistry::create(const std::string& type) const {
+  return createFromFile(findOrThrow(type), type);
 }
 
 PluginHandle PluginRegistry::createFromFile(const std::string& path, const std::string& expected_type) {

@@ -45,6 +45,20 @@ outputs: {dir: out, geotiff: [slope], png: [], snapshot: false}
   if(rc OR NOT out MATCHES "slope_layer" OR NOT out MATCHES "pose_probe" OR NOT out MATCHES "smooth_filter")
     message(FATAL_ERROR "[${tag}] installed terramap does not list the out-of-tree and installed plugins:\n${out}")
   endif()
+  # Their build embedded their schemas with the installed terramap-plugin-schema: validate checks
+  # their stages without loading them (a bad value is caught, nothing is left unchecked).
+  execute_process(COMMAND ${PREFIX}/bin/terramap validate ${dir}/pipeline.yaml --allow-config-plugin-paths
+    --set slope.output_layr=slope
+    RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+  if(NOT rc EQUAL 8 OR err MATCHES "not checked" OR NOT err MATCHES "did you mean 'output_layer'")
+    message(FATAL_ERROR "[${tag}] validate did not check the out-of-tree plugins from their embedded schemas "
+      "(${rc}):\n${out}${err}")
+  endif()
+  execute_process(COMMAND ${PREFIX}/bin/terramap validate ${dir}/pipeline.yaml --allow-config-plugin-paths
+    RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+  if(rc OR err MATCHES "not checked")
+    message(FATAL_ERROR "[${tag}] validate did not find the out-of-tree plugins' schemas (${rc}):\n${out}${err}")
+  endif()
   execute_process(COMMAND ${PREFIX}/bin/terramap run ${dir}/pipeline.yaml --quiet --allow-config-plugin-paths
     RESULT_VARIABLE rc ERROR_VARIABLE err)
   if(rc)

@@ -77,7 +77,16 @@ class TERRAMAP_API Engine {
   static std::unique_ptr<Engine> fromValidatedSpec(const PipelineSpec& spec, const PluginRegistry& registry);
 
   /// Checks a pipeline without building an engine; returns every problem (empty = valid).
+  /// Loads each stage's plugin (runs its code) and configures it.
   static std::vector<std::string> validate(const PipelineSpec& spec, const PluginRegistry& registry);
+  /// validate() without loading any plugin, for a pipeline file not yet trusted (`terramap
+  /// validate`): each stage is checked against the description embedded in its plugin's file
+  /// (plugin_schema.hpp). What that cannot check goes to `unchecked`, one line each: a stage
+  /// whose plugin has no description of this build, a stage whose layers its description does not
+  /// tell (the stages after it are then not checked for layers), and the plugins' own
+  /// cross-parameter checks in configure(), which need their code. Returns every problem found.
+  static std::vector<std::string> validateWithoutLoading(const PipelineSpec& spec, const PluginRegistry& registry,
+                                                         std::vector<std::string>& unchecked);
 
   /// Checks `params` against the plugin's schema and configures it. Does not touch the engine.
   /// `map`: the geometry the stage will run on, shown to configure() (Params::mapGeometry) so
@@ -150,6 +159,9 @@ class TERRAMAP_API Engine {
   static void checkLayers(const std::vector<std::string>& existing, const std::string& stage_name,
                           const std::vector<LayerSpec>& layers, std::vector<std::string>& errors,
                           std::vector<std::string>* out_new = nullptr, bool report_missing = true);
+  /// validate() (unchecked == nullptr: loads the plugins) or validateWithoutLoading().
+  static std::vector<std::string> validateStages(const PipelineSpec& spec, const PluginRegistry& registry,
+                                                 std::vector<std::string>* unchecked);
 
   mutable std::mutex mutex_;
   LayeredMap map_;

@@ -25,6 +25,7 @@
 /// `terramap_plugin_destroy`; its `name` equals `T`. A fingerprint refusal names each
 /// differing field and its likely cause (abi.hpp lists the fields).
 /// A loaded library stays loaded as long as any plugin created from it lives.
+#include <terramap/pipeline/plugin_schema.hpp>
 #include <terramap/plugin/abi.hpp>
 #include <terramap/plugin/plugin.hpp>
 
@@ -69,6 +70,13 @@ struct PluginCandidate {
   std::string reason;                      ///< why it was refused
 };
 
+/// What the file of a plugin type tells without loading it (PluginRegistry::describe()).
+struct PluginFileDescription {
+  std::string path;
+  std::optional<PluginDescription> description;  ///< its embedded schema, when it has one of this build
+  std::string missing;  ///< why there is none (no section, unreadable, another build's)
+};
+
 class TERRAMAP_API PluginRegistry {
  public:
   /// \param extra_paths searched first (e.g. the pipeline's plugin_paths).
@@ -93,6 +101,10 @@ class TERRAMAP_API PluginRegistry {
   /// Path of `type.so` on the search path, or "" if none.
   std::string find(const std::string& type) const;
 
+  /// The embedded description of `type` (plugin_schema.hpp), read from its file after the
+  /// checks made before loading; nothing is loaded. \throws PluginError: unknown type (with
+  /// did-you-mean), a library refused from its file, or a description of another plugin type.
+  PluginFileDescription describe(const std::string& type) const;
   /// Creates a plugin of `type`. \throws PluginError: unknown type (with did-you-mean and the
   /// searched folders) or a refused library.
   PluginHandle create(const std::string& type) const;
@@ -100,6 +112,7 @@ class TERRAMAP_API PluginRegistry {
   static PluginHandle createFromFile(const std::string& path, const std::string& expected_type = {});
 
  private:
+  std::string findOrThrow(const std::string& type) const;
   std::vector<std::string> paths_;
 };
 
