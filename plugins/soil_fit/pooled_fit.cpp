@@ -14,17 +14,39 @@ using Vec = Eigen::Matrix<double, kN, 1>;
 using Mat = Eigen::Matrix<double, kN, kN>;
 
 // Parameters are solved for in span units u in [0, 1] (θ = lo + span u), so one damping and one
-// step tolerance serve Pa and radians alike.
-fee::Soil soilOf(const Vec& u) {
+// step tolerance serve Pa and radians alike. With the interface bounded by the soil, u[c_a] and
+// u[δ] are the ratios c_a / c and δ / φ instead.
+Vec thetaOf(const Vec& u, bool bounded) {
+  Vec t;
+  for (int k = 0; k < kN; ++k) t[k] = kSoilParams[k].lo + (kSoilParams[k].hi - kSoilParams[k].lo) * u[k];
+  if (bounded) {
+    t[kParamCa] = std::clamp(u[kParamCa] * t[kParamC], kSoilParams[kParamCa].lo, kSoilParams[kParamCa].hi);
+    t[kParamDelta] = std::clamp(u[kParamDelta] * t[kParamPhi], kSoilParams[kParamDelta].lo, kSoilParams[kParamDelta].hi);
+  }
+  return t;
+}
+
+Vec uOf(const Vec& t, bool bounded) {
+  Vec u;
+  for (int k = 0; k < kN; ++k) u[k] = std::clamp((t[k] - kSoilParams[k].lo) / (kSoilParams[k].hi - kSoilParams[k].lo), 0.0, 1.0);
+  if (bounded) {
+    u[kParamCa] = t[kParamC] > 0 ? std::clamp(t[kParamCa] / t[kParamC], 0.0, 1.0) : 0.5;
+    u[kParamDelta] = t[kParamPhi] > 0 ? std::clamp(t[kParamDelta] / t[kParamPhi], 0.0, 1.0) : 0.5;
+  }
+  return u;
+}
+
+fee::Soil soilOf(const Vec& u, bool bounded) {
+  const Vec t = thetaOf(u, bounded);
   SoilParamVector v{};
-  for (int k = 0; k < kN; ++k) v[static_cast<std::size_t>(k)] = kSoilParams[k].lo + (kSoilParams[k].hi - kSoilParams[k].lo) * u[k];
+  for (int k = 0; k < kN; ++k) v[static_cast<std::size_t>(k)] = t[k];
   return toFee(v);
 }
 
 // Residuals of every row (x then z, in units of force_sigma_n) at u.
 void residuals(const std::vector<FitRow>& rows, const Vec& u, const PooledFitOptions& opt, Eigen::VectorXd& r,
                int* valid_rows = nullptr) {
-  const fee::Soil s = soilOf(u);
+  const fee::Soil s = soilOf(u, opt.interface_bounded_by_soil);
   r.resize(static_cast<Eigen::Index>(2 * rows.size()));
   int valid = 0;
   for (std::size_t i = 0; i < rows.size(); ++i) {
@@ -59,12 +81,12 @@ bool modelForce(const fee::Soil& s, const FitRow& row, double edge_thickness_m, 
 
 PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& start, const PooledFitOptions& opt) {
   PooledFit out;
-  Vec u;
-  for (int k = 0; k < kN; ++k) {
-    const double span = kSoilParams[k].hi - kSoilParams[k].lo;
-    const double x = start[static_cast<std::size_t>(k)];
-    u[k] = std::isfinite(x) ? std::clamp((x - kSoilParams[k].lo) / span, 0.0, 1.0) : 0.5;
-  }
+  const bool bounded = opt.interface_bounded_by_soil;
+  Vec u, t0;
+  for (int k = 0; k < kN; ++k) t0[k] = start[static_cast<std::size_t>(k)];
+  u = uOf(t0, bounded);
+  for (int k = 0; k < kN; ++k)
+    if (!std::isfinite(t0[k])) u[k] = 0.5;
   const double prior_sd = opt.prior_sd_fraction;
   const Mat prior_info = Mat::Identity() / (prior_sd * prior_sd);
   Eigen::VectorXd r, rt;
@@ -113,18 +135,25 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
     }
   }
   residuals(rows, u, opt, r, &out.rows);
-  const fee::Soil s = soilOf(u);
+  const fee::Soil s = soilOf(u, bounded);
   out.mean = fromFee(s);
   out.rms_n = rows.empty() ? 0.0 : opt.force_sigma_n * std::sqrt(r.squaredNorm() / static_cast<double>(r.size()));
   // Gauss-Newton covariance in span units, then in SI: D (JᵀWJ + prior)⁻¹ D.
   const Mat info = JtWJ + prior_info;
   const Mat cov_u = info.inverse();
-  Vec span;
-  for (int k = 0; k < kN; ++k) span[k] = kSoilParams[k].hi - kSoilParams[k].lo;
+  // dθ/du at the solution (diagonal spans unless the interface is bounded by the soil), by
+  // central differences inside the box.
+  Mat D;
+  for (int k = 0; k < kN; ++k) {
+    Vec lo = u, hi = u;
+    lo[k] = std::max(0.0, u[k] - 1e-6);
+    hi[k] = std::min(1.0, u[k] + 1e-6);
+    D.col(k) = (thetaOf(hi, bounded) - thetaOf(lo, bounded)) / (hi[k] - lo[k]);
+  }
   // The rows scatter more than force_sigma_n says when the physics misses part of the force:
   // the covariance then takes the residuals' own scale (never below the assumed one).
   const double scale = std::max(1.0, (out.rms_n / opt.force_sigma_n) * (out.rms_n / opt.force_sigma_n));
-  out.covariance = scale * span.asDiagonal() * cov_u * span.asDiagonal();
+  out.covariance = scale * D * cov_u * D.transpose();
   return out;
 }
 

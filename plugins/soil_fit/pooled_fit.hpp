@@ -38,6 +38,13 @@ struct PooledFitOptions {
   /// > 0: the unit weight the rows' surcharge was computed with (blade_sweep's
   /// unit_weight_n_m3); the pile is then weighed with the fitted γ, Q γ / q_gamma_ref_n_m3.
   double q_gamma_ref_n_m3 = 0.0;
+  /// The soil-blade interface bounded by the soil (McKyes 1985, Soil Cutting and Tillage §2; Wong,
+  /// Theory of Ground Vehicles §2): adhesion is not larger than cohesion and the soil-metal
+  /// friction angle not larger than the internal one, so c_a = a c and δ = b φ with a, b in [0, 1]
+  /// are fitted instead of c_a and δ free in their ranges. The rows hardly tell c_a or δ apart from
+  /// c and φ; free, they sit at the prior's middle (c_a 15 kPa on a sand with c = 0), which the
+  /// FEE index then reads as strength. Both are still clamped into kSoilParams' ranges.
+  bool interface_bounded_by_soil = true;
 };
 
 struct PooledFit {

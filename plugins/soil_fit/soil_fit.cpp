@@ -36,7 +36,10 @@ ParamSchema SoilFit::schema() const {
           param::real("surcharge_gamma_ref_n_m3", 14636.0, 0.0, 1e5, "N/m^3",
                       "the unit weight blade_sweep weighed Q with; the pile is weighed with the fitted gamma (0: Q as mapped)"),
           param::real("prior_sd_fraction", d.prior_sd_fraction, 1e-3, 1e3, "1",
-                      "prior standard deviation per property as a share of its range (centred in it)")};
+                      "prior standard deviation per property as a share of its range (centred in it)"),
+          param::boolean("interface_bounded_by_soil", d.interface_bounded_by_soil,
+                         "fit c_a = a c and delta = b phi with a, b in [0, 1] (adhesion <= cohesion, soil-metal "
+                         "friction <= internal friction) instead of c_a and delta free in their ranges")};
 }
 
 void SoilFit::configure(const Params& p) {
@@ -48,6 +51,7 @@ void SoilFit::configure(const Params& p) {
   opt_.force_sigma_n = p.getDouble("force_sigma_n");
   opt_.prior_sd_fraction = p.getDouble("prior_sd_fraction");
   opt_.q_gamma_ref_n_m3 = p.getDouble("surcharge_gamma_ref_n_m3");
+  opt_.interface_bounded_by_soil = p.getBool("interface_bounded_by_soil");
 }
 
 void SoilFit::start(ProcessContext& ctx) { pending_.start(ctx); }

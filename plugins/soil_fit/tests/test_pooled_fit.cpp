@@ -123,3 +123,32 @@ TEST(SoilFitPlugin, RowsLeaveStalledAndUncutRowsOutAndReadTheDescent) {
   ASSERT_EQ(rows.size(), 1u);
   EXPECT_TRUE(rows[0].descending);
 }
+
+// A cohesionless soil's rows hardly tell adhesion apart: free in its range, c_a stays near the
+// prior's middle (15 kPa) and the FEE index reads a loose sand as strong; bounded by the
+// cohesion (c_a = a c), it follows c to zero. The same for δ against φ.
+TEST(PooledFit, TheInterfaceBoundedBySoilKeepsAdhesionOffACohesionlessSoil) {
+  const SoilProperties sp = soilProperties(SoilFamily::Sand, 0.2);
+  ASSERT_EQ(sp.fee.c_pa, 0.0);
+  // The rows as the map gives them: the force of the whole pile, but the surcharge the mapped
+  // pile holds (a median 0.6 of the simulator's on sand: docs/soil_estimator.md).
+  std::vector<FitRow> rows = rowsOf(sp.fee, 120, true, 5, 300.0);
+  for (FitRow& r : rows) r.geometry.q_n *= 0.6;
+  PooledFitOptions bounded, free_interface;
+  free_interface.interface_bounded_by_soil = false;
+  const PooledFit b = fitPooled(rows, middle(), bounded);
+  const PooledFit f = fitPooled(rows, middle(), free_interface);
+  EXPECT_LE(b.mean[kParamCa], b.mean[kParamC] + 1e-9);
+  EXPECT_LE(b.mean[kParamDelta], b.mean[kParamPhi] + 1e-12);
+  EXPECT_LT(b.mean[kParamCa], 1000.0);
+  EXPECT_GT(f.mean[kParamCa], 2000.0);  // what the bound removes (4.1 kPa here)
+  // The reference cut's force (what fee_index reads) is then the sand's, not a cohesive soil's.
+  const fee::Geometry ref{0.0, 1.4, 0.15, 1.85, 0.0};
+  auto refForce = [&](const PooledFit& p) { return fee::evaluateAtBetaMin(toFee(p.mean), ref).F_total_N.x(); };
+  const double truth = fee::evaluateAtBetaMin(sp.fee, ref).F_total_N.x();
+  EXPECT_LT(std::abs(refForce(b) - truth), std::abs(refForce(f) - truth));  // 1.30 against 1.69 kN
+  // The covariance is in SI units through the ratios' Jacobian: finite, positive, c_a's no wider
+  // than c's range allows.
+  for (int k = 0; k < kSoilParamCount; ++k) EXPECT_GT(b.covariance(k, k), 0.0) << k;
+  EXPECT_TRUE(b.covariance.allFinite());
+}
