@@ -39,13 +39,14 @@ int logicalRuns(int b0, int n, int start, int size, Run out[2]) {
 // Buffers of one block (a tile's logical rectangle with its halo). Sizes grow to the largest
 // block seen and stay.
 struct Traversability::Scratch {
-  std::vector<float> g;                       // gathered heights, (h + 2K) x (w + 2K), row-major
-  std::vector<double> p0, p1, p2, pz, p1z, pzz;  // prefix sums along one gathered row
-  std::vector<double> a0, a1, a2, b0, b1, c0;    // row-window moments, (h + 2k) x w
-  std::vector<double> n, qx, qxx, y, qxy, yy, z, qxz, yz, zz;  // column running sums, w each
-  std::vector<float> hmax, hmin;              // row-window max / min, (h + 2ks) x w
-  std::vector<float> gmax, gmin, rmax, rmin;  // van Herk prefix / suffix buffers
-  std::vector<float> smax, smin;              // window max / min of one output row, w each
+  std::vector<float> g;          // gathered heights, (h + 2K) x (w + 2K), row-major
+  std::vector<double> prefix;    // 6 prefix sums along one gathered row, W + 1 each
+  std::vector<double> mom;       // 6 row-window moments, (h + 2k) x w each
+  std::vector<double> acc;       // 10 column running sums, w each
+  std::vector<float> hmax, hmin;  // row-window max / min, (h + 2ks) x w
+  std::vector<float> vpmax, vpmin, vsmax, vsmin;  // column block prefix / suffix extremes, same size
+  std::vector<float> rowmax, rowmin, rowpre, rowsuf;  // one gathered row, W each
+  std::vector<float> gm, rough, slope, step;  // one output row, w each
 };
 
 struct Traversability::ScratchPool {
@@ -132,16 +133,304 @@ void grow(V& v, size_t n) {
   if (v.size() < n) v.resize(n);
 }
 
-// Van Herk / Gil-Werman: out[x] = max (or min) of in[x .. x + L - 1] for x in [0, n - L + 1),
-// through block prefix (pre) and suffix (suf) extremes over blocks of L: three comparisons per
-// element whatever L. Max and min are exact, so the result is the brute-force one bit for bit.
-template <bool kMax>
-void slidingExtreme(const float* in, int n, int L, float* pre, float* suf, float* out) {
-  auto pick = [](float a, float b) { return kMax ? (a > b ? a : b) : (a < b ? a : b); };
-  for (int x = 0; x < n; ++x) pre[x] = (x % L == 0) ? in[x] : pick(pre[x - 1], in[x]);
-  suf[n - 1] = in[n - 1];
-  for (int x = n - 2; x >= 0; --x) suf[x] = ((x + 1) % L == 0) ? in[x] : pick(suf[x + 1], in[x]);
-  for (int x = 0; x + L <= n; ++x) out[x] = pick(suf[x], pre[x + L - 1]);
+#define TM_INLINE inline __attribute__((always_inline))
+
+// acc[c] += wi * in[c] - wo * out[c]: one step of a running window sum (the row entering and
+// the row leaving); wi = wo = 1 multiplies exactly.
+TM_INLINE void slide(double* __restrict acc, const double* __restrict in, const double* __restrict out, double wi,
+                     double wo, int n) {
+  for (int c = 0; c < n; ++c) acc[c] += wi * in[c] - wo * out[c];
+}
+TM_INLINE void addScaled(double* __restrict acc, const double* __restrict in, double wi, int n) {
+  for (int c = 0; c < n; ++c) acc[c] += wi * in[c];
+}
+TM_INLINE void maxMin(float* __restrict mx, float* __restrict mn, const float* __restrict ax, const float* __restrict an,
+                      const float* __restrict bx, const float* __restrict bn, int n) {
+  for (int c = 0; c < n; ++c) {
+    mx[c] = ax[c] > bx[c] ? ax[c] : bx[c];
+    mn[c] = an[c] < bn[c] ? an[c] : bn[c];
+  }
+}
+
+// Van Herk / Gil-Werman along one row: max and min of in[x .. x + L - 1] for x in [0, n - L + 1),
+// from prefix extremes within blocks of L (pre) and suffix extremes (suf): three comparisons
+// per element whatever L. Max and min are exact, so the result is the brute-force one bit for bit.
+TM_INLINE void slidingMaxMin(const float* __restrict hi, const float* __restrict lo, int n, int L, float* __restrict pre,
+                             float* __restrict suf, float* __restrict premin, float* __restrict sufmin,
+                             float* __restrict outmax, float* __restrict outmin) {
+  for (int b0 = 0; b0 < n; b0 += L) {
+    const int e = std::min(n, b0 + L);
+    pre[b0] = hi[b0], premin[b0] = lo[b0];
+    for (int x = b0 + 1; x < e; ++x) {
+      pre[x] = pre[x - 1] > hi[x] ? pre[x - 1] : hi[x];
+      premin[x] = premin[x - 1] < lo[x] ? premin[x - 1] : lo[x];
+    }
+    suf[e - 1] = hi[e - 1], sufmin[e - 1] = lo[e - 1];
+    for (int x = e - 2; x >= b0; --x) {
+      suf[x] = suf[x + 1] > hi[x] ? suf[x + 1] : hi[x];
+      sufmin[x] = sufmin[x + 1] < lo[x] ? sufmin[x + 1] : lo[x];
+    }
+  }
+  for (int x = 0; x + L <= n; ++x) {
+    outmax[x] = suf[x] > pre[x + L - 1] ? suf[x] : pre[x + L - 1];
+    outmin[x] = sufmin[x] < premin[x + L - 1] ? sufmin[x] : premin[x + L - 1];
+  }
+}
+
+// One block's geometry: output rows h x columns w, gathered with a halo of K (rows and columns);
+// plane half-width k, step half-width ks (both <= K).
+struct BlockShape {
+  int h, w, K, k, ks;
+  int W() const { return w + 2 * K; }
+};
+
+// What the outputs of one block row are computed from.
+struct Limits {
+  double min_n, inv_res2;
+  float cs, cr, ch, ws, wr, wh, wsum;
+  bool blocks;
+};
+
+// Plane fit, pass 1: along each gathered row, the moments of the 2k + 1 cells around every
+// output column (prefix sums, then differences), with column offsets x - x_c. Mask moments are
+// small integers, exact in double; heights are relative to zref.
+TM_INLINE void planeRows(const float* __restrict G, const BlockShape& b, double zref, double* __restrict P,
+                         double* __restrict M) {
+  const int W = b.W(), w = b.w, k = b.k, K = b.K;
+  const int rows1 = b.h + 2 * k;
+  const size_t n1 = static_cast<size_t>(rows1) * static_cast<size_t>(w);
+  const size_t ps = static_cast<size_t>(W) + 1;
+  double* __restrict p0 = P;
+  double* __restrict p1 = P + ps;
+  double* __restrict p2 = P + 2 * ps;
+  double* __restrict pz = P + 3 * ps;
+  double* __restrict p1z = P + 4 * ps;
+  double* __restrict pzz = P + 5 * ps;
+  for (int q = 0; q < rows1; ++q) {
+    const float* __restrict row = G + static_cast<size_t>(K - k + q) * static_cast<size_t>(W);
+    double s0 = 0, s1 = 0, s2 = 0, sz = 0, s1z = 0, szz = 0;
+    p0[0] = p1[0] = p2[0] = pz[0] = p1z[0] = pzz[0] = 0.0;
+    for (int x = 0; x < W; ++x) {
+      const float v = row[x];
+      const bool known = v - v == 0.0f;  // finite
+      const double m = known ? 1.0 : 0.0;
+      const double z = known ? static_cast<double>(v) - zref : 0.0;
+      const double xd = x;
+      s0 += m;
+      s1 += m * xd;
+      s2 += m * xd * xd;
+      sz += z;
+      s1z += xd * z;
+      szz += z * z;
+      p0[x + 1] = s0, p1[x + 1] = s1, p2[x + 1] = s2, pz[x + 1] = sz, p1z[x + 1] = s1z, pzz[x + 1] = szz;
+    }
+    const size_t o = static_cast<size_t>(q) * static_cast<size_t>(w);
+    double* __restrict a0 = M + o;
+    double* __restrict a1 = M + n1 + o;
+    double* __restrict a2 = M + 2 * n1 + o;
+    double* __restrict b0 = M + 3 * n1 + o;
+    double* __restrict b1 = M + 4 * n1 + o;
+    double* __restrict c0 = M + 5 * n1 + o;
+    const int lo = K - k, hi = K + k + 1;
+    for (int c = 0; c < w; ++c) {
+      const double g = K + c;
+      const double m0 = p0[hi + c] - p0[lo + c], m1 = p1[hi + c] - p1[lo + c], m2 = p2[hi + c] - p2[lo + c];
+      const double mz = pz[hi + c] - pz[lo + c];
+      a0[c] = m0;
+      a1[c] = m1 - g * m0;
+      a2[c] = m2 - 2.0 * g * m1 + g * g * m0;
+      b0[c] = mz;
+      b1[c] = (p1z[hi + c] - p1z[lo + c]) - g * mz;
+      c0[c] = pzz[hi + c] - pzz[lo + c];
+    }
+  }
+}
+
+// Step height, both passes: rows of max / min over 2ks + 1 columns (van Herk per gathered row),
+// then block prefix and suffix extremes down the columns, all columns of a row at once.
+TM_INLINE void stepPasses(const float* __restrict G, const BlockShape& b, Traversability::Scratch& s) {
+  const int W = b.W(), w = b.w, ks = b.ks, K = b.K;
+  const int L = 2 * ks + 1, rows2 = b.h + 2 * ks;
+  float* __restrict hin = s.rowmax.data();
+  float* __restrict lin = s.rowmin.data();
+  for (int q = 0; q < rows2; ++q) {
+    const float* __restrict row = G + static_cast<size_t>(K - ks + q) * static_cast<size_t>(W);
+    // Unknown cells neutral for max and min. Output column c's window starts at K + c - ks.
+    for (int x = 0; x < W; ++x) {
+      const bool known = row[x] - row[x] == 0.0f;
+      hin[x] = known ? row[x] : -kInf;
+      lin[x] = known ? row[x] : kInf;
+    }
+    const size_t o = static_cast<size_t>(q) * static_cast<size_t>(w);
+    slidingMaxMin(hin + (K - ks), lin + (K - ks), w + 2 * ks, L, s.rowpre.data(), s.rowsuf.data(),
+                  s.rowpre.data() + W, s.rowsuf.data() + W, s.hmax.data() + o, s.hmin.data() + o);
+  }
+  const size_t W2 = static_cast<size_t>(w);
+  for (int b0 = 0; b0 < rows2; b0 += L) {
+    const int e = std::min(rows2, b0 + L);
+    std::memcpy(s.vpmax.data() + b0 * W2, s.hmax.data() + b0 * W2, sizeof(float) * W2);
+    std::memcpy(s.vpmin.data() + b0 * W2, s.hmin.data() + b0 * W2, sizeof(float) * W2);
+    for (int q = b0 + 1; q < e; ++q)
+      maxMin(s.vpmax.data() + q * W2, s.vpmin.data() + q * W2, s.vpmax.data() + (q - 1) * W2,
+             s.vpmin.data() + (q - 1) * W2, s.hmax.data() + q * W2, s.hmin.data() + q * W2, w);
+    std::memcpy(s.vsmax.data() + (e - 1) * W2, s.hmax.data() + (e - 1) * W2, sizeof(float) * W2);
+    std::memcpy(s.vsmin.data() + (e - 1) * W2, s.hmin.data() + (e - 1) * W2, sizeof(float) * W2);
+    for (int q = e - 2; q >= b0; --q)
+      maxMin(s.vsmax.data() + q * W2, s.vsmin.data() + q * W2, s.vsmax.data() + (q + 1) * W2,
+             s.vsmin.data() + (q + 1) * W2, s.hmax.data() + q * W2, s.hmin.data() + q * W2, w);
+  }
+}
+
+// The plane of one output row from the column sums: the gradient magnitude (m/m) and the
+// roughness, NaN where there is no fit (centre unknown, fewer than min_n cells, collinear).
+TM_INLINE void solveRow(const double* __restrict acc, int w, double qc, const float* __restrict centre,
+                        const Limits& lim, float* __restrict gm, float* __restrict rough) {
+  const double* __restrict N = acc;
+  const double* __restrict Qx = acc + w;
+  const double* __restrict Qxx = acc + 2 * w;
+  const double* __restrict Y = acc + 3 * w;
+  const double* __restrict Qxy = acc + 4 * w;
+  const double* __restrict YY = acc + 5 * w;
+  const double* __restrict Z = acc + 6 * w;
+  const double* __restrict Qxz = acc + 7 * w;
+  const double* __restrict YZ = acc + 8 * w;
+  const double* __restrict ZZ = acc + 9 * w;
+  for (int c = 0; c < w; ++c) {
+    const double n = N[c];
+    // Sums over the window with offsets x (rows) and y (columns) from its middle.
+    const double Sx = Qx[c] - qc * n, Sxx = Qxx[c] - 2.0 * qc * Qx[c] + qc * qc * n;
+    const double Sy = Y[c], Sxy = Qxy[c] - qc * Y[c], Syy = YY[c];
+    const double Sz = Z[c], Sxz = Qxz[c] - qc * Z[c], Syz = YZ[c], Szz = ZZ[c];
+    // n² times the covariances: the mask ones are exact integers, so collinear cells give
+    // det == 0 exactly.
+    const double Dxx = n * Sxx - Sx * Sx, Dyy = n * Syy - Sy * Sy, Dxy = n * Sxy - Sx * Sy;
+    const double Dxz = n * Sxz - Sx * Sz, Dyz = n * Syz - Sy * Sz, Dzz = n * Szz - Sz * Sz;
+    const double det = Dxx * Dyy - Dxy * Dxy;
+    const bool ok = (n >= lim.min_n) & (det > 0.0) & (centre[c] - centre[c] == 0.0f);
+    const double inv = 1.0 / (ok ? det : 1.0);
+    const double bx = (Dyy * Dxz - Dxy * Dyz) * inv;  // m per cell along rows
+    const double by = (Dxx * Dyz - Dxy * Dxz) * inv;  // m per cell along columns
+    const double g2 = (bx * bx + by * by) * lim.inv_res2;
+    const double ssr = Dzz - bx * Dxz - by * Dyz;
+    const double msr = (ssr > 0.0 ? ssr : 0.0) / (ok ? n * n : 1.0);
+    // Computed for every cell and then selected, so the loop has no branch and vectorises.
+    const float g = static_cast<float>(std::sqrt(g2));
+    const float ro = static_cast<float>(std::sqrt(msr / (1.0 + g2)));
+    gm[c] = ok ? g : kNaN;
+    rough[c] = ok ? ro : kNaN;
+  }
+}
+
+// Step height of one output row: max - min of the window from the block suffix at its first
+// row and the block prefix at its last; NaN where the cell itself is unknown.
+TM_INLINE void stepRow(const float* __restrict sufmax, const float* __restrict premax, const float* __restrict sufmin,
+                       const float* __restrict premin, const float* __restrict centre, int w, float* __restrict step) {
+  for (int c = 0; c < w; ++c) {
+    const float mx = sufmax[c] > premax[c] ? sufmax[c] : premax[c];
+    const float mn = sufmin[c] < premin[c] ? sufmin[c] : premin[c];
+    step[c] = centre[c] - centre[c] == 0.0f ? mx - mn : kNaN;
+  }
+}
+
+// slope = atan(|gradient|), NaN where there is no fit. Returns the cells with a slope.
+TM_INLINE long slopeRow(const float* __restrict gm, int w, float* __restrict slope) {
+  long n = 0;
+  for (int c = 0; c < w; ++c) {
+    const float g = gm[c];
+    slope[c] = g == g ? std::atan(g) : kNaN;
+    n += g == g;
+  }
+  return n;
+}
+
+// The four outputs of one output row.
+TM_INLINE void writeRow(const float* __restrict slope, const float* __restrict rough, const float* __restrict step,
+                        int w, const Limits& lim, float* __restrict o_slope, float* __restrict o_rough,
+                        float* __restrict o_step, float* __restrict o_trav) {
+  const float cs = lim.cs, cr = lim.cr, ch = lim.ch, ws = lim.ws, wr = lim.wr, wh = lim.wh, wsum = lim.wsum;
+  const float blocks = lim.blocks ? 1.0f : 0.0f;
+  // Selects only, no branch, so the loop vectorises.
+  for (int c = 0; c < w; ++c) {
+    const float sl = slope[c], ro = rough[c], st = step[c];
+    const float xs = sl / cs, xr = ro / cr, xh = st / ch;
+    const float ts = 1.0f - (xs < 1.0f ? xs : 1.0f);
+    const float tr = 1.0f - (xr < 1.0f ? xr : 1.0f);
+    const float th = 1.0f - (xh < 1.0f ? xh : 1.0f);
+    const float mean = (ws * ts + wr * tr + wh * th) / wsum;
+    const float least = ts < tr ? (ts < th ? ts : th) : (tr < th ? tr : th);
+    const float blocked = least <= 0.0f ? blocks : 0.0f;  // a term at or past its critical value
+    o_slope[c] = sl;
+    o_rough[c] = ro;
+    o_step[c] = st;
+    o_trav[c] = sl == sl ? (blocked > 0.0f ? 0.0f : mean) : kNaN;
+  }
+}
+
+// One block: outputs for logical rows [i0, i0 + h) x columns [j0, j0 + w) from the gathered
+// heights G, written to the four output arrays at `ob` with row stride T. Returns the cells fitted.
+TM_INLINE long computeBlock(const float* __restrict G, const BlockShape& b, const Limits& lim,
+                            Traversability::Scratch& s, float* const out[4], size_t ob, int T) {
+  const int W = b.W(), w = b.w, h = b.h, k = b.k, K = b.K;
+  const int rows1 = h + 2 * k, rows2 = h + 2 * b.ks, L = 2 * b.ks + 1;
+  const size_t n1 = static_cast<size_t>(rows1) * static_cast<size_t>(w);
+  const size_t n2 = static_cast<size_t>(rows2) * static_cast<size_t>(w);
+  grow(s.prefix, 6 * (static_cast<size_t>(W) + 1));
+  grow(s.mom, 6 * n1);
+  grow(s.acc, 10 * static_cast<size_t>(w));
+  for (auto* v : {&s.hmax, &s.hmin, &s.vpmax, &s.vpmin, &s.vsmax, &s.vsmin}) grow(*v, n2);
+  for (auto* v : {&s.rowmax, &s.rowmin}) grow(*v, static_cast<size_t>(W));
+  for (auto* v : {&s.rowpre, &s.rowsuf}) grow(*v, 2 * static_cast<size_t>(W));
+  for (auto* v : {&s.gm, &s.rough, &s.slope, &s.step}) grow(*v, static_cast<size_t>(w));
+
+  // Heights relative to the block's first known one, so the squared sums keep their digits at
+  // any altitude (the fit does not depend on the offset).
+  double zref = 0.0;
+  for (size_t x = 0, e = static_cast<size_t>(b.h + 2 * K) * static_cast<size_t>(W); x < e; ++x)
+    if (G[x] - G[x] == 0.0f) {
+      zref = G[x];
+      break;
+    }
+  planeRows(G, b, zref, s.prefix.data(), s.mom.data());
+  stepPasses(G, b, s);
+
+  // Plane fit, pass 2: running sums down the columns over the 2k + 1 rows of the window; row q
+  // of pass 1 weighs with its index q, recentred on the window's middle in solveRow().
+  double* acc = s.acc.data();
+  std::fill(acc, acc + 10 * static_cast<size_t>(w), 0.0);
+  const double* M = s.mom.data();
+  // acc planes: n, qx, qxx, y, qxy, yy, z, qxz, yz, zz; from mom planes a0, a1, a2, b0, b1, c0.
+  auto moveWindow = [&](int qin, int qout) {
+    const double wi = qin, wo = qout;
+    const size_t oi = static_cast<size_t>(qin) * static_cast<size_t>(w);
+    const size_t oo = static_cast<size_t>(qout < 0 ? 0 : qout) * static_cast<size_t>(w);
+    const int src[10] = {0, 0, 0, 1, 1, 2, 3, 3, 4, 5};
+    const int pw[10] = {0, 1, 2, 0, 1, 0, 0, 1, 0, 0};  // weight q^pw
+    for (int a = 0; a < 10; ++a) {
+      const double* plane = M + static_cast<size_t>(src[a]) * n1;
+      const double fi = pw[a] == 0 ? 1.0 : pw[a] == 1 ? wi : wi * wi;
+      const double fo = pw[a] == 0 ? 1.0 : pw[a] == 1 ? wo : wo * wo;
+      double* dst = acc + static_cast<size_t>(a) * static_cast<size_t>(w);
+      if (qout < 0)
+        addScaled(dst, plane + oi, fi, w);
+      else
+        slide(dst, plane + oi, plane + oo, fi, fo, w);
+    }
+  };
+  for (int q = 0; q < 2 * k; ++q) moveWindow(q, -1);
+  long fitted = 0;
+  for (int r = 0; r < h; ++r) {
+    moveWindow(r + 2 * k, r - 1);
+    const float* centre = G + static_cast<size_t>(K + r) * static_cast<size_t>(W) + K;
+    solveRow(acc, w, r + k, centre, lim, s.gm.data(), s.rough.data());
+    // Step window of output row r: pass-1 rows [r, r + L - 1] (block suffix at r, prefix at its end).
+    const size_t lo = static_cast<size_t>(r) * static_cast<size_t>(w), hi = static_cast<size_t>(r + L - 1) * static_cast<size_t>(w);
+    stepRow(s.vsmax.data() + lo, s.vpmax.data() + hi, s.vsmin.data() + lo, s.vpmin.data() + hi, centre, w,
+            s.step.data());
+    fitted += slopeRow(s.gm.data(), w, s.slope.data());
+    const size_t o = ob + static_cast<size_t>(r) * static_cast<size_t>(T);
+    writeRow(s.slope.data(), s.rough.data(), s.step.data(), w, lim, out[0] + o, out[1] + o, out[2] + o, out[3] + o);
+  }
+  return fitted;
 }
 
 }  // namespace
@@ -155,9 +444,17 @@ Traversability::PassStats Traversability::runTiles(LayeredMap& map, const Execut
   const int k = planeHalfWidth(res), ks = stepHalfWidth(res);
   const int K = std::max(k, ks);
   const Index start = map.startIndex();
-  const TraversabilityConfig cfg = cfg_;
-  const double wsum = cfg.weight_slope + cfg.weight_roughness + cfg.weight_step;
-  const double inv_res2 = 1.0 / (res * res);
+  Limits lim;
+  lim.min_n = static_cast<double>(cfg_.min_points);
+  lim.inv_res2 = 1.0 / (res * res);
+  lim.cs = static_cast<float>(cfg_.critical_slope_rad);
+  lim.cr = static_cast<float>(cfg_.critical_roughness_m);
+  lim.ch = static_cast<float>(cfg_.critical_step_m);
+  lim.ws = static_cast<float>(cfg_.weight_slope);
+  lim.wr = static_cast<float>(cfg_.weight_roughness);
+  lim.wh = static_cast<float>(cfg_.weight_step);
+  lim.wsum = lim.ws + lim.wr + lim.wh;
+  lim.blocks = cfg_.any_critical_blocks;
 
   std::vector<long> fitted(tiles.size(), 0), budget(tiles.size(), 0), written(tiles.size(), 0);
   ex.forEach(static_cast<int>(tiles.size()), [&](int task) {
@@ -168,21 +465,18 @@ Traversability::PassStats Traversability::runTiles(LayeredMap& map, const Execut
     const int nc = logicalRuns(rect.c0, rect.cols, start.y(), C, cr);
     std::unique_ptr<Scratch> sp = takeScratch();
     Scratch& s = *sp;
-    float* out_slope = nullptr;
-    float* out_rough = nullptr;
-    float* out_step = nullptr;
-    float* out_trav = nullptr;
+    float* out[4] = {nullptr, nullptr, nullptr, nullptr};
     long fit = 0;
     for (int ri = 0; ri < nr; ++ri)
       for (int ci = 0; ci < nc; ++ci) {
-        const int h = rr[ri].len, w = cr[ci].len;
-        const int H = h + 2 * K, W = w + 2 * K;
+        const BlockShape b{rr[ri].len, cr[ci].len, K, k, ks};
+        const int H = b.h + 2 * K, W = b.W();
         grow(s.g, static_cast<size_t>(H) * static_cast<size_t>(W));
         gather(map, l.elevation, rr[ri].logical - K, cr[ci].logical - K, H, W, s.g.data());
         const float* G = s.g.data();
         // A sparse map's tile with nothing known around it needs no outputs; one whose outputs
         // exist is rewritten (its elevation may have been reset by a move).
-        if (!out_slope) {
+        if (!out[0]) {
           bool any = false;
           for (size_t x = 0, e = static_cast<size_t>(H) * static_cast<size_t>(W); x < e && !any; ++x)
             any = std::isfinite(G[x]);
@@ -194,212 +488,18 @@ Traversability::PassStats Traversability::runTiles(LayeredMap& map, const Execut
             giveScratch(std::move(sp));
             return;
           }
-          out_slope = map.mutableTileData(l.slope, t);
-          out_rough = map.mutableTileData(l.roughness, t);
-          out_step = map.mutableTileData(l.step, t);
-          out_trav = map.mutableTileData(l.traversability, t);
+          out[0] = map.mutableTileData(l.slope, t);
+          out[1] = map.mutableTileData(l.roughness, t);
+          out[2] = map.mutableTileData(l.step, t);
+          out[3] = map.mutableTileData(l.traversability, t);
         }
-        // Heights relative to the block's first known one, so the squared sums keep their
-        // digits at any altitude (the fit does not depend on the offset).
-        double zref = 0.0;
-        for (size_t x = 0, e = static_cast<size_t>(H) * static_cast<size_t>(W); x < e; ++x)
-          if (std::isfinite(G[x])) {
-            zref = G[x];
-            break;
-          }
-
-        // ---- plane fit, pass 1: along each gathered row, moments of the 2k + 1 cells around
-        // every output column (prefix sums, then differences). Mask moments are small integers,
-        // exact in double.
-        const int rows1 = h + 2 * k;
-        const size_t n1 = static_cast<size_t>(rows1) * static_cast<size_t>(w);
-        grow(s.a0, n1), grow(s.a1, n1), grow(s.a2, n1), grow(s.b0, n1), grow(s.b1, n1), grow(s.c0, n1);
-        for (auto* v : {&s.p0, &s.p1, &s.p2, &s.pz, &s.p1z, &s.pzz}) grow(*v, static_cast<size_t>(W) + 1);
-        for (int q = 0; q < rows1; ++q) {
-          const float* row = G + static_cast<size_t>(K - k + q) * static_cast<size_t>(W);
-          double P0 = 0, P1 = 0, P2 = 0, Pz = 0, P1z = 0, Pzz = 0;
-          s.p0[0] = s.p1[0] = s.p2[0] = s.pz[0] = s.p1z[0] = s.pzz[0] = 0.0;
-          for (int x = 0; x < W; ++x) {
-            const float v = row[x];
-            if (std::isfinite(v)) {
-              const double z = static_cast<double>(v) - zref;
-              const double xd = x;
-              P0 += 1.0;
-              P1 += xd;
-              P2 += xd * xd;
-              Pz += z;
-              P1z += xd * z;
-              Pzz += z * z;
-            }
-            s.p0[x + 1] = P0, s.p1[x + 1] = P1, s.p2[x + 1] = P2;
-            s.pz[x + 1] = Pz, s.p1z[x + 1] = P1z, s.pzz[x + 1] = Pzz;
-          }
-          const size_t o = static_cast<size_t>(q) * static_cast<size_t>(w);
-          for (int c = 0; c < w; ++c) {
-            const int gc = K + c, lo = gc - k, hi = gc + k + 1;
-            const double g = gc;
-            const double m0 = s.p0[hi] - s.p0[lo], m1 = s.p1[hi] - s.p1[lo], m2 = s.p2[hi] - s.p2[lo];
-            const double mz = s.pz[hi] - s.pz[lo], m1z = s.p1z[hi] - s.p1z[lo];
-            s.a0[o + c] = m0;
-            s.a1[o + c] = m1 - g * m0;
-            s.a2[o + c] = m2 - 2.0 * g * m1 + g * g * m0;
-            s.b0[o + c] = mz;
-            s.b1[o + c] = m1z - g * mz;
-            s.c0[o + c] = s.pzz[hi] - s.pzz[lo];
-          }
-        }
-
-        // ---- step height, pass 1: max and min of the 2ks + 1 cells around every output column.
-        const int L = 2 * ks + 1;
-        const int rows2 = h + 2 * ks;
-        const size_t n2 = static_cast<size_t>(rows2) * static_cast<size_t>(w);
-        grow(s.hmax, n2), grow(s.hmin, n2);
-        const int span = std::max(W, rows2);
-        for (auto* v : {&s.gmax, &s.gmin, &s.rmax, &s.rmin}) grow(*v, static_cast<size_t>(span) * static_cast<size_t>(w));
-        for (int q = 0; q < rows2; ++q) {
-          const float* row = G + static_cast<size_t>(K - ks + q) * static_cast<size_t>(W);
-          float* hi_in = s.rmax.data();  // the row with unknown cells neutral for max / min
-          float* lo_in = s.rmin.data();
-          for (int x = 0; x < W; ++x) {
-            const bool known = std::isfinite(row[x]);
-            hi_in[x] = known ? row[x] : -kInf;
-            lo_in[x] = known ? row[x] : kInf;
-          }
-          const size_t o = static_cast<size_t>(q) * static_cast<size_t>(w);
-          // Output column c's window starts at gathered column K + c - ks.
-          slidingExtreme<true>(hi_in + (K - ks), w + 2 * ks, L, s.gmax.data(), s.gmin.data(), s.hmax.data() + o);
-          slidingExtreme<false>(lo_in + (K - ks), w + 2 * ks, L, s.gmax.data(), s.gmin.data(), s.hmin.data() + o);
-        }
-        // Pass 2 down the columns, all columns of a row at once (contiguous, vectorised):
-        // block prefix / suffix extremes over rows, van Herk again.
-        {
-          float* pmax = s.gmax.data();
-          float* pmin = s.gmin.data();
-          float* qmax = s.rmax.data();
-          float* qmin = s.rmin.data();
-          const size_t W2 = static_cast<size_t>(w);
-          for (int q = 0; q < rows2; ++q) {
-            const float* hx = s.hmax.data() + q * W2;
-            const float* hn = s.hmin.data() + q * W2;
-            float* px = pmax + q * W2;
-            float* pn = pmin + q * W2;
-            if (q % L == 0) {
-              std::memcpy(px, hx, sizeof(float) * W2);
-              std::memcpy(pn, hn, sizeof(float) * W2);
-            } else {
-              const float* ppx = px - W2;
-              const float* ppn = pn - W2;
-              for (size_t c = 0; c < W2; ++c) {
-                px[c] = ppx[c] > hx[c] ? ppx[c] : hx[c];
-                pn[c] = ppn[c] < hn[c] ? ppn[c] : hn[c];
-              }
-            }
-          }
-          for (int q = rows2 - 1; q >= 0; --q) {
-            const float* hx = s.hmax.data() + q * W2;
-            const float* hn = s.hmin.data() + q * W2;
-            float* sx = qmax + q * W2;
-            float* sn = qmin + q * W2;
-            if (q == rows2 - 1 || (q + 1) % L == 0) {
-              std::memcpy(sx, hx, sizeof(float) * W2);
-              std::memcpy(sn, hn, sizeof(float) * W2);
-            } else {
-              const float* nx = sx + W2;
-              const float* nn = sn + W2;
-              for (size_t c = 0; c < W2; ++c) {
-                sx[c] = nx[c] > hx[c] ? nx[c] : hx[c];
-                sn[c] = nn[c] < hn[c] ? nn[c] : hn[c];
-              }
-            }
-          }
-        }
-
-        // ---- plane fit, pass 2: running sums down the columns over the 2k + 1 rows of the
-        // window; row q of pass 1 weighs with its index q, recentred on the window's middle.
-        for (auto* v : {&s.n, &s.qx, &s.qxx, &s.y, &s.qxy, &s.yy, &s.z, &s.qxz, &s.yz, &s.zz}) {
-          grow(*v, static_cast<size_t>(w));
-          std::fill(v->begin(), v->begin() + w, 0.0);
-        }
-        auto addRow = [&](int q, double sign) {
-          const size_t o = static_cast<size_t>(q) * static_cast<size_t>(w);
-          const double wq = q, wqq = static_cast<double>(q) * q;
-          for (int c = 0; c < w; ++c) {
-            const double A0 = sign * s.a0[o + c], A1 = sign * s.a1[o + c], B0 = sign * s.b0[o + c];
-            s.n[c] += A0;
-            s.qx[c] += wq * A0;
-            s.qxx[c] += wqq * A0;
-            s.y[c] += A1;
-            s.qxy[c] += wq * A1;
-            s.yy[c] += sign * s.a2[o + c];
-            s.z[c] += B0;
-            s.qxz[c] += wq * B0;
-            s.yz[c] += sign * s.b1[o + c];
-            s.zz[c] += sign * s.c0[o + c];
-          }
-        };
-        for (int q = 0; q < 2 * k; ++q) addRow(q, 1.0);
-        const double min_n = static_cast<double>(cfg.min_points);
-        const float fcs = static_cast<float>(cfg.critical_slope_rad);
-        const float fcr = static_cast<float>(cfg.critical_roughness_m);
-        const float fch = static_cast<float>(cfg.critical_step_m);
-        for (int r = 0; r < h; ++r) {
-          addRow(r + 2 * k, 1.0);
-          const double qc = r + k;
-          const float* centre = G + static_cast<size_t>(K + r) * static_cast<size_t>(W) + K;
-          // Step window of output row r: pass-1 rows [r, r + L - 1].
-          const float* smax_lo = s.rmax.data() + static_cast<size_t>(r) * static_cast<size_t>(w);
-          const float* smax_hi = s.gmax.data() + static_cast<size_t>(r + L - 1) * static_cast<size_t>(w);
-          const float* smin_lo = s.rmin.data() + static_cast<size_t>(r) * static_cast<size_t>(w);
-          const float* smin_hi = s.gmin.data() + static_cast<size_t>(r + L - 1) * static_cast<size_t>(w);
-          const size_t ob = static_cast<size_t>(rr[ri].buffer - rect.r0 + r) * static_cast<size_t>(T) +
-                            static_cast<size_t>(cr[ci].buffer - rect.c0);
-          for (int c = 0; c < w; ++c) {
-            float slope = kNaN, rough = kNaN, step = kNaN, trav = kNaN;
-            const double n = s.n[c];
-            if (std::isfinite(centre[c])) {
-              const float mx = smax_lo[c] > smax_hi[c] ? smax_lo[c] : smax_hi[c];
-              const float mn = smin_lo[c] < smin_hi[c] ? smin_lo[c] : smin_hi[c];
-              step = mx - mn;
-              if (n >= min_n) {
-                // Sums over the window with offsets x (rows) and y (columns) from its middle.
-                const double Sx = s.qx[c] - qc * n, Sxx = s.qxx[c] - 2.0 * qc * s.qx[c] + qc * qc * n;
-                const double Sy = s.y[c], Sxy = s.qxy[c] - qc * s.y[c], Syy = s.yy[c];
-                const double Sz = s.z[c], Sxz = s.qxz[c] - qc * s.z[c], Syz = s.yz[c], Szz = s.zz[c];
-                // n² times the covariances: the mask ones are exact integers, so collinear
-                // cells give det == 0 exactly.
-                const double Dxx = n * Sxx - Sx * Sx, Dyy = n * Syy - Sy * Sy, Dxy = n * Sxy - Sx * Sy;
-                const double Dxz = n * Sxz - Sx * Sz, Dyz = n * Syz - Sy * Sz, Dzz = n * Szz - Sz * Sz;
-                const double det = Dxx * Dyy - Dxy * Dxy;
-                if (det > 0.0) {
-                  const double b = (Dyy * Dxz - Dxy * Dyz) / det;  // m per cell along rows
-                  const double cc = (Dxx * Dyz - Dxy * Dxz) / det;  // m per cell along columns
-                  const double g2 = (b * b + cc * cc) * inv_res2;
-                  const double msr = std::max(0.0, Dzz - b * Dxz - cc * Dyz) / (n * n);
-                  slope = static_cast<float>(std::atan(std::sqrt(g2)));
-                  rough = static_cast<float>(std::sqrt(msr / (1.0 + g2)));
-                  const float ts = 1.0f - std::min(1.0f, slope / fcs);
-                  const float tr = 1.0f - std::min(1.0f, rough / fcr);
-                  const float th = 1.0f - std::min(1.0f, step / fch);
-                  if (cfg.any_critical_blocks && (ts <= 0.0f || tr <= 0.0f || th <= 0.0f))
-                    trav = 0.0f;
-                  else
-                    trav = static_cast<float>((cfg.weight_slope * ts + cfg.weight_roughness * tr +
-                                               cfg.weight_step * th) / wsum);
-                  ++fit;
-                }
-              }
-            }
-            out_slope[ob + c] = slope;
-            out_rough[ob + c] = rough;
-            out_step[ob + c] = step;
-            out_trav[ob + c] = trav;
-          }
-          addRow(r, -1.0);
-        }
+        const size_t ob = static_cast<size_t>(rr[ri].buffer - rect.r0) * static_cast<size_t>(T) +
+                          static_cast<size_t>(cr[ci].buffer - rect.c0);
+        fit += computeBlock(G, b, lim, s, out, ob, T);
       }
     giveScratch(std::move(sp));
     fitted[static_cast<size_t>(task)] = fit;
-    written[static_cast<size_t>(task)] = out_slope ? 1 : 0;
+    written[static_cast<size_t>(task)] = out[0] ? 1 : 0;
   });
   PassStats st;
   for (size_t x = 0; x < tiles.size(); ++x) {
