@@ -15,6 +15,7 @@
 #include <algorithm>
 #include <array>
 #include <chrono>
+#include <cstdio>
 #include <deque>
 #include <fstream>
 #include <limits>
@@ -390,6 +391,20 @@ class FoxgloveSession : public std::enable_shared_from_this<FoxgloveSession> {
 
 namespace {
 
+/// A Foxglove app that sends an Origin is refused until the user lists it: say which, on the
+/// console (the refused client learns nothing). Printable ASCII only, clipped, at most 20 times.
+void noteRefusedOrigin(const http::request<http::string_body>& req) {
+  static int told = 0;
+  const auto origin = req.find(http::field::origin);
+  if (origin == req.end() || told >= 20) return;
+  ++told;
+  std::string o(origin->value().substr(0, 100));
+  for (char& ch : o)
+    if (ch < 0x20 || ch > 0x7e) ch = '?';
+  std::fprintf(stderr, "terramap serve: refused a Foxglove connection from Origin %s (if that is yours: --foxglove-origin %s)\n",
+               o.c_str(), o.c_str());
+}
+
 class HttpSession : public std::enable_shared_from_this<HttpSession> {
  public:
   HttpSession(tcp::socket&& socket, std::shared_ptr<ConnectionSlot> slot)
@@ -424,6 +439,11 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
     if (!srv_->allowed(req, foxglove)) {
       res->result(http::status::forbidden);
       res->body() = "forbidden: Host or Origin is not this server\n";
+      if (foxglove) {
+        http::request<http::string_body> without_origin = req;
+        without_origin.erase(http::field::origin);
+        if (srv_->allowed(without_origin, true)) noteRefusedOrigin(req);  // the Origin was the reason
+      }
     } else if (foxglove) {
       stream_.expires_never();
       std::make_shared<FoxgloveSession>(stream_.release_socket(), slot_)->start(std::move(req));
