@@ -86,18 +86,19 @@ function(terramap_add_plugin name)
         "cannot load the module); `terramap validate` will need --load-plugins for it")
       return()
     endif()
+    # The module is relinked, and so described again, when the code that describes changes (in
+    # this tree its sources: the tool itself is relinked on every change of the pipeline
+    # library, which would relink every plugin), so it never keeps a schema an older tool wrote.
     if(TARGET terramap_plugin_api)
       set(_tool terramap_plugin_schema)
-      set(_describer terramap_pipeline)
       add_dependencies(${name} terramap_plugin_schema)
+      set(_src ${CMAKE_CURRENT_FUNCTION_LIST_DIR}/..)
+      set_property(TARGET ${name} APPEND PROPERTY LINK_DEPENDS ${_src}/pipeline/plugin_schema.cpp
+        ${_src}/../include/terramap/pipeline/plugin_schema.hpp ${_src}/../tools/plugin_schema/main.cpp)
     else()
       set(_tool terramap::plugin_schema)
-      set(_describer terramap::pipeline)
+      set_property(TARGET ${name} APPEND PROPERTY LINK_DEPENDS $<TARGET_FILE:terramap::plugin_schema>)
     endif()
-    # Relinked (and described again) when the tool or the library that describes changes, so
-    # a module never keeps a schema an older tool wrote.
-    set_property(TARGET ${name} APPEND PROPERTY LINK_DEPENDS
-      $<TARGET_FILE:${_tool}> $<TARGET_FILE:${_describer}>)
     set(_objcopy "${CMAKE_OBJCOPY}")
     if(NOT _objcopy)
       find_program(TERRAMAP_OBJCOPY objcopy REQUIRED)
