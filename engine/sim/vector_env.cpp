@@ -3,6 +3,8 @@
 #include <terramap/sim/env.hpp>
 #include <terramap/sim/world.hpp>
 
+#include <tbb/partitioner.h>
+
 #include <stdexcept>
 
 namespace terramap::sim {
@@ -14,6 +16,7 @@ VectorEnv::VectorEnv(const Scenario& scenario, int n, VectorEnvOptions options) 
   auto kept = std::make_shared<const TruthTerrain>(buildTerrain(scenario.terrain));
   for (int k = 0; k < n; ++k) envs_.push_back(std::unique_ptr<Env>(new Env(scenario, options.env, kept)));
   exec_ = std::make_unique<Executor>(options.threads);
+  affinity_ = std::make_unique<tbb::affinity_partitioner>();
   const Env& e0 = *envs_.front();
   for (std::size_t a = 0; a < e0.agentCount(); ++a) {
     action_width_ += e0.actionSize(a);
@@ -41,8 +44,27 @@ void VectorEnv::gather(int k, const StepResult& r) {
   t_[kk] = r.info.t;
 }
 
+template <class F>
+void VectorEnv::forEachEnv(F&& f) {
+  if (exec_->threads() == 1 || exec_->backend() != Executor::Backend::kTbb || size() == 1) {
+    exec_->forEach(size(), f);
+    return;
+  }
+  // Each environment on the thread that stepped it last time where possible (TBB's affinity
+  // partitioner replays the previous step's mapping): its terrain and machines stay in that
+  // core's cache. Environments are independent, so the mapping changes no bit of the results.
+  exec_->arena().execute([&] {
+    tbb::parallel_for(
+        tbb::blocked_range<int>(0, size(), 1),
+        [&](const tbb::blocked_range<int>& r) {
+          for (int k = r.begin(); k != r.end(); ++k) f(k);
+        },
+        *affinity_);
+  });
+}
+
 void VectorEnv::reset(std::optional<std::uint64_t> seed) {
-  exec_->forEach(size(), [&](int k) {
+  forEachEnv([&](int k) {
     const std::size_t kk = static_cast<std::size_t>(k);
     last_[kk] = envs_[kk]->reset(seed ? std::optional<std::uint64_t>(*seed + kk) : std::nullopt);
     gather(k, last_[kk]);
@@ -71,7 +93,7 @@ void VectorEnv::step(const double* actions, std::size_t n) {
       }
     }
   }
-  exec_->forEach(size(), [&](int k) {
+  forEachEnv([&](int k) {
     const std::size_t kk = static_cast<std::size_t>(k);
     Env& e = *envs_[kk];
     StepResult r = e.step(actions + kk * w, w);

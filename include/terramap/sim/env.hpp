@@ -34,6 +34,8 @@
 /// (VectorEnv). Results do not depend on EnvOptions::threads.
 #include <terramap/sim/simulator.hpp>
 
+#include <tbb/partitioner.h>
+
 #include <cstdint>
 #include <limits>
 #include <memory>
@@ -222,8 +224,11 @@ class VectorEnv {
 
  private:
   void gather(int k, const StepResult& r);
+  template <class F>
+  void forEachEnv(F&& f);
   std::vector<std::unique_ptr<Env>> envs_;
   std::unique_ptr<Executor> exec_;
+  std::unique_ptr<tbb::affinity_partitioner> affinity_;
   std::size_t action_width_ = 0;
   std::vector<std::vector<double>> obs_, rew_;
   std::vector<double> task_, t_;
