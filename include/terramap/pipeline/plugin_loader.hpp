@@ -11,7 +11,9 @@
 /// Trust (docs/reliability.md, "What a config file can make terramap do"): loading a library
 /// runs its code. A pipeline file's `plugin_paths` are used only when the user allowed it
 /// (allowConfigPluginPaths(), `--allow-config-plugin-paths`); forPipeline() refuses them
-/// otherwise. Listing the types for a did-you-mean reads the files and loads none.
+/// otherwise. Listing the types for a did-you-mean reads the files and loads none, and so does
+/// describe(), which `terramap validate` checks stages with (the description each plugin's
+/// build embedded in its file, plugin_schema.hpp).
 ///
 /// Before creating anything the loader checks, in this order, and refuses with a PluginError
 /// naming the file, the expected and the found value, *from the file, before loading it* (so
