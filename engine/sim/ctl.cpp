@@ -22,10 +22,52 @@ double wrapAngle(double a) {
 constexpr double kCylBase[3] = {0.95, 0.40, 0.45};
 constexpr double kCylLever[3] = {0.60, 0.30, 0.35};
 
+/// One track half sinking over dt into the rut its soil lets it press: `Z` (m) is how deep the
+/// tracks have pressed the ground under it (the static Bekker sinkage of that soil under the mean
+/// ground pressure, pressed into the terrain at once by Simulator::pressTracks), `z` and `vz` how
+/// far the support has sunk so far and how fast (m, m/s, down positive). A quarter of the mass
+/// mk (kg) on the soil's loading curve: having pressed the soil z deep, the soil carries
+/// W_k (z / Z)^n (Bekker's p = k z^n, which is W_k at the static sinkage Z; M. G. Bekker,
+/// *Introduction to Terrain-Vehicle Systems*, 1969; n of the soil, J. Y. Wong, *Theory of Ground
+/// Vehicles*, terrain-value table), so a support placed on unpressed ground starts falling freely
+/// and slows as the soil takes its weight. Pressing soil is plastic work the rut does not give
+/// back (unloaded, sand springs back by a small fraction of its sinkage: Wong, "response to
+/// repetitive loading"), so the support must not bounce: the soil's resistance to being pressed
+/// at a rate is a damper of the least strength at which the support, linearised at rest
+/// (stiffness n W_k / Z), does not oscillate: critical damping, 2 m_k sqrt(n g / Z). A shallower
+/// rut (firmer ground ahead) lifts the support at once (the ground carries it), as does any
+/// change of the terrain's shape (the caller adds z to the unpressed surface, which it follows
+/// as before). Sub-steps keep the stiff dense soils (Z of a few tenths of a millimetre) stable.
+/// Returns the mean vertical force of the ground over the step (N).
+double sinkSupport(double& z, double& vz, double Z, double n, double mk, double dt) {
+  const double Wk = mk * kG;
+  if (!(Z > 1e-6) || z >= Z) {  // no rut (rigid, or no soil model): kinematic; or at its bottom
+    z = std::max(0.0, std::min(z, Z));
+    vz = 0;
+    return Wk;
+  }
+  const double w = std::sqrt(n * kG / Z), c = 2.0 * mk * w;
+  const int N = std::clamp(static_cast<int>(std::ceil(w * dt / 0.1)), 1, 256);
+  const double hdt = dt / N;
+  double F_sum = 0;
+  for (int s = 0; s < N; ++s) {
+    const double F = std::max(0.0, Wk * std::pow(std::max(0.0, z) / Z, n) + c * vz);
+    vz += hdt * (kG - F / mk);
+    z += hdt * vz;
+    F_sum += F;
+    if (z >= Z) {  // on the rut's bottom: the soil holds the weight there (plastic)
+      z = Z;
+      vz = 0;
+    }
+  }
+  return F_sum / N;
+}
+
 }  // namespace
 
 CompactTrackLoader::CompactTrackLoader(const MachineSpec& spec, const TruthTerrain& terrain)
-    : spec_(spec), x_(spec.x_m), y_(spec.y_m), yaw_(spec.yaw_rad), rpm_(spec.engine_rated_rpm) {
+    : spec_(spec), x_(spec.x_m), y_(spec.y_m), yaw_(spec.yaw_rad), rpm_(spec.engine_rated_rpm),
+      normal_n_(spec.mass_kg * kG) {
   for (int k = 0; k < 3; ++k) q_[k] = std::clamp(q_[k], spec.joint_min[k], spec.joint_max[k]);
   placeOnTerrain(terrain);
 }
@@ -59,26 +101,78 @@ std::array<double, 3> CompactTrackLoader::cylinderVelocities() const {
   return v;
 }
 
-void CompactTrackLoader::placeOnTerrain(const TruthTerrain& terrain) {
+std::array<double, 4> CompactTrackLoader::supportGap() const {
+  std::array<double, 4> g{};
+  for (int k = 0; k < 4; ++k) g[k] = std::max(0.0, rut_z_[k] - sup_z_[k]);
+  return g;
+}
+
+void CompactTrackLoader::contactMove(const Eigen::Vector2d& d, double v, const TruthTerrain& terrain) {
+  const double ox = x_, oy = y_;
+  const Eigen::Isometry3d before = T_map_base_;
+  x_ += d.x();
+  y_ += d.y();
+  v_ = v;
+  placeOnTerrain(terrain, nullptr, 0.0);
+  if (T_map_base_.translation().x() != x_ || T_map_base_.translation().y() != y_) {
+    x_ = ox;
+    y_ = oy;
+    v_ = 0;
+    T_map_base_ = before;
+  }
+}
+
+void CompactTrackLoader::placeOnTerrain(const TruthTerrain& terrain, const CtlLoad* load, double dt) {
   const double c = std::cos(yaw_), s = std::sin(yaw_);
   const double L = spec_.track_length_m, B = spec_.track_gauge_m;
   // Support height of each track half: the highest terrain point under it (the track rests on it).
-  double z[2][2];  // [front/rear][left/right]
+  // With the soil model also the highest of the surface with the ruts the tracks pressed added
+  // back: the ground's shape, which the track follows as before, while it sinks into the ruts
+  // over time (sinkSupport).
+  const bool settle = spec_.track_soil && sup_ready_;
+  double z[2][2], zu[2][2];  // [front/rear][left/right]
   bool ok = true;
   for (int fr = 0; fr < 2; ++fr) {
     for (int lr = 0; lr < 2; ++lr) {
       const double ly = lr == 0 ? 0.5 * B : -0.5 * B;
-      double zmax = -1e300;
+      double zmax = -1e300, umax = -1e300;
       for (int m = 0; m < 5; ++m) {
         const double lx = (fr == 0 ? 1.0 : -1.0) * (0.5 * L) * (m + 0.5) / 5.0;
-        const double h = terrain.heightAt(x_ + c * lx - s * ly, y_ + s * lx + c * ly);
+        const double px = x_ + c * lx - s * ly, py = y_ + s * lx + c * ly;
+        const double h = terrain.heightAt(px, py);
         if (std::isnan(h)) ok = false;
         else zmax = std::max(zmax, h);
+        if (settle) umax = std::max(umax, h + terrain.pressedAt(px, py));
       }
       z[fr][lr] = zmax;
+      zu[fr][lr] = settle ? std::max(umax, zmax) : zmax;
     }
   }
   if (!ok) return;  // caller reverts the move
+  if (settle) {
+    double N = 0;
+    for (int k = 0; k < 4; ++k) {
+      const double h = z[k / 2][k % 2], u = zu[k / 2][k % 2];
+      rut_z_[k] = u - h;
+      if (load && dt > 0) {
+        N += sinkSupport(sup_z_[k], sup_vz_[k], u - h, load->support_n[k], 0.25 * spec_.mass_kg, dt);
+      } else {
+        // Moved without time passing (a contact): sunk as far as before, at most to the rut.
+        sup_z_[k] = std::min(sup_z_[k], u - h);
+      }
+      z[k / 2][k % 2] = u - sup_z_[k];
+    }
+    if (load && dt > 0) normal_n_ = N;
+  } else {
+    // Kinematic (no soil model, or the first placement): on the ground, fully sunk.
+    for (int k = 0; k < 4; ++k) {
+      rut_z_[k] = 0;
+      sup_z_[k] = 0;
+      sup_vz_[k] = 0;
+    }
+    sup_ready_ = true;
+    normal_n_ = spec_.mass_kg * kG;
+  }
   const double z0 = 0.25 * (z[0][0] + z[0][1] + z[1][0] + z[1][1]);
   const double px = (0.5 * (z[0][0] + z[0][1]) - 0.5 * (z[1][0] + z[1][1])) / (0.5 * L);
   const double py = (0.5 * (z[0][0] + z[1][0]) - 0.5 * (z[0][1] + z[1][1])) / B;
@@ -145,8 +239,11 @@ double CompactTrackLoader::step(double dt, const CtlCommand& cmd, const CtlLoad&
   const double m = spec_.mass_kg;
   double f_lim, f_trac;
   if (spec_.track_soil) {
-    f_lim = std::min(2.0 * spec_.track_width_m * spec_.track_length_m * load.ground_cohesion_pa +
-                         W * std::cos(uphill) * load.ground_tan_phi,
+    // The ground's normal force, not the weight: less while the tracks still sink (falling onto
+    // their ruts), and the cohesive share in proportion (a track half in the air grips nothing).
+    const double carried = std::clamp(normal_n_ / W, 0.0, 1.0);
+    f_lim = std::min(2.0 * spec_.track_width_m * spec_.track_length_m * load.ground_cohesion_pa * carried +
+                         normal_n_ * std::cos(uphill) * load.ground_tan_phi,
                      spec_.max_drive_force_n);
     f_trac = soilTraction(dt, v_d, f_lim, W * std::sin(uphill), load.shear_k_m);
   } else {
@@ -155,7 +252,7 @@ double CompactTrackLoader::step(double dt, const CtlCommand& cmd, const CtlLoad&
     f_trac = f_lim * std::clamp((v_d - v_) / 0.1, -1.0, 1.0);
   }
   const double v_trial = v_ + dt / m * (f_trac - W * std::sin(uphill));
-  const double roll_res = spec_.rolling_resistance * W + (spec_.track_soil ? load.compaction_n : 0.0);
+  const double roll_res = spec_.rolling_resistance * W + (spec_.track_soil ? load.compaction_n + load.bulldozing_n : 0.0);
   double v_new = 0, applied = 0;
   if (v_trial > 0) {
     const double resist = roll_res + load.resist_n;
@@ -174,7 +271,7 @@ double CompactTrackLoader::step(double dt, const CtlCommand& cmd, const CtlLoad&
   y_ += vh * std::sin(yaw_) * dt;
   yaw_ = wrapAngle(yaw_ + omega_ * dt);
   const Eigen::Isometry3d before = T_map_base_;
-  placeOnTerrain(terrain);
+  placeOnTerrain(terrain, &load, dt);
   if (T_map_base_.translation().x() != x_ || T_map_base_.translation().y() != y_) {
     // Left the terrain: stay where we were.
     x_ = ox;

@@ -968,6 +968,7 @@ Scenario parseImpl(const std::string& text, Ctx& ctx) {
   sc.threads = r.integer("threads", sc.threads, 1, 256);
   sc.overlap_scans = r.boolean("overlap_scans", sc.overlap_scans);
   sc.lidar_sees_machines = r.boolean("lidar_sees_machines", sc.lidar_sees_machines);
+  sc.machines_collide = r.boolean("machines_collide", sc.machines_collide);
   bool extent_known = false;
   {
     MapReader t = r.child("terrain");

@@ -2,6 +2,7 @@
 #include <terramap/core/error.hpp>
 #include <terramap/sim/excavator.hpp>
 #include <terramap/sim/imu.hpp>
+#include <terramap/sim/machine_contact.hpp>
 #include <terramap/sim/simulator.hpp>
 #include <terramap/sim/survey.hpp>
 #include <terramap/sim/track_soil.hpp>
@@ -367,6 +368,21 @@ void Simulator::physicsStep(double dt, bool relax) {
     m.edge_vz = dv.z();
     if (m.arm) armStep(m, dt);
   }
+  if (sc_.machines_collide && machines_.size() > 1) {
+    // Machines collide (machine_contact.hpp): once all have moved, overlaps are pushed apart.
+    std::vector<ContactBody> bodies(machines_.size());
+    for (std::size_t i = 0; i < machines_.size(); ++i) {
+      Machine& m = *machines_[i];
+      bodies[i].machine = &m.ctl;
+      if (!m.arm) {
+        placeShape(m.ctl.spec().shape, m.ctl.T_map_base(), m.ctl.T_map_blade(), bodies[i].boxes);
+        continue;
+      }
+      const std::array<Eigen::Isometry3d, 4> links = m.mapLinks(m.ctl.T_map_base(), m.arm->q());
+      placeShape(m.ctl.spec().shape, m.ctl.T_map_base(), m.ctl.T_map_blade(), bodies[i].boxes, &links);
+    }
+    resolveMachineContacts(bodies, terrain_);
+  }
 }
 
 void Simulator::armStep(Machine& m, double dt) {
@@ -431,14 +447,7 @@ double trackPressure(const MachineSpec& s) { return s.mass_kg * 9.80665 / (2.0 *
 }  // namespace
 
 void Simulator::groundUnder(const Machine& m, CtlLoad& load) const {
-  const MachineSpec& spec = m.ctl.spec();
-  const SoilProperties& sp = surfaceSoil(terrain_, soil_, m.ctl.x(), m.ctl.y());
-  const Terramechanics tm = terramechanics(sp.family, sp.relative_density);
-  load.ground_cohesion_pa = sp.fee.c_pa;
-  load.ground_tan_phi = std::tan(sp.fee.phi_rad);
-  load.shear_k_m = tm.shear_k_m;
-  const double z = bekkerSinkage(tm, trackPressure(spec), spec.track_width_m);
-  load.compaction_n = 2.0 * compactionResistance(tm, z, spec.track_width_m);
+  trackGround(terrain_, soil_, m.ctl, load);
 }
 
 void Simulator::pressTracks(Machine& m) {

@@ -1,6 +1,10 @@
 // Track–soil interaction: Bekker sinkage and compaction resistance, Janosi–Hanamoto traction.
+#include <terramap/sim/ctl.hpp>
 #include <terramap/sim/track_soil.hpp>
+#include <terramap/sim/world.hpp>
+#include <terramap/soil/fee.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
@@ -58,6 +62,15 @@ double compactionResistance(const Terramechanics& t, double sinkage_m, double wi
   return width_m * (t.k_c / width_m + t.k_phi) * std::pow(sinkage_m, t.n + 1.0) / (t.n + 1.0);
 }
 
+double bulldozingResistance(double c_pa, double phi_rad, double gamma_n_m3, double sinkage_m, double width_m) {
+  if (!(sinkage_m > 0.0) || !(phi_rad > 0.0)) return 0.0;
+  const fee::BearingFactors f = fee::bearingFactors(phi_rad);
+  const double t = std::tan(phi_rad), c2 = std::cos(phi_rad) * std::cos(phi_rad);
+  const double N_gamma = 2.0 * (f.N_q + 1.0) * t;
+  const double K_pc = (f.N_c - t) * c2, K_pg = (2.0 * N_gamma / t + 1.0) * c2;
+  return width_m * (0.667 * c_pa * sinkage_m * K_pc + 0.5 * gamma_n_m3 * sinkage_m * sinkage_m * K_pg);
+}
+
 double janosiShare(double slip, double contact_length_m, double shear_k_m) {
   const double a = std::abs(slip);
   if (a == 0.0) return 0.0;
@@ -65,6 +78,47 @@ double janosiShare(double slip, double contact_length_m, double shear_k_m) {
   // 1 - (1 - e^-x) / x, written with expm1 so small slips keep their precision (~ x / 2).
   const double share = x < 1e-8 ? 0.5 * x : 1.0 + std::expm1(-x) / x;
   return slip > 0 ? share : -share;
+}
+
+namespace {
+
+constexpr double kG = 9.80665;
+
+const SoilProperties& surfaceSoilAt(const TruthTerrain& t, const SoilField& soil, double x, double y) {
+  const double depth = std::max(0.0, t.initialHeightAt(x, y) - t.heightAt(x, y));
+  return soil.at(x, y, std::isfinite(depth) ? depth : 0.0);
+}
+
+}  // namespace
+
+void trackGround(const TruthTerrain& terrain, const SoilField& soil, const CompactTrackLoader& m, CtlLoad& load) {
+  const MachineSpec& spec = m.spec();
+  const double b = spec.track_width_m;
+  const double p = spec.mass_kg * kG / (2.0 * b * spec.track_length_m);  // mean ground pressure
+  const SoilProperties& sp = surfaceSoilAt(terrain, soil, m.x(), m.y());
+  const Terramechanics tm = terramechanics(sp.family, sp.relative_density);
+  load.ground_cohesion_pa = sp.fee.c_pa;
+  load.ground_tan_phi = std::tan(sp.fee.phi_rad);
+  load.shear_k_m = tm.shear_k_m;
+  // Each track half rests on the soil under its own centre (a machine entering sand settles
+  // front first). A track presses its rut where it meets unpressed soil, under its leading half
+  // (the front one driving forward, the rear one reversing): that soil's compaction resistance.
+  const double c = std::cos(m.yaw()), s = std::sin(m.yaw());
+  const int leading = m.speed() >= 0 ? 0 : 1;
+  load.compaction_n = 0;
+  load.bulldozing_n = 0;
+  for (int k = 0; k < 4; ++k) {
+    const double lx = (k / 2 == 0 ? 0.25 : -0.25) * spec.track_length_m;
+    const double ly = (k % 2 == 0 ? 0.5 : -0.5) * spec.track_gauge_m;
+    const SoilProperties& q = surfaceSoilAt(terrain, soil, m.x() + c * lx - s * ly, m.y() + s * lx + c * ly);
+    const Terramechanics t = terramechanics(q.family, q.relative_density);
+    load.support_sinkage_m[k] = bekkerSinkage(t, p, b);
+    load.support_n[k] = t.n;
+    if (k / 2 == leading) {
+      load.compaction_n += compactionResistance(t, load.support_sinkage_m[k], b);
+      load.bulldozing_n += bulldozingResistance(q.fee.c_pa, q.fee.phi_rad, q.fee.gamma_n_m3, load.support_sinkage_m[k], b);
+    }
+  }
 }
 
 }  // namespace terramap::sim

@@ -36,6 +36,13 @@ struct CtlLoad {
   /// limit of the tractive effort (N, before the slope's cos), compaction resistance of both
   /// tracks (N) and the shear deformation modulus K (m).
   double ground_cohesion_pa = 0, ground_tan_phi = 0, compaction_n = 0, shear_k_m = 0.025;
+  /// Bulldozing resistance of both tracks' leading edges (N; track_soil.hpp).
+  double bulldozing_n = 0;
+  /// The soil under each track half's centre, with MachineSpec::track_soil: its static Bekker
+  /// sinkage under the machine's mean ground pressure (m; informative: the halves sink into the
+  /// ruts the terrain records) and the exponent n of its pressure–sinkage curve, in the order
+  /// front-left, front-right, rear-left, rear-right (docs/sim.md "Track–soil interaction").
+  std::array<double, 4> support_sinkage_m{}, support_n{1, 1, 1, 1};
 };
 
 class CompactTrackLoader {
@@ -73,9 +80,26 @@ class CompactTrackLoader {
   bool stalled() const { return stalled_; }
   /// Commanded trackspeed mean (what the drive is trying to reach).
   double driveSpeed() const { return 0.5 * (vt_[0] + vt_[1]); }
+  /// The ground's vertical force on the tracks (N): the machine's weight once settled, less while
+  /// a track half still sinks into its rut (falling onto it) and more while it is braked there.
+  /// Its Mohr–Coulomb share W tan(phi) of the traction limit uses this force (TERA §IV-A: the
+  /// excavator slows entering sand as "the reduction in the normal forces resulting in sinking").
+  double groundNormalForce() const { return normal_n_; }
+  /// How far each track half (front-left, front-right, rear-left, rear-right) still stands above
+  /// the bottom of the rut under it (m, > 0 while it sinks; 0 once it rests there).
+  std::array<double, 4> supportGap() const;
+  /// A contact with another machine (machine_contact.hpp): moves the base by `d` (map x, y, m)
+  /// and sets the forward speed to `v` (m/s); the pose is taken again from the terrain, the
+  /// supports keeping their heights unless the ground under them is higher. A move off the
+  /// terrain is refused (the machine stays and stops).
+  void contactMove(const Eigen::Vector2d& d, double v, const TruthTerrain& terrain);
 
  private:
-  void placeOnTerrain(const TruthTerrain& terrain);
+  /// The pose from track contact. Kinematic (each track half on the highest ground under it)
+  /// without track_soil; with it each half follows the ground's shape with the tracks' ruts
+  /// added back and sinks into the ruts over `dt` through the Bekker soil under it (ctl.cpp,
+  /// sinkSupport; none without `load` or for dt = 0).
+  void placeOnTerrain(const TruthTerrain& terrain, const CtlLoad* load = nullptr, double dt = 0);
   /// Track–soil traction (MachineSpec::track_soil): the force the tracks exert this step, the
   /// Mohr–Coulomb limit f_lim (N) mobilised by the Janosi–Hanamoto slip at the new speed, with
   /// the slope's pull `downhill_n` (N, W sin(pitch)) and the soil's shear modulus K (m).
@@ -89,6 +113,11 @@ class CompactTrackLoader {
   double rpm_;
   bool stalled_ = false;
   Eigen::Isometry3d T_map_base_ = Eigen::Isometry3d::Identity();
+  // How far each track half (front-left, front-right, rear-left, rear-right) has sunk into the
+  // ground and how fast it sinks (m, m/s, down positive), and how deep the ruts under it are (m).
+  std::array<double, 4> sup_z_{}, sup_vz_{}, rut_z_{};
+  bool sup_ready_ = false;
+  double normal_n_ = 0;  ///< set by the constructor to the weight
 };
 
 /// The machine's controller: random-walk set-points (paper §3.1), scripted parallel passes, or

@@ -330,6 +330,9 @@ struct Scenario {
   /// The LiDARs see the machines (their own and the others): rays stop on them and return
   /// points there. `lidar_sees_machines: false` casts against the terrain only (ablation).
   bool lidar_sees_machines = true;
+  /// Machines collide (machine_contact.hpp): their boxes are kept apart. `machines_collide:
+  /// false` lets them pass through each other (ablation).
+  bool machines_collide = true;
   TerrainSpec terrain;
   SoilProperties default_soil = soilProperties(SoilFamily::Loam, 0.5);
   std::vector<SoilZone> zones;  ///< later zones override earlier ones

@@ -10,6 +10,8 @@
 /// Pure functions: safe from any thread.
 #include <terramap/soil/soil_table.hpp>
 
+#include <array>
+
 namespace terramap::sim {
 
 /// The terrain values of one soil (Bekker's n, k_c, k_phi; Janosi–Hanamoto's K).
@@ -30,8 +32,29 @@ double bekkerSinkage(const Terramechanics& t, double pressure_pa, double width_m
 /// Compaction resistance of one track (N) that sank z: the work of pressing a rut of width b,
 /// per metre travelled: b (k_c / b + k_phi) z^(n+1) / (n + 1).
 double compactionResistance(const Terramechanics& t, double sinkage_m, double width_m);
+/// Bulldozing resistance of one track of width b (N) whose leading edge meets soil (c Pa, phi
+/// rad, unit weight gamma N/m^3) it has sunk z into: the passive earth pressure of the soil wedge
+/// pushed ahead of it, b (0.667 c z K_pc + 0.5 gamma z^2 K_pgamma) with K_pc = (N_c - tan phi)
+/// cos^2 phi and K_pgamma = (2 N_gamma / tan phi + 1) cos^2 phi (Bekker's, in the simplified form
+/// of J. Y. Wong, *Theory of Ground Vehicles*, ch. 2, for a rigid wheel; the leading edge of a
+/// track meets the soil the same way). N_c, N_q of Prandtl and Reissner (fee::
+/// bearingFactors), N_gamma = 2 (N_q + 1) tan phi (Vesic 1973). 0 for z <= 0 or phi <= 0.
+double bulldozingResistance(double c_pa, double phi_rad, double gamma_n_m3, double sinkage_m, double width_m);
 /// Share of the maximum tractive effort a track of contact length L mobilises at slip i
 /// (Janosi–Hanamoto): 1 - K / (i L) (1 - exp(-i L / K)) for i > 0, odd in i, 0 at i = 0.
 double janosiShare(double slip, double contact_length_m, double shear_k_m);
+
+class CompactTrackLoader;
+class SoilField;
+class TruthTerrain;
+struct CtlLoad;
+
+/// The ground under machine `m` for its next step (MachineSpec::track_soil): the Mohr–Coulomb
+/// terms and K of the soil under its centre, the compaction and bulldozing resistances of both
+/// tracks in the soil under their leading halves (where the rut is pressed: the front halves
+/// driving forward, the rear ones reversing), and the static sinkage and n of the soil under each track half's
+/// centre (CtlLoad::support_sinkage_m).
+/// Soil at a point is the soil at the current surface's depth below the initial one.
+void trackGround(const TruthTerrain& terrain, const SoilField& soil, const CompactTrackLoader& m, CtlLoad& load);
 
 }  // namespace terramap::sim
