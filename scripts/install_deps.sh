@@ -7,7 +7,8 @@ PKGS=(build-essential cmake ninja-build pkg-config
   libbenchmark-dev libgtest-dev googletest libpcl-dev libgdal-dev gdal-bin libhdf5-dev libdeflate-dev
   libtorch-dev libopenblas0-openmp nlohmann-json3-dev libcli11-dev libopenmpi-dev openmpi-bin
   pybind11-dev python3-dev python3-numpy python3-pytest python3-matplotlib
-  libfreetype-dev fonts-dejavu-core chromium)
+  libfreetype-dev fonts-dejavu-core chromium
+  libzstd-dev liblz4-dev lz4)
 # `install_deps.sh fuzz` (make fuzz): Debian's clang and its libFuzzer/sanitizer runtimes too.
 if [ "${1:-}" = fuzz ]; then PKGS+=(clang libclang-rt-14-dev); fi
 missing=()
