@@ -92,10 +92,14 @@ class Player {
     if (!engine_->map().hasLayer("elevation"))
       throw ConfigError(a.file + ": the live view shows the layer 'elevation', which no stage creates");
     layer_names_ = engine_->map().layerNames();  // fixed from here on: commands are checked against it
-    for (const std::string& l : a.foxglove_layers)
+    for (std::size_t k = 0; k < a.foxglove_layers.size(); ++k) {
+      const std::string& l = a.foxglove_layers[k];
+      if (std::find(a.foxglove_layers.begin(), a.foxglove_layers.begin() + k, l) != a.foxglove_layers.begin() + k)
+        throw ConfigError("--foxglove-layers: '" + l + "' is given twice (a Grid's field names are unique)");
       if (std::find(layer_names_.begin(), layer_names_.end(), l) == layer_names_.end())
         throw ConfigError("--foxglove-layers: no layer '" + l + "' in " + a.file + didYouMean(l, layer_names_) +
                           "; layers: [" + joinStrings(layer_names_) + "]");
+    }
     colour_layer_ = "elevation";
     playing_ = !a.wait_for_viewer;
   }
@@ -338,7 +342,9 @@ Registrar reg{Command{"serve", [](CLI::App& app, std::function<int()>& run) {
       "picker), fed over a WebSocket. Everything the page needs is served from the build;\n"
       "nothing is fetched from the internet. Ctrl-C stops it. Only this machine can connect\n"
       "unless --host names another address and --allow-remote is given; requests whose Host or\n"
-      "Origin is not this server are refused (docs/reliability.md, \"The live view\").");
+      "Origin is not this server are refused (docs/reliability.md, \"The live view\").\n"
+      "Foxglove: connect to ws://127.0.0.1:PORT for the map (foxglove.Grid, /terramap/map) and the\n"
+      "latest cloud (foxglove.PointCloud, /terramap/cloud); docs/foxglove.md.");
   sub->add_option("pipeline", a->file, "Pipeline YAML file")->required()->check(CLI::ExistingFile);
   sub->add_option("--port,-p", a->port, "Port on 127.0.0.1 (0 = any free port)")->capture_default_str()->check(CLI::Range(0, 65535));
   sub->add_option("--speed", a->speed, "Playback speed x real time of the source's stamps (0 = as fast as possible)")
@@ -371,7 +377,7 @@ Registrar reg{Command{"serve", [](CLI::App& app, std::function<int()>& run) {
       ->capture_default_str();
   sub->add_option("--foxglove-origin", a->foxglove_origins,
                   "An Origin besides this server's that may open the Foxglove endpoint, e.g. https://app.foxglove.dev "
-                  "(repeatable; clients that send no Origin, like Foxglove's desktop app, need none)");
+                  "(repeatable; clients that send no Origin need none)");
   sub->callback([&run, a] {
     run = [a]() -> int {
       {

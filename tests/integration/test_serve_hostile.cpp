@@ -471,3 +471,14 @@ TEST(ServeHostile, FoxgloveConnectionsAndMessageSizeAreCapped) {
   EXPECT_NE(nextTextOrClose(*held[1]).payload.find("\"level\":2"), std::string::npos);
   EXPECT_TRUE(s.alive());
 }
+
+TEST(ServeHostile, FoxgloveLayersAreCheckedBeforeServing) {
+  Result r = sh("serve " + kPipeline + " --port 0 --exit-after 0 --foxglove-layers elevation,elevaton");
+  EXPECT_NE(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("no layer 'elevaton'"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("did you mean 'elevation'"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("serving"), std::string::npos) << r.out;
+  r = sh("serve " + kPipeline + " --port 0 --exit-after 0 --foxglove-layers variance,variance");
+  EXPECT_NE(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("'variance' is given twice"), std::string::npos) << r.out;
+}
