@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# TERA's Fig. 4 on the simulator: the excavator (and the loader) at full lever (both tracks at
+# lever 1, a replayed command log) for 10 s on flat loam, gravel and loose sand, and from loam
+# into a loose-sand strip at x >= 4 m; prints the steady mean speed (2-10 s, or on the strip
+# 1.5 m past its edge to the end), the lowest speed after 1 s and how far the base sank over the
+# run (docs/sim.md "Track–soil interaction" quotes the output). Reads the truth trajectory that
+# `terramap sim --export-tum` writes (stamp x y z qx qy qz qw).
+#
+#   scripts/analysis/fig4_speeds.sh OUT
+#
+# Environment: BUILD (build), BIN (overrides BUILD/bin/terramap), PYTHON (python3 with numpy).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+[[ $# -eq 1 ]] || { sed -n '2,11p' "$0"; exit 2; }
+OUT=$(realpath -m "$1")
+BIN=$(realpath "${BIN:-${BUILD:-build}/bin/terramap}")
+mkdir -p "$OUT"
+printf 't_s,left,right,lift,tilt,angle,slew,boom,arm,bucket\n0,1,1,0,0,0,0,0,0,0\n10,1,1,0,0,0,0,0,0,0\n' > "$OUT/excavator.csv"
+printf 't_s,left,right,lift,tilt,angle\n0,1,1,0,0,0\n10,1,1,0,0,0\n' > "$OUT/ctl.csv"
+printf '| machine | ground | steady speed m/s | lowest after 1 s m/s | base sank cm |\n|---|---|---|---|---|\n'
+for machine in excavator ctl; do
+  for ground in "loam 0.4" "gravel 0.5" "sand 0.0" "loam 0.4 into sand 0.0"; do
+    set -- $ground
+    zones=""
+    [[ $# -gt 2 ]] && zones="  zones: [{name: sand, family: $4, relative_density: $5, strip: {axis: x, range_m: [4, 30]}}]"
+    type_line=""
+    [[ $machine == excavator ]] && type_line="    type: excavator"
+    cat > "$OUT/s.yaml" <<YAML
+version: 1
+seed: 2
+duration_s: 10
+terrain: {size_m: [34, 8], origin_m: [-4, -4], resolution_m: 0.02, snapshot_interval_s: 10}
+soil:
+  default: {family: $1, relative_density: $2}
+$zones
+machines:
+  - id: m
+$type_line
+    controller: {type: replay, file: $machine.csv, units: lever}
+YAML
+    "$BIN" sim "$OUT/s.yaml" --out "$OUT/run" --no-clouds --export-tum "$OUT/path.tum" > /dev/null
+    "${PYTHON:-/usr/bin/python3}" - "$OUT/path.tum" "$machine" "$ground" <<'PY'
+import sys
+import numpy as np
+P = np.loadtxt(sys.argv[1])
+st, x, z = P[:, 0], P[:, 1], P[:, 3]
+v = np.diff(x) / np.diff(st)
+tm = 0.5 * (st[1:] + st[:-1])
+xm = 0.5 * (x[1:] + x[:-1])
+steady = (xm > 5.5) if "into" in sys.argv[3] else (tm > 2.0)
+print(f"| {sys.argv[2]} | {sys.argv[3]} | {v[steady].mean():.4f} | {v[tm > 1].min():.4f} | {100 * (z[0] - z[-1]):.2f} |")
+PY
+  done
+done
