@@ -82,6 +82,10 @@ class Traversability : public Plugin {
                      const std::vector<int>& tiles) const;
   /// Output tiles that read an elevation tile of `changed`: `changed` grown by the wider window.
   std::vector<int> affectedTiles(const LayeredMap& map, const std::vector<int>& changed) const;
+  /// The kernel runs in AVX2 where the CPU has it, else in baseline x86-64: the same bits.
+  /// For tests: false keeps this instance on the baseline path.
+  void setAllowAvx2(bool allow) { allow_avx2_ = allow; }
+  static bool avx2Available();
   /// Half-widths in cells of the plane and step windows at `resolution` (m).
   int planeHalfWidth(double resolution) const;
   int stepHalfWidth(double resolution) const;
@@ -93,6 +97,7 @@ class Traversability : public Plugin {
   TraversabilityConfig cfg_;
   std::string input_, slope_name_, roughness_name_, step_name_, trav_name_;
   bool on_finish_ = true;
+  bool allow_avx2_ = true;
   EventMask events_ = 0;
   TraversabilityLayers ids_;
   // Per-task buffers, reused across calls so a pass does not fault in fresh pages for each tile.

@@ -348,6 +348,30 @@ TEST(Traversability, BitIdenticalAtOneTwoAndFourThreadsOnAMovedMap) {
   EXPECT_GT(finite, static_cast<long>(a.size()) / 2);  // not vacuous
 }
 
+TEST(Traversability, Avx2AndBaselinePathsGiveTheSameBits) {
+  if (!Traversability::avx2Available()) GTEST_SKIP() << "no AVX2 on this CPU: only the baseline path runs";
+  auto run = [](bool avx2) {
+    Fixture fx(130, 150, 0.04, 64);
+    std::mt19937 rng(8);
+    std::normal_distribution<float> n(0, 0.05f);
+    std::uniform_real_distribution<float> u(0.f, 1.f);
+    for (int i = 0; i < 130; ++i)
+      for (int j = 0; j < 150; ++j)
+        fx.map.set(fx.l.elevation, Index(i, j), u(rng) < 0.1f ? NAN : 40.0f + 0.02f * i + (j > 70 ? 0.2f : 0.f) + n(rng));
+    auto f = configured();
+    f.setAllowAvx2(avx2);
+    f.run(fx.map, Executor(1), fx.l);
+    std::vector<float> all;
+    for (LayerId id : {fx.l.slope, fx.l.roughness, fx.l.step, fx.l.traversability}) {
+      const auto v = layerBytes(fx.map, id);
+      all.insert(all.end(), v.begin(), v.end());
+    }
+    return all;
+  };
+  const auto a = run(false), b = run(true);
+  EXPECT_EQ(std::memcmp(a.data(), b.data(), sizeof(float) * a.size()), 0);
+}
+
 TEST(Traversability, ChangedTilesRecomputeToTheBitsOfAWholePass) {
   Fixture fx(96, 96, 0.05, 16);
   plane(fx, 2.0, 0.2, 0.4);
