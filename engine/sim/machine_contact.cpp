@@ -129,15 +129,24 @@ ContactStats resolveMachineContacts(std::vector<ContactBody>& bodies, const Trut
   ContactStats st;
   const std::size_t n = bodies.size();
   if (n < 2) return st;
+  // The prisms (hulls) only of machines near another: most steps of most scenarios have none.
   std::vector<std::vector<Prism>> prisms(n);
+  std::vector<char> built(n, 0);
   std::vector<Eigen::Vector2d> centre(n);
   std::vector<double> reach(n, 0.0);
   for (std::size_t i = 0; i < n; ++i) {
-    prisms[i] = prismsOf(bodies[i].boxes);
     const CompactTrackLoader& m = *bodies[i].machine;
     centre[i] = Eigen::Vector2d(m.x(), m.y());
-    for (const Prism& p : prisms[i]) reach[i] = std::max(reach[i], (p.centre - centre[i]).norm() + p.radius);
+    for (const PlacedBox& b : bodies[i].boxes)
+      reach[i] = std::max(reach[i], (b.centre.head<2>() - centre[i]).norm() + b.radius);
   }
+  auto prismsFor = [&](std::size_t i) -> std::vector<Prism>& {
+    if (!built[i]) {
+      prisms[i] = prismsOf(bodies[i].boxes);
+      built[i] = 1;
+    }
+    return prisms[i];
+  };
   // A separation slightly beyond the overlap, so the pair does not touch again through rounding
   // in the next step's test (0.1 mm: far below anything a sensor resolves).
   constexpr double kSlop = 1e-4;
@@ -147,7 +156,7 @@ ContactStats resolveMachineContacts(std::vector<ContactBody>& bodies, const Trut
       for (std::size_t j = i + 1; j < n; ++j) {
         const double r = reach[i] + reach[j];
         if ((centre[i] - centre[j]).squaredNorm() >= r * r) continue;  // broad phase
-        const BoxOverlap o = deepest(prisms[i], prisms[j]);
+        const BoxOverlap o = deepest(prismsFor(i), prismsFor(j));
         if (!(o.depth > 0)) continue;
         any = true;
         ++st.contacts;
