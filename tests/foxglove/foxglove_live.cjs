@@ -9,7 +9,7 @@
 // server with --foxglove-max-grid 64 sends the 200 x 120 map sampled every 4th cell: checked
 // against the same reference.
 // Usage: node foxglove_live.cjs TERRAMAP PIPELINE WORKDIR
-// Env: NODE_PATH holding @foxglove/ws-protocol and ws (tests/ros2/package.json).
+// Env: NODE_PATH holding @foxglove/ws-protocol and ws (tests/ros2/package.json, installed by tests/ros2).
 const { spawn, execFileSync } = require('child_process');
 const fs = require('fs');
 const path = require('path');
