@@ -81,11 +81,16 @@ void BM_SimVectorEnv(benchmark::State& state) {
   const double before = heapMiB();
   VectorEnv v(sc, n, o);
   v.reset(1);
-  std::mt19937_64 rng(7);
-  std::vector<double> a(static_cast<std::size_t>(n) * v.actionWidth());
+  // Environment k draws its levers from its own stream: its workload does not depend on N.
+  std::vector<std::mt19937_64> rng;
+  for (int k = 0; k < n; ++k) rng.emplace_back(7 + k);
+  const std::size_t w = v.actionWidth();
+  std::vector<double> a(static_cast<std::size_t>(n) * w);
   auto fill = [&] {
-    const auto l = randomLevers(rng, a.size());
-    std::copy(l.begin(), l.end(), a.begin());
+    for (int k = 0; k < n; ++k) {
+      const auto l = randomLevers(rng[static_cast<std::size_t>(k)], w);
+      std::copy(l.begin(), l.end(), a.begin() + static_cast<std::ptrdiff_t>(k * w));
+    }
   };
   fill();
   v.step(a.data(), a.size());  // the lazily allocated state (track nodes) counted in the memory
@@ -106,6 +111,7 @@ BENCHMARK(BM_SimVectorEnv)
     ->ArgsProduct({{1, 2, 8, 32}, {0, 1}})
     ->ArgNames({"N", "lidar"})
     ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()  // CPU column: every thread's, so idle or stolen cores show as CPU < 2 x real
     ->UseRealTime()
     ->MinTime(3.0);
 
