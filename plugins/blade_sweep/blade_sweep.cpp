@@ -166,6 +166,14 @@ ParamSchema BladeSweep::schema() const {
                   "undisturbed unit weight gamma; loose gamma_l = gamma / swell gives Q = gamma_l V_Q"),
       param::real("sigma_sv_m", d.sigma_sv_m, 0.0, 10.0, "m", "1-sigma uncertainty of the blade height during a sweep"),
       param::real("min_cut_m", d.min_cut_m, 0.0, 1.0, "m", "elevation above the swept-volume bottom that counts as a cut"),
+      param::boolean("surcharge_carried", d.surcharge_carried,
+                     "Q from the soil the blade has cut since its pass began (up to the blade's capacity) instead of "
+                     "the mapped loose soil ahead of the edge"),
+      param::real("carried_repose_rad", d.carried_repose_rad, 0.05, 1.5, "rad",
+                  "repose angle of the carried pile's face: the blade holds width x height^2 / (2 tan) of loose soil"),
+      param::boolean("loose_follows_elevation", d.loose_follows_elevation,
+                     "the loose layer is re-read as elevation - loose_base at each update, so the blade pushes the "
+                     "soil the sensors see (false: the bookkeeping alone)"),
       param::boolean("report_steps", true, "write the per-step FEE values of every sweep to the run report"),
       param::boolean("ground_anchor", true, "shift blade heights by the map under the tracks minus the pose's contact plane"),
       param::real("track_length_m", 1.9, 0.1, 20.0, "m", "ground anchor: track contact length"),
@@ -202,6 +210,9 @@ void BladeSweep::configure(const Params& p) {
   cfg_.unit_weight_n_m3 = p.getDouble("unit_weight_n_m3");
   cfg_.sigma_sv_m = p.getDouble("sigma_sv_m");
   cfg_.min_cut_m = p.getDouble("min_cut_m");
+  cfg_.loose_follows_elevation = p.getBool("loose_follows_elevation");
+  cfg_.surcharge_carried = p.getBool("surcharge_carried");
+  cfg_.carried_repose_rad = p.getDouble("carried_repose_rad");
   report_steps_ = p.getBool("report_steps");
   anchor_cfg_.enabled = p.getBool("ground_anchor");
   anchor_cfg_.track_length_m = p.getDouble("track_length_m");
@@ -223,7 +234,7 @@ void BladeSweep::configure(const Params& p) {
 }
 
 std::vector<LayerSpec> BladeSweep::layers() const {
-  return {
+  std::vector<LayerSpec> out = {
       {"elevation", LayerAccess::Write, "", std::numeric_limits<float>::quiet_NaN(), ""},
       {"loose", LayerAccess::Create, "m", 0.0f,
        "thickness of loose (swelled, disturbed) soil on top of the elevation; may be > 0 where elevation is NaN "
@@ -231,6 +242,11 @@ std::vector<LayerSpec> BladeSweep::layers() const {
       {"height_sigma", LayerAccess::Create, "m", std::numeric_limits<float>::quiet_NaN(),
        "1-sigma of the elevation changes made by the blade and erosion; NaN = never changed by them"},
   };
+  if (cfg_.loose_follows_elevation)
+    out.push_back({"loose_base", LayerAccess::Create, "m", std::numeric_limits<float>::quiet_NaN(),
+                   "map z of the undisturbed surface under the loose soil, kept by blade_sweep (loose = "
+                   "elevation - loose_base where both are known); NaN = not yet under a blade's update"});
+  return out;
 }
 
 SweepLayers SweepLayers::of(const LayeredMap& map) {
@@ -243,6 +259,7 @@ SweepLayers SweepLayers::of(const LayeredMap& map) {
   ids.is_valid = optional("is_valid");
   ids.upper_bound = optional("upper_bound");
   ids.is_upper_bound = optional("is_upper_bound");
+  ids.base = optional("loose_base");
   return ids;
 }
 
@@ -376,7 +393,7 @@ void BladeSweep::process(ProcessContext& ctx, const Event& event) {
 }
 
 void BladeSweep::sweepHistory(ProcessContext& ctx, MachineState& st, const std::string& machine_id, double stamp) {
-  auto rec = runSweep(ctx.map(), ids_, cfg_, st.history, ctx.executor());
+  auto rec = runSweep(ctx.map(), ids_, cfg_, st.history, ctx.executor(), &st.pile);
   if (!rec) {
     // No room in a sparse map's memory budget for the tiles under the sweep: it is dropped,
     // and the next sweep starts from this pose.

@@ -57,6 +57,19 @@ struct SweepConfig {
   double unit_weight_n_m3 = 14636.0;  ///< γ (undisturbed); γ_l = γ / s for Q
   double sigma_sv_m = 0.02;           ///< σ_SV: 1σ of the blade height (pose) during a sweep
   double min_cut_m = 1e-6;            ///< H - h^G above this is a cut
+  /// The loose layer follows what the sensors show: the undisturbed surface under the loose soil
+  /// is kept in the layer `loose_base` (map z), and at each update the loose thickness is
+  /// re-read as elevation - loose_base, so soil a LiDAR sees lower (the bookkept pile is not
+  /// there) or higher (the pile it cannot place, spread by the real blade) is loose soil the
+  /// blade pushes and the surcharge counts. Off: the loose layer is the bookkeeping alone.
+  bool loose_follows_elevation = false;
+  /// Where the surcharge Q comes from. false: the loose soil the map holds in the region ahead of
+  /// the edge (V_Q, paper Alg. 2). true: the soil the blade has cut since its pass began (bank
+  /// volume, kept per machine by CarriedPile), up to what the blade can hold at the repose
+  /// angle: the pile is hidden behind the blade from a mast LiDAR, and the map's copy of it
+  /// leaks to the sides and behind (docs/soil_estimator.md, "The surcharge the map holds").
+  bool surcharge_carried = false;
+  double carried_repose_rad = 0.576;  ///< 33 deg: the pile's face, for the blade's capacity
 };
 
 /// Ground anchoring of the blade height (docs: plugins/blade_sweep/README.md, "Ground anchor").
@@ -118,6 +131,7 @@ void lowestIntersection(const std::vector<Triangle>& tris, const Geometry& geo, 
 struct SweepLayers {
   LayerId elevation = -1, loose = -1, sigma = -1;
   LayerId variance = -1, is_valid = -1, upper_bound = -1, is_upper_bound = -1;
+  LayerId base = -1;  ///< loose_base (optional: SweepConfig::loose_follows_elevation)
   /// elevation, loose, height_sigma (must exist), and the contract layers the map has.
   /// \throws LayerError if one of the first three is missing.
   static SweepLayers of(const LayeredMap& map);
@@ -132,9 +146,12 @@ enum SweepChange : std::uint8_t { kSweepUnchanged = 0, kSweepCut = 1, kSweepDepo
 /// sweep, a bucket or a pour changes them (H, L, S, with `change` per cell): what every blind
 /// update reads first and writes last.
 struct SweepSoil {
-  std::vector<double> H0, L0, S0, H, L, S;
+  /// H0, L0, S0: the layers as the update starts (L0 already re-read from loose_base where the
+  /// map keeps it); H, L, S: as the update leaves them. Lg, B0: loose and loose_base as gathered.
+  std::vector<double> H0, L0, S0, H, L, S, Lg, B0;
   std::vector<std::uint8_t> change;  ///< SweepChange per window cell
-  /// Gathers the three layers over `win` (H, L, S start as copies; change all unchanged).
+  /// Gathers the three layers over `win` (H, L, S start as copies; change all unchanged). Where
+  /// the map has loose_base, a known cell's loose thickness becomes max(0, elevation - base).
   SweepSoil(const LayeredMap& map, const SweepLayers& ids, const MapWindow& win);
   /// Scatters the cells that changed and applies the height contract (docs/height_contract.md)
   /// to lidar_fusion's layers where `change` marks a cut or a deposit.
@@ -207,14 +224,27 @@ int settlePile(LayeredMap& map, const SweepLayers& layers, const BucketConfig& b
 /// the travel direction.
 double bladeAngle(const Eigen::Isometry3d& T_map_blade, const Eigen::Vector2d& t_hat);
 
+/// The soil a blade pushes, as blade_sweep's own bookkeeping knows it (SweepConfig::
+/// surcharge_carried): the bank volume cut since the machine's pass began. A pass ends when a
+/// sweep cuts nothing (the blade is out of the soil) or the edge moves against the blade's
+/// normal (reversing): the pile stays where it was left and the next pass starts empty.
+struct CarriedPile {
+  double bank_m3 = 0.0;
+};
+
 /// One complete swept-volume update on `map` (Alg. 1 lines 8-15 and Alg. 3): mesh, intersection,
 /// FEE extraction, cut and deposit, per-step interpolation. `history` holds the poses from T0
 /// (first) to T1 (last), at least two. Mutates the three layers; returns the record
 /// (sweep_index and machine_id are left for the caller), or nullptr with the map unchanged when
 /// a sparse map cannot allocate the tiles under the sweep within the memory budget
 /// (LayeredMap::tryAllocateTile; the plugin counts it as dropped, reason "tile_budget").
+/// With `pile` (and cfg.surcharge_carried) the record's V_Q and Q before and after the cut are
+/// the carried pile's (loose volume = bank × swell, capped at the blade's capacity
+/// width × height² / (2 tan carried_repose_rad)); their variance is a quarter of the squared
+/// difference to the mapped V_Q plus the mapped region's own. `pile` is updated.
 std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& layers, const SweepConfig& cfg,
-                                      const std::vector<BladePose>& history, const Executor& ex);
+                                      const std::vector<BladePose>& history, const Executor& ex,
+                                      CarriedPile* pile = nullptr);
 
 /// JSON object text of a record for the run report (mask and slices summarised by counts;
 /// steps included when `with_steps`). NaN becomes null.
@@ -241,6 +271,7 @@ class BladeSweep : public Plugin {
  private:
   struct MachineState {
     std::vector<BladePose> history;  // T0 first
+    CarriedPile pile;
   };
   struct Anchor {
     bool init = false;

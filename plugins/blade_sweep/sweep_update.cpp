@@ -546,14 +546,48 @@ SweepStep stepValues(const std::vector<BladePose>& history, size_t k, const Swee
 
 }  // namespace
 
+namespace {
+
+// The carried pile's V_Q before and after this sweep (CarriedPile; runSweep's contract).
+void carriedSurcharge(const SweepConfig& cfg, const BladeGeometry& bg, const SweepDirections& dir, CarriedPile& pile,
+                      SweepRecord& rec) {
+  const double before = pile.bank_m3;
+  const bool pushing = dir.t_hat.dot(dir.n_hat) > 0.0;
+  if (!pushing || !(rec.cut_volume_m3 > 0.0)) {
+    pile.bank_m3 = 0.0;
+  } else {
+    const double cap_loose = bg.width_m * bg.height_m * bg.height_m / (2.0 * std::tan(cfg.carried_repose_rad));
+    pile.bank_m3 = std::min(before + rec.cut_bank_volume_m3, cap_loose / cfg.swell);
+  }
+  const double v0 = before * cfg.swell, v1 = pile.bank_m3 * cfg.swell;
+  const double d0 = 0.5 * (v0 - rec.vq0_m3), d1 = 0.5 * (v1 - rec.vq1_m3);
+  rec.var_vq += std::max(d0 * d0, d1 * d1);
+  rec.vq0_m3 = v0;
+  rec.vq1_m3 = v1;
+}
+
+}  // namespace
+
 bool SweepLayers::allocate(LayeredMap& map, const MapWindow& win) const {
-  return win.tryAllocate(map, {elevation, loose, sigma, variance, is_valid, upper_bound, is_upper_bound});
+  return win.tryAllocate(map, {elevation, loose, sigma, variance, is_valid, upper_bound, is_upper_bound, base});
 }
 
 SweepSoil::SweepSoil(const LayeredMap& map, const SweepLayers& ids, const MapWindow& win) {
   win.gather(map, ids.elevation, H0);
-  win.gather(map, ids.loose, L0);
+  win.gather(map, ids.loose, Lg);
   win.gather(map, ids.sigma, S0);
+  L0 = Lg;
+  if (ids.base >= 0) {
+    win.gather(map, ids.base, B0);
+    // Only the blade and erosion move loose soil, and both keep elevation - loose fixed where
+    // they do not cut; lidar_fusion moves the elevation alone. What it moved is soil that is, or
+    // is not, where the bookkeeping put it (the real pile spreads ahead of the blade, the
+    // bookkept one stands in the first cell off the footprint): the loose thickness is what
+    // stands above the undisturbed surface now, so the blade pushes, and the surcharge counts,
+    // the soil the sensors see. Ground seen below the base lowers the base (no loose).
+    for (std::size_t k = 0; k < H0.size(); ++k)
+      if (std::isfinite(H0[k]) && std::isfinite(B0[k])) L0[k] = std::max(0.0, H0[k] - B0[k]);
+  }
   H = H0;
   L = L0;
   S = S0;
@@ -563,13 +597,20 @@ SweepSoil::SweepSoil(const LayeredMap& map, const SweepLayers& ids, const MapWin
 void SweepSoil::write(LayeredMap& map, const SweepLayers& ids, const MapWindow& win) const {
   // Only what changed, so snapshots keep sharing untouched tiles.
   win.scatterChanged(map, ids.elevation, H0, H);
-  win.scatterChanged(map, ids.loose, L0, L);
+  win.scatterChanged(map, ids.loose, Lg, L);
   win.scatterChanged(map, ids.sigma, S0, S);
+  if (ids.base >= 0) {
+    // Every known cell of the window is tracked from now on, with its base where the update left
+    // it (a cut lowers it, a deposit leaves it); a cell still unknown stays untracked.
+    std::vector<double> B(H.size());
+    for (std::size_t k = 0; k < H.size(); ++k) B[k] = std::isfinite(H[k]) ? H[k] - std::max(0.0, L[k]) : B0[k];
+    win.scatterChanged(map, ids.base, B0, B);
+  }
   updateFusionLayers(map, ids, win, change, H, S0, S);
 }
 
 std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, const SweepConfig& cfg,
-                                      const std::vector<BladePose>& history, const Executor& ex) {
+                                      const std::vector<BladePose>& history, const Executor& ex, CarriedPile* pile) {
   TERRAMAP_CHECK(history.size() >= 2, "runSweep needs at least two poses");
   const Geometry& geo = map.geometry();
   const double res = geo.resolution();
@@ -595,6 +636,7 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
   cutAndDeposit(cuts, sc, win, geo, cfg, dir.m_hat, soil.H, soil.L, soil.S, soil.change, *rec);
   const auto vq1 = surchargeVolume(rec->T_map_blade1, bg, dir.t_hat, cfg.fit_length_m, geo, win, soil.L);
   rec->vq1_m3 = vq1.first;
+  if (pile != nullptr && cfg.surcharge_carried) carriedSurcharge(cfg, bg, dir, *pile, *rec);
   const double gamma_l = rec->loose_unit_weight_n_m3;
   rec->q0_n = gamma_l * rec->vq0_m3;
   rec->q1_n = gamma_l * rec->vq1_m3;
