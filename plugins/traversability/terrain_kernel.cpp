@@ -135,14 +135,30 @@ void grow(V& v, size_t n) {
 
 #define TM_INLINE inline __attribute__((always_inline))
 
-// acc[c] += wi * in[c] - wo * out[c]: one step of a running window sum (the row entering and
-// the row leaving); wi = wo = 1 multiplies exactly.
-TM_INLINE void slide(double* __restrict acc, const double* __restrict in, const double* __restrict out, double wi,
-                     double wo, int n) {
-  for (int c = 0; c < n; ++c) acc[c] += wi * in[c] - wo * out[c];
+// One step of running window sums down the columns: the row `in` enters with weights 1, q_in,
+// q_in², the row `out` leaves with 1, q_out, q_out² (f0 = 0 when no row leaves: 0 · x is 0, and
+// 1 · x and integer weights multiply exactly). One pass over each pass-1 row feeds every sum
+// weighted from it.
+TM_INLINE void slide3(double* __restrict s0, double* __restrict s1, double* __restrict s2, const double* __restrict in,
+                      const double* __restrict out, double f0, double wi, double wo, int n) {
+  const double wi2 = wi * wi, wo2 = wo * wo;
+  for (int c = 0; c < n; ++c) {
+    const double a = in[c], b = out[c];
+    s0[c] += a - f0 * b;
+    s1[c] += wi * a - wo * b;
+    s2[c] += wi2 * a - wo2 * b;
+  }
 }
-TM_INLINE void addScaled(double* __restrict acc, const double* __restrict in, double wi, int n) {
-  for (int c = 0; c < n; ++c) acc[c] += wi * in[c];
+TM_INLINE void slide2(double* __restrict s0, double* __restrict s1, const double* __restrict in,
+                      const double* __restrict out, double f0, double wi, double wo, int n) {
+  for (int c = 0; c < n; ++c) {
+    const double a = in[c], b = out[c];
+    s0[c] += a - f0 * b;
+    s1[c] += wi * a - wo * b;
+  }
+}
+TM_INLINE void slide1(double* __restrict s0, const double* __restrict in, const double* __restrict out, double f0, int n) {
+  for (int c = 0; c < n; ++c) s0[c] += in[c] - f0 * out[c];
 }
 TM_INLINE void maxMin(float* __restrict mx, float* __restrict mn, const float* __restrict ax, const float* __restrict an,
                       const float* __restrict bx, const float* __restrict bn, int n) {
@@ -434,21 +450,18 @@ TM_INLINE long computeBlock(const float* __restrict G, const BlockShape& b, cons
   const double* M = s.mom.data();
   // acc planes: n, qx, qxx, y, qxy, yy, z, qxz, yz, zz; from mom planes a0, a1, a2, b0, b1, c0.
   auto moveWindow = [&](int qin, int qout) {
-    const double wi = qin, wo = qout;
+    const bool leaves = qout >= 0;
+    const double f0 = leaves ? 1.0 : 0.0, wi = qin, wo = leaves ? qout : 0.0;
     const size_t oi = static_cast<size_t>(qin) * static_cast<size_t>(w);
-    const size_t oo = static_cast<size_t>(qout < 0 ? 0 : qout) * static_cast<size_t>(w);
-    const int src[10] = {0, 0, 0, 1, 1, 2, 3, 3, 4, 5};
-    const int pw[10] = {0, 1, 2, 0, 1, 0, 0, 1, 0, 0};  // weight q^pw
-    for (int a = 0; a < 10; ++a) {
-      const double* plane = M + static_cast<size_t>(src[a]) * n1;
-      const double fi = pw[a] == 0 ? 1.0 : pw[a] == 1 ? wi : wi * wi;
-      const double fo = pw[a] == 0 ? 1.0 : pw[a] == 1 ? wo : wo * wo;
-      double* dst = acc + static_cast<size_t>(a) * static_cast<size_t>(w);
-      if (qout < 0)
-        addScaled(dst, plane + oi, fi, w);
-      else
-        slide(dst, plane + oi, plane + oo, fi, fo, w);
-    }
+    const size_t oo = static_cast<size_t>(leaves ? qout : qin) * static_cast<size_t>(w);
+    auto acc_ = [&](int a) { return acc + static_cast<size_t>(a) * static_cast<size_t>(w); };
+    auto mom = [&](int p) { return M + static_cast<size_t>(p) * n1; };
+    slide3(acc_(0), acc_(1), acc_(2), mom(0) + oi, mom(0) + oo, f0, wi, wo, w);  // a0: n, qx, qxx
+    slide2(acc_(3), acc_(4), mom(1) + oi, mom(1) + oo, f0, wi, wo, w);           // a1: y, qxy
+    slide1(acc_(5), mom(2) + oi, mom(2) + oo, f0, w);                            // a2: yy
+    slide2(acc_(6), acc_(7), mom(3) + oi, mom(3) + oo, f0, wi, wo, w);           // b0: z, qxz
+    slide1(acc_(8), mom(4) + oi, mom(4) + oo, f0, w);                            // b1: yz
+    slide1(acc_(9), mom(5) + oi, mom(5) + oo, f0, w);                            // c0: zz
   };
   for (int q = 0; q < 2 * k; ++q) moveWindow(q, -1);
   long fitted = 0;
