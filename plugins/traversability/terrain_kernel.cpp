@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <limits>
 #include <mutex>
@@ -40,7 +41,8 @@ int logicalRuns(int b0, int n, int start, int size, Run out[2]) {
 // block seen and stay.
 struct Traversability::Scratch {
   std::vector<float> g;          // gathered heights, (h + 2K) x (w + 2K), row-major
-  std::vector<double> prefix;    // 6 prefix sums along each of two gathered rows, W + 1 each
+  std::vector<std::int32_t> iprefix;  // mask prefix sums of two gathered rows, 3 planes of W + 1 each
+  std::vector<double> prefix;    // height prefix sums of two gathered rows, 3 planes of W + 1 each
   std::vector<double> mom;       // 6 row-window moments, (h + 2k) x w each
   std::vector<double> acc;       // 10 column running sums, w each
   std::vector<float> hmax, hmin;  // row-window max / min, (h + 2ks) x w
@@ -207,42 +209,45 @@ struct Limits {
   bool blocks;
 };
 
-// Prefix sums along one gathered row of the six pass-1 quantities (m, x m, x² m, z, x z, z², with
-// m = 1 for a known cell, z its height above zref) into planes of W + 1 at P.
+// Prefix sums along two gathered rows of the six pass-1 quantities: the mask ones (m, x m, x² m,
+// with m = 1 for a known cell) in int32 at I (planes of W + 1: exact, and in integer registers,
+// which leaves the vector registers to the height ones), the height ones (z, x z, z², z the height
+// above zref) in double at P. Row a's planes first, then row b's.
 TM_INLINE void prefixRows2(const float* __restrict ra, const float* __restrict rb, int W, double zref,
-                           double* __restrict pa, double* __restrict pb) {
+                           std::int32_t* __restrict I, double* __restrict P) {
   // Two rows in lockstep: each running sum is a chain of dependent adds, and two rows give the
   // core twice as many independent chains to overlap.
   const size_t ps = static_cast<size_t>(W) + 1;
-  double a0 = 0, a1 = 0, a2 = 0, az = 0, a1z = 0, azz = 0;
-  double b0 = 0, b1 = 0, b2 = 0, bz = 0, b1z = 0, bzz = 0;
-  for (int j = 0; j < 6; ++j) pa[j * ps] = pb[j * ps] = 0.0;
+  std::int32_t a0 = 0, a1 = 0, a2 = 0, b0 = 0, b1 = 0, b2 = 0;
+  double az = 0, a1z = 0, azz = 0, bz = 0, b1z = 0, bzz = 0;
+  for (int j = 0; j < 6; ++j) I[j * ps] = 0, P[j * ps] = 0.0;
   for (int x = 0; x < W; ++x) {
     const double xd = x;
     const float va = ra[x], vb = rb[x];
     const bool ka = va - va == 0.0f, kb = vb - vb == 0.0f;  // finite
-    const double ma = ka ? 1.0 : 0.0, mb = kb ? 1.0 : 0.0;
+    const std::int32_t ma = ka, mb = kb;
     const double za = ka ? static_cast<double>(va) - zref : 0.0, zb = kb ? static_cast<double>(vb) - zref : 0.0;
-    a0 += ma, a1 += ma * xd, a2 += ma * xd * xd, az += za, a1z += xd * za, azz += za * za;
-    b0 += mb, b1 += mb * xd, b2 += mb * xd * xd, bz += zb, b1z += xd * zb, bzz += zb * zb;
+    a0 += ma, a1 += ma * x, a2 += ma * x * x, b0 += mb, b1 += mb * x, b2 += mb * x * x;
+    az += za, a1z += xd * za, azz += za * za, bz += zb, b1z += xd * zb, bzz += zb * zb;
     const size_t o = static_cast<size_t>(x) + 1;
-    pa[o] = a0, pa[ps + o] = a1, pa[2 * ps + o] = a2, pa[3 * ps + o] = az, pa[4 * ps + o] = a1z, pa[5 * ps + o] = azz;
-    pb[o] = b0, pb[ps + o] = b1, pb[2 * ps + o] = b2, pb[3 * ps + o] = bz, pb[4 * ps + o] = b1z, pb[5 * ps + o] = bzz;
+    I[o] = a0, I[ps + o] = a1, I[2 * ps + o] = a2, I[3 * ps + o] = b0, I[4 * ps + o] = b1, I[5 * ps + o] = b2;
+    P[o] = az, P[ps + o] = a1z, P[2 * ps + o] = azz, P[3 * ps + o] = bz, P[4 * ps + o] = b1z, P[5 * ps + o] = bzz;
   }
 }
 
-// The window moments of one row for every output column from its prefix sums, with column
-// offsets x - x_c: a0 = Σ m, a1 = Σ (x - x_c) m, a2 = Σ (x - x_c)² m, b0 = Σ z, b1 = Σ (x - x_c) z,
-// c0 = Σ z², into planes of n1 at M + o. Mask moments are small integers, exact in double.
-TM_INLINE void windowRow(const double* __restrict P, int W, int w, int K, int k, double* __restrict M, size_t n1,
-                         size_t o) {
+// The window moments of one row for every output column from its prefix sums (three int32
+// planes at I, three double planes at P), with column offsets x - x_c: a0 = Σ m,
+// a1 = Σ (x - x_c) m, a2 = Σ (x - x_c)² m, b0 = Σ z, b1 = Σ (x - x_c) z, c0 = Σ z², into planes of
+// n1 at M + o. The mask moments are small integers, exact in double.
+TM_INLINE void windowRow(const std::int32_t* __restrict I, const double* __restrict P, int W, int w, int K, int k,
+                         double* __restrict M, size_t n1, size_t o) {
   const size_t ps = static_cast<size_t>(W) + 1;
-  const double* __restrict p0 = P;
-  const double* __restrict p1 = P + ps;
-  const double* __restrict p2 = P + 2 * ps;
-  const double* __restrict pz = P + 3 * ps;
-  const double* __restrict p1z = P + 4 * ps;
-  const double* __restrict pzz = P + 5 * ps;
+  const std::int32_t* __restrict p0 = I;
+  const std::int32_t* __restrict p1 = I + ps;
+  const std::int32_t* __restrict p2 = I + 2 * ps;
+  const double* __restrict pz = P;
+  const double* __restrict p1z = P + ps;
+  const double* __restrict pzz = P + 2 * ps;
   double* __restrict a0 = M + o;
   double* __restrict a1 = M + n1 + o;
   double* __restrict a2 = M + 2 * n1 + o;
@@ -264,19 +269,19 @@ TM_INLINE void windowRow(const double* __restrict P, int W, int w, int K, int k,
 }
 
 // Plane fit, pass 1: along each gathered row, the moments of the 2k + 1 cells around every
-// output column; P holds 12 prefix planes of W + 1.
-TM_INLINE void planeRows(const float* __restrict G, const BlockShape& b, double zref, double* __restrict P,
-                         double* __restrict M) {
+// output column; I and P hold 6 prefix planes of W + 1 each (prefixRows2).
+TM_INLINE void planeRows(const float* __restrict G, const BlockShape& b, double zref, std::int32_t* __restrict I,
+                         double* __restrict P, double* __restrict M) {
   const int W = b.W(), w = b.w, k = b.k, K = b.K;
   const int rows1 = b.h + 2 * k;
   const size_t n1 = static_cast<size_t>(rows1) * static_cast<size_t>(w);
-  double* PB = P + 6 * (static_cast<size_t>(W) + 1);
+  const size_t half = 3 * (static_cast<size_t>(W) + 1);  // row b's planes
   for (int q = 0; q < rows1; q += 2) {
     const float* ra = G + static_cast<size_t>(K - k + q) * static_cast<size_t>(W);
     const bool two = q + 1 < rows1;
-    prefixRows2(ra, two ? ra + W : ra, W, zref, P, PB);
-    windowRow(P, W, w, K, k, M, n1, static_cast<size_t>(q) * static_cast<size_t>(w));
-    if (two) windowRow(PB, W, w, K, k, M, n1, static_cast<size_t>(q + 1) * static_cast<size_t>(w));
+    prefixRows2(ra, two ? ra + W : ra, W, zref, I, P);
+    windowRow(I, P, W, w, K, k, M, n1, static_cast<size_t>(q) * static_cast<size_t>(w));
+    if (two) windowRow(I + half, P + half, W, w, K, k, M, n1, static_cast<size_t>(q + 1) * static_cast<size_t>(w));
   }
 }
 
@@ -424,7 +429,8 @@ TM_INLINE long computeBlock(const float* __restrict G, const BlockShape& b, cons
   const int rows1 = h + 2 * k, rows2 = h + 2 * b.ks, L = 2 * b.ks + 1;
   const size_t n1 = static_cast<size_t>(rows1) * static_cast<size_t>(w);
   const size_t n2 = static_cast<size_t>(rows2) * static_cast<size_t>(w);
-  grow(s.prefix, 12 * (static_cast<size_t>(W) + 1));
+  grow(s.prefix, 6 * (static_cast<size_t>(W) + 1));
+  grow(s.iprefix, 6 * (static_cast<size_t>(W) + 1));
   grow(s.mom, 6 * n1);
   grow(s.acc, 10 * static_cast<size_t>(w));
   for (auto* v : {&s.hmax, &s.hmin, &s.vpmax, &s.vpmin, &s.vsmax, &s.vsmin}) grow(*v, n2);
@@ -440,7 +446,7 @@ TM_INLINE long computeBlock(const float* __restrict G, const BlockShape& b, cons
       zref = G[x];
       break;
     }
-  planeRows(G, b, zref, s.prefix.data(), s.mom.data());
+  planeRows(G, b, zref, s.iprefix.data(), s.prefix.data(), s.mom.data());
   stepPasses(G, b, s);
 
   // Plane fit, pass 2: running sums down the columns over the 2k + 1 rows of the window; row q
