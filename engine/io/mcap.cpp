@@ -95,47 +95,37 @@ std::vector<std::uint8_t> decompress(const std::string& compression, const std::
 // ---- Reader -----------------------------------------------------------------------------------
 
 Reader::Reader(std::string path) : path_(std::move(path)) {
-  file_ = detail::openForRead(path_, "MCAP file");
-  size_ = detail::fileSize(file_, path_);
+  file_.reset(detail::openForRead(path_, "MCAP file"));
+  std::FILE* f = file_.get();
+  size_ = detail::fileSize(f, path_);
   const std::uint64_t least = 8 + kRecordPrefix + 8 + kFooterRecord + 8;
-  if (size_ < least) {
-    std::fclose(file_);
-    file_ = nullptr;
+  if (size_ < least)
     throw InputError(path_ + ": " + std::to_string(size_) + " bytes, too short for an MCAP file (at least " +
                      std::to_string(least) + ": magic, header, footer, magic)");
-  }
   std::uint8_t head[8 + kRecordPrefix], tail[8];
-  bool ok = std::fread(head, 1, sizeof head, file_) == sizeof head && std::fseek(file_, static_cast<long>(size_ - 8), SEEK_SET) == 0 &&
-            std::fread(tail, 1, 8, file_) == 8;
-  if (!ok) {
-    std::fclose(file_);
-    file_ = nullptr;
-    throw InputError(path_ + ": cannot read the file's first and last bytes");
-  }
-  auto fail = [&](const std::string& msg) {
-    std::fclose(file_);
-    file_ = nullptr;
-    throw InputError(path_ + ": " + msg);
-  };
+  const bool ok = std::fread(head, 1, sizeof head, f) == sizeof head &&
+                  std::fseek(f, static_cast<long>(size_ - 8), SEEK_SET) == 0 && std::fread(tail, 1, 8, f) == 8;
+  if (!ok) throw InputError(path_ + ": cannot read the file's first and last bytes");
   if (std::memcmp(head, kMagic, 8) != 0)
-    fail("byte 0: not an MCAP file (magic " + hexBytes(head, 8) + ", expected " + hexBytes(kMagic, 8) + ")");
+    throw InputError(path_ + ": byte 0: not an MCAP file (magic " + hexBytes(head, 8) + ", expected " + hexBytes(kMagic, 8) + ")");
   if (std::memcmp(tail, kMagic, 8) != 0)
-    fail("byte " + std::to_string(size_ - 8) + ": the file does not end with the MCAP magic (found " + hexBytes(tail, 8) +
-         "): cut short, or still being recorded");
-  if (head[8] != kHeader) fail("byte 8: the first record is opcode 0x" + hexBytes(head + 8, 1) + ", not a Header (0x01)");
+    throw InputError(path_ + ": byte " + std::to_string(size_ - 8) + ": the file does not end with the MCAP magic (found " +
+                     hexBytes(tail, 8) + "): cut short, or still being recorded");
+  if (head[8] != kHeader)
+    throw InputError(path_ + ": byte 8: the first record is opcode 0x" + hexBytes(head + 8, 1) + ", not a Header (0x01)");
   const std::uint64_t len = detail::loadU64(head + 9);
-  if (len > size_ - 8 - kRecordPrefix) fail("byte 8: the Header record's length " + std::to_string(len) + " runs past the file's end");
+  if (len > size_ - 8 - kRecordPrefix)
+    throw InputError(path_ + ": byte 8: the Header record's length " + std::to_string(len) + " runs past the file's end");
+  requireInputBudget(len, path_ + ": byte 8: the Header record's length", std::to_string(len) + " bytes");
   std::vector<std::uint8_t> content(len);
-  if (std::fseek(file_, 8 + kRecordPrefix, SEEK_SET) != 0 || (len && std::fread(content.data(), 1, len, file_) != len))
-    fail("byte 8: cannot read the Header record");
+  if (std::fseek(f, 8 + kRecordPrefix, SEEK_SET) != 0 || (len && std::fread(content.data(), 1, len, f) != len))
+    throw InputError(path_ + ": byte 8: cannot read the Header record");
   ByteReader r(content.data(), content.size(), path_ + ": byte 8: Header record");
   profile_ = r.str("profile");
   data_start_ = pos_ = 8 + kRecordPrefix + len;
 }
 
-Reader::~Reader() {
-  if (file_) std::fclose(file_);
-}
+Reader::~Reader() = default;
 
 const Schema* Reader::schemaOf(const Channel& c) const {
   if (c.schema_id == 0) return nullptr;
@@ -264,7 +254,8 @@ bool Reader::next(Message& m) {
     const std::uint64_t end = size_ - 8;  // the trailing magic
     if (end - pos_ < kRecordPrefix) throw InputError(where + ": a record prefix cut off by the trailing magic");
     std::uint8_t prefix[kRecordPrefix];
-    if (std::fseek(file_, static_cast<long>(pos_), SEEK_SET) != 0 || std::fread(prefix, 1, kRecordPrefix, file_) != kRecordPrefix)
+    if (std::fseek(file_.get(), static_cast<long>(pos_), SEEK_SET) != 0 ||
+        std::fread(prefix, 1, kRecordPrefix, file_.get()) != kRecordPrefix)
       throw InputError(where + ": cannot read");
     const std::uint8_t op = prefix[0];
     const std::uint64_t len = detail::loadU64(prefix + 1);
@@ -281,7 +272,7 @@ bool Reader::next(Message& m) {
     if (op != kSchema && op != kChannel && op != kMessage && op != kChunk) continue;  // skipped unread
     requireInputBudget(len, where + ": record length", std::to_string(len) + " bytes of one record");
     std::vector<std::uint8_t> content(len);
-    if (len && std::fread(content.data(), 1, len, file_) != len) throw InputError(where + ": cannot read the record");
+    if (len && std::fread(content.data(), 1, len, file_.get()) != len) throw InputError(where + ": cannot read the record");
     if (op == kChunk) {
       readChunk(record, std::move(content));
       if (nextInChunk(m)) return true;

@@ -8,6 +8,8 @@
 #include <terramap/core/layered_map.hpp>
 #include <terramap/io/file_seal.hpp>
 #include <terramap/io/geotiff.hpp>
+#include <terramap/io/mcap.hpp>
+#include <terramap/io/ros2_messages.hpp>
 #include <terramap/io/snapshot.hpp>
 #include "sim/h5_detail.hpp"
 
@@ -306,6 +308,47 @@ void tmap() {
   io::saveSnapshot(empty, d / "no_layers.tmap");
 }
 
+// ---- rosbag2 (MCAP) -------------------------------------------------------------------------------
+
+// A bag the rosbag source maps (tf map -> lidar, two clouds of two points on /points) in each chunk
+// compression, written by terramap's MCAP writer with small chunks so there are several; the
+// uncompressed one lets the fuzzer change message fields directly.
+void rosbags() {
+  using namespace terramap::io;
+  const fs::path d = target("fuzz_rosbag");
+  for (auto [c, name] : {std::pair{mcap::Compression::None, "none.mcap"}, {mcap::Compression::Zstd, "zstd.mcap"},
+                         {mcap::Compression::Lz4, "lz4.mcap"}}) {
+    mcap::Writer w((d / name).string(), "ros2", c, 256);
+    auto channel = [&](const char* topic, const char* type) {
+      return w.addChannel(topic, w.addSchema(type, "ros2msg", ros2::messageDefinition(type)), "cdr");
+    };
+    const auto tf = channel("/tf", "tf2_msgs/msg/TFMessage");
+    const auto pts = channel("/points", "sensor_msgs/msg/PointCloud2");
+    for (int k = 0; k < 2; ++k) {
+      ros2::TransformStamped t;
+      t.header.stamp.sec = k;
+      t.header.frame_id = "map";
+      t.child_frame_id = "lidar";
+      t.translation = Eigen::Vector3d(k, 0, 1);
+      const auto tb = ros2::encodeTFMessage({t});
+      w.write(tf, 1000000000ull * k, 1000000000ull * k, tb.data(), tb.size());
+      ros2::PointCloud2 p;
+      p.header = t.header;
+      p.header.frame_id = "lidar";
+      p.width = 2;
+      const char* names[] = {"x", "y", "z", "intensity"};
+      for (std::uint32_t f = 0; f < 4; ++f) p.fields.push_back({names[f], 4 * f, ros2::kFloat32, 1});
+      p.point_step = 16;
+      p.row_step = 32;
+      const float v[8] = {1, 2, 3, 4, 5, 6, 7, 8};
+      p.data.assign(reinterpret_cast<const std::uint8_t*>(v), reinterpret_cast<const std::uint8_t*>(v) + 32);
+      const auto pb = ros2::encodePointCloud2(p);
+      w.write(pts, 1000000000ull * k, 1000000000ull * k, pb.data(), pb.size());
+    }
+    w.close();
+  }
+}
+
 // ---- episodes -----------------------------------------------------------------------------------
 
 // Rows appended over time, as the episode writer's appenders store them: unlimited first
@@ -387,6 +430,7 @@ int main(int argc, char** argv) {
   demAscii();
   geotiff();
   tmap();
+  rosbags();
   episodes();
   return 0;
 }

@@ -95,7 +95,8 @@ class Reader {
   bool handleRecord(std::uint8_t op, const std::uint8_t* p, std::uint64_t n, const std::string& where, Message& m);
 
   std::string path_;
-  std::FILE* file_ = nullptr;
+  /// Owned from the first line of the constructor, so a constructor that throws closes it too.
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> file_{nullptr, &std::fclose};
   std::uint64_t size_ = 0;
   std::uint64_t data_start_ = 0;
   std::uint64_t pos_ = 0;

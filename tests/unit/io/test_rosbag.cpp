@@ -203,6 +203,27 @@ TEST_F(Rosbag, DamagedMcapFilesNameTheFileAndByte) {
               HasSubstr("record at uncompressed byte 0: Message on channel 99, which no Channel record before it defines"));
 }
 
+TEST_F(Rosbag, ARefusedFileIsClosed) {
+  // Found by fuzz_rosbag: a header the reader refused left its file open, and a long run ran out
+  // of descriptors. Every refusal, early or late in the constructor, must close the file.
+  const std::string good = path("good.mcap");
+  writeSmallBag(good, mcap::Compression::None);
+  auto bytes = readBytes(good);
+  bytes[16] = 0x7F;  // the Header record's length (its top byte): past the file's end
+  writeBytes(path("bad_length.mcap"), bytes);
+  bytes = readBytes(good);
+  bytes[20] = 0x7F;  // the Header's profile string length (its top byte): past the record's end
+  writeBytes(path("bad_profile.mcap"), bytes);
+  auto openFiles = [] {
+    return std::distance(std::filesystem::directory_iterator("/proc/self/fd"), std::filesystem::directory_iterator{});
+  };
+  const auto before = openFiles();
+  for (int k = 0; k < 20; ++k)
+    for (const char* name : {"bad_length.mcap", "bad_profile.mcap"})
+      EXPECT_THROW(mcap::Reader r(path(name)), InputError);
+  EXPECT_EQ(openFiles(), before);
+}
+
 TEST_F(Rosbag, ChunkSizesBeyondTheBudgetAreRefusedBeforeAllocating) {
   const std::string good = path("good.mcap");
   writeSmallBag(good, mcap::Compression::Zstd);
