@@ -54,6 +54,7 @@ bench sim bench_sim 'BM_Sim' --benchmark_repetitions="$reps"
 bench core bench_core '.' --benchmark_min_time="$min_time"
 bench blind_mapping bench_blind_mapping '.' --benchmark_min_time="$min_time"
 bench readers bench_readers '.' --benchmark_min_time="$min_time"
+bench traversability bench_traversability '.' --benchmark_min_time="$min_time"
 if [[ -x "$bin/bench_soil_pinn" ]]; then bench soil_pinn bench_soil_pinn '.' --benchmark_min_time="$min_time"; fi
 if [[ -x "$bin/bench_strata" ]]; then bench strata bench_strata '.'; fi
 

@@ -115,7 +115,7 @@ def main():
         print()
 
     for name, title in (("core", "core map"), ("blind_mapping", "blind mapping"), ("readers", "readers"),
-                        ("soil_pinn", "soil estimator"), ("strata", "strata")):
+                        ("soil_pinn", "soil estimator"), ("strata", "strata"), ("traversability", "traversability")):
         if not have(name):
             continue
         head(name, title)
