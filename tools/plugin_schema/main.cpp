@@ -14,6 +14,7 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -46,9 +47,24 @@ int runProgram(const std::vector<std::string>& args) {
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
 
+int describeAndEmbed(int argc, char** argv);
+
 }  // namespace
 
+// Ends with _Exit, after flushing: the loaded plugin and what it pulls in (PCL's OpenNI2 through
+// terramap::io) are never torn down. Their static destructors are none of the build's business,
+// and OpenNI2's unlock a destroyed mutex at exit, which fails the build under ThreadSanitizer
+// although the description was written.
 int main(int argc, char** argv) {
+  const int rc = describeAndEmbed(argc, argv);
+  std::cout.flush();
+  std::fflush(nullptr);
+  std::_Exit(rc);
+}
+
+namespace {
+
+int describeAndEmbed(int argc, char** argv) {
   std::string objcopy = "objcopy", plugin;
   std::vector<std::string> probe;
   bool print = false;
@@ -107,3 +123,5 @@ int main(int argc, char** argv) {
     return 1;
   }
 }
+
+}  // namespace
