@@ -5,6 +5,7 @@
 #include <terramap/core/error.hpp>
 #include <terramap/sim/env.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <random>
@@ -288,4 +289,35 @@ TEST(VectorEnv, ABadActionNamesTheEnvironmentAndMovesNone) {
   EXPECT_NE(msg.find("environment 2"), std::string::npos) << msg;
   EXPECT_NE(msg.find("blade_lift"), std::string::npos) << msg;
   for (int k = 0; k < 3; ++k) EXPECT_NEAR(v.times()[k], 1.0 / 60, 1e-12);
+}
+
+TEST(Env, ExternalControllerInTheScenario) {
+  const std::string base = "version: 1\nname: t\nterrain: {size_m: [8, 8], resolution_m: 0.02}\nmachines:\n";
+  // An external controller takes no keys; an excavator may be external.
+  const std::string bad = errorOf([&] {
+    parseScenario(base + "  - {id: a, pose: {x_m: 0, y_m: 0}, controller: {type: external, speed_mps: 1}}\n", "t.yaml");
+  });
+  EXPECT_NE(bad.find("speed_mps"), std::string::npos) << bad;
+  const Scenario ex = parseScenario(
+      base + "  - {id: ex, type: excavator, pose: {x_m: 0, y_m: 0}, controller: {type: external}}\n", "t.yaml");
+  auto boomAfter = [&](double lever) {
+    Env env(ex);
+    EXPECT_EQ(env.actionSize(0), 9u);
+    EXPECT_EQ(env.actionNames(0)[6], "boom");
+    env.reset(1);
+    StepResult r;
+    for (int k = 0; k < 60; ++k) r = env.step({{0, 0, 0, 0, 0, 0, lever, 0, 0}});
+    const auto& names = env.observationNames(0);
+    const std::size_t i = static_cast<std::size_t>(std::find(names.begin(), names.end(), "boom_rad") - names.begin());
+    EXPECT_LT(i, names.size());
+    EXPECT_EQ(r.observation[0].vector[i], r.observation[0].joints->position_rad[1]);
+    return std::make_pair(r.observation[0].vector[i], r.rewards[0].arm_work_j);
+  };
+  const auto still = boomAfter(0.0), up = boomAfter(1.0);
+  EXPECT_GT(up.first - still.first, 0.1);  // one second of full boom lever, rad
+  EXPECT_GT(up.second, still.second);
+  // Only an external machine takes levers from outside.
+  Simulator sim(envScenario());
+  EXPECT_NO_THROW(sim.setLevers(0, CtlCommand{}));
+  EXPECT_THROW(sim.setLevers(1, CtlCommand{}), ConfigError);
 }
