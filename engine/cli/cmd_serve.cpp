@@ -23,6 +23,7 @@
 #include <boost/dll/runtime_symbol_info.hpp>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -374,7 +375,11 @@ Registrar reg{Command{"serve", [](CLI::App& app, std::function<int()>& run) {
                   "Largest grid side sent to Foxglove clients (cells; larger maps are sampled every k-th cell)")
       ->capture_default_str()->check(CLI::Range(16, 16384));
   sub->add_option("--foxglove-frame", a->foxglove_frame, "frame_id of the Foxglove messages (the map frame)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check([](const std::string& f) {
+        const bool printable = std::all_of(f.begin(), f.end(), [](char c) { return c > 0x20 && c < 0x7f; });
+        return !f.empty() && f.size() <= 256 && printable ? std::string() : std::string("a frame id is 1 to 256 printable characters, no spaces");
+      });
   sub->add_option("--foxglove-origin", a->foxglove_origins,
                   "An Origin besides this server's that may open the Foxglove endpoint, e.g. https://app.foxglove.dev "
                   "(repeatable; clients that send no Origin need none)");

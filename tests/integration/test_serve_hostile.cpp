@@ -482,3 +482,11 @@ TEST(ServeHostile, FoxgloveLayersAreCheckedBeforeServing) {
   EXPECT_NE(r.code, 0) << r.out;
   EXPECT_NE(r.out.find("'variance' is given twice"), std::string::npos) << r.out;
 }
+
+TEST(ServeHostile, FoxgloveFrameMustBeAPrintableName) {
+  for (const std::string& bad : std::vector<std::string>{"''", "'a b'", "\"$(printf 'map\\tx')\"", std::string(300, 'm')}) {
+    const Result r = sh("serve " + kPipeline + " --port 0 --exit-after 0 --foxglove-frame " + bad);
+    EXPECT_EQ(r.code, 2) << bad << ": " << r.out;
+    EXPECT_NE(r.out.find("--foxglove-frame"), std::string::npos) << bad << ": " << r.out;
+  }
+}
