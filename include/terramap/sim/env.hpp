@@ -207,7 +207,10 @@ class VectorEnv {
   /// Resets every environment (k with seed + k; without a seed each continues its sequence).
   void reset(std::optional<std::uint64_t> seed = std::nullopt);
   /// Steps every environment with actions[k * actionWidth() ...]. \throws std::invalid_argument
-  /// (naming the environment) for a bad action, before any environment moved.
+  /// (naming the environment) for a bad action, before any environment moved; std::logic_error
+  /// before reset(). An exception of the physics in one environment is rethrown once the step's
+  /// tasks have finished or been skipped, so some environments may have stepped and others not:
+  /// call reset() before stepping again (not enforced).
   void step(const double* actions, std::size_t n);
 
   /// Agent a's observations, [N][observationSize(a)].
