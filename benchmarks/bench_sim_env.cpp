@@ -4,8 +4,9 @@
 //   BM_SimEnvReset/scenario   reset() of an Env that ran an episode (the kept terrain copied)
 //     scenario 0: configs/scenarios/env_loader_cut.yaml (12 x 8 m at 2 cm);
 //     scenario 1: excavator_dig_dump.yaml (16 x 12 m at 2 cm) with the excavator made external.
-//   BM_SimVectorEnv/N/lidar   N environments of env_loader_cut, random levers, 2 TBB threads;
-//     lidar 0: physics only (no ray cast), 1: the loader's 64-beam LiDAR cast and returned.
+//   BM_SimVectorEnv/N/lidar/frame_skip   N environments of env_loader_cut, random levers, 2 TBB
+//     threads; lidar 0: physics only (no ray cast), 1: the loader's 64-beam LiDAR cast and
+//     returned; frame_skip 1: a step is one 1/60 s period (60 Hz control), 6: six (10 Hz).
 //     Counters: env_steps_per_s and sim_s_per_wall_s (aggregate over the N environments),
 //     MiB_per_env (heap the batch took, divided by N).
 // Goal (docs/sim.md): aggregate env_steps_per_s at N = 8 physics-only >= 1.8x that at N = 1
@@ -76,6 +77,7 @@ void BM_SimVectorEnv(benchmark::State& state) {
   const int n = static_cast<int>(state.range(0));
   VectorEnvOptions o;
   o.env.clouds = state.range(1) != 0;
+  o.env.frame_skip = static_cast<int>(state.range(2));
   o.threads = 2;
   const Scenario sc = scenarioOf(0);
   const double before = heapMiB();
@@ -95,7 +97,7 @@ void BM_SimVectorEnv(benchmark::State& state) {
   fill();
   v.step(a.data(), a.size());  // the lazily allocated state (track nodes) counted in the memory
   const double mib_per_env = (heapMiB() - before) / n;
-  const int steps = 60;  // 1 s of simulated time per environment and iteration
+  const int steps = 60 / o.env.frame_skip;  // 1 s of simulated time per environment and iteration
   for (auto _ : state) {
     for (int s = 0; s < steps; ++s) {
       fill();  // a few hundred draws: nothing against a step
@@ -104,12 +106,15 @@ void BM_SimVectorEnv(benchmark::State& state) {
   }
   const double env_steps = static_cast<double>(state.iterations()) * steps * n;
   state.counters["env_steps_per_s"] = benchmark::Counter(env_steps, benchmark::Counter::kIsRate);
-  state.counters["sim_s_per_wall_s"] = benchmark::Counter(env_steps / sc.observation_hz, benchmark::Counter::kIsRate);
+  state.counters["sim_s_per_wall_s"] =
+      benchmark::Counter(env_steps * o.env.frame_skip / sc.observation_hz, benchmark::Counter::kIsRate);
   state.counters["MiB_per_env"] = mib_per_env;
 }
 BENCHMARK(BM_SimVectorEnv)
-    ->ArgsProduct({{1, 2, 8, 32}, {0, 1}})
-    ->ArgNames({"N", "lidar"})
+    ->ArgsProduct({{1, 2, 8, 32}, {0, 1}, {1}})
+    ->Args({1, 0, 6})
+    ->Args({8, 0, 6})
+    ->ArgNames({"N", "lidar", "frame_skip"})
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime()  // CPU column: every thread's, so idle or stolen cores show as CPU < 2 x real
     ->UseRealTime()
