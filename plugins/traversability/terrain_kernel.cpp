@@ -517,6 +517,8 @@ bool Traversability::avx2Available() { return cpuHasAvx2(); }
 
 Traversability::PassStats Traversability::runTiles(LayeredMap& map, const Executor& ex, const TraversabilityLayers& l,
                                                    const std::vector<int>& tiles) const {
+  for (const LayerId id : {l.elevation, l.slope, l.roughness, l.step, l.traversability})
+    (void)map.layerInfo(id);  // throws LayerError on an id the map does not have
   const Geometry& geo = map.geometry();
   const int R = geo.size().x(), C = geo.size().y();
   const int T = map.tileSize();

@@ -24,7 +24,10 @@
 /// count. Incremental: a call recomputes only the tiles within the windows' reach of an
 /// elevation tile written since the previous call (ProcessContext::changedTiles); a tile's
 /// cells come out as the same bits as in a whole-map pass.
-/// run() and runTiles() may not run concurrently on one instance (they share scratch buffers).
+/// run() and runTiles() may run concurrently on one instance (each task takes its own scratch
+/// buffers from a locked pool); configure() and setConfig() may not run while they do.
+/// Throws: run()/runTiles() throw LayerError for a layer id the map does not have, never
+/// TileBudgetError (a tile past a sparse map's budget is skipped and counted in PassStats).
 #include <terramap/plugin/plugin.hpp>
 
 #include <memory>

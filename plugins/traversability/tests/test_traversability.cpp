@@ -399,6 +399,16 @@ TEST(Traversability, ChangedTilesRecomputeToTheBitsOfAWholePass) {
   EXPECT_GT(fx.at(fx.l.step, 41, 51), 0.25f);  // the bump is in the outputs
 }
 
+TEST(Traversability, ALayerIdTheMapDoesNotHaveIsALayerError) {
+  Fixture fx(20, 20);
+  TraversabilityLayers bad = fx.l;
+  bad.step = -1;
+  EXPECT_THROW(configured().run(fx.map, Executor(1), bad), LayerError);
+  bad = fx.l;
+  bad.elevation = 99;
+  EXPECT_THROW(configured().run(fx.map, Executor(2), bad), LayerError);
+}
+
 TEST(Traversability, BadParamsAreRefused) {
   EXPECT_THROW(configured({{"slope_layer", std::string("elevation")}}), ConfigError);
   EXPECT_THROW(configured({{"step_layer", std::string("slope")}}), ConfigError);
