@@ -74,6 +74,15 @@ Registrar reg{Command{"plugins", [](CLI::App& app, std::function<int()>& run) {
         if (!c.ok) continue;
         std::cout << "  " << std::left << std::setw(16) << c.type << " " << std::setw(8) << c.version << " "
                   << c.description << "\n    " << c.path << "\n";
+        // Whether `validate` can check its stages without loading it.
+        try {
+          const PluginFileDescription f = reg.describe(c.type);
+          std::cout << "    schema: " << (f.description ? "embedded (validate checks it without loading it)"
+                                                        : "none: " + f.missing + " (validate: --load-plugins)")
+                    << "\n";
+        } catch (const PluginError& e) {
+          std::cout << "    schema: none: " << e.what() << "\n";
+        }
         if (*params) {
           auto h = PluginRegistry::createFromFile(c.path, c.type);
           std::cout << "    parameters:\n";

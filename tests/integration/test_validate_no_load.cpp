@@ -136,3 +136,12 @@ TEST(ValidateNoLoad, ATypoInThePluginTypeIsAnsweredFromTheFiles) {
   EXPECT_FALSE(fs::exists(s.mark));
   fs::remove_all(s.dir);
 }
+
+TEST(ValidateNoLoad, ThePluginListSaysWhichPluginsValidateCanCheck) {
+  const PluginFolder s("novalidate_list", "marked_probe_bare", "  - {name: p, type: test_probe}\n");
+  const Result r = sh("plugins --path " + (s.dir / "plugins").string());
+  EXPECT_EQ(r.code, 0) << r.out;
+  EXPECT_TRUE(contains(r.out, "    schema: none: it has no embedded schema")) << r.out;
+  EXPECT_TRUE(contains(r.out, "smooth_filter.so\n    schema: embedded (validate checks it without loading it)")) << r.out;
+  fs::remove_all(s.dir);
+}
