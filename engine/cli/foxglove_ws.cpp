@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cmath>
+#include <cstddef>
 #include <cstring>
 #include <limits>
 #include <memory>
@@ -41,6 +42,18 @@ json poseOf(const Eigen::Vector3d& t, const Eigen::Quaterniond& q) {
 
 json float32Field(const std::string& name, int offset) {
   return {{"name", name}, {"offset", offset}, {"type", 7}};  // 7 = FLOAT32 in foxglove.NumericType
+}
+
+/// `head` with "data": `b64` appended. Base64 needs no JSON escaping, so the megabytes of it are
+/// appended as they are instead of going through the JSON writer's escaping.
+std::string withData(const json& head, const std::string& b64) {
+  std::string out = head.dump();
+  out.pop_back();  // the closing brace
+  out.reserve(out.size() + b64.size() + 12);
+  out += ",\"data\":\"";
+  out += b64;
+  out += "\"}";
+  return out;
 }
 
 // ---- the schemas' building blocks ----
@@ -222,12 +235,18 @@ std::string gridMessage(const LayeredMap& map, const std::vector<std::string>& l
   const int cols = (nx + stride - 1) / stride, rows = (ny + stride - 1) / stride;
   const int nl = static_cast<int>(ids.size());
   std::vector<float> cells(static_cast<std::size_t>(rows) * cols * nl);
-  for (int r = 0; r < rows; ++r)
-    for (int c = 0; c < cols; ++c) {
-      const Index logical(nx - 1 - c * stride, ny - 1 - r * stride);
-      float* out = &cells[(static_cast<std::size_t>(r) * cols + c) * nl];
-      for (int k = 0; k < nl; ++k) out[k] = map.at(ids[k], logical);
+  // Whole layers copied out tile by tile (readLayer) and gathered from there: far cheaper than
+  // a bounds-checked at() per cell. One layer at a time, so the extra memory is one layer.
+  std::vector<float> layer(static_cast<std::size_t>(nx) * ny);
+  for (int k = 0; k < nl; ++k) {
+    map.readLayer(ids[k], layer.data(), nx, ny);
+    for (int r = 0; r < rows; ++r) {
+      // Logical cell (i, j) is layer[i + j * nx]; Grid (c, r) is (nx - 1 - c * stride, ny - 1 - r * stride).
+      const float* src = &layer[static_cast<std::size_t>(ny - 1 - r * stride) * nx + (nx - 1)];
+      float* out = &cells[static_cast<std::size_t>(r) * cols * nl + k];
+      for (int c = 0; c < cols; ++c) out[static_cast<std::size_t>(c) * nl] = src[-static_cast<std::ptrdiff_t>(c) * stride];
     }
+  }
   // Foxglove reads the bytes as little-endian float32, the byte order of every machine terramap builds for.
   static_assert(sizeof(float) == 4);
   json fields = json::array();
@@ -242,8 +261,7 @@ std::string gridMessage(const LayeredMap& map, const std::vector<std::string>& l
             {"row_stride", 4 * nl * cols},
             {"cell_stride", 4 * nl},
             {"fields", fields}};
-  j["data"] = base64(cells.data(), cells.size() * sizeof(float));
-  return j.dump();
+  return withData(j, base64(cells.data(), cells.size() * sizeof(float)));
 }
 
 std::string pointCloudMessage(const PointCloud& cloud, const std::string& frame_id) {
@@ -255,8 +273,7 @@ std::string pointCloudMessage(const PointCloud& cloud, const std::string& frame_
             {"pose", poseOf(cloud.T_map_sensor.translation(), q)},
             {"point_stride", 16},
             {"fields", fields}};
-  j["data"] = base64(cloud.points.data(), cloud.points.size() * sizeof(PointXYZI));
-  return j.dump();
+  return withData(j, base64(cloud.points.data(), cloud.points.size() * sizeof(PointXYZI)));
 }
 
 }  // namespace terramap::cli::foxglove
