@@ -236,9 +236,17 @@ std::string gridMessage(const LayeredMap& map, const std::vector<std::string>& l
   const int nl = static_cast<int>(ids.size());
   std::vector<float> cells(static_cast<std::size_t>(rows) * cols * nl);
   // Whole layers copied out tile by tile (readLayer) and gathered from there: far cheaper than
-  // a bounds-checked at() per cell. One layer at a time, so the extra memory is one layer.
-  std::vector<float> layer(static_cast<std::size_t>(nx) * ny);
-  for (int k = 0; k < nl; ++k) {
+  // a bounds-checked at() per cell. One layer at a time, and only up to kMaxCopiedCells (64 MB):
+  // a huge sparse map is read cell by cell at the sampled cells only, never copied whole.
+  constexpr long kMaxCopiedCells = 16L << 20;
+  if (static_cast<long>(nx) * ny > kMaxCopiedCells) {
+    for (int r = 0; r < rows; ++r)
+      for (int c = 0; c < cols; ++c)
+        for (int k = 0; k < nl; ++k)
+          cells[(static_cast<std::size_t>(r) * cols + c) * nl + k] = map.at(ids[k], Index(nx - 1 - c * stride, ny - 1 - r * stride));
+  }
+  std::vector<float> layer(static_cast<long>(nx) * ny > kMaxCopiedCells ? 0 : static_cast<std::size_t>(nx) * ny);
+  for (int k = 0; k < nl && !layer.empty(); ++k) {
     map.readLayer(ids[k], layer.data(), nx, ny);
     for (int r = 0; r < rows; ++r) {
       // Logical cell (i, j) is layer[i + j * nx]; Grid (c, r) is (nx - 1 - c * stride, ny - 1 - r * stride).
