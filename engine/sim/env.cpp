@@ -84,6 +84,70 @@ void putPose(std::vector<double>& v, const Eigen::Isometry3d& T) {
 
 std::uint64_t nextSeed(std::uint64_t s) { return mixBits(s ^ 0x9e3779b97f4a7c15ULL); }
 
+// The agent's observation vector from what the step delivered (Env::observationNames order):
+// poses, twists, cylinders, tracks, engine, then the optional force, IMUs (each its last sample
+// of the step, NaN before its first) and arm joints.
+void observationVector(AgentObservation& o, bool force, const std::vector<std::string>& imu_frames, bool arm,
+                       std::size_t size) {
+  const terramap::Observation& ob = o.raw;
+  std::vector<double>& v = o.vector;
+  v.reserve(size);
+  putPose(v, ob.T_map_base);
+  for (int k = 0; k < 6; ++k) v.push_back(ob.twist_base[k]);
+  putPose(v, ob.T_map_blade);
+  v.insert(v.end(), ob.cylinder_length_m.begin(), ob.cylinder_length_m.end());
+  v.insert(v.end(), ob.cylinder_velocity_mps.begin(), ob.cylinder_velocity_mps.end());
+  v.insert(v.end(), ob.track_speed_mps.begin(), ob.track_speed_mps.end());
+  v.push_back(ob.engine_speed_rpm);
+  if (force) v.insert(v.end(), {ob.force_base_N.x(), ob.force_base_N.y(), ob.force_base_N.z()});
+  for (const std::string& f : imu_frames) {
+    const ImuSample* last = nullptr;
+    for (const ImuSample& s : o.imu)
+      if (s.frame == f) last = &s;
+    if (last) {
+      v.insert(v.end(), {last->accel_mps2.x(), last->accel_mps2.y(), last->accel_mps2.z()});
+      v.insert(v.end(), {last->gyro_radps.x(), last->gyro_radps.y(), last->gyro_radps.z()});
+    } else {
+      v.insert(v.end(), 6, kNaN);
+    }
+  }
+  if (arm) {
+    const JointState js = o.joints.value_or(JointState{});
+    v.insert(v.end(), js.position_rad.begin(), js.position_rad.end());
+    v.insert(v.end(), js.velocity_radps.begin(), js.velocity_radps.end());
+    v.insert(v.end(), js.effort_nm.begin(), js.effort_nm.end());
+    v.push_back(js.bucket_load_kg);
+  }
+}
+
+// The target surface's task terms over its rectangle of truth nodes; true when the ground left
+// above the target is within the tolerance (the episode's success).
+bool targetTerms(const TruthTerrain& T, const TargetSurface& tg, TaskTerms& task) {
+  const double res = T.resolution();
+  const int i0 = std::max(0, static_cast<int>(std::ceil((tg.x0 - T.originX()) / res)));
+  const int i1 = std::min(T.nx() - 1, static_cast<int>(std::floor((tg.x1 - T.originX()) / res)));
+  const int j0 = std::max(0, static_cast<int>(std::ceil((tg.y0 - T.originY()) / res)));
+  const int j1 = std::min(T.ny() - 1, static_cast<int>(std::floor((tg.y1 - T.originY()) / res)));
+  double above = 0, below = 0, cut = 0;
+  long count = 0;
+  for (int j = j0; j <= j1; ++j)
+    for (int i = i0; i <= i1; ++i) {
+      const double h = T.height(i, j);
+      const double h0 = T.initialHeight(i, j);
+      const double target = std::isnan(tg.depth_m) ? tg.height_m : h0 - tg.depth_m;
+      above += std::max(0.0, h - target);
+      below += std::max(0.0, target - h);
+      cut += h0 - h;
+      ++count;
+    }
+  if (count == 0) return false;
+  task.target_above_m = above / static_cast<double>(count);
+  task.target_below_m = below / static_cast<double>(count);
+  task.cut_depth_mean_m = cut / static_cast<double>(count);
+  return !std::isnan(tg.tolerance_m) && task.target_above_m <= tg.tolerance_m;
+}
+
+
 }  // namespace
 
 const std::vector<std::string>& RewardTerms::names() {
@@ -348,65 +412,10 @@ StepResult Env::advance(bool zero_levers) {
     w.bucket_dumped_bank_m3 = t.bucket_dumped_bank_m3 - before[a].bucket_dumped_bank_m3;
     AgentObservation& o = r.observation[a];
     o.id = ag.id;
-    const terramap::Observation& ob = o.raw;
-    std::vector<double>& v = o.vector;
-    v.reserve(ag.obs_names.size());
-    putPose(v, ob.T_map_base);
-    for (int k = 0; k < 6; ++k) v.push_back(ob.twist_base[k]);
-    putPose(v, ob.T_map_blade);
-    v.insert(v.end(), ob.cylinder_length_m.begin(), ob.cylinder_length_m.end());
-    v.insert(v.end(), ob.cylinder_velocity_mps.begin(), ob.cylinder_velocity_mps.end());
-    v.insert(v.end(), ob.track_speed_mps.begin(), ob.track_speed_mps.end());
-    v.push_back(ob.engine_speed_rpm);
-    if (ag.force) v.insert(v.end(), {ob.force_base_N.x(), ob.force_base_N.y(), ob.force_base_N.z()});
-    for (const std::string& f : ag.imu_frames) {
-      // The IMU's last sample of the step (NaN before its first).
-      const ImuSample* last = nullptr;
-      for (const ImuSample& s : o.imu)
-        if (s.frame == f) last = &s;
-      if (last) {
-        v.insert(v.end(), {last->accel_mps2.x(), last->accel_mps2.y(), last->accel_mps2.z()});
-        v.insert(v.end(), {last->gyro_radps.x(), last->gyro_radps.y(), last->gyro_radps.z()});
-      } else {
-        v.insert(v.end(), 6, kNaN);
-      }
-    }
-    if (ag.arm) {
-      const JointState js = o.joints.value_or(JointState{});
-      v.insert(v.end(), js.position_rad.begin(), js.position_rad.end());
-      v.insert(v.end(), js.velocity_radps.begin(), js.velocity_radps.end());
-      v.insert(v.end(), js.effort_nm.begin(), js.effort_nm.end());
-      v.push_back(js.bucket_load_kg);
-    }
+    observationVector(o, ag.force, ag.imu_frames, ag.arm, ag.obs_names.size());
     if (opt_.truth) o.truth = t;
   }
-  const TargetSurface& tg = opt_.target;
-  if (tg.enabled()) {
-    const TruthTerrain& T = sim_->truth();
-    const double res = T.resolution();
-    const int i0 = std::max(0, static_cast<int>(std::ceil((tg.x0 - T.originX()) / res)));
-    const int i1 = std::min(T.nx() - 1, static_cast<int>(std::floor((tg.x1 - T.originX()) / res)));
-    const int j0 = std::max(0, static_cast<int>(std::ceil((tg.y0 - T.originY()) / res)));
-    const int j1 = std::min(T.ny() - 1, static_cast<int>(std::floor((tg.y1 - T.originY()) / res)));
-    double above = 0, below = 0, cut = 0;
-    long count = 0;
-    for (int j = j0; j <= j1; ++j)
-      for (int i = i0; i <= i1; ++i) {
-        const double h = T.height(i, j);
-        const double h0 = T.initialHeight(i, j);
-        const double target = std::isnan(tg.depth_m) ? tg.height_m : h0 - tg.depth_m;
-        above += std::max(0.0, h - target);
-        below += std::max(0.0, target - h);
-        cut += h0 - h;
-        ++count;
-      }
-    if (count > 0) {
-      r.task.target_above_m = above / static_cast<double>(count);
-      r.task.target_below_m = below / static_cast<double>(count);
-      r.task.cut_depth_mean_m = cut / static_cast<double>(count);
-      r.terminated = !std::isnan(tg.tolerance_m) && r.task.target_above_m <= tg.tolerance_m;
-    }
-  }
+  if (opt_.target.enabled()) r.terminated = targetTerms(sim_->truth(), opt_.target, r.task);
   r.truncated = ended || sim_->time() >= sc_.duration_s - 1e-9;
   r.info.t = sim_->time();
   r.info.episode_step = steps_;
