@@ -4,6 +4,9 @@
 
     python3 scripts/analysis/surcharge_gap.py DATASET_DIR [all|graded|random]
 
+Last, the sum of mapped over simulated Q by the sample's place in its episode (samples 0-7,
+8-19, 20 on): whether the mapped pile keeps up with the simulator's over a pass.
+
 For every moving horizon row of a `terramap dataset` (all splits but held-out), the truth soil's
 force through the estimator's physics (F_total at beta* plus the edge's penetration, as
 soil_joint_fit.py computes it) on the simulator's geometry and on the mapped geometry, against
@@ -30,7 +33,7 @@ def main():
     if len(sys.argv) < 2:
         sys.exit(__doc__)
     dataset, route = sys.argv[1], (sys.argv[2] if len(sys.argv) > 2 else "all")
-    gap, geo = {}, {}
+    gap, geo, progress = {}, {}, {}
     for fn in sorted(glob.glob(os.path.join(dataset, "episodes", "*.h5"))):
         with h5py.File(fn, "r") as f:
             if f.attrs["split"].decode() == "held_out":
@@ -56,6 +59,11 @@ def main():
         b["w"] += list((tk[..., 2] / tg[..., 3])[ok])
         b["qm"] += float(tk[..., 4][ok].sum())
         b["qs"] += float(tg[..., 4][ok].sum())
+        for i in range(len(tk)):
+            part = "samples 0-7" if i < 8 else ("samples 8-19" if i < 20 else "samples 20+")
+            q = progress.setdefault((key[0], part), [0.0, 0.0])
+            q[0] += float(tk[i, :, 4][ok[i]].sum())
+            q[1] += float(tg[i, :, 4][ok[i]].sum())
     print("family  density  rows(sim)  Fx meas/model sim  mapped   Fz meas/model sim  mapped   "
           "d map/sim  w map/sim  sum Q map/sim")
     for key in sorted(geo):
@@ -65,6 +73,12 @@ def main():
         print("%-7s %-7s %9d   %14.2f %7.2f   %14.2f %7.2f   %9.2f  %9.2f  %13.2f" % (
             key[0], key[1], s[4], s[0] / s[1], m[0] / m[1], s[2] / s[3], m[2] / m[3],
             np.median(b["d"]), np.median(b["w"]), b["qm"] / b["qs"]))
+
+    print("\nfamily  part of the episode  sum Q map/sim")
+    for key in sorted(progress):
+        q = progress[key]
+        if q[1] > 0:
+            print("%-7s %-20s %13.2f" % (key[0], key[1], q[0] / q[1]))
 
 
 if __name__ == "__main__":
