@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 namespace terramap::sim {
@@ -90,6 +91,31 @@ const SoilProperties& surfaceSoilAt(const TruthTerrain& t, const SoilField& soil
 }
 
 }  // namespace
+
+SteadyTravel steadyTravel(const MachineSpec& m, SoilFamily family, double relative_density, double rut_pressure_factor) {
+  if (!(rut_pressure_factor > 0.0)) throw std::invalid_argument("steadyTravel: rut pressure factor must be > 0");
+  const soil::SoilProperties sp = soil::soilProperties(family, relative_density);
+  const Terramechanics t = terramechanics(family, relative_density);
+  const double W = m.mass_kg * kG, b = m.track_width_m, L = m.track_length_m;
+  SteadyTravel s;
+  s.pressure_pa = W / (2.0 * b * L);
+  s.sinkage_m = bekkerSinkage(t, rut_pressure_factor * s.pressure_pa, b);
+  s.compaction_n = 2.0 * compactionResistance(t, s.sinkage_m, b);
+  s.bulldozing_n = 2.0 * bulldozingResistance(sp.fee.c_pa, sp.fee.phi_rad, sp.fee.gamma_n_m3, s.sinkage_m, b);
+  s.resistance_n = m.rolling_resistance * W + s.compaction_n + s.bulldozing_n;
+  s.traction_limit_n = std::min(2.0 * b * L * sp.fee.c_pa + W * std::tan(sp.fee.phi_rad), m.max_drive_force_n);
+  if (!(s.resistance_n < s.traction_limit_n * janosiShare(1.0, L, t.shear_k_m))) {
+    s.slip = std::numeric_limits<double>::quiet_NaN();
+    return s;
+  }
+  double lo = 0, hi = 1;  // the share rises monotonically in slip: bisection to double precision
+  for (int k = 0; k < 200 && hi - lo > 1e-16; ++k) {
+    const double i = 0.5 * (lo + hi);
+    (s.traction_limit_n * janosiShare(i, L, t.shear_k_m) < s.resistance_n ? lo : hi) = i;
+  }
+  s.slip = 0.5 * (lo + hi);
+  return s;
+}
 
 void trackGround(const TruthTerrain& terrain, const SoilField& soil, const CompactTrackLoader& m, CtlLoad& load) {
   const MachineSpec& spec = m.spec();

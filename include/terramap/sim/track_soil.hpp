@@ -48,6 +48,35 @@ class CompactTrackLoader;
 class SoilField;
 class TruthTerrain;
 struct CtlLoad;
+struct MachineSpec;
+
+/// A tracked machine's steady straight travel on flat ground of one soil at a set track speed
+/// (the state CompactTrackLoader::step settles into with MachineSpec::track_soil; docs/sim.md
+/// "TERA's Fig. 4"): the tracks carry the running gear's rolling_resistance W plus both ruts'
+/// compaction and bulldozing resistances by slipping until their Janosi–Hanamoto share of the
+/// traction limit min(A c + W tan phi, max_drive_force_n) equals that resistance.
+struct SteadyTravel {
+  double pressure_pa = 0;       ///< mean ground pressure W / (2 b L), Pa
+  double sinkage_m = 0;         ///< rut depth: Bekker's sinkage under rut_pressure_factor x that, m
+  double compaction_n = 0;      ///< both tracks' compaction resistance, N
+  double bulldozing_n = 0;      ///< both tracks' bulldozing resistance, N
+  double resistance_n = 0;      ///< rolling_resistance W + compaction + bulldozing, N
+  double traction_limit_n = 0;  ///< min(A c + W tan phi, max drive force), N
+  /// The slip i at which traction_limit_n x janosiShare(i) = resistance_n (the speed is the
+  /// track speed x (1 - i)); NaN when even full slip cannot carry the resistance (the machine
+  /// stops).
+  double slip = 0;
+};
+
+/// SteadyTravel of machine `m` (its mass, track width, length, rolling resistance and drive
+/// limit) on soil (family, I_d). `rut_pressure_factor` scales the pressure that sets the rut's
+/// depth above the mean ground pressure (1: uniform pressure, what the simulator assumes; a
+/// larger one asks what pressure peaks under the rollers would do to the same machine, whose
+/// weight and so traction limit stay), the rut's compaction being the work of pressing it to
+/// that depth, however loaded. Pure.
+/// \throws std::invalid_argument for I_d outside [0, 1] or a factor <= 0.
+SteadyTravel steadyTravel(const MachineSpec& m, soil::SoilFamily family, double relative_density,
+                          double rut_pressure_factor = 1.0);
 
 /// The ground under machine `m` for its next step (MachineSpec::track_soil): the Mohr–Coulomb
 /// terms and K of the soil under its centre, the compaction and bulldozing resistances of both

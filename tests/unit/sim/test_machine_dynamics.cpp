@@ -215,8 +215,9 @@ TEST(TrackSoil, ChassisSettlesIntoLooseSandWithoutAnImuSpike) {
 
 namespace {
 
-/// The excavator's steady speed after `seconds` at full lever on flat ground of one soil.
-double fullLeverSpeed(const std::string& soil, double seconds) {
+/// The excavator's steady speed after `seconds` at full lever on flat ground of one soil; `vehicle`
+/// overrides its undercarriage (YAML flow map, e.g. "mass_kg: 28000, max_drive_force_n: 240000").
+double fullLeverSpeed(const std::string& soil, double seconds, const std::string& vehicle = "") {
   const fs::path d = fs::path(TERRAMAP_BINARY_DIR) / "sim_test_full_lever";
   fs::create_directories(d);
   std::ofstream(d / "full.csv") << "t_s,left,right,lift,tilt,angle,slew,boom,arm,bucket\n0,1,1,0,0,0,0,0,0,0\n"
@@ -225,32 +226,33 @@ double fullLeverSpeed(const std::string& soil, double seconds) {
                               << "\nterrain: {size_m: [20, 6], origin_m: [-3, -3], resolution_m: 0.02}\n"
                                  "soil: {default: {family: " << soil << "}}\n"
                                  "machines:\n  - id: ex\n    type: excavator\n"
-                                 "    controller: {type: replay, file: full.csv, units: lever}\n";
+                              << (vehicle.empty() ? "" : "    vehicle: {" + vehicle + "}\n")
+                              << "    controller: {type: replay, file: full.csv, units: lever}\n";
   Simulator sim(loadScenario((d / "s.yaml").string()));
   std::vector<Event> ev;
   while (sim.next(ev)) ev.clear();
   return sim.machine(0).speed();
 }
 
-/// What terramechanics says: the speed at which the Janosi–Hanamoto share of the traction limit
-/// A c + W tan(phi) (capped by the drive) carries the running gear's rolling resistance plus the
-/// compaction and bulldozing resistances of both tracks' ruts (at the scenario's 240 Hz).
-double theorySpeed(soil::SoilFamily family, double I_d) {
-  const double m = 3500, W = m * kG, b = 0.3, L = 1.85, v_track = 1.3;
-  const soil::SoilProperties sp = soil::soilProperties(family, I_d);
-  const Terramechanics t = terramechanics(family, I_d);
-  const double z = bekkerSinkage(t, W / (2 * b * L), b);
-  const double R = 0.04 * W + 2 * compactionResistance(t, z, b) +
-                   2 * bulldozingResistance(sp.fee.c_pa, sp.fee.phi_rad, sp.fee.gamma_n_m3, z, b);
-  const double f_lim = std::min(2 * b * L * sp.fee.c_pa + W * std::tan(sp.fee.phi_rad), 30000.0);
-  double lo = 0, hi = 1;
-  for (int k = 0; k < 100; ++k) {
-    const double i = 0.5 * (lo + hi);
-    (f_lim * janosiShare(i, L, t.shear_k_m) < R ? lo : hi) = i;
-  }
+/// The excavator's spec (TB235-class defaults) with `vehicle` overrides, as a scenario gives it.
+MachineSpec excavatorSpec(const std::string& vehicle = "") {
+  const std::string yaml =
+      "version: 1\nduration_s: 1\nterrain: {size_m: [20, 6], origin_m: [-3, -3], resolution_m: 0.02}\n"
+      "machines:\n  - id: ex\n    type: excavator\n" +
+      (vehicle.empty() ? std::string() : "    vehicle: {" + vehicle + "}\n") +
+      "    controller: {type: dig_dump, dig_m: [3, 0], dump_m: [0, 3]}\n";
+  return parseScenario(yaml, "s.yaml").machines.at(0);
+}
+
+/// What terramechanics says (steadyTravel): the speed at which the Janosi–Hanamoto share of the
+/// traction limit A c + W tan(phi) (capped by the drive) carries the running gear's rolling
+/// resistance plus the compaction and bulldozing resistances of both tracks' ruts.
+double theorySpeed(soil::SoilFamily family, double I_d, const std::string& vehicle = "") {
+  const MachineSpec m = excavatorSpec(vehicle);
+  const SteadyTravel s = steadyTravel(m, family, I_d);
   // The simulator's step takes the resistances off after solving the traction (ctl.cpp), so its
-  // steady speed sits one step's deceleration by them, dt R / m, below.
-  return v_track * (1 - 0.5 * (lo + hi)) - R / (240.0 * m);
+  // steady speed sits one step's deceleration by them, dt R / m, below (scenario's 240 Hz).
+  return m.max_speed_mps * (1 - s.slip) - s.resistance_n / (240.0 * m.mass_kg);
 }
 
 }  // namespace
@@ -267,4 +269,22 @@ TEST(TrackSoil, AtFullLeverTheExcavatorIsSlowerInLooseSandThanInLoamByWhatTheRut
   EXPECT_NEAR(loam, theorySpeed(soil::SoilFamily::Loam, 0.4), 1e-5);
   EXPECT_NEAR(sand, theorySpeed(soil::SoilFamily::Sand, 0.0), 1e-5);
   EXPECT_LT(sand, loam);
+}
+
+TEST(TrackSoil, OnTheSameTracksEightTimesHeavierTheExcavatorSlowsMoreInSandAsItsRutsDeepen) {
+  // The same undercarriage (0.3 m x 1.85 m tracks) carrying 28 t, its drive force scaled with its
+  // weight: 247 kPa, ruts 19 cm deep in loose sand (3.9 cm in loam). The simulator's speed is
+  // still what terramechanics gives on both soils, and the sand's slow-down against loam is
+  // several times the 3.5 t machine's: deeper ruts resist more. (Without the track-soil model
+  // both soils give the same speed.)
+  const std::string heavy = "mass_kg: 28000, max_drive_force_n: 240000";
+  const double loam = fullLeverSpeed("loam, relative_density: 0.4", 6, heavy);
+  const double sand = fullLeverSpeed("sand, relative_density: 0.0", 6, heavy);
+  EXPECT_NEAR(loam, theorySpeed(soil::SoilFamily::Loam, 0.4, heavy), 1e-5);
+  EXPECT_NEAR(sand, theorySpeed(soil::SoilFamily::Sand, 0.0, heavy), 1e-5);
+  const double light = 1 - fullLeverSpeed("sand, relative_density: 0.0", 6) /
+                               fullLeverSpeed("loam, relative_density: 0.4", 6);
+  const double slow = 1 - sand / loam;
+  EXPECT_GT(slow, 3.0 * light) << slow << " vs " << light;
+  EXPECT_GT(slow, 0.004);
 }

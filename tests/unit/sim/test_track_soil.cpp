@@ -9,6 +9,7 @@
 #include <terramap/sim/track_soil.hpp>
 
 #include <cmath>
+#include <cstdio>
 #include <string>
 
 using namespace terramap;
@@ -195,4 +196,93 @@ TEST(TrackSoil, NodeTilesAllocateOnlyWhatIsWritten) {
   copy.at(200, 1500) = 7.0;
   EXPECT_EQ(t.get(200, 1500), 200.0) << "a copy owns its tiles";
   EXPECT_EQ(copy.allocatedTiles(), 4u);
+}
+
+namespace {
+
+MachineSpec excavatorWith(double mass_factor) {
+  // The TB235-class excavator's undercarriage; heavier by mass_factor with its drive force scaled
+  // alike (the drive keeps its share of the weight, so only the ruts change the balance).
+  const std::string yaml =
+      "version: 1\nduration_s: 1\nterrain: {size_m: [20, 6], origin_m: [-3, -3], resolution_m: 0.02}\n"
+      "machines:\n  - id: ex\n    type: excavator\n"
+      "    controller: {type: dig_dump, dig_m: [3, 0], dump_m: [0, 3]}\n";
+  MachineSpec m = parseScenario(yaml, "s.yaml").machines.at(0);
+  m.mass_kg *= mass_factor;
+  m.max_drive_force_n *= mass_factor;
+  return m;
+}
+
+struct FloorRow {
+  SteadyTravel sand, loam;
+  double slow_down;  ///< 1 - v_sand / v_loam at the same track speed; NaN: stuck in sand
+};
+
+FloorRow floorRow(const MachineSpec& m, double rut_pressure_factor) {
+  FloorRow r;
+  r.sand = steadyTravel(m, soil::SoilFamily::Sand, 0.0, rut_pressure_factor);
+  r.loam = steadyTravel(m, soil::SoilFamily::Loam, 0.4, rut_pressure_factor);
+  r.slow_down = 1 - (1 - r.sand.slip) / (1 - r.loam.slip);
+  return r;
+}
+
+void printRow(const char* label, double x, const FloorRow& r) {
+  std::printf("| %s %.3g | %.1f | %.2f | %.2f | %.3f | %.3f | %.3f | %.3f |\n", label, x,
+              r.sand.pressure_pa / 1e3, 100 * r.sand.sinkage_m, 100 * r.loam.sinkage_m,
+              r.sand.resistance_n / r.sand.traction_limit_n, 100 * r.sand.slip, 100 * r.loam.slip,
+              100 * r.slow_down);
+}
+
+}  // namespace
+
+TEST(TrackSoil, SlowDownFloorOfTheExcavatorInLooseSandAgainstLoam) {
+  // TERA's Fig. 4 by terramechanics alone (steadyTravel, the state the simulator settles into):
+  // the excavator's steady slow-down at full lever in loose sand (I_d 0) against loam (I_d 0.4),
+  // (1) as its weight on the same tracks raises the mean ground pressure, (2) as the pressure
+  // that sets the ruts rises above the mean (what pressure peaks under the rollers would do).
+  // Prints the table docs/sim.md quotes.
+  std::printf("| case | mean pressure kPa | rut in sand cm | rut in loam cm | sand R / limit | slip sand %% | "
+              "slip loam %% | slow-down %% |\n|---|---|---|---|---|---|---|---|\n");
+  const FloorRow one = floorRow(excavatorWith(1), 1);
+  double last = 0;
+  for (double k : {1.0, 2.0, 4.0, 8.0, 16.0}) {
+    const FloorRow r = floorRow(excavatorWith(k), 1);
+    printRow("mass x", k, r);
+    // Compaction is the work of pressing the ruts: b k z^(n+1) / (n+1) per track, = W z / (L (n+1))
+    // for both under uniform pressure.
+    const Terramechanics t = terramechanics(soil::SoilFamily::Sand, 0.0);
+    const double W = excavatorWith(k).mass_kg * 9.80665;
+    EXPECT_NEAR(r.sand.compaction_n, W * r.sand.sinkage_m / (1.85 * (t.n + 1)), 1e-6 * r.sand.compaction_n);
+    EXPECT_GT(r.slow_down, last) << "grows with the pressure";
+    last = r.slow_down;
+    if (k <= 8) {
+      EXPECT_LT(r.slow_down, 0.01) << "below 1 % up to 8 x the weight (247 kPa, ruts 19 cm)";
+    }
+  }
+  // The TB235-class machine itself: 30.9 kPa, ruts 2.9 cm, a slow-down of about 0.16 %.
+  EXPECT_NEAR(one.sand.pressure_pa, 30.9e3, 0.1e3);
+  EXPECT_GT(one.slow_down, 0.001);
+  EXPECT_LT(one.slow_down, 0.003);
+  const MachineSpec tb = excavatorWith(1);
+  for (double f : {2.0, 4.0, 5.0, 6.0, 8.0}) printRow("rut pressure x", f, floorRow(tb, f));
+  // The rut pressure (as a multiple of the mean) at which the slow-down reaches 1 % and 3 %:
+  // between the 4 x and 8 x rows; at 8 x (Rowland-class mean maximum pressures) the machine
+  // cannot move in sand at all.
+  for (double target : {0.01, 0.03}) {
+    double lo = 1, hi = 8;
+    for (int it = 0; it < 60; ++it) {
+      const double f = 0.5 * (lo + hi);
+      const FloorRow r = floorRow(tb, f);
+      (std::isnan(r.slow_down) || r.slow_down > target ? hi : lo) = f;
+    }
+    const FloorRow r = floorRow(tb, lo);
+    std::printf("slow-down %.0f %%: rut pressure %.2f x the mean (%.0f kPa), rut in sand %.1f cm (%.3f of the track "
+                "length), rut resistance %.2f W\n",
+                100 * target, lo, lo * r.sand.pressure_pa / 1e3, 100 * r.sand.sinkage_m,
+                r.sand.sinkage_m / tb.track_length_m,
+                (r.sand.compaction_n + r.sand.bulldozing_n) / (tb.mass_kg * 9.80665));
+    EXPECT_GT(lo, 3.0);
+    EXPECT_LT(lo, 8.0);
+  }
+  EXPECT_TRUE(std::isnan(floorRow(tb, 8).sand.slip)) << "stuck";
 }
