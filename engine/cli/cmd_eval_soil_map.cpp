@@ -1,5 +1,5 @@
 // `terramap eval-soil-map SCENARIO.yaml`: the soil map against the simulator's truth (paper
-// §3.2, Fig. 12). Runs configs/soil_map.yaml (LiDAR, blade, erosion, soil_pinn, soil_bayes,
+// §3.2, Fig. 12). Runs configs/soil_map.yaml (LiDAR, blade, erosion, soil_fit, soil_bayes,
 // fee_index) on the scenario and prints what the run report's truth.soil holds
 // (eval/truth_report.hpp): per property the error and calibration of the soil layers, per soil
 // zone the FEE index and its AUC against the default soil.
@@ -68,12 +68,29 @@ void printSoil(const nlohmann::json& truth_soil, const sim::Scenario& sc, const 
                 100 * num(p["within_1sigma"]), 100 * num(p["within_2sigma"]));
   }
   std::printf("  (calibrated variances put 68.3 %% of the truths within 1 sd and 95.4 %% within 2)\n");
+  const auto zoneName = [&](int id) {
+    return id < 0 ? std::string("default soil")
+                  : (id < static_cast<int>(sc.zones.size()) ? sc.zones[static_cast<std::size_t>(id)].name
+                                                            : "zone " + std::to_string(id));
+  };
+  if (truth_soil.contains("properties_by_zone")) {
+    std::printf("bias per truth soil zone:\n");
+    for (const auto& [key, zp] : truth_soil["properties_by_zone"].items()) {
+      std::printf("  %-16s", zoneName(std::stoi(key)).c_str());
+      for (int k = 0; k < soil::kSoilParamCount; ++k) {
+        const char* name = soil::kSoilParams[k].layer;
+        if (!zp.contains(name)) continue;
+        const auto& [scale, unit] = kShow[k];
+        std::printf(" %s %+.2f %s", soil::kSoilParams[k].name, num(zp[name]["bias"]) * scale, unit);
+      }
+      std::printf("\n");
+    }
+  }
   if (!truth_soil.contains("fee_index")) return;
   std::printf("FEE index per truth soil zone:\n");
   for (const nlohmann::json& z : truth_soil["fee_index"]["zones"]) {
     const int id = z["zone"].get<int>();
-    const std::string name =
-        id < 0 ? "default soil" : (id < static_cast<int>(sc.zones.size()) ? sc.zones[static_cast<std::size_t>(id)].name : "zone " + std::to_string(id));
+    const std::string name = zoneName(id);
     std::printf("  %-16s %8ld cells, mean %8.2f kN", name.c_str(), z.value("cells", 0L), num(z["mean_index_n"]) * 1e-3);
     // Zones have one soil each (at the surface): the index a perfect estimator would give.
     const auto soilOf = [&](int zone) -> const fee::Soil& {
@@ -156,7 +173,7 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
   auto a = std::make_shared<SoilMapArgs>();
   auto* sub = app.add_subcommand("eval-soil-map",
       "The soil map against the simulator's truth (paper Fig. 12): run SCENARIO through\n"
-      "configs/soil_map.yaml (LiDAR, blade, erosion, soil_pinn, soil_bayes, fee_index) and print\n"
+      "configs/soil_map.yaml (LiDAR, blade, erosion, soil_fit, soil_bayes, fee_index) and print\n"
       "the soil layers' error and calibration per property and the FEE index per soil zone with\n"
       "its AUC against the default soil. Writes the run's outputs to --out: map.tif (with\n"
       "truth_soil_zone and truth_fee_index, the index of the truth soil), fee_index.png and\n"
@@ -165,7 +182,8 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
   sub->add_option("scenario", a->scenario, "Scenario YAML")->required()->check(CLI::ExistingFile);
   sub->add_option("--pipeline", a->pipeline, "Pipeline YAML (default: configs/soil_map.yaml of the source tree)");
   sub->add_option("--model", a->model,
-                  "Soil estimator file for every soil_pinn stage (default: the pipeline's own `model`)");
+                  "Soil estimator file for every soil_pinn stage (default: the pipeline's own `model`); without "
+                  "--pipeline, configs/soil_map_pinn.yaml (the network in soil_fit's place) is run");
   sub->add_option("--out,-o", a->out, "Output folder");
   sub->add_option("--threads,-j", a->threads, "Worker threads")->check(CLI::Range(1, 256));
   sub->add_option("--duration", a->duration, "Simulate at most this many seconds")->check(CLI::PositiveNumber);
@@ -175,7 +193,9 @@ Registrar reg{Command{"eval-soil-map", [](CLI::App& app, std::function<int()>& r
   sub->callback([&run, a] {
     run = [a]() -> int {
       const fs::path configs = embeddedDemoBaseDir();
-      PipelineSpec spec = parsePipelineFile(a->pipeline.empty() ? (configs / "soil_map.yaml").string() : a->pipeline);
+      // A model names the network: without a pipeline, the soil map with the network in it.
+      const char* fallback = a->model.empty() ? "soil_map.yaml" : "soil_map_pinn.yaml";
+      PipelineSpec spec = parsePipelineFile(a->pipeline.empty() ? (configs / fallback).string() : a->pipeline);
       if (spec.source.type != "sim")
         throw ConfigError(spec.file + ": eval-soil-map needs a `sim` source (it compares with the simulator's truth)");
       const std::string scenario = fs::absolute(a->scenario).string();

@@ -592,7 +592,7 @@ nlohmann::json boundaryFigure(const StrataArgs& a, const sim::SoilZone& zone, do
 }
 
 /// How far apart the soil estimator's estimates of the two soils are: every valid estimate of
-/// the run (report.json's soil_pinn records) paired with the soil the truth blade was cutting at
+/// the run (report.json's soil_pinn, soil_fit or soil_oracle records) paired with the soil the truth blade was cutting at
 /// its sweep's end, classed by the nearer of the default soil and the zone's in cohesion. Per
 /// property, and for the FEE index of the reference cut (`cut`) of each estimate's mean (the
 /// strength the force can tell, whatever mix of properties gives it): truth, estimates' mean and
@@ -604,7 +604,9 @@ nlohmann::json estimatorSeparation(const StrataArgs& a, const sim::Scenario& sc,
   const soil::SoilParamVector soils[2] = {soil::fromFee(sc.default_soil.fee), soil::fromFee(zone.soil.fee)};
   std::array<std::vector<soil::SoilParamVector>, 2> est;
   for (const nlohmann::json& stage : run["stages"]) {
-    if ((stage["type"] != "soil_pinn" && stage["type"] != "soil_oracle") || !stage.contains("records")) continue;
+    if ((stage["type"] != "soil_pinn" && stage["type"] != "soil_fit" && stage["type"] != "soil_oracle") ||
+        !stage.contains("records"))
+      continue;
     for (const nlohmann::json& r : stage["records"]) {
       if (!r.value("valid", false)) continue;
       const double t1 = r["t1"].get<double>();

@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -74,6 +75,8 @@ nlohmann::json compareSoil(const LayeredMap& map, const Source& source, Eigen::M
   Eigen::MatrixXf truth(g.size().x(), g.size().y()), zone(g.size().x(), g.size().y());
   if (!source.truth("soil_zone", g, zone)) return nullptr;
   nlohmann::json props = nlohmann::json::object();
+  // Per zone too: a bias of the whole map can hide opposite biases in the strip and around it.
+  nlohmann::json zone_props = nlohmann::json::object();
   long estimated = 0;
   for (const soil::SoilParamInfo& info : soil::kSoilParams) {
     if (!source.truth(info.layer, g, truth)) return nullptr;
@@ -82,10 +85,17 @@ nlohmann::json compareSoil(const LayeredMap& map, const Source& source, Eigen::M
     std::vector<double> err;
     long in1 = 0, in2 = 0;
     double abs_sum = 0.0;
+    std::map<int, std::array<double, 3>> by_zone;  // sum of errors, of |errors|, count
     for (int i = 0; i < est.rows(); ++i)
       for (int j = 0; j < est.cols(); ++j) {
         if (!std::isfinite(est(i, j)) || !std::isfinite(truth(i, j)) || !std::isfinite(var(i, j))) continue;
         const double e = static_cast<double>(est(i, j)) - truth(i, j);
+        if (std::isfinite(zone(i, j))) {
+          std::array<double, 3>& z = by_zone[static_cast<int>(zone(i, j))];
+          z[0] += e;
+          z[1] += std::abs(e);
+          z[2] += 1.0;
+        }
         const double sd = std::sqrt(std::max(0.0, static_cast<double>(var(i, j))));
         err.push_back(e);
         abs_sum += std::abs(e);
@@ -105,8 +115,10 @@ nlohmann::json compareSoil(const LayeredMap& map, const Source& source, Eigen::M
                         // within 1 and 2 standard deviations.
                         {"within_1sigma", orNull(n ? static_cast<double>(in1) / n : 0.0)},
                         {"within_2sigma", orNull(n ? static_cast<double>(in2) / n : 0.0)}};
+    for (const auto& [z, a] : by_zone)
+      zone_props[std::to_string(z)][info.layer] = {{"cells", a[2]}, {"bias", a[0] / a[2]}, {"mae", a[1] / a[2]}};
   }
-  nlohmann::json out = {{"cells_estimated", estimated}, {"properties", props}};
+  nlohmann::json out = {{"cells_estimated", estimated}, {"properties", props}, {"properties_by_zone", zone_props}};
   // The FEE index against the soil zones: how well it tells each zone from the default soil.
   if (map.hasLayer("fee_index")) {
     const Eigen::MatrixXf idx = map.toMatrix(map.layerId("fee_index"));

@@ -25,10 +25,41 @@ std::vector<soil::FitRow> fitRows(const soil::PinnSample& s) {
   return rows;
 }
 
+long SweepWindow::add(const Eigen::Vector3d& edge, std::vector<soil::FitRow> rows) {
+  entries_.push_back({next_, edge, std::move(rows)});
+  return next_++;
+}
+
+std::vector<soil::FitRow> SweepWindow::rowsFor(long seq, int* sweeps) const {
+  std::vector<soil::FitRow> rows;
+  int n = 0;
+  const Entry* self = nullptr;
+  for (const Entry& e : entries_)
+    if (e.seq == seq) self = &e;
+  if (self != nullptr) {
+    for (const Entry& e : entries_) {
+      if (e.seq < seq - back_ || e.seq > seq + ahead_) continue;
+      // Only the sweeps near this one: the soil changes across a site, and a pass that turned
+      // away belongs to other ground.
+      if ((e.edge.head<2>() - self->edge.head<2>()).norm() > reach_m_) continue;
+      rows.insert(rows.end(), e.rows.begin(), e.rows.end());
+      ++n;
+    }
+  }
+  if (sweeps) *sweeps = n;
+  return rows;
+}
+
+void SweepWindow::forgetBefore(long oldest_needed) {
+  while (!entries_.empty() && entries_.front().seq < oldest_needed - back_) entries_.pop_front();
+}
+
 ParamSchema SoilFit::schema() const {
   const soil::PooledFitOptions d;
   return {param::integer("horizon", 10, 1, 1000, "observation rows per sweep (the sample's P)"),
-          param::integer("window_sweeps", 10, 1, 1000, "the machine's last sweeps fitted together"),
+          param::integer("window_sweeps", 10, 1, 1000, "the machine's sweeps fitted together (lookahead included)"),
+          param::integer("lookahead_sweeps", 5, 0, 999,
+                         "sweeps after each one in its window: its estimate waits for them (0: the last sweeps only)"),
           param::real("window_m", 2.0, 0.0, 1e4, "m", "only sweeps whose blade ended this close to this one's"),
           param::integer("min_rows", 10, 1, 100000, "fewer rows in the window: the estimate is invalid"),
           param::real("edge_thickness_m", d.edge_thickness_m, 0.0, 0.5, "m", "the penetration term's cutting edge"),
@@ -45,6 +76,10 @@ ParamSchema SoilFit::schema() const {
 void SoilFit::configure(const Params& p) {
   horizon_ = static_cast<int>(p.getInt("horizon"));
   window_sweeps_ = static_cast<int>(p.getInt("window_sweeps"));
+  lookahead_sweeps_ = static_cast<int>(p.getInt("lookahead_sweeps"));
+  if (lookahead_sweeps_ >= window_sweeps_)
+    p.report("lookahead_sweeps", "must be less than window_sweeps (" + std::to_string(window_sweeps_) +
+                                     "): the window holds the sweep itself too");
   window_m_ = p.getDouble("window_m");
   min_rows_ = static_cast<int>(p.getInt("min_rows"));
   opt_.edge_thickness_m = p.getDouble("edge_thickness_m");
@@ -56,7 +91,7 @@ void SoilFit::configure(const Params& p) {
 
 void SoilFit::start(ProcessContext& ctx) { pending_.start(ctx); }
 
-void SoilFit::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
+void SoilFit::ingestSweep(ProcessContext& ctx, const SweepRecord& sweep) {
   soil::PinnSample sample;
   auto it = pending_.histories().find(sweep.machine_id);
   const soil::SampleSkip why = it == pending_.histories().end() ? soil::SampleSkip::ShortHistory
@@ -65,26 +100,44 @@ void SoilFit::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
     ctx.countDrop(std::string("sweep_") + soil::sampleSkipName(why));
     return;
   }
-  MachineState& m = machines_[sweep.machine_id];
-  const Eigen::Vector3d edge = sweep.T_map_blade1.translation();
-  m.window.push_back({edge, fitRows(sample)});
-  while (static_cast<int>(m.window.size()) > window_sweeps_) m.window.pop_front();
-  // Only the sweeps near this one: the soil changes across a site, and a pass that turned away
-  // belongs to other ground.
-  std::vector<soil::FitRow> rows;
-  int sweeps = 0;
-  for (const WindowSweep& w : m.window) {
-    if ((w.edge.head<2>() - edge.head<2>()).norm() > window_m_) continue;
-    rows.insert(rows.end(), w.rows.begin(), w.rows.end());
-    ++sweeps;
+  auto found = machines_.find(sweep.machine_id);
+  if (found == machines_.end())
+    found = machines_.emplace(sweep.machine_id, MachineState(SweepWindow(window_sweeps_, lookahead_sweeps_, window_m_))).first;
+  MachineState& m = found->second;
+  Waiting w;
+  w.record = soilEstimateRecordFor(sweep);
+  w.record.stamp = sample.anchor_stamp;
+  w.record.history_T = sample.T;
+  w.record.horizon_P = sample.P;
+  w.record.members = 1;
+  w.record.d_res_m = 0.0;
+  w.record.beta_res_rad = 0.0;
+  if (!sample.theta_k.empty()) {
+    const float* th = sample.theta_k.data() + static_cast<std::size_t>(sample.P - 1) * soil::kThetaK;
+    w.last_row.geometry = {th[soil::kAlpha], th[soil::kRho], th[soil::kDepth], th[soil::kWidth], th[soil::kSurcharge]};
+    w.last_row.descending = sample.obs[static_cast<std::size_t>(sample.T) * soil::kObsFeatures - 1] < 0.0f;
+    const std::size_t lf = static_cast<std::size_t>(sample.P - 1) * 2;
+    w.last_row.fx_n = sample.force[lf];
+    w.last_row.fz_n = sample.force[lf + 1];
+    w.has_last_row = true;
   }
-  SoilEstimateRecord r = soilEstimateRecordFor(sweep);
-  r.stamp = sample.anchor_stamp;
-  r.history_T = sample.T;
-  r.horizon_P = sample.P;
-  r.members = 1;
-  r.d_res_m = 0.0;
-  r.beta_res_rad = 0.0;
+  w.seq = m.window.add(sweep.T_map_blade1.translation(), fitRows(sample));
+  m.waiting.push_back(std::move(w));
+  publishReady(ctx, m, false);
+}
+
+void SoilFit::publishReady(ProcessContext& ctx, MachineState& m, bool flush) {
+  while (!m.waiting.empty() && (flush || m.window.complete(m.waiting.front().seq))) {
+    publish(ctx, m, m.waiting.front());
+    m.waiting.pop_front();
+  }
+  m.window.forgetBefore(m.waiting.empty() ? m.window.next() : m.waiting.front().seq);
+}
+
+void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
+  int sweeps = 0;
+  const std::vector<soil::FitRow> rows = m.window.rowsFor(w.seq, &sweeps);
+  SoilEstimateRecord& r = w.record;
   if (static_cast<int>(rows.size()) < min_rows_) {
     r.invalid_reason = "too_few_rows";
   } else {
@@ -105,15 +158,13 @@ void SoilFit::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
       finite = finite && std::isfinite(r.mean[k]) && std::isfinite(var);
     }
     const fee::Soil s = soil::toFee(fit.mean);
-    if (!rows.empty() && !sample.theta_k.empty()) {
-      const float* th = sample.theta_k.data() + static_cast<std::size_t>(sample.P - 1) * soil::kThetaK;
-      const fee::Geometry g{th[soil::kAlpha], th[soil::kRho], th[soil::kDepth], th[soil::kWidth], th[soil::kSurcharge]};
+    if (w.has_last_row) {
+      const fee::Geometry& g = w.last_row.geometry;
       r.beta_rad = fee::betaMin(s, g);
-      soil::FitRow last{g, sample.obs[static_cast<std::size_t>(sample.T) * soil::kObsFeatures - 1] < 0.0f, 0, 0};
       Eigen::Vector2d f;
+      soil::FitRow last = w.last_row;
       if (soil::modelForce(s, last, opt_.edge_thickness_m, f, opt_.q_gamma_ref_n_m3)) r.F_pred = {f.x(), f.y()};
-      const std::size_t lf = static_cast<std::size_t>(sample.P - 1) * 2;
-      r.F_measured = {sample.force[lf], sample.force[lf + 1]};
+      r.F_measured = {w.last_row.fx_n, w.last_row.fz_n};
     }
     r.F_r = {0.0, 0.0};
     r.valid_members = finite && fit.rows > 0 ? 1 : 0;
@@ -126,11 +177,12 @@ void SoilFit::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
 
 void SoilFit::process(ProcessContext& ctx, const Event& event) {
   pending_.process(ctx, event, static_cast<std::size_t>(horizon_) + 64,
-                   [&](const SweepRecord& s) { estimateSweep(ctx, s); });
+                   [&](const SweepRecord& s) { ingestSweep(ctx, s); });
 }
 
 void SoilFit::finish(ProcessContext& ctx) {
-  pending_.finish(ctx, [&](const SweepRecord& s) { estimateSweep(ctx, s); });
+  pending_.finish(ctx, [&](const SweepRecord& s) { ingestSweep(ctx, s); });
+  for (auto& [id, m] : machines_) publishReady(ctx, m, true);
 }
 
 }  // namespace terramap::plugins

@@ -17,7 +17,13 @@
 /// `window_sweeps` sweeps whose blade ended within `window_m` of this one's are fitted jointly
 /// (soil::fitPooled, warm-started from the machine's previous fit) and published as this
 /// sweep's SoilEstimateRecord, so soil_bayes, fee_index and octomap_strata read it as they read
-/// soil_pinn's. Variances: the (residual-scaled) Gauss-Newton covariance's diagonal times the number of sweeps in
+/// soil_pinn's. With `lookahead_sweeps` k > 0 the window is centred: sweep s is fitted with the
+/// rows of the sweeps before it and of the k after it, and published when sweep s + k has been
+/// fitted rows (or at the end of the run), so the estimate fused into s's wedge describes the soil
+/// around s rather than the ground the blade left behind (a causal window lags the soil by half its
+/// length: on a 2 m strip crossed at 0.2 m a sweep, 10 sweeps lag it by about 1 m). The cost is
+/// latency: the layer ahead of the blade receives its estimate k sweeps later.
+/// Variances: the (residual-scaled) Gauss-Newton covariance's diagonal times the number of sweeps in
 /// the window (each sweep's rows enter that many consecutive fits, and soil_bayes fuses every
 /// one of them), as var_total, var_aleatoric and var_nullspace; no epistemic part.
 ///
@@ -42,6 +48,36 @@ namespace terramap::plugins {
 /// The fit rows of one sample (stalled rows and rows without a cut left out).
 std::vector<soil::FitRow> fitRows(const soil::PinnSample& sample);
 
+/// Which sweeps' rows each sweep's fit takes: the `window_sweeps - 1 - lookahead_sweeps` sweeps
+/// before it, itself, and the `lookahead_sweeps` after it, of those whose blade ended within
+/// `window_m` (m, map frame, horizontal) of its own. One machine's sweeps, in order. Plain
+/// bookkeeping: no threads, no engine.
+class SweepWindow {
+ public:
+  SweepWindow(int window_sweeps, int lookahead_sweeps, double window_m)
+      : back_(window_sweeps - 1 - lookahead_sweeps), ahead_(lookahead_sweeps), reach_m_(window_m) {}
+  /// Appends a sweep's rows; returns its sequence number (0, 1, ...).
+  long add(const Eigen::Vector3d& edge, std::vector<soil::FitRow> rows);
+  /// True once every sweep sweep `seq`'s fit takes has been added.
+  bool complete(long seq) const { return seq + ahead_ < next_; }
+  /// The rows of sweep `seq`'s fit; `sweeps` receives how many sweeps they came from.
+  std::vector<soil::FitRow> rowsFor(long seq, int* sweeps) const;
+  /// Forgets the sweeps no fit from sweep `oldest_needed` on can take.
+  void forgetBefore(long oldest_needed);
+  long next() const { return next_; }
+
+ private:
+  struct Entry {
+    long seq;
+    Eigen::Vector3d edge;
+    std::vector<soil::FitRow> rows;
+  };
+  std::deque<Entry> entries_;
+  long next_ = 0;
+  int back_, ahead_;
+  double reach_m_;
+};
+
 class SoilFit : public Plugin {
  public:
   ParamSchema schema() const override;
@@ -53,18 +89,26 @@ class SoilFit : public Plugin {
   void finish(ProcessContext& ctx) override;
 
  private:
-  struct WindowSweep {
-    Eigen::Vector3d edge;
-    std::vector<soil::FitRow> rows;
+  /// A sweep whose estimate waits for the sweeps after it (lookahead_sweeps).
+  struct Waiting {
+    long seq = 0;
+    SoilEstimateRecord record;   ///< everything but the fit
+    soil::FitRow last_row;       ///< the geometry at the sweep's end, for β* and F_pred
+    bool has_last_row = false;
   };
   struct MachineState {
-    std::deque<WindowSweep> window;
+    explicit MachineState(const SweepWindow& w) : window(w) {}
+    SweepWindow window;
+    std::deque<Waiting> waiting;
     soil::SoilParamVector last{};
     bool has_last = false;
   };
-  void estimateSweep(ProcessContext& ctx, const SweepRecord& sweep);
+  void ingestSweep(ProcessContext& ctx, const SweepRecord& sweep);
+  /// Publishes the waiting sweeps whose lookahead has arrived (all of them if `flush`).
+  void publishReady(ProcessContext& ctx, MachineState& m, bool flush);
+  void publish(ProcessContext& ctx, MachineState& m, Waiting& w);
 
-  int horizon_ = 10, window_sweeps_ = 10, min_rows_ = 10;
+  int horizon_ = 10, window_sweeps_ = 10, lookahead_sweeps_ = 5, min_rows_ = 10;
   double window_m_ = 2.0;
   soil::PooledFitOptions opt_;
   std::map<std::string, MachineState> machines_;

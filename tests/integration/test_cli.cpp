@@ -229,8 +229,8 @@ TEST(Cli, EvalSoilMapComparesTheSoilLayersWithTheTruthZones) {
   };
   EXPECT_GT(at(7.5, 0.0), 2.0f * at(3.0, 0.0));  // 88 vs 21 kN
   // The goal: the mapped index separates the dense strip from the loose clay with
-  // AUC >= 0.95 (0.959 measured). With soil_bayes fusing its mid-range prior into each first
-  // estimate (--set bayes.prior=config) it was 0.934.
+  // AUC >= 0.95 (0.965 measured with soil_fit's centred window; 0.797 with the window of the
+  // last sweeps, --set soil.lookahead_sweeps=0; docs/soil_estimator.md "A centred window").
   double auc = -1;
   for (const auto& z : soil["fee_index"]["zones"])
     if (z["zone"].get<int>() == 0) auc = z["auc_vs_default"].get<double>();

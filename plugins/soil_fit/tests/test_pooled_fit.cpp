@@ -152,3 +152,61 @@ TEST(PooledFit, TheInterfaceBoundedBySoilKeepsAdhesionOffACohesionlessSoil) {
   for (int k = 0; k < kSoilParamCount; ++k) EXPECT_GT(b.covariance(k, k), 0.0) << k;
   EXPECT_TRUE(b.covariance.allFinite());
 }
+
+// A pass crossing from a loose soil into a dense strip at x = 3 m, one sweep every 0.2 m. A
+// window of the last 10 sweeps fits the strip's first sweeps mostly with the loose soil's rows,
+// so the estimate crosses to the strip about half a window (1 m) late and paints the strip's
+// leading metre as loose ground; a window centred on each sweep (5 after it) crosses at the edge.
+TEST(SoilFitWindow, ACentredWindowPutsTheStripEdgeWhereItIs) {
+  const fee::Soil loose = soilProperties(SoilFamily::Clay, 0.1).fee, dense = soilProperties(SoilFamily::Clay, 0.8).fee;
+  const fee::Geometry ref{0.0, 1.4, 0.15, 1.85, 0.0};
+  auto refForce = [&](const fee::Soil& s) { return fee::evaluateAtBetaMin(s, ref).F_total_N.x(); };
+  const double f_loose = refForce(loose), f_dense = refForce(dense);
+  ASSERT_GT(f_dense, 1.5 * f_loose);
+  // Where the estimate first reads nearer the dense soil than the loose one (m).
+  auto crossing = [&](int lookahead) {
+    plugins::SweepWindow window(10, lookahead, 2.0);
+    constexpr int kSweeps = 30;
+    for (int k = 0; k < kSweeps; ++k) {
+      const double x = 0.2 * k;
+      window.add({x, 0.0, 0.0}, rowsOf(x < 3.0 - 1e-9 ? loose : dense, 10, true, 100 + k, 300.0));
+    }
+    SoilParamVector start = middle();
+    for (int k = 0; k < kSweeps; ++k) {
+      EXPECT_TRUE(window.complete(k) || k + lookahead >= kSweeps);
+      int sweeps = 0;
+      const std::vector<FitRow> rows = window.rowsFor(k, &sweeps);
+      EXPECT_EQ(sweeps, std::min({10, k + 1 + lookahead, kSweeps - k + 9 - lookahead, kSweeps}));
+      const PooledFit fit = fitPooled(rows, start, PooledFitOptions{});
+      start = fit.mean;
+      const double f = refForce(toFee(fit.mean));
+      if (std::abs(f - f_dense) < std::abs(f - f_loose)) return 0.2 * k;
+    }
+    return 1e9;
+  };
+  const double centred = crossing(5), causal = crossing(0);
+  EXPECT_NEAR(centred, 3.0, 0.21);  // the edge, within a sweep
+  EXPECT_GE(causal, 3.6);           // what the centring removes
+}
+
+// The window's reach in space: a sweep whose blade ended more than window_m away (here on the
+// next lane, 2.6 m off) is not fitted with this one even when it is among its sweeps; forgetting
+// keeps what a waiting sweep still needs.
+TEST(SoilFitWindow, TheReachLeavesOtherLanesOutAndForgettingKeepsWhatIsNeeded) {
+  plugins::SweepWindow window(4, 1, 2.0);
+  const std::vector<FitRow> one(3, FitRow{{0.0, 1.4, 0.1, 1.85, 0.0}, false, 1.0, 0.0});
+  window.add({0.0, 0.0, 0.0}, one);
+  window.add({0.2, 0.0, 0.0}, one);
+  window.add({0.4, 1.6, 0.0}, one);  // the next lane, 1.6 m over: within 2 m of sweep 1
+  window.add({2.2, 1.6, 0.0}, one);
+  int sweeps = 0;
+  EXPECT_EQ(window.rowsFor(1, &sweeps).size(), 9u);  // sweeps 0, 1, 2 (2 is its lookahead)
+  EXPECT_EQ(sweeps, 3);
+  EXPECT_EQ(window.rowsFor(3, &sweeps).size(), 6u);  // 2 and 3; 1 is 2.6 m away
+  EXPECT_EQ(sweeps, 2);
+  EXPECT_FALSE(window.complete(3));
+  EXPECT_TRUE(window.complete(2));
+  window.forgetBefore(3);  // sweep 3 reaches back two sweeps: 1 and 2 stay
+  EXPECT_EQ(window.rowsFor(1, &sweeps).size(), 6u);  // sweep 0 forgotten
+  EXPECT_EQ(window.rowsFor(0, &sweeps).size(), 0u);
+}
