@@ -122,15 +122,12 @@ void markUnderBlade(const TruthTerrain& terrain, const BladeFrame& f, double res
 }
 
 /// Per row, the first and last node with loose soil (rows without any keep w and -1).
-void findLooseExtents(const double* Lg, SweepBox& b) {
+void findLooseExtents(const TruthTerrain& terrain, SweepBox& b) {
   for (int j = 0; j < b.h; ++j) {
-    const double* Lr = Lg + b.gidx(0, j);
-    int a = 0, e = b.w - 1;
-    while (a < b.w && !(Lr[a] > 0.0)) ++a;
-    if (a == b.w) continue;
-    while (!(Lr[e] > 0.0)) --e;
-    b.ext_lo[j] = a;
-    b.ext_hi[j] = e;
+    const int a = terrain.firstLoose(b.j0 + j, b.i0, b.i1);
+    if (a > b.i1) continue;
+    b.ext_lo[j] = a - b.i0;
+    b.ext_hi[j] = terrain.lastLoose(b.j0 + j, a, b.i1) - b.i0;
   }
 }
 
@@ -239,7 +236,7 @@ bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double b
   // Heights and loose thicknesses are read in place: no moves happen before applyFluxes.
   const double* Hg = terrain.heightData().data();
   const double* Lg = terrain.looseData().data();
-  findLooseExtents(Lg, b);
+  findLooseExtents(terrain, b);
   if (!computeFluxes(Hg, Lg, max_step, b)) return false;
   applyFluxes(terrain, b, changed);
   return true;
@@ -657,13 +654,10 @@ CutResult relaxLoose(TruthTerrain& terrain, const SoilField& soil, const Eigen::
   // Loose soil moves at most one node per sweep, so sweep k works on the initial bounding box
   // grown by k nodes (a superset of the exact one gives the same result).
   int li0 = i1 + 1, li1 = i0 - 1, lj0 = j1 + 1, lj1 = j0 - 1;
-  const std::vector<double>& lvd = terrain.looseData();
   for (int j = j0; j <= j1; ++j) {
-    const double* row = &lvd[terrain.index(0, j)];
-    int a = i0, b = i1;
-    while (a <= i1 && !(row[a] > 0.0)) ++a;
+    const int a = terrain.firstLoose(j, i0, i1);
     if (a > i1) continue;
-    while (!(row[b] > 0.0)) --b;
+    const int b = terrain.lastLoose(j, a, i1);
     li0 = std::min(li0, a); li1 = std::max(li1, b);
     lj0 = std::min(lj0, j); lj1 = std::max(lj1, j);
   }
@@ -687,7 +681,7 @@ CutResult relaxRegion(TruthTerrain& terrain, double tan_repose, int i0, int j0, 
   for (int it = 0; it < iterations; ++it) {
     SweepBox b = sweepBox(terrain, i0, j0, i1, j1);
     std::fill(b.mask, b.mask + static_cast<std::size_t>(b.w) * b.h, static_cast<unsigned char>(0));
-    findLooseExtents(terrain.looseData().data(), b);
+    findLooseExtents(terrain, b);
     if (!computeFluxes(terrain.heightData().data(), terrain.looseData().data(), max_step, b)) break;
     applyFluxes(terrain, b, out);
   }

@@ -162,6 +162,7 @@ TruthTerrain::TruthTerrain(double origin_x_m, double origin_y_m, double resoluti
   lc_.assign(n, 0.0);
   h_.assign(n, height_m);
   h0_.assign(n, static_cast<float>(height_m));
+  loose_run_.assign((n >> kLooseRunShift) + 1, 0);
   rev_w_ = (nx - 1 + kRevisionBlock - 1) / kRevisionBlock;  // over the (nx - 1) x (ny - 1) cells
   rev_h_ = (ny - 1 + kRevisionBlock - 1) / kRevisionBlock;
   block_rev_.assign(static_cast<std::size_t>(rev_w_) * static_cast<std::size_t>(rev_h_), 0);
@@ -224,6 +225,34 @@ void TruthTerrain::addLoose(int i, int j, double v, double c) {
   lv_[k] += v;
   lc_[k] += c;
   h_[k] = u_[k] + lv_[k];
+  if (lv_[k] > 0.0) loose_run_[k >> kLooseRunShift] = 1;
+}
+
+int TruthTerrain::firstLoose(int j, int a, int b) const {
+  const std::ptrdiff_t base = static_cast<std::ptrdiff_t>(index(0, j)), end = base + b;
+  for (std::ptrdiff_t k = base + a; k <= end;) {
+    if (!loose_run_[static_cast<std::size_t>(k) >> kLooseRunShift]) {
+      k = (k | ((1 << kLooseRunShift) - 1)) + 1;
+      continue;
+    }
+    for (const std::ptrdiff_t e = std::min(end, k | ((1 << kLooseRunShift) - 1)); k <= e; ++k)
+      if (lv_[static_cast<std::size_t>(k)] > 0.0) return static_cast<int>(k - base);
+  }
+  return b + 1;
+}
+
+int TruthTerrain::lastLoose(int j, int a, int b) const {
+  const std::ptrdiff_t base = static_cast<std::ptrdiff_t>(index(0, j)), start = base + a;
+  for (std::ptrdiff_t k = base + b; k >= start;) {
+    const std::ptrdiff_t run0 = k & ~static_cast<std::ptrdiff_t>((1 << kLooseRunShift) - 1);
+    if (!loose_run_[static_cast<std::size_t>(k) >> kLooseRunShift]) {
+      k = run0 - 1;
+      continue;
+    }
+    for (const std::ptrdiff_t e = std::max(start, run0); k >= e; --k)
+      if (lv_[static_cast<std::size_t>(k)] > 0.0) return static_cast<int>(k - base);
+  }
+  return a - 1;
 }
 
 void TruthTerrain::compact(int i, int j, double dz) {
@@ -312,7 +341,10 @@ void TruthTerrain::applyPatch(const Patch& p) {
     std::copy_n(&p.u[src], w, &u_[dst]);
     std::copy_n(&p.lv[src], w, &lv_[dst]);
     std::copy_n(&p.lc[src], w, &lc_[dst]);
-    for (int i = 0; i < w; ++i) h_[dst + i] = u_[dst + i] + lv_[dst + i];
+    for (int i = 0; i < w; ++i) {
+      h_[dst + i] = u_[dst + i] + lv_[dst + i];
+      if (lv_[dst + i] > 0.0) loose_run_[(dst + i) >> kLooseRunShift] = 1;
+    }
   }
 }
 

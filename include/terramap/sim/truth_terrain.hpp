@@ -107,7 +107,15 @@ class TruthTerrain {
     lc_[b] += dc;
     h_[a] = u_[a] + lv_[a];
     h_[b] = u_[b] + lv_[b];
+    loose_run_[b >> kLooseRunShift] = 1;
   }
+  /// The first node i in [a, b] of row j with loose soil (Lv > 0), b + 1 if none; the last
+  /// one, a - 1 if none. The same node as testing every Lv in turn, but runs of nodes that never
+  /// held loose soil since construction are skipped on a flag per run: the relaxation looks for
+  /// the loose soil in a box of ~10^4 nodes around each blade every step, where most nodes have
+  /// none, and reading their Lv was most of its memory traffic.
+  int firstLoose(int j, int a, int b) const;
+  int lastLoose(int j, int a, int b) const;
 
   /// Bilinear surface height at a map position; NaN outside the grid.
   double heightAt(double x, double y) const;
@@ -261,6 +269,11 @@ class TruthTerrain {
   // cell instead of four): memory latency, not arithmetic, bounds a LiDAR scan.
   std::vector<double> h_;
   std::vector<float> h0_;
+  // Per run of 2^kLooseRunShift consecutive nodes (of the row-major arrays, so a run may span
+  // two rows): 0 while no node of the run has held loose soil, 1 once one may have (set by every
+  // mutator that can make an Lv positive, never cleared: firstLoose / lastLoose skip 0 runs).
+  static constexpr int kLooseRunShift = 3;
+  std::vector<std::uint8_t> loose_run_;
   // Pyramid of max surface heights over *cells* (cell (ci, cj) spans nodes ci..ci+1).
   // Level 0 = cells (nx-1) x (ny-1); level l covers 2^l x 2^l cells. Stored conservatively
   // (rounded up to float).

@@ -16,6 +16,7 @@
 #include <filesystem>
 #include <chrono>
 #include <fstream>
+#include <random>
 #include <thread>
 
 using namespace terramap;
@@ -927,6 +928,54 @@ TEST(TruthTerrain, APatchReusedForASmallerBoxCarriesOnlyThatBox) {
   TruthTerrain::Patch bad = p;
   bad.lc.resize(99);
   EXPECT_THROW(dst.applyPatch(bad), std::invalid_argument);
+}
+
+TEST(TruthTerrain, FirstAndLastLooseFindWhatAScanOfEveryNodeFinds) {
+  // The relaxation finds the loose soil in its box with firstLoose / lastLoose, which skip runs
+  // of nodes flagged as never holding any: every way loose soil arrives (added, moved in, a
+  // patch, a copy of the terrain) must flag its run, or the relaxation would miss soil.
+  TruthTerrain t(0, 0, 0.02, 101, 23, 1.0), other(0, 0, 0.02, 101, 23, 1.0);
+  std::mt19937_64 rng(5);
+  std::uniform_int_distribution<int> I(0, 100), J(0, 22);
+  auto check = [](const TruthTerrain& T, const char* when) {
+    for (int j = 0; j < T.ny(); ++j)
+      for (int a = 0; a < T.nx(); a += 7)
+        for (int b = a; b < T.nx(); b += 11) {
+          int first = b + 1, last = a - 1;
+          for (int i = a; i <= b; ++i)
+            if (T.loose(i, j) > 0.0) {
+              if (first > b) first = i;
+              last = i;
+            }
+          ASSERT_EQ(T.firstLoose(j, a, b), first) << when << ": row " << j << " [" << a << ", " << b << "]";
+          ASSERT_EQ(T.lastLoose(j, a, b), last) << when << ": row " << j << " [" << a << ", " << b << "]";
+        }
+  };
+  check(t, "flat");
+  for (int k = 0; k < 12; ++k) t.addLoose(I(rng), J(rng), 0.01, 0.008);
+  check(t, "added");
+  // Moved out of its run into ones that never held any (the relaxation's moves).
+  std::vector<std::pair<int, int>> holding;
+  for (int j = 0; j < 23; ++j)
+    for (int i = 0; i < 101; ++i)
+      if (t.loose(i, j) > 0.0) holding.emplace_back(i, j);
+  ASSERT_GE(holding.size(), 10u);
+  for (const auto& [i, j] : holding) {
+    t.moveLoose(i, j, (i + 9) % 101, j, 0.5 * t.loose(i, j));
+    t.moveLoose(i, j, i, (j + 1) % 23, t.loose(i, j));  // all of it: the node holds none after
+  }
+  check(t, "moved");
+  // Taken away again (the blade cutting it, a track pressing it): found no more.
+  for (int j = 0; j < 23; ++j)
+    for (int i = 0; i < 101; i += 2) t.removeBetween(i, j, 1.0, 2.0);  // the loose layer over U = 1
+  check(t, "removed");
+  for (int k = 0; k < 12; ++k) other.addLoose(I(rng), J(rng), 0.02, 0.015);
+  TruthTerrain::Patch p;
+  other.capturePatch(0, 0, 100, 22, p);
+  t.applyPatch(p);  // the LiDAR view follows its physics terrain this way
+  check(t, "patched");
+  const TruthTerrain copy = t;
+  check(copy, "copied");
 }
 
 TEST(Episode, ItsTimingSaysWhatTheWriterCost) {
