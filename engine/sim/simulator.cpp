@@ -18,6 +18,7 @@
 #include <limits>
 #include <mutex>
 #include <thread>
+#include <tuple>
 
 namespace terramap::sim {
 namespace {
@@ -323,6 +324,18 @@ void Simulator::setLevers(std::size_t i, const CtlCommand& drive, const ArmComma
 }
 
 void Simulator::physicsStep(double dt, bool relax) {
+  // The changes every track has seen are no longer needed.
+  if (prints_.size() != machines_.size()) prints_.resize(machines_.size());
+  std::size_t oldest = changes_.size();
+  for (const auto& mp : prints_)
+    for (const TrackPrint& pr : mp)
+      if (pr.valid) oldest = std::min(oldest, pr.seen);
+  if (oldest > 0) {
+    changes_.erase(changes_.begin(), changes_.begin() + static_cast<std::ptrdiff_t>(oldest));
+    for (auto& mp : prints_)
+      for (TrackPrint& pr : mp)
+        if (pr.valid) pr.seen -= oldest;
+  }
   for (auto& mp : machines_) {
     Machine& m = *mp;
     const MachineSpec& spec = m.ctl.spec();
@@ -489,14 +502,43 @@ void Simulator::pressTracks(Machine& m) {
       tn.left_h = terrain_.height(i, j);
     };
     const double* H = terrain_.heightData().data();
+    // The surface changes since this track's last press that were not its own (its own left
+    // every node it pressed at its new surface), near its footprint's box.
+    const int source = static_cast<int>(m.index) * 2 + side;
+    TrackPrint& pr = prints_[m.index][static_cast<std::size_t>(side)];
+    thread_local std::vector<CellRect> others;
+    others.clear();
+    if (pr.valid)
+      for (std::size_t k = pr.seen; k < changes_.size(); ++k) {
+        const Change& ch = changes_[k];
+        if (ch.source == source) continue;
+        // One node of margin: a cheap guard, the skip below must never rest on a box too tight.
+        const CellRect b = CellRect::inclusive(ch.box.r0 - 1, ch.box.c0 - 1, ch.box.rowEnd(), ch.box.colEnd());
+        if (b.rowEnd() <= i0 || b.r0 > i1 || b.colEnd() <= j0 || b.c0 > j1) continue;
+        others.push_back(b);
+      }
+    thread_local std::vector<std::pair<int, int>> rows;
+    rows.assign(static_cast<std::size_t>(std::max(0, j1 - j0 + 1)), {1, 0});
+    // The nodes [a, b] of row j, as the whole box was walked: one tile row at a time, a node whose
+    // surface is where the tracks left it needs no work, so that test, on contiguous memory,
+    // comes first; the others are pressed (every node of [a, b] is under the track).
+    auto visit = [&](int j, const double* hrow, int a, int b) {
+      for (int i = a; i <= b;) {
+        const int i_start = i, run_end = std::min(b, i | (NodeTiles<TrackNode>::kTile - 1));
+        const TrackNode* left = track_.find(i, j);  // null: no node of this tile row pressed yet
+        for (; i <= run_end; ++i) {
+          if (left && hrow[i] == left[i - i_start].left_h) continue;
+          press(i, j, hrow[i], terrain_.nodePosition(i, j));
+        }
+      }
+    };
     for (int j = j0; j <= j1; ++j) {
       const double* hrow = H + terrain_.index(0, j);
-      // Only the part of the row that can lie under the track is visited: the footprint is a
+      // Only the part of the row that can lie under the track is looked at: the footprint is a
       // rectangle, so on a row it covers one interval of nodes, found analytically and widened
-      // by two nodes so the exact test below decides every node it could contain (the same
-      // nodes, in the same order, as walking the whole box). A turned track's box is up to
-      // three times its footprint, and every node walked reads two arrays: with eight
-      // environments on two cores this walk's memory traffic was the largest of a step.
+      // by two nodes, then narrowed by the exact test from both ends. The test is monotone in
+      // i (each rounding is), so the nodes between the first and last that pass all pass: the
+      // same nodes, in the same order, as testing every node of the track's box.
       const double ry = terrain_.nodePosition(i0, j).y() - cy;
       double xlo = -1e300, xhi = 1e300;  // dx = node x - cx where both constraints can hold
       auto clip = [&](double coef, double off, double lim) {  // -lim <= coef dx + off <= lim
@@ -511,23 +553,44 @@ void Simulator::pressTracks(Machine& m) {
       if (xlo > xhi) continue;
       const double fa = std::floor((cx + xlo - terrain_.originX()) / res) - 2;
       const double fb = std::ceil((cx + xhi - terrain_.originX()) / res) + 2;
-      const int ra = fa <= i0 ? i0 : static_cast<int>(std::min(fa, static_cast<double>(i1 + 1)));
-      const int rb = fb >= i1 ? i1 : static_cast<int>(std::max(fb, static_cast<double>(i0 - 1)));
-      // One tile row at a time: a node whose surface is where the tracks left it needs no work,
-      // so that test, on contiguous memory, comes first; only the others are tested against
-      // the footprint (the same nodes as testing the footprint first).
-      for (int i = ra; i <= rb;) {
-        const int i_start = i, run_end = std::min(rb, i | (NodeTiles<TrackNode>::kTile - 1));
-        const TrackNode* left = track_.find(i, j);  // null: no node of this tile row pressed yet
-        for (; i <= run_end; ++i) {
-          if (left && hrow[i] == left[i - i_start].left_h) continue;
-          const Eigen::Vector2d q = terrain_.nodePosition(i, j);
-          const double dx = q.x() - cx, dy = q.y() - cy;
-          if (std::abs(c * dx + sn * dy) <= hl && std::abs(-sn * dx + c * dy) <= hb) press(i, j, hrow[i], q);
-        }
+      int lo = fa <= i0 ? i0 : static_cast<int>(std::min(fa, static_cast<double>(i1 + 1)));
+      int hi = fb >= i1 ? i1 : static_cast<int>(std::max(fb, static_cast<double>(i0 - 1)));
+      auto under = [&](int i) {
+        const Eigen::Vector2d q = terrain_.nodePosition(i, j);
+        const double dx = q.x() - cx, dy = q.y() - cy;
+        return std::abs(c * dx + sn * dy) <= hl && std::abs(-sn * dx + c * dy) <= hb;
+      };
+      while (lo <= hi && !under(lo)) ++lo;
+      while (hi >= lo && !under(hi)) --hi;
+      if (lo > hi) continue;
+      rows[static_cast<std::size_t>(j - j0)] = {lo, hi};
+      // Under the track at its last press too, and changed by no one else since: left_h equals
+      // the surface, every such node would be skipped.
+      int olo = 1, ohi = 0;
+      if (pr.valid && j >= pr.j0 && j - pr.j0 < static_cast<int>(pr.rows.size())) {
+        std::tie(olo, ohi) = pr.rows[static_cast<std::size_t>(j - pr.j0)];
+        for (const CellRect& b : others)
+          if (j >= b.c0 && j < b.colEnd() && b.r0 <= hi && b.rowEnd() > lo) {
+            olo = 1;
+            ohi = 0;
+            break;
+          }
+      }
+      if (olo > ohi || ohi < lo || olo > hi) {
+        visit(j, hrow, lo, hi);
+      } else {
+        visit(j, hrow, lo, olo - 1);
+        visit(j, hrow, ohi + 1, hi);
       }
     }
-    if (ci1 >= ci0) dirty_.add(CellRect::inclusive(ci0, cj0, ci1, cj1));
+    if (ci1 >= ci0) {
+      dirty_.add(CellRect::inclusive(ci0, cj0, ci1, cj1));
+      noteChange(CellRect::inclusive(ci0, cj0, ci1, cj1), source);
+    }
+    pr.valid = true;
+    pr.j0 = j0;
+    pr.rows.swap(rows);
+    pr.seen = changes_.size();
   }
 }
 
