@@ -58,11 +58,28 @@ void residuals(const std::vector<FitRow>& rows, const Vec& u, const PooledFitOpt
   if (valid_rows) *valid_rows = valid;
 }
 
-// Soft-L1 cost 2 Σ (sqrt(1 + e²) − 1) of the rows plus the prior's ½ Σ ((u − ½)/sd)².
-double cost(const Eigen::VectorXd& r, const Vec& u, double prior_sd) {
+/// The prior in span units: centre and standard deviation per property.
+struct Prior {
+  Vec centre, sd;
+};
+
+Prior priorOf(const PooledFitOptions& opt) {
+  Prior p;
+  p.centre.setConstant(0.5);
+  p.sd.setConstant(opt.prior_sd_fraction);
+  if (opt.gamma_prior_n_m3 > 0) {
+    const double span = kSoilParams[kParamGamma].hi - kSoilParams[kParamGamma].lo;
+    p.centre[kParamGamma] = (opt.gamma_prior_n_m3 - kSoilParams[kParamGamma].lo) / span;
+    p.sd[kParamGamma] = opt.gamma_prior_sd_n_m3 / span;
+  }
+  return p;
+}
+
+// Soft-L1 cost 2 Σ (sqrt(1 + e²) − 1) of the rows plus the prior's ½ Σ ((u − centre)/sd)².
+double cost(const Eigen::VectorXd& r, const Vec& u, const Prior& prior) {
   double c = 0;
   for (Eigen::Index i = 0; i < r.size(); ++i) c += 2.0 * (std::sqrt(1.0 + r[i] * r[i]) - 1.0);
-  return c + 0.5 * ((u.array() - 0.5) / prior_sd).square().sum();
+  return c + 0.5 * ((u - prior.centre).array() / prior.sd.array()).square().sum();
 }
 
 }  // namespace
@@ -87,13 +104,13 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
   u = uOf(t0, bounded);
   for (int k = 0; k < kN; ++k)
     if (!std::isfinite(t0[k])) u[k] = 0.5;
-  const double prior_sd = opt.prior_sd_fraction;
-  const Mat prior_info = Mat::Identity() / (prior_sd * prior_sd);
+  const Prior prior = priorOf(opt);
+  const Mat prior_info = prior.sd.array().square().inverse().matrix().asDiagonal();
   Eigen::VectorXd r, rt;
   Eigen::MatrixXd J(static_cast<Eigen::Index>(2 * rows.size()), kN);
   Mat JtWJ = Mat::Zero();
   residuals(rows, u, opt, r);
-  double c = cost(r, u, prior_sd);
+  double c = cost(r, u, prior);
   double lambda = 1e-2;
   constexpr double kStep = 1e-4;
   for (out.iterations = 0; out.iterations < opt.max_iterations && !rows.empty(); ++out.iterations) {
@@ -108,7 +125,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
     // Iteratively reweighted least squares for the soft-L1 loss: weight 1 / sqrt(1 + e²).
     const Eigen::VectorXd w = (1.0 + r.array().square()).rsqrt();
     JtWJ = J.transpose() * w.asDiagonal() * J;
-    const Vec g = J.transpose() * (w.array() * r.array()).matrix() + prior_info * (u.array() - 0.5).matrix();
+    const Vec g = J.transpose() * (w.array() * r.array()).matrix() + prior_info * (u - prior.centre);
     bool improved = false;
     for (int tries = 0; tries < 8 && !improved; ++tries) {
       Mat A = JtWJ + prior_info;
@@ -116,7 +133,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
       const Vec step = -A.ldlt().solve(g);
       const Vec un = (u + step).cwiseMax(0.0).cwiseMin(1.0);
       residuals(rows, un, opt, rt);
-      const double cn = cost(rt, un, prior_sd);
+      const double cn = cost(rt, un, prior);
       if (cn < c) {
         const double moved = (un - u).cwiseAbs().maxCoeff();
         u = un;

@@ -68,6 +68,10 @@ ParamSchema SoilFit::schema() const {
                       "the unit weight blade_sweep weighed Q with; the pile is weighed with the fitted gamma (0: Q as mapped)"),
           param::real("prior_sd_fraction", d.prior_sd_fraction, 1e-3, 1e3, "1",
                       "prior standard deviation per property as a share of its range (centred in it)"),
+          param::real("gamma_prior_n_m3", d.gamma_prior_n_m3, 0.0, 1e5, "N/m^3",
+                      "centre of the unit weight's prior (0: the middle of its range, with prior_sd_fraction)"),
+          param::real("gamma_prior_sd_n_m3", d.gamma_prior_sd_n_m3, 1.0, 1e5, "N/m^3",
+                      "standard deviation of the unit weight's prior when gamma_prior_n_m3 > 0"),
           param::boolean("interface_bounded_by_soil", d.interface_bounded_by_soil,
                          "fit c_a = a c and delta = b phi with a, b in [0, 1] (adhesion <= cohesion, soil-metal "
                          "friction <= internal friction) instead of c_a and delta free in their ranges")};
@@ -87,6 +91,8 @@ void SoilFit::configure(const Params& p) {
   opt_.prior_sd_fraction = p.getDouble("prior_sd_fraction");
   opt_.q_gamma_ref_n_m3 = p.getDouble("surcharge_gamma_ref_n_m3");
   opt_.interface_bounded_by_soil = p.getBool("interface_bounded_by_soil");
+  opt_.gamma_prior_n_m3 = p.getDouble("gamma_prior_n_m3");
+  opt_.gamma_prior_sd_n_m3 = p.getDouble("gamma_prior_sd_n_m3");
 }
 
 void SoilFit::start(ProcessContext& ctx) { pending_.start(ctx); }

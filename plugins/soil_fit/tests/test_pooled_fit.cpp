@@ -210,3 +210,24 @@ TEST(SoilFitWindow, TheReachLeavesOtherLanesOutAndForgettingKeepsWhatIsNeeded) {
   EXPECT_EQ(window.rowsFor(1, &sweeps).size(), 6u);  // sweep 0 forgotten
   EXPECT_EQ(window.rowsFor(0, &sweeps).size(), 0u);
 }
+
+// A unit weight known on site (a sand-cone test): γ's prior holds it where the rows cannot tell
+// it, and the pile's missing weight no longer goes into γ. Rows of a loose sand whose mapped pile
+// holds 0.6 of its weight, fitted with the pile weighed by the fitted γ: with the wide prior γ
+// climbs well above the sand's to carry the missing weight; with the sand's γ as a firm prior it
+// stays there (and the fit's φ carries the rest instead).
+TEST(PooledFit, AKnownUnitWeightHoldsGammaWhereTheRowsCannotTellIt) {
+  const SoilProperties sp = soilProperties(SoilFamily::Sand, 0.2);
+  std::vector<FitRow> rows = rowsOf(sp.fee, 120, true, 7, 300.0);
+  constexpr double kRef = 14636.0;  // blade_sweep's unit weight for the mapped Q
+  for (FitRow& r : rows) r.geometry.q_n *= 0.6 * kRef / sp.fee.gamma_n_m3;  // Q as blade_sweep maps it
+  PooledFitOptions wide, known;
+  wide.q_gamma_ref_n_m3 = known.q_gamma_ref_n_m3 = kRef;
+  known.gamma_prior_n_m3 = sp.fee.gamma_n_m3;
+  known.gamma_prior_sd_n_m3 = 200.0;
+  const PooledFit w = fitPooled(rows, middle(), wide), k = fitPooled(rows, middle(), known);
+  EXPECT_GT(w.mean[kParamGamma], sp.fee.gamma_n_m3 + 2000.0);
+  EXPECT_NEAR(k.mean[kParamGamma], sp.fee.gamma_n_m3, 500.0);
+  EXPECT_GT(k.mean[kParamPhi], sp.fee.phi_rad);  // the missing weight, now in φ
+  EXPECT_LT(std::sqrt(k.covariance(kParamGamma, kParamGamma)), 300.0);
+}
