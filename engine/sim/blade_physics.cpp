@@ -73,11 +73,14 @@ struct SweepBox {
   int i0, j0, i1, j1, w, h;
   std::size_t base, stride;
   unsigned char* mask;  // 1: under the blade
+  // Two rows each, row j at slot(j): a sweep computes row j's fluxes, then applies row j - 1's
+  // moves (relaxSweepRows), so no more rows are ever needed at once.
   double *fx, *fy;      // edge fluxes to the +x / +y neighbour
   double* out_scale;    // share of its outflow a node can give
   int *ext_lo, *ext_hi;    // per row: first and last node with loose soil (h + 1 rows)
   int *span_lo, *span_hi;  // per row: the nodes whose fluxes were computed
   std::size_t idx(int i, int j) const { return static_cast<std::size_t>(j) * w + i; }
+  std::size_t slot(int j) const { return static_cast<std::size_t>(j & 1) * w; }
   std::size_t gidx(int i, int j) const { return base + static_cast<std::size_t>(j) * stride + i; }
 };
 
@@ -88,9 +91,9 @@ SweepBox sweepBox(const TruthTerrain& terrain, int i0, int j0, int i1, int j1) {
   const int w = i1 - i0 + 1, h = j1 - j0 + 1;
   const std::size_t n = static_cast<std::size_t>(w) * h;
   mask.resize(n);
-  fx.resize(n);
-  fy.resize(n);
-  outsum.resize(n);
+  fx.resize(2 * static_cast<std::size_t>(w));
+  fy.resize(2 * static_cast<std::size_t>(w));
+  outsum.resize(2 * static_cast<std::size_t>(w));
   ext_lo.assign(h + 1, w);
   ext_hi.assign(h + 1, -1);
   span_lo.resize(h);
@@ -131,96 +134,114 @@ void findLooseExtents(const TruthTerrain& terrain, SweepBox& b) {
   }
 }
 
-/// Edge fluxes (positive = from (i, j) to the +x / +y neighbour); only loose soil slides.
-/// Then the node's outflow, summed in raster order of its edges (the -y edge, the -x edge,
-/// the +x edge, the +y edge), turned into a scale: a node gives at most the loose soil it has
-/// (bank soil does not slide).
-/// Only edges with loose soil at one end can carry flux, so each row is visited only over
+/// Row j's edge fluxes (positive = from (i, j) to the +x / +y neighbour); only loose soil
+/// slides. Then the outflow of its nodes, summed in raster order of their edges (the -y edge,
+/// the -x edge, the +x edge, the +y edge), turned into a scale: a node gives at most the loose
+/// soil it has (bank soil does not slide). Reads rows j and j + 1 of the terrain and row j - 1's
+/// fluxes.
+/// Only edges with loose soil at one end can carry flux, so the row is visited only over
 /// [first loose node - 1, last loose node] of itself and of the row above (its +y edges):
 /// about 60 % of the box on a spoil pile. The outflow of a node without loose soil is never
 /// used (it gives nothing), so it is not computed; a node with loose soil lies inside its
 /// row's span and inside the span of the row below, so the fluxes its outflow sums were
-/// computed in this sweep. Same fluxes and moves, in the same order, as visiting every node.
-/// False if no edge carries flux.
-bool computeFluxes(const double* Hg, const double* Lg, double max_step, SweepBox& b) {
+/// computed in this sweep. Same fluxes as visiting every node. True if an edge carries flux.
+bool fluxRow(const double* Hg, const double* Lg, double max_step, SweepBox& b, int j) {
   const int w = b.w, h = b.h;
   const std::size_t stride = b.stride;
   const unsigned char* mp = b.mask;
-  double* fxp = b.fx;
-  double* fyp = b.fy;
-  double* op = b.out_scale;
+  double* fxp = b.fx + b.slot(j);
+  double* fyp = b.fy + b.slot(j);
+  double* op = b.out_scale + b.slot(j);
+  const double* fy_below = j > 0 ? b.fy + b.slot(j - 1) : nullptr;
   bool moved = false;
-  for (int j = 0; j < h; ++j) {
-    const double* Hr = Hg + b.gidx(0, j);
-    const double* Lr = Lg + b.gidx(0, j);
-    const int lo = std::max(0, std::min(b.ext_lo[j] - 1, b.ext_lo[j + 1]));
-    const int hi = std::min(w - 1, std::max(b.ext_hi[j], b.ext_hi[j + 1]));
-    b.span_lo[j] = lo;
-    b.span_hi[j] = hi;
-    for (int i = lo; i <= hi; ++i) {
-      const std::size_t a = b.idx(i, j);
-      double qx = 0.0, qy = 0.0;
-      if (!mp[a]) {
-        const double ha = Hr[i];
-        const bool la = Lr[i] > 0.0;
-        if (i + 1 < w && !mp[a + 1] && (la || Lr[i + 1] > 0.0)) {
-          const double dh = ha - Hr[i + 1];
-          const double ex = std::abs(dh) - max_step;
-          if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + 1]) > 0.0) qx = dh > 0 ? 0.25 * ex : -0.25 * ex;
-        }
-        const std::size_t up = a + static_cast<std::size_t>(w);
-        if (j + 1 < h && !mp[up] && (la || Lr[i + stride] > 0.0)) {
-          const double dh = ha - Hr[i + stride];
-          const double ex = std::abs(dh) - max_step;
-          if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + stride]) > 0.0) qy = dh > 0 ? 0.25 * ex : -0.25 * ex;
-        }
+  const double* Hr = Hg + b.gidx(0, j);
+  const double* Lr = Lg + b.gidx(0, j);
+  const int lo = std::max(0, std::min(b.ext_lo[j] - 1, b.ext_lo[j + 1]));
+  const int hi = std::min(w - 1, std::max(b.ext_hi[j], b.ext_hi[j + 1]));
+  b.span_lo[j] = lo;
+  b.span_hi[j] = hi;
+  for (int i = lo; i <= hi; ++i) {
+    const std::size_t a = b.idx(i, j);
+    double qx = 0.0, qy = 0.0;
+    if (!mp[a]) {
+      const double ha = Hr[i];
+      const bool la = Lr[i] > 0.0;
+      if (i + 1 < w && !mp[a + 1] && (la || Lr[i + 1] > 0.0)) {
+        const double dh = ha - Hr[i + 1];
+        const double ex = std::abs(dh) - max_step;
+        if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + 1]) > 0.0) qx = dh > 0 ? 0.25 * ex : -0.25 * ex;
       }
-      fxp[a] = qx;
-      fyp[a] = qy;
-      moved = moved || qx != 0.0 || qy != 0.0;
-      if (!(Lr[i] > 0.0)) continue;
-      double o = 0.0;
-      if (j > 0 && fyp[a - w] < 0) o += -fyp[a - w];
-      if (i > 0 && fxp[a - 1] < 0) o += -fxp[a - 1];
-      if (qx > 0) o += qx;
-      if (qy > 0) o += qy;
-      op[a] = (o > Lr[i] && o > 0) ? Lr[i] / o : 1.0;
+      const std::size_t up = a + static_cast<std::size_t>(w);
+      if (j + 1 < h && !mp[up] && (la || Lr[i + stride] > 0.0)) {
+        const double dh = ha - Hr[i + stride];
+        const double ex = std::abs(dh) - max_step;
+        if (ex > 0 && (dh > 0 ? Lr[i] : Lr[i + stride]) > 0.0) qy = dh > 0 ? 0.25 * ex : -0.25 * ex;
+      }
     }
+    fxp[i] = qx;
+    fyp[i] = qy;
+    moved = moved || qx != 0.0 || qy != 0.0;
+    if (!(Lr[i] > 0.0)) continue;
+    double o = 0.0;
+    if (j > 0 && fy_below[i] < 0) o += -fy_below[i];
+    if (i > 0 && fxp[i - 1] < 0) o += -fxp[i - 1];
+    if (qx > 0) o += qx;
+    if (qy > 0) o += qy;
+    op[i] = (o > Lr[i] && o > 0) ? Lr[i] / o : 1.0;
   }
   return moved;
 }
 
-/// Applies the fluxes in raster order and adds the box of the nodes that moved soil (often much
-/// smaller than the sweep's box) to `changed`: what the pyramid refresh and the simulator's
-/// terrain patches have to cover.
-void applyFluxes(TruthTerrain& terrain, const SweepBox& b, CellRect& changed) {
-  const int w = b.w, h = b.h, i0 = b.i0, j0 = b.j0;
+/// Row j's moves, in raster order (needs row j + 1's outflow scales); grows the box of the
+/// nodes that moved soil, [ci0, ci1] x [cj0, cj1] in box coordinates.
+void applyRow(TruthTerrain& terrain, const SweepBox& b, int j, int& ci0, int& ci1, int& cj0, int& cj1) {
+  const int w = b.w;
   const std::size_t stride = b.stride;
-  const double* fxp = b.fx;
-  const double* fyp = b.fy;
-  const double* op = b.out_scale;
-  int ci0 = w, ci1 = -1, cj0 = h, cj1 = -1;
-  for (int j = 0; j < h; ++j) {
-    int ri0 = w, ri1 = -1;
-    const std::size_t row = b.idx(0, j), grow = b.gidx(0, j);
-    for (int i = b.span_lo[j]; i <= b.span_hi[j]; ++i) {
-      const std::size_t a = row + i, g = grow + i;
-      const double ax = fxp[a];
-      const double ay = fyp[a];
-      if (ax == 0.0 && ay == 0.0) continue;
-      if (ax > 0) terrain.moveLooseAt(g, g + 1, ax * op[a]);
-      else if (ax < 0) terrain.moveLooseAt(g + 1, g, -ax * op[a + 1]);
-      if (ay > 0) terrain.moveLooseAt(g, g + stride, ay * op[a]);
-      else if (ay < 0) terrain.moveLooseAt(g + stride, g, -ay * op[a + w]);
-      ri0 = std::min(ri0, i);
-      ri1 = std::max(ri1, ax != 0.0 ? i + 1 : i);
-      cj0 = std::min(cj0, j);
-      cj1 = std::max(cj1, ay != 0.0 ? j + 1 : j);
-    }
-    ci0 = std::min(ci0, ri0);
-    ci1 = std::max(ci1, ri1);
+  const double* fxp = b.fx + b.slot(j);
+  const double* fyp = b.fy + b.slot(j);
+  const double* op = b.out_scale + b.slot(j);
+  const double* op_up = b.out_scale + b.slot(j + 1);
+  int ri0 = w, ri1 = -1;
+  const std::size_t grow = b.gidx(0, j);
+  for (int i = b.span_lo[j]; i <= b.span_hi[j]; ++i) {
+    const std::size_t g = grow + i;
+    const double ax = fxp[i];
+    const double ay = fyp[i];
+    if (ax == 0.0 && ay == 0.0) continue;
+    if (ax > 0) terrain.moveLooseAt(g, g + 1, ax * op[i]);
+    else if (ax < 0) terrain.moveLooseAt(g + 1, g, -ax * op[i + 1]);
+    if (ay > 0) terrain.moveLooseAt(g, g + stride, ay * op[i]);
+    else if (ay < 0) terrain.moveLooseAt(g + stride, g, -ay * op_up[i]);
+    ri0 = std::min(ri0, i);
+    ri1 = std::max(ri1, ax != 0.0 ? i + 1 : i);
+    cj0 = std::min(cj0, j);
+    cj1 = std::max(cj1, ay != 0.0 ? j + 1 : j);
   }
-  if (ci1 >= ci0) changed.add(CellRect::inclusive(i0 + ci0, j0 + cj0, i0 + ci1, j0 + cj1));
+  ci0 = std::min(ci0, ri0);
+  ci1 = std::max(ci1, ri1);
+}
+
+/// One Jacobi sweep over the box: every flux from the state before the sweep, the moves applied
+/// in raster order, and the box of the nodes that moved soil (often much smaller than the
+/// sweep's) added to `changed`: what the pyramid refresh and the simulator's terrain patches
+/// have to cover. Row j's fluxes read rows j and j + 1; row j - 1's moves, applied right after,
+/// change rows j - 1 and j only, so row j + 1's fluxes still read the state before the sweep:
+/// the same fluxes and moves, in the same order, as computing all fluxes first, with two rows of
+/// fluxes in memory instead of the whole box (three arrays of it, written and read back, were
+/// most of a step's cache traffic with eight environments on a core pair). False if no edge
+/// carries flux (then nothing moved).
+bool sweepRows(TruthTerrain& terrain, double max_step, SweepBox& b, CellRect& changed) {
+  const double* Hg = terrain.heightData().data();
+  const double* Lg = terrain.looseData().data();
+  bool moved = false;
+  int ci0 = b.w, ci1 = -1, cj0 = b.h, cj1 = -1;
+  for (int j = 0; j < b.h; ++j) {
+    if (fluxRow(Hg, Lg, max_step, b, j)) moved = true;
+    if (j > 0) applyRow(terrain, b, j - 1, ci0, ci1, cj0, cj1);
+  }
+  if (b.h > 0) applyRow(terrain, b, b.h - 1, ci0, ci1, cj0, cj1);
+  if (ci1 >= ci0) changed.add(CellRect::inclusive(b.i0 + ci0, b.j0 + cj0, b.i0 + ci1, b.j0 + cj1));
+  return moved;
 }
 
 /// One Jacobi sweep of loose-soil sliding over the node box [i0, i1] x [j0, j1]; nodes under
@@ -228,18 +249,13 @@ void applyFluxes(TruthTerrain& terrain, const SweepBox& b, CellRect& changed) {
 /// Serial: a sweep is ~10^4 nodes, too little to pay for handing row blocks to another thread
 /// (measured: no gain at 2 threads), and serially each node's outflow limit can be computed in
 /// the same pass as its fluxes (it needs only its own and its -x / -y neighbours' fluxes). The
-/// moves are applied afterwards in raster order.
+/// moves follow one row behind, in raster order (sweepRows).
 bool relaxSweep(TruthTerrain& terrain, const BladeFrame& f, double res, double back_band, double max_step, int i0,
                 int j0, int i1, int j1, CellRect& changed) {
   SweepBox b = sweepBox(terrain, i0, j0, i1, j1);
   markUnderBlade(terrain, f, res, back_band, b);
-  // Heights and loose thicknesses are read in place: no moves happen before applyFluxes.
-  const double* Hg = terrain.heightData().data();
-  const double* Lg = terrain.looseData().data();
   findLooseExtents(terrain, b);
-  if (!computeFluxes(Hg, Lg, max_step, b)) return false;
-  applyFluxes(terrain, b, changed);
-  return true;
+  return sweepRows(terrain, max_step, b, changed);
 }
 
 /// One blade slice's contribution to the force, evaluated independently of the others.
@@ -682,8 +698,7 @@ CutResult relaxRegion(TruthTerrain& terrain, double tan_repose, int i0, int j0, 
     SweepBox b = sweepBox(terrain, i0, j0, i1, j1);
     std::fill(b.mask, b.mask + static_cast<std::size_t>(b.w) * b.h, static_cast<unsigned char>(0));
     findLooseExtents(terrain, b);
-    if (!computeFluxes(terrain.heightData().data(), terrain.looseData().data(), max_step, b)) break;
-    applyFluxes(terrain, b, out);
+    if (!sweepRows(terrain, max_step, b, out)) break;
   }
   return out;
 }
