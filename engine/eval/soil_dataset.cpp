@@ -291,7 +291,13 @@ class TruthRows {
   void record(double stamp, const sim::MachineTruth& mt) {
     auto& rows = rows_[mt.id];
     if (!rows.empty() && stamp < rows.back().stamp) return;
-    rows.push_back({stamp, feeGeometryOf(&mt.fee), {mt.force_fee_map_N, mt.force_inertia_map_N, mt.force_penetration_map_N},
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    const std::array<float, 3> profile =
+        mt.fee.cutting_slices > 0 ? std::array<float, 3>{static_cast<float>(mt.fee.area_m2), static_cast<float>(mt.fee.depth2_m3),
+                                                        static_cast<float>(mt.fee.q_pushed_n)}
+                                  : std::array<float, 3>{nan, nan, static_cast<float>(mt.fee.q_pushed_n)};
+    rows.push_back({stamp, feeGeometryOf(&mt.fee), profile,
+                    {mt.force_fee_map_N, mt.force_inertia_map_N, mt.force_penetration_map_N},
                     static_cast<float>(mt.edge_vz_mps)});
     while (rows.size() > capacity_) rows.pop_front();
   }
@@ -300,7 +306,7 @@ class TruthRows {
   /// forces in the sample's frame (along t̂, up; blade on soil); NaN rows when fewer are kept.
   void appendTo(const SweepRecord& rec, int P, EpisodeData& out) const {
     const std::size_t n = static_cast<std::size_t>(P);
-    std::vector<float> geo, parts, vz;
+    std::vector<float> geo, profile, parts, vz;
     const auto found = rows_.find(rec.machine_id);
     if (found != rows_.end()) {
       const auto& rows = found->second;
@@ -308,6 +314,7 @@ class TruthRows {
                                         [](double t, const Row& r) { return t < r.stamp; });
       for (auto it = end - std::min<long>(P, end - rows.begin()); it != end; ++it) {
         geo.insert(geo.end(), it->geometry.begin(), it->geometry.end());
+        profile.insert(profile.end(), it->profile.begin(), it->profile.end());
         for (const Eigen::Vector3d& f : it->parts) {
           parts.push_back(static_cast<float>(-f.head<2>().dot(rec.t_hat)));
           parts.push_back(static_cast<float>(-f.z()));
@@ -318,10 +325,12 @@ class TruthRows {
     if (vz.size() < n) {
       const float nan = std::numeric_limits<float>::quiet_NaN();
       geo.assign(n * 5, nan);
+      profile.assign(n * 3, nan);
       parts.assign(n * 6, nan);
       vz.assign(n, nan);
     }
     out.truth_geometry_rows.push_back(std::move(geo));
+    out.truth_profile_rows.push_back(std::move(profile));
     out.force_parts.push_back(std::move(parts));
     out.edge_vz_rows.push_back(std::move(vz));
   }
@@ -330,6 +339,7 @@ class TruthRows {
   struct Row {
     double stamp;
     std::array<float, 5> geometry;
+    std::array<float, 3> profile;  // area, depth2, q_pushed
     Eigen::Vector3d parts[3];  // map frame, soil on blade
     float edge_vz;
   };
@@ -443,7 +453,7 @@ std::string episodeFileName(const EpisodePlan& plan) {
 void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, const EpisodeData& ep) {
   const hsize_t n = ep.samples.size();
   const hsize_t T = static_cast<hsize_t>(cfg.history_T), P = static_cast<hsize_t>(cfg.horizon_P);
-  std::vector<float> obs, theta, force, truth, truth_geo, force_quiet, geo_rows, parts, vz_rows;
+  std::vector<float> obs, theta, profile, force, truth, truth_geo, force_quiet, geo_rows, profile_rows, parts, vz_rows;
   std::vector<double> anchor;
   std::vector<long long> sweep;
   obs.reserve(n * T * soil::kObsFeatures);
@@ -451,6 +461,8 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
     const soil::PinnSample& s = ep.samples[i];
     obs.insert(obs.end(), s.obs.begin(), s.obs.end());
     theta.insert(theta.end(), s.theta_k.begin(), s.theta_k.end());
+    if (s.profile.size() == static_cast<std::size_t>(s.P) * soil::kProfile) profile.insert(profile.end(), s.profile.begin(), s.profile.end());
+    else profile.insert(profile.end(), static_cast<std::size_t>(s.P) * soil::kProfile, std::numeric_limits<float>::quiet_NaN());
     force.insert(force.end(), s.force.begin(), s.force.end());
     truth.insert(truth.end(), ep.truth[i].begin(), ep.truth[i].end());
     if (i < ep.truth_geometry.size()) truth_geo.insert(truth_geo.end(), ep.truth_geometry[i].begin(), ep.truth_geometry[i].end());
@@ -465,6 +477,7 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
       else to.insert(to.end(), count, std::numeric_limits<float>::quiet_NaN());
     };
     perRow(ep.truth_geometry_rows, geo_rows, 5);
+    perRow(ep.truth_profile_rows, profile_rows, 3);
     perRow(ep.force_parts, parts, 6);
     perRow(ep.edge_vz_rows, vz_rows, 1);
     anchor.push_back(s.anchor_stamp);
@@ -498,12 +511,16 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
       writeArray(f, "plan", H5T_NATIVE_DOUBLE, plan, {9}, 0, path);
       writeArray(f, "obs", H5T_NATIVE_FLOAT, obs.data(), {n, T, static_cast<hsize_t>(soil::kObsFeatures)}, 4, path);
       writeArray(f, "theta_k", H5T_NATIVE_FLOAT, theta.data(), {n, P, static_cast<hsize_t>(soil::kThetaK)}, 4, path);
+      writeArray(f, "profile", H5T_NATIVE_FLOAT, profile.data(), {n, P, static_cast<hsize_t>(soil::kProfile)}, 4, path);
+      attrString(f, "profile", "area_m2,depth2_m3");
       writeArray(f, "force", H5T_NATIVE_FLOAT, force.data(), {n, P, 2}, 4, path);
       writeArray(f, "truth", H5T_NATIVE_FLOAT, truth.data(), {n, 5}, 4, path);
       writeArray(f, "truth_geometry", H5T_NATIVE_FLOAT, truth_geo.data(), {n, 5}, 4, path);
       attrString(f, "truth_geometry", "alpha_rad,rho_rad,d_m,w_m,q_n");
       writeArray(f, "force_quiet", H5T_NATIVE_FLOAT, force_quiet.data(), {n, P, 2}, 4, path);
       writeArray(f, "truth_geometry_rows", H5T_NATIVE_FLOAT, geo_rows.data(), {n, P, 5}, 4, path);
+      writeArray(f, "truth_profile_rows", H5T_NATIVE_FLOAT, profile_rows.data(), {n, P, 3}, 4, path);
+      attrString(f, "truth_profile_rows", "area_m2,depth2_m3,q_pushed_n");
       writeArray(f, "force_parts", H5T_NATIVE_FLOAT, parts.data(), {n, P, 3, 2}, 4, path);
       attrString(f, "force_parts", "fee_mobilised,inertia_mobilised,penetration");
       writeArray(f, "edge_vz", H5T_NATIVE_FLOAT, vz_rows.data(), {n, P}, 4, path);

@@ -358,6 +358,7 @@ void evaluateSlice(const SliceInputs& in, int k, SliceRecord& o) {
     const double hf = in.terrain.heightAt(pe.x() + in.f.n_h.x() * in.res, pe.y() + in.f.n_h.y() * in.res);
     if (q > 0 && !std::isnan(hf) && hf > pe.z()) {
       o.kind = 1;
+      o.q = q;
       o.pile = q * std::tan(sp.repose_rad);
     }
     return;
@@ -389,7 +390,10 @@ void sumSlices(const SliceInputs& in, const SliceRecord* rec, int slices, double
   double wsum = 0, a_alpha = 0, a_rho = 0, a_d = 0, a_c = 0, a_phi = 0, a_g = 0, a_ca = 0, a_delta = 0, a_beta = 0;
   for (int k = 0; k < slices; ++k) {
     const SliceRecord& o = rec[k];
-    if (o.kind == 1) out.fee_map -= n_h * o.pile;
+    if (o.kind == 1) {
+      out.fee_map -= n_h * o.pile;
+      tr.q_pushed_n += o.q;
+    }
     if (o.kind != 2) continue;
     const SoilProperties& sp = *o.sp;
     ++tr.cutting_slices;
@@ -407,6 +411,8 @@ void sumSlices(const SliceInputs& in, const SliceRecord* rec, int slices, double
     a_c += w * sp.fee.c_pa; a_phi += w * sp.fee.phi_rad; a_g += w * sp.fee.gamma_n_m3;
     a_ca += w * sp.fee.ca_pa; a_delta += w * sp.fee.delta_rad;
     tr.width_m += ds;
+    tr.area_m2 += o.d * ds;
+    tr.depth2_m3 += o.d * o.d * ds;
     tr.q_n += o.q;
   }
   if (wsum > 0) {

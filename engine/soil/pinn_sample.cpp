@@ -138,6 +138,7 @@ SampleSkip buildSample(const ObservationHistory& history, const SweepRecord& swe
   s.obs.resize(static_cast<std::size_t>(T) * kObsFeatures);
   s.theta_k.resize(static_cast<std::size_t>(P) * kThetaK);
   s.force.resize(static_cast<std::size_t>(P) * 2);
+  s.profile.resize(static_cast<std::size_t>(P) * kProfile);
   const auto first = end - T;
   for (int t = 0; t < T; ++t) {
     const ObsRow& r = *(first + t);
@@ -158,6 +159,9 @@ SampleSkip buildSample(const ObservationHistory& history, const SweepRecord& swe
       th[i] = static_cast<float>(vals[i]);
     }
     th[kSpeed] = static_cast<float>(r.blade_velocity_map.head<2>().dot(t_hat));
+    float* pr = s.profile.data() + static_cast<long>(p) * kProfile;
+    pr[kArea] = static_cast<float>(interpolateStep(sweep.steps, r.stamp, [](const SweepStep& x) { return x.area_m2; }));
+    pr[kDepth2] = static_cast<float>(interpolateStep(sweep.steps, r.stamp, [](const SweepStep& x) { return x.depth2_m3; }));
     s.force[static_cast<std::size_t>(p) * 2] = static_cast<float>(r.force_map_N.head<2>().dot(t_hat));
     s.force[static_cast<std::size_t>(p) * 2 + 1] = static_cast<float>(r.force_map_N.z());
   }

@@ -480,6 +480,45 @@ void updateFusionLayers(LayeredMap& map, const SweepLayers& ids, const MapWindow
   }
 }
 
+// The cut's cross-section at one pose (SweepStep::area_m2, depth2_m3): the slices' depths dk at
+// that pose binned one cell wide across the edge by their lateral position (a bin's depth the
+// mean of its cells'), bins between two cut ones that no slice fell in interpolated linearly.
+void crossSection(const std::vector<SweepSlice>& slices, const std::vector<double>& dk, double res, SweepStep& st) {
+  double lat_min = std::numeric_limits<double>::infinity();
+  for (std::size_t a = 0; a < slices.size(); ++a)
+    if (std::isfinite(dk[a])) lat_min = std::min(lat_min, slices[a].lateral_m);
+  if (!std::isfinite(lat_min)) return;
+  std::vector<double> sum, count;
+  for (std::size_t a = 0; a < slices.size(); ++a) {
+    if (!std::isfinite(dk[a])) continue;
+    const auto b = static_cast<std::size_t>(std::lround((slices[a].lateral_m - lat_min) / res));
+    if (b >= sum.size()) {
+      sum.resize(b + 1, 0.0);
+      count.resize(b + 1, 0.0);
+    }
+    sum[b] += dk[a];
+    count[b] += 1.0;
+  }
+  double area = 0.0, depth2 = 0.0;
+  std::size_t last = 0;  // the previous filled bin
+  for (std::size_t b = 0; b < sum.size(); ++b) {
+    if (count[b] == 0.0) continue;
+    const double d = sum[b] / count[b];
+    const double d_last = sum[last] / count[last];
+    for (std::size_t g = last + 1; g < b; ++g) {  // a gap between filled bins
+      const double u = static_cast<double>(g - last) / static_cast<double>(b - last);
+      const double dg = (1.0 - u) * d_last + u * d;
+      area += dg * res;
+      depth2 += dg * dg * res;
+    }
+    area += d * res;
+    depth2 += d * d * res;
+    last = b;
+  }
+  st.area_m2 = area;
+  st.depth2_m3 = depth2;
+}
+
 // One step of the pose history (Alg. 1 l. 12): depth and width under the edge at that pose from
 // the sweep's slices; surcharge interpolated between the two ends.
 SweepStep stepValues(const std::vector<BladePose>& history, size_t k, const SweepDirections& dir, double res,
@@ -533,6 +572,7 @@ SweepStep stepValues(const std::vector<BladePose>& history, size_t k, const Swee
     st.var_d = v / wsum;
     st.w_m = cmax >= cmin ? cmax - cmin + res : 0.0;
     st.var_w = cell / 12.0;
+    crossSection(rec.slices, dk, res, st);
   }
   st.vq_m3 = (1 - st.tau) * rec.vq0_m3 + st.tau * rec.vq1_m3;
   // Linear interpolation between two measured ends: 1σ error taken as τ(1-τ)|ΔV| on top of

@@ -126,6 +126,10 @@ struct EpisodeData {
   /// edge's penetration resistance; along t̂ and up, blade on soil, N), and the edge's true
   /// vertical speed (P, m/s). Empty vectors when the rows could not be matched.
   std::vector<std::vector<float>> truth_geometry_rows, force_parts, edge_vz_rows;
+  /// Per sample and horizon row, for diagnosis only: the simulator's cut cross-section over its
+  /// cutting slices and the surcharge ahead of the slices that push without cutting
+  /// (sim::FeeTruth area_m2, depth2_m3, q_pushed_n; P × 3, NaN rows when unmatched).
+  std::vector<std::vector<float>> truth_profile_rows;
   long sweeps = 0;                           ///< SweepRecords seen
   std::map<std::string, long> skipped;       ///< by soil::sampleSkipName
   double simulated_s = 0, wall_s = 0;

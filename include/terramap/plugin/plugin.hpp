@@ -52,7 +52,7 @@ struct PluginStats {
 /// plugin's per-sweep record the soil estimator consumes). Typed by a string so it works
 /// across plugin libraries; `payload` holds a T that both sides know from a public header.
 struct Record {
-  std::string type;      ///< e.g. "terramap.sweep.v1"
+  std::string type;      ///< e.g. "terramap.sweep.v2"
   long sequence = 0;     ///< increases with every publish of this type
   double stamp = 0.0;
   std::shared_ptr<const void> payload;

@@ -31,6 +31,14 @@ struct FeeTruth {
   double alpha_rad = NAN, rho_rad = NAN, depth_m = NAN, width_m = 0, q_n = 0;
   double c_pa = NAN, phi_rad = NAN, gamma_n_m3 = NAN, ca_pa = NAN, delta_rad = NAN;
   double beta_rad = NAN;
+  /// The cut's cross-section over the cutting slices: Σ d ds (m²) and Σ d² ds (m³), d normal to
+  /// the surface. The FEE is linear in both (γ d² w N_γ and (c N_c + c_a N_ca) d w per slice),
+  /// so a one-wedge model holds the slices' sum at depth depth2/area and width area²/depth2;
+  /// depth_m × width_m does not when the depth varies across the blade.
+  double area_m2 = 0, depth2_m3 = 0;
+  /// Surcharge (N) ahead of the slices that push a loose pile without cutting (their force is
+  /// the pile's, q tan(repose), along the push direction).
+  double q_pushed_n = 0;
   int cutting_slices = 0;
   int invalid_slices = 0;  ///< slices whose FEE inputs failed a validity rule (force omitted)
 };

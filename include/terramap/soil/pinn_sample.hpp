@@ -79,10 +79,18 @@ class ObservationHistory {
   std::deque<ObsRow> rows_;
 };
 
+/// The cut's cross-section per horizon step (SweepStep::area_m2, depth2_m3): what a one-wedge
+/// model needs to hold the FEE summed over slices across the blade.
+constexpr int kProfile = 2;
+enum Profile : int { kArea = 0, kDepth2 };
+
 struct PinnSample {
   int T = 0, P = 0;
   std::vector<float> obs;      ///< T * kObsFeatures, row-major (time, feature)
   std::vector<float> theta_k;  ///< P * kThetaK
+  /// P * kProfile: [Σ d ds (m²), Σ d² ds (m³)] interpolated as theta_k is; NaN where the sweep's
+  /// steps have none (a record from before the field existed). Not a network input.
+  std::vector<float> profile;
   std::vector<float> force;    ///< P * 2 (NaN without a force sensor)
   double t0 = 0.0, t1 = 0.0;   ///< the sweep's first and last stamps
   double anchor_stamp = 0.0;   ///< stamp of the last observation (end of the horizon)

@@ -84,6 +84,49 @@ TEST(BladeForce, SlicesOnFlatGroundSumToTheFeeOfTheWholeBlade) {
   EXPECT_GT(pen.penetration_map.z(), 0.0);
 }
 
+// The truth's cross-section over the cutting slices: a rolled edge on flat ground cuts a depth
+// that runs linearly across the blade, so Σ d ds and Σ d² ds have closed forms, and the slices'
+// FEE sums to one wedge at depth depth2/area and width area²/depth2 (the FEE is linear in d w and
+// in d² w for one α and ρ), not to one at the depth-weighted depth over the cutting width.
+TEST(BladeForce, TheCutsCrossSectionHoldsTheSlicesSum) {
+  TruthTerrain t = flat();
+  const SoilProperties sp = soilProperties(SoilFamily::Clay, 0.5);
+  const SoilField field(sp, {});
+  BladeGeometry g;
+  const int slices = 37;
+  const double depth = 0.10, roll = 3.0 * M_PI / 180;
+  Eigen::Isometry3d T = uprightBlade(0, 0, -depth);
+  T.linear() = Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  const BladeForce bf = bladeSoilForce(t, field, T, g, 0.025, slices, 0.0, 0.0, 0.0);
+  ASSERT_EQ(bf.truth.cutting_slices, slices);
+  // Slice k's centre is at y = (k + 1/2) ds - w/2 along the edge, its depth depth - y sin(roll).
+  const double ds = g.width_m / slices;
+  double area = 0, depth2 = 0;
+  for (int k = 0; k < slices; ++k) {
+    const double dk = depth - ((k + 0.5) * ds - 0.5 * g.width_m) * std::sin(roll);
+    area += dk * ds;
+    depth2 += dk * dk * ds;
+  }
+  EXPECT_NEAR(bf.truth.area_m2, area, 1e-9);
+  EXPECT_NEAR(bf.truth.depth2_m3, depth2, 1e-9);
+  fee::Geometry eff;
+  eff.alpha_rad = 0; eff.rho_rad = M_PI / 2; eff.q_n = 0;
+  eff.d_m = bf.truth.depth2_m3 / bf.truth.area_m2;
+  eff.w_m = bf.truth.area_m2 * bf.truth.area_m2 / bf.truth.depth2_m3;
+  const fee::Result r = fee::evaluateAtBetaMin(sp.fee, eff);
+  ASSERT_TRUE(r.valid());
+  EXPECT_NEAR(-bf.fee_map.x(), r.F_total_N.x(), 1e-3 * std::abs(r.F_total_N.x()));
+  EXPECT_NEAR(-bf.fee_map.z(), r.F_total_N.y(), 1e-3 * std::abs(r.F_total_N.x()));
+  // The summary pair (depth-weighted depth, cutting width) is further off: its γ term takes
+  // (Σd²/Σd)² w for Σd².
+  fee::Geometry sum = eff;
+  sum.d_m = bf.truth.depth_m;
+  sum.w_m = bf.truth.width_m;
+  const fee::Result rs = fee::evaluateAtBetaMin(sp.fee, sum);
+  EXPECT_GT(std::abs(rs.F_total_N.x() + bf.fee_map.x()), 5.0 * std::abs(r.F_total_N.x() + bf.fee_map.x()));
+  EXPECT_EQ(bf.truth.q_pushed_n, 0.0);
+}
+
 // Against a closed form that shares no code with the FEE: a vertical, smooth (delta = 0, no
 // adhesion) wall pushed into flat ground fails the soil in Rankine's passive state, with Bell's
 // cohesion term: per unit width F = 1/2 gamma d^2 Kp + 2 c d sqrt(Kp), Kp = tan^2(45 deg + phi/2),

@@ -69,6 +69,15 @@ struct SweepStep {
   double rho_rad = std::numeric_limits<double>::quiet_NaN();
   double d_m = std::numeric_limits<double>::quiet_NaN();
   double w_m = std::numeric_limits<double>::quiet_NaN();
+  /// The cut's cross-section at this pose, across the edge: the slices' depths (normal to their
+  /// surface lines) averaged in one-cell bins along the edge, empty bins between cut ones
+  /// interpolated, then Σ d res (area, m²) and Σ d² res (m³) over the bins. The FEE of slices
+  /// that share α and ρ sums to that of one wedge at depth depth2/area and width area²/depth2
+  /// (its γ term holds Σ d², its c terms Σ d); d_m and w_m, a mean and an extent, do not hold
+  /// either when the depth varies across the blade (roll, uneven ground, partial contact).
+  /// NaN where d_m is.
+  double area_m2 = std::numeric_limits<double>::quiet_NaN();
+  double depth2_m3 = std::numeric_limits<double>::quiet_NaN();
   double vq_m3 = std::numeric_limits<double>::quiet_NaN();  ///< surcharge (loose) volume ahead
   double q_n = std::numeric_limits<double>::quiet_NaN();    ///< surcharge weight gamma_l * V_Q
   double var_alpha = std::numeric_limits<double>::quiet_NaN();
@@ -82,7 +91,7 @@ struct SweepStep {
 /// Everything one swept-volume update (T0 -> T1) measured and changed.
 struct SweepRecord {
   /// RecordBus type name. Bump the suffix when the layout changes incompatibly.
-  static constexpr const char* kType = "terramap.sweep.v1";
+  static constexpr const char* kType = "terramap.sweep.v2";
 
   long sweep_index = 0;  ///< 1, 2, ... per plugin instance (all machines)
   std::string machine_id;
