@@ -152,6 +152,7 @@ SoilDatasetConfig parseSoilDatasetConfig(const std::string& text, const std::str
             yaml::showBound(c.held_out_rake_rad / kDeg) + " deg by default): give a held_out block");
   }
   c.route_fraction = r.num("route_fraction", c.route_fraction, 0.0, 1.0);
+  c.fixed_scenario = r.boolean("fixed_scenario", c.fixed_scenario);
   if (r.has("hills")) {
     MapReader h = r.child("hills");
     c.hill_count = readRange(h, "count", c.hill_count, 0, 1000);
@@ -223,6 +224,10 @@ EpisodePlan planEpisode(const SoilDatasetConfig& cfg, int index) {
 
 sim::Scenario episodeScenario(const SoilDatasetConfig& cfg, const EpisodePlan& plan) {
   sim::Scenario sc = sim::loadScenario(cfg.scenario);
+  if (cfg.fixed_scenario) {
+    if (plan.index > 0) sc.seed = plan.seed;
+    return sc;
+  }
   sc.seed = plan.seed;
   sc.duration_s = cfg.duration_s;
   sc.default_soil = soil::soilProperties(plan.family, plan.relative_density);
@@ -292,10 +297,13 @@ class TruthRows {
     auto& rows = rows_[mt.id];
     if (!rows.empty() && stamp < rows.back().stamp) return;
     const float nan = std::numeric_limits<float>::quiet_NaN();
-    const std::array<float, 3> profile =
-        mt.fee.cutting_slices > 0 ? std::array<float, 3>{static_cast<float>(mt.fee.area_m2), static_cast<float>(mt.fee.depth2_m3),
-                                                        static_cast<float>(mt.fee.q_pushed_n)}
-                                  : std::array<float, 3>{nan, nan, static_cast<float>(mt.fee.q_pushed_n)};
+    const bool cut = mt.fee.cutting_slices > 0;
+    const std::array<float, 8> profile =
+        cut ? std::array<float, 8>{static_cast<float>(mt.fee.area_m2), static_cast<float>(mt.fee.depth2_m3),
+                                   static_cast<float>(mt.fee.q_pushed_n), static_cast<float>(mt.fee.c_pa),
+                                   static_cast<float>(mt.fee.phi_rad), static_cast<float>(mt.fee.ca_pa),
+                                   static_cast<float>(mt.fee.delta_rad), static_cast<float>(mt.fee.gamma_n_m3)}
+            : std::array<float, 8>{nan, nan, static_cast<float>(mt.fee.q_pushed_n), nan, nan, nan, nan, nan};
     rows.push_back({stamp, feeGeometryOf(&mt.fee), profile,
                     {mt.force_fee_map_N, mt.force_inertia_map_N, mt.force_penetration_map_N},
                     static_cast<float>(mt.edge_vz_mps)});
@@ -325,7 +333,7 @@ class TruthRows {
     if (vz.size() < n) {
       const float nan = std::numeric_limits<float>::quiet_NaN();
       geo.assign(n * 5, nan);
-      profile.assign(n * 3, nan);
+      profile.assign(n * 8, nan);
       parts.assign(n * 6, nan);
       vz.assign(n, nan);
     }
@@ -339,7 +347,7 @@ class TruthRows {
   struct Row {
     double stamp;
     std::array<float, 5> geometry;
-    std::array<float, 3> profile;  // area, depth2, q_pushed
+    std::array<float, 8> profile;  // area, depth2, q_pushed, the soil c, phi, ca, delta, gamma
     Eigen::Vector3d parts[3];  // map frame, soil on blade
     float edge_vz;
   };
@@ -477,7 +485,7 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
       else to.insert(to.end(), count, std::numeric_limits<float>::quiet_NaN());
     };
     perRow(ep.truth_geometry_rows, geo_rows, 5);
-    perRow(ep.truth_profile_rows, profile_rows, 3);
+    perRow(ep.truth_profile_rows, profile_rows, 8);
     perRow(ep.force_parts, parts, 6);
     perRow(ep.edge_vz_rows, vz_rows, 1);
     anchor.push_back(s.anchor_stamp);
@@ -519,8 +527,8 @@ void writeEpisodeFile(const std::string& path, const SoilDatasetConfig& cfg, con
       attrString(f, "truth_geometry", "alpha_rad,rho_rad,d_m,w_m,q_n");
       writeArray(f, "force_quiet", H5T_NATIVE_FLOAT, force_quiet.data(), {n, P, 2}, 4, path);
       writeArray(f, "truth_geometry_rows", H5T_NATIVE_FLOAT, geo_rows.data(), {n, P, 5}, 4, path);
-      writeArray(f, "truth_profile_rows", H5T_NATIVE_FLOAT, profile_rows.data(), {n, P, 3}, 4, path);
-      attrString(f, "truth_profile_rows", "area_m2,depth2_m3,q_pushed_n");
+      writeArray(f, "truth_profile_rows", H5T_NATIVE_FLOAT, profile_rows.data(), {n, P, 8}, 4, path);
+      attrString(f, "truth_profile_rows", "area_m2,depth2_m3,q_pushed_n,c_pa,phi_rad,ca_pa,delta_rad,gamma_n_m3");
       writeArray(f, "force_parts", H5T_NATIVE_FLOAT, parts.data(), {n, P, 3, 2}, 4, path);
       attrString(f, "force_parts", "fee_mobilised,inertia_mobilised,penetration");
       writeArray(f, "edge_vz", H5T_NATIVE_FLOAT, vz_rows.data(), {n, P}, 4, path);

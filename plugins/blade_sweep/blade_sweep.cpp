@@ -174,6 +174,11 @@ ParamSchema BladeSweep::schema() const {
       param::boolean("loose_follows_elevation", d.loose_follows_elevation,
                      "the loose layer is re-read as elevation - loose_base at each update, so the blade pushes the "
                      "soil the sensors see (false: the bookkeeping alone)"),
+      param::boolean("bank_reference", d.bank_reference,
+                     "measure the FEE depth from the bank surface known before the pile covered it (layer "
+                     "bank_surface), not from elevation - loose"),
+      param::real("bank_reach_m", d.bank_reach_m, 0.5, 20.0, "m",
+                  "bank_reference: cells up to this far ahead of the edge take their bank height"),
       param::boolean("report_steps", true, "write the per-step FEE values of every sweep to the run report"),
       param::boolean("ground_anchor", true, "shift blade heights by the map under the tracks minus the pose's contact plane"),
       param::real("track_length_m", 1.9, 0.1, 20.0, "m", "ground anchor: track contact length"),
@@ -211,6 +216,8 @@ void BladeSweep::configure(const Params& p) {
   cfg_.sigma_sv_m = p.getDouble("sigma_sv_m");
   cfg_.min_cut_m = p.getDouble("min_cut_m");
   cfg_.loose_follows_elevation = p.getBool("loose_follows_elevation");
+  cfg_.bank_reference = p.getBool("bank_reference");
+  cfg_.bank_reach_m = p.getDouble("bank_reach_m");
   cfg_.surcharge_carried = p.getBool("surcharge_carried");
   cfg_.carried_repose_rad = p.getDouble("carried_repose_rad");
   report_steps_ = p.getBool("report_steps");
@@ -242,6 +249,10 @@ std::vector<LayerSpec> BladeSweep::layers() const {
       {"height_sigma", LayerAccess::Create, "m", std::numeric_limits<float>::quiet_NaN(),
        "1-sigma of the elevation changes made by the blade and erosion; NaN = never changed by them"},
   };
+  if (cfg_.bank_reference)
+    out.push_back({"bank_surface", LayerAccess::Create, "m", std::numeric_limits<float>::quiet_NaN(),
+                   "map z of the bank (undisturbed) surface as the map knew it before loose soil covered it, kept "
+                   "by blade_sweep for the FEE depth; NaN = not yet ahead of a blade"});
   if (cfg_.loose_follows_elevation)
     out.push_back({"loose_base", LayerAccess::Create, "m", std::numeric_limits<float>::quiet_NaN(),
                    "map z of the undisturbed surface under the loose soil, kept by blade_sweep (loose = "
@@ -260,6 +271,7 @@ SweepLayers SweepLayers::of(const LayeredMap& map) {
   ids.upper_bound = optional("upper_bound");
   ids.is_upper_bound = optional("is_upper_bound");
   ids.base = optional("loose_base");
+  ids.bank = optional("bank_surface");
   return ids;
 }
 

@@ -70,6 +70,17 @@ struct SweepConfig {
   /// leaks to the sides and behind (docs/soil_estimator.md, "The surcharge the map holds").
   bool surcharge_carried = false;
   double carried_repose_rad = 0.576;  ///< 33 deg: the pile's face, for the blade's capacity
+  /// The FEE depth is measured from the bank surface the map knew before the pile reached it
+  /// (layer `bank_surface`), not from elevation - loose. A mast LiDAR sees the top of the real
+  /// pile ahead of the blade, larger than the map's bookkept one, so elevation - loose there is
+  /// the ground plus the pile the bookkeeping lacks (the cut looked deeper than it was: 1.6 times
+  /// the simulator's cross-section in Fig. 12's dense strip), and re-reading the loose thickness
+  /// from the elevation (loose_follows_elevation) ratchets the base down with every noisy reading
+  /// below it (0.35 times). Bank soil never rises: on every sweep, each cell from the edge to
+  /// `bank_reach_m` ahead that has no bank height yet and no loose soil takes its elevation then
+  /// (the pile, about a metre long, has not reached it); a cut lowers it to the cut floor.
+  bool bank_reference = false;
+  double bank_reach_m = 3.0;
 };
 
 /// Ground anchoring of the blade height (docs: plugins/blade_sweep/README.md, "Ground anchor").
@@ -132,6 +143,7 @@ struct SweepLayers {
   LayerId elevation = -1, loose = -1, sigma = -1;
   LayerId variance = -1, is_valid = -1, upper_bound = -1, is_upper_bound = -1;
   LayerId base = -1;  ///< loose_base (optional: SweepConfig::loose_follows_elevation)
+  LayerId bank = -1;  ///< bank_surface (optional: SweepConfig::bank_reference)
   /// elevation, loose, height_sigma (must exist), and the contract layers the map has.
   /// \throws LayerError if one of the first three is missing.
   static SweepLayers of(const LayeredMap& map);
@@ -149,6 +161,8 @@ struct SweepSoil {
   /// H0, L0, S0: the layers as the update starts (L0 already re-read from loose_base where the
   /// map keeps it); H, L, S: as the update leaves them. Lg, B0: loose and loose_base as gathered.
   std::vector<double> H0, L0, S0, H, L, S, Lg, B0;
+  /// bank_surface as gathered (K0) and as the update leaves it (K); empty without the layer.
+  std::vector<double> K0, K;
   std::vector<std::uint8_t> change;  ///< SweepChange per window cell
   /// Gathers the three layers over `win` (H, L, S start as copies; change all unchanged). Where
   /// the map has loose_base, a known cell's loose thickness becomes max(0, elevation - base).

@@ -243,12 +243,17 @@ std::vector<CutCell> cutCells(const SweptCells& sc, const MapWindow& win, const 
 // FEE extraction (Alg. 2) on the surface before the cut: one fitted slice per cut cell under
 // the edge's path, in cut order.
 void extractSlices(const std::vector<CutCell>& cuts, const MapWindow& win, const std::vector<double>& H0,
-                   const std::vector<double>& L0, const Geometry& geo, const SweepConfig& cfg,
-                   const SweepDirections& dir, const Executor& ex, SweepRecord& rec) {
+                   const std::vector<double>& L0, const std::vector<double>& K0, const Geometry& geo,
+                   const SweepConfig& cfg, const SweepDirections& dir, const Executor& ex, SweepRecord& rec) {
   const double res = geo.resolution();
   const Eigen::Vector2d& t_hat = dir.t_hat;
   std::vector<double> surf(H0.size());
   for (size_t k = 0; k < H0.size(); ++k) surf[k] = H0[k] - orZero(L0[k]);
+  // The bank height the map knew before the pile came, where it has one; the surface is never
+  // taken above the elevation (a cell the sensors see lower lost soil the bank did not record).
+  if (!K0.empty())
+    for (size_t k = 0; k < H0.size(); ++k)
+      if (std::isfinite(K0[k]) && std::isfinite(H0[k])) surf[k] = std::min(K0[k], H0[k]);
   const SurfaceSampler sampler{win, surf, geo.center().x() + 0.5 * geo.length().x(),
                                geo.center().y() + 0.5 * geo.length().y(), 1.0 / res};
   const int nsamples = static_cast<int>(std::floor(cfg.fit_length_m / res + 1e-9)) + 1;
@@ -609,7 +614,7 @@ void carriedSurcharge(const SweepConfig& cfg, const BladeGeometry& bg, const Swe
 }  // namespace
 
 bool SweepLayers::allocate(LayeredMap& map, const MapWindow& win) const {
-  return win.tryAllocate(map, {elevation, loose, sigma, variance, is_valid, upper_bound, is_upper_bound, base});
+  return win.tryAllocate(map, {elevation, loose, sigma, variance, is_valid, upper_bound, is_upper_bound, base, bank});
 }
 
 SweepSoil::SweepSoil(const LayeredMap& map, const SweepLayers& ids, const MapWindow& win) {
@@ -631,6 +636,10 @@ SweepSoil::SweepSoil(const LayeredMap& map, const SweepLayers& ids, const MapWin
   H = H0;
   L = L0;
   S = S0;
+  if (ids.bank >= 0) {
+    win.gather(map, ids.bank, K0);
+    K = K0;
+  }
   change.assign(H.size(), kSweepUnchanged);
 }
 
@@ -639,6 +648,7 @@ void SweepSoil::write(LayeredMap& map, const SweepLayers& ids, const MapWindow& 
   win.scatterChanged(map, ids.elevation, H0, H);
   win.scatterChanged(map, ids.loose, Lg, L);
   win.scatterChanged(map, ids.sigma, S0, S);
+  if (ids.bank >= 0) win.scatterChanged(map, ids.bank, K0, K);
   if (ids.base >= 0) {
     // Every known cell of the window is tracked from now on, with its base where the update left
     // it (a cut lowers it, a deposit leaves it); a cell still unknown stays untracked.
@@ -648,6 +658,48 @@ void SweepSoil::write(LayeredMap& map, const SweepLayers& ids, const MapWindow& 
   }
   updateFusionLayers(map, ids, win, change, H, S0, S);
 }
+
+namespace {
+
+// SweepConfig::bank_reference: every cell from the edge at `T` to bank_reach_m ahead along t̂
+// (the edge's width plus half a metre each side) that has no bank height yet, a known elevation
+// and no loose soil takes its elevation as its bank height. Cells the map cannot allocate (a
+// sparse map at its budget) are left without one: the depth then falls back to elevation - loose.
+void recordBankAhead(LayeredMap& map, const SweepLayers& ids, const Eigen::Isometry3d& T, const BladeGeometry& bg,
+                     const Eigen::Vector2d& t_hat, const SweepConfig& cfg) {
+  const auto c = bladeCorners(T, bg);
+  Eigen::Vector2d a = horizontal(c[0]), b = horizontal(c[1]);
+  const Eigen::Vector2d along = b - a;
+  if (along.norm() < 1e-9) return;
+  const Eigen::Vector2d u = along.normalized();
+  a -= 0.5 * u;
+  b += 0.5 * u;
+  const Eigen::Vector2d ahead = cfg.bank_reach_m * t_hat;
+  const MapWindow win = MapWindow::covering(map, {a, b, a + ahead, b + ahead});
+  if (win.empty() || !win.tryAllocate(map, {ids.bank})) return;
+  std::vector<double> K0, H, L;
+  win.gather(map, ids.bank, K0);
+  win.gather(map, ids.elevation, H);
+  win.gather(map, ids.loose, L);
+  std::vector<double> K = K0;
+  const Geometry& geo = map.geometry();
+  const Eigen::Vector2d e = b - a;
+  const double det = e.x() * ahead.y() - e.y() * ahead.x();
+  if (std::abs(det) < 1e-12) return;
+  for (int r = 0; r < win.rows(); ++r)
+    for (int cc = 0; cc < win.cols(); ++cc) {
+      const size_t k = static_cast<size_t>(r) * win.cols() + cc;
+      if (std::isfinite(K0[k]) || !std::isfinite(H[k]) || orZero(L[k]) > 0.0) continue;
+      const Eigen::Vector2d p = geo.positionOf(Index(win.i0() + r, win.j0() + cc)) - a;
+      const double s = (p.x() * ahead.y() - p.y() * ahead.x()) / det;  // along the edge, 0..1
+      const double f = (e.x() * p.y() - e.y() * p.x()) / det;          // ahead, 0..1
+      if (s < 0 || s > 1 || f < 0 || f > 1) continue;
+      K[k] = H[k];
+    }
+  win.scatterChanged(map, ids.bank, K0, K);
+}
+
+}  // namespace
 
 std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, const SweepConfig& cfg,
                                       const std::vector<BladePose>& history, const Executor& ex, CarriedPile* pile) {
@@ -663,11 +715,18 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
   // A sparse map at its memory budget: the sweep is dropped whole (the caller counts it) rather
   // than written in part.
   if (!ids.allocate(map, win)) return nullptr;
+  if (ids.bank >= 0 && cfg.bank_reference) recordBankAhead(map, ids, history.front().T_map_blade, bg, dir.t_hat, cfg);
   SweepSoil soil(map, ids, win);
   const std::vector<double>&H0 = soil.H0, &L0 = soil.L0;
 
   const std::vector<CutCell> cuts = cutCells(sc, win, H0, geo, cfg, *rec);
-  extractSlices(cuts, win, H0, L0, geo, cfg, dir, ex, *rec);
+  extractSlices(cuts, win, H0, L0, soil.K0, geo, cfg, dir, ex, *rec);
+  // The blade removes bank soil down to the floor it leaves: the bank surface there is the floor.
+  if (!soil.K.empty())
+    for (const CutCell& a : cuts) {
+      double& k = soil.K[static_cast<size_t>(a.w)];
+      if (!(k <= a.zl)) k = a.zl;
+    }
   averageSlices(!cuts.empty(), res, *rec);
 
   // Surcharge ahead of the blade before the cut, the cut and deposit, the surcharge after.

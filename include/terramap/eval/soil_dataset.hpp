@@ -72,6 +72,11 @@ struct SoilDatasetConfig {
   /// instead of the random-walk set-points. The grade depth, speed and heading come from the
   /// episode's initial set-points (depth at least 3 cm).
   double route_fraction = 0.0;
+  /// The base scenario as it is (its soil and zones, terrain, controller and duration; the
+  /// config's duration_s, families, ranges, hills and routes are not used), only the seed
+  /// replaced: episode 0 keeps the scenario's own, episode k takes a draw of (seed, k). For the
+  /// rows of a given scenario (the soil-map scenarios) beside their truth, for diagnosis.
+  bool fixed_scenario = false;
   /// Base scenario (machine, sensors, controller ranges, terrain size); per episode the soil,
   /// seed, duration, hills, rake and the controller's initial set-points are replaced.
   std::string scenario;
@@ -128,7 +133,8 @@ struct EpisodeData {
   std::vector<std::vector<float>> truth_geometry_rows, force_parts, edge_vz_rows;
   /// Per sample and horizon row, for diagnosis only: the simulator's cut cross-section over its
   /// cutting slices and the surcharge ahead of the slices that push without cutting
-  /// (sim::FeeTruth area_m2, depth2_m3, q_pushed_n; P × 3, NaN rows when unmatched).
+  /// (sim::FeeTruth area_m2, depth2_m3, q_pushed_n), and the soil of that row's cut (its c, φ,
+  /// c_a, δ, γ; a sample's rows can straddle a soil boundary); P × 8, NaN rows when unmatched.
   std::vector<std::vector<float>> truth_profile_rows;
   long sweeps = 0;                           ///< SweepRecords seen
   std::map<std::string, long> skipped;       ///< by soil::sampleSkipName

@@ -109,3 +109,41 @@ TEST(LooseFollowsElevation, TheLooseLayerIsWhatStandsAboveTheTrackedBase) {
     EXPECT_NEAR(tm.map.at(tm.ids.loose, raised), follow ? 0.10f : 0.0f, 1e-6);
   }
 }
+
+// The bank reference: a pile the sensors see ahead of the blade but the bookkeeping never put
+// there (the real blade's pile runs further than the map's) raises elevation - loose, so
+// without the reference the cut looks as deep as the pile is tall. The bank surface recorded
+// while the ground ahead was still bare keeps the depth the ground's.
+TEST(BankReference, TheDepthIsMeasuredFromTheGroundBeforeThePileCame) {
+  for (const bool bank : {true, false}) {
+    TestMap tm(0.05, 160);
+    tm.setElevation([](const Position&) { return 0.0; });
+    SweepConfig cfg;
+    cfg.bank_reference = bank;
+    if (bank) tm.ids.bank = tm.map.addLayer("bank_surface", "m");
+    // A first sweep above the ground at x -3.5 .. -3.3: nothing cut, the ground ahead recorded.
+    std::vector<BladePose> first;
+    for (int k = 0; k <= 2; ++k) first.push_back(bladePose(0.1 * k, Eigen::Vector3d(-3.5 + 0.1 * k, 0, 0.05), bladeRotation(0)));
+    runSweep(tm.map, tm.ids, cfg, first, Executor(1));
+    // The LiDAR now sees a 15 cm pile from x = -2.0 to -1.0 that the bookkeeping does not hold.
+    for (int i = 0; i < 160; ++i)
+      for (int j = 0; j < 160; ++j) {
+        const Position p = tm.map.geometry().positionOf(Index(i, j));
+        if (p.x() > -2.0 && p.x() < -1.0 && std::abs(p.y()) < 1.2) tm.map.set(tm.ids.elevation, Index(i, j), 0.15f);
+      }
+    // The blade cuts 8 cm deep into the pile's ground.
+    std::vector<BladePose> hist;
+    for (int k = 0; k <= 3; ++k) hist.push_back(bladePose(1.0 + 0.1 * k, Eigen::Vector3d(-1.9 + 0.1 * k, 0, -0.08), bladeRotation(0)));
+    const auto r = runSweep(tm.map, tm.ids, cfg, hist, Executor(1));
+    ASSERT_TRUE(r->fee_valid);
+    if (bank) {
+      EXPECT_NEAR(r->d_m, 0.08, 0.005);
+      EXPECT_NEAR(r->steps.back().area_m2, 0.08 * 1.85, 0.08 * 0.1);
+      // The cut floor is bank too: the cut cells' bank surface is the floor now.
+      const Index under = *tm.map.geometry().indexAt(Position(-1.75, 0.0));
+      EXPECT_NEAR(tm.map.at(tm.ids.bank, under), -0.08f, 1e-4);
+    } else {
+      EXPECT_GT(r->d_m, 0.18);  // the unrecorded pile counts as ground
+    }
+  }
+}
