@@ -1,6 +1,8 @@
 // The blade_sweep plugin: parameters, update thresholds, per-machine pose history, report.
 #include "blade_sweep.hpp"
 
+#include <terramap/plugin/records/vertical_datum_record.hpp>
+
 #include <cmath>
 #include <cstdio>
 #include <sstream>
@@ -174,6 +176,9 @@ ParamSchema BladeSweep::schema() const {
       param::boolean("loose_follows_elevation", d.loose_follows_elevation,
                      "the loose layer is re-read as elevation - loose_base at each update, so the blade pushes the "
                      "soil the sensors see (false: the bookkeeping alone)"),
+      param::boolean("use_survey_datum", d.use_survey_datum,
+                     "place the blade in a site survey's datum with the offset lidar_fusion estimated for its machine "
+                     "(terramap.vertical_datum.v1) instead of the ground anchor, where there is one"),
       param::boolean("bank_reference", d.bank_reference,
                      "measure the FEE depth from the bank surface known before the pile covered it (layer "
                      "bank_surface), not from elevation - loose"),
@@ -217,6 +222,7 @@ void BladeSweep::configure(const Params& p) {
   cfg_.min_cut_m = p.getDouble("min_cut_m");
   cfg_.loose_follows_elevation = p.getBool("loose_follows_elevation");
   cfg_.bank_reference = p.getBool("bank_reference");
+  cfg_.use_survey_datum = p.getBool("use_survey_datum");
   cfg_.bank_reach_m = p.getDouble("bank_reach_m");
   cfg_.surcharge_carried = p.getBool("surcharge_carried");
   cfg_.carried_repose_rad = p.getDouble("carried_repose_rad");
@@ -347,10 +353,12 @@ void BladeSweep::process(ProcessContext& ctx, const Event& event) {
   }
   const auto* bp_in = std::get_if<BladePose>(&event);
   if (!bp_in) return;
-  // The blade pose shifted by its machine's ground anchor (the id's own, else the "base" one).
+  // The blade pose in the survey's datum (lidar_fusion's survey_datum: the same offset the
+  // machine's clouds were fused with), else shifted by its machine's ground anchor (the id's
+  // own, else the "base" one).
   BladePose anchored;
   const BladePose* bp = bp_in;
-  if (const double dz = anchorOffset(bp_in->machine_id); dz != 0.0) {
+  if (const double dz = heightCorrection(ctx, bp_in->machine_id); dz != 0.0) {
     anchored = *bp_in;
     anchored.T_map_blade.translation().z() += dz;
     bp = &anchored;
@@ -433,6 +441,19 @@ void BladeSweep::sweepHistory(ProcessContext& ctx, MachineState& st, const std::
   st.history.push_back(last);
 }
 
+double BladeSweep::heightCorrection(ProcessContext& ctx, const std::string& machine_id) {
+  if (cfg_.use_survey_datum) {
+    if (const auto datum = ctx.records().latestAs<VerticalDatumRecord>(VerticalDatumRecord::kType)) {
+      const auto it = datum->machines.find(machine_id);
+      if (it != datum->machines.end()) {
+        datum_machines_.insert(machine_id);
+        return -it->second.offset_m;
+      }
+    }
+  }
+  return anchorOffset(machine_id);
+}
+
 double BladeSweep::anchorOffset(const std::string& machine_id) const {
   if (!anchor_cfg_.enabled) return 0.0;
   auto it = anchors_.find(machine_id);
@@ -446,7 +467,7 @@ void BladeSweep::processJointState(ProcessContext& ctx, const JointState& js) {
     return;
   }
   Eigen::Isometry3d T = js.T_map_bucket;
-  T.translation().z() += anchorOffset(js.machine_id);  // the same height correction as the machine's blade
+  T.translation().z() += heightCorrection(ctx, js.machine_id);  // the same height correction as the machine's blade
   BucketState& st = buckets_[js.machine_id];
   if (!st.raw.empty() && (T.translation() - st.raw.back().translation()).norm() > cfg_.max_jump_m) {
     ctx.addCounter("pose_jumps", 1);

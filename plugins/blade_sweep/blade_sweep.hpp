@@ -37,6 +37,7 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -80,6 +81,10 @@ struct SweepConfig {
   /// `bank_reach_m` ahead that has no bank height yet and no loose soil takes its elevation then
   /// (the pile, about a metre long, has not reached it); a cut lowers it to the cut floor.
   bool bank_reference = false;
+  /// The blade placed in a site survey's datum: the offset lidar_fusion estimated between the
+  /// machine's poses and the survey (terramap.vertical_datum.v1) is subtracted from its blade
+  /// heights, in place of the ground anchor, for a machine that has one.
+  bool use_survey_datum = true;
   double bank_reach_m = 3.0;
 };
 
@@ -323,6 +328,10 @@ class BladeSweep : public Plugin {
   void pourShare(ProcessContext& ctx, BucketState& st, const Eigen::Vector3d& lip, double load_kg);
   /// The ground anchor's height correction of machine `machine_id` (m; 0 without one).
   double anchorOffset(const std::string& machine_id) const;
+  /// The height correction of a machine's tool poses: minus its survey datum offset where
+  /// lidar_fusion published one (use_survey_datum), else its ground anchor.
+  double heightCorrection(ProcessContext& ctx, const std::string& machine_id);
+  std::set<std::string> datum_machines_;  // machines whose tools took a datum offset
   BucketConfig bucket_cfg_;
   ToolMesh tool_;
   std::map<std::string, BucketState> buckets_;

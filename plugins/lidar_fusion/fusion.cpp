@@ -27,15 +27,28 @@ constexpr int kPrefetchAhead = 8;
 FusionStats LidarFusion::fuse(LayeredMap& map, const Executor& ex, const PointCloud& cloud) {
   if (bound_map_ != &map)
     throw LayerError("lidar_fusion: fuse() on a map it is not attached to (call attach(map) first)");
-  const Eigen::Isometry3d& T = cloud.T_map_sensor;
-  if (!T.matrix().allFinite())
+  if (!cloud.T_map_sensor.matrix().allFinite())
     throw InputError("lidar_fusion: point cloud at stamp " + formatNumber(cloud.stamp) + " s has a non-finite T_map_sensor");
   FusionStats st;
   st.points_in = static_cast<long>(cloud.points.size());
   buildIndexTables(map);
+  // A machine's cloud ("<machine>/<sensor>") in the survey's datum: shifted down by the
+  // machine's offset so far (survey_datum).
+  const bool survey = survey_z_ >= 0 && cloud.frame == config_.survey_frame;
+  const std::size_t slash = cloud.frame.find('/');
+  const std::string machine = survey_z_ >= 0 && !survey && slash != std::string::npos && slash > 0
+                                  ? cloud.frame.substr(0, slash) : std::string();
+  Eigen::Isometry3d T = cloud.T_map_sensor;
+  if (!machine.empty()) {
+    const auto it = datum_.find(machine);
+    if (it != datum_.end()) {
+      T.translation().z() -= it->second.offset_m;
+      st.datum_shift_m = it->second.offset_m;
+    }
+  }
 
   // 1) transform, gate, noise, cell, and a stable sort by tile inside each fixed chunk.
-  preparePoints(map, ex, cloud);
+  preparePoints(map, ex, cloud, T);
   for (const PointChunk& ch : point_chunks_) {
     st.dropped_non_finite += ch.drops[0];
     st.dropped_too_close += ch.drops[1];
@@ -53,13 +66,15 @@ FusionStats LidarFusion::fuse(LayeredMap& map, const Executor& ex, const PointCl
   for (int t = 0; t < ntiles; ++t)
     if (tile_points_[static_cast<size_t>(t)] > 0) active_tiles_.push_back(t);
 
-  // 2) drift compensation against the map before this cloud.
+  // 2) drift compensation against the map before this cloud; the survey datum.
   if (config_.enable_drift_compensation) driftCompensation(map, ex, T, st);
+  if (!machine.empty()) measureDatum(map, ex, machine, cloud.stamp, st);
   prev_T_map_sensor_ = T;
   have_prev_sensor_ = true;
 
   // 3) per-tile sequential fusion (which first clears the previous cloud's hits).
   fuseTiles(map, ex, st);
+  if (survey) recordSurvey(map);
 
   // 4) visibility cleanup and upper bounds.
   if (config_.enable_visibility_cleanup) cleanup(map, ex, T.translation(), st);
@@ -126,6 +141,62 @@ void LidarFusion::driftCompensation(LayeredMap& map, const Executor& ex, const E
   });
   st.drift_applied = true;
   st.drift_m = shift;
+}
+
+void LidarFusion::measureDatum(LayeredMap& map, const Executor& ex, const std::string& machine, double stamp,
+                               FusionStats& st) {
+  const LidarFusionConfig& cf = config_;
+  const int na = static_cast<int>(active_tiles_.size());
+  // Per active tile, in tile order, the residuals (point height - survey height) of the points
+  // within the gate: the points are already shifted by the offset so far, so these are what
+  // is left of it.
+  std::vector<std::vector<float>> per_tile(static_cast<size_t>(na));
+  const float gate = static_cast<float>(cf.datum_gate_m);
+  ex.forEach(na, [&](int k) {
+    const int t = active_tiles_[static_cast<size_t>(k)];
+    const float* Z = map.tileData(survey_z_, t);
+    if (!Z) return;
+    std::vector<float>& out = per_tile[static_cast<size_t>(k)];
+    for (const PointChunk& ch : point_chunks_)
+      for (int q = ch.start[static_cast<size_t>(t)]; q < ch.start[static_cast<size_t>(t) + 1]; ++q) {
+        const PointItem& it = ch.items[static_cast<size_t>(q)];
+        const float r = it.z - Z[it.off];
+        if (std::abs(r) < gate) out.push_back(r);  // NaN survey heights fail the test
+      }
+  });
+  std::vector<float> r;
+  for (const auto& v : per_tile) r.insert(r.end(), v.begin(), v.end());
+  st.datum_points = static_cast<long>(r.size());
+  if (st.datum_points < cf.datum_min_points) return;
+  // The median: the ground changed since the survey (cuts, piles, ruts) is a minority of the
+  // points within the gate and only moves the tail.
+  auto mid = r.begin() + static_cast<long>(r.size() / 2);
+  std::nth_element(r.begin(), mid, r.end());
+  const double median = *mid;
+  auto found = datum_.find(machine);
+  const bool first = found == datum_.end();
+  VerticalDatumRecord::Machine m = first ? VerticalDatumRecord::Machine{} : found->second;
+  const double k = first || cf.datum_tau_s <= 0 ? 1.0 : 1.0 - std::exp(-std::max(0.0, stamp - m.stamp) / cf.datum_tau_s);
+  const double next = m.offset_m + k * median;
+  if (!(std::abs(next) <= cf.datum_max_m)) return;
+  m.offset_m = next;
+  m.stamp = stamp;
+  m.points = st.datum_points;
+  ++m.updates;
+  datum_[machine] = m;
+  st.datum_updated = true;
+}
+
+void LidarFusion::recordSurvey(LayeredMap& map) {
+  for (const int t : active_tiles_) {
+    const float* E = map.tileData(elev_, t);
+    const float* Hh = map.tileData(hits_, t);
+    if (!E || !Hh || !map.tryAllocateTile(t, {survey_z_})) continue;
+    float* Z = map.mutableTileData(survey_z_, t);
+    const int n = map.tileSize() * map.tileSize();
+    for (int c = 0; c < n; ++c)
+      if (Hh[c] > 0.0f) Z[c] = E[c];
+  }
 }
 
 // The previous cloud's hit lists become prev_*, this cloud's are laid out; the tiles to visit

@@ -266,9 +266,10 @@ bool LidarFusion::depthSquaredFrame(const std::string& frame) const {
   return false;
 }
 
-void LidarFusion::preparePoints(const LayeredMap& map, const Executor& ex, const PointCloud& cloud) {
+void LidarFusion::preparePoints(const LayeredMap& map, const Executor& ex, const PointCloud& cloud,
+                                const Eigen::Isometry3d& T) {
   const LidarFusionConfig& cf = config_;
-  const GateConsts k = gateConsts(map.geometry(), cloud.T_map_sensor, cf,
+  const GateConsts k = gateConsts(map.geometry(), T, cf,
                                   cf.noise_model == NoiseModel::RangeBased && !depthSquaredFrame(cloud.frame));
   const bool rays = cf.enable_visibility_cleanup;
   const int stride = cf.cleanup_ray_stride;

@@ -20,7 +20,7 @@ using namespace lidar_fusion_internal;
 
 std::vector<LayerSpec> LidarFusion::layers() const {
   using L = LidarFusionLayers;
-  return {
+  std::vector<LayerSpec> out = {
       {L::kElevation, LayerAccess::Create, "m", kNaN, "fused surface height, map-frame z; NaN = unknown"},
       {L::kVariance, LayerAccess::Create, "m^2", kNaN, "variance of elevation; NaN = unknown"},
       {L::kIsValid, LayerAccess::Create, "1", 0.0f,
@@ -31,6 +31,10 @@ std::vector<LayerSpec> LidarFusion::layers() const {
       {L::kIsUpperBound, LayerAccess::Create, "1", 0.0f, "1 where upper_bound comes from rays, not points"},
       {L::kHits, LayerAccess::Create, "count", 0.0f, "points fused into the cell by the latest cloud"},
   };
+  if (config_.survey_datum)
+    out.push_back({L::kSurveyZ, LayerAccess::Create, "m", kNaN,
+                   "map-frame z the site survey's clouds gave the cell (survey_datum); NaN = not surveyed"});
+  return out;
 }
 
 EventMask LidarFusion::events() const {
@@ -46,6 +50,7 @@ void LidarFusion::bindLayers(const LayeredMap& map) {
   ub_ = map.layerId(L::kUpperBound);
   isub_ = map.layerId(L::kIsUpperBound);
   hits_ = map.layerId(L::kHits);
+  survey_z_ = config_.survey_datum && map.hasLayer(L::kSurveyZ) ? map.layerId(L::kSurveyZ) : LayerId(-1);
   bound_map_ = &map;
   tile_known_.assign(static_cast<size_t>(map.tileCount()), 0);
   hit_start_.clear();
@@ -167,6 +172,13 @@ void LidarFusion::process(ProcessContext& ctx, const Event& event) {
     ctx.addCounter("cells_invalidated", static_cast<double>(s.cells_invalidated));
     ctx.addCounter("upper_bound_updates", static_cast<double>(s.upper_bounds));
     if (s.drift_applied) ctx.addCounter("drift_m", s.drift_m);
+    if (s.datum_updated) {
+      ctx.addCounter("datum_updates", 1);
+      ctx.addCounter("datum_points", static_cast<double>(s.datum_points));
+      auto rec = std::make_shared<VerticalDatumRecord>();
+      rec->machines = datum_;
+      ctx.records().publish<VerticalDatumRecord>(VerticalDatumRecord::kType, pc->stamp, std::move(rec));
+    }
   } else if (const auto* pose = std::get_if<Pose>(&event)) {
     advanceTime(map, ctx.executor(), pose->stamp);
     if (!pose->T_map_base.matrix().allFinite())

@@ -44,10 +44,12 @@
 /// per tile: min is exact and order-free, so which thread walked which ray does not matter.)
 /// Threading: process() runs on the engine thread and parallelises with ctx.executor().
 #include <terramap/plugin/plugin.hpp>
+#include <terramap/plugin/records/vertical_datum_record.hpp>
 #include "self_filter.hpp"
 
 #include <array>
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -121,6 +123,20 @@ struct LidarFusionConfig {
   double position_noise_thresh_m = 0.01;  ///< sensor motion needed for a correction (m)
   double orientation_noise_thresh_rad = 0.01;  ///< or rotation needed (rad)
   bool follow_robot = false;              ///< re-centre the map on the robot (ring buffer)
+  /// The vertical datum between a machine's poses and a site survey (records/
+  /// vertical_datum_record.hpp): the survey's clouds (frame `survey_frame`) leave their heights
+  /// in the layer `survey_z`; for a machine's cloud (frame "<machine>/<sensor>") the median of
+  /// point height minus survey_z over the points within `datum_gate_m` of the current estimate
+  /// (ground nothing has changed since the survey) updates the machine's offset, low-passed
+  /// with `datum_tau_s` (the first update takes it whole); each later cloud of the machine is
+  /// fused shifted down by it, into the survey's datum. No survey, or fewer than
+  /// `datum_min_points` such points: no offset, the clouds are fused as they come.
+  bool survey_datum = true;
+  std::string survey_frame = "survey";
+  double datum_tau_s = 3.0;
+  double datum_gate_m = 0.08;
+  long datum_min_points = 200;
+  double datum_max_m = 0.3;               ///< larger offsets are not taken (m)
   /// Self-filter boxes (self_filter.hpp), 6 numbers per box [xmin, ymin, zmin, xmax, ymax, zmax]
   /// in the base frame (placed with each machine's latest Pose) or the blade frame (latest
   /// BladePose); empty = no filter. Points inside are dropped as `self`.
@@ -159,6 +175,9 @@ struct FusionStats {
   bool drift_applied = false;
   double drift_m = 0.0;      ///< correction added to the map's elevations (m)
   long drift_inliers = 0;
+  long datum_points = 0;     ///< points on undisturbed surveyed ground (survey_datum)
+  bool datum_updated = false;
+  double datum_shift_m = 0;  ///< the machine's offset this cloud was fused shifted down by (m)
   long tile_budget_refusals = 0;  ///< tiles not written (points or ray bounds): the budget held no more
 };
 
@@ -171,6 +190,7 @@ struct LidarFusionLayers {
   static constexpr const char* kUpperBound = "upper_bound";         ///< m; NaN none
   static constexpr const char* kIsUpperBound = "is_upper_bound";    ///< 1 if bound from rays
   static constexpr const char* kHits = "hits";                      ///< points fused this cloud
+  static constexpr const char* kSurveyZ = "survey_z";               ///< m; survey's height; NaN none
 };
 
 class LidarFusion : public Plugin {
@@ -241,7 +261,12 @@ class LidarFusion : public Plugin {
   };
   void bindLayers(const LayeredMap& map);
   void buildIndexTables(const LayeredMap& map);
-  void preparePoints(const LayeredMap& map, const Executor& ex, const PointCloud& cloud);
+  void preparePoints(const LayeredMap& map, const Executor& ex, const PointCloud& cloud, const Eigen::Isometry3d& T);
+  /// survey_datum: the machine's offset from this cloud's points on surveyed ground (before
+  /// fusion; the points are already shifted by the current offset).
+  void measureDatum(LayeredMap& map, const Executor& ex, const std::string& machine, double stamp, FusionStats& st);
+  /// survey_datum: the survey's heights of the cells this (survey) cloud hit.
+  void recordSurvey(LayeredMap& map);
   static void sortChunkByTile(PointChunk& ch, int m, int ntiles);
   /// Whether `frame` matches one of config_.depth_squared_frames.
   bool depthSquaredFrame(const std::string& frame) const;
@@ -386,6 +411,8 @@ class LidarFusion : public Plugin {
   bool have_prev_sensor_ = false;
   Eigen::Isometry3d prev_T_map_sensor_ = Eigen::Isometry3d::Identity();
   FusionStats totals_;
+  LayerId survey_z_ = -1;
+  std::map<std::string, VerticalDatumRecord::Machine> datum_;  // by machine id
   long clouds_ = 0;
   double fuse_wall_s_ = 0.0;
 };

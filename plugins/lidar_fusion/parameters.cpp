@@ -74,6 +74,15 @@ ParamSchema lidarFusionSchema() {
       param::reals("self_filter_arm_m", {}, -1, -100.0, 100.0, "m", "the same in the arm frame"),
       param::reals("self_filter_bucket_m", {}, -1, -100.0, 100.0, "m", "the same in the bucket frame"),
       param::real("self_filter_margin_m", 0.1, 0.0, 10.0, "m", "self-filter boxes grown by this on every side"),
+      param::boolean("survey_datum", true,
+                     "bring each machine's clouds into the datum of a site survey (clouds of frame survey_frame): "
+                     "the median height of its points over undisturbed surveyed ground, low-passed"),
+      param::text("survey_frame", "survey", {}, "frame of the survey's clouds"),
+      param::real("datum_tau_s", 3.0, 0.0, 1e6, "s", "survey_datum: low-pass time constant of the offset"),
+      param::real("datum_gate_m", 0.08, 0.001, 10.0, "m",
+                  "survey_datum: points further than this from survey + offset are ground that changed"),
+      param::integer("datum_min_points", 200, 1, 1000000000, "survey_datum: fewer points: no update"),
+      param::real("datum_max_m", 0.3, 0.0, 100.0, "m", "survey_datum: larger offsets are not taken"),
       param::boolean("follow_robot", false,
                      "re-centre the map on each Pose (or, before any Pose, on the sensor)"),
   };
@@ -124,6 +133,12 @@ LidarFusionConfig lidarFusionConfigFrom(const Params& p) {
   c.cleanup_walk = p.getString("cleanup_walk") == "fan" ? CleanupWalk::Fan : CleanupWalk::Exact;
   c.cleanup_fan_lateral_cells = p.getDouble("cleanup_fan_lateral_cells");
   c.enable_drift_compensation = p.getBool("enable_drift_compensation");
+  c.survey_datum = p.getBool("survey_datum");
+  c.survey_frame = p.getString("survey_frame");
+  c.datum_tau_s = p.getDouble("datum_tau_s");
+  c.datum_gate_m = p.getDouble("datum_gate_m");
+  c.datum_min_points = p.getInt("datum_min_points");
+  c.datum_max_m = p.getDouble("datum_max_m");
   c.drift_compensation_alpha = p.getDouble("drift_compensation_alpha");
   c.drift_compensation_variance_inlier_m2 = p.getDouble("drift_compensation_variance_inlier_m2");
   c.max_drift_m = p.getDouble("max_drift_m");

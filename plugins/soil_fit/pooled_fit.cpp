@@ -43,19 +43,48 @@ fee::Soil soilOf(const Vec& u, bool bounded) {
   return toFee(v);
 }
 
-// Residuals of every row (x then z, in units of force_sigma_n) at u.
-void residuals(const std::vector<FitRow>& rows, const Vec& u, const PooledFitOptions& opt, Eigen::VectorXd& r,
-               int* valid_rows = nullptr) {
+// A measured force component's noise scale: force_sigma_n, and force_sigma_rel of its size
+// (a force sensor's and the soil's own fluctuation grow with the force).
+double rowSigma(const PooledFitOptions& opt, double f) { return std::hypot(opt.force_sigma_n, opt.force_sigma_rel * f); }
+
+// Residuals of every row at u, three per row in units of its noise scale (rowSigma): along x, and the
+// vertical one with the penetration on (weighted by sqrt(w_i)) and off (sqrt(1 - w_i)), w_i the
+// row's gate weight. A gate known for sure has w_i in {0, 1} and so one vertical residual.
+void residuals(const std::vector<FitRow>& rows, const std::vector<double>& gate, const Vec& u,
+               const PooledFitOptions& opt, Eigen::VectorXd& r, int* valid_rows = nullptr) {
   const fee::Soil s = soilOf(u, opt.interface_bounded_by_soil);
-  r.resize(static_cast<Eigen::Index>(2 * rows.size()));
+  r.resize(static_cast<Eigen::Index>(3 * rows.size()));
   int valid = 0;
   for (std::size_t i = 0; i < rows.size(); ++i) {
-    Eigen::Vector2d f;
-    valid += modelForce(s, rows[i], opt.edge_thickness_m, f, opt.q_gamma_ref_n_m3);
-    r[static_cast<Eigen::Index>(2 * i)] = (f.x() - rows[i].fx_n) / opt.force_sigma_n;
-    r[static_cast<Eigen::Index>(2 * i + 1)] = (f.y() - rows[i].fz_n) / opt.force_sigma_n;
+    const RowForce f = rowForce(s, rows[i], opt);
+    valid += f.valid;
+    const double w = gate[i];
+    const double sx = rowSigma(opt, rows[i].fx_n), sz = rowSigma(opt, rows[i].fz_n);
+    const double ez_off = (f.fee_n.y() - rows[i].fz_n) / sz;
+    const double ez_on = (f.fee_n.y() - f.penetration_n - rows[i].fz_n) / sz;
+    r[static_cast<Eigen::Index>(3 * i)] = (f.fee_n.x() - rows[i].fx_n) / sx;
+    r[static_cast<Eigen::Index>(3 * i + 1)] = w > 0 ? std::sqrt(w) * ez_on : 0.0;
+    r[static_cast<Eigen::Index>(3 * i + 2)] = w < 1 ? std::sqrt(1.0 - w) * ez_off : 0.0;
   }
   if (valid_rows) *valid_rows = valid;
+}
+
+// The soft-L1 loss of one residual, 2 (sqrt(1 + e²) − 1): the row's negative log-likelihood
+// under the loss's heavy-tailed noise, up to a constant.
+double softL1(double e) { return 2.0 * (std::sqrt(1.0 + e * e) - 1.0); }
+
+// The gate weights at u: each row's posterior probability that the edge descended, from its
+// prior p_descending and how well the vertical force fits with and without the penetration.
+void gateWeights(const std::vector<FitRow>& rows, const Vec& u, const PooledFitOptions& opt, std::vector<double>& gate) {
+  const fee::Soil s = soilOf(u, opt.interface_bounded_by_soil);
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const double p = std::clamp(rows[i].p_descending, 1e-3, 1.0 - 1e-3);
+    const RowForce f = rowForce(s, rows[i], opt);
+    const double sz = rowSigma(opt, rows[i].fz_n);
+    const double l_on = std::log(p) - softL1((f.fee_n.y() - f.penetration_n - rows[i].fz_n) / sz);
+    const double l_off = std::log(1.0 - p) - softL1((f.fee_n.y() - rows[i].fz_n) / sz);
+    gate[i] = 1.0 / (1.0 + std::exp(std::clamp(l_off - l_on, -50.0, 50.0)));
+  }
 }
 
 /// The prior in span units: centre and standard deviation per property.
@@ -84,16 +113,40 @@ double cost(const Eigen::VectorXd& r, const Vec& u, const Prior& prior) {
 
 }  // namespace
 
-bool modelForce(const fee::Soil& s, const FitRow& row, double edge_thickness_m, Eigen::Vector2d& f,
-                double q_gamma_ref_n_m3) {
-  f.setZero();
+RowForce rowForce(const fee::Soil& s, const FitRow& row, const PooledFitOptions& opt) {
+  RowForce out;
   fee::Geometry g = row.geometry;
-  if (q_gamma_ref_n_m3 > 0) g.q_n *= s.gamma_n_m3 / q_gamma_ref_n_m3;
+  const double w_cut = g.w_m;
+  double q = g.q_n;
+  if (opt.q_gamma_ref_n_m3 > 0) q *= s.gamma_n_m3 / opt.q_gamma_ref_n_m3;
+  double pushed = 0.0;
+  if (opt.surcharge_share && row.blade_width_m > 0 && w_cut > 0) {
+    const double share = std::clamp(w_cut / row.blade_width_m, 0.0, 1.0);
+    pushed = (1.0 - share) * q;
+    q *= share;
+  }
+  g.q_n = q;
+  // The mean vertical depth over the cutting width: what the edge is buried by.
+  double depth_v = g.d_m;
+  if (opt.cross_section && row.area_m2 > 0 && row.depth2_m3 > 0 && w_cut > 0) {
+    g.d_m = row.depth2_m3 / row.area_m2;
+    g.w_m = row.area_m2 * row.area_m2 / row.depth2_m3;
+    depth_v = row.area_m2 / (w_cut * std::cos(g.alpha_rad));
+  }
   const fee::Result res = fee::evaluateAtBetaMin(s, g);
-  if (!res.valid()) return false;
-  f = res.F_total_N;
-  if (row.descending) f.y() -= fee::penetrationForce(s, row.geometry.d_m, row.geometry.w_m, edge_thickness_m);
-  return true;
+  if (!res.valid()) return out;
+  out.fee_n = res.F_total_N;
+  out.fee_n.x() += opt.pile_friction * pushed;
+  out.penetration_n = fee::penetrationForce(s, depth_v, w_cut, opt.edge_thickness_m);
+  out.valid = true;
+  return out;
+}
+
+bool modelForce(const fee::Soil& s, const FitRow& row, const PooledFitOptions& opt, Eigen::Vector2d& f) {
+  const RowForce r = rowForce(s, row, opt);
+  f = r.fee_n;
+  if (row.p_descending >= 0.5) f.y() -= r.penetration_n;
+  return r.valid;
 }
 
 PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& start, const PooledFitOptions& opt) {
@@ -106,55 +159,84 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
     if (!std::isfinite(t0[k])) u[k] = 0.5;
   const Prior prior = priorOf(opt);
   const Mat prior_info = prior.sd.array().square().inverse().matrix().asDiagonal();
+  // The gate: the prior's hard decision, or (gate_mixture) its probability, refined below.
+  std::vector<double> gate(rows.size());
+  for (std::size_t i = 0; i < rows.size(); ++i)
+    gate[i] = opt.gate_mixture ? std::clamp(rows[i].p_descending, 0.0, 1.0) : (rows[i].p_descending >= 0.5 ? 1.0 : 0.0);
   Eigen::VectorXd r, rt;
-  Eigen::MatrixXd J(static_cast<Eigen::Index>(2 * rows.size()), kN);
+  Eigen::MatrixXd J(static_cast<Eigen::Index>(3 * rows.size()), kN);
   Mat JtWJ = Mat::Zero();
-  residuals(rows, u, opt, r);
-  double c = cost(r, u, prior);
-  double lambda = 1e-2;
   constexpr double kStep = 1e-4;
-  for (out.iterations = 0; out.iterations < opt.max_iterations && !rows.empty(); ++out.iterations) {
-    // Forward differences, stepping inward at an upper bound.
-    for (int k = 0; k < kN; ++k) {
-      Vec up = u;
-      const double h = u[k] + kStep > 1.0 ? -kStep : kStep;
-      up[k] += h;
-      residuals(rows, up, opt, rt);
-      J.col(k) = (rt - r) / h;
+  const int rounds = opt.gate_mixture ? std::max(1, opt.gate_iterations) : 1;
+  for (int round = 0; round < rounds && !rows.empty(); ++round) {
+    if (opt.gate_mixture && round > 0) {
+      const std::vector<double> before = gate;
+      gateWeights(rows, u, opt, gate);
+      double moved = 0.0;
+      for (std::size_t i = 0; i < gate.size(); ++i) moved = std::max(moved, std::abs(gate[i] - before[i]));
+      if (moved < 1e-3) break;
     }
-    // Iteratively reweighted least squares for the soft-L1 loss: weight 1 / sqrt(1 + e²).
-    const Eigen::VectorXd w = (1.0 + r.array().square()).rsqrt();
-    JtWJ = J.transpose() * w.asDiagonal() * J;
-    const Vec g = J.transpose() * (w.array() * r.array()).matrix() + prior_info * (u - prior.centre);
-    bool improved = false;
-    for (int tries = 0; tries < 8 && !improved; ++tries) {
-      Mat A = JtWJ + prior_info;
-      A.diagonal() += lambda * A.diagonal();
-      const Vec step = -A.ldlt().solve(g);
-      const Vec un = (u + step).cwiseMax(0.0).cwiseMin(1.0);
-      residuals(rows, un, opt, rt);
-      const double cn = cost(rt, un, prior);
-      if (cn < c) {
-        const double moved = (un - u).cwiseAbs().maxCoeff();
-        u = un;
-        r = rt;
-        c = cn;
-        lambda = std::max(1e-6, lambda / 3.0);
-        improved = true;
-        if (moved < 1e-6) out.converged = true;
-      } else {
-        lambda *= 4.0;
+    residuals(rows, gate, u, opt, r);
+    double c = cost(r, u, prior);
+    double lambda = 1e-2;
+    bool converged = false;
+    for (int it = 0; it < opt.max_iterations; ++it, ++out.iterations) {
+      // Forward differences, stepping inward at an upper bound.
+      for (int k = 0; k < kN; ++k) {
+        Vec up = u;
+        const double h = u[k] + kStep > 1.0 ? -kStep : kStep;
+        up[k] += h;
+        residuals(rows, gate, up, opt, rt);
+        J.col(k) = (rt - r) / h;
+      }
+      // Iteratively reweighted least squares for the soft-L1 loss: weight 1 / sqrt(1 + e²).
+      const Eigen::VectorXd w = (1.0 + r.array().square()).rsqrt();
+      JtWJ = J.transpose() * w.asDiagonal() * J;
+      const Vec g = J.transpose() * (w.array() * r.array()).matrix() + prior_info * (u - prior.centre);
+      bool improved = false;
+      for (int tries = 0; tries < 8 && !improved; ++tries) {
+        Mat A = JtWJ + prior_info;
+        A.diagonal() += lambda * A.diagonal();
+        const Vec step = -A.ldlt().solve(g);
+        const Vec un = (u + step).cwiseMax(0.0).cwiseMin(1.0);
+        residuals(rows, gate, un, opt, rt);
+        const double cn = cost(rt, un, prior);
+        if (cn < c) {
+          const double moved = (un - u).cwiseAbs().maxCoeff();
+          u = un;
+          r = rt;
+          c = cn;
+          lambda = std::max(1e-6, lambda / 3.0);
+          improved = true;
+          if (moved < 1e-6) converged = true;
+        } else {
+          lambda *= 4.0;
+        }
+      }
+      if (!improved || converged) {
+        converged = true;
+        break;
       }
     }
-    if (!improved || out.converged) {
-      out.converged = true;
-      break;
-    }
+    out.converged = converged;
   }
-  residuals(rows, u, opt, r, &out.rows);
+  residuals(rows, gate, u, opt, r, &out.rows);
+  out.cost = cost(r, u, prior);
   const fee::Soil s = soilOf(u, bounded);
   out.mean = fromFee(s);
-  out.rms_n = rows.empty() ? 0.0 : opt.force_sigma_n * std::sqrt(r.squaredNorm() / static_cast<double>(r.size()));
+  // Per row, its x residual and the vertical one of its gate (the weighted pair's root sum of
+  // squares), so a row counts twice whatever its gate: in units of each row's noise scale for
+  // the covariance's scale, and in newtons for rms_n.
+  double ss = 0.0, ss_n = 0.0;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const auto b = static_cast<Eigen::Index>(3 * i);
+    ss += r[b] * r[b] + r[b + 1] * r[b + 1] + r[b + 2] * r[b + 2];
+    const RowForce f = rowForce(s, rows[i], opt);
+    const double ex = f.fee_n.x() - rows[i].fx_n, ez_off = f.fee_n.y() - rows[i].fz_n, ez_on = ez_off - f.penetration_n;
+    ss_n += ex * ex + gate[i] * ez_on * ez_on + (1.0 - gate[i]) * ez_off * ez_off;
+  }
+  const double chi = rows.empty() ? 0.0 : std::sqrt(ss / static_cast<double>(2 * rows.size()));
+  out.rms_n = rows.empty() ? 0.0 : std::sqrt(ss_n / static_cast<double>(2 * rows.size()));
   // Gauss-Newton covariance in span units, then in SI: D (JᵀWJ + prior)⁻¹ D.
   const Mat info = JtWJ + prior_info;
   const Mat cov_u = info.inverse();
@@ -167,11 +249,52 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
     hi[k] = std::min(1.0, u[k] + 1e-6);
     D.col(k) = (thetaOf(hi, bounded) - thetaOf(lo, bounded)) / (hi[k] - lo[k]);
   }
-  // The rows scatter more than force_sigma_n says when the physics misses part of the force:
-  // the covariance then takes the residuals' own scale (never below the assumed one).
-  const double scale = std::max(1.0, (out.rms_n / opt.force_sigma_n) * (out.rms_n / opt.force_sigma_n));
+  // The rows scatter more than their noise scale says when the physics misses part of the
+  // force: the covariance takes the residuals' own scale (never below the assumed one).
+  const double scale = std::max(1.0, chi * chi);
   out.covariance = scale * D * cov_u * D.transpose();
   return out;
+}
+
+double rowsCost(const std::vector<FitRow>& rows, const SoilParamVector& soil, const PooledFitOptions& opt) {
+  Vec t;
+  for (int k = 0; k < kN; ++k) t[k] = soil[static_cast<std::size_t>(k)];
+  const Vec u = uOf(t, opt.interface_bounded_by_soil);
+  std::vector<double> gate(rows.size());
+  if (opt.gate_mixture) {
+    gateWeights(rows, u, opt, gate);
+  } else {
+    for (std::size_t i = 0; i < rows.size(); ++i) gate[i] = rows[i].p_descending >= 0.5 ? 1.0 : 0.0;
+  }
+  Eigen::VectorXd r;
+  residuals(rows, gate, u, opt, r);
+  double c = 0;
+  for (Eigen::Index i = 0; i < r.size(); ++i) c += softL1(r[i]);
+  return c;
+}
+
+PooledFit fitPooledMultiStart(const std::vector<FitRow>& rows, const std::vector<SoilParamVector>& starts,
+                              const PooledFitOptions& opt) {
+  std::vector<SoilParamVector> all = starts;
+  SoilParamVector corner;
+  corner.fill(std::numeric_limits<double>::quiet_NaN());  // the other properties start in the middle
+  const auto at = [](int k, double f) { return kSoilParams[k].lo + f * (kSoilParams[k].hi - kSoilParams[k].lo); };
+  corner[kParamC] = at(kParamC, 0.8);
+  corner[kParamPhi] = at(kParamPhi, 0.25);
+  all.push_back(corner);
+  corner[kParamC] = at(kParamC, 0.1);
+  corner[kParamPhi] = at(kParamPhi, 0.7);
+  all.push_back(corner);
+  PooledFit best;
+  bool have = false;
+  for (const SoilParamVector& s0 : all) {
+    PooledFit f = fitPooled(rows, s0, opt);
+    if (!have || f.cost < best.cost) {
+      best = std::move(f);
+      have = true;
+    }
+  }
+  return best;
 }
 
 }  // namespace terramap::soil

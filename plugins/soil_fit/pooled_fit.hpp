@@ -15,14 +15,25 @@
 
 #include <Eigen/Core>
 
+#include <limits>
 #include <vector>
 
 namespace terramap::soil {
 
-/// One horizon row: the mapped geometry, whether the edge was seen descending, the measured force.
+/// One horizon row: the mapped geometry, how likely the edge was descending, the measured force.
 struct FitRow {
+  /// α, ρ, the mean depth d, the cutting width w (the extent of the cut across t̂) and the
+  /// surcharge Q as blade_sweep measured them.
   fee::Geometry geometry;
-  bool descending = false;
+  /// The cut's cross-section (SweepStep::area_m2, depth2_m3): Σ d ds (m²) and Σ d² ds (m³).
+  /// NaN: the one wedge takes d and w as they are.
+  double area_m2 = std::numeric_limits<double>::quiet_NaN();
+  double depth2_m3 = std::numeric_limits<double>::quiet_NaN();
+  /// The blade's width (m); 0: the surcharge is taken over the cutting width whole.
+  double blade_width_m = 0;
+  /// Probability that the edge was descending (the penetration term acts): from the observed
+  /// vertical speed, or 0 / 1 for a gate known exactly.
+  double p_descending = 0;
   double fx_n = 0, fz_n = 0;
 };
 
@@ -31,6 +42,10 @@ struct PooledFitOptions {
   /// Standard deviation of a row's force residual along x and z (N): the noise the rows are
   /// weighed with, and the scale of the robust (Cauchy-like, soft-L1) loss.
   double force_sigma_n = 1500.0;
+  /// ... and a share of the measured force itself: a row's noise scale is
+  /// hypot(force_sigma_n, force_sigma_rel |F|) per component (so rows of a dense soil, with
+  /// forces of tens of kN, do not outweigh those of a loose one, and windows of either compare).
+  double force_sigma_rel = 0.06;
   /// Prior N(middle, (span * prior_sd_fraction)²) per property, counted once per fit: it decides
   /// only what the rows leave free (γ against c, c_a against c).
   double prior_sd_fraction = 0.5;
@@ -51,8 +66,23 @@ struct PooledFitOptions {
   /// c and φ; free, they sit at the prior's middle (c_a 15 kPa on a sand with c = 0), which the
   /// FEE index then reads as strength. Both are still clamped into kSoilParams' ranges.
   bool interface_bounded_by_soil = true;
+  /// The slices across the blade summed (the FEE is linear in Σ d ds and Σ d² ds for one α and
+  /// ρ): one wedge at depth depth2/area and width area²/depth2, and the penetration over the
+  /// cutting width at the cut's mean vertical depth (area / (w cos α)); rows without a
+  /// cross-section keep d and w.
+  bool cross_section = true;
+  /// The pile lies across the whole blade, and only the part ahead of the cutting width loads
+  /// the failing wedge (Q w / blade width); the rest is pushed along the ground, a horizontal
+  /// force pile_friction times its weight (the simulator's slices that push without cutting).
+  bool surcharge_share = true;
+  double pile_friction = 0.6494;  ///< tan 33°: loose soil sliding on the ground ahead
+  /// Whether the edge descended is not known for sure from the observed vertical speed (the
+  /// penetration term, tens of kN in a dense clay, switches with its sign): each row's gate is a
+  /// latent switch with prior p_descending, decided by the force itself (expectation-
+  /// maximisation over the switch, gate_iterations rounds). false: descending where p >= 0.5.
+  bool gate_mixture = true;
+  int gate_iterations = 4;
 };
-
 struct PooledFit {
   SoilParamVector mean{};                 ///< the fitted soil, inside kSoilParams' ranges
   /// Gauss-Newton covariance (SI units², prior included), scaled by (rms_n / force_sigma_n)² when
@@ -61,17 +91,37 @@ struct PooledFit {
   int rows = 0;                           ///< rows with a valid FEE at the solution
   int iterations = 0;
   bool converged = false;
-  double rms_n = 0;                       ///< root mean square of the force residuals at the solution, N
+  double rms_n = 0;                       ///< root mean square of the force residuals at the solution (each row's gated), N
+  double cost = 0;                        ///< the minimised robust cost, prior included (to compare starts)
 };
 
-/// The row's modelled force with soil `s` ({0, 0} and false where the FEE is invalid).
-bool modelForce(const fee::Soil& s, const FitRow& row, double edge_thickness_m, Eigen::Vector2d& f,
-                double q_gamma_ref_n_m3 = 0.0);
+/// The row's modelled force with soil `s`: FEE plus the pushed pile in `fee_n` (blade on soil,
+/// [along t̂, up], N) and the penetration resistance the edge meets if it descends, `penetration_n`
+/// (>= 0; it adds -penetration_n to the vertical force). valid is false (both zero) where the
+/// FEE is invalid.
+struct RowForce {
+  Eigen::Vector2d fee_n = Eigen::Vector2d::Zero();
+  double penetration_n = 0;
+  bool valid = false;
+};
+RowForce rowForce(const fee::Soil& s, const FitRow& row, const PooledFitOptions& opt);
+/// The force as a gate at p_descending >= 0.5 takes it ({0, 0} and false where the FEE is invalid).
+bool modelForce(const fee::Soil& s, const FitRow& row, const PooledFitOptions& opt, Eigen::Vector2d& f);
 
 /// Fits the soil to `rows` from `start` (clamped into the ranges; a NaN property starts in the
 /// middle of its range): bounded Levenberg-Marquardt
 /// on the robust residuals in span-normalised parameters, forward-difference Jacobian.
 /// An empty row set returns the prior (converged false).
 PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& start, const PooledFitOptions& opt = {});
+/// The robust cost of `rows` (no prior) under soil `soil`, each row's gate at its posterior for
+/// that soil (gate_mixture) or at p_descending >= 0.5: how well that soil explains those rows.
+double rowsCost(const std::vector<FitRow>& rows, const SoilParamVector& soil, const PooledFitOptions& opt = {});
+
+/// fitPooled from each of `starts` and from the corners of the (c, φ) trade, c high with φ low
+/// and c low with φ high (the FEE's c and φ trade along a valley with more than one minimum: a
+/// fit warm-started from a loose soil's estimate can settle on the wrong side when the blade
+/// enters a dense one); the fit of least cost.
+PooledFit fitPooledMultiStart(const std::vector<FitRow>& rows, const std::vector<SoilParamVector>& starts,
+                              const PooledFitOptions& opt = {});
 
 }  // namespace terramap::soil

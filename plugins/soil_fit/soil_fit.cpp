@@ -7,7 +7,26 @@
 
 namespace terramap::plugins {
 
-std::vector<soil::FitRow> fitRows(const soil::PinnSample& s) {
+soil::FitRow fitRow(const soil::PinnSample& s, int p, double blade_width_m, double gate_speed_sigma_mps) {
+  const float* obs = s.obs.data() + static_cast<std::size_t>(s.T - s.P + p) * soil::kObsFeatures;
+  const float* th = s.theta_k.data() + static_cast<std::size_t>(p) * soil::kThetaK;
+  const float* f = s.force.data() + static_cast<std::size_t>(p) * 2;
+  soil::FitRow r;
+  r.geometry = {th[soil::kAlpha], th[soil::kRho], th[soil::kDepth], th[soil::kWidth], th[soil::kSurcharge]};
+  if (s.profile.size() == static_cast<std::size_t>(s.P) * soil::kProfile) {
+    r.area_m2 = s.profile[static_cast<std::size_t>(p) * soil::kProfile + soil::kArea];
+    r.depth2_m3 = s.profile[static_cast<std::size_t>(p) * soil::kProfile + soil::kDepth2];
+  }
+  r.blade_width_m = blade_width_m;
+  const double vz = obs[soil::kObsFeatures - 1];  // blade_vz_map_mps
+  r.p_descending = gate_speed_sigma_mps > 0 ? 0.5 * std::erfc(vz / (gate_speed_sigma_mps * std::sqrt(2.0)))
+                                            : (vz < 0.0 ? 1.0 : 0.0);
+  r.fx_n = f[0];
+  r.fz_n = f[1];
+  return r;
+}
+
+std::vector<soil::FitRow> fitRows(const soil::PinnSample& s, double blade_width_m, double gate_speed_sigma_mps) {
   std::vector<soil::FitRow> rows;
   // The horizon is the last P observation rows of the sample's history.
   for (int p = 0; p < s.P; ++p) {
@@ -15,12 +34,7 @@ std::vector<soil::FitRow> fitRows(const soil::PinnSample& s) {
     const float* th = s.theta_k.data() + static_cast<std::size_t>(p) * soil::kThetaK;
     const float* f = s.force.data() + static_cast<std::size_t>(p) * 2;
     if (soil::stalledRow(obs) || !(th[soil::kDepth] > 0) || !std::isfinite(f[0]) || !std::isfinite(f[1])) continue;
-    soil::FitRow r;
-    r.geometry = {th[soil::kAlpha], th[soil::kRho], th[soil::kDepth], th[soil::kWidth], th[soil::kSurcharge]};
-    r.descending = obs[soil::kObsFeatures - 1] < 0.0f;  // blade_vz_map_mps
-    r.fx_n = f[0];
-    r.fz_n = f[1];
-    rows.push_back(r);
+    rows.push_back(fitRow(s, p, blade_width_m, gate_speed_sigma_mps));
   }
   return rows;
 }
@@ -30,7 +44,7 @@ long SweepWindow::add(const Eigen::Vector3d& edge, std::vector<soil::FitRow> row
   return next_++;
 }
 
-std::vector<soil::FitRow> SweepWindow::rowsFor(long seq, int* sweeps) const {
+std::vector<soil::FitRow> SweepWindow::rowsIn(long seq, int from, int to, int* sweeps) const {
   std::vector<soil::FitRow> rows;
   int n = 0;
   const Entry* self = nullptr;
@@ -38,7 +52,7 @@ std::vector<soil::FitRow> SweepWindow::rowsFor(long seq, int* sweeps) const {
     if (e.seq == seq) self = &e;
   if (self != nullptr) {
     for (const Entry& e : entries_) {
-      if (e.seq < seq - back_ || e.seq > seq + ahead_) continue;
+      if (e.seq < seq + std::max(from, -back_) || e.seq > seq + std::min(to, ahead_)) continue;
       // Only the sweeps near this one: the soil changes across a site, and a pass that turned
       // away belongs to other ground.
       if ((e.edge.head<2>() - self->edge.head<2>()).norm() > reach_m_) continue;
@@ -54,6 +68,41 @@ void SweepWindow::forgetBefore(long oldest_needed) {
   while (!entries_.empty() && entries_.front().seq < oldest_needed - back_) entries_.pop_front();
 }
 
+WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, int lookahead_sweeps, double edge_margin,
+                       int min_rows, const std::vector<soil::SoilParamVector>& starts, const soil::PooledFitOptions& opt) {
+  // The candidate windows: the centred one, and with edge_margin > 0 the ones ending and
+  // starting at this sweep.
+  std::vector<std::pair<int, int>> windows{{-(window_sweeps - 1 - lookahead_sweeps), lookahead_sweeps}};
+  if (edge_margin > 0) {
+    windows.push_back({-(window_sweeps - 1), 0});
+    windows.push_back({0, window_sweeps - 1});
+  }
+  int n_own = 0;
+  const std::vector<soil::FitRow> own = edge_margin > 0 ? window.rowsIn(seq, 0, 0, &n_own) : std::vector<soil::FitRow>{};
+  WindowChoice out;
+  double best = std::numeric_limits<double>::infinity();
+  for (std::size_t k = 0; k < windows.size(); ++k) {
+    int n = 0;
+    const std::vector<soil::FitRow> rows = window.rowsIn(seq, windows[k].first, windows[k].second, &n);
+    if (static_cast<int>(rows.size()) < min_rows) continue;
+    soil::PooledFit f = soil::fitPooledMultiStart(rows, starts, opt);
+    // How well the window's soil explains this sweep's own rows: at a soil boundary the window
+    // on the sweep's side holds its soil, the centred one a blend (every window is judged on the
+    // same rows, so the pile and machine state they share do not favour one). A side window
+    // must beat the centred one clearly (edge_margin): inside one soil they differ by noise.
+    double score = own.empty() ? f.cost / static_cast<double>(rows.size()) : soil::rowsCost(own, f.mean, opt);
+    if (k > 0) score /= edge_margin;
+    if (score < best) {
+      best = score;
+      out.fit = std::move(f);
+      out.sweeps = n;
+      out.rows = rows.size();
+      out.chosen = static_cast<int>(k);
+    }
+  }
+  return out;
+}
+
 ParamSchema SoilFit::schema() const {
   const soil::PooledFitOptions d;
   return {param::integer("horizon", 10, 1, 1000, "observation rows per sweep (the sample's P)"),
@@ -64,6 +113,8 @@ ParamSchema SoilFit::schema() const {
           param::integer("min_rows", 10, 1, 100000, "fewer rows in the window: the estimate is invalid"),
           param::real("edge_thickness_m", d.edge_thickness_m, 0.0, 0.5, "m", "the penetration term's cutting edge"),
           param::real("force_sigma_n", d.force_sigma_n, 1.0, 1e7, "N", "a row's force residual scale (x and z)"),
+          param::real("force_sigma_rel", d.force_sigma_rel, 0.0, 10.0, "1",
+                      "... plus this share of the measured force component (in quadrature)"),
           param::real("surcharge_gamma_ref_n_m3", 14636.0, 0.0, 1e5, "N/m^3",
                       "the unit weight blade_sweep weighed Q with; the pile is weighed with the fitted gamma (0: Q as mapped)"),
           param::real("prior_sd_fraction", d.prior_sd_fraction, 1e-3, 1e3, "1",
@@ -72,6 +123,27 @@ ParamSchema SoilFit::schema() const {
                       "centre of the unit weight's prior (0: the middle of its range, with prior_sd_fraction)"),
           param::real("gamma_prior_sd_n_m3", d.gamma_prior_sd_n_m3, 1.0, 1e5, "N/m^3",
                       "standard deviation of the unit weight's prior when gamma_prior_n_m3 > 0"),
+          param::boolean("edge_preserving", true,
+                         "fit each sweep with the window before it, the centred one and the one after it and keep the "
+                         "best-fitting (the estimate waits window_sweeps - 1 sweeps)"),
+          param::real("variance_inflation", 1.5, 0.0, 1e6, "1",
+                      "factor on the fit's variance before soil_bayes fuses it as independent (a cell takes 1.4-2 "
+                      "estimates of overlapping windows; 0: the sweeps in the window)"),
+          param::real("edge_margin", 0.7, 0.01, 1.0, "1",
+                      "edge_preserving: a side window replaces the centred one only if its cost per row is below this "
+                      "share of the centred one's"),
+          param::boolean("cross_section", d.cross_section,
+                         "the FEE of the slices across the blade (one wedge holding the cut's sum of d and d^2) and the "
+                         "penetration over the cutting width, not one wedge at the mean depth over the extent"),
+          param::boolean("surcharge_share", d.surcharge_share,
+                         "only the pile ahead of the cutting width loads the wedge; the rest is pushed along the ground"),
+          param::real("pile_friction", d.pile_friction, 0.0, 5.0, "1",
+                      "surcharge_share: horizontal force per newton of pile pushed without cutting (tan 33 deg)"),
+          param::boolean("gate_mixture", d.gate_mixture,
+                         "whether the edge descended is a latent switch per row, decided by the force with the observed "
+                         "vertical speed as its prior (false: the sign of the observed speed)"),
+          param::real("gate_speed_sigma_mps", 0.05, 0.0, 10.0, "m/s",
+                      "the observed edge vertical speed's uncertainty for the gate's prior (0: its sign)"),
           param::boolean("interface_bounded_by_soil", d.interface_bounded_by_soil,
                          "fit c_a = a c and delta = b phi with a, b in [0, 1] (adhesion <= cohesion, soil-metal "
                          "friction <= internal friction) instead of c_a and delta free in their ranges")};
@@ -88,11 +160,20 @@ void SoilFit::configure(const Params& p) {
   min_rows_ = static_cast<int>(p.getInt("min_rows"));
   opt_.edge_thickness_m = p.getDouble("edge_thickness_m");
   opt_.force_sigma_n = p.getDouble("force_sigma_n");
+  opt_.force_sigma_rel = p.getDouble("force_sigma_rel");
   opt_.prior_sd_fraction = p.getDouble("prior_sd_fraction");
   opt_.q_gamma_ref_n_m3 = p.getDouble("surcharge_gamma_ref_n_m3");
   opt_.interface_bounded_by_soil = p.getBool("interface_bounded_by_soil");
   opt_.gamma_prior_n_m3 = p.getDouble("gamma_prior_n_m3");
   opt_.gamma_prior_sd_n_m3 = p.getDouble("gamma_prior_sd_n_m3");
+  opt_.cross_section = p.getBool("cross_section");
+  opt_.surcharge_share = p.getBool("surcharge_share");
+  opt_.pile_friction = p.getDouble("pile_friction");
+  opt_.gate_mixture = p.getBool("gate_mixture");
+  gate_speed_sigma_mps_ = p.getDouble("gate_speed_sigma_mps");
+  edge_preserving_ = p.getBool("edge_preserving");
+  edge_margin_ = p.getDouble("edge_margin");
+  variance_inflation_ = p.getDouble("variance_inflation");
 }
 
 void SoilFit::start(ProcessContext& ctx) { pending_.start(ctx); }
@@ -108,7 +189,10 @@ void SoilFit::ingestSweep(ProcessContext& ctx, const SweepRecord& sweep) {
   }
   auto found = machines_.find(sweep.machine_id);
   if (found == machines_.end())
-    found = machines_.emplace(sweep.machine_id, MachineState(SweepWindow(window_sweeps_, lookahead_sweeps_, window_m_))).first;
+    found = machines_.emplace(sweep.machine_id,
+                              MachineState(edge_preserving_ ? SweepWindow::keeping(window_sweeps_ - 1, window_sweeps_ - 1, window_m_)
+                                                            : SweepWindow(window_sweeps_, lookahead_sweeps_, window_m_)))
+                .first;
   MachineState& m = found->second;
   Waiting w;
   w.record = soilEstimateRecordFor(sweep);
@@ -118,16 +202,14 @@ void SoilFit::ingestSweep(ProcessContext& ctx, const SweepRecord& sweep) {
   w.record.members = 1;
   w.record.d_res_m = 0.0;
   w.record.beta_res_rad = 0.0;
+  std::vector<soil::FitRow> rows = fitRows(sample, sweep.geometry.width_m, gate_speed_sigma_mps_);
   if (!sample.theta_k.empty()) {
-    const float* th = sample.theta_k.data() + static_cast<std::size_t>(sample.P - 1) * soil::kThetaK;
-    w.last_row.geometry = {th[soil::kAlpha], th[soil::kRho], th[soil::kDepth], th[soil::kWidth], th[soil::kSurcharge]};
-    w.last_row.descending = sample.obs[static_cast<std::size_t>(sample.T) * soil::kObsFeatures - 1] < 0.0f;
-    const std::size_t lf = static_cast<std::size_t>(sample.P - 1) * 2;
-    w.last_row.fx_n = sample.force[lf];
-    w.last_row.fz_n = sample.force[lf + 1];
+    // The sweep's last row as it is, for β* and the predicted force (a stalled or uncut last
+    // row is no fit row but still the geometry the estimate is published for).
+    w.last_row = fitRow(sample, sample.P - 1, sweep.geometry.width_m, gate_speed_sigma_mps_);
     w.has_last_row = true;
   }
-  w.seq = m.window.add(sweep.T_map_blade1.translation(), fitRows(sample));
+  w.seq = m.window.add(sweep.T_map_blade1.translation(), std::move(rows));
   m.waiting.push_back(std::move(w));
   publishReady(ctx, m, false);
 }
@@ -141,41 +223,46 @@ void SoilFit::publishReady(ProcessContext& ctx, MachineState& m, bool flush) {
 }
 
 void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
-  int sweeps = 0;
-  const std::vector<soil::FitRow> rows = m.window.rowsFor(w.seq, &sweeps);
+  // The machine's previous fit, or the middle of the ranges (fitPooled's start for NaN).
+  soil::SoilParamVector start;
+  start.fill(std::numeric_limits<double>::quiet_NaN());
+  std::vector<soil::SoilParamVector> starts{start};
+  if (m.has_last) starts.push_back(m.last);
+  const WindowChoice fit = fitWindow(m.window, w.seq, window_sweeps_, lookahead_sweeps_, edge_preserving_ ? edge_margin_ : 0.0,
+                                     min_rows_, starts, opt_);
+  const int sweeps = fit.sweeps;
+  const std::size_t n_rows = fit.rows;
+  if (edge_preserving_ && n_rows > 0)
+    ctx.addCounter(fit.chosen == 0 ? "window_centred" : fit.chosen == 1 ? "window_before" : "window_after", 1);
   SoilEstimateRecord& r = w.record;
-  if (static_cast<int>(rows.size()) < min_rows_) {
+  if (n_rows == 0) {
     r.invalid_reason = "too_few_rows";
   } else {
-    // The machine's previous fit, or the middle of the ranges (fitPooled's start for NaN).
-    soil::SoilParamVector start;
-    start.fill(std::numeric_limits<double>::quiet_NaN());
-    const soil::PooledFit fit = soil::fitPooled(rows, m.has_last ? m.last : start, opt_);
-    ctx.addCounter("fit_iterations", fit.iterations);
-    ctx.addCounter("fit_rows", fit.rows);
-    m.last = fit.mean;
+    ctx.addCounter("fit_iterations", fit.fit.iterations);
+    ctx.addCounter("fit_rows", fit.fit.rows);
+    m.last = fit.fit.mean;
     m.has_last = true;
     bool finite = true;
     for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
-      r.mean[k] = fit.mean[static_cast<std::size_t>(k)];
-      const double var = fit.covariance(k, k) * sweeps;
+      r.mean[k] = fit.fit.mean[static_cast<std::size_t>(k)];
+      const double var = fit.fit.covariance(k, k) * (variance_inflation_ > 0 ? variance_inflation_ : sweeps);
       r.var_total[k] = r.var_aleatoric[k] = r.var_nullspace[k] = var;
       r.var_epistemic[k] = 0.0;
       finite = finite && std::isfinite(r.mean[k]) && std::isfinite(var);
     }
-    const fee::Soil s = soil::toFee(fit.mean);
+    const fee::Soil s = soil::toFee(fit.fit.mean);
     if (w.has_last_row) {
       const fee::Geometry& g = w.last_row.geometry;
       r.beta_rad = fee::betaMin(s, g);
       Eigen::Vector2d f;
       soil::FitRow last = w.last_row;
-      if (soil::modelForce(s, last, opt_.edge_thickness_m, f, opt_.q_gamma_ref_n_m3)) r.F_pred = {f.x(), f.y()};
+      if (soil::modelForce(s, last, opt_, f)) r.F_pred = {f.x(), f.y()};
       r.F_measured = {w.last_row.fx_n, w.last_row.fz_n};
     }
     r.F_r = {0.0, 0.0};
-    r.valid_members = finite && fit.rows > 0 ? 1 : 0;
+    r.valid_members = finite && fit.fit.rows > 0 ? 1 : 0;
     if (!finite) r.invalid_reason = "non_finite_output";
-    else if (fit.rows == 0) r.invalid_reason = "fee_invalid_majority";
+    else if (fit.fit.rows == 0) r.invalid_reason = "fee_invalid_majority";
   }
   r.valid = r.invalid_reason.empty();
   soil::publishEstimate(ctx, std::make_shared<const SoilEstimateRecord>(r));

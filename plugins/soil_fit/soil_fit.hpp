@@ -45,8 +45,13 @@
 
 namespace terramap::plugins {
 
-/// The fit rows of one sample (stalled rows and rows without a cut left out).
-std::vector<soil::FitRow> fitRows(const soil::PinnSample& sample);
+/// The fit rows of one sample (stalled rows and rows without a cut left out): the mapped
+/// geometry and cross-section, the blade's width, and the probability that the edge descended,
+/// Φ(−v / gate_speed_sigma_mps) of the observed vertical speed v (a 0/1 step at sigma 0).
+std::vector<soil::FitRow> fitRows(const soil::PinnSample& sample, double blade_width_m = 0.0,
+                                  double gate_speed_sigma_mps = 0.0);
+/// Horizon row p of the sample as a fit row, whatever its state (fitRows' rows are these).
+soil::FitRow fitRow(const soil::PinnSample& sample, int p, double blade_width_m, double gate_speed_sigma_mps);
 
 /// Which sweeps' rows each sweep's fit takes: the `window_sweeps - 1 - lookahead_sweeps` sweeps
 /// before it, itself, and the `lookahead_sweeps` after it, of those whose blade ended within
@@ -56,12 +61,21 @@ class SweepWindow {
  public:
   SweepWindow(int window_sweeps, int lookahead_sweeps, double window_m)
       : back_(window_sweeps - 1 - lookahead_sweeps), ahead_(lookahead_sweeps), reach_m_(window_m) {}
+  /// Keeps `back` sweeps before each one and waits for `ahead` after it (rowsIn may take any
+  /// range inside them).
+  static SweepWindow keeping(int back, int ahead, double window_m) {
+    SweepWindow w(back + ahead + 1, ahead, window_m);
+    return w;
+  }
   /// Appends a sweep's rows; returns its sequence number (0, 1, ...).
   long add(const Eigen::Vector3d& edge, std::vector<soil::FitRow> rows);
   /// True once every sweep sweep `seq`'s fit takes has been added.
   bool complete(long seq) const { return seq + ahead_ < next_; }
   /// The rows of sweep `seq`'s fit; `sweeps` receives how many sweeps they came from.
-  std::vector<soil::FitRow> rowsFor(long seq, int* sweeps) const;
+  std::vector<soil::FitRow> rowsFor(long seq, int* sweeps) const { return rowsIn(seq, -back_, ahead_, sweeps); }
+  /// The rows of sweeps seq + from .. seq + to (within the kept range) whose blade ended within
+  /// the reach of sweep seq's.
+  std::vector<soil::FitRow> rowsIn(long seq, int from, int to, int* sweeps) const;
   /// Forgets the sweeps no fit from sweep `oldest_needed` on can take.
   void forgetBefore(long oldest_needed);
   long next() const { return next_; }
@@ -77,6 +91,24 @@ class SweepWindow {
   int back_, ahead_;
   double reach_m_;
 };
+
+/// A sweep's fit, from the window of its sweeps that fits it best.
+struct WindowChoice {
+  soil::PooledFit fit;
+  int sweeps = 0;        ///< sweeps in the window
+  std::size_t rows = 0;  ///< rows fitted (0: no window had min_rows)
+  int chosen = -1;       ///< 0 centred, 1 the sweeps before and it, 2 it and the sweeps after
+};
+
+/// Sweep `seq`'s fit (soil::fitPooledMultiStart from `starts`) with the window of
+/// `window_sweeps` sweeps around it that holds `lookahead_sweeps` after it, and with
+/// `edge_margin` > 0 also the windows that end and that start at it: the one whose soil explains
+/// the sweep's own rows best is kept, a side one only if its cost on them is below edge_margin
+/// times the centred one's (a Kuwahara filter: at a soil boundary the window on the sweep's side
+/// holds one soil, the centred one a blend). `window` must keep window_sweeps - 1 sweeps each
+/// side (SweepWindow::keeping) for the side windows. Pure; no threads.
+WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, int lookahead_sweeps, double edge_margin,
+                       int min_rows, const std::vector<soil::SoilParamVector>& starts, const soil::PooledFitOptions& opt);
 
 class SoilFit : public Plugin {
  public:
@@ -109,7 +141,13 @@ class SoilFit : public Plugin {
   void publish(ProcessContext& ctx, MachineState& m, Waiting& w);
 
   int horizon_ = 10, window_sweeps_ = 10, lookahead_sweeps_ = 5, min_rows_ = 10;
-  double window_m_ = 2.0;
+  double window_m_ = 2.0, gate_speed_sigma_mps_ = 0.05;
+  /// Fit each sweep with the window before it, the centred one and the one after it, and keep
+  /// the one whose rows the soil explains best (a Kuwahara filter): at a soil boundary the window
+  /// on the sweep's own side holds one soil, the centred one two.
+  bool edge_preserving_ = true;
+  double edge_margin_ = 0.7;
+  double variance_inflation_ = 1.5;
   soil::PooledFitOptions opt_;
   std::map<std::string, MachineState> machines_;
   soil::PendingSweeps pending_;

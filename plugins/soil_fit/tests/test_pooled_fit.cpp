@@ -17,7 +17,10 @@ using namespace terramap::soil;
 
 namespace {
 
-std::vector<FitRow> rowsOf(const fee::Soil& s, int n, bool varied, unsigned seed, double noise_n) {
+// Rows of soil s with the estimator's own model (so the fit's truth is s); varied: random
+// depths, rakes, surcharges and edge motion, the blade cutting its full width.
+std::vector<FitRow> rowsOf(const fee::Soil& s, int n, bool varied, unsigned seed, double noise_n,
+                           const PooledFitOptions& opt = {}) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(0.0, 1.0);
   std::normal_distribution<double> N(0.0, 1.0);
@@ -26,9 +29,9 @@ std::vector<FitRow> rowsOf(const fee::Soil& s, int n, bool varied, unsigned seed
     FitRow r;
     r.geometry = varied ? fee::Geometry{0.05 * (u(rng) - 0.5), 1.25 + 0.2 * u(rng), 0.03 + 0.2 * u(rng), 1.85, 6000 * u(rng)}
                         : fee::Geometry{0.0, 1.4, 0.1, 1.85, 2000};
-    r.descending = varied ? u(rng) < 0.4 : false;
+    r.p_descending = varied && u(rng) < 0.4 ? 1.0 : 0.0;
     Eigen::Vector2d f;
-    EXPECT_TRUE(modelForce(s, r, 0.025, f));
+    EXPECT_TRUE(modelForce(s, r, opt, f));
     r.fx_n = f.x() + noise_n * N(rng);
     r.fz_n = f.y() + noise_n * N(rng);
     rows.push_back(r);
@@ -46,17 +49,90 @@ SoilParamVector middle() {
 
 TEST(PooledFit, TheModelIsFTotalPlusPenetrationOnDescendingRows) {
   const fee::Soil s = soilProperties(SoilFamily::Loam, 0.5).fee;
-  FitRow r{{0.0, 1.4, 0.1, 1.85, 2000}, false, 0, 0};
+  FitRow r;
+  r.geometry = {0.0, 1.4, 0.1, 1.85, 2000};
   Eigen::Vector2d up, down;
-  ASSERT_TRUE(modelForce(s, r, 0.025, up));
+  const PooledFitOptions opt;
+  ASSERT_TRUE(modelForce(s, r, opt, up));
   EXPECT_TRUE(up.isApprox(fee::evaluateAtBetaMin(s, r.geometry).F_total_N));
-  r.descending = true;
-  ASSERT_TRUE(modelForce(s, r, 0.025, down));
+  r.p_descending = 1.0;
+  ASSERT_TRUE(modelForce(s, r, opt, down));
   EXPECT_DOUBLE_EQ(down.x(), up.x());
   EXPECT_NEAR(up.y() - down.y(), fee::penetrationForce(s, 0.1, 1.85, 0.025), 1e-9);
   r.geometry.d_m = -0.1;  // above the surface: no wedge
-  EXPECT_FALSE(modelForce(s, r, 0.025, down));
+  EXPECT_FALSE(modelForce(s, r, opt, down));
   EXPECT_EQ(down, Eigen::Vector2d::Zero());
+}
+
+// A rolled edge cuts 4 cm at one half of the blade and 12 cm at the other: the slices' FEE is
+// the two halves' sum, which one wedge at the cross-section's (depth2/area, area²/depth2)
+// reproduces and one at the mean depth over the cutting width does not (its γ term takes
+// 8² for (4² + 12²)/2 cm²); the edge meets the penetration over the cutting width at the mean
+// depth.
+TEST(PooledFit, TheCrossSectionHoldsTheSlicesSum) {
+  const fee::Soil s = soilProperties(SoilFamily::Gravel, 0.6).fee;
+  const double half = 0.925, d1 = 0.04, d2 = 0.12;
+  const fee::Geometry g1{0.0, 1.4, d1, half, 0.0}, g2{0.0, 1.4, d2, half, 0.0};
+  const Eigen::Vector2d slices = fee::evaluateAtBetaMin(s, g1).F_total_N + fee::evaluateAtBetaMin(s, g2).F_total_N;
+  FitRow r;
+  r.geometry = {0.0, 1.4, 0.5 * (d1 + d2), 2 * half, 0.0};
+  r.area_m2 = half * (d1 + d2);
+  r.depth2_m3 = half * (d1 * d1 + d2 * d2);
+  PooledFitOptions with, without;
+  without.cross_section = false;
+  const RowForce a = rowForce(s, r, with), b = rowForce(s, r, without);
+  ASSERT_TRUE(a.valid && b.valid);
+  EXPECT_NEAR(a.fee_n.x(), slices.x(), 1e-6 * slices.norm());
+  EXPECT_NEAR(a.fee_n.y(), slices.y(), 1e-6 * slices.norm());
+  EXPECT_GT(std::abs(b.fee_n.x() - slices.x()), 0.1 * std::abs(slices.x()));
+  EXPECT_NEAR(a.penetration_n, fee::penetrationForce(s, 0.5 * (d1 + d2), 2 * half, 0.025), 1e-6 * a.penetration_n);
+}
+
+// The blade cuts over a third of its width: the pile across the whole blade loads the wedge
+// over that third only, and the rest is pushed along the ground (pile_friction times its
+// weight, horizontal).
+TEST(PooledFit, OnlyThePileAheadOfTheCutLoadsTheWedge) {
+  const fee::Soil s = soilProperties(SoilFamily::Sand, 0.4).fee;
+  FitRow r;
+  r.geometry = {0.0, 1.4, 0.08, 0.6, 9000.0};
+  r.blade_width_m = 1.8;
+  PooledFitOptions opt, whole;
+  whole.surcharge_share = false;
+  fee::Geometry third = r.geometry;
+  third.q_n = 3000.0;
+  const Eigen::Vector2d expect = fee::evaluateAtBetaMin(s, third).F_total_N + Eigen::Vector2d(opt.pile_friction * 6000.0, 0.0);
+  const RowForce a = rowForce(s, r, opt), b = rowForce(s, r, whole);
+  EXPECT_NEAR(a.fee_n.x(), expect.x(), 1e-6 * expect.norm());
+  EXPECT_NEAR(a.fee_n.y(), expect.y(), 1e-6 * expect.norm());
+  EXPECT_TRUE(b.fee_n.isApprox(fee::evaluateAtBetaMin(s, r.geometry).F_total_N));
+}
+
+// A dense clay's edge meets tens of kN while it descends; the observed vertical speed gets the
+// sign wrong on a share of the rows (near zero speed). Taking the speed's sign as the gate, the
+// fit must explain 30 kN rows without penetration and rows with it that have none, and its c
+// and φ trade off; with the gate a latent switch the force decides it, and the fit recovers
+// the soil.
+TEST(PooledFit, TheForceDecidesTheGateWhereTheSpeedIsUnsure) {
+  const fee::Soil s = soilProperties(SoilFamily::Clay, 0.8).fee;
+  std::vector<FitRow> rows = rowsOf(s, 150, true, 11, 400.0);
+  std::mt19937 rng(12);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  int flipped = 0;
+  for (FitRow& r : rows) {
+    // The speed's prior: 0.8 / 0.2 where it is sure, and 0.4 / 0.6 (the wrong side) on a fifth.
+    const bool down = r.p_descending > 0.5;
+    const bool wrong = u(rng) < 0.2;
+    flipped += wrong;
+    r.p_descending = wrong ? (down ? 0.4 : 0.6) : (down ? 0.8 : 0.2);
+  }
+  ASSERT_GT(flipped, 20);
+  PooledFitOptions mixture, sign;
+  sign.gate_mixture = false;
+  const PooledFit a = fitPooled(rows, middle(), mixture), b = fitPooled(rows, middle(), sign);
+  EXPECT_NEAR(a.mean[kParamC], s.c_pa, 3000.0);
+  EXPECT_NEAR(a.mean[kParamPhi], s.phi_rad, 2.0 * kDegree);
+  EXPECT_GT(std::abs(b.mean[kParamC] - s.c_pa) + 3000.0 * std::abs(b.mean[kParamPhi] - s.phi_rad) / kDegree,
+            3.0 * (std::abs(a.mean[kParamC] - s.c_pa) + 3000.0 * std::abs(a.mean[kParamPhi] - s.phi_rad) / kDegree));
 }
 
 TEST(PooledFit, ManyGeometriesOfOneSoilTellCohesionFromFriction) {
@@ -108,20 +184,27 @@ TEST(SoilFitPlugin, RowsLeaveStalledAndUncutRowsOutAndReadTheDescent) {
   s.obs.assign(static_cast<std::size_t>(s.T) * kObsFeatures, 0.0f);
   for (int p = 0; p < 3; ++p) {
     s.theta_k.insert(s.theta_k.end(), {1.4f, 0.0f, 1.85f, p == 1 ? -0.02f : 0.1f, 2000.0f, 0.5f});
+    s.profile.insert(s.profile.end(), {0.185f, 0.0185f});
     s.force.insert(s.force.end(), {5000.0f + p, -1000.0f});
   }
+  float* row0 = s.obs.data();
+  row0[kObsFeatures - 1] = 0.2f;    // rising fast: surely not descending
   float* row2 = s.obs.data() + 2 * kObsFeatures;
-  row2[kObsFeatures - 1] = -0.05f;  // descending
-  std::vector<FitRow> rows = plugins::fitRows(s);
+  row2[kObsFeatures - 1] = -0.05f;  // descending at one sigma of the speed's uncertainty
+  std::vector<FitRow> rows = plugins::fitRows(s, 1.85, 0.05);
   ASSERT_EQ(rows.size(), 2u);  // row 1 cuts nothing
-  EXPECT_FALSE(rows[0].descending);
-  EXPECT_TRUE(rows[1].descending);
+  EXPECT_LT(rows[0].p_descending, 1e-4);
+  EXPECT_NEAR(rows[1].p_descending, 0.8413, 1e-3);  // Φ(1)
   EXPECT_EQ(rows[1].fx_n, 5002.0);
+  EXPECT_FLOAT_EQ(static_cast<float>(rows[1].area_m2), 0.185f);
+  EXPECT_EQ(rows[1].blade_width_m, 1.85);
+  // Without a speed uncertainty the gate is the speed's sign.
+  EXPECT_EQ(plugins::fitRows(s, 1.85, 0.0)[1].p_descending, 1.0);
   // Row 0 stalled: tracks turning (feature 26, 27) while the base (feature 0) stands.
   s.obs[26] = s.obs[27] = 1.0f;
-  rows = plugins::fitRows(s);
+  rows = plugins::fitRows(s, 1.85, 0.05);
   ASSERT_EQ(rows.size(), 1u);
-  EXPECT_TRUE(rows[0].descending);
+  EXPECT_GT(rows[0].p_descending, 0.5);
 }
 
 // A cohesionless soil's rows hardly tell adhesion apart: free in its range, c_a stays near the
@@ -194,7 +277,10 @@ TEST(SoilFitWindow, ACentredWindowPutsTheStripEdgeWhereItIs) {
 // keeps what a waiting sweep still needs.
 TEST(SoilFitWindow, TheReachLeavesOtherLanesOutAndForgettingKeepsWhatIsNeeded) {
   plugins::SweepWindow window(4, 1, 2.0);
-  const std::vector<FitRow> one(3, FitRow{{0.0, 1.4, 0.1, 1.85, 0.0}, false, 1.0, 0.0});
+  FitRow row;
+  row.geometry = {0.0, 1.4, 0.1, 1.85, 0.0};
+  row.fx_n = 1.0;
+  const std::vector<FitRow> one(3, row);
   window.add({0.0, 0.0, 0.0}, one);
   window.add({0.2, 0.0, 0.0}, one);
   window.add({0.4, 1.6, 0.0}, one);  // the next lane, 1.6 m over: within 2 m of sweep 1
@@ -230,4 +316,31 @@ TEST(PooledFit, AKnownUnitWeightHoldsGammaWhereTheRowsCannotTellIt) {
   EXPECT_NEAR(k.mean[kParamGamma], sp.fee.gamma_n_m3, 500.0);
   EXPECT_GT(k.mean[kParamPhi], sp.fee.phi_rad);  // the missing weight, now in φ
   EXPECT_LT(std::sqrt(k.covariance(kParamGamma, kParamGamma)), 300.0);
+}
+
+// The same pass across a strip edge at 3 m: the centred window blends the two soils over the
+// sweeps near the edge (its estimate there is neither), while fitting each sweep with the window
+// before it, the centred one and the one after it, and keeping the one whose soil explains the
+// sweep's own rows best, puts every sweep near the edge on its own side.
+TEST(SoilFitWindow, TheWindowThatExplainsTheSweepKeepsTheEdgeSharp) {
+  const fee::Soil loose = soilProperties(SoilFamily::Clay, 0.1).fee, dense = soilProperties(SoilFamily::Clay, 0.8).fee;
+  constexpr int kSweeps = 30;
+  plugins::SweepWindow window = plugins::SweepWindow::keeping(9, 9, 2.0);
+  for (int k = 0; k < kSweeps; ++k) {
+    const double x = 0.2 * k;
+    window.add({x, 0.0, 0.0}, rowsOf(x < 3.0 - 1e-9 ? loose : dense, 10, true, 200 + k, 300.0));
+  }
+  // How far, in kPa, each sweep's c sits from its own soil's, over the four sweeps at the edge.
+  auto edgeError = [&](double margin) {
+    double worst = 0.0;
+    for (int k = 13; k <= 16; ++k) {
+      const plugins::WindowChoice w = plugins::fitWindow(window, k, 10, 5, margin, 10, {middle()}, PooledFitOptions{});
+      const double truth = 0.2 * k < 3.0 - 1e-9 ? loose.c_pa : dense.c_pa;
+      worst = std::max(worst, std::abs(w.fit.mean[kParamC] - truth));
+    }
+    return worst;
+  };
+  const double sharp = edgeError(0.7), centred = edgeError(0.0);
+  EXPECT_LT(sharp, 6000.0);
+  EXPECT_GT(centred, 2.0 * sharp);
 }
