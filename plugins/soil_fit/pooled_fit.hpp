@@ -5,9 +5,10 @@
 /// space), but rows of different depth, surcharge and edge motion in one soil can. Pure
 /// functions, no state: safe from any thread at once. Nothing here throws.
 ///
-/// The physics is the estimator's layer made as complete as the decomposition of `eval-soil`
-/// found worth: F_total of the FEE at β* (fee::evaluateAtBetaMin) plus, on rows whose edge the
-/// observations show descending, the edge's penetration resistance (fee::penetrationForce).
+/// The physics (rowForce) sums the FEE over the slices across the blade through the cut's
+/// cross-section, loads the wedge with the pile over the cutting width and pushes the rest, and
+/// adds the edge's penetration resistance where the edge descends, a latent switch per row
+/// decided by the force (docs/soil_estimator.md, "Where the error lived in the soil map").
 /// Forces are the blade's on the soil in the sample frame [along t̂, up], newtons; soil vectors
 /// in soil::SoilParam order [c (Pa), φ (rad), c_a (Pa), δ (rad), γ (N/m³)].
 #include <terramap/soil/fee.hpp>

@@ -3,6 +3,7 @@
 #include <terramap/soil/publish_estimate.hpp>
 
 #include <cmath>
+#include <cstdlib>
 #include <limits>
 
 namespace terramap::plugins {
@@ -129,6 +130,8 @@ ParamSchema SoilFit::schema() const {
           param::real("variance_inflation", 1.5, 0.0, 1e6, "1",
                       "factor on the fit's variance before soil_bayes fuses it as independent (a cell takes 1.4-2 "
                       "estimates of overlapping windows; 0: the sweeps in the window)"),
+          param::boolean("phi_bound_invalid", true,
+                         "an estimate whose phi sits within 1 % of an end of its range is not fused (phi_at_bound)"),
           param::real("edge_margin", 0.7, 0.01, 1.0, "1",
                       "edge_preserving: a side window replaces the centred one only if its cost per row is below this "
                       "share of the centred one's"),
@@ -173,6 +176,7 @@ void SoilFit::configure(const Params& p) {
   gate_speed_sigma_mps_ = p.getDouble("gate_speed_sigma_mps");
   edge_preserving_ = p.getBool("edge_preserving");
   edge_margin_ = p.getDouble("edge_margin");
+  phi_bound_invalid_ = p.getBool("phi_bound_invalid");
   variance_inflation_ = p.getDouble("variance_inflation");
 }
 
@@ -243,6 +247,13 @@ void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
     m.last = fit.fit.mean;
     m.has_last = true;
     bool finite = true;
+    // φ at an end of its range: the fit ran along the c-φ valley into the box's wall (a window
+    // the soil does not explain, most often across a soil boundary), and its curvature there
+    // says nothing of how far the other side of the valley lies: not a measurement.
+    const double phi = fit.fit.mean[soil::kParamPhi];
+    const auto& range = soil::kSoilParams[soil::kParamPhi];
+    const bool bounded_phi = phi < range.lo + 0.01 * (range.hi - range.lo) || phi > range.hi - 0.01 * (range.hi - range.lo);
+    if (bounded_phi) ctx.addCounter("estimates_at_phi_bound", 1);
     for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
       r.mean[k] = fit.fit.mean[static_cast<std::size_t>(k)];
       const double var = fit.fit.covariance(k, k) * (variance_inflation_ > 0 ? variance_inflation_ : sweeps);
@@ -262,6 +273,7 @@ void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
     r.F_r = {0.0, 0.0};
     r.valid_members = finite && fit.fit.rows > 0 ? 1 : 0;
     if (!finite) r.invalid_reason = "non_finite_output";
+    else if (bounded_phi && phi_bound_invalid_) r.invalid_reason = "phi_at_bound";
     else if (fit.fit.rows == 0) r.invalid_reason = "fee_invalid_majority";
   }
   r.valid = r.invalid_reason.empty();

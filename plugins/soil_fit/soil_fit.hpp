@@ -15,7 +15,9 @@
 /// observation's blade_vz_map_mps < 0). Rows where the machine stood stalled are left out (its
 /// force is what the tracks mobilised, not the soil's failure). The rows of the machine's last
 /// `window_sweeps` sweeps whose blade ended within `window_m` of this one's are fitted jointly
-/// (soil::fitPooled, warm-started from the machine's previous fit) and published as this
+/// (soil::fitPooledMultiStart, from the machine's previous fit and three fixed starts; with
+/// `edge_preserving` the best of the windows before, centred on and after the sweep: fitWindow)
+/// and published as this
 /// sweep's SoilEstimateRecord, so soil_bayes, fee_index and octomap_strata read it as they read
 /// soil_pinn's. With `lookahead_sweeps` k > 0 the window is centred: sweep s is fitted with the
 /// rows of the sweeps before it and of the k after it, and published when sweep s + k has been
@@ -23,9 +25,9 @@
 /// around s rather than the ground the blade left behind (a causal window lags the soil by half its
 /// length: on a 2 m strip crossed at 0.2 m a sweep, 10 sweeps lag it by about 1 m). The cost is
 /// latency: the layer ahead of the blade receives its estimate k sweeps later.
-/// Variances: the (residual-scaled) Gauss-Newton covariance's diagonal times the number of sweeps in
-/// the window (each sweep's rows enter that many consecutive fits, and soil_bayes fuses every
-/// one of them), as var_total, var_aleatoric and var_nullspace; no epistemic part.
+/// Variances: the (residual-scaled) Gauss-Newton covariance's diagonal times `variance_inflation`
+/// (a cell takes 1.4-2 estimates of overlapping windows, which soil_bayes fuses as independent),
+/// as var_total, var_aleatoric and var_nullspace; no epistemic part.
 ///
 /// Order: `blade_sweep` must be an earlier stage. Threading: all work on the calling (engine)
 /// thread; results do not depend on the engine's thread count. Writes no layers.
@@ -148,6 +150,7 @@ class SoilFit : public Plugin {
   bool edge_preserving_ = true;
   double edge_margin_ = 0.7;
   double variance_inflation_ = 1.5;
+  bool phi_bound_invalid_ = true;
   soil::PooledFitOptions opt_;
   std::map<std::string, MachineState> machines_;
   soil::PendingSweeps pending_;
