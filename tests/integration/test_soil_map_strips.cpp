@@ -6,9 +6,9 @@
 // "Where the error lived in the soil map", one build, 2026-12-01; before: the map of 2026-11-29):
 //
 //   scenario            phi bias   c bias     strip index / truth    AUC    (before: phi, c, index, AUC)
-//   fig12_dense_strip   -0.3 deg   -2.1 kPa   68.6 / 88.2 kN        0.831  (-4.0, +2.9, 64.6, 0.965)
+//   fig12_dense_strip   -0.1 deg   -2.0 kPa   72.0 / 88.2 kN        0.872  (-4.0, +2.9, 64.6, 0.965)
 //   soil_strip_loam     -1.2 deg   +0.8 kPa   55.0 / 53.5 kN        0.993  (-2.0, +2.7, 38.2, 0.801)
-//   soil_strip_sand     -2.0 deg   +0.5 kPa    7.7 /  8.5 kN        0.912  (+6.3,  0.0,  9.4, 0.807)
+//   soil_strip_sand     -1.8 deg   +0.4 kPa    7.7 /  8.5 kN        0.922  (+6.3,  0.0,  9.4, 0.807)
 //   soil_strip_gravel   -2.1 deg   +0.3 kPa    7.6 /  8.4 kN        0.913  ( 0.0, +0.7, 13.4, 0.883)
 //
 // What got them there: the vertical datum (lidar_fusion survey_datum), the bank reference and
