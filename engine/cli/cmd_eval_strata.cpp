@@ -653,9 +653,12 @@ nlohmann::json estimatorSeparation(const StrataArgs& a, const sim::Scenario& sc,
     const double t0 = value(soils[0], q), t1 = value(soils[1], q);
     out["properties"][name] = {{"unit", unit}, {"truth", {t0, t1}}, {"mean", {mean[0], mean[1]}}, {"sd", {sd[0], sd[1]}},
                                {"d_prime", d}};
+    // A person reads angles in degrees; the JSON keeps the layers' radians.
+    const bool angle = std::string(unit) == "rad";
+    const double k = angle ? 180.0 / M_PI : 1.0;
     if (!a.quiet)
-      std::printf("  %-6s %9.4g / %9.4g +- %-9.3g %9.4g / %9.4g +- %-9.3g %6.2f  [%s]\n", index ? "index" : name, t0, mean[0], sd[0],
-                  t1, mean[1], sd[1], d, unit);
+      std::printf("  %-6s %9.4g / %9.4g +- %-9.3g %9.4g / %9.4g +- %-9.3g %6.2f  [%s]\n", index ? "index" : name, k * t0,
+                  k * mean[0], k * sd[0], k * t1, k * mean[1], k * sd[1], d, angle ? "deg" : unit);
   }
   return out;
 }

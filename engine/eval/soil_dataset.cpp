@@ -678,6 +678,8 @@ SoilDataset readSoilDataset(const std::string& dir) {
     optional("truth_geometry_rows", d.truth_geometry_rows, {n, Pu, 5}, "[N, P, 5] with the N and P of 'force'");
     optional("force_parts", d.force_parts, {n, Pu, 3, 2}, "[N, P, 3, 2] with the N and P of 'force'");
     optional("edge_vz", d.edge_vz_rows, {n, Pu}, "[N, P] with the N and P of 'force'");
+    optional("profile", d.profile, {n, Pu, static_cast<std::uint64_t>(soil::kProfile)}, "[N, P, 2] with the N and P of 'force'");
+    optional("truth_profile_rows", d.truth_profile_rows, {n, Pu, 8}, "[N, P, 8] with the N and P of 'force'");
     for (std::size_t i = 0; i < n; ++i) {
       d.episode.push_back(static_cast<int>(plan[0]));
       d.split.push_back(static_cast<std::uint8_t>(plan[1]));

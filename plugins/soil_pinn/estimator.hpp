@@ -40,6 +40,9 @@ class SoilEstimator {
 
   int T() const { return members_.front()->config().T; }
   int P() const { return members_.front()->config().P; }
+  /// Whether theta_k must carry the cut's cross-section as one wedge (PinnConfig::
+  /// sliced_geometry): the caller applies soil::applySlicedGeometry before estimate().
+  bool slicedGeometry() const { return members_.front()->config().sliced_geometry; }
   std::size_t size() const { return members_.size(); }
   const std::vector<PinnNet>& members() const { return members_; }
   /// JSON with what made the model (training config, dataset hash, epochs): stored in the file.

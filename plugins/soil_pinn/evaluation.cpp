@@ -68,7 +68,7 @@ Ladder physicsLadder(const fee::Soil& s, const fee::Geometry& g, bool descending
 struct DecompAccum {
   double norm = 0, norm_moving = 0;
   long rows = 0, moving = 0;
-  GapSum a, b, c, a_moving, b_moving, c_moving;
+  GapSum a, b, c, a_moving, b_moving, c_moving, a_true_gate, b_true_gate;
   std::array<GapSum, 4> ladder_truth, ladder_mapped;
   GapSum wedge, penetration, inertia;
   double n_fee = 0, n_inertia = 0, n_penetration = 0;
@@ -141,6 +141,10 @@ void addDecompositionRow(DecompAccum& d, const SampleView& v, const SoilEstimate
   d.a.add(lt.F[1], q);
   d.b.add(lm.F[1], q);
   d.c.add(est, q);
+  if (v.edge_vz && std::isfinite(v.edge_vz[p])) {
+    d.a_true_gate.add(physicsLadder(v.soil, truth_geo, true_down, speed, edge_m).F[1], q);
+    d.b_true_gate.add(physicsLadder(v.soil, mapped, true_down, speed, edge_m).F[1], q);
+  }
   if (v.moving[p]) {
     d.norm_moving += norm;
     ++d.moving;
@@ -293,6 +297,8 @@ SplitMetrics finishSplit(int split, Accum& a, const std::array<double, kSoilCoun
   fd.truth_geometry_moving = d.a_moving.finish(d.norm_moving);
   fd.mapped_geometry_moving = d.b_moving.finish(d.norm_moving);
   fd.estimator_moving = d.c_moving.finish(d.norm_moving);
+  fd.truth_geometry_true_gate = d.a_true_gate.finish(d.norm);
+  fd.mapped_geometry_true_gate = d.b_true_gate.finish(d.norm);
   for (std::size_t k = 0; k < 4; ++k) {
     fd.ladder_truth[k] = d.ladder_truth[k].finish(d.norm);
     fd.ladder_mapped[k] = d.ladder_mapped[k].finish(d.norm);
@@ -457,6 +463,8 @@ nlohmann::ordered_json decompositionJson(const ForceDecomposition& d) {
   j["a_truth_soil_truth_geometry"] = gapJson(d.truth_geometry);
   j["b_truth_soil_mapped_geometry"] = gapJson(d.mapped_geometry);
   j["c_estimator"] = gapJson(d.estimator);
+  j["a_with_true_gate"] = gapJson(d.truth_geometry_true_gate);
+  j["b_with_true_gate"] = gapJson(d.mapped_geometry_true_gate);
   j["moving"] = {{"a_truth_soil_truth_geometry", gapJson(d.truth_geometry_moving)},
                  {"b_truth_soil_mapped_geometry", gapJson(d.mapped_geometry_moving)},
                  {"c_estimator", gapJson(d.estimator_moving)}};
@@ -566,15 +574,17 @@ std::string decompositionMarkdown(const SoilEvaluation& e) {
         "(a) the physics layer (paper F at β* + penetration where the edge is observed descending) with the truth "
         "soil on the simulator's geometry of each row, (b) the same on the mapped geometry, (c) the estimator:\n\n"
         "| split | rows (moving) | (a) truth geometry | (b) mapped geometry | (c) estimator | (b) − (a) | (c) − (b) | "
-        "(a) / (b) / (c) on moving rows |\n|---|---|---|---|---|---|---|---|\n";
+        "(a) / (b) / (c) on moving rows | (a) / (b) with the edge's true descent as the gate |\n"
+        "|---|---|---|---|---|---|---|---|---|\n";
   for (const auto& m : e.splits) {
     const ForceDecomposition& d = m.decomposition;
     if (d.rows == 0) continue;
-    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %s | %s | %s | %+.1f | %+.1f | %.1f / %.1f / %.1f |\n",
+    std::snprintf(buf, sizeof buf, "| %s | %ld (%ld) | %s | %s | %s | %+.1f | %+.1f | %.1f / %.1f / %.1f | %s / %s |\n",
                   m.split.c_str(), d.rows, d.moving_rows, cell(d.truth_geometry).c_str(), cell(d.mapped_geometry).c_str(),
                   cell(d.estimator).c_str(), d.mapped_geometry.total - d.truth_geometry.total,
                   d.estimator.total - d.mapped_geometry.total, d.truth_geometry_moving.total,
-                  d.mapped_geometry_moving.total, d.estimator_moving.total);
+                  d.mapped_geometry_moving.total, d.estimator_moving.total, cell(d.truth_geometry_true_gate).c_str(),
+                  cell(d.mapped_geometry_true_gate).c_str());
     os << buf;
   }
   os << "\nThe physics term by term with the truth soil (truth geometry | mapped geometry), and each modelled term "

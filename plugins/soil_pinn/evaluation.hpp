@@ -41,6 +41,9 @@ struct ForceDecomposition {
   /// edge descends (= (a) / (b)), [2] + adhesion on the blade face (F_total), [3] + the inertia
   /// of the soil entering the wedge (γ/g d w v², v the observed edge speed).
   std::array<ForceGap, 4> ladder_truth{}, ladder_mapped{};
+  /// (a) and (b) with the penetration gate at the edge's true vertical speed (the simulator's)
+  /// instead of the observed one: what the gate's errors cost the physics layer.
+  ForceGap truth_geometry_true_gate, mapped_geometry_true_gate;
   /// Part by part on the truth geometry, each against the simulator's own part (same norm
   /// Σ‖F_q‖): F_total of one wedge at the summary geometry against the FEE summed over the
   /// slices as mobilised; the penetration term against the simulator's; the inertia term

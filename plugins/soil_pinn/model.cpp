@@ -24,7 +24,8 @@ namespace {
 // 4: the config holds gate_feature (older files load with -1: the gate from the encoder only).
 // 5: the config holds q_gamma_ref_n_m3 (older files load with 0: Q as extracted).
 // 6: the config holds gate_observed and gate_zero (older files load with a learned gate).
-constexpr int kFormatVersion = 6;
+// 7: the config holds sliced_geometry (older files load with false: the sweep's mean d and w).
+constexpr int kFormatVersion = 7;  // configHash()'s default in model.hpp follows it
 constexpr const char* kFormat = "terramap.soil_pinn";
 constexpr const char* kMetadataKey = "terramap_metadata";
 
@@ -38,6 +39,7 @@ nlohmann::json configJson(const PinnConfig& c, int format_version = kFormatVersi
     j["gate_observed"] = c.gate_observed;
     j["gate_zero"] = c.gate_zero;
   }
+  if (format_version >= 7) j["sliced_geometry"] = c.sliced_geometry;
   return j;
 }
 
@@ -327,6 +329,7 @@ PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path
     cfg.q_gamma_ref_n_m3 = version >= 5 ? c.at("q_gamma_ref_n_m3").get<double>() : 0.0;
     cfg.gate_observed = version >= 6 ? c.at("gate_observed").get<bool>() : false;
     cfg.gate_zero = version >= 6 ? c.at("gate_zero").get<double>() : 0.0;
+    cfg.sliced_geometry = version >= 7 ? c.at("sliced_geometry").get<bool>() : false;
     if (configHash(cfg, version) != j.at("config_hash").get<std::string>())
       throw InputError(path + ": config_hash does not match the stored config");
   } catch (const nlohmann::json::exception& e) {

@@ -105,6 +105,12 @@ struct PinnConfig {
   /// With gate_observed: the normalised value of a raw 0 of gate_feature, -mean / std of the
   /// training split's observations (the network sees normalised observations).
   double gate_zero = 0.0;
+  /// true: theta_k's depth and width are the one wedge that holds the cut's cross-section
+  /// (soil::applySlicedGeometry on the sample's profile), not the sweep's mean depth and cutting
+  /// width. The network does not apply it itself: whoever builds theta_k for this model does
+  /// (makeTrainingData, the soil_pinn stage; SoilEstimator::slicedGeometry() says so).
+  /// Files of format version <= 6 load with false.
+  bool sliced_geometry = false;
 };
 
 /// What forward() returns. B batch, P horizon.
@@ -189,7 +195,8 @@ PinnNet loadPinnFrom(torch::serialize::InputArchive& ar, const std::string& path
 
 /// FNV-1a 64 of the config's canonical JSON, as 16 hex digits. `format_version` 1 hashes the
 /// JSON without beta_base (the files written before it existed), 2 without edge_thickness_m,
-/// 3 without gate_feature, 4 without q_gamma_ref_n_m3, 5 without gate_observed and gate_zero.
-std::string configHash(const PinnConfig& cfg, int format_version = 6);
+/// 3 without gate_feature, 4 without q_gamma_ref_n_m3, 5 without gate_observed and gate_zero,
+/// 6 without sliced_geometry. The default is the version this build writes.
+std::string configHash(const PinnConfig& cfg, int format_version = 7);
 
 }  // namespace terramap::pinn

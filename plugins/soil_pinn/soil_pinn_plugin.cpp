@@ -96,7 +96,16 @@ void SoilPinn::estimateSweep(ProcessContext& ctx, const SweepRecord& sweep) {
     return;
   }
   // On the calling (engine) thread, without libtorch (README, "Threading" and "Latency").
-  const pinn::SoilEstimate e = estimator_->estimateFast(sample, tol_);
+  // A model trained on the cut's cross-section reads d and w as its one wedge; the record keeps
+  // the sweep's own geometry.
+  pinn::SoilEstimate e;
+  if (estimator_->slicedGeometry() && sample.profile.size() == sample.theta_k.size() / soil::kThetaK * soil::kProfile) {
+    soil::PinnSample sliced = sample;
+    soil::applySlicedGeometry(sliced.theta_k.data(), sliced.profile.data(), sliced.P);
+    e = estimator_->estimateFast(sliced, tol_);
+  } else {
+    e = estimator_->estimateFast(sample, tol_);
+  }
   auto rec = std::make_shared<const SoilEstimateRecord>(
       soilEstimateRecord(sweep, sample, e, static_cast<int>(estimator_->size())));
   soil::publishEstimate(ctx, rec);

@@ -25,7 +25,7 @@ std::vector<long> TrainingData::indices(eval::DatasetSplit s) const {
   return out;
 }
 
-TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
+TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P, bool sliced) {
   if (T > d.T || P > d.P || P > T || P < 1)
     throw InputError("the dataset stores T = " + std::to_string(d.T) + ", P = " + std::to_string(d.P) +
                      " steps; training asks for T = " + std::to_string(T) + ", P = " + std::to_string(P) +
@@ -70,6 +70,7 @@ TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
   float* th = out.theta_k.data_ptr<float>();
   float* f = out.force.data_ptr<float>();
   float* tr = out.truth.data_ptr<float>();
+  long sliced_steps = 0;
   for (long r = 0; r < m; ++r) {
     const long i = keep[static_cast<std::size_t>(r)];
     std::copy_n(d.obs.data() + (i * d.T + (d.T - T)) * D, static_cast<long>(T) * D, o + r * T * D);
@@ -83,12 +84,31 @@ TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P) {
     if (d.truth_geometry.size() == d.truth.size()) std::copy_n(d.truth_geometry.data() + i * 5, 5, tg + r * 5);
     if (has_quiet) std::copy_n(d.force_quiet.data() + (i * d.P + (d.P - P)) * 2, static_cast<long>(P) * 2, fq + r * P * 2);
     copyRows(d.truth_geometry_rows, out.truth_geometry_rows, i, r, 5);
+    if (sliced) {
+      if (d.profile.size() == rows_n * soil::kProfile)
+        sliced_steps += soil::applySlicedGeometry(th + r * P * soil::kThetaK,
+                                                  d.profile.data() + (i * d.P + (d.P - P)) * soil::kProfile, P);
+      // The simulator's rows: alpha, rho, d, w, q beside area, depth2 (truth_profile_rows).
+      if (d.truth_profile_rows.size() == rows_n * 8 && d.truth_geometry_rows.size() == rows_n * 5) {
+        float* g = out.truth_geometry_rows.data_ptr<float>() + r * P * 5;
+        const float* tp = d.truth_profile_rows.data() + (i * d.P + (d.P - P)) * 8;
+        for (int p = 0; p < P; ++p) {
+          const double area = tp[p * 8], depth2 = tp[p * 8 + 1];
+          if (!(area > 0 && depth2 > 0)) continue;
+          g[p * 5 + 2] = static_cast<float>(depth2 / area);
+          g[p * 5 + 3] = static_cast<float>(area * area / depth2);
+        }
+      }
+    }
     copyRows(d.force_parts, out.force_parts, i, r, 6);
     copyRows(d.edge_vz_rows, out.edge_vz, i, r, 1);
     out.split.push_back(d.split[static_cast<std::size_t>(i)]);
     out.family.push_back(d.family[static_cast<std::size_t>(i)]);
     out.relative_density.push_back(d.relative_density[static_cast<std::size_t>(i)]);
   }
+  if (sliced && m > 0 && sliced_steps == 0)
+    throw InputError("the model takes theta_k's depth and width from the cut's cross-section (geometry: sliced), "
+                     "but the dataset's 'profile' array is missing or holds no cut: regenerate it with this build");
   return out;
 }
 
@@ -110,6 +130,7 @@ std::string trainConfigHash(const TrainConfig& c) {
   if (c.gate_feature >= 0) j["gate_feature"] = c.gate_feature;
   if (c.q_gamma_ref_n_m3 > 0) j["q_gamma_ref_n_m3"] = c.q_gamma_ref_n_m3;
   if (c.gate_observed) j["gate_observed"] = true;
+  if (c.sliced_geometry) j["sliced_geometry"] = true;
   if (c.weights.lambda_prior != 0) j["lambda_prior"] = c.weights.lambda_prior;
   if (c.weights.lambda_soil != 0) j["lambda_soil"] = c.weights.lambda_soil;
   const LossWeights& w = c.weights;
@@ -302,7 +323,8 @@ MemberReport trainMember(int m, const TrainConfig& cfg, const std::string& hash,
                          std::vector<PinnNet>& best_members) {
   const std::int64_t seed = cfg.seed * 1000 + m;
   const PinnConfig pc{cfg.T, cfg.P, soil::kObsFeatures, cfg.hidden, seed, cfg.beta_base, cfg.edge_thickness_m,
-                      cfg.gate_feature, cfg.q_gamma_ref_n_m3, cfg.gate_observed, gate_zero};
+                      cfg.gate_feature, cfg.q_gamma_ref_n_m3, cfg.gate_observed, gate_zero,
+                      cfg.sliced_geometry};
   PinnNet net(pc);
   net->setThetaNormalisation(at::tensor(th_mean), at::tensor(th_std));
   PinnNet best(pc);
@@ -344,7 +366,7 @@ TrainReport trainEnsemble(const TrainConfig& cfg,
   const auto wall0 = std::chrono::steady_clock::now();
   at::set_num_threads(1);  // the same bits on any machine: no reduction split across threads
   const eval::SoilDataset ds = eval::readSoilDataset(cfg.dataset);
-  const TrainingData data = makeTrainingData(ds, cfg.T, cfg.P);
+  const TrainingData data = makeTrainingData(ds, cfg.T, cfg.P, cfg.sliced_geometry);
   const std::vector<long> train_idx = data.indices(eval::DatasetSplit::Train);
   const std::vector<long> val_idx = data.indices(eval::DatasetSplit::Validation);
   if (train_idx.empty() || val_idx.empty())

@@ -52,6 +52,9 @@ struct TrainConfig {
   /// The penetration gate read from gate_feature's sign instead of learned (PinnConfig::
   /// gate_observed; YAML `gate: observed | learned`).
   bool gate_observed = false;
+  /// theta_k's depth and width from the cut's cross-section (PinnConfig::sliced_geometry; YAML
+  /// `geometry: sliced | mean`). Needs a dataset with the `profile` array.
+  bool sliced_geometry = false;
   LossWeights weights;
 };
 
@@ -79,7 +82,11 @@ struct TrainingData {
   std::vector<long> indices(eval::DatasetSplit s) const;
 };
 /// \throws InputError if T or P exceed what the dataset stored.
-TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P);
+/// `sliced`: theta_k's d and w from the dataset's profile (soil::applySlicedGeometry), as a
+/// model with PinnConfig::sliced_geometry expects; the simulator's rows (truth_geometry_rows)
+/// get the same from truth_profile_rows where the dataset has them.
+/// \throws InputError when `sliced` and the dataset has no finite profile.
+TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P, bool sliced = false);
 
 struct MemberReport {
   int epochs = 0, best_epoch = 0;

@@ -33,7 +33,7 @@ Registrar reg{Command{"eval-soil", [](CLI::App& app, std::function<int()>& run) 
       at::set_num_threads(1);
       const pinn::SoilEstimator est = pinn::loadEstimator(a->model);
       const eval::SoilDataset ds = eval::readSoilDataset(a->dataset);
-      const pinn::TrainingData data = pinn::makeTrainingData(ds, est.T(), est.P());
+      const pinn::TrainingData data = pinn::makeTrainingData(ds, est.T(), est.P(), est.slicedGeometry());
       const pinn::SoilEvaluation ev = pinn::evaluateEstimator(est, data);
       std::error_code ec;
       fs::create_directories(a->out, ec);

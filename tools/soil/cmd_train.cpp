@@ -93,6 +93,14 @@ pinn::TrainConfig loadTrainConfig(const std::string& path) {
       r.error(r.node("gate"), "gate", "'observed' needs gate_feature (the observation whose sign says the edge descends)");
     c.gate_observed = g == "observed";
   }
+  if (r.has("geometry")) {
+    const std::string g = r.str("geometry", "mean");
+    if (g != "mean" && g != "sliced")
+      r.error(r.node("geometry"), "geometry",
+              "must be 'mean' (the sweep's mean depth and cutting width) or 'sliced' (the one wedge holding the cut's "
+              "cross-section), got '" + g + "'");
+    c.sliced_geometry = g == "sliced";
+  }
   if (r.has("loss")) {
     yaml::MapReader l = r.child("loss");
     pinn::LossWeights& w = c.weights;

@@ -171,6 +171,9 @@ struct SoilDataset {
   std::vector<float> force_quiet;                  ///< N*P*2 (EpisodeData::force_quiet; NaN in files without it)
   /// N*P*5, N*P*3*2, N*P (EpisodeData's per-row truth; NaN in files without them).
   std::vector<float> truth_geometry_rows, force_parts, edge_vz_rows;
+  /// N*P*2 the mapped cut's cross-section [Σ d ds (m²), Σ d² ds (m³)] per row (PinnSample::profile),
+  /// N*P*8 the simulator's (EpisodeData::truth_profile_rows); NaN in files without them.
+  std::vector<float> profile, truth_profile_rows;
   std::vector<int> episode;                        ///< N
   std::vector<std::uint8_t> split;                 ///< N (DatasetSplit)
   std::vector<std::uint8_t> family;                ///< N (soil::SoilFamily)

@@ -111,4 +111,12 @@ const char* sampleSkipName(SampleSkip s);
 SampleSkip buildSample(const ObservationHistory& history, const SweepRecord& sweep, int T, int P,
                        PinnSample& out, double max_gap_s = 0.1);
 
+/// The one wedge that holds the FEE summed over the slices across the blade (the FEE is linear
+/// in Σ d ds and Σ d² ds for one α and ρ: docs/soil_estimator.md, "Where the error lived in the
+/// soil map"): each of the `P` steps of `theta_k` (P * kThetaK) whose `profile` (P * kProfile)
+/// holds a finite area A > 0 and Σ d² ds = D > 0 gets depth D / A (m) and width A² / D (m) in
+/// place of the sweep's mean depth and cutting width; other steps are left as they are. Returns
+/// how many steps changed. Pure; nothing throws.
+int applySlicedGeometry(float* theta_k, const float* profile, int P);
+
 }  // namespace terramap::soil

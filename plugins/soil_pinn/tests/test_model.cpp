@@ -481,6 +481,25 @@ TEST_F(PinnModel, AnObservedGateIsTheSignOfItsFeature) {
   std::remove(old.c_str());
 }
 
+TEST_F(PinnModel, TheSlicedGeometryFlagRoundTripsAndOlderFilesLoadWithoutIt) {
+  PinnConfig c{kT, kP, kDo, {8}, 22, BetaBase::Min, 0.025, 1};
+  c.sliced_geometry = true;
+  PinnNet sliced(c);
+  EXPECT_TRUE(throughFile(sliced, "sliced.pt")->config().sliced_geometry);
+  PinnConfig m = c;
+  m.sliced_geometry = false;
+  EXPECT_NE(configHash(c), configHash(m));  // the flag is part of what the file's hash guards
+  PinnNet mean(m);
+  EXPECT_FALSE(throughFile(mean, "mean.pt")->config().sliced_geometry);
+  // A version-6 file (before the flag) was trained on the sweep's mean geometry.
+  nlohmann::json v6{{"T", c.T}, {"P", c.P}, {"D_o", c.D_o}, {"hidden", c.hidden}, {"seed", c.seed},
+                    {"beta_base", "min"}, {"edge_thickness_m", 0.025}, {"gate_feature", 1}, {"q_gamma_ref_n_m3", 0.0},
+                    {"gate_observed", false}, {"gate_zero", 0.0}};
+  const std::string old = writeWithMetadata(mean, "v6.pt", 6, v6, configHash(m, 6));
+  EXPECT_FALSE(loadPinn(old)->config().sliced_geometry);
+  std::remove(old.c_str());
+}
+
 TEST_F(PinnModel, LoadRejectsWhatIsNotAModel) {
   EXPECT_THROW(loadPinn(tempPath("does_not_exist.pt")), InputError);
   const std::string junk = tempPath("junk.pt");

@@ -7,6 +7,8 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <limits>
+#include <vector>
 #include <random>
 
 using namespace terramap;
@@ -211,4 +213,25 @@ TEST(PinnInputDistance, NothingIsAddedWithinTheTrainingSamplesAndThePriorFarFrom
   }
   EXPECT_TRUE(std::isnan(d.d2({1.0, 2.0})));  // the wrong length
   EXPECT_THROW(soil::PinnInputDistance::fit({{1.0, 2.0}}, prior), std::invalid_argument);
+}
+
+TEST(SlicedGeometry, TheOneWedgeHoldsTheCrossSectionsSums) {
+  // Two steps of a cut 1 m wide whose left half is 0.10 m deep and right half 0.20 m: the mean
+  // depth over the cutting width (0.15 m) under-weighs the deep half in gamma d^2 w, the FEE
+  // summed over the two slices is gamma (0.1^2 + 0.2^2) 0.5 N_gamma + c (0.1 + 0.2) 0.5 N_c.
+  std::vector<float> theta = {1.3f, 0.0f, 1.0f, 0.15f, 2000.0f, 0.8f,   // step 0
+                              1.3f, 0.0f, 1.0f, 0.15f, 2000.0f, 0.8f};  // step 1: no profile
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const std::vector<float> profile = {0.15f, 0.025f, nan, nan};
+  ASSERT_EQ(applySlicedGeometry(theta.data(), profile.data(), 2), 1);
+  const double d = theta[kDepth], w = theta[kWidth];
+  EXPECT_NEAR(d * w, 0.15, 1e-6);        // the c and c_a terms: sum d ds
+  EXPECT_NEAR(d * d * w, 0.025, 1e-6);   // the gamma term: sum d^2 ds
+  EXPECT_GT(d * d * w, 0.15 * 0.15 * 1.0 * 1.1);  // the mean depth would miss 10 % of it
+  EXPECT_EQ(theta[kRho], 1.3f);          // nothing else moves
+  EXPECT_EQ(theta[kSurcharge], 2000.0f);
+  EXPECT_EQ(theta[kThetaK + kDepth], 0.15f);  // the step without a cross-section keeps its own
+  EXPECT_EQ(theta[kThetaK + kWidth], 1.0f);
+  const std::vector<float> empty = {0.0f, 0.0f, -1.0f, 0.01f};
+  EXPECT_EQ(applySlicedGeometry(theta.data(), empty.data(), 2), 0);
 }
