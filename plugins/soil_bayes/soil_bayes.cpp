@@ -46,6 +46,9 @@ ParamSchema SoilBayes::schema() const {
       param::real("c_s", d.c_s, 0.0, 50.0, "1",
                   "C_s: the estimate's variance grows by exp(C_s x / x_max) with the distance x into the wedge"),
       param::real("x_min_m", d.x_min_m, 0.0, 100.0, "m", "the wedge reaches at least this far ahead of the blade"),
+      param::real("behind_m", d.behind_m, 0.0, 100.0, "m",
+                  "the footprint also reaches this far behind the edge (the soil the edge passed through while "
+                  "the estimate's force was measured)"),
       param::text("prior", "none", {"config", "none"},
                   "a cell's first estimate is taken as is (none: the estimator's variance already holds the "
                   "prior's where the force cannot tell the property) or fused with the prior_* beliefs "
@@ -61,6 +64,7 @@ ParamSchema SoilBayes::schema() const {
 void SoilBayes::configure(const Params& p) {
   cfg_.c_s = p.getDouble("c_s");
   cfg_.x_min_m = p.getDouble("x_min_m");
+  cfg_.behind_m = p.getDouble("behind_m");
   cfg_.use_prior = p.getString("prior") == "config";
   cfg_.cut_depth_m = p.getDouble("cut_depth_m");
   soil::readPriorParams(p, cfg_.prior_mean, cfg_.prior_var);
@@ -153,7 +157,8 @@ long SoilBayes::fuse(ProcessContext& ctx, const SoilEstimateRecord& est) {
   const Eigen::Vector2d tp(-t.y(), t.x());
   const Eigen::Vector2d c = est.T_map_blade1.translation().head<2>();
   const MapWindow win =
-      MapWindow::covering(map, {c + half_w * tp, c - half_w * tp, c + x_lim * t + half_w * tp, c + x_lim * t - half_w * tp});
+      MapWindow::covering(map, {c - cfg_.behind_m * t + half_w * tp, c - cfg_.behind_m * t - half_w * tp,
+                                c + x_lim * t + half_w * tp, c + x_lim * t - half_w * tp});
   if (win.empty()) return 0;
   if (!win.tryAllocate(map, {mean_[0], mean_[1], mean_[2], mean_[3], mean_[4], var_[0], var_[1], var_[2], var_[3],
                              var_[4], n_, z_})) {
@@ -187,8 +192,8 @@ long SoilBayes::fuse(ProcessContext& ctx, const SoilEstimateRecord& est) {
     for (int cc = 0; cc < win.cols(); ++cc) {
       const Eigen::Vector2d p = geo.positionOf(Index(win.i0() + r, win.j0() + cc)) - c;
       const double x = p.dot(t), y = p.dot(tp);
-      if (x >= 0.0 && x < x_lim && std::abs(y) <= half_w) {
-        x_of[static_cast<std::size_t>(win.local(win.i0() + r, win.j0() + cc))] = x;
+      if (x >= -cfg_.behind_m && x < x_lim && std::abs(y) <= half_w) {
+        x_of[static_cast<std::size_t>(win.local(win.i0() + r, win.j0() + cc))] = std::abs(x);
         ++cells;
       }
     }

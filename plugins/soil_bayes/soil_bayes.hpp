@@ -56,6 +56,11 @@ double wedgeLength(double d_m, double d_res_m, double alpha_rad, double beta_rad
 struct SoilBayesConfig {
   double c_s = 1.0;             ///< C_s: variance inflation with distance into the wedge
   double x_min_m = 0.1;         ///< the wedge reaches at least this far ahead of the blade
+  /// The footprint also reaches this far behind the edge (m, >= 0; 0 = the wedge only): the
+  /// horizon's force came from the wedges at every edge position of the horizon, so the soil the
+  /// edge passed through in it is the estimate's too. Cells behind the edge take the variance of
+  /// the wedge's first cell.
+  double behind_m = 0.0;
   /// false (`prior: none`, the default): a cell's first estimate is taken as is; true (`prior:
   /// config`): it is fused with prior_mean / prior_var (README, "Why no prior by default").
   bool use_prior = false;

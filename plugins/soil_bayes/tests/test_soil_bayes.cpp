@@ -113,6 +113,27 @@ TEST(SoilBayes, TheWedgeAheadOfTheBladeIsFusedWithVarianceGrowingWithDistance) {
   EXPECT_EQ(n, cells);
 }
 
+TEST(SoilBayes, BehindMReachesTheSoilTheEdgePassedWithVarianceGrowingWithItsDistance) {
+  // The horizon's force came from the wedges at every edge position of the horizon: with
+  // behind_m the footprint covers the last behind_m of the edge's path too, each cell's variance
+  // inflated by its distance from the edge as ahead of it. Without it (the test above) a cell
+  // 1 cm behind the edge stays untouched.
+  Harness h(1, {{"behind_m", 0.1}});
+  const SoilEstimateRecord e = estimate({0.0, 0.0}, {1.0, 0.0});
+  const long cells = h.plugin.fuse(h.ctx, e);
+  Harness wedge_only(1);
+  const long ahead = wedge_only.plugin.fuse(wedge_only.ctx, e);
+  EXPECT_EQ(cells * 15, ahead * (15 + 5));  // 15 columns ahead, 5 behind (centres -0.01 ... -0.09)
+  for (double x : {-0.01, -0.05, -0.09}) {
+    const Eigen::Vector2d p(x, 0.01);
+    const Eigen::Vector2d centre = h.map.geometry().positionOf(*h.map.geometry().indexAt(p));
+    EXPECT_FLOAT_EQ(h.at("soil_c", p), 12e3f) << x;
+    EXPECT_FLOAT_EQ(h.at("soil_c_var", p), static_cast<float>(4e6 * std::exp(-centre.x() / 0.3))) << x;
+  }
+  EXPECT_TRUE(std::isnan(h.at("soil_c", {-0.11, 0.01})));
+  EXPECT_FLOAT_EQ(h.at("soil_c_var", {-0.05, 0.01}), h.at("soil_c_var", {0.05, 0.01}));
+}
+
 TEST(SoilBayes, ShortWedgesReachXMinAndAConfiguredPriorIsFusedFirst) {
   Harness h(1, {{"x_min_m", 0.2}, {"prior", std::string("config")}});
   SoilEstimateRecord e = estimate({0.0, 0.0}, {1.0, 0.0});
