@@ -1,4 +1,5 @@
 #include <terramap/soil/pinn_sample.hpp>
+#include <terramap/soil/fee.hpp>
 
 #include <Eigen/Geometry>
 #include <algorithm>
@@ -177,12 +178,11 @@ SampleSkip buildSample(const ObservationHistory& history, const SweepRecord& swe
 int applySlicedGeometry(float* theta_k, const float* profile, int P) {
   int changed = 0;
   for (int p = 0; p < P; ++p) {
-    const double area = profile[p * kProfile + kArea], depth2 = profile[p * kProfile + kDepth2];
-    // NaN fails both comparisons: a step without a cross-section keeps d and w.
-    if (!(area > 0 && depth2 > 0) || !std::isfinite(area) || !std::isfinite(depth2)) continue;
+    double d = 0, w = 0;
+    if (!fee::slicedWedge(profile[p * kProfile + kArea], profile[p * kProfile + kDepth2], d, w)) continue;
     float* th = theta_k + p * kThetaK;
-    th[kDepth] = static_cast<float>(depth2 / area);
-    th[kWidth] = static_cast<float>(area * area / depth2);
+    th[kDepth] = static_cast<float>(d);
+    th[kWidth] = static_cast<float>(w);
     ++changed;
   }
   return changed;

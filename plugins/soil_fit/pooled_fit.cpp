@@ -128,11 +128,8 @@ RowForce rowForce(const fee::Soil& s, const FitRow& row, const PooledFitOptions&
   g.q_n = q;
   // The mean vertical depth over the cutting width: what the edge is buried by.
   double depth_v = g.d_m;
-  if (opt.cross_section && row.area_m2 > 0 && row.depth2_m3 > 0 && w_cut > 0) {
-    g.d_m = row.depth2_m3 / row.area_m2;
-    g.w_m = row.area_m2 * row.area_m2 / row.depth2_m3;
+  if (opt.cross_section && w_cut > 0 && fee::slicedWedge(row.area_m2, row.depth2_m3, g.d_m, g.w_m))
     depth_v = row.area_m2 / (w_cut * std::cos(g.alpha_rad));
-  }
   const fee::Result res = fee::evaluateAtBetaMin(s, g);
   if (!res.valid()) return out;
   out.fee_n = res.F_total_N;

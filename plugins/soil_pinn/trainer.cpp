@@ -2,6 +2,7 @@
 
 #include <terramap/core/error.hpp>
 #include <terramap/core/text.hpp>
+#include <terramap/soil/fee.hpp>
 
 #include <ATen/CPUGeneratorImpl.h>
 #include <nlohmann/json.hpp>
@@ -93,10 +94,10 @@ TrainingData makeTrainingData(const eval::SoilDataset& d, int T, int P, bool sli
         float* g = out.truth_geometry_rows.data_ptr<float>() + r * P * 5;
         const float* tp = d.truth_profile_rows.data() + (i * d.P + (d.P - P)) * 8;
         for (int p = 0; p < P; ++p) {
-          const double area = tp[p * 8], depth2 = tp[p * 8 + 1];
-          if (!(area > 0 && depth2 > 0)) continue;
-          g[p * 5 + 2] = static_cast<float>(depth2 / area);
-          g[p * 5 + 3] = static_cast<float>(area * area / depth2);
+          double d = 0, w = 0;
+          if (!fee::slicedWedge(tp[p * 8], tp[p * 8 + 1], d, w)) continue;
+          g[p * 5 + 2] = static_cast<float>(d);
+          g[p * 5 + 3] = static_cast<float>(w);
         }
       }
     }

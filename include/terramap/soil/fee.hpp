@@ -34,6 +34,7 @@
 ///  - The simulator uses F_total = F + adhesion along the blade face, with beta = beta*, because
 ///    it is the ground truth and must be the complete force of the wedge model.
 #include <Eigen/Core>
+#include <cmath>
 #include <string>
 
 namespace terramap::fee {
@@ -135,6 +136,18 @@ Result evaluateAtBetaNominal(const Soil& s, const Geometry& g);
 /// evaluate() at betaMin(s, g). If the other rules hold but no admissible beta* exists,
 /// validity is NoAdmissibleBeta and beta_rad and all forces are NaN.
 Result evaluateAtBetaMin(const Soil& s, const Geometry& g);
+
+/// The one wedge whose FEE equals the FEE summed over the slices across the blade of a cut whose
+/// cross-section holds Σ d ds = `area_m2` (m²) and Σ d² ds = `depth2_m3` (m³): the FEE is linear
+/// in both for one α and ρ, so depth depth2 / area and width area² / depth2 (m). Returns false and
+/// leaves d_m, w_m as they are unless both sums are finite and > 0. Pure; never throws.
+inline bool slicedWedge(double area_m2, double depth2_m3, double& d_m, double& w_m) {
+  // NaN fails both comparisons; an infinity passes them and is refused by the finiteness test.
+  if (!(area_m2 > 0 && depth2_m3 > 0) || !std::isfinite(area_m2) || !std::isfinite(depth2_m3)) return false;
+  d_m = depth2_m3 / area_m2;
+  w_m = area_m2 * area_m2 / depth2_m3;
+  return true;
+}
 
 /// dN_gamma/dbeta at beta (zero at beta*; the paper's loss drives it to zero, Eq. 8).
 double dNgammaDbeta(const Soil& s, const Geometry& g, double beta_rad);
