@@ -56,12 +56,9 @@ void printSoil(const nlohmann::json& truth_soil, const sim::Scenario& sc, const 
               truth_soil.value("cells_estimated", 0L));
   std::printf("  %-12s %8s %12s %12s %12s %10s %10s\n", "property", "cells", "MAE", "bias", "RMSE", "in 1 sd",
               "in 2 sd");
-  // Display scale and unit per soil::SoilParam.
-  static const std::pair<double, const char*> kShow[] = {
-      {1e-3, "kPa"}, {1 / soil::kDegree, "deg"}, {1e-3, "kPa"}, {1 / soil::kDegree, "deg"}, {1e-3, "kN/m3"}};
   for (int k = 0; k < soil::kSoilParamCount; ++k) {
     const char* name = soil::kSoilParams[k].layer;
-    const auto& [scale, unit] = kShow[k];
+    const auto& [scale, unit] = soil::kSoilDisplay[k];
     const nlohmann::json& p = truth_soil["properties"][name];
     std::printf("  %-12s %8ld %8.2f %-3s %8.2f %-3s %8.2f %-3s %9.1f%% %9.1f%%\n", name, p.value("cells", 0L),
                 num(p["mae"]) * scale, unit, num(p["bias"]) * scale, unit, num(p["rmse"]) * scale, unit,
@@ -80,7 +77,7 @@ void printSoil(const nlohmann::json& truth_soil, const sim::Scenario& sc, const 
       for (int k = 0; k < soil::kSoilParamCount; ++k) {
         const char* name = soil::kSoilParams[k].layer;
         if (!zp.contains(name)) continue;
-        const auto& [scale, unit] = kShow[k];
+        const auto& [scale, unit] = soil::kSoilDisplay[k];
         std::printf(" %s %+.2f %s", soil::kSoilParams[k].name, num(zp[name]["bias"]) * scale, unit);
       }
       std::printf("\n");

@@ -653,12 +653,11 @@ nlohmann::json estimatorSeparation(const StrataArgs& a, const sim::Scenario& sc,
     const double t0 = value(soils[0], q), t1 = value(soils[1], q);
     out["properties"][name] = {{"unit", unit}, {"truth", {t0, t1}}, {"mean", {mean[0], mean[1]}}, {"sd", {sd[0], sd[1]}},
                                {"d_prime", d}};
-    // A person reads angles in degrees; the JSON keeps the layers' radians.
-    const bool angle = std::string(unit) == "rad";
-    const double k = angle ? 180.0 / M_PI : 1.0;
+    // Printed as a person reads it (soil::kSoilDisplay); the JSON keeps SI.
+    const double k = index ? 1.0 : soil::kSoilDisplay[q].scale;
     if (!a.quiet)
       std::printf("  %-6s %9.4g / %9.4g +- %-9.3g %9.4g / %9.4g +- %-9.3g %6.2f  [%s]\n", index ? "index" : name, k * t0,
-                  k * mean[0], k * sd[0], k * t1, k * mean[1], k * sd[1], d, angle ? "deg" : unit);
+                  k * mean[0], k * sd[0], k * t1, k * mean[1], k * sd[1], d, index ? unit : soil::kSoilDisplay[q].unit);
   }
   return out;
 }

@@ -33,6 +33,15 @@ inline constexpr SoilParamInfo kSoilParams[kSoilParamCount] = {
     {"gamma", "soil_gamma", "N/m^3", 12e3, 22e3},
 };
 
+/// How a person reads each parameter (tables, charts, printed reports): the factor from its SI
+/// value and the unit shown. Angles in degrees; the layers and JSON keep SI (radians).
+struct SoilParamDisplay {
+  double scale;
+  const char* unit;
+};
+inline constexpr SoilParamDisplay kSoilDisplay[kSoilParamCount] = {
+    {1e-3, "kPa"}, {1 / kDegree, "deg"}, {1e-3, "kPa"}, {1 / kDegree, "deg"}, {1e-3, "kN/m^3"}};
+
 using SoilParamVector = std::array<double, kSoilParamCount>;
 
 /// The variance of the uniform distribution over each parameter's physical range, span² / 12:
