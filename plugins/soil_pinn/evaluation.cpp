@@ -17,9 +17,6 @@
 namespace terramap::pinn {
 namespace {
 
-// Display units per property: kPa, deg, kPa, deg, kN/m^3.
-constexpr double kDisplayScale[kSoilCount] = {1e-3, 180 / 3.14159265358979323846, 1e-3, 180 / 3.14159265358979323846, 1e-3};
-constexpr const char* kDisplayUnit[kSoilCount] = {"kPa", "deg", "kPa", "deg", "kN/m^3"};
 constexpr const char* kName[kSoilCount] = {"c", "phi", "ca", "delta", "gamma"};
 
 // Σ‖F̂ − F_q‖ and its parts along x and z, for one force model (ForceGap).
@@ -42,10 +39,13 @@ constexpr int kObsBladeVzMap = soil::kObsFeatures - 1;
 // The physics layer's force with a known soil on one geometry, term by term (ForceDecomposition's
 // ladder): [0] paper F at β*, [1] + penetration when `descending`, [2] + adhesion on the face,
 // [3] + inertia at edge speed v. All zero where the FEE is invalid (as the layer: only F^r there).
+// `penetration_if_down` is the term a descending edge meets, so another gate's [1] is
+// F[0] + that term where it says descending.
 struct Ladder {
   std::array<Eigen::Vector2d, 4> F;
   Eigen::Vector2d fee_total = Eigen::Vector2d::Zero(), penetration = Eigen::Vector2d::Zero(),
-                  inertia = Eigen::Vector2d::Zero();
+                  inertia = Eigen::Vector2d::Zero(), penetration_if_down = Eigen::Vector2d::Zero();
+  Eigen::Vector2d withGate(bool descending) const { return descending ? F[0] + penetration_if_down : F[0]; }
 };
 Ladder physicsLadder(const fee::Soil& s, const fee::Geometry& g, bool descending, double v, double edge_m) {
   Ladder l;
@@ -54,7 +54,8 @@ Ladder physicsLadder(const fee::Soil& s, const fee::Geometry& g, bool descending
   const fee::Result r = fee::evaluateAtBetaMin(s, g);
   if (!r.valid()) return l;
   l.fee_total = r.F_total_N;
-  if (descending) l.penetration = {0.0, -fee::penetrationForce(s, g.d_m, g.w_m, edge_m)};
+  l.penetration_if_down = {0.0, -fee::penetrationForce(s, g.d_m, g.w_m, edge_m)};
+  if (descending) l.penetration = l.penetration_if_down;
   // The soil entering the wedge is brought to the blade's speed: mass flux γ/g d w v times v
   // (the blade pushes it forward).
   if (v > 0) l.inertia = {s.gamma_n_m3 / 9.80665 * g.d_m * g.w_m * v * v, 0.0};
@@ -142,8 +143,8 @@ void addDecompositionRow(DecompAccum& d, const SampleView& v, const SoilEstimate
   d.b.add(lm.F[1], q);
   d.c.add(est, q);
   if (v.edge_vz && std::isfinite(v.edge_vz[p])) {
-    d.a_true_gate.add(physicsLadder(v.soil, truth_geo, true_down, speed, edge_m).F[1], q);
-    d.b_true_gate.add(physicsLadder(v.soil, mapped, true_down, speed, edge_m).F[1], q);
+    d.a_true_gate.add(lt.withGate(true_down), q);
+    d.b_true_gate.add(lm.withGate(true_down), q);
   }
   if (v.moving[p]) {
     d.norm_moving += norm;
@@ -548,7 +549,7 @@ void propertyTable(std::ostringstream& os, const SoilEvaluation& e, const char* 
   os << "\n" << intro << "\n\n| split |";
   for (int k = 0; k < kSoilCount; ++k) {
     os << " " << kName[k];
-    if (units) os << " (" << kDisplayUnit[k] << ")";
+    if (units) os << " (" << soil::kSoilDisplay[k].unit << ")";
     os << " |";
   }
   os << "\n|---|";
@@ -616,7 +617,7 @@ std::string evaluationMarkdown(const SoilEvaluation& e) {
   std::ostringstream os;
   char buf[256];
   os << "| split | samples (valid) | force error % (along x / z) | noise floor % (error against the noise-free force %) | ... moving rows % (stalled rows) | FEE with truth soil % | ... at β* % | ... and truth geometry % | simulator's F_total at β* % | constant force % | mapped Q / sim. Q (median) |";
-  for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " MAE (" << kDisplayUnit[k] << ") |";
+  for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " MAE (" << soil::kSoilDisplay[k].unit << ") |";
   os << "\n|---|---|---|---|---|---|---|---|---|---|---|";
   for (int k = 0; k < kSoilCount; ++k) os << "---|";
   os << "\n";
@@ -629,7 +630,7 @@ std::string evaluationMarkdown(const SoilEvaluation& e) {
                   m.force_error_simulator_model_pct, m.force_error_mean_pct, m.surcharge_ratio_median);
     os << buf;
     for (int k = 0; k < kSoilCount; ++k) {
-      std::snprintf(buf, sizeof buf, " %.2f |", m.mae[k] * kDisplayScale[k]);
+      std::snprintf(buf, sizeof buf, " %.2f |", m.mae[k] * soil::kSoilDisplay[k].scale);
       os << buf;
     }
     os << "\n";
@@ -640,8 +641,8 @@ std::string evaluationMarkdown(const SoilEvaluation& e) {
                 "of estimate with truth:",
                 true, [](const SplitMetrics& m, int k) {
                   char cell[64];
-                  std::snprintf(cell, sizeof cell, "%.2f / %.2f, r %.2f", m.mae[k] * kDisplayScale[k],
-                                m.mae_constant[k] * kDisplayScale[k], m.correlation[k]);
+                  std::snprintf(cell, sizeof cell, "%.2f / %.2f, r %.2f", m.mae[k] * soil::kSoilDisplay[k].scale,
+                                m.mae_constant[k] * soil::kSoilDisplay[k].scale, m.correlation[k]);
                   return std::string(cell);
                 });
   propertyTable(os, e, "Fraction of truth within ±1σ (aleatoric / nullspace-inflated / total with epistemic):", false,
@@ -693,14 +694,14 @@ io::Image fig11Chart(const SoilEvaluation& e, const std::string& caption) {
     io::ChartPanel& p = panels[static_cast<std::size_t>(k)];
     p.title = std::string(kName[k]);
     p.x_label = "relative density I_d (bin centre)";
-    p.y_label = kDisplayUnit[k];
+    p.y_label = soil::kSoilDisplay[k].unit;
     for (int fam = 0; fam < 4; ++fam) {
       const std::string name = soil::soilFamilyName(static_cast<soil::SoilFamily>(fam));
       io::ChartSeries est{name + ": estimate +-1 sigma", colours[fam], {}, {}, {}, false};
       io::ChartSeries truth{name + ": truth", colours[fam], {}, {}, {}, true};
       for (const Fig11Bin& b : e.fig11) {
         if (b.family != fam) continue;
-        const double x = (b.bin + 0.5) / 10.0, scale = kDisplayScale[k];
+        const double x = (b.bin + 0.5) / 10.0, scale = soil::kSoilDisplay[k].scale;
         // A small offset per family so the bars of one bin do not hide each other.
         est.x.push_back(x + 0.012 * (fam - 1.5));
         est.y.push_back(b.mean[k] * scale);
