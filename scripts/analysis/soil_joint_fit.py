@@ -63,14 +63,13 @@ def beta_star(phi, delta, alpha, rho):
     return np.where(np.isfinite(best), best, math.pi / 4 - phi / 2)
 
 
-def force(theta, g):
+def fee(theta, rho, alpha, d, w, q):
+    """F_total of the FEE at beta* (fee::evaluateAtBetaMin), blade on soil [x, z]."""
     c, phi, ca, delta, gamma = theta
-    rho, alpha, w, d, q, down = g["rho"], g["alpha"], g["w"], g["d"], g["q"], g["down"]
     beta = beta_star(phi, delta, alpha, rho)
-    eta = delta + rho + phi + beta
     with np.errstate(all="ignore"):
-        S = np.sin(eta)
-        sA = np.sin(alpha + phi + beta)
+        eta = delta + rho + phi + beta
+        S, sA = np.sin(eta), np.sin(alpha + phi + beta)
         ng = (1 / np.tan(rho) + 1 / np.tan(beta)) * sA / (2 * S)
         nc = np.cos(phi) / (np.sin(beta) * S)
         nq = sA / S
@@ -79,9 +78,21 @@ def force(theta, g):
         th = rho + delta - alpha
         fx = f * np.sin(th) + ca * d * w / np.sin(rho) * np.cos(rho - alpha)
         fz = f * np.cos(th) - ca * d * w / np.sin(rho) * np.sin(rho - alpha)
-        t = math.tan(phi)
-        Nq = math.exp(math.pi * t) * math.tan(math.pi / 4 + phi / 2) ** 2
-        Nc = (Nq - 1) / t
+    return fx, fz
+
+
+def bearing(phi):
+    t = math.tan(phi)
+    nq = math.exp(math.pi * t) * math.tan(math.pi / 4 + phi / 2) ** 2
+    return (nq - 1) / t, nq
+
+
+def force(theta, g):
+    c, phi, ca, delta, gamma = theta
+    rho, alpha, w, d, q, down = g["rho"], g["alpha"], g["w"], g["d"], g["q"], g["down"]
+    fx, fz = fee(theta, rho, alpha, d, w, q)
+    Nc, Nq = bearing(phi)
+    with np.errstate(all="ignore"):
         fz = fz - down * (c * Nc + gamma * d * Nq) * EDGE_M * w
     valid = (d > 0) & np.isfinite(fx) & np.isfinite(fz)
     return np.where(valid, fx, 0.0), np.where(valid, fz, 0.0)

@@ -12,7 +12,6 @@ simulator's rows (`truth_geometry_rows`, `truth_profile_rows`, `force_parts`, `e
 dataset written since 2026-12-01. Needs Debian's python3-h5py and python3-scipy.
 """
 import argparse
-import glob
 import math
 import os
 import sys
@@ -23,19 +22,14 @@ import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from strip_zone_fit import fee, bearing  # noqa: E402
+from soil_joint_fit import bearing, fee  # noqa: E402
+from strip_zone_fit import episodes  # noqa: E402
 
 DEG = math.pi / 180
 VZ = 34
 EDGE_M = 0.025
 REPOSE_DEG = {0: 30, 1: 32, 2: 33, 3: 36}  # the simulator's soil table, for the pushed pile
 FAMILY = {0: "clay", 1: "loam", 2: "sand", 3: "gravel"}
-
-
-def episodes(ds):
-    for fn in sorted(glob.glob(os.path.join(ds, "episodes", "*.h5"))):
-        with h5py.File(fn, "r") as f:
-            yield {k: f[k][:] for k in f.keys() if isinstance(f[k], h5py.Dataset)}
 
 
 def moving(e):
@@ -48,7 +42,7 @@ def moving(e):
 
 def physics(ds):
     acc, den = {}, 0.0
-    for e in episodes(ds):
+    for _, e in episodes(ds):
         tr = e["truth"][0].astype(float)
         fam = int(e["plan"][2])
         tg, tp = e["truth_geometry_rows"].astype(float), e["truth_profile_rows"].astype(float)
@@ -77,7 +71,7 @@ def physics(ds):
 def gate(ds):
     num_t = num_o = den = 0.0
     V, O = [], []
-    for e in episodes(ds):
+    for _, e in episodes(ds):
         tr = e["truth"][0].astype(float)
         tg, tp = e["truth_geometry_rows"].astype(float), e["truth_profile_rows"].astype(float)
         pen_s = e["force_parts"][..., 2, 1].astype(float)  # the simulator's penetration part (z, blade on soil)
@@ -106,7 +100,7 @@ def gate(ds):
 
 def depth(ds):
     med, ratios = [], []
-    for e in episodes(ds):
+    for _, e in episodes(ds):
         dm, dsim = e["theta_k"][..., 3].astype(float).ravel(), e["truth_geometry_rows"][..., 2].astype(float).ravel()
         am, asim = e["profile"][..., 0].astype(float).ravel(), e["truth_profile_rows"][..., 0].astype(float).ravel()
         m = np.isfinite(dm) & np.isfinite(dsim) & (dsim > 0.02)
@@ -124,7 +118,7 @@ def fit(ds):
     lo = np.array([0.0, 10 * DEG, 12e3, 0.0, 0.0])
     hi = np.array([60e3, 50 * DEG, 22e3, 1.0, 1.0])
     res = []
-    for e in episodes(ds):
+    for _, e in episodes(ds):
         tr = e["truth"][0].astype(float)
         fam = int(e["plan"][2])
         tg, tp = e["truth_geometry_rows"].astype(float), e["truth_profile_rows"].astype(float)

@@ -36,7 +36,7 @@ from scipy.optimize import least_squares  # noqa: E402
 from scipy.stats import norm  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from soil_joint_fit import beta_star  # noqa: E402
+from soil_joint_fit import bearing, fee  # noqa: E402
 
 DEG = math.pi / 180
 VZ = 34             # blade_vz_map_mps in the observation features
@@ -53,30 +53,6 @@ HI = np.array([60e3, 50 * DEG, 22e3, 1.0, 1.0])
 def soil_of(x):
     c, phi, g, a, b = x
     return c, phi, a * c, b * phi, g
-
-
-def fee(theta, rho, alpha, d, w, q):
-    """F_total of the FEE at beta* (fee::evaluateAtBetaMin), blade on soil [x, z]."""
-    c, phi, ca, delta, gamma = theta
-    beta = beta_star(phi, delta, alpha, rho)
-    with np.errstate(all="ignore"):
-        eta = delta + rho + phi + beta
-        S, sA = np.sin(eta), np.sin(alpha + phi + beta)
-        ng = (1 / np.tan(rho) + 1 / np.tan(beta)) * sA / (2 * S)
-        nc = np.cos(phi) / (np.sin(beta) * S)
-        nq = sA / S
-        nca = -np.cos(rho + phi + beta) / (np.sin(rho) * S)
-        f = gamma * d * d * w * ng + c * d * w * nc + q * nq + ca * d * w * nca
-        th = rho + delta - alpha
-        fx = f * np.sin(th) + ca * d * w / np.sin(rho) * np.cos(rho - alpha)
-        fz = f * np.cos(th) - ca * d * w / np.sin(rho) * np.sin(rho - alpha)
-    return fx, fz
-
-
-def bearing(phi):
-    t = math.tan(phi)
-    nq = math.exp(math.pi * t) * math.tan(math.pi / 4 + phi / 2) ** 2
-    return (nq - 1) / t, nq
 
 
 def episodes(ds):
