@@ -3,7 +3,7 @@
 (docs/soil_estimator.md, "Where the error lived in the soil map").
 
     python3 scripts/analysis/soil_map_error.py physics DATASET   # the FEE part: one wedge, cross-section, pushed pile
-    python3 scripts/analysis/soil_map_error.py gate DATASET      # the penetration term with the observed and the true gate
+    python3 scripts/analysis/soil_map_error.py gate DATASET      # the penetration term with the observed and the true gate; the edge speed's sign, oscillation and smoothing
     python3 scripts/analysis/soil_map_error.py depth DATASET     # mapped depth / cross-section against the simulator's
     python3 scripts/analysis/soil_map_error.py fit DATASET       # joint soil fits per episode on the simulator's geometry
 
@@ -68,9 +68,14 @@ def physics(ds):
         print("  %-70s x %5.1f  z %5.1f" % (k, 100 * x / den, 100 * z / den))
 
 
+SMOOTH_STEPS = (1, 2, 3, 5, 8)
+
+
 def gate(ds):
     num_t = num_o = den = 0.0
     V, O = [], []
+    S = {k: [] for k in SMOOTH_STEPS}   # the observed speed's centred mean over +-k observation rows
+    lag = {1: [], 5: []}                # pairs of the true speed k rows apart
     for _, e in episodes(ds):
         tr = e["truth"][0].astype(float)
         tg, tp = e["truth_geometry_rows"].astype(float), e["truth_profile_rows"].astype(float)
@@ -89,7 +94,21 @@ def gate(ds):
         den += np.abs(pen_s)[m].sum()
         V.append(vz[m])
         O.append(ovz[m])
+        full = e["obs"][..., VZ].astype(float)
+        T, P = full.shape[1], vz.shape[1]
+        for k in SMOOTH_STEPS:
+            sm = np.stack([full[:, max(0, T - P + p - k):min(T, T - P + p + k + 1)].mean(1) for p in range(P)], 1)
+            S[k].append(sm[m])
+        for k in lag:
+            both = np.isfinite(vz[:, :-k]) & np.isfinite(vz[:, k:])
+            lag[k].append(np.stack([vz[:, :-k][both], vz[:, k:][both]]))
     V, O = np.concatenate(V), np.concatenate(O)
+    print("the edge's true vertical speed: |v_z| median %.3f m/s, 90th percentile %.3f m/s; correlation of rows %s" % (
+        np.median(np.abs(V)), np.percentile(np.abs(V), 90),
+        ", ".join("%d apart %+.2f" % (k, np.corrcoef(np.concatenate(v, 1))[0, 1]) for k, v in lag.items())))
+    print("observed sign agrees with the true one on %.1f %% of the rows; its centred mean over +-k rows: %s" % (
+        100 * np.mean((O < 0) == (V < 0)),
+        ", ".join("k %d %.1f %%" % (k, 100 * np.mean((np.concatenate(S[k]) < 0) == (V < 0))) for k in SMOOTH_STEPS)))
     print("penetration term against the simulator's, %% of its sum: true gate %.1f, observed gate %.1f" % (
         100 * num_t / den, 100 * num_o / den))
     print("observed speed's sign wrong on %.1f %% of the rows; by |true speed|:" % (100 * np.mean((O < 0) != (V < 0))))
