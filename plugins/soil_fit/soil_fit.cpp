@@ -2,6 +2,7 @@
 
 #include <terramap/soil/publish_estimate.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <limits>
@@ -104,6 +105,12 @@ WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, i
   return out;
 }
 
+bool phiAtBound(double phi_rad, double var_phi, double sd_k) {
+  const auto& range = soil::kSoilParams[soil::kParamPhi];
+  const double margin = std::max(0.01 * (range.hi - range.lo), sd_k * std::sqrt(std::max(0.0, var_phi)));
+  return phi_rad < range.lo + margin || phi_rad > range.hi - margin;
+}
+
 ParamSchema SoilFit::schema() const {
   const soil::PooledFitOptions d;
   return {param::integer("horizon", 10, 1, 1000, "observation rows per sweep (the sample's P)"),
@@ -132,6 +139,9 @@ ParamSchema SoilFit::schema() const {
                       "estimates of overlapping windows; 0: the sweeps in the window)"),
           param::boolean("phi_bound_invalid", true,
                          "an estimate whose phi sits within 1 % of an end of its range is not fused (phi_at_bound)"),
+          param::real("phi_bound_sd", 1.0, 0.0, 10.0, "1",
+                      "phi_bound_invalid: phi within this many of its standard deviations of an end of its range is at "
+                      "the bound too (at least 1 % of the range)"),
           param::real("edge_margin", 0.7, 0.01, 1.0, "1",
                       "edge_preserving: a side window replaces the centred one only if its cost per row is below this "
                       "share of the centred one's"),
@@ -177,6 +187,7 @@ void SoilFit::configure(const Params& p) {
   edge_preserving_ = p.getBool("edge_preserving");
   edge_margin_ = p.getDouble("edge_margin");
   phi_bound_invalid_ = p.getBool("phi_bound_invalid");
+  phi_bound_sd_ = p.getDouble("phi_bound_sd");
   variance_inflation_ = p.getDouble("variance_inflation");
 }
 
@@ -251,8 +262,7 @@ void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
     // the soil does not explain, most often across a soil boundary), and its curvature there
     // says nothing of how far the other side of the valley lies: not a measurement.
     const double phi = fit.fit.mean[soil::kParamPhi];
-    const auto& range = soil::kSoilParams[soil::kParamPhi];
-    const bool bounded_phi = phi < range.lo + 0.01 * (range.hi - range.lo) || phi > range.hi - 0.01 * (range.hi - range.lo);
+    const bool bounded_phi = phiAtBound(phi, fit.fit.covariance(soil::kParamPhi, soil::kParamPhi), phi_bound_sd_);
     if (bounded_phi) ctx.addCounter("estimates_at_phi_bound", 1);
     for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
       r.mean[k] = fit.fit.mean[static_cast<std::size_t>(k)];

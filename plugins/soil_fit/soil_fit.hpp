@@ -112,6 +112,13 @@ struct WindowChoice {
 WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, int lookahead_sweeps, double edge_margin,
                        int min_rows, const std::vector<soil::SoilParamVector>& starts, const soil::PooledFitOptions& opt);
 
+/// Whether a fit's φ (rad, with its variance var_phi in rad²) is at an end of φ's range: closer
+/// to it than sd_k of its standard deviations, and at least than 1 % of the range. The fit then
+/// ran along the c–φ valley into the box's wall: its Gaussian puts a share of its mass outside
+/// the physical range, so its curvature there says nothing of how far the valley reaches and the
+/// estimate is no measurement (`phi_bound_invalid`). NaN var_phi counts as 0. Pure.
+bool phiAtBound(double phi_rad, double var_phi, double sd_k);
+
 class SoilFit : public Plugin {
  public:
   ParamSchema schema() const override;
@@ -151,6 +158,7 @@ class SoilFit : public Plugin {
   double edge_margin_ = 0.7;
   double variance_inflation_ = 1.5;
   bool phi_bound_invalid_ = true;
+  double phi_bound_sd_ = 1.0;
   soil::PooledFitOptions opt_;
   std::map<std::string, MachineState> machines_;
   soil::PendingSweeps pending_;

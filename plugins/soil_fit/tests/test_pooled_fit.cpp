@@ -344,3 +344,20 @@ TEST(SoilFitWindow, TheWindowThatExplainsTheSweepKeepsTheEdgeSharp) {
   EXPECT_LT(sharp, 6000.0);
   EXPECT_GT(centred, 2.0 * sharp);
 }
+
+// A fit at 49 deg +- 3.6 deg (Fig. 12's strip, where the blade rode 1 cm deep and the pile's
+// N_q took the force) ran into the wall of phi's range [10, 50] deg: 1 % of the range (0.4 deg)
+// does not see it, one standard deviation does. A fit well inside keeps its estimate whatever
+// its spread, and without a variance the 1 % margin still holds.
+TEST(SoilFitPlugin, AFitWhoseStandardDeviationReachesPastPhisRangeIsAtTheBound) {
+  const double deg = M_PI / 180.0;
+  const double var = (3.6 * deg) * (3.6 * deg);
+  EXPECT_FALSE(plugins::phiAtBound(49.0 * deg, var, 0.0));
+  EXPECT_TRUE(plugins::phiAtBound(49.0 * deg, var, 1.0));
+  EXPECT_TRUE(plugins::phiAtBound(12.0 * deg, var, 1.0));  // the other end
+  EXPECT_FALSE(plugins::phiAtBound(30.0 * deg, var, 1.0));
+  EXPECT_FALSE(plugins::phiAtBound(30.0 * deg, var, 5.0));
+  EXPECT_TRUE(plugins::phiAtBound(30.0 * deg, var, 6.0));
+  EXPECT_TRUE(plugins::phiAtBound(49.9 * deg, std::nan(""), 1.0));
+  EXPECT_FALSE(plugins::phiAtBound(49.0 * deg, std::nan(""), 1.0));
+}
