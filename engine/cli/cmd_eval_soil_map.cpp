@@ -54,17 +54,21 @@ std::optional<soil::FeeIndexConfig> referenceCut(const PipelineSpec& spec) {
 void printSoil(const nlohmann::json& truth_soil, const sim::Scenario& sc, const std::optional<soil::FeeIndexConfig>& cut) {
   std::printf("soil layers against the truth soil at the surface (%ld cells with an estimate):\n",
               truth_soil.value("cells_estimated", 0L));
-  std::printf("  %-12s %8s %12s %12s %12s %10s %10s\n", "property", "cells", "MAE", "bias", "RMSE", "in 1 sd",
-              "in 2 sd");
+  std::printf("  %-12s %8s %12s %12s %12s %10s %10s %16s\n", "property", "cells", "MAE", "bias", "RMSE", "in 1 sd",
+              "in 2 sd", "in 1 sd, inside");
   for (int k = 0; k < soil::kSoilParamCount; ++k) {
     const char* name = soil::kSoilParams[k].layer;
     const auto& [scale, unit] = soil::kSoilDisplay[k];
     const nlohmann::json& p = truth_soil["properties"][name];
-    std::printf("  %-12s %8ld %8.2f %-3s %8.2f %-3s %8.2f %-3s %9.1f%% %9.1f%%\n", name, p.value("cells", 0L),
+    const long inside = p.value("cells_inside", 0L);
+    char in_range[32] = "    (no cells)";
+    if (inside > 0) std::snprintf(in_range, sizeof in_range, "%6.1f%% of %ld", 100 * num(p["within_1sigma_inside"]), inside);
+    std::printf("  %-12s %8ld %8.2f %-3s %8.2f %-3s %8.2f %-3s %9.1f%% %9.1f%% %16s\n", name, p.value("cells", 0L),
                 num(p["mae"]) * scale, unit, num(p["bias"]) * scale, unit, num(p["rmse"]) * scale, unit,
-                100 * num(p["within_1sigma"]), 100 * num(p["within_2sigma"]));
+                100 * num(p["within_1sigma"]), 100 * num(p["within_2sigma"]), in_range);
   }
-  std::printf("  (calibrated variances put 68.3 %% of the truths within 1 sd and 95.4 %% within 2)\n");
+  std::printf("  (calibrated variances put 68.3 %% of the truths within 1 sd and 95.4 %% within 2; \"inside\": the\n"
+              "   cells whose truth lies inside its range, by 1 %% of it: at an end every estimate near it covers it)\n");
   const auto zoneName = [&](int id) {
     return id < 0 ? std::string("default soil")
                   : (id < static_cast<int>(sc.zones.size()) ? sc.zones[static_cast<std::size_t>(id)].name

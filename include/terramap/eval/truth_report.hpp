@@ -25,7 +25,10 @@ TERRAMAP_API TruthComparison compareWithSourceTruth(LayeredMap& map, const Sourc
 /// at the cell centres, Source::truth "soil_*" and "soil_zone"), as JSON: cells_estimated and per
 /// property unit, cells, mae, bias, rmse (estimate − truth, in the property's unit; null when no
 /// cell was compared), within_1sigma / within_2sigma (the fraction of the cells whose truth lies
-/// within 1 / 2 posterior standard deviations: 0.683 / 0.954 when the variances are calibrated);
+/// within 1 / 2 posterior standard deviations: 0.683 / 0.954 when the variances are calibrated),
+/// cells_inside and within_1sigma_inside (the same over the cells whose truth lies inside the
+/// property's range by 1 % of it; null without such cells: at an end of the range every estimate
+/// near the truth covers it);
 /// with a `fee_index` layer also fee_index.zones: per truth zone (-1 = the default soil) cells,
 /// mean_index_n and, for the scenario's zones, auc_vs_default (eval::rocAuc with the zone's cells
 /// as positives: the probability that a zone cell's index is above a default-soil cell's; where

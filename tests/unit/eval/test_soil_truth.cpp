@@ -92,4 +92,43 @@ TEST(SoilTruth, TheReportGivesErrorsCalibrationAndTheIndexAucPerZone) {
   EXPECT_TRUE(eval::soilTruthJson(bare, *src).empty());
 }
 
+// Sand (c = 0, the end of c's range) with the clay strip: estimates of c 0.5 kPa +- 1 kPa on the
+// sand cover its truth, 3 sd off on the clay do not. Over the map half the truths are covered;
+// inside the range (the clay's cells only) none.
+TEST(SoilTruth, CoverageInsideTheRangeLeavesTruthsAtItsEndOut) {
+  const fs::path dir = fs::path(TERRAMAP_BINARY_DIR) / "test_tmp" / "soil_truth_sand";
+  fs::create_directories(dir);
+  std::ofstream(dir / "s.yaml") << "version: 1\nseed: 1\nduration_s: 0.1\n"
+                                   "terrain: {size_m: [4, 3], origin_m: [-1, -1.5], resolution_m: 0.02}\n"
+                                   "soil:\n  default: {family: sand, relative_density: 0.3}\n"
+                                   "  zones:\n    - {name: strip, family: clay, relative_density: 0.8, strip: {axis: x, range_m: [1, 2]}}\n"
+                                   "machines:\n  - id: ctl1\n    controller: {type: route, start_m: [0, 0], length_m: 1, passes: 1}\n";
+  sim::registerSimSource();
+  const auto src = makeSource(parsePipelineString(
+      "version: 1\nmap: {resolution: 0.1, size: [20, 20]}\nsource: {type: sim, scenario: s.yaml}\npipeline: []\n", "p.yaml",
+      dir.string()));
+  // x in [0.5, 2.5]: 5 rows of sand, 10 of clay, 5 of sand.
+  LayeredMap map(Geometry(0.1, Size(20, 20), Position(1.5, 0.0)));
+  Eigen::MatrixXf truth(20, 20), zone(20, 20);
+  ASSERT_TRUE(src->truth("soil_zone", map.geometry(), zone));
+  for (const char* n : {"soil_c", "soil_phi", "soil_ca", "soil_delta", "soil_gamma"}) {
+    ASSERT_TRUE(src->truth(n, map.geometry(), truth));
+    Eigen::MatrixXf est(20, 20), var = Eigen::MatrixXf::Constant(20, 20, 1e6f);
+    for (int i = 0; i < 20; ++i)
+      for (int j = 0; j < 20; ++j) est(i, j) = zone(i, j) >= 0 ? truth(i, j) + 3000.0f : truth(i, j) + 500.0f;
+    map.fromMatrix(map.addLayer(n, ""), est);
+    map.fromMatrix(map.addLayer(std::string(n) + "_var", ""), var);
+  }
+  const nlohmann::json j = nlohmann::json::parse(eval::soilTruthJson(map, *src));
+  const auto& c = j["properties"]["soil_c"];
+  ASSERT_EQ(c["cells"].get<long>(), 400);
+  EXPECT_NEAR(c["within_1sigma"].get<double>(), 0.5, 1e-12);
+  EXPECT_EQ(c["cells_inside"].get<long>(), 200);
+  EXPECT_EQ(c["within_1sigma_inside"].get<double>(), 0.0);
+  // γ lies inside its range on both soils: the two figures agree.
+  const auto& g = j["properties"]["soil_gamma"];
+  EXPECT_EQ(g["cells_inside"].get<long>(), 400);
+  EXPECT_EQ(g["within_1sigma_inside"].get<double>(), g["within_1sigma"].get<double>());
+}
+
 }  // namespace
