@@ -20,6 +20,6 @@ for f in "${fs[@]}"; do
   s=$(basename "$f" .yaml); log="$OUT/$s.log"
   idx=$(grep 'dense_strip .*cells' "$log" | awk '{printf "%5.1f / %5.1f kN, AUC %s", $5, $9, $NF}')
   bias=$(grep -E '^  soil_(c|phi) ' "$log" | awk '{printf "%s %s ", $1, $5}')
-  cov=$(grep -E '^  soil_(c|phi) ' "$log" | awk '{printf "%s ", $(NF-1)}')
+  cov=$(grep -E '^  soil_(c|phi) ' "$log" | awk '{printf "%s ", $9}')
   printf "%-22s | index %s | bias %s| in 1 sd %s\n" "$s" "$idx" "$bias" "$cov"
 done
