@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace terramap::soil {
 namespace {
@@ -270,8 +271,7 @@ double rowsCost(const std::vector<FitRow>& rows, const SoilParamVector& soil, co
   return c;
 }
 
-PooledFit fitPooledMultiStart(const std::vector<FitRow>& rows, const std::vector<SoilParamVector>& starts,
-                              const PooledFitOptions& opt) {
+std::vector<SoilParamVector> multiStarts(const std::vector<SoilParamVector>& starts) {
   std::vector<SoilParamVector> all = starts;
   SoilParamVector corner;
   corner.fill(std::numeric_limits<double>::quiet_NaN());  // the other properties start in the middle
@@ -282,16 +282,21 @@ PooledFit fitPooledMultiStart(const std::vector<FitRow>& rows, const std::vector
   corner[kParamC] = at(kParamC, 0.1);
   corner[kParamPhi] = at(kParamPhi, 0.7);
   all.push_back(corner);
-  PooledFit best;
-  bool have = false;
-  for (const SoilParamVector& s0 : all) {
-    PooledFit f = fitPooled(rows, s0, opt);
-    if (!have || f.cost < best.cost) {
-      best = std::move(f);
-      have = true;
-    }
-  }
-  return best;
+  return all;
+}
+
+PooledFit leastCost(std::vector<PooledFit>& fits) {
+  std::size_t best = 0;
+  for (std::size_t i = 1; i < fits.size(); ++i)
+    if (fits[i].cost < fits[best].cost) best = i;
+  return std::move(fits[best]);
+}
+
+PooledFit fitPooledMultiStart(const std::vector<FitRow>& rows, const std::vector<SoilParamVector>& starts,
+                              const PooledFitOptions& opt) {
+  std::vector<PooledFit> fits;
+  for (const SoilParamVector& s0 : multiStarts(starts)) fits.push_back(fitPooled(rows, s0, opt));
+  return leastCost(fits);
 }
 
 }  // namespace terramap::soil

@@ -124,5 +124,10 @@ double rowsCost(const std::vector<FitRow>& rows, const SoilParamVector& soil, co
 /// enters a dense one); the fit of least cost.
 PooledFit fitPooledMultiStart(const std::vector<FitRow>& rows, const std::vector<SoilParamVector>& starts,
                               const PooledFitOptions& opt = {});
+/// The starts fitPooledMultiStart fits from, in its order: `starts`, then the two corners.
+std::vector<SoilParamVector> multiStarts(const std::vector<SoilParamVector>& starts);
+/// Of fits from multiStarts' starts, in its order, the one fitPooledMultiStart keeps (the first
+/// of least cost), moved out of `fits`. \pre fits is not empty.
+PooledFit leastCost(std::vector<PooledFit>& fits);
 
 }  // namespace terramap::soil

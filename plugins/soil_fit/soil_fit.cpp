@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <iterator>
 #include <limits>
 
 namespace terramap::plugins {
@@ -71,7 +72,8 @@ void SweepWindow::forgetBefore(long oldest_needed) {
 }
 
 WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, int lookahead_sweeps, double edge_margin,
-                       int min_rows, const std::vector<soil::SoilParamVector>& starts, const soil::PooledFitOptions& opt) {
+                       int min_rows, const std::vector<soil::SoilParamVector>& starts, const soil::PooledFitOptions& opt,
+                       const Executor* executor) {
   // The candidate windows: the centred one, and with edge_margin > 0 the ones ending and
   // starting at this sweep.
   std::vector<std::pair<int, int>> windows{{-(window_sweeps - 1 - lookahead_sweeps), lookahead_sweeps}};
@@ -81,24 +83,41 @@ WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, i
   }
   int n_own = 0;
   const std::vector<soil::FitRow> own = edge_margin > 0 ? window.rowsIn(seq, 0, 0, &n_own) : std::vector<soil::FitRow>{};
+  std::vector<std::vector<soil::FitRow>> rows(windows.size());
+  std::vector<int> sweeps(windows.size(), 0);
+  for (std::size_t k = 0; k < windows.size(); ++k) rows[k] = window.rowsIn(seq, windows[k].first, windows[k].second, &sweeps[k]);
+  // Every window from every start is one independent fit: they run in parallel, and the choice
+  // below reads them in a fixed order, so the result is the same for any thread count.
+  const std::vector<soil::SoilParamVector> all = soil::multiStarts(starts);
+  const int n_starts = static_cast<int>(all.size());
+  std::vector<soil::PooledFit> fits(windows.size() * all.size());
+  const auto fitOne = [&](int i) {
+    const std::size_t k = static_cast<std::size_t>(i / n_starts);
+    if (static_cast<int>(rows[k].size()) >= min_rows)
+      fits[static_cast<std::size_t>(i)] = soil::fitPooled(rows[k], all[static_cast<std::size_t>(i % n_starts)], opt);
+  };
+  const int n_fits = static_cast<int>(fits.size());
+  if (executor != nullptr) executor->forEach(n_fits, fitOne);
+  else
+    for (int i = 0; i < n_fits; ++i) fitOne(i);
   WindowChoice out;
   double best = std::numeric_limits<double>::infinity();
   for (std::size_t k = 0; k < windows.size(); ++k) {
-    int n = 0;
-    const std::vector<soil::FitRow> rows = window.rowsIn(seq, windows[k].first, windows[k].second, &n);
-    if (static_cast<int>(rows.size()) < min_rows) continue;
-    soil::PooledFit f = soil::fitPooledMultiStart(rows, starts, opt);
+    if (static_cast<int>(rows[k].size()) < min_rows) continue;
+    std::vector<soil::PooledFit> of_window(std::make_move_iterator(fits.begin() + static_cast<long>(k * all.size())),
+                                           std::make_move_iterator(fits.begin() + static_cast<long>((k + 1) * all.size())));
+    soil::PooledFit f = soil::leastCost(of_window);
     // How well the window's soil explains this sweep's own rows: at a soil boundary the window
     // on the sweep's side holds its soil, the centred one a blend (every window is judged on the
     // same rows, so the pile and machine state they share do not favour one). A side window
     // must beat the centred one clearly (edge_margin): inside one soil they differ by noise.
-    double score = own.empty() ? f.cost / static_cast<double>(rows.size()) : soil::rowsCost(own, f.mean, opt);
+    double score = own.empty() ? f.cost / static_cast<double>(rows[k].size()) : soil::rowsCost(own, f.mean, opt);
     if (k > 0) score /= edge_margin;
     if (score < best) {
       best = score;
       out.fit = std::move(f);
-      out.sweeps = n;
-      out.rows = rows.size();
+      out.sweeps = sweeps[k];
+      out.rows = rows[k].size();
       out.chosen = static_cast<int>(k);
     }
   }
@@ -244,7 +263,7 @@ void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
   std::vector<soil::SoilParamVector> starts{start};
   if (m.has_last) starts.push_back(m.last);
   const WindowChoice fit = fitWindow(m.window, w.seq, window_sweeps_, lookahead_sweeps_, edge_preserving_ ? edge_margin_ : 0.0,
-                                     min_rows_, starts, opt_);
+                                     min_rows_, starts, opt_, &ctx.executor());
   const int sweeps = fit.sweeps;
   const std::size_t n_rows = fit.rows;
   if (edge_preserving_ && n_rows > 0)

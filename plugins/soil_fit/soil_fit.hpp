@@ -108,9 +108,12 @@ struct WindowChoice {
 /// the sweep's own rows best is kept, a side one only if its cost on them is below edge_margin
 /// times the centred one's (a Kuwahara filter: at a soil boundary the window on the sweep's side
 /// holds one soil, the centred one a blend). `window` must keep window_sweeps - 1 sweeps each
-/// side (SweepWindow::keeping) for the side windows. Pure; no threads.
+/// side (SweepWindow::keeping) for the side windows. Pure. Threading: with an `executor` the
+/// fits (each window from each start) run as its tasks; the result is the same for any thread
+/// count and without one (serial).
 WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, int lookahead_sweeps, double edge_margin,
-                       int min_rows, const std::vector<soil::SoilParamVector>& starts, const soil::PooledFitOptions& opt);
+                       int min_rows, const std::vector<soil::SoilParamVector>& starts, const soil::PooledFitOptions& opt,
+                       const Executor* executor = nullptr);
 
 /// Whether a fit's φ (rad, with its variance var_phi in rad²) is at an end of φ's range: closer
 /// to it than sd_k of its standard deviations, and at least than 1 % of the range. The fit then

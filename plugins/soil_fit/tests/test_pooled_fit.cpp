@@ -4,6 +4,7 @@
 // plugin's rows leave stalled rows out and read the edge's descent from the observation.
 #include <gtest/gtest.h>
 
+#include <terramap/core/parallel.hpp>
 #include <terramap/soil/soil_table.hpp>
 
 #include <cmath>
@@ -360,4 +361,32 @@ TEST(SoilFitPlugin, AFitWhoseStandardDeviationReachesPastPhisRangeIsAtTheBound) 
   EXPECT_TRUE(plugins::phiAtBound(30.0 * deg, var, 6.0));
   EXPECT_TRUE(plugins::phiAtBound(49.9 * deg, std::nan(""), 1.0));
   EXPECT_FALSE(plugins::phiAtBound(49.0 * deg, std::nan(""), 1.0));
+}
+
+// The fits of a sweep (three windows, four starts each) run as tasks of the engine's executor;
+// the estimate is bit for bit the serial one whatever the thread count (here at a soil
+// boundary, where the windows disagree and the choice between them matters).
+TEST(SoilFitWindow, TheFitsInParallelGiveTheSerialEstimate) {
+  const fee::Soil loose = soilProperties(SoilFamily::Clay, 0.1).fee, dense = soilProperties(SoilFamily::Clay, 0.8).fee;
+  plugins::SweepWindow window = plugins::SweepWindow::keeping(9, 9, 2.0);
+  for (int k = 0; k < 24; ++k) window.add({0.2 * k, 0.0, 0.0}, rowsOf(k < 12 ? loose : dense, 10, true, 400 + k, 300.0));
+  for (long seq : {10L, 12L}) {
+    const plugins::WindowChoice serial = plugins::fitWindow(window, seq, 10, 5, 0.7, 10, {middle()}, PooledFitOptions{});
+    // The chosen window's fit is fitPooledMultiStart's on its rows.
+    const std::pair<int, int> span[] = {{-4, 5}, {-9, 0}, {0, 9}};
+    ASSERT_GE(serial.chosen, 0);
+    const auto& [from, to] = span[serial.chosen];
+    const PooledFit direct = fitPooledMultiStart(window.rowsIn(seq, from, to, nullptr), {middle()}, PooledFitOptions{});
+    EXPECT_EQ(direct.cost, serial.fit.cost) << seq;
+    EXPECT_EQ(direct.mean[kParamPhi], serial.fit.mean[kParamPhi]) << seq;
+    for (int threads : {1, 2, 3}) {
+      const Executor ex(threads);
+      const plugins::WindowChoice par = plugins::fitWindow(window, seq, 10, 5, 0.7, 10, {middle()}, PooledFitOptions{}, &ex);
+      EXPECT_EQ(par.chosen, serial.chosen) << seq << " " << threads;
+      EXPECT_EQ(par.rows, serial.rows);
+      for (int k = 0; k < kSoilParamCount; ++k) EXPECT_EQ(par.fit.mean[k], serial.fit.mean[k]) << k;
+      EXPECT_TRUE((par.fit.covariance.array() == serial.fit.covariance.array()).all());
+      EXPECT_EQ(par.fit.cost, serial.fit.cost);
+    }
+  }
 }
