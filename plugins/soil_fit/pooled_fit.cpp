@@ -102,6 +102,11 @@ Prior priorOf(const PooledFitOptions& opt) {
     p.centre[kParamGamma] = (opt.gamma_prior_n_m3 - kSoilParams[kParamGamma].lo) / span;
     p.sd[kParamGamma] = opt.gamma_prior_sd_n_m3 / span;
   }
+  if (std::isfinite(opt.fixed_phi_rad)) {
+    const double span = kSoilParams[kParamPhi].hi - kSoilParams[kParamPhi].lo;
+    p.centre[kParamPhi] = std::clamp((opt.fixed_phi_rad - kSoilParams[kParamPhi].lo) / span, 0.0, 1.0);
+    p.sd[kParamPhi] = 1e-6;
+  }
   return p;
 }
 
@@ -156,6 +161,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
   for (int k = 0; k < kN; ++k)
     if (!std::isfinite(t0[k])) u[k] = 0.5;
   const Prior prior = priorOf(opt);
+  if (std::isfinite(opt.fixed_phi_rad)) u[kParamPhi] = prior.centre[kParamPhi];
   const Mat prior_info = prior.sd.array().square().inverse().matrix().asDiagonal();
   // The gate: the prior's hard decision, or (gate_mixture) its probability, refined below.
   std::vector<double> gate(rows.size());
@@ -251,6 +257,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
   // force: the covariance takes the residuals' own scale (never below the assumed one).
   const double scale = std::max(1.0, chi * chi);
   out.covariance = scale * D * cov_u * D.transpose();
+  out.residual_scale = scale;
   return out;
 }
 

@@ -83,6 +83,9 @@ struct PooledFitOptions {
   /// maximisation over the switch, gate_iterations rounds). false: descending where p >= 0.5.
   bool gate_mixture = true;
   int gate_iterations = 4;
+  /// Finite: φ is held at this value (rad; its prior's standard deviation 1e-6 of its span about
+  /// it) and the other properties fitted: the cost's profile along φ.
+  double fixed_phi_rad = std::numeric_limits<double>::quiet_NaN();
 };
 struct PooledFit {
   SoilParamVector mean{};                 ///< the fitted soil, inside kSoilParams' ranges
@@ -94,6 +97,8 @@ struct PooledFit {
   bool converged = false;
   double rms_n = 0;                       ///< root mean square of the force residuals at the solution (each row's gated), N
   double cost = 0;                        ///< the minimised robust cost, prior included (to compare starts)
+  /// The factor the covariance took from the residuals' scatter, max(1, χ² per residual).
+  double residual_scale = 1;
 };
 
 /// The row's modelled force with soil `s`: FEE plus the pushed pile in `fee_n` (blade on soil,

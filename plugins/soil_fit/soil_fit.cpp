@@ -121,6 +121,7 @@ WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, i
       out.chosen = static_cast<int>(k);
     }
   }
+  if (out.chosen >= 0) out.fitted = std::move(rows[static_cast<std::size_t>(out.chosen)]);
   return out;
 }
 
@@ -128,6 +129,17 @@ bool phiAtBound(double phi_rad, double var_phi, double sd_k) {
   const auto& range = soil::kSoilParams[soil::kParamPhi];
   const double margin = std::max(0.01 * (range.hi - range.lo), sd_k * std::sqrt(std::max(0.0, var_phi)));
   return phi_rad < range.lo + margin || phi_rad > range.hi - margin;
+}
+
+bool phiEndInsideProfile(const std::vector<soil::FitRow>& rows, const soil::PooledFit& fit, double sd_k,
+                         double variance_inflation, const soil::PooledFitOptions& opt) {
+  const auto& range = soil::kSoilParams[soil::kParamPhi];
+  const double phi = fit.mean[soil::kParamPhi];
+  soil::PooledFitOptions held = opt;
+  held.fixed_phi_rad = phi - range.lo < range.hi - phi ? range.lo : range.hi;
+  const soil::PooledFit wall = soil::fitPooled(rows, fit.mean, held);
+  const double rise = soil::rowsCost(rows, wall.mean, opt) - soil::rowsCost(rows, fit.mean, opt);
+  return rise <= sd_k * sd_k * fit.residual_scale * (variance_inflation > 0 ? variance_inflation : 1.0);
 }
 
 ParamSchema SoilFit::schema() const {
@@ -161,6 +173,9 @@ ParamSchema SoilFit::schema() const {
           param::real("phi_bound_sd", 1.0, 0.0, 10.0, "1",
                       "phi_bound_invalid: phi within this many of its standard deviations of an end of its range is at "
                       "the bound too (at least 1 % of the range)"),
+          param::boolean("phi_bound_profile", false,
+                         "phi_bound_sd: an estimate near the end by its Gaussian is at the bound only if the rows' "
+                         "cost with phi held at the end rises by less than that many sigma (profile likelihood)"),
           param::real("edge_margin", 0.7, 0.01, 1.0, "1",
                       "edge_preserving: a side window replaces the centred one only if its cost per row is below this "
                       "share of the centred one's"),
@@ -207,6 +222,7 @@ void SoilFit::configure(const Params& p) {
   edge_margin_ = p.getDouble("edge_margin");
   phi_bound_invalid_ = p.getBool("phi_bound_invalid");
   phi_bound_sd_ = p.getDouble("phi_bound_sd");
+  phi_bound_profile_ = p.getBool("phi_bound_profile");
   variance_inflation_ = p.getDouble("variance_inflation");
 }
 
@@ -281,7 +297,11 @@ void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
     // the soil does not explain, most often across a soil boundary), and its curvature there
     // says nothing of how far the other side of the valley lies: not a measurement.
     const double phi = fit.fit.mean[soil::kParamPhi];
-    const bool bounded_phi = phiAtBound(phi, fit.fit.covariance(soil::kParamPhi, soil::kParamPhi), phi_bound_sd_);
+    bool bounded_phi = phiAtBound(phi, fit.fit.covariance(soil::kParamPhi, soil::kParamPhi), phi_bound_sd_);
+    // Near the end by the Gaussian only: the profile decides (a soil whose φ lies near the end,
+    // as a dense gravel's 43-45 deg, keeps its estimate where the rows rule the end out).
+    if (bounded_phi && phi_bound_profile_ && !phiAtBound(phi, 0.0, 0.0))
+      bounded_phi = phiEndInsideProfile(fit.fitted, fit.fit, phi_bound_sd_, variance_inflation_, opt_);
     if (bounded_phi) ctx.addCounter("estimates_at_phi_bound", 1);
     for (int k = 0; k < SoilEstimateRecord::kCount; ++k) {
       r.mean[k] = fit.fit.mean[static_cast<std::size_t>(k)];

@@ -100,6 +100,7 @@ struct WindowChoice {
   int sweeps = 0;        ///< sweeps in the window
   std::size_t rows = 0;  ///< rows fitted (0: no window had min_rows)
   int chosen = -1;       ///< 0 centred, 1 the sweeps before and it, 2 it and the sweeps after
+  std::vector<soil::FitRow> fitted;  ///< the chosen window's rows
 };
 
 /// Sweep `seq`'s fit (soil::fitPooledMultiStart from `starts`) with the window of
@@ -121,6 +122,15 @@ WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, i
 /// the physical range, so its curvature there says nothing of how far the valley reaches and the
 /// estimate is no measurement (`phi_bound_invalid`). NaN var_phi counts as 0. Pure.
 bool phiAtBound(double phi_rad, double var_phi, double sd_k);
+
+/// Whether the profile of the rows' cost along φ says the nearer end of φ's range is as good as
+/// the fit (profile likelihood instead of the Gaussian's curvature, which a curved c–φ valley
+/// misleads): the rows' cost (soil::rowsCost) with φ held at that end and the other properties
+/// refitted, minus the fit's, at most sd_k² times the fit's residual_scale times
+/// `variance_inflation` (the factors its published variance carries; ≤ 0 counts as 1): the end
+/// lies inside the fit's sd_k-σ profile interval. One more fit of `rows`. Pure.
+bool phiEndInsideProfile(const std::vector<soil::FitRow>& rows, const soil::PooledFit& fit, double sd_k,
+                         double variance_inflation, const soil::PooledFitOptions& opt);
 
 class SoilFit : public Plugin {
  public:
@@ -162,6 +172,7 @@ class SoilFit : public Plugin {
   double variance_inflation_ = 1.5;
   bool phi_bound_invalid_ = true;
   double phi_bound_sd_ = 1.0;
+  bool phi_bound_profile_ = false;
   soil::PooledFitOptions opt_;
   std::map<std::string, MachineState> machines_;
   soil::PendingSweeps pending_;

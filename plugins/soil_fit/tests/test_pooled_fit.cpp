@@ -390,3 +390,23 @@ TEST(SoilFitWindow, TheFitsInParallelGiveTheSerialEstimate) {
     }
   }
 }
+
+// The profile along φ tells a soil near φ's end from a fit that slid along the c–φ valley: a
+// dense gravel (φ 44.7°, c 0) cut at many depths is fitted near 45° and the rows rule 50° out;
+// rows of one geometry of a clay hold only a combination of c and φ, so with φ held at 50° the
+// rows are explained as well by less cohesion.
+TEST(SoilFitPlugin, TheProfileAlongPhiKeepsASoilNearTheEndAndDropsAValleyFit) {
+  const PooledFitOptions opt;
+  const fee::Soil gravel = soilProperties(SoilFamily::Gravel, 0.9).fee;
+  const std::vector<FitRow> varied = rowsOf(gravel, 100, true, 11, 300.0);
+  const PooledFit near_end = fitPooledMultiStart(varied, {middle()}, opt);
+  EXPECT_NEAR(near_end.mean[kParamPhi], gravel.phi_rad, 2.0 * M_PI / 180.0);
+  EXPECT_FALSE(plugins::phiEndInsideProfile(varied, near_end, 1.0, 1.5, opt));
+  const fee::Soil clay = soilProperties(SoilFamily::Clay, 0.8).fee;
+  const std::vector<FitRow> one = rowsOf(clay, 100, false, 12, 300.0);
+  PooledFitOptions held = opt;
+  held.fixed_phi_rad = 47.0 * M_PI / 180.0;
+  const PooledFit valley = fitPooled(one, middle(), held);
+  ASSERT_NEAR(valley.mean[kParamPhi], held.fixed_phi_rad, 1e-4);
+  EXPECT_TRUE(plugins::phiEndInsideProfile(one, valley, 1.0, 1.5, opt));
+}
