@@ -241,11 +241,13 @@ Factors factors(const Soil& s, const Geometry& g, double beta) {
   return n;
 }
 
-Result evaluate(const Soil& s, const Geometry& g, double beta) {
+Result evaluate(const Soil& s, const Geometry& g, double beta) { return evaluateWith(s, g, beta, factors(s, g, beta)); }
+
+Result evaluateWith(const Soil& s, const Geometry& g, double beta, const Factors& n) {
   Result r;
   r.beta_rad = beta;
   r.validity = check(s, g, beta);
-  r.n = factors(s, g, beta);
+  r.n = n;
   const double d = g.d_m, w = g.w_m;
   r.f_N = s.gamma_n_m3 * d * d * w * r.n.N_gamma + s.c_pa * d * w * r.n.N_c + g.q_n * r.n.N_Q +
           s.ca_pa * d * w * r.n.N_ca;
@@ -360,7 +362,10 @@ BearingFactors bearingFactors(double phi) {
 }
 
 Penetration penetration(const Soil& s, double d_m, double w_m, double edge_m) {
-  const BearingFactors b = bearingFactors(s.phi_rad);
+  return penetrationWith(s, d_m, w_m, edge_m, bearingFactors(s.phi_rad));
+}
+
+Penetration penetrationWith(const Soil& s, double d_m, double w_m, double edge_m, const BearingFactors& b) {
   const double a = edge_m * w_m;
   Penetration p;
   p.force_n = (s.c_pa * b.N_c + s.gamma_n_m3 * d_m * b.N_q) * edge_m * w_m;

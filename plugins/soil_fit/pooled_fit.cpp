@@ -48,19 +48,68 @@ fee::Soil soilOf(const Vec& u, bool bounded) {
 // (a force sensor's and the soil's own fluctuation grow with the force).
 double rowSigma(const PooledFitOptions& opt, double f) { return std::hypot(opt.force_sigma_n, opt.force_sigma_rel * f); }
 
+// What a row's force takes from the soil's angles alone (β*, the FEE's N-factors, the bearing
+// factors: functions of φ, δ, α and ρ) and its noise scales, kept between residual evaluations
+// of one fit: the Jacobian's columns for c, c_a and γ leave the angles as they were. Each value
+// is the one the uncached path computes, so the fit is bit for bit the same.
+struct AngleCache {
+  double phi = std::numeric_limits<double>::quiet_NaN(), delta = std::numeric_limits<double>::quiet_NaN();
+  struct Row {
+    double beta = 0, sx = 0, sz = 0;
+    fee::Factors n;
+    fee::BearingFactors b;
+  };
+  std::vector<Row> rows;
+};
+
+// rowForce with the angles' part given: beta = fee::betaMin(s, row's geometry), n its factors,
+// b = fee::bearingFactors(s.phi_rad).
+RowForce rowForceWith(const fee::Soil& s, const FitRow& row, const PooledFitOptions& opt, double beta,
+                      const fee::Factors& n, const fee::BearingFactors& b);
+
 // Residuals of every row at u, three per row in units of its noise scale (rowSigma): along x, and the
 // vertical one with the penetration on (weighted by sqrt(w_i)) and off (sqrt(1 - w_i)), w_i the
-// row's gate weight. A gate known for sure has w_i in {0, 1} and so one vertical residual.
+// row's gate weight. A gate known for sure has w_i in {0, 1} and so one vertical residual. With
+// a cache, rows reuse its angles' part when u's φ and δ are those it holds, and refill it when not.
 void residuals(const std::vector<FitRow>& rows, const std::vector<double>& gate, const Vec& u,
-               const PooledFitOptions& opt, Eigen::VectorXd& r, int* valid_rows = nullptr) {
+               const PooledFitOptions& opt, Eigen::VectorXd& r, int* valid_rows = nullptr, AngleCache* cache = nullptr) {
   const fee::Soil s = soilOf(u, opt.interface_bounded_by_soil);
   r.resize(static_cast<Eigen::Index>(3 * rows.size()));
+  bool hit = false;
+  if (cache != nullptr) {
+    if (cache->rows.size() != rows.size()) {
+      cache->rows.assign(rows.size(), {});
+      for (std::size_t i = 0; i < rows.size(); ++i) {
+        cache->rows[i].sx = rowSigma(opt, rows[i].fx_n);
+        cache->rows[i].sz = rowSigma(opt, rows[i].fz_n);
+      }
+      cache->phi = cache->delta = std::numeric_limits<double>::quiet_NaN();
+    }
+    hit = s.phi_rad == cache->phi && s.delta_rad == cache->delta;
+    cache->phi = s.phi_rad;
+    cache->delta = s.delta_rad;
+  }
   int valid = 0;
   for (std::size_t i = 0; i < rows.size(); ++i) {
-    const RowForce f = rowForce(s, rows[i], opt);
+    RowForce f;
+    double sx, sz;
+    if (cache != nullptr) {
+      AngleCache::Row& c = cache->rows[i];
+      if (!hit) {
+        c.beta = fee::betaMin(s, rows[i].geometry);
+        c.n = fee::factors(s, rows[i].geometry, c.beta);
+        c.b = fee::bearingFactors(s.phi_rad);
+      }
+      f = rowForceWith(s, rows[i], opt, c.beta, c.n, c.b);
+      sx = c.sx;
+      sz = c.sz;
+    } else {
+      f = rowForce(s, rows[i], opt);
+      sx = rowSigma(opt, rows[i].fx_n);
+      sz = rowSigma(opt, rows[i].fz_n);
+    }
     valid += f.valid;
     const double w = gate[i];
-    const double sx = rowSigma(opt, rows[i].fx_n), sz = rowSigma(opt, rows[i].fz_n);
     const double ez_off = (f.fee_n.y() - rows[i].fz_n) / sz;
     const double ez_on = (f.fee_n.y() - f.penetration_n - rows[i].fz_n) / sz;
     r[static_cast<Eigen::Index>(3 * i)] = (f.fee_n.x() - rows[i].fx_n) / sx;
@@ -119,7 +168,10 @@ double cost(const Eigen::VectorXd& r, const Vec& u, const Prior& prior) {
 
 }  // namespace
 
-RowForce rowForce(const fee::Soil& s, const FitRow& row, const PooledFitOptions& opt) {
+namespace {
+
+RowForce rowForceWith(const fee::Soil& s, const FitRow& row, const PooledFitOptions& opt, double beta,
+                      const fee::Factors& n, const fee::BearingFactors& b) {
   RowForce out;
   fee::Geometry g = row.geometry;
   const double w_cut = g.w_m;
@@ -136,13 +188,22 @@ RowForce rowForce(const fee::Soil& s, const FitRow& row, const PooledFitOptions&
   double depth_v = g.d_m;
   if (opt.cross_section && w_cut > 0 && fee::slicedWedge(row.area_m2, row.depth2_m3, g.d_m, g.w_m))
     depth_v = row.area_m2 / (w_cut * std::cos(g.alpha_rad));
-  const fee::Result res = fee::evaluateAtBetaMin(s, g);
+  // β* and the factors hang on the angles only, which slicing the cut and sharing the pile
+  // leave as they are (fee::evaluateAtBetaMin's own steps, with its β* and factors given).
+  const fee::Result res = fee::evaluateWith(s, g, beta, n);
   if (!res.valid()) return out;
   out.fee_n = res.F_total_N;
   out.fee_n.x() += opt.pile_friction * pushed;
-  out.penetration_n = fee::penetrationForce(s, depth_v, w_cut, opt.edge_thickness_m);
+  out.penetration_n = fee::penetrationWith(s, depth_v, w_cut, opt.edge_thickness_m, b).force_n;
   out.valid = true;
   return out;
+}
+
+}  // namespace
+
+RowForce rowForce(const fee::Soil& s, const FitRow& row, const PooledFitOptions& opt) {
+  const double beta = fee::betaMin(s, row.geometry);
+  return rowForceWith(s, row, opt, beta, fee::factors(s, row.geometry, beta), fee::bearingFactors(s.phi_rad));
 }
 
 bool modelForce(const fee::Soil& s, const FitRow& row, const PooledFitOptions& opt, Eigen::Vector2d& f) {
@@ -168,6 +229,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
   for (std::size_t i = 0; i < rows.size(); ++i)
     gate[i] = opt.gate_mixture ? std::clamp(rows[i].p_descending, 0.0, 1.0) : (rows[i].p_descending >= 0.5 ? 1.0 : 0.0);
   Eigen::VectorXd r, rt;
+  AngleCache cache;
   Eigen::MatrixXd J(static_cast<Eigen::Index>(3 * rows.size()), kN);
   Mat JtWJ = Mat::Zero();
   constexpr double kStep = 1e-4;
@@ -180,17 +242,18 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
       for (std::size_t i = 0; i < gate.size(); ++i) moved = std::max(moved, std::abs(gate[i] - before[i]));
       if (moved < 1e-3) break;
     }
-    residuals(rows, gate, u, opt, r);
+    residuals(rows, gate, u, opt, r, nullptr, &cache);
     double c = cost(r, u, prior);
     double lambda = 1e-2;
     bool converged = false;
     for (int it = 0; it < opt.max_iterations; ++it, ++out.iterations) {
-      // Forward differences, stepping inward at an upper bound.
-      for (int k = 0; k < kN; ++k) {
+      // Forward differences, stepping inward at an upper bound; c, c_a and γ first, which keep
+      // the angles' part of every row (AngleCache).
+      for (int k : {kParamC, kParamCa, kParamGamma, kParamPhi, kParamDelta}) {
         Vec up = u;
         const double h = u[k] + kStep > 1.0 ? -kStep : kStep;
         up[k] += h;
-        residuals(rows, gate, up, opt, rt);
+        residuals(rows, gate, up, opt, rt, nullptr, &cache);
         J.col(k) = (rt - r) / h;
       }
       // Iteratively reweighted least squares for the soft-L1 loss: weight 1 / sqrt(1 + e²).
@@ -203,7 +266,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
         A.diagonal() += lambda * A.diagonal();
         const Vec step = -A.ldlt().solve(g);
         const Vec un = (u + step).cwiseMax(0.0).cwiseMin(1.0);
-        residuals(rows, gate, un, opt, rt);
+        residuals(rows, gate, un, opt, rt, nullptr, &cache);
         const double cn = cost(rt, un, prior);
         if (cn < c) {
           const double moved = (un - u).cwiseAbs().maxCoeff();
@@ -224,7 +287,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
     }
     out.converged = converged;
   }
-  residuals(rows, gate, u, opt, r, &out.rows);
+  residuals(rows, gate, u, opt, r, &out.rows, &cache);
   out.cost = cost(r, u, prior);
   const fee::Soil s = soilOf(u, bounded);
   out.mean = fromFee(s);

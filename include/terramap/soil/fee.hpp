@@ -131,6 +131,10 @@ Factors factors(const Soil& s, const Geometry& g, double beta_rad);
 /// Full evaluation at a given beta. Never throws; an invalid input is reported in `validity`
 /// and the numbers are still computed where finite.
 Result evaluate(const Soil& s, const Geometry& g, double beta_rad);
+/// evaluate() with the N-factors given: `n` must be factors(s, g, beta_rad), which depend only
+/// on φ, δ, α, ρ and β. A fit that varies c, c_a, γ, d, w or Q at fixed angles reuses them
+/// (the result is bit for bit evaluate()'s).
+Result evaluateWith(const Soil& s, const Geometry& g, double beta_rad, const Factors& n);
 /// evaluate() at betaNominal(s).
 Result evaluateAtBetaNominal(const Soil& s, const Geometry& g);
 /// evaluate() at betaMin(s, g). If the other rules hold but no admissible beta* exists,
@@ -194,6 +198,8 @@ struct Penetration {
   Eigen::Vector4d gradient = Eigen::Vector4d::Zero();
 };
 Penetration penetration(const Soil& s, double d_m, double w_m, double edge_m);
+/// penetration() with the bearing factors given: `b` must be bearingFactors(s.phi_rad).
+Penetration penetrationWith(const Soil& s, double d_m, double w_m, double edge_m, const BearingFactors& b);
 /// penetration(...).force_n.
 inline double penetrationForce(const Soil& s, double d_m, double w_m, double edge_m) {
   return penetration(s, d_m, w_m, edge_m).force_n;

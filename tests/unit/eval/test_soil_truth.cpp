@@ -18,13 +18,13 @@ namespace fs = std::filesystem;
 
 namespace {
 
-// Loam everywhere, a dense clay strip at x in [1, 2].
-std::unique_ptr<Source> stripSource() {
-  const fs::path dir = fs::path(TERRAMAP_BINARY_DIR) / "test_tmp" / "soil_truth";
+// `ground` (loam by default) everywhere, a dense clay strip at x in [1, 2].
+std::unique_ptr<Source> stripSource(const std::string& ground = "loam") {
+  const fs::path dir = fs::path(TERRAMAP_BINARY_DIR) / "test_tmp" / ("soil_truth_" + ground);
   fs::create_directories(dir);
   std::ofstream(dir / "s.yaml") << "version: 1\nseed: 1\nduration_s: 0.1\n"
                                    "terrain: {size_m: [4, 3], origin_m: [-1, -1.5], resolution_m: 0.02}\n"
-                                   "soil:\n  default: {family: loam, relative_density: 0.3}\n"
+                                   "soil:\n  default: {family: " << ground << ", relative_density: 0.3}\n"
                                    "  zones:\n    - {name: strip, family: clay, relative_density: 0.8, strip: {axis: x, range_m: [1, 2]}}\n"
                                    "machines:\n  - id: ctl1\n    controller: {type: route, start_m: [0, 0], length_m: 1, passes: 1}\n";
   sim::registerSimSource();
@@ -96,17 +96,7 @@ TEST(SoilTruth, TheReportGivesErrorsCalibrationAndTheIndexAucPerZone) {
 // sand cover its truth, 3 sd off on the clay do not. Over the map half the truths are covered;
 // inside the range (the clay's cells only) none.
 TEST(SoilTruth, CoverageInsideTheRangeLeavesTruthsAtItsEndOut) {
-  const fs::path dir = fs::path(TERRAMAP_BINARY_DIR) / "test_tmp" / "soil_truth_sand";
-  fs::create_directories(dir);
-  std::ofstream(dir / "s.yaml") << "version: 1\nseed: 1\nduration_s: 0.1\n"
-                                   "terrain: {size_m: [4, 3], origin_m: [-1, -1.5], resolution_m: 0.02}\n"
-                                   "soil:\n  default: {family: sand, relative_density: 0.3}\n"
-                                   "  zones:\n    - {name: strip, family: clay, relative_density: 0.8, strip: {axis: x, range_m: [1, 2]}}\n"
-                                   "machines:\n  - id: ctl1\n    controller: {type: route, start_m: [0, 0], length_m: 1, passes: 1}\n";
-  sim::registerSimSource();
-  const auto src = makeSource(parsePipelineString(
-      "version: 1\nmap: {resolution: 0.1, size: [20, 20]}\nsource: {type: sim, scenario: s.yaml}\npipeline: []\n", "p.yaml",
-      dir.string()));
+  const auto src = stripSource("sand");
   // x in [0.5, 2.5]: 5 rows of sand, 10 of clay, 5 of sand.
   LayeredMap map(Geometry(0.1, Size(20, 20), Position(1.5, 0.0)));
   Eigen::MatrixXf truth(20, 20), zone(20, 20);
