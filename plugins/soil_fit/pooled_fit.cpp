@@ -229,7 +229,8 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
   for (std::size_t i = 0; i < rows.size(); ++i)
     gate[i] = opt.gate_mixture ? std::clamp(rows[i].p_descending, 0.0, 1.0) : (rows[i].p_descending >= 0.5 ? 1.0 : 0.0);
   Eigen::VectorXd r, rt;
-  AngleCache cache;
+  AngleCache cache_storage;
+  AngleCache* cache = opt.angle_cache ? &cache_storage : nullptr;
   Eigen::MatrixXd J(static_cast<Eigen::Index>(3 * rows.size()), kN);
   Mat JtWJ = Mat::Zero();
   constexpr double kStep = 1e-4;
@@ -242,7 +243,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
       for (std::size_t i = 0; i < gate.size(); ++i) moved = std::max(moved, std::abs(gate[i] - before[i]));
       if (moved < 1e-3) break;
     }
-    residuals(rows, gate, u, opt, r, nullptr, &cache);
+    residuals(rows, gate, u, opt, r, nullptr, cache);
     double c = cost(r, u, prior);
     double lambda = 1e-2;
     bool converged = false;
@@ -253,7 +254,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
         Vec up = u;
         const double h = u[k] + kStep > 1.0 ? -kStep : kStep;
         up[k] += h;
-        residuals(rows, gate, up, opt, rt, nullptr, &cache);
+        residuals(rows, gate, up, opt, rt, nullptr, cache);
         J.col(k) = (rt - r) / h;
       }
       // Iteratively reweighted least squares for the soft-L1 loss: weight 1 / sqrt(1 + e²).
@@ -266,7 +267,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
         A.diagonal() += lambda * A.diagonal();
         const Vec step = -A.ldlt().solve(g);
         const Vec un = (u + step).cwiseMax(0.0).cwiseMin(1.0);
-        residuals(rows, gate, un, opt, rt, nullptr, &cache);
+        residuals(rows, gate, un, opt, rt, nullptr, cache);
         const double cn = cost(rt, un, prior);
         if (cn < c) {
           const double moved = (un - u).cwiseAbs().maxCoeff();
@@ -287,7 +288,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
     }
     out.converged = converged;
   }
-  residuals(rows, gate, u, opt, r, &out.rows, &cache);
+  residuals(rows, gate, u, opt, r, &out.rows, cache);
   out.cost = cost(r, u, prior);
   const fee::Soil s = soilOf(u, bounded);
   out.mean = fromFee(s);

@@ -86,6 +86,10 @@ struct PooledFitOptions {
   /// Finite: φ is held at this value (rad; its prior's standard deviation 1e-6 of its span about
   /// it) and the other properties fitted: the cost's profile along φ.
   double fixed_phi_rad = std::numeric_limits<double>::quiet_NaN();
+  /// Keep each row's β*, FEE and bearing factors while φ and δ stay put (the Jacobian's c, c_a
+  /// and γ columns): the same fit bit for bit, at about half the time. false: every residual
+  /// evaluates them afresh (for testing that).
+  bool angle_cache = true;
 };
 struct PooledFit {
   SoilParamVector mean{};                 ///< the fitted soil, inside kSoilParams' ranges

@@ -410,3 +410,23 @@ TEST(SoilFitPlugin, TheProfileAlongPhiKeepsASoilNearTheEndAndDropsAValleyFit) {
   ASSERT_NEAR(valley.mean[kParamPhi], held.fixed_phi_rad, 1e-4);
   EXPECT_TRUE(plugins::phiEndInsideProfile(one, valley, 1.0, 1.5, opt));
 }
+
+// The angle cache (PooledFitOptions::angle_cache) changes the time, not the fit: the same soil,
+// covariance, cost and iterations bit for bit, on varied rows with the latent gate (whose rounds
+// re-evaluate the rows at an unchanged soil) and on the bounded interface (where the c_a column
+// moves c_a only).
+TEST(PooledFit, TheAngleCacheGivesTheUncachedFitBitForBit) {
+  for (bool bounded : {true, false}) {
+    PooledFitOptions cached;
+    cached.interface_bounded_by_soil = bounded;
+    PooledFitOptions fresh = cached;
+    fresh.angle_cache = false;
+    const std::vector<FitRow> rows = rowsOf(soilProperties(SoilFamily::Loam, 0.6).fee, 80, true, 21, 500.0);
+    const PooledFit a = fitPooled(rows, middle(), cached), b = fitPooled(rows, middle(), fresh);
+    ASSERT_GT(a.iterations, 2);
+    EXPECT_EQ(a.iterations, b.iterations);
+    EXPECT_EQ(a.cost, b.cost);
+    for (int k = 0; k < kSoilParamCount; ++k) EXPECT_EQ(a.mean[k], b.mean[k]) << k;
+    EXPECT_TRUE((a.covariance.array() == b.covariance.array()).all());
+  }
+}
