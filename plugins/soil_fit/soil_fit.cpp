@@ -73,13 +73,17 @@ void SweepWindow::forgetBefore(long oldest_needed) {
 
 WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, int lookahead_sweeps, double edge_margin,
                        int min_rows, const std::vector<soil::SoilParamVector>& starts, const soil::PooledFitOptions& opt,
-                       const Executor* executor) {
+                       const Executor* executor, int short_sweeps) {
   // The candidate windows: the centred one, and with edge_margin > 0 the ones ending and
   // starting at this sweep.
   std::vector<std::pair<int, int>> windows{{-(window_sweeps - 1 - lookahead_sweeps), lookahead_sweeps}};
   if (edge_margin > 0) {
     windows.push_back({-(window_sweeps - 1), 0});
     windows.push_back({0, window_sweeps - 1});
+    if (short_sweeps > 1 && short_sweeps < window_sweeps) {
+      windows.push_back({-(short_sweeps - 1), 0});
+      windows.push_back({0, short_sweeps - 1});
+    }
   }
   int n_own = 0;
   const std::vector<soil::FitRow> own = edge_margin > 0 ? window.rowsIn(seq, 0, 0, &n_own) : std::vector<soil::FitRow>{};
@@ -176,6 +180,9 @@ ParamSchema SoilFit::schema() const {
           param::boolean("phi_bound_profile", false,
                          "phi_bound_sd: an estimate near the end by its Gaussian is at the bound only if the rows' "
                          "cost with phi held at the end rises by less than that many sigma (profile likelihood)"),
+          param::integer("short_window_sweeps", 5, 0, 1000,
+                         "edge_preserving: also the windows of this many sweeps ending and starting at the sweep "
+                         "(strips shorter than window_sweeps; 0 or >= window_sweeps: none)"),
           param::real("edge_margin", 0.7, 0.01, 1.0, "1",
                       "edge_preserving: a side window replaces the centred one only if its cost per row is below this "
                       "share of the centred one's"),
@@ -223,6 +230,7 @@ void SoilFit::configure(const Params& p) {
   phi_bound_invalid_ = p.getBool("phi_bound_invalid");
   phi_bound_sd_ = p.getDouble("phi_bound_sd");
   phi_bound_profile_ = p.getBool("phi_bound_profile");
+  short_window_sweeps_ = static_cast<int>(p.getInt("short_window_sweeps"));
   variance_inflation_ = p.getDouble("variance_inflation");
 }
 
@@ -279,11 +287,16 @@ void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
   std::vector<soil::SoilParamVector> starts{start};
   if (m.has_last) starts.push_back(m.last);
   const WindowChoice fit = fitWindow(m.window, w.seq, window_sweeps_, lookahead_sweeps_, edge_preserving_ ? edge_margin_ : 0.0,
-                                     min_rows_, starts, opt_, &ctx.executor());
+                                     min_rows_, starts, opt_, &ctx.executor(), short_window_sweeps_);
   const int sweeps = fit.sweeps;
   const std::size_t n_rows = fit.rows;
   if (edge_preserving_ && n_rows > 0)
-    ctx.addCounter(fit.chosen == 0 ? "window_centred" : fit.chosen == 1 ? "window_before" : "window_after", 1);
+    ctx.addCounter(fit.chosen == 0   ? "window_centred"
+                   : fit.chosen == 1 ? "window_before"
+                   : fit.chosen == 2 ? "window_after"
+                   : fit.chosen == 3 ? "window_before_short"
+                                     : "window_after_short",
+                   1);
   SoilEstimateRecord& r = w.record;
   if (n_rows == 0) {
     r.invalid_reason = "too_few_rows";

@@ -99,7 +99,7 @@ struct WindowChoice {
   soil::PooledFit fit;
   int sweeps = 0;        ///< sweeps in the window
   std::size_t rows = 0;  ///< rows fitted (0: no window had min_rows)
-  int chosen = -1;       ///< 0 centred, 1 the sweeps before and it, 2 it and the sweeps after
+  int chosen = -1;       ///< 0 centred, 1 the sweeps before and it, 2 it and the sweeps after, 3 / 4 as 1 / 2 with short_sweeps
   std::vector<soil::FitRow> fitted;  ///< the chosen window's rows
 };
 
@@ -114,7 +114,7 @@ struct WindowChoice {
 /// count and without one (serial).
 WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, int lookahead_sweeps, double edge_margin,
                        int min_rows, const std::vector<soil::SoilParamVector>& starts, const soil::PooledFitOptions& opt,
-                       const Executor* executor = nullptr);
+                       const Executor* executor = nullptr, int short_sweeps = 0);
 
 /// Whether a fit's φ (rad, with its variance var_phi in rad²) is at an end of φ's range: closer
 /// to it than sd_k of its standard deviations, and at least than 1 % of the range. The fit then
@@ -173,6 +173,7 @@ class SoilFit : public Plugin {
   bool phi_bound_invalid_ = true;
   double phi_bound_sd_ = 1.0;
   bool phi_bound_profile_ = false;
+  int short_window_sweeps_ = 5;
   soil::PooledFitOptions opt_;
   std::map<std::string, MachineState> machines_;
   soil::PendingSweeps pending_;

@@ -430,3 +430,24 @@ TEST(PooledFit, TheAngleCacheGivesTheUncachedFitBitForBit) {
     EXPECT_TRUE((a.covariance.array() == b.covariance.array()).all());
   }
 }
+
+// A strip shorter than the window (6 sweeps, 1.2 m, of dense clay in loose): every window of
+// 10 sweeps that holds a strip sweep straddles an edge, so none holds the strip's soil alone;
+// windows of 5 ending or starting at the sweep do (short_sweeps), and the strip's sweeps read
+// its cohesion closer.
+TEST(SoilFitWindow, ShortSideWindowsResolveAStripShorterThanTheWindow) {
+  const fee::Soil loose = soilProperties(SoilFamily::Clay, 0.1).fee, dense = soilProperties(SoilFamily::Clay, 0.8).fee;
+  plugins::SweepWindow window = plugins::SweepWindow::keeping(9, 9, 2.0);
+  for (int k = 0; k < 30; ++k) window.add({0.2 * k, 0.0, 0.0}, rowsOf(k >= 12 && k <= 17 ? dense : loose, 10, true, 600 + k, 300.0));
+  auto stripError = [&](int short_sweeps) {
+    double sum = 0.0;
+    for (int k = 12; k <= 17; ++k) {
+      const plugins::WindowChoice w =
+          plugins::fitWindow(window, k, 10, 5, 0.7, 10, {middle()}, PooledFitOptions{}, nullptr, short_sweeps);
+      sum += std::abs(w.fit.mean[kParamC] - dense.c_pa);
+    }
+    return sum / 6.0;
+  };
+  const double with_short = stripError(5), without = stripError(0);
+  EXPECT_LT(with_short, 0.5 * without) << with_short << " against " << without;
+}
