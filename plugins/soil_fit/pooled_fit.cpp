@@ -49,9 +49,10 @@ fee::Soil soilOf(const Vec& u, bool bounded) {
 double rowSigma(const PooledFitOptions& opt, double f) { return std::hypot(opt.force_sigma_n, opt.force_sigma_rel * f); }
 
 // What a row's force takes from the soil's angles alone (β*, the FEE's N-factors, the bearing
-// factors: functions of φ, δ, α and ρ) and its noise scales, kept between residual evaluations
-// of one fit: the Jacobian's columns for c, c_a and γ leave the angles as they were. Each value
-// is the one the uncached path computes, so the fit is bit for bit the same.
+// factors: functions of φ, δ, α and ρ) and its noise scales, kept between evaluations of one row
+// set: the Jacobian's columns for c, c_a and γ, the gate's rounds and the final figures leave
+// the angles as they were. Each value is the one fee computes from scratch, so the fit is bit for
+// bit the same (PooledFitOptions::angle_cache false: refreshed at every evaluation).
 struct AngleCache {
   double phi = std::numeric_limits<double>::quiet_NaN(), delta = std::numeric_limits<double>::quiet_NaN();
   struct Row {
@@ -67,49 +68,49 @@ struct AngleCache {
 RowForce rowForceWith(const fee::Soil& s, const FitRow& row, const PooledFitOptions& opt, double beta,
                       const fee::Factors& n, const fee::BearingFactors& b);
 
+// Brings the cache to soil s: the rows' noise scales once, their angles' part unless φ and δ are
+// the ones it holds.
+void refresh(AngleCache& cache, const fee::Soil& s, const std::vector<FitRow>& rows, const PooledFitOptions& opt) {
+  if (cache.rows.size() != rows.size()) {
+    cache.rows.assign(rows.size(), {});
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      cache.rows[i].sx = rowSigma(opt, rows[i].fx_n);
+      cache.rows[i].sz = rowSigma(opt, rows[i].fz_n);
+    }
+    cache.phi = cache.delta = std::numeric_limits<double>::quiet_NaN();
+  }
+  if (opt.angle_cache && s.phi_rad == cache.phi && s.delta_rad == cache.delta) return;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    AngleCache::Row& c = cache.rows[i];
+    c.beta = fee::betaMin(s, rows[i].geometry);
+    c.n = fee::factors(s, rows[i].geometry, c.beta);
+    c.b = fee::bearingFactors(s.phi_rad);
+  }
+  cache.phi = s.phi_rad;
+  cache.delta = s.delta_rad;
+}
+
+// Row i's force at s from a cache refreshed to s.
+RowForce cachedForce(const AngleCache& cache, const fee::Soil& s, const std::vector<FitRow>& rows, std::size_t i,
+                     const PooledFitOptions& opt) {
+  const AngleCache::Row& c = cache.rows[i];
+  return rowForceWith(s, rows[i], opt, c.beta, c.n, c.b);
+}
+
 // Residuals of every row at u, three per row in units of its noise scale (rowSigma): along x, and the
 // vertical one with the penetration on (weighted by sqrt(w_i)) and off (sqrt(1 - w_i)), w_i the
-// row's gate weight. A gate known for sure has w_i in {0, 1} and so one vertical residual. With
-// a cache, rows reuse its angles' part when u's φ and δ are those it holds, and refill it when not.
+// row's gate weight. A gate known for sure has w_i in {0, 1} and so one vertical residual.
 void residuals(const std::vector<FitRow>& rows, const std::vector<double>& gate, const Vec& u,
-               const PooledFitOptions& opt, Eigen::VectorXd& r, int* valid_rows = nullptr, AngleCache* cache = nullptr) {
+               const PooledFitOptions& opt, AngleCache& cache, Eigen::VectorXd& r, int* valid_rows = nullptr) {
   const fee::Soil s = soilOf(u, opt.interface_bounded_by_soil);
+  refresh(cache, s, rows, opt);
   r.resize(static_cast<Eigen::Index>(3 * rows.size()));
-  bool hit = false;
-  if (cache != nullptr) {
-    if (cache->rows.size() != rows.size()) {
-      cache->rows.assign(rows.size(), {});
-      for (std::size_t i = 0; i < rows.size(); ++i) {
-        cache->rows[i].sx = rowSigma(opt, rows[i].fx_n);
-        cache->rows[i].sz = rowSigma(opt, rows[i].fz_n);
-      }
-      cache->phi = cache->delta = std::numeric_limits<double>::quiet_NaN();
-    }
-    hit = s.phi_rad == cache->phi && s.delta_rad == cache->delta;
-    cache->phi = s.phi_rad;
-    cache->delta = s.delta_rad;
-  }
   int valid = 0;
   for (std::size_t i = 0; i < rows.size(); ++i) {
-    RowForce f;
-    double sx, sz;
-    if (cache != nullptr) {
-      AngleCache::Row& c = cache->rows[i];
-      if (!hit) {
-        c.beta = fee::betaMin(s, rows[i].geometry);
-        c.n = fee::factors(s, rows[i].geometry, c.beta);
-        c.b = fee::bearingFactors(s.phi_rad);
-      }
-      f = rowForceWith(s, rows[i], opt, c.beta, c.n, c.b);
-      sx = c.sx;
-      sz = c.sz;
-    } else {
-      f = rowForce(s, rows[i], opt);
-      sx = rowSigma(opt, rows[i].fx_n);
-      sz = rowSigma(opt, rows[i].fz_n);
-    }
+    const RowForce f = cachedForce(cache, s, rows, i, opt);
     valid += f.valid;
     const double w = gate[i];
+    const double sx = cache.rows[i].sx, sz = cache.rows[i].sz;
     const double ez_off = (f.fee_n.y() - rows[i].fz_n) / sz;
     const double ez_on = (f.fee_n.y() - f.penetration_n - rows[i].fz_n) / sz;
     r[static_cast<Eigen::Index>(3 * i)] = (f.fee_n.x() - rows[i].fx_n) / sx;
@@ -125,12 +126,14 @@ double softL1(double e) { return 2.0 * (std::sqrt(1.0 + e * e) - 1.0); }
 
 // The gate weights at u: each row's posterior probability that the edge descended, from its
 // prior p_descending and how well the vertical force fits with and without the penetration.
-void gateWeights(const std::vector<FitRow>& rows, const Vec& u, const PooledFitOptions& opt, std::vector<double>& gate) {
+void gateWeights(const std::vector<FitRow>& rows, const Vec& u, const PooledFitOptions& opt, AngleCache& cache,
+                 std::vector<double>& gate) {
   const fee::Soil s = soilOf(u, opt.interface_bounded_by_soil);
+  refresh(cache, s, rows, opt);
   for (std::size_t i = 0; i < rows.size(); ++i) {
     const double p = std::clamp(rows[i].p_descending, 1e-3, 1.0 - 1e-3);
-    const RowForce f = rowForce(s, rows[i], opt);
-    const double sz = rowSigma(opt, rows[i].fz_n);
+    const RowForce f = cachedForce(cache, s, rows, i, opt);
+    const double sz = cache.rows[i].sz;
     const double l_on = std::log(p) - softL1((f.fee_n.y() - f.penetration_n - rows[i].fz_n) / sz);
     const double l_off = std::log(1.0 - p) - softL1((f.fee_n.y() - rows[i].fz_n) / sz);
     gate[i] = 1.0 / (1.0 + std::exp(std::clamp(l_off - l_on, -50.0, 50.0)));
@@ -229,8 +232,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
   for (std::size_t i = 0; i < rows.size(); ++i)
     gate[i] = opt.gate_mixture ? std::clamp(rows[i].p_descending, 0.0, 1.0) : (rows[i].p_descending >= 0.5 ? 1.0 : 0.0);
   Eigen::VectorXd r, rt;
-  AngleCache cache_storage;
-  AngleCache* cache = opt.angle_cache ? &cache_storage : nullptr;
+  AngleCache cache;
   Eigen::MatrixXd J(static_cast<Eigen::Index>(3 * rows.size()), kN);
   Mat JtWJ = Mat::Zero();
   constexpr double kStep = 1e-4;
@@ -238,12 +240,12 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
   for (int round = 0; round < rounds && !rows.empty(); ++round) {
     if (opt.gate_mixture && round > 0) {
       const std::vector<double> before = gate;
-      gateWeights(rows, u, opt, gate);
+      gateWeights(rows, u, opt, cache, gate);
       double moved = 0.0;
       for (std::size_t i = 0; i < gate.size(); ++i) moved = std::max(moved, std::abs(gate[i] - before[i]));
       if (moved < 1e-3) break;
     }
-    residuals(rows, gate, u, opt, r, nullptr, cache);
+    residuals(rows, gate, u, opt, cache, r);
     double c = cost(r, u, prior);
     double lambda = 1e-2;
     bool converged = false;
@@ -254,7 +256,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
         Vec up = u;
         const double h = u[k] + kStep > 1.0 ? -kStep : kStep;
         up[k] += h;
-        residuals(rows, gate, up, opt, rt, nullptr, cache);
+        residuals(rows, gate, up, opt, cache, rt);
         J.col(k) = (rt - r) / h;
       }
       // Iteratively reweighted least squares for the soft-L1 loss: weight 1 / sqrt(1 + e²).
@@ -267,7 +269,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
         A.diagonal() += lambda * A.diagonal();
         const Vec step = -A.ldlt().solve(g);
         const Vec un = (u + step).cwiseMax(0.0).cwiseMin(1.0);
-        residuals(rows, gate, un, opt, rt, nullptr, cache);
+        residuals(rows, gate, un, opt, cache, rt);
         const double cn = cost(rt, un, prior);
         if (cn < c) {
           const double moved = (un - u).cwiseAbs().maxCoeff();
@@ -288,7 +290,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
     }
     out.converged = converged;
   }
-  residuals(rows, gate, u, opt, r, &out.rows, cache);
+  residuals(rows, gate, u, opt, cache, r, &out.rows);
   out.cost = cost(r, u, prior);
   const fee::Soil s = soilOf(u, bounded);
   out.mean = fromFee(s);
@@ -299,7 +301,7 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
   for (std::size_t i = 0; i < rows.size(); ++i) {
     const auto b = static_cast<Eigen::Index>(3 * i);
     ss += r[b] * r[b] + r[b + 1] * r[b + 1] + r[b + 2] * r[b + 2];
-    const RowForce f = rowForce(s, rows[i], opt);
+    const RowForce f = cachedForce(cache, s, rows, i, opt);  // refreshed to s by the residuals above
     const double ex = f.fee_n.x() - rows[i].fx_n, ez_off = f.fee_n.y() - rows[i].fz_n, ez_on = ez_off - f.penetration_n;
     ss_n += ex * ex + gate[i] * ez_on * ez_on + (1.0 - gate[i]) * ez_off * ez_off;
   }
@@ -330,13 +332,14 @@ double rowsCost(const std::vector<FitRow>& rows, const SoilParamVector& soil, co
   for (int k = 0; k < kN; ++k) t[k] = soil[static_cast<std::size_t>(k)];
   const Vec u = uOf(t, opt.interface_bounded_by_soil);
   std::vector<double> gate(rows.size());
+  AngleCache cache;
   if (opt.gate_mixture) {
-    gateWeights(rows, u, opt, gate);
+    gateWeights(rows, u, opt, cache, gate);
   } else {
     for (std::size_t i = 0; i < rows.size(); ++i) gate[i] = rows[i].p_descending >= 0.5 ? 1.0 : 0.0;
   }
   Eigen::VectorXd r;
-  residuals(rows, gate, u, opt, r);
+  residuals(rows, gate, u, opt, cache, r);
   double c = 0;
   for (Eigen::Index i = 0; i < r.size(); ++i) c += softL1(r[i]);
   return c;

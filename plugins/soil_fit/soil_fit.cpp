@@ -89,7 +89,15 @@ WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, i
   const std::vector<soil::FitRow> own = edge_margin > 0 ? window.rowsIn(seq, 0, 0, &n_own) : std::vector<soil::FitRow>{};
   std::vector<std::vector<soil::FitRow>> rows(windows.size());
   std::vector<int> sweeps(windows.size(), 0);
-  for (std::size_t k = 0; k < windows.size(); ++k) rows[k] = window.rowsIn(seq, windows[k].first, windows[k].second, &sweeps[k]);
+  std::vector<char> fitted(windows.size(), 1);
+  for (std::size_t k = 0; k < windows.size(); ++k) {
+    rows[k] = window.rowsIn(seq, windows[k].first, windows[k].second, &sweeps[k]);
+    fitted[k] = static_cast<int>(rows[k].size()) >= min_rows;
+    // A short window holds a subset of the long one on its side (the same end, the same reach):
+    // as many sweeps means the same rows (at a pass's ends), a fit the long one already makes and
+    // that would lose to it on the tie.
+    if (k >= 3 && sweeps[k] == sweeps[k - 2]) fitted[k] = 0;
+  }
   // Every window from every start is one independent fit: they run in parallel, and the choice
   // below reads them in a fixed order, so the result is the same for any thread count.
   const std::vector<soil::SoilParamVector> all = soil::multiStarts(starts);
@@ -97,7 +105,7 @@ WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, i
   std::vector<soil::PooledFit> fits(windows.size() * all.size());
   const auto fitOne = [&](int i) {
     const std::size_t k = static_cast<std::size_t>(i / n_starts);
-    if (static_cast<int>(rows[k].size()) >= min_rows)
+    if (fitted[k])
       fits[static_cast<std::size_t>(i)] = soil::fitPooled(rows[k], all[static_cast<std::size_t>(i % n_starts)], opt);
   };
   const int n_fits = static_cast<int>(fits.size());
@@ -107,7 +115,7 @@ WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, i
   WindowChoice out;
   double best = std::numeric_limits<double>::infinity();
   for (std::size_t k = 0; k < windows.size(); ++k) {
-    if (static_cast<int>(rows[k].size()) < min_rows) continue;
+    if (!fitted[k]) continue;
     std::vector<soil::PooledFit> of_window(std::make_move_iterator(fits.begin() + static_cast<long>(k * all.size())),
                                            std::make_move_iterator(fits.begin() + static_cast<long>((k + 1) * all.size())));
     soil::PooledFit f = soil::leastCost(of_window);
@@ -290,13 +298,9 @@ void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
                                      min_rows_, starts, opt_, &ctx.executor(), short_window_sweeps_);
   const int sweeps = fit.sweeps;
   const std::size_t n_rows = fit.rows;
-  if (edge_preserving_ && n_rows > 0)
-    ctx.addCounter(fit.chosen == 0   ? "window_centred"
-                   : fit.chosen == 1 ? "window_before"
-                   : fit.chosen == 2 ? "window_after"
-                   : fit.chosen == 3 ? "window_before_short"
-                                     : "window_after_short",
-                   1);
+  static constexpr const char* kWindowCounter[] = {"window_centred", "window_before", "window_after",
+                                                   "window_before_short", "window_after_short"};
+  if (edge_preserving_ && n_rows > 0) ctx.addCounter(kWindowCounter[fit.chosen], 1);
   SoilEstimateRecord& r = w.record;
   if (n_rows == 0) {
     r.invalid_reason = "too_few_rows";
