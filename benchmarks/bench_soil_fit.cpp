@@ -5,16 +5,16 @@
 //     a loose and a dense clay (Clay 10 % / 80 %, the Fig. 12 soils), in the order the plugin
 //     publishes them, with the plugin's defaults: per sweep the centred window, the ones before
 //     and after it (10 sweeps each, 10 rows per sweep) and the short ones before and after it
-//     (5 sweeps), each from four starts (the previous sweep's fit, the middle of the ranges and
-//     the two corners of the c-phi valley): 20 bounded Levenberg-Marquardt fits and the choice
-//     between the windows. N threads of an
-//     Executor run the fits as its tasks (N = 1: serial); the estimates are the same for every N.
+//     (5 sweeps), each from the plugin's starts (the middle of the ranges, the previous sweep's
+//     fit after the first sweep, and the two corners of the c-phi valley): up to 20 bounded
+//     Levenberg-Marquardt fits and the choice between the windows. N threads of an Executor run
+//     the fits as its tasks (N = 1: serial); the estimates are the same for every N.
 //     Rows are the estimator's own model at random depths 3-23 cm, rakes, surcharges and edge
 //     motion with 300 N noise (the shape of the plugin's rows; their values change the
 //     iteration counts, not the work per iteration).
-//   Counters: sweeps_per_s (sweeps estimated per second of wall time), fits_per_sweep (windows
-//     x starts fitted per sweep, those with too few rows included), iterations_per_sweep (Levenberg-Marquardt iterations summed
-//     over the kept fits: the work), rows_per_window (rows in the chosen window, mean).
+//   Counters: sweeps_per_s (sweeps estimated per second of wall time), fits_per_sweep (the
+//     fits run per sweep, WindowChoice::fits), iterations_per_sweep (Levenberg-Marquardt
+//     iterations of the kept fit, mean), rows_per_window (rows in the chosen window, mean).
 //
 // soil_fit is a MODULE library (not linkable): this program links its kernel library,
 // soil_fit_kernels, built with the module's flags.
@@ -60,22 +60,27 @@ void BM_SoilFitSweeps(benchmark::State& state) {
   for (int k = 0; k < kSweeps; ++k)
     window.add({0.2 * k, 0.0, 0.0}, sweepRows(k < kSweeps / 2 ? loose : dense, 500u + static_cast<unsigned>(k)));
   const Executor executor(threads);
-  long iterations = 0, rows = 0, sweeps = 0;
+  long iterations = 0, rows = 0, sweeps = 0, fits = 0;
   for (auto _ : state) {
-    soil::SoilParamVector last;
-    last.fill(std::numeric_limits<double>::quiet_NaN());
+    // The plugin's starts: the middle of the ranges (NaN) and, after the first sweep, the
+    // machine's previous fit.
+    soil::SoilParamVector middle;
+    middle.fill(std::numeric_limits<double>::quiet_NaN());
+    std::vector<soil::SoilParamVector> starts{middle};
     for (long seq = kFirst; seq <= kLast; ++seq) {
       const plugins::WindowChoice c =
-          plugins::fitWindow(window, seq, 10, 5, 0.7, 10, {last}, soil::PooledFitOptions{}, &executor, kShortSweeps);
-      last = c.fit.mean;
+          plugins::fitWindow(window, seq, 10, 5, 0.7, 10, starts, soil::PooledFitOptions{}, &executor, kShortSweeps);
+      starts = {middle, c.fit.mean};
+      const soil::SoilParamVector& last = c.fit.mean;
       iterations += c.fit.iterations;
+      fits += c.fits;
       rows += static_cast<long>(c.rows);
       ++sweeps;
       benchmark::DoNotOptimize(last);
     }
   }
   state.counters["sweeps_per_s"] = benchmark::Counter(static_cast<double>(sweeps), benchmark::Counter::kIsRate);
-  state.counters["fits_per_sweep"] = 5 * 4;
+  state.counters["fits_per_sweep"] = sweeps ? static_cast<double>(fits) / static_cast<double>(sweeps) : 0.0;
   state.counters["iterations_per_sweep"] = sweeps ? static_cast<double>(iterations) / static_cast<double>(sweeps) : 0.0;
   state.counters["rows_per_window"] = sweeps ? static_cast<double>(rows) / static_cast<double>(sweeps) : 0.0;
 }

@@ -116,6 +116,7 @@ WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, i
   double best = std::numeric_limits<double>::infinity();
   for (std::size_t k = 0; k < windows.size(); ++k) {
     if (!fitted[k]) continue;
+    out.fits += n_starts;
     std::vector<soil::PooledFit> of_window(std::make_move_iterator(fits.begin() + static_cast<long>(k * all.size())),
                                            std::make_move_iterator(fits.begin() + static_cast<long>((k + 1) * all.size())));
     soil::PooledFit f = soil::leastCost(of_window);

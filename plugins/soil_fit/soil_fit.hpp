@@ -101,6 +101,7 @@ struct WindowChoice {
   std::size_t rows = 0;  ///< rows fitted (0: no window had min_rows)
   int chosen = -1;       ///< 0 centred, 1 the sweeps before and it, 2 it and the sweeps after, 3 / 4 as 1 / 2 with short_sweeps
   std::vector<soil::FitRow> fitted;  ///< the chosen window's rows
+  int fits = 0;                      ///< fits run (windows with min_rows and rows of their own, times the starts)
 };
 
 /// Sweep `seq`'s fit (soil::fitPooledMultiStart from `starts`) with the window of
