@@ -6,6 +6,8 @@
 // 411 m/s^2 on the first sample).
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <terramap/sim/machine_contact.hpp>
 #include <terramap/sim/simulator.hpp>
 #include <terramap/sim/track_soil.hpp>
@@ -218,7 +220,11 @@ namespace {
 /// The excavator's steady speed after `seconds` at full lever on flat ground of one soil; `vehicle`
 /// overrides its undercarriage (YAML flow map, e.g. "mass_kg: 28000, max_drive_force_n: 240000").
 double fullLeverSpeed(const std::string& soil, double seconds, const std::string& vehicle = "") {
-  const fs::path d = fs::path(TERRAMAP_BINARY_DIR) / "sim_test_full_lever";
+  // One folder per test process: CTest runs this file's tests in parallel, and two of them writing
+  // one s.yaml made one simulate the other's machine (CI: a 3.5 t excavator at the 28 t one's speed).
+  const fs::path d = fs::path(TERRAMAP_BINARY_DIR) / "test_tmp" /
+                     ("full_lever_" + std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) +
+                      "_" + std::to_string(::getpid()));
   fs::create_directories(d);
   std::ofstream(d / "full.csv") << "t_s,left,right,lift,tilt,angle,slew,boom,arm,bucket\n0,1,1,0,0,0,0,0,0,0\n"
                                 << seconds << ",1,1,0,0,0,0,0,0,0\n";
@@ -231,7 +237,9 @@ double fullLeverSpeed(const std::string& soil, double seconds, const std::string
   Simulator sim(loadScenario((d / "s.yaml").string()));
   std::vector<Event> ev;
   while (sim.next(ev)) ev.clear();
-  return sim.machine(0).speed();
+  const double v = sim.machine(0).speed();
+  fs::remove_all(d);
+  return v;
 }
 
 /// The excavator's spec (TB235-class defaults) with `vehicle` overrides, as a scenario gives it.
