@@ -296,6 +296,13 @@ void useOracle(PipelineSpec& spec, const StrataArgs& a, const sim::Scenario& sc,
     ++swapped;
   }
   if (swapped == 0) throw ConfigError(spec.file + ": --oracle-noise replaces the soil_pinn stage, and the pipeline has none");
+  // The pipeline's change_properties name what soil_pinn can tell; the oracle's noise is the same
+  // fraction in every property, so its change is sought in all of them (unless --set says which).
+  for (StageSpec& st : spec.stages) {
+    if (st.type != "octomap_strata") continue;
+    const auto it = st.params.find("change_properties");
+    if (it != st.params.end() && it->second.where.rfind("--set ", 0) != 0) st.params.erase(it);
+  }
 }
 
 /// The map's layers sampled during the run: both indices at each pass start, the change height
@@ -603,6 +610,9 @@ nlohmann::json estimatorSeparation(const StrataArgs& a, const sim::Scenario& sc,
   const nlohmann::json run = nlohmann::json::parse(std::ifstream(fs::path(a.out) / "report.json"));
   const soil::SoilParamVector soils[2] = {soil::fromFee(sc.default_soil.fee), soil::fromFee(zone.soil.fee)};
   std::array<std::vector<soil::SoilParamVector>, 2> est;
+  // Each valid estimate beside the truth it is classed by, for tracing a miss to its sweep:
+  // [sweep_index, t1 (s), class (0 default, 1 zone), the truth's c (Pa), the estimate's c (Pa), its sd (Pa)].
+  nlohmann::json listed = nlohmann::json::array();
   for (const nlohmann::json& stage : run["stages"]) {
     if ((stage["type"] != "soil_pinn" && stage["type"] != "soil_fit" && stage["type"] != "soil_oracle") ||
         !stage.contains("records"))
@@ -619,9 +629,12 @@ nlohmann::json estimatorSeparation(const StrataArgs& a, const sim::Scenario& sc,
       soil::SoilParamVector m{};
       for (int q = 0; q < soil::kSoilParamCount; ++q) m[static_cast<std::size_t>(q)] = r["mean"][static_cast<std::size_t>(q)].get<double>();
       est[static_cast<std::size_t>(cls)].push_back(m);
+      listed.push_back({r.value("sweep_index", -1L), t1, cls, cut_soil[soil::kParamC], m[soil::kParamC],
+                        r.contains("sd_total") ? r["sd_total"][soil::kParamC].get<double>() : std::nan("")});
     }
   }
-  nlohmann::json out = {{"estimates", {{"default", est[0].size()}, {zone.name, est[1].size()}}}};
+  nlohmann::json out = {{"estimates", {{"default", est[0].size()}, {zone.name, est[1].size()}}},
+                        {"records", std::move(listed)}};
   if (!a.quiet)
     std::printf("soil estimates by the soil being cut (%zu in the default soil, %zu in '%s'):\n  %-6s %-32s %-32s %6s\n",
                 est[0].size(), est[1].size(), zone.name.c_str(), "", "default: truth / estimates", "zone: truth / estimates", "d'");

@@ -133,6 +133,9 @@ ParamSchema OctomapStrata::schema() const {
                   "strata_change_depth_m: share of the column's spread the split must explain"),
       param::real("change_radius_m", d.change_radius_m, 0.0, 10.0, "m",
                   "strata_change_*: columns within this distance pool their removed soil by level"),
+      param::texts("change_properties", paramNames(),
+                   "strata_change_*: the soil properties the change is sought in (c, phi, ca, delta, gamma); one the "
+                   "estimator cannot tell adds only its noise"),
       param::real("change_interval_s", d.change_interval_s, 0.0, 1e6, "s",
                   "strata_change_* are recomputed at most this often (event time) and at the end; 0 = every event"),
       param::real("pristine_margin_m", d.pristine_margin_m, -1.0, 10.0, "m",
@@ -172,6 +175,15 @@ void OctomapStrata::configure(const Params& p) {
   c.change_min_voxels = static_cast<int>(p.getInt("change_min_voxels"));
   c.change_min_gain = p.getDouble("change_min_gain");
   c.change_radius_m = p.getDouble("change_radius_m");
+  c.change_properties.fill(false);
+  for (const std::string& name : p.getStrings("change_properties")) {
+    const std::vector<std::string> names = paramNames();
+    const auto it = std::find(names.begin(), names.end(), name);
+    if (it == names.end()) p.fail("change_properties", "'" + name + "' is not a soil property (c, phi, ca, delta, gamma)");
+    c.change_properties[static_cast<std::size_t>(it - names.begin())] = true;
+  }
+  if (std::none_of(c.change_properties.begin(), c.change_properties.end(), [](bool b) { return b; }))
+    p.fail("change_properties", "needs at least one soil property");
   c.change_interval_s = p.getDouble("change_interval_s");
   c.pristine_margin_m = p.getDouble("pristine_margin_m");
   c.save_path = p.getString("save_path");
@@ -427,7 +439,7 @@ void OctomapStrata::computeCells(ProcessContext& ctx, const std::vector<Eigen::V
       const double top = st.surfaceAt(p.x(), p.y());
       if (pass == Pass::Change) {
         const double z = std::isfinite(top) ? st.changeHeightAt(p.x(), p.y(), cfg_.change_min_voxels, cfg_.change_min_gain,
-                                                                cfg_.change_radius_m, &cache)
+                                                                cfg_.change_radius_m, &cache, &cfg_.change_properties)
                                             : std::numeric_limits<double>::quiet_NaN();
         change_z[o] = static_cast<float>(z);
         change[o] = static_cast<float>(st.initialSurfaceAt(p.x(), p.y()) - z);

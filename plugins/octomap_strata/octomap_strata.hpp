@@ -62,6 +62,7 @@ struct OctomapStrataConfig {
   int change_min_voxels = 2;
   double change_min_gain = 0.3;
   double change_radius_m = 0.075;
+  strata::PropertyMask change_properties{true, true, true, true, true};
   double change_interval_s = 5.0;
   /// A first cut whose fitted bank surface lies more than this above the surface the map held
   /// before any sweep touched the cell (strata_pristine_m) starts from the latter; < 0 = never.

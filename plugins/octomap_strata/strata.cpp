@@ -428,7 +428,8 @@ struct Level {
 /// of levels from its mean, and its mean, in O(1).
 class WeightedRuns {
  public:
-  explicit WeightedRuns(const std::vector<Level>& levels) : w0_(levels.size() + 1), w1_(levels.size() + 1), w2_(levels.size() + 1) {
+  WeightedRuns(const std::vector<Level>& levels, const PropertyMask& use)
+      : use_(use), w0_(levels.size() + 1), w1_(levels.size() + 1), w2_(levels.size() + 1) {
     w0_[0].fill(0.0);
     w1_[0].fill(0.0);
     w2_[0].fill(0.0);
@@ -440,10 +441,12 @@ class WeightedRuns {
         w2_[i + 1][q] = w2_[i][q] + w * v * v;
       }
   }
-  /// Levels [a, b): the weighted squared deviation from the run's mean, summed over properties.
+  /// Levels [a, b): the weighted squared deviation from the run's mean, summed over the
+  /// properties in use.
   double sse(int a, int b) const {
     double e = 0.0;
     for (int q = 0; q < kP; ++q) {
+      if (!use_[q]) continue;
       const double d0 = diff(w0_, a, b, q), d1 = diff(w1_, a, b, q), d2 = diff(w2_, a, b, q);
       e += std::max(0.0, d2 - d1 * d1 / d0);
     }
@@ -451,11 +454,13 @@ class WeightedRuns {
   }
   /// Levels [a, b): the weighted mean of property q.
   double mean(int a, int b, int q) const { return diff(w1_, a, b, q) / diff(w0_, a, b, q); }
+  bool uses(int q) const { return use_[q]; }
 
  private:
   static double diff(const std::vector<std::array<double, kP>>& v, int a, int b, int q) {
     return v[static_cast<std::size_t>(b)][q] - v[static_cast<std::size_t>(a)][q];
   }
+  PropertyMask use_;
   std::vector<std::array<double, kP>> w0_, w1_, w2_;
 };
 
@@ -494,6 +499,7 @@ double placeChange(const std::vector<Level>& levels, const WeightedRuns& runs, i
   // of the face (the two levels' extent).
   double num_a = 0, num_b = 0, den = 0;
   for (int q = 0; q < kP; ++q) {
+    if (!runs.uses(q)) continue;
     const double U = ka > 0 ? runs.mean(0, ka, q) : up.mean[q];
     const double D = kb + 1 < n ? runs.mean(kb + 1, n, q) : down.mean[q];
     num_a += (up.mean[q] - U) * (D - U);
@@ -507,7 +513,8 @@ double placeChange(const std::vector<Level>& levels, const WeightedRuns& runs, i
 
 }  // namespace
 
-double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gain, double radius_m, VoxelCache* cache) const {
+double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gain, double radius_m, VoxelCache* cache,
+                              const PropertyMask* properties) const {
   std::uint32_t key0;
   if (!columnKey(x, y, key0)) return kNaN;
   const double res = cfg_.resolution_m;
@@ -570,7 +577,9 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
   const int n = static_cast<int>(levels.size());
   min_voxels = std::max(1, min_voxels);
   if (n < 2 * min_voxels) return kNaN;
-  const WeightedRuns runs(levels);
+  PropertyMask all;
+  all.fill(true);
+  const WeightedRuns runs(levels, properties ? *properties : all);
   const int split = bestSplit(runs, n, min_voxels, min_gain);
   return split < 0 ? kNaN : placeChange(levels, runs, split, cfg_.resolution_m);
 }

@@ -136,6 +136,9 @@ struct StrataConfig {
   bool filter_inheritance = true;
 };
 
+/// Which soil properties (soil::SoilParam order) a computation reads.
+using PropertyMask = std::array<bool, soil::kSoilParamCount>;
+
 /// One cut cell of a sweep, as the strata need it (from SweepRecord's mask and slices).
 struct CellCut {
   Eigen::Vector2d position = Eigen::Vector2d::Zero();  ///< cell centre, map frame
@@ -212,8 +215,10 @@ class Strata {
   /// beside the split whose soil lies between the two runs' (a sweep that cut across the change)
   /// moves it into that level's slab by the fraction of the other run's soil it holds (linear
   /// mix, the projection on the line between the runs' means), within a voxel of the face.
+  /// `properties` (null = all five): the properties the split and the mix read; one the
+  /// estimator cannot tell adds only its noise to the squared deviations (configs/strata.yaml).
   double changeHeightAt(double x, double y, int min_voxels = 1, double min_gain = 0.5, double radius_m = 0.0,
-                        struct VoxelCache* cache = nullptr) const;
+                        struct VoxelCache* cache = nullptr, const PropertyMask* properties = nullptr) const;
   /// changeHeightAt as a depth below the column's initial surface (NaN if either is NaN).
   double changeDepthAt(double x, double y, int min_voxels = 1, double min_gain = 0.5, double radius_m = 0.0) const;
   /// Removed voxel centres of the column, top (shallowest) first, with their beliefs.

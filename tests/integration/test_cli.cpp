@@ -301,6 +301,29 @@ TEST(Cli, EvalStrataComparesTheNextPassForceIndicesAndTheBoundaryWithTheTruth) {
   EXPECT_NE(bad.out.find("octomap_strata"), std::string::npos) << bad.out;
 }
 
+TEST(Cli, EvalStrataWithSoilPinnFindsTheClaysTopWithinAVoxelInFourColumnsOfFive) {
+  // Issue #48's strata goal on the whole scenario with the committed model: the boundary's depth
+  // within one voxel in >= 80 % of the columns cut through it. configs/strata.yaml seeks the
+  // change in c, the one property soil_pinn can tell; in all five (the plugin's default) the other
+  // four's noise splits the columns a voxel or two high (69.3 % on 2026-12-02).
+  const fs::path d = tempDir("eval_strata_boundary");
+  const std::string scen = std::string(TERRAMAP_SOURCE_DIR) + "/configs/scenarios/strata_loam_over_clay.yaml";
+  const Result r = sh("eval-strata " + scen + " --boundary-only -q --out " + d.string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto j = nlohmann::json::parse(std::ifstream(d / "eval_strata.json"));
+  const auto& depth = j["boundary"]["depth"];
+  EXPECT_GT(j["boundary"]["columns_cut_through"].get<long>(), 1000) << j["boundary"].dump(1);
+  EXPECT_GE(depth["fraction_within"].get<double>(), 0.80) << j["boundary"].dump(1);
+  const Result all = sh("eval-strata " + scen + " --boundary-only -q --set strata.change_properties=[c,phi,ca,delta,gamma] --out " +
+                        d.string());
+  ASSERT_EQ(all.code, 0) << all.out;
+  const auto ja = nlohmann::json::parse(std::ifstream(d / "eval_strata.json"));
+  EXPECT_LT(ja["boundary"]["depth"]["fraction_within"].get<double>(), 0.75) << ja["boundary"].dump(1);
+  // Each estimate is listed beside the truth it was judged by (sweep, t1, class, truth c, c, sd).
+  ASSERT_FALSE(j["estimator"]["records"].empty());
+  EXPECT_EQ(j["estimator"]["records"][0].size(), 6u);
+}
+
 TEST(Cli, EvalStrataWithTheOracleFeedsTheTruthSoilToTheStrata) {
   // --oracle-noise 0: soil_oracle replaces soil_pinn and publishes the soil the truth blade cut,
   // so the estimates the command prints for the loam are the loam's, but for the few sweeps that

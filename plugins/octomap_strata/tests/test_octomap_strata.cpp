@@ -333,6 +333,31 @@ TEST(Strata, ANoisyEstimateMovesTheChangeLessThanSureOnes) {
   EXPECT_NEAR(s.changeHeightAt(0.025, 0.025), 0.80, 1e-5);
 }
 
+TEST(Strata, TheChangeIsSoughtOnlyInThePropertiesAsked) {
+  // Eight 5 cm slabs: c changes below the fourth (loam to clay, 10 to 50 kPa); c_a, which the
+  // estimates cannot tell (soil_pinn's case), jumps by more, in prior units, at the sixth. With
+  // every property the split follows the c_a noise (0.70); asked for c alone it finds the soil's
+  // change (0.80), which is what changes with the mask and nothing else.
+  const SoilVector sure{1e6, 1e-4, 4e5, 2e-4, 4e4};
+  std::vector<SoilVector> est(8, SoilVector{10e3, 0.5, 2e3, 0.4, 17e3});
+  for (int k = 4; k < 8; ++k) est[static_cast<std::size_t>(k)][0] = 50e3;
+  for (int k = 6; k < 8; ++k) est[static_cast<std::size_t>(k)][2] = 60e3;
+  Strata s(config());
+  for (int k = 0; k < 8; ++k) {
+    s.applyCut(k + 1, {cell(0.025, 0.025, 1.0 - 0.05 * k, 0.95 - 0.05 * k)});
+    s.assignEstimate(k + 1, &est[static_cast<std::size_t>(k)], &sure);
+  }
+  // (0.705: the sixth level's c reads as a tenth of the way to the deeper run: the mix.)
+  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025), 0.70, 0.01);
+  strata::PropertyMask c_only{true, false, false, false, false};
+  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025, 1, 0.5, 0.0, nullptr, &c_only), 0.80, 1e-5);
+  strata::PropertyMask ca_only{false, false, true, false, false};
+  EXPECT_NEAR(s.changeHeightAt(0.025, 0.025, 1, 0.5, 0.0, nullptr, &ca_only), 0.70, 1e-5);
+  // A property that does not change anywhere in the column: no change.
+  strata::PropertyMask phi_only{false, true, false, false, false};
+  EXPECT_TRUE(std::isnan(s.changeHeightAt(0.025, 0.025, 1, 0.5, 0.0, nullptr, &phi_only)));
+}
+
 TEST(Strata, NeighbouringColumnsPoolTheirEstimatesByLevel) {
   Strata s(config());
   const SoilVector loam{8e3, 0.5, 3e3, 0.35, 15e3}, clay{55e3, 0.5, 3e3, 0.35, 15e3};
@@ -576,6 +601,34 @@ TEST(OctomapStrataPlugin, LayersShowTheNextCutTheRemovedDepthAndTheChange) {
   EXPECT_TRUE(std::isnan(h.at("strata_next_c", {2.0, 2.0})));  // never cut, no surface layers
   // 4 sweeps x 33 cells of 0.1 m = 4 columns each x 2 voxels of 0.05 m.
   EXPECT_DOUBLE_EQ(h.stats.counters.at("voxels_estimated"), 4 * 33 * 4 * 2.0);
+}
+
+TEST(OctomapStrataPlugin, ChangePropertiesNameWhereTheChangeIsSought) {
+  // loamOverClay's estimates differ in c only: sought in c the change is found, in phi there is none.
+  const std::map<std::string, ParamValue> base{{"change_min_voxels", ParamValue{2L}},
+                                               {"change_radius_m", ParamValue{0.0}},
+                                               {"change_interval_s", ParamValue{0.0}}};
+  auto with = [&](std::vector<std::string> props) {
+    auto p = base;
+    p["change_properties"] = ParamValue{std::move(props)};
+    return p;
+  };
+  Harness c(1, with({"c"}));
+  c.loamOverClay();
+  EXPECT_NEAR(c.at("strata_change_depth_m", {0.15, 0.05}), 0.2f, 1e-5);
+  Harness phi(1, with({"phi"}));
+  phi.loamOverClay();
+  EXPECT_TRUE(std::isnan(phi.at("strata_change_depth_m", {0.15, 0.05})));
+  // A name that is not a property, or none at all, is refused naming the key.
+  for (const auto& bad : {std::vector<std::string>{"cohesion"}, std::vector<std::string>{}}) {
+    OctomapStrata p;
+    try {
+      p.configure(makeParams("strata", p.schema(), with(bad)));
+      ADD_FAILURE() << "accepted";
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find("change_properties"), std::string::npos) << e.what();
+    }
+  }
 }
 
 TEST(OctomapStrataPlugin, AChangeCellIsRecomputedWhenAColumnWithinItsPoolingRadiusIsCut) {
