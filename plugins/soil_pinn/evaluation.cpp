@@ -356,6 +356,59 @@ PropertySkill propertySkill(const std::vector<double>& truth, const std::vector<
   return s;
 }
 
+namespace {
+/// Ranks of v (1-based), ties given their mean rank.
+std::vector<double> ranks(const std::vector<double>& v) {
+  std::vector<std::size_t> order(v.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return v[a] < v[b]; });
+  std::vector<double> r(v.size());
+  for (std::size_t i = 0; i < order.size();) {
+    std::size_t j = i + 1;
+    while (j < order.size() && v[order[j]] == v[order[i]]) ++j;
+    const double mean_rank = 0.5 * static_cast<double>(i + j - 1) + 1.0;
+    for (std::size_t k = i; k < j; ++k) r[order[k]] = mean_rank;
+    i = j;
+  }
+  return r;
+}
+}  // namespace
+
+double rankCorrelation(const std::vector<double>& a, const std::vector<double>& b) {
+  if (a.size() != b.size() || a.size() < 3) return NAN;
+  const std::vector<double> ra = ranks(a), rb = ranks(b);
+  const double n = static_cast<double>(a.size()), mean = 0.5 * (n + 1.0);
+  double sab = 0, saa = 0, sbb = 0;
+  for (std::size_t i = 0; i < ra.size(); ++i) {
+    sab += (ra[i] - mean) * (rb[i] - mean);
+    saa += (ra[i] - mean) * (ra[i] - mean);
+    sbb += (rb[i] - mean) * (rb[i] - mean);
+  }
+  return saa > 0 && sbb > 0 ? sab / std::sqrt(saa * sbb) : NAN;
+}
+
+std::vector<Fig11Trend> fig11Trends(const std::vector<Fig11Bin>& bins) {
+  std::map<int, std::vector<const Fig11Bin*>> by_family;
+  for (const Fig11Bin& b : bins)
+    if (b.samples > 0) by_family[b.family].push_back(&b);
+  std::vector<Fig11Trend> out;
+  for (const auto& [family, rows] : by_family) {
+    Fig11Trend t;
+    t.family = family;
+    t.bins = static_cast<int>(rows.size());
+    for (int k = 0; k < kSoilCount; ++k) {
+      std::vector<double> truth, mean;
+      for (const Fig11Bin* b : rows) {
+        truth.push_back(b->truth[k]);
+        mean.push_back(b->mean[k]);
+      }
+      t.rank_correlation[k] = rankCorrelation(truth, mean);
+    }
+    out.push_back(t);
+  }
+  return out;
+}
+
 SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& data) {
   const long n = data.size();
   const int T = static_cast<int>(data.obs_raw.size(1)), P = static_cast<int>(data.theta_k.size(1));
@@ -434,6 +487,7 @@ SoilEvaluation evaluateEstimator(const SoilEstimator& est, const TrainingData& d
     }
     out.fig11.push_back(b);
   }
+  out.fig11_trend = fig11Trends(out.fig11);
   const SplitMetrics* test = nullptr;
   const SplitMetrics* held = nullptr;
   for (const auto& m : out.splits) {
@@ -534,6 +588,15 @@ std::string evaluationJson(const SoilEvaluation& e) {
       s["properties"][kName[k]] = p;
     }
     j["splits"][m.split] = s;
+  }
+  // Fig. 11's trend per family (null where the truth or the estimate is flat across the bins).
+  for (const Fig11Trend& t : e.fig11_trend) {
+    nlohmann::ordered_json f;
+    f["bins"] = t.bins;
+    for (int k = 0; k < kSoilCount; ++k)
+      f["rank_correlation"][kName[k]] = std::isfinite(t.rank_correlation[k]) ? nlohmann::ordered_json(t.rank_correlation[k])
+                                                                              : nlohmann::ordered_json();
+    j["fig11_trend"][soil::soilFamilyName(static_cast<soil::SoilFamily>(t.family))] = f;
   }
   for (int k = 0; k < kSoilCount; ++k)
     j["epistemic_variance_ratio_held_out_over_test"][kName[k]] =
@@ -659,6 +722,25 @@ std::string evaluationMarkdown(const SoilEvaluation& e) {
       os << buf;
     }
     os << "\n";
+  }
+  if (!e.fig11_trend.empty()) {
+    os << "\nFig. 11's trend (test and held-out splits): per family, the rank correlation of the estimate's bin means "
+          "with the truth's over the relative-density bins (— where the truth or the estimate is flat):\n\n| family | bins |";
+    for (int k = 0; k < kSoilCount; ++k) os << " " << kName[k] << " |";
+    os << "\n|---|---|";
+    for (int k = 0; k < kSoilCount; ++k) os << "---|";
+    os << "\n";
+    for (const Fig11Trend& t : e.fig11_trend) {
+      os << "| " << soil::soilFamilyName(static_cast<soil::SoilFamily>(t.family)) << " | " << t.bins << " |";
+      for (int k = 0; k < kSoilCount; ++k) {
+        if (std::isfinite(t.rank_correlation[k]))
+          std::snprintf(buf, sizeof buf, " %+.2f |", t.rank_correlation[k]);
+        else
+          std::snprintf(buf, sizeof buf, " — |");
+        os << buf;
+      }
+      os << "\n";
+    }
   }
   os << "\nEpistemic variance, held-out over test:";
   for (int k = 0; k < kSoilCount; ++k) {

@@ -118,9 +118,29 @@ struct Fig11Bin {
   std::array<double, kSoilCount> truth{}, mean{}, sigma{};  ///< averages over the bin; sigma = sqrt(mean var_total)
 };
 
+/// Does Fig. 11's estimate rise with relative density where the truth does? Per soil family, over
+/// its Fig11Bin rows (those with samples), the Spearman rank correlation of the estimate's bin
+/// means with the truth's bin means, per property: +1 when the estimates keep the truth's order
+/// across the bins, -1 when they reverse it. NaN where the truth's bin means do not vary (a
+/// property the family holds constant, e.g. a cohesionless soil's c), or the estimates' do not,
+/// or the family has fewer than 3 bins.
+struct Fig11Trend {
+  int family = 0;  ///< soil::SoilFamily
+  int bins = 0;    ///< bins with samples
+  std::array<double, kSoilCount> rank_correlation{};
+};
+
+/// Spearman's rank correlation of a and b (same length): the Pearson correlation of their ranks,
+/// ties given their mean rank. NaN when shorter than 3 or either has no spread (all ties).
+double rankCorrelation(const std::vector<double>& a, const std::vector<double>& b);
+
+/// The Fig11Trend of every family present in `bins`, in family order.
+std::vector<Fig11Trend> fig11Trends(const std::vector<Fig11Bin>& bins);
+
 struct SoilEvaluation {
   std::vector<SplitMetrics> splits;  ///< one per split present (test, held_out, validation, train)
   std::vector<Fig11Bin> fig11;       ///< over the test and held-out splits
+  std::vector<Fig11Trend> fig11_trend;  ///< fig11Trends(fig11)
   /// mean_var_epistemic(held_out) / mean_var_epistemic(test), per property (NaN without both).
   std::array<double, kSoilCount> epistemic_ratio{};
 };

@@ -461,6 +461,61 @@ TEST(Evaluation, SkillIsAConstantsMaeAndThePearsonCorrelation) {
   EXPECT_TRUE(std::isnan(s.correlation));
 }
 
+TEST(Evaluation, Fig11TrendIsTheRankCorrelationOfBinMeansPerFamily) {
+  // Spearman: monotone but not linear is +1 (Pearson would not be), reversed is -1, ties take
+  // their mean rank, and a flat series has no order to keep.
+  EXPECT_NEAR(rankCorrelation({1, 2, 3, 4}, {1, 10, 100, 1000}), 1.0, 1e-15);
+  EXPECT_NEAR(rankCorrelation({1, 2, 3, 4}, {9, 3, 2, 1}), -1.0, 1e-15);
+  // Ranks (1, 2, 3, 4) and (1, 3, 2, 4): 1 - 6 * 2 / (4 * 15) = 0.8.
+  EXPECT_NEAR(rankCorrelation({1, 2, 3, 4}, {5, 7, 6, 8}), 0.8, 1e-15);
+  // Ranks (1, 2, 3) and (1.5, 1.5, 3): deviations (-1, 0, 1), (-0.5, -0.5, 1): 1.5 / sqrt(2 * 1.5).
+  EXPECT_NEAR(rankCorrelation({1, 2, 3}, {4, 4, 6}), 1.5 / std::sqrt(3.0), 1e-15);
+  EXPECT_TRUE(std::isnan(rankCorrelation({1, 2, 3}, {2, 2, 2})));
+  EXPECT_TRUE(std::isnan(rankCorrelation({1, 2}, {1, 2})));
+
+  // Two families: clay's estimate of phi follows the truth up three bins but its c comes down;
+  // sand holds c at 0 (the truth is flat there: no trend to keep) and has a bin without samples.
+  std::vector<Fig11Bin> bins;
+  auto add = [&](soil::SoilFamily f, int bin, long samples, double c_t, double c_e, double phi_t, double phi_e) {
+    Fig11Bin b;
+    b.family = static_cast<int>(f);
+    b.bin = bin;
+    b.samples = samples;
+    b.truth[0] = c_t;
+    b.mean[0] = c_e;
+    b.truth[1] = phi_t;
+    b.mean[1] = phi_e;
+    for (int k = 2; k < kSoilCount; ++k) b.truth[k] = b.mean[k] = bin;  // rise together
+    bins.push_back(b);
+  };
+  add(soil::SoilFamily::Clay, 1, 10, 10e3, 30e3, 0.30, 0.40);
+  add(soil::SoilFamily::Clay, 2, 10, 20e3, 25e3, 0.32, 0.41);
+  add(soil::SoilFamily::Clay, 3, 10, 30e3, 20e3, 0.34, 0.45);
+  add(soil::SoilFamily::Sand, 1, 5, 0, 1e3, 0.50, 0.60);
+  add(soil::SoilFamily::Sand, 4, 5, 0, 2e3, 0.60, 0.55);
+  add(soil::SoilFamily::Sand, 6, 5, 0, 3e3, 0.70, 0.50);
+  add(soil::SoilFamily::Sand, 8, 0, 0, 0, 0.0, 9.0);  // no samples: not a bin of the trend
+  const std::vector<Fig11Trend> t = fig11Trends(bins);
+  ASSERT_EQ(t.size(), 2u);
+  const Fig11Trend& clay = t[0].family == static_cast<int>(soil::SoilFamily::Clay) ? t[0] : t[1];
+  const Fig11Trend& sand = &clay == &t[0] ? t[1] : t[0];
+  EXPECT_EQ(clay.bins, 3);
+  EXPECT_EQ(sand.bins, 3);
+  EXPECT_NEAR(clay.rank_correlation[0], -1.0, 1e-15);
+  EXPECT_NEAR(clay.rank_correlation[1], 1.0, 1e-15);
+  EXPECT_TRUE(std::isnan(sand.rank_correlation[0]));
+  EXPECT_NEAR(sand.rank_correlation[1], -1.0, 1e-15);
+  for (int k = 2; k < kSoilCount; ++k) EXPECT_NEAR(clay.rank_correlation[k], 1.0, 1e-15);
+  // The report carries it per family, null where the truth is flat.
+  SoilEvaluation ev;
+  ev.fig11 = bins;
+  ev.fig11_trend = t;
+  const nlohmann::json j = nlohmann::json::parse(evaluationJson(ev));
+  EXPECT_DOUBLE_EQ(j["fig11_trend"]["clay"]["rank_correlation"]["phi"].get<double>(), 1.0);
+  EXPECT_TRUE(j["fig11_trend"]["sand"]["rank_correlation"]["c"].is_null());
+  EXPECT_NE(evaluationMarkdown(ev).find("Fig. 11's trend"), std::string::npos);
+}
+
 // The trainer hands the truth soil to the loss when lambda_soil is set: on a dataset whose
 // observations carry the soil, the supervised ensemble's estimates lie far closer to the truth
 // than the one trained on forces alone, with the same seed and epochs.
