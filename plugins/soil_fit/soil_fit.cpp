@@ -144,6 +144,12 @@ bool phiAtBound(double phi_rad, double var_phi, double sd_k) {
   return phi_rad < range.lo + margin || phi_rad > range.hi - margin;
 }
 
+bool phiUninformative(double var_phi, double k) {
+  if (!(k > 0)) return false;
+  const auto& range = soil::kSoilParams[soil::kParamPhi];
+  return std::sqrt(std::max(0.0, var_phi)) > k * (range.hi - range.lo) / std::sqrt(12.0);
+}
+
 bool phiEndInsideProfile(const std::vector<soil::FitRow>& rows, const soil::PooledFit& fit, double sd_k,
                          double variance_inflation, const soil::PooledFitOptions& opt) {
   const auto& range = soil::kSoilParams[soil::kParamPhi];
@@ -186,6 +192,10 @@ ParamSchema SoilFit::schema() const {
           param::real("phi_bound_sd", 1.0, 0.0, 10.0, "1",
                       "phi_bound_invalid: phi within this many of its standard deviations of an end of its range is at "
                       "the bound too (at least 1 % of the range)"),
+          param::real("phi_uninformative_sd", 1.0, 0.0, 10.0, "1",
+                      "an estimate whose published phi standard deviation exceeds this many times that of a uniform "
+                      "belief over phi's range (its width / sqrt 12) tells less than the range and is not fused "
+                      "(phi_uninformative); 0 = off"),
           param::boolean("phi_bound_profile", false,
                          "phi_bound_sd: an estimate near the end by its Gaussian is at the bound only if the rows' "
                          "cost with phi held at the end rises by less than that many sigma (profile likelihood)"),
@@ -239,6 +249,7 @@ void SoilFit::configure(const Params& p) {
   phi_bound_invalid_ = p.getBool("phi_bound_invalid");
   phi_bound_sd_ = p.getDouble("phi_bound_sd");
   phi_bound_profile_ = p.getBool("phi_bound_profile");
+  phi_uninformative_sd_ = p.getDouble("phi_uninformative_sd");
   short_window_sweeps_ = static_cast<int>(p.getInt("short_window_sweeps"));
   variance_inflation_ = p.getDouble("variance_inflation");
 }
@@ -339,8 +350,12 @@ void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
     }
     r.F_r = {0.0, 0.0};
     r.valid_members = finite && fit.fit.rows > 0 ? 1 : 0;
+    // As wide as the range or wider: a cell taking it would read its mean as a measurement.
+    const bool uninformative = phiUninformative(r.var_total[SoilEstimateRecord::kPhi], phi_uninformative_sd_);
+    if (uninformative) ctx.addCounter("estimates_phi_uninformative", 1);
     if (!finite) r.invalid_reason = "non_finite_output";
     else if (bounded_phi && phi_bound_invalid_) r.invalid_reason = "phi_at_bound";
+    else if (uninformative) r.invalid_reason = "phi_uninformative";
     else if (fit.fit.rows == 0) r.invalid_reason = "fee_invalid_majority";
   }
   r.valid = r.invalid_reason.empty();

@@ -123,6 +123,10 @@ WindowChoice fitWindow(const SweepWindow& window, long seq, int window_sweeps, i
 /// the physical range, so its curvature there says nothing of how far the valley reaches and the
 /// estimate is no measurement (`phi_bound_invalid`). NaN var_phi counts as 0. Pure.
 bool phiAtBound(double phi_rad, double var_phi, double sd_k);
+/// True when φ's standard deviation sqrt(var_phi) (rad) exceeds k times that of a uniform belief
+/// over φ's range, (hi - lo) / sqrt(12): the estimate tells less about φ than the range alone.
+/// k <= 0: never.
+bool phiUninformative(double var_phi, double k);
 
 /// Whether the profile of the rows' cost along φ says the nearer end of φ's range is as good as
 /// the fit (profile likelihood instead of the Gaussian's curvature, which a curved c–φ valley
@@ -172,6 +176,7 @@ class SoilFit : public Plugin {
   double edge_margin_ = 0.7;
   double variance_inflation_ = 1.5;
   bool phi_bound_invalid_ = true;
+  double phi_uninformative_sd_ = 1.0;
   double phi_bound_sd_ = 1.0;
   bool phi_bound_profile_ = false;
   int short_window_sweeps_ = 5;

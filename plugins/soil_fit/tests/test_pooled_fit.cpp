@@ -363,6 +363,20 @@ TEST(SoilFitPlugin, AFitWhoseStandardDeviationReachesPastPhisRangeIsAtTheBound) 
   EXPECT_FALSE(plugins::phiAtBound(49.0 * deg, std::nan(""), 1.0));
 }
 
+TEST(SoilFitPlugin, AFitAsWideAsPhisRangeIsUninformative) {
+  // φ's range is 10-50 deg: a uniform belief over it has a standard deviation of 40 / sqrt 12 =
+  // 11.55 deg. The gravel strip's exit read 31.1 +- 17.7 deg (published, inflated): wider than
+  // the range says nothing, yet a cell it alone reaches would show its mean as the soil.
+  const double deg = M_PI / 180.0;
+  const double uniform = 40.0 / std::sqrt(12.0);
+  EXPECT_TRUE(plugins::phiUninformative((17.7 * deg) * (17.7 * deg), 1.0));
+  EXPECT_TRUE(plugins::phiUninformative(((uniform + 0.01) * deg) * ((uniform + 0.01) * deg), 1.0));
+  EXPECT_FALSE(plugins::phiUninformative(((uniform - 0.01) * deg) * ((uniform - 0.01) * deg), 1.0));
+  EXPECT_FALSE(plugins::phiUninformative((17.7 * deg) * (17.7 * deg), 2.0));
+  EXPECT_FALSE(plugins::phiUninformative((17.7 * deg) * (17.7 * deg), 0.0));  // off
+  EXPECT_FALSE(plugins::phiUninformative(std::nan(""), 1.0));
+}
+
 // The fits of a sweep (three windows, four starts each) run as tasks of the engine's executor;
 // the estimate is bit for bit the serial one whatever the thread count (here at a soil
 // boundary, where the windows disagree and the choice between them matters).
