@@ -176,8 +176,8 @@ void OctomapStrata::configure(const Params& p) {
   c.change_min_gain = p.getDouble("change_min_gain");
   c.change_radius_m = p.getDouble("change_radius_m");
   c.change_properties.fill(false);
+  const std::vector<std::string> names = paramNames();
   for (const std::string& name : p.getStrings("change_properties")) {
-    const std::vector<std::string> names = paramNames();
     const auto it = std::find(names.begin(), names.end(), name);
     if (it == names.end()) p.fail("change_properties", "'" + name + "' is not a soil property (c, phi, ca, delta, gamma)");
     c.change_properties[static_cast<std::size_t>(it - names.begin())] = true;

@@ -577,9 +577,8 @@ double Strata::changeHeightAt(double x, double y, int min_voxels, double min_gai
   const int n = static_cast<int>(levels.size());
   min_voxels = std::max(1, min_voxels);
   if (n < 2 * min_voxels) return kNaN;
-  PropertyMask all;
-  all.fill(true);
-  const WeightedRuns runs(levels, properties ? *properties : all);
+  static constexpr PropertyMask kAll{true, true, true, true, true};
+  const WeightedRuns runs(levels, properties ? *properties : kAll);
   const int split = bestSplit(runs, n, min_voxels, min_gain);
   return split < 0 ? kNaN : placeChange(levels, runs, split, cfg_.resolution_m);
 }

@@ -376,15 +376,7 @@ std::vector<double> ranks(const std::vector<double>& v) {
 
 double rankCorrelation(const std::vector<double>& a, const std::vector<double>& b) {
   if (a.size() != b.size() || a.size() < 3) return NAN;
-  const std::vector<double> ra = ranks(a), rb = ranks(b);
-  const double n = static_cast<double>(a.size()), mean = 0.5 * (n + 1.0);
-  double sab = 0, saa = 0, sbb = 0;
-  for (std::size_t i = 0; i < ra.size(); ++i) {
-    sab += (ra[i] - mean) * (rb[i] - mean);
-    saa += (ra[i] - mean) * (ra[i] - mean);
-    sbb += (rb[i] - mean) * (rb[i] - mean);
-  }
-  return saa > 0 && sbb > 0 ? sab / std::sqrt(saa * sbb) : NAN;
+  return propertySkill(ranks(a), ranks(b), 0.0).correlation;  // Pearson of the ranks
 }
 
 std::vector<Fig11Trend> fig11Trends(const std::vector<Fig11Bin>& bins) {
