@@ -90,11 +90,30 @@ struct PooledFitOptions {
   /// and γ columns): the same fit bit for bit, at about half the time. false: every residual
   /// evaluates them afresh (for testing that).
   bool angle_cache = true;
+  /// A fit left on c's zero end (a sand's, most often) has a posterior truncated there, not the
+  /// untruncated Gaussian its curvature gives: the published covariance is the truncated
+  /// posterior's second moment about the fit. Along c, with a = how far below 0 the
+  /// unconstrained optimum lies in its own standard deviations (a = sqrt(Σcc) g_c from the
+  /// cost's gradient at the end), that moment is Σcc (1 - a λ(a) + a²), λ the inverse Mills
+  /// ratio: Σcc where the optimum sits on the end (a = 0), → 0 as it lies far below. What moves
+  /// with c shrinks alike (Σ - (1 - m/Σcc) Σ:c Σc: / Σcc), so φ keeps only part of its spread
+  /// along the c-φ valley (and with cohesionless_prior_mass, only what c = 0 leaves free).
+  /// false: the untruncated Gauss-Newton covariance.
+  bool truncated_covariance = true;
+  /// truncated_covariance: the prior's mass on c exactly 0, a cohesionless soil (the soil
+  /// table's sand and gravel: two families of four), beside the rest spread over c's range as
+  /// its prior says. A fit on c's zero end is then a mixture: the spike, where the other
+  /// properties keep only what c = 0 leaves free (their conditional covariance), and the
+  /// truncated slab above; their weights are the prior's mass against each one's evidence, and
+  /// the slab's is diluted by how little of c's range its profile covers (σ_c over the range),
+  /// so a fit pushed onto the end reads as a cohesionless soil. 0: the truncated slab alone.
+  double cohesionless_prior_mass = 0.5;
 };
 struct PooledFit {
   SoilParamVector mean{};                 ///< the fitted soil, inside kSoilParams' ranges
   /// Gauss-Newton covariance (SI units², prior included), scaled by (rms_n / force_sigma_n)² when
-  /// the residuals scatter more than the assumed force_sigma_n (never scaled down).
+  /// the residuals scatter more than the assumed force_sigma_n (never scaled down); truncated
+  /// at c's zero end when the fit sits on it (PooledFitOptions::truncated_covariance).
   Eigen::Matrix<double, 5, 5> covariance = Eigen::Matrix<double, 5, 5>::Zero();
   int rows = 0;                           ///< rows with a valid FEE at the solution
   int iterations = 0;
@@ -103,6 +122,12 @@ struct PooledFit {
   double cost = 0;                        ///< the minimised robust cost, prior included (to compare starts)
   /// The factor the covariance took from the residuals' scatter, max(1, χ² per residual).
   double residual_scale = 1;
+  /// The properties (soil::SoilParam bits) whose end the covariance was truncated at: c's bit
+  /// when the fit sits on c = 0 with the cost still falling below it (truncated_covariance).
+  unsigned at_bound_mask = 0;
+  /// The posterior's weight on c = 0 exactly (PooledFitOptions::cohesionless_prior_mass), 0 when
+  /// the fit is not on c's zero end.
+  double cohesionless_weight = 0;
 };
 
 /// The row's modelled force with soil `s`: FEE plus the pushed pile in `fee_n` (blade on soil,

@@ -217,6 +217,14 @@ ParamSchema SoilFit::schema() const {
                          "vertical speed as its prior (false: the sign of the observed speed)"),
           param::real("gate_speed_sigma_mps", 0.05, 0.0, 10.0, "m/s",
                       "the observed edge vertical speed's uncertainty for the gate's prior (0: its sign)"),
+          param::boolean("truncated_covariance", d.truncated_covariance,
+                         "a property the fit leaves on an end of its range (c = 0) publishes the second moment of "
+                         "the Gaussian posterior truncated there, and the others only what that end leaves free "
+                         "(false: the untruncated Gauss-Newton covariance)"),
+          param::real("cohesionless_prior_mass", d.cohesionless_prior_mass, 0.0, 0.999, "1",
+                      "truncated_covariance: the prior's mass on c exactly 0 (a cohesionless soil); a fit on c's "
+                      "zero end keeps that share of its posterior at c = 0, where phi has only its conditional "
+                      "spread (0: the truncated Gaussian alone)"),
           param::boolean("interface_bounded_by_soil", d.interface_bounded_by_soil,
                          "fit c_a = a c and delta = b phi with a, b in [0, 1] (adhesion <= cohesion, soil-metal "
                          "friction <= internal friction) instead of c_a and delta free in their ranges")};
@@ -243,6 +251,8 @@ void SoilFit::configure(const Params& p) {
   opt_.surcharge_share = p.getBool("surcharge_share");
   opt_.pile_friction = p.getDouble("pile_friction");
   opt_.gate_mixture = p.getBool("gate_mixture");
+  opt_.truncated_covariance = p.getBool("truncated_covariance");
+  opt_.cohesionless_prior_mass = p.getDouble("cohesionless_prior_mass");
   gate_speed_sigma_mps_ = p.getDouble("gate_speed_sigma_mps");
   edge_preserving_ = p.getBool("edge_preserving");
   edge_margin_ = p.getDouble("edge_margin");
@@ -319,6 +329,7 @@ void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
   } else {
     ctx.addCounter("fit_iterations", fit.fit.iterations);
     ctx.addCounter("fit_rows", fit.fit.rows);
+    if (fit.fit.at_bound_mask != 0) ctx.addCounter("fits_truncated_at_bound", 1);
     m.last = fit.fit.mean;
     m.has_last = true;
     bool finite = true;

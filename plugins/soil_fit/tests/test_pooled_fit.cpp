@@ -465,3 +465,66 @@ TEST(SoilFitWindow, ShortSideWindowsResolveAStripShorterThanTheWindow) {
   const double with_short = stripError(5), without = stripError(0);
   EXPECT_LT(with_short, 0.5 * without) << with_short << " against " << without;
 }
+
+// A cohesionless sand cut at depths and surcharges of one narrow band: c and φ trade along the
+// FEE's valley (correlation about -0.85), and about every other fit leaves c on its zero end (the
+// unconstrained optimum lies below 0). Its untruncated curvature still spreads φ along the
+// valley into negative cohesions the box rules out. Truncated there, φ keeps less: no less than
+// what c = 0 leaves free (the conditional variance, the Schur complement) and no more than the
+// untruncated; with the prior's mass on cohesionless soils (the default) the spike at c = 0
+// outweighs the slab (σ_c is a few per cent of c's range), so φ is near its conditional spread,
+// and that is what the fits' errors scatter with: the truth is c = 0. Fits off every end keep
+// the untruncated covariance; the mean is the same bit for bit either way.
+TEST(PooledFit, AFitOnCohesionsZeroEndPublishesTheTruncatedPosterior) {
+  const SoilProperties sp = soilProperties(SoilFamily::Sand, 0.3);
+  ASSERT_EQ(sp.fee.c_pa, 0.0);
+  PooledFitOptions untruncated, slab_only;
+  untruncated.truncated_covariance = false;
+  slab_only.cohesionless_prior_mass = 0.0;
+  int at_end = 0, off_end = 0, covered = 0, covered_untruncated = 0;
+  for (unsigned seed = 100; seed < 180; ++seed) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> uni(0.0, 1.0);
+    std::normal_distribution<double> N(0.0, 1.0);
+    std::vector<FitRow> rows;
+    for (int i = 0; i < 20; ++i) {
+      FitRow r;
+      r.geometry = fee::Geometry{0.0, 1.4, 0.1 + 0.05 * uni(rng), 1.85, 2000 * uni(rng)};
+      Eigen::Vector2d f;
+      ASSERT_TRUE(modelForce(sp.fee, r, {}, f));
+      r.fx_n = f.x() + 2000.0 * N(rng);
+      r.fz_n = f.y() + 2000.0 * N(rng);
+      rows.push_back(r);
+    }
+    const PooledFit t = fitPooled(rows, middle());
+    const PooledFit s = fitPooled(rows, middle(), slab_only);
+    const PooledFit u = fitPooled(rows, middle(), untruncated);
+    for (int k = 0; k < kSoilParamCount; ++k) ASSERT_EQ(t.mean[k], u.mean[k]) << seed;
+    const double err = std::abs(t.mean[kParamPhi] - sp.fee.phi_rad);
+    if (t.at_bound_mask == (1u << kParamC)) {
+      ++at_end;
+      EXPECT_EQ(t.mean[kParamC], 0.0);
+      const auto& U = u.covariance;
+      const double conditional = U(kParamPhi, kParamPhi) - U(kParamPhi, kParamC) * U(kParamPhi, kParamC) / U(kParamC, kParamC);
+      EXPECT_LT(s.covariance(kParamPhi, kParamPhi), U(kParamPhi, kParamPhi)) << seed;
+      EXPECT_GT(s.covariance(kParamPhi, kParamPhi), conditional) << seed;
+      EXPECT_LT(t.covariance(kParamPhi, kParamPhi), s.covariance(kParamPhi, kParamPhi)) << seed;
+      EXPECT_NEAR(t.covariance(kParamPhi, kParamPhi), conditional, 0.1 * conditional) << seed;
+      EXPECT_GT(t.cohesionless_weight, 0.9) << seed;
+      EXPECT_EQ(s.cohesionless_weight, 0.0);
+      EXPECT_GT(t.covariance(kParamC, kParamC), 0.0) << seed;
+      EXPECT_LT(t.covariance(kParamC, kParamC), U(kParamC, kParamC)) << seed;
+      covered += err <= std::sqrt(t.covariance(kParamPhi, kParamPhi));
+      covered_untruncated += err <= std::sqrt(U(kParamPhi, kParamPhi));
+    } else if (t.at_bound_mask == 0) {
+      ++off_end;
+      EXPECT_EQ(t.covariance, u.covariance) << seed;
+      EXPECT_EQ(t.cohesionless_weight, 0.0);
+    }
+  }
+  ASSERT_GE(at_end, 20);
+  EXPECT_GE(off_end, 10);
+  std::printf("fits at c = 0: %d, off every end: %d; phi within 1 sd: %d truncated, %d untruncated\n", at_end, off_end,
+              covered, covered_untruncated);
+  EXPECT_LT(covered, covered_untruncated);
+}
