@@ -93,9 +93,9 @@ struct PooledFitOptions {
   /// A fit left on c's zero end (a sand's, most often) has a posterior truncated there, not the
   /// untruncated Gaussian its curvature gives: the published covariance is the truncated
   /// posterior's second moment about the fit. Along c, with a = how far below 0 the
-  /// unconstrained optimum lies in its own standard deviations (a = sqrt(Σcc) g_c from the
-  /// cost's gradient at the end), that moment is Σcc (1 - a λ(a) + a²), λ the inverse Mills
-  /// ratio: Σcc where the optimum sits on the end (a = 0), → 0 as it lies far below. What moves
+  /// unconstrained optimum lies in its own standard deviations (a = sqrt(Σcc / s) g_c, g the
+  /// cost's gradient at the end, s the residuals' scale), that moment is Σcc (1 - a λ(a) + a²),
+  /// λ the inverse Mills ratio: Σcc where the optimum sits on the end (a = 0), → 0 as it lies far below. What moves
   /// with c shrinks alike (Σ - (1 - m/Σcc) Σ:c Σc: / Σcc), so φ keeps only part of its spread
   /// along the c-φ valley (and with cohesionless_prior_mass, only what c = 0 leaves free).
   /// false: the untruncated Gauss-Newton covariance.
