@@ -37,31 +37,6 @@ Vec uOf(const Vec& t, bool bounded) {
   return u;
 }
 
-// E[(x - end)²] / σ² of N(μ, σ²) truncated to the side of `end` it does not lie on, a = |μ -
-// end| / σ: 1 - a λ + a² with λ = pdf(a) / Q(a), the inverse Mills ratio. Past a = 30 both
-// pdf and Q near the smallest double: the asymptotic series 2/a² (1 - 5/a² + 37/a⁴) instead
-// (relative error below 1e-6 there; the direct sum keeps 12 digits up to it).
-double truncatedSecondMoment(double a) {
-  if (!(a > 0.0)) return 1.0;
-  if (a > 30.0) {
-    const double i2 = 1.0 / (a * a);
-    return 2.0 * i2 * (1.0 - 5.0 * i2 + 37.0 * i2 * i2);
-  }
-  const double pdf = std::exp(-0.5 * a * a) / std::sqrt(2.0 * M_PI);
-  const double q = 0.5 * std::erfc(a / std::sqrt(2.0));
-  const double lambda = pdf / q;
-  return 1.0 - a * lambda + a * a;
-}
-
-// Q(a) / pdf(a) for a >= 0, the inverse of λ above (the asymptotic 1/a (1 - 1/a² + 3/a⁴) past 30).
-double millsRatio(double a) {
-  if (a > 30.0) {
-    const double i2 = 1.0 / (a * a);
-    return (1.0 - i2 + 3.0 * i2 * i2) / a;
-  }
-  return 0.5 * std::erfc(a / std::sqrt(2.0)) * std::sqrt(2.0 * M_PI) * std::exp(0.5 * a * a);
-}
-
 fee::Soil soilOf(const Vec& u, bool bounded) {
   const Vec t = thetaOf(u, bounded);
   SoilParamVector v{};
@@ -186,6 +161,58 @@ Prior priorOf(const PooledFitOptions& opt) {
   }
   return p;
 }
+
+// Q(a) / pdf(a) for a >= 0, the Mills ratio (the asymptotic 1/a (1 - 1/a² + 3/a⁴) past 30, where
+// pdf and Q near the smallest double).
+double millsRatio(double a) {
+  if (a > 30.0) {
+    const double i2 = 1.0 / (a * a);
+    return (1.0 - i2 + 3.0 * i2 * i2) / a;
+  }
+  return 0.5 * std::erfc(a / std::sqrt(2.0)) * std::sqrt(2.0 * M_PI) * std::exp(0.5 * a * a);
+}
+
+// E[(x - end)²] / σ² of N(μ, σ²) truncated to the side of `end` it does not lie on, a = |μ -
+// end| / σ: 1 - a / R(a) + a², R the Mills ratio. Past a = 30 the terms cancel to ~2/a² beyond
+// what R's series holds: the moment's own series 2/a² (1 - 5/a² + 37/a⁴) there (relative error
+// below 1e-6; the direct sum keeps 10 digits up to it).
+double truncatedSecondMoment(double a) {
+  if (!(a > 0.0)) return 1.0;
+  if (a > 30.0) {
+    const double i2 = 1.0 / (a * a);
+    return 2.0 * i2 * (1.0 - 5.0 * i2 + 37.0 * i2 * i2);
+  }
+  return 1.0 - a / millsRatio(a) + a * a;
+}
+
+// The covariance (span units, unscaled) of a fit on c's zero end truncated there
+// (PooledFitOptions::truncated_covariance, cohesionless_prior_mass): `grad` the cost's gradient
+// at u, `scale` the residuals' factor the covariance takes afterwards. false off the end (cov_u
+// as it was); `spike` the posterior's weight on c = 0 exactly (0 without one).
+bool truncateAtCZero(Mat& cov_u, const Vec& u, const Vec& grad, const Prior& prior, double scale,
+                     const PooledFitOptions& opt, double& spike) {
+  const double s_cc = cov_u(kParamC, kParamC);
+  if (!(u[kParamC] <= 0.0 && grad[kParamC] > 0.0 && s_cc > 0.0)) return false;
+  const double a = std::sqrt(s_cc / scale) * grad[kParamC];
+  double ratio = std::clamp(truncatedSecondMoment(a), 0.0, 1.0);
+  if (opt.cohesionless_prior_mass > 0.0) {
+    // The spike at c = 0 keeps the other properties' conditional spread only (ratio 0). Its
+    // weight against the slab's is its prior mass against the slab's evidence relative to the
+    // posterior's height at 0: the slab prior's density at 0 (its Gaussian truncated to the
+    // range) times the profile's mass inside, sqrt(2 pi) σ Q(a) e^(a²/2) = σ R(a).
+    const double pi0 = std::min(opt.cohesionless_prior_mass, 1.0 - 1e-12);
+    const double sd = prior.sd[kParamC], z0 = -prior.centre[kParamC] / sd, z1 = (1.0 - prior.centre[kParamC]) / sd;
+    const double inside = 0.5 * (std::erfc(z0 / std::sqrt(2.0)) - std::erfc(z1 / std::sqrt(2.0)));
+    const double slab_at_0 = std::exp(-0.5 * z0 * z0) / (sd * std::sqrt(2.0 * M_PI)) / inside;
+    const double slab = (1.0 - pi0) / pi0 * slab_at_0 * std::sqrt(s_cc * scale) * millsRatio(a);
+    spike = 1.0 / (1.0 + slab);
+    ratio *= slab / (1.0 + slab);
+  }
+  const Vec col = cov_u.col(kParamC);
+  cov_u -= (1.0 - ratio) * (col * col.transpose()) / s_cc;
+  return true;
+}
+
 
 // Soft-L1 cost 2 Σ (sqrt(1 + e²) − 1) of the rows plus the prior's ½ Σ ((u − centre)/sd)².
 double cost(const Eigen::VectorXd& r, const Vec& u, const Prior& prior) {
@@ -340,31 +367,12 @@ PooledFit fitPooled(const std::vector<FitRow>& rows, const SoilParamVector& star
   // The scale below multiplies the curvature's inverse; the gradient's distance to the
   // unconstrained optimum is measured in that scaled standard deviation.
   const double scale = std::max(1.0, chi * chi);
-  // On c's zero end with the cost still falling past it (g > 0: the projected steps leave it
-  // exactly there). Only there: truncating at every end the fit sits on (φ's, the interface's
-  // ratios at c_a = c or δ = φ) cost the loam strip's AUC 0.995 -> 0.979 (docs/soil_estimator.md,
-  // "Fits on c's zero end").
-  const double s_cc = cov_u(kParamC, kParamC);
-  if (opt.truncated_covariance && !rows.empty() && u[kParamC] <= 0.0 && grad[kParamC] > 0.0 && s_cc > 0.0) {
-    out.at_bound_mask |= 1u << kParamC;
-    const double a = std::sqrt(s_cc / scale) * grad[kParamC];
-    double ratio = std::clamp(truncatedSecondMoment(a), 0.0, 1.0);
-    if (opt.cohesionless_prior_mass > 0.0) {
-      // The spike at c = 0 keeps the other properties' conditional spread only (ratio 0). Its
-      // weight against the slab's is its prior mass against the slab's evidence relative to the
-      // posterior's height at 0: the slab prior's density at 0 (its Gaussian truncated to the
-      // range) times the profile's mass inside, sqrt(2 pi) σ Q(a) e^(a²/2) = σ / λ(a).
-      const double pi0 = std::min(opt.cohesionless_prior_mass, 1.0 - 1e-12);
-      const double sd = prior.sd[kParamC], z0 = -prior.centre[kParamC] / sd, z1 = (1.0 - prior.centre[kParamC]) / sd;
-      const double inside = 0.5 * (std::erfc(z0 / std::sqrt(2.0)) - std::erfc(z1 / std::sqrt(2.0)));
-      const double slab_at_0 = std::exp(-0.5 * z0 * z0) / (sd * std::sqrt(2.0 * M_PI)) / inside;
-      const double slab = (1.0 - pi0) / pi0 * slab_at_0 * std::sqrt(s_cc * scale) * millsRatio(a);
-      out.cohesionless_weight = 1.0 / (1.0 + slab);
-      ratio *= slab / (1.0 + slab);
-    }
-    const Vec col = cov_u.col(kParamC);
-    cov_u -= (1.0 - ratio) * (col * col.transpose()) / s_cc;
-  }
+  // On c's zero end with the cost still falling below it (the projected steps leave it exactly
+  // there). Only there: truncating at every end the fit sits on (φ's, the interface's ratios at
+  // c_a = c or δ = φ) cost the loam strip's AUC 0.995 -> 0.979 (docs/soil_estimator.md, "Fits on
+  // c's zero end").
+  if (opt.truncated_covariance && !rows.empty())
+    out.truncated_at_c_zero = truncateAtCZero(cov_u, u, grad, prior, scale, opt, out.cohesionless_weight);
   // dθ/du at the solution (diagonal spans unless the interface is bounded by the soil), by
   // central differences inside the box.
   Mat D;

@@ -122,9 +122,9 @@ struct PooledFit {
   double cost = 0;                        ///< the minimised robust cost, prior included (to compare starts)
   /// The factor the covariance took from the residuals' scatter, max(1, χ² per residual).
   double residual_scale = 1;
-  /// The properties (soil::SoilParam bits) whose end the covariance was truncated at: c's bit
-  /// when the fit sits on c = 0 with the cost still falling below it (truncated_covariance).
-  unsigned at_bound_mask = 0;
+  /// The covariance was truncated at c = 0: the fit sits there with the cost still falling below
+  /// it (PooledFitOptions::truncated_covariance).
+  bool truncated_at_c_zero = false;
   /// The posterior's weight on c = 0 exactly (PooledFitOptions::cohesionless_prior_mass), 0 when
   /// the fit is not on c's zero end.
   double cohesionless_weight = 0;

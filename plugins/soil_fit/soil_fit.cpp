@@ -329,7 +329,7 @@ void SoilFit::publish(ProcessContext& ctx, MachineState& m, Waiting& w) {
   } else {
     ctx.addCounter("fit_iterations", fit.fit.iterations);
     ctx.addCounter("fit_rows", fit.fit.rows);
-    if (fit.fit.at_bound_mask != 0) ctx.addCounter("fits_truncated_at_bound", 1);
+    if (fit.fit.truncated_at_c_zero) ctx.addCounter("fits_truncated_at_c_zero", 1);
     m.last = fit.fit.mean;
     m.has_last = true;
     bool finite = true;
