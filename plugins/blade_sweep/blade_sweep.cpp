@@ -173,6 +173,9 @@ ParamSchema BladeSweep::schema() const {
                      "the mapped loose soil ahead of the edge"),
       param::real("carried_repose_rad", d.carried_repose_rad, 0.05, 1.5, "rad",
                   "repose angle of the carried pile's face: the blade holds width x height^2 / (2 tan) of loose soil"),
+      param::real("carried_overflow_share", d.carried_overflow_share, 0.0, 1.0, "1",
+                  "surcharge_carried: share of the soil cut beyond the blade's capacity still counted in V_Q, with "
+                  "the variance of a uniform between the capacity and all of it (0: capped at the capacity)"),
       param::boolean("loose_follows_elevation", d.loose_follows_elevation,
                      "the loose layer is re-read as elevation - loose_base at each update, so the blade pushes the "
                      "soil the sensors see (false: the bookkeeping alone)"),
@@ -226,6 +229,7 @@ void BladeSweep::configure(const Params& p) {
   cfg_.bank_reach_m = p.getDouble("bank_reach_m");
   cfg_.surcharge_carried = p.getBool("surcharge_carried");
   cfg_.carried_repose_rad = p.getDouble("carried_repose_rad");
+  cfg_.carried_overflow_share = p.getDouble("carried_overflow_share");
   report_steps_ = p.getBool("report_steps");
   anchor_cfg_.enabled = p.getBool("ground_anchor");
   anchor_cfg_.track_length_m = p.getDouble("track_length_m");

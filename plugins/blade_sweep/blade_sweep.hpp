@@ -71,6 +71,14 @@ struct SweepConfig {
   /// leaks to the sides and behind (docs/soil_estimator.md, "The surcharge the map holds").
   bool surcharge_carried = false;
   double carried_repose_rad = 0.576;  ///< 33 deg: the pile's face, for the blade's capacity
+  /// What the bookkeeping assumes of the soil cut beyond the blade's capacity. 0: it all spills
+  /// (V_Q stays at the capacity). s in (0, 1]: V_Q = capacity + s x (cut - capacity), with the
+  /// uniform's variance (cut - capacity)^2 / 12 added: the blade holds at least its capacity
+  /// once filled and, without pick-up, at most what it cut since the pass began; how much
+  /// spilled around its ends is not observed, and 0.5 is the middle of what the two bounds
+  /// allow. Measured against the simulator's pile in docs/soil_estimator.md ("The pile beyond
+  /// the blade's capacity").
+  double carried_overflow_share = 0.0;
   /// The FEE depth is measured from the bank surface the map knew before the pile reached it
   /// (layer `bank_surface`), not from elevation - loose. A mast LiDAR sees the top of the real
   /// pile ahead of the blade, larger than the map's bookkept one, so elevation - loose there is
@@ -248,7 +256,7 @@ double bladeAngle(const Eigen::Isometry3d& T_map_blade, const Eigen::Vector2d& t
 /// sweep cuts nothing (the blade is out of the soil) or the edge moves against the blade's
 /// normal (reversing): the pile stays where it was left and the next pass starts empty.
 struct CarriedPile {
-  double bank_m3 = 0.0;
+  double bank_m3 = 0.0;  ///< bank m³ cut since the pass began (capped at capacity / swell when carried_overflow_share is 0)
 };
 
 /// One complete swept-volume update on `map` (Alg. 1 lines 8-15 and Alg. 3): mesh, intersection,
@@ -259,7 +267,8 @@ struct CarriedPile {
 /// (LayeredMap::tryAllocateTile; the plugin counts it as dropped, reason "tile_budget").
 /// With `pile` (and cfg.surcharge_carried) the record's V_Q and Q before and after the cut are
 /// the carried pile's (loose volume = bank × swell, capped at the blade's capacity
-/// width × height² / (2 tan carried_repose_rad)); their variance is a quarter of the squared
+/// width × height² / (2 tan carried_repose_rad), or beyond it by carried_overflow_share of the
+/// excess); their variance is a quarter of the squared
 /// difference to the mapped V_Q plus the mapped region's own. `pile` is updated.
 std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& layers, const SweepConfig& cfg,
                                       const std::vector<BladePose>& history, const Executor& ex,

@@ -598,15 +598,27 @@ void carriedSurcharge(const SweepConfig& cfg, const BladeGeometry& bg, const Swe
                       SweepRecord& rec) {
   const double before = pile.bank_m3;
   const bool pushing = dir.t_hat.dot(dir.n_hat) > 0.0;
+  const double cap_loose = bg.width_m * bg.height_m * bg.height_m / (2.0 * std::tan(cfg.carried_repose_rad));
+  const double share = cfg.carried_overflow_share;
   if (!pushing || !(rec.cut_volume_m3 > 0.0)) {
     pile.bank_m3 = 0.0;
   } else {
-    const double cap_loose = bg.width_m * bg.height_m * bg.height_m / (2.0 * std::tan(cfg.carried_repose_rad));
-    pile.bank_m3 = std::min(before + rec.cut_bank_volume_m3, cap_loose / cfg.swell);
+    pile.bank_m3 = before + rec.cut_bank_volume_m3;
+    if (!(share > 0.0)) pile.bank_m3 = std::min(pile.bank_m3, cap_loose / cfg.swell);
   }
-  const double v0 = before * cfg.swell, v1 = pile.bank_m3 * cfg.swell;
+  // Beyond the capacity the pile lies between the capacity (all of the excess spilled) and all
+  // of it (none did): `share` of the way, with the uniform's variance over that interval.
+  double var_over = 0.0;
+  const auto carried = [&](double bank_m3) {
+    const double loose = bank_m3 * cfg.swell;
+    if (!(share > 0.0) || loose <= cap_loose) return loose;
+    const double excess = loose - cap_loose;
+    var_over = std::max(var_over, excess * excess / 12.0);
+    return cap_loose + share * excess;
+  };
+  const double v0 = carried(before), v1 = carried(pile.bank_m3);
   const double d0 = 0.5 * (v0 - rec.vq0_m3), d1 = 0.5 * (v1 - rec.vq1_m3);
-  rec.var_vq += std::max(d0 * d0, d1 * d1);
+  rec.var_vq += std::max(d0 * d0, d1 * d1) + var_over;
   rec.vq0_m3 = v0;
   rec.vq1_m3 = v1;
 }
@@ -735,11 +747,13 @@ std::shared_ptr<SweepRecord> runSweep(LayeredMap& map, const SweepLayers& ids, c
   cutAndDeposit(cuts, sc, win, geo, cfg, dir.m_hat, soil.H, soil.L, soil.S, soil.change, *rec);
   const auto vq1 = surchargeVolume(rec->T_map_blade1, bg, dir.t_hat, cfg.fit_length_m, geo, win, soil.L);
   rec->vq1_m3 = vq1.first;
+  // The mapped region's own variance first: the carried pile adds its terms to it (until
+  // 2026-12-02 this assignment came after and dropped them).
+  rec->var_vq = std::max(vq0.second, vq1.second);
   if (pile != nullptr && cfg.surcharge_carried) carriedSurcharge(cfg, bg, dir, *pile, *rec);
   const double gamma_l = rec->loose_unit_weight_n_m3;
   rec->q0_n = gamma_l * rec->vq0_m3;
   rec->q1_n = gamma_l * rec->vq1_m3;
-  rec->var_vq = std::max(vq0.second, vq1.second);
 
   rec->steps.reserve(history.size());
   for (size_t k = 0; k < history.size(); ++k) rec->steps.push_back(stepValues(history, k, dir, res, *rec));

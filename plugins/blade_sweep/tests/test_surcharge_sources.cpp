@@ -48,7 +48,9 @@ TEST(CarriedSurcharge, TheQIsTheBankSoilCutSinceThePassBegan) {
     EXPECT_NEAR(r->vq0_m3, before * 1.2, 1e-12) << s;
     EXPECT_NEAR(r->vq1_m3, cut * 1.2, 1e-12) << s;
     EXPECT_NEAR(r->q1_n, cut * 14636.0, 1e-6) << s;
-    EXPECT_GE(r->var_vq, m->var_vq) << s;
+    // The mapped region's variance plus a quarter of the squared distance to the mapped V_Q.
+    const double d0 = 0.5 * (r->vq0_m3 - m->vq0_m3), d1 = 0.5 * (r->vq1_m3 - m->vq1_m3);
+    EXPECT_NEAR(r->var_vq, m->var_vq + std::max(d0 * d0, d1 * d1), 1e-12) << s;
   }
   EXPECT_NEAR(on.pile.bank_m3, cut, 1e-12);
   // The same sweeps without the option: the mapped pile ahead of the edge, another number.
@@ -76,6 +78,40 @@ TEST(CarriedSurcharge, TheBladeHoldsAtMostItsCapacity) {
   const double cap_bank = 1.85 * 0.76 * 0.76 / (2.0 * std::tan(0.576)) / 1.2;  // 0.41 m^3
   for (int s = 0; s < 30; ++s) p.sweep(0.2, -0.15);  // 0.055 m^3 a sweep
   EXPECT_NEAR(p.pile.bank_m3, cap_bank, 1e-12);
+}
+
+// Beyond the capacity, carried_overflow_share s keeps s of the excess in V_Q and adds the
+// variance of a uniform between the capacity and all of the cut: the bookkeeping still counts
+// the whole cut, so the estimate moves with it instead of freezing at the capacity.
+TEST(CarriedSurcharge, BeyondTheCapacityTheOverflowShareIsCountedWithItsUncertainty) {
+  const double cap_loose = 1.85 * 0.76 * 0.76 / (2.0 * std::tan(0.576));
+  Pass capped(true), half(true), mapped(false);
+  half.cfg.carried_overflow_share = 0.5;
+  double cut = 0.0;
+  std::shared_ptr<SweepRecord> rc, rh, rm;
+  for (int s = 0; s < 30; ++s) {
+    rc = capped.sweep(0.2, -0.15);
+    rh = half.sweep(0.2, -0.15);
+    rm = mapped.sweep(0.2, -0.15);  // the same map edits: the mapped V_Q and its variance
+    ASSERT_TRUE(rc && rh && rm);
+    cut += rh->cut_bank_volume_m3;
+    if (cut * 1.2 <= cap_loose) {  // below the capacity both count the same cut
+      EXPECT_EQ(rh->vq1_m3, rc->vq1_m3) << s;
+      EXPECT_EQ(rh->var_vq, rc->var_vq) << s;
+    }
+  }
+  const double excess = cut * 1.2 - cap_loose;
+  ASSERT_GT(excess, 0.5);  // well past the capacity
+  EXPECT_NEAR(rc->vq1_m3, cap_loose, 1e-12);
+  EXPECT_NEAR(half.pile.bank_m3, cut, 1e-12);
+  EXPECT_NEAR(rh->vq1_m3, cap_loose + 0.5 * excess, 1e-9);
+  EXPECT_NEAR(rh->q1_n, rh->vq1_m3 * 14636.0 / 1.2, 1e-6);
+  // The mapped region's variance, the distance to the mapped V_Q, and the overflow's uniform
+  // (its excess before this sweep's cut is the smaller one; the variance takes the larger).
+  const double d0 = 0.5 * (rh->vq0_m3 - rm->vq0_m3), d1 = 0.5 * (rh->vq1_m3 - rm->vq1_m3);
+  EXPECT_NEAR(rh->var_vq, rm->var_vq + std::max(d0 * d0, d1 * d1) + excess * excess / 12.0, 1e-9);
+  const double c0 = 0.5 * (rc->vq0_m3 - rm->vq0_m3), c1 = 0.5 * (rc->vq1_m3 - rm->vq1_m3);
+  EXPECT_NEAR(rc->var_vq, rm->var_vq + std::max(c0 * c0, c1 * c1), 1e-9);
 }
 
 // lidar_fusion moves the elevation alone. A cell the bookkeeping holds 20 cm of loose soil on,
