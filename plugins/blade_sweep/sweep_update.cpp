@@ -608,15 +608,13 @@ void carriedSurcharge(const SweepConfig& cfg, const BladeGeometry& bg, const Swe
   }
   // Beyond the capacity the pile lies between the capacity (all of the excess spilled) and all
   // of it (none did): `share` of the way, with the uniform's variance over that interval.
-  double var_over = 0.0;
   const auto carried = [&](double bank_m3) {
     const double loose = bank_m3 * cfg.swell;
-    if (!(share > 0.0) || loose <= cap_loose) return loose;
-    const double excess = loose - cap_loose;
-    var_over = std::max(var_over, excess * excess / 12.0);
-    return cap_loose + share * excess;
+    return share > 0.0 && loose > cap_loose ? cap_loose + share * (loose - cap_loose) : loose;
   };
   const double v0 = carried(before), v1 = carried(pile.bank_m3);
+  const double excess = share > 0.0 ? std::max(0.0, std::max(before, pile.bank_m3) * cfg.swell - cap_loose) : 0.0;
+  const double var_over = excess * excess / 12.0;
   const double d0 = 0.5 * (v0 - rec.vq0_m3), d1 = 0.5 * (v1 - rec.vq1_m3);
   rec.var_vq += std::max(d0 * d0, d1 * d1) + var_over;
   rec.vq0_m3 = v0;

@@ -32,6 +32,9 @@ struct Pass {
   }
 };
 
+// The blade's capacity, loose m^3: width x height^2 / (2 tan 33 deg) = 0.82 m^3.
+double capacityLooseM3() { return 1.85 * 0.76 * 0.76 / (2.0 * std::tan(0.576)); }
+
 }  // namespace
 
 TEST(CarriedSurcharge, TheQIsTheBankSoilCutSinceThePassBegan) {
@@ -75,7 +78,7 @@ TEST(CarriedSurcharge, APassEndsWhenTheBladeLeavesTheSoilOrReverses) {
 TEST(CarriedSurcharge, TheBladeHoldsAtMostItsCapacity) {
   Pass p(true);
   p.cfg.carried_repose_rad = 0.576;
-  const double cap_bank = 1.85 * 0.76 * 0.76 / (2.0 * std::tan(0.576)) / 1.2;  // 0.41 m^3
+  const double cap_bank = capacityLooseM3() / 1.2;  // 0.69 m^3
   for (int s = 0; s < 30; ++s) p.sweep(0.2, -0.15);  // 0.055 m^3 a sweep
   EXPECT_NEAR(p.pile.bank_m3, cap_bank, 1e-12);
 }
@@ -84,7 +87,7 @@ TEST(CarriedSurcharge, TheBladeHoldsAtMostItsCapacity) {
 // variance of a uniform between the capacity and all of the cut: the bookkeeping still counts
 // the whole cut, so the estimate moves with it instead of freezing at the capacity.
 TEST(CarriedSurcharge, BeyondTheCapacityTheOverflowShareIsCountedWithItsUncertainty) {
-  const double cap_loose = 1.85 * 0.76 * 0.76 / (2.0 * std::tan(0.576));
+  const double cap_loose = capacityLooseM3();
   Pass capped(true), half(true), mapped(false);
   half.cfg.carried_overflow_share = 0.5;
   double cut = 0.0;
