@@ -5,9 +5,17 @@ beyond the blade's capacity").
     python3 scripts/analysis/carried_pile.py EPISODE.h5 [EPISODE.h5 ...]
 
 Each EPISODE.h5 is from a `terramap dataset` whose pipeline counts the carried pile without a
-cap (configs/dataset/strips/pipeline.yaml with blade_sweep `carried_repose_rad: 0.05`, which
-makes the capacity 13 times the blade's), so theta_k's q is the whole bank soil cut since the
-pass began, weighed with blade_sweep's unit weight. Per file, over the rows with a cut and a
+cap (blade_sweep `carried_repose_rad: 0.05`: a capacity 13 times the blade's), e.g. for loam v2:
+
+    D=/tmp/pile; mkdir -p $D
+    sed 's#surcharge_carried: true}#surcharge_carried: true, carried_repose_rad: 0.05}#' \
+        configs/dataset/strips/pipeline.yaml > $D/pipeline.yaml
+    sed -e "s#^scenario: .*#scenario: $PWD/configs/scenarios/variants/soil_strip_loam_v2.yaml#" \
+        -e "s#^pipeline: .*#pipeline: $D/pipeline.yaml#" configs/dataset/strips/fig12_dense_strip.yaml > $D/loam_v2.yaml
+    mpirun --allow-run-as-root -np 2 build/bin/terramap dataset $D/loam_v2.yaml --out $D/loam_v2 --episodes 1 -q
+    python3 scripts/analysis/carried_pile.py $D/loam_v2/episodes/ep_00000.h5
+
+(18 s), so theta_k's q is the whole bank soil cut since the pass began, weighed with blade_sweep's unit weight. Per file, over the rows with a cut and a
 simulator's Q above 0.5 kN, the ratio (and MAE) to the simulator's Q, all weighed with the truth
 unit weight, of:
   capped    the blade's capacity width x height^2 / (2 tan 33 deg) (blade_sweep's default);
